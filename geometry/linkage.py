@@ -300,3 +300,29 @@ def _boundary_tiles(cells: NDArray[np.bool_], tile_cells: NDArray[np.int64]) -> 
     i, j = tile_cells[:, 0], tile_cells[:, 1]
     corners = on_boundary[i, j] | on_boundary[i + 1, j]
     return np.asarray(corners | on_boundary[i + 1, j + 1] | on_boundary[i, j + 1])
+
+
+def rotating_squares_layout(
+    linkage: Linkage, opening: float, side: float = 1.0
+) -> NDArray[np.float64]:
+    """Flat layout of a uniform linkage opened by ``opening`` radians (the gap angle).
+
+    Tile ``(i, j)`` is a square of side ``side`` turned by ``-(-1)**(i + j) * opening / 2``
+    about its centre, centres spaced ``side * (cos + sin)(opening / 2)`` apart.  Every hinge pair
+    coincides and every gap is a rhombus whose sharp angle is ``opening``.  Useful as a known
+    answer and as a starting layout.
+
+    Returns
+    -------
+    (T, 4, 2) float, corner positions BL, BR, TR, TL of every tile.
+    """
+    half = 0.5 * opening
+    pitch = side * (np.cos(half) + np.sin(half))
+    cells = linkage.tile_cells
+    sign = np.where((cells[:, 0] + cells[:, 1]) % 2 == 0, -1.0, 1.0)
+    angle = sign * half
+    centres = (cells + 0.5) * pitch
+    square = 0.5 * side * np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+    cos, sin = np.cos(angle), np.sin(angle)
+    rot = np.stack([np.stack([cos, -sin], -1), np.stack([sin, cos], -1)], -2)  # (T, 2, 2)
+    return np.asarray(centres[:, None, :] + np.einsum("tij,kj->tki", rot, square))

@@ -1,0 +1,222 @@
+"""Fabrication profiles: TOML files loaded into a validated, frozen dataclass.
+
+A profile is read from the package (``fdm-dual``, ``laser-epdm``, ``plywood-cnc``) or from a
+user's file.  Every key is checked for its type and range; an unknown key, a missing key, a wrong
+type or an out-of-range value raises :class:`InputError` naming the file, key, value and range.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, fields
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal, get_args
+
+from drawstring.geometry.errors import InputError
+
+Process = Literal["fdm-dual", "laser-epdm", "plywood-cnc"]
+SHIPPED_PROFILES: tuple[str, ...] = ("fdm-dual", "laser-epdm", "plywood-cnc")
+Interlock = Literal["through-holes", "dovetail", "glue-recess", "screws", "staples"]
+
+
+@dataclass(frozen=True)
+class Field:
+    """Schema of one profile key: its TOML section, type, allowed range and unit."""
+
+    section: str
+    key: str
+    kind: type
+    low: float | None = None
+    high: float | None = None
+    unit: str = ""
+    choices: tuple[str, ...] = ()
+
+
+# Schema: attribute name on Profile -> where it lives in the TOML and what it may hold.
+SCHEMA: dict[str, Field] = {
+    "name": Field("", "name", str),
+    "process": Field("", "process", str, choices=get_args(Process)),
+    "description": Field("", "description", str),
+    "default_size_mm": Field("design", "default_size_mm", float, 10.0, 10_000.0, "mm"),
+    "default_tiles": Field("design", "default_tiles", int, 4, 20_000, "tiles"),
+    "thickness_mm": Field("tile", "thickness_mm", float, 0.5, 500.0, "mm"),
+    "min_gap_angle_deg": Field("tile", "min_gap_angle_deg", float, 0.0, 60.0, "deg"),
+    "tile_material": Field("tile", "material", str),
+    "density_kg_m3": Field("tile", "density_kg_m3", float, 10.0, 20_000.0, "kg/m^3"),
+    "infill_fraction": Field("tile", "infill_fraction", float, 0.01, 1.0, "fraction"),
+    "string_diameter_mm": Field("string", "diameter_mm", float, 0.05, 50.0, "mm"),
+    "channel_clearance_mm": Field("string", "channel_clearance_mm", float, 0.0, 20.0, "mm"),
+    "min_bend_radius_mm": Field("string", "min_bend_radius_mm", float, 0.0, 1000.0, "mm"),
+    "friction_coefficient": Field("string", "friction_coefficient", float, 0.0, 2.0, ""),
+    "string_material": Field("string", "material", str),
+    "hinge_material": Field("hinge", "material", str),
+    "hinge_thickness_mm": Field("hinge", "thickness_mm", float, 0.05, 50.0, "mm"),
+    "hinge_width_mm": Field("hinge", "width_mm", float, 0.1, 200.0, "mm"),
+    "hinge_pad_length_mm": Field("hinge", "pad_length_mm", float, 0.1, 500.0, "mm"),
+    "hinge_interlock": Field("hinge", "interlock", str, choices=get_args(Interlock)),
+    "magnet_diameter_mm": Field("magnet", "diameter_mm", float, 0.5, 100.0, "mm"),
+    "magnet_height_mm": Field("magnet", "height_mm", float, 0.2, 100.0, "mm"),
+    "magnet_clearance_mm": Field("magnet", "clearance_mm", float, 0.0, 5.0, "mm"),
+    "bed_x_mm": Field("machine", "bed_x_mm", float, 10.0, 10_000.0, "mm"),
+    "bed_y_mm": Field("machine", "bed_y_mm", float, 10.0, 10_000.0, "mm"),
+    "nozzle_mm": Field("machine", "nozzle_mm", float, 0.0, 5.0, "mm"),
+    "kerf_mm": Field("machine", "kerf_mm", float, 0.0, 5.0, "mm"),
+    "tool_diameter_mm": Field("machine", "tool_diameter_mm", float, 0.0, 50.0, "mm"),
+}
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A validated fabrication profile (lengths in mm)."""
+
+    name: str
+    process: Process
+    description: str
+    default_size_mm: float
+    default_tiles: int
+    thickness_mm: float
+    min_gap_angle_deg: float
+    tile_material: str
+    density_kg_m3: float
+    infill_fraction: float
+    string_diameter_mm: float
+    channel_clearance_mm: float
+    min_bend_radius_mm: float
+    friction_coefficient: float
+    string_material: str
+    hinge_material: str
+    hinge_thickness_mm: float
+    hinge_width_mm: float
+    hinge_pad_length_mm: float
+    hinge_interlock: Interlock
+    magnet_diameter_mm: float
+    magnet_height_mm: float
+    magnet_clearance_mm: float
+    bed_x_mm: float
+    bed_y_mm: float
+    nozzle_mm: float
+    kerf_mm: float
+    tool_diameter_mm: float
+    source: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def to_toml(self) -> str:
+        """The profile as TOML, in the layout of the shipped files, ready to copy and edit."""
+        lines = [
+            f"# drawstring fabrication profile; lengths in mm (source: {self.source})",
+        ]
+        sections: dict[str, list[str]] = {}
+        for attr, spec in SCHEMA.items():
+            value = getattr(self, attr)
+            text = _toml_value(value)
+            unit = f"  # {spec.unit}" if spec.unit and spec.unit != "mm" else ""
+            if spec.low is not None:
+                unit = f"  # {spec.low:g} .. {spec.high:g} {spec.unit}".rstrip()
+            if spec.choices:
+                unit = "  # one of: " + ", ".join(spec.choices)
+            sections.setdefault(spec.section, []).append(f"{spec.key} = {text}{unit}")
+        lines += sections.pop("")
+        for section, rows in sections.items():
+            lines += ["", f"[{section}]", *rows]
+        return "\n".join(lines) + "\n"
+
+
+def _toml_value(value: object) -> str:
+    if isinstance(value, str):
+        escaped = value.replace("\\", "\\\\").replace('"', '\\"')
+        return f'"{escaped}"'
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)
+
+
+def _describe_range(spec: Field) -> str:
+    if spec.choices:
+        return "one of " + ", ".join(spec.choices)
+    if spec.low is not None and spec.high is not None:
+        return f"{spec.low:g} to {spec.high:g} {spec.unit}".rstrip()
+    return f"a {spec.kind.__name__}"
+
+
+def parse_profile(data: dict[str, Any], source: str) -> Profile:
+    """Validate a parsed TOML table and build a :class:`Profile`.
+
+    Raises
+    ------
+    InputError
+        One line naming ``source``, the key, the value and what is allowed.
+    """
+    known: dict[tuple[str, str], str] = {(s.section, s.key): attr for attr, s in SCHEMA.items()}
+    sections = {s.section for s in SCHEMA.values() if s.section}
+    values: dict[str, Any] = {}
+    for key, value in data.items():
+        if isinstance(value, dict):
+            if key not in sections:
+                raise InputError(
+                    f"{source}: unknown section [{key}]; allowed: " + ", ".join(sorted(sections))
+                )
+            for sub, sub_value in value.items():
+                attr = known.get((key, sub))
+                if attr is None:
+                    allowed = sorted(k for s, k in known if s == key)
+                    raise InputError(
+                        f"{source}: unknown key {key}.{sub}; allowed in [{key}]: "
+                        + ", ".join(allowed)
+                    )
+                values[attr] = sub_value
+        else:
+            attr = known.get(("", key))
+            if attr is None:
+                raise InputError(
+                    f"{source}: unknown key {key!r}; top-level keys are name, process, description"
+                )
+            values[attr] = value
+    for attr, spec in SCHEMA.items():
+        where = f"{spec.section}.{spec.key}" if spec.section else spec.key
+        if attr not in values:
+            raise InputError(f"{source}: missing key {where} ({_describe_range(spec)})")
+        value = values[attr]
+        if spec.kind is float and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if not isinstance(value, spec.kind) or isinstance(value, bool):
+            raise InputError(
+                f"{source}: {where} = {value!r} must be {spec.kind.__name__}"
+                f" ({_describe_range(spec)})"
+            )
+        if spec.choices and value not in spec.choices:
+            raise InputError(f"{source}: {where} = {value!r} must be {_describe_range(spec)}")
+        if spec.low is not None and spec.high is not None:
+            if not (spec.low <= value <= spec.high):
+                raise InputError(
+                    f"{source}: {where} = {value!r} is out of range ({_describe_range(spec)})"
+                )
+        values[attr] = value
+    return Profile(**values, source=source)
+
+
+def load_profile(name_or_path: str | Path) -> Profile:
+    """Load a shipped profile by name or a user's TOML file by path."""
+    text_name = str(name_or_path)
+    if text_name in SHIPPED_PROFILES:
+        resource = resources.files("drawstring.profiles").joinpath(f"{text_name}.toml")
+        text = resource.read_text(encoding="utf-8")
+        source = f"{text_name}.toml (shipped)"
+    else:
+        path = Path(name_or_path)
+        if path.suffix.lower() != ".toml":
+            raise InputError(
+                f"unknown profile {text_name!r}; use one of {', '.join(SHIPPED_PROFILES)} "
+                "or a path to a .toml file"
+            )
+        if not path.is_file():
+            raise InputError(f"profile file {path} does not exist; check the path")
+        text = path.read_text(encoding="utf-8")
+        source = str(path)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{source}: not valid TOML ({exc})") from None
+    return parse_profile(data, source)

@@ -1,0 +1,80 @@
+"""Profiles: shipped files load, user copies round-trip, bad values are refused by name."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import pytest
+from drawstring.fabrication.profiles import SHIPPED_PROFILES, load_profile, parse_profile
+from drawstring.geometry.errors import InputError
+
+
+@pytest.mark.parametrize("name", SHIPPED_PROFILES)
+def test_shipped_profiles_load(name: str) -> None:
+    profile = load_profile(name)
+    assert profile.name == name
+    assert profile.process == name
+    assert profile.thickness_mm > 0
+    assert 0 <= profile.min_gap_angle_deg < 90
+
+
+@pytest.mark.parametrize("name", SHIPPED_PROFILES)
+def test_show_output_round_trips(name: str, tmp_path: Path) -> None:
+    profile = load_profile(name)
+    copy = tmp_path / "mine.toml"
+    copy.write_text(profile.to_toml(), encoding="utf-8")
+    again = load_profile(copy)
+    assert {k: v for k, v in again.to_json().items() if k != "source"} == {
+        k: v for k, v in profile.to_json().items() if k != "source"
+    }
+
+
+def shipped_table(name: str = "fdm-dual") -> dict:
+    return tomllib.loads(load_profile(name).to_toml())
+
+
+@pytest.mark.parametrize(
+    ("section", "key", "value", "words"),
+    [
+        ("tile", "thickness_mm", -1.0, "out of range"),
+        ("tile", "thickness_mm", "thick", "must be float"),
+        ("tile", "min_gap_angle_deg", 95.0, "out of range"),
+        ("hinge", "interlock", "glue", "must be one of"),
+        ("tile", "colour", "red", "unknown key tile.colour"),
+        ("machine", "bed_x_mm", 0.0, "out of range"),
+    ],
+)
+def test_bad_values_are_refused_with_file_key_value_and_range(
+    section: str, key: str, value: object, words: str
+) -> None:
+    table = shipped_table()
+    table[section][key] = value
+    with pytest.raises(InputError) as info:
+        parse_profile(table, "my.toml")
+    message = str(info.value)
+    assert message.startswith("my.toml")
+    assert words in message
+    assert "\n" not in message
+
+
+def test_missing_key_and_unknown_section() -> None:
+    table = shipped_table()
+    del table["string"]["diameter_mm"]
+    with pytest.raises(InputError, match="missing key string.diameter_mm"):
+        parse_profile(table, "my.toml")
+    table = shipped_table()
+    table["paint"] = {"colour": "red"}
+    with pytest.raises(InputError, match=r"unknown section \[paint\]"):
+        parse_profile(table, "my.toml")
+
+
+def test_unknown_profile_name_and_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="unknown profile"):
+        load_profile("resin-printer")
+    with pytest.raises(InputError, match="does not exist"):
+        load_profile(tmp_path / "nope.toml")
+    broken = tmp_path / "broken.toml"
+    broken.write_text("name = ", encoding="utf-8")
+    with pytest.raises(InputError, match="not valid TOML"):
+        load_profile(broken)
