@@ -11,3 +11,74 @@ SOLVER_REL_ENERGY_TOL = 1e-10
 
 #: A conformal area scale ratio (max/min over tiles) above this needs a split (paper sec. 4.5).
 MAX_SCALE_FACTOR = 2.0
+
+#: Flattening (BFF): eigenvalues of the boundary Schur complement below this fraction of the
+#: largest are treated as its null space (the constants) when forming the pseudo-inverse.
+FLATTEN_SCHUR_NULL_REL = 1e-12
+
+#: Flattening (BFF): the boundary length-closing step may shrink an edge to no less than this
+#: fraction of its target length; a smaller result means the curve cannot close sensibly.
+FLATTEN_MIN_CLOSED_LENGTH_REL = 0.05
+
+#: Lift-point stand-in check: a basin holding at least this share of the total gap potential
+#: energy counts as heavy (geometry.lift.geometric_deploy_check).
+LIFT_SHARE_MIN = 0.05
+
+#: Lift-point stand-in check: a heavy peak must be joined to a lift point by a ridge at least
+#: this fraction of its own energy (geometry.lift.geometric_deploy_check).
+LIFT_SUPPORT_MIN = 0.5
+
+#: Flat layout: max |edge length K2D - K3D| over tile sides and diagonals that meets the target.
+FLAT_EDGE_ERROR_TOL_MM = 1e-3
+
+#: Flat layout: total footprint overlap area (mm^2) counted as zero; also the separating-axis
+#: depth (mm) above which two tiles count as overlapping while optimizing.
+FLAT_OVERLAP_TOL_MM2 = 1e-6
+
+#: Flat layout: gap opening angles may exceed their bounds by at most this (deg).
+FLAT_GAP_ANGLE_TOL_DEG = 0.01
+
+#: Hinges: max distance between paired hinge vertices (before merging) that meets the target.
+HINGE_GAP_TOL_MM = 1e-3
+
+#: Flat tiles: 3D interpenetration volume (mm^3) counted as zero.
+FLAT_INTERPENETRATION_TOL_MM3 = 1e-6
+
+#: Target loading: vertices closer than this fraction of the bounding-box diagonal are merged
+#: (STL stores every triangle corner separately; other exports may split seams).
+COINCIDENT_VERTEX_REL_DIST = 1e-7
+
+#: Simulation (geometry.simulate): a route gap counts as closed when the paired side-face
+#: midpoints are at most this fraction of the mean tile side apart.
+SIM_GAP_CLOSED_REL = 0.01
+
+#: Simulation: deployed when every tile is within this fraction of the mean tile side of the
+#: assembled tiles after one rigid alignment (issue 6: 1 %).
+SIM_DEVIATION_REL = 0.01
+
+#: Simulation: largest allowed (conservative) overlap depth between neighbouring tiles, as a
+#: fraction of the mean tile side.
+SIM_PENETRATION_REL = 0.01
+
+#: Simulation: rigid tile edges must stay within this fraction of the mean tile side of their
+#: rest length in every step.
+SIM_EDGE_LENGTH_REL = 0.005
+
+#: Simulation: the run may stop once no vertex moves more than this fraction of the mean tile
+#: side in a step (after the string is fully reeled in).
+SIM_SETTLE_REL = 1e-4
+
+#: Rigidity check (geometry.rigidity): singular values below this fraction of the largest one
+#: span the null space of the rigidity matrix.
+RIGIDITY_SVD_REL = 1e-9
+
+#: CAD tiles: a face whose vertices lie within this distance (mm) of its best-fit plane is built
+#: as given; beyond it the vertices are snapped to the intersection of their faces' planes.
+CAD_PLANAR_EXACT_MM = 1e-9
+
+#: CAD tiles: a face deviating from planarity by more than this (mm) is rejected (InputError).
+CAD_MAX_FACE_DEVIATION_MM = 1e-3
+
+#: CAD checks: two measured openings (string channel or magnet pocket) whose centres lie within
+#: this distance (mm) in the assembled pose count as meeting.
+CAD_OPENING_MATCH_MM = 1e-4
