@@ -82,3 +82,10 @@ CAD_MAX_FACE_DEVIATION_MM = 1e-3
 #: CAD checks: two measured openings (string channel or magnet pocket) whose centres lie within
 #: this distance (mm) in the assembled pose count as meeting.
 CAD_OPENING_MATCH_MM = 1e-4
+
+#: Target planarity of every T3D face, relative to the bounding-box diagonal (issue 3).
+ASSEMBLED_PLANARITY_REL = 1e-6
+
+#: Relative energy change at which the assembled-stage local-global solves stop; the exact
+#: planarity polish that follows each solve removes what is left of the planarity residual.
+ASSEMBLED_SOLVER_REL_TOL = 1e-6
