@@ -1,0 +1,1071 @@
+"""The design report: one self-contained ``report.html`` a person reads before printing.
+
+``write_report(folder)`` reads whatever the output folder already holds (``design.json``,
+``assembled.obj``, ``flat.obj``, ``route.json``, ``deploy.npz``, the pictures) and writes
+``folder/report.html``: a summary, every metric with its target and a pass/fail mark, the
+pictures, the files and the assembly steps, plus an interactive 3D view (orbit, flat/assembled,
+layers, deployment slider, tile picking).  Any of those files may be missing; the page says
+plainly what the design does not have yet.
+
+The page opens from disk with no server and no network: three.js (vendored in ``web/`` at a
+pinned version, MIT licence), the pictures (data URIs) and the geometry (JSON, rounded to
+0.01 mm) are all inlined.  ``open_report(folder)`` opens it in the default browser.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import logging
+import math
+import re
+import webbrowser
+from collections.abc import Callable
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from drawstring.geometry.errors import InputError
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+log = logging.getLogger(__name__)
+
+#: Vendored three.js build (npm ``three``), one self-contained ES module; see ``web/README.md``.
+THREE_FILE = "three.module.min.js"
+THREE_VERSION = "0.170.0"
+THREE_LICENCE_FILE = "LICENSE-three.txt"
+
+#: Decimals kept for inlined coordinates (mm): 0.01 mm is far below what the eye sees.
+GEOMETRY_DECIMALS = 2
+#: At most this many coordinates of deployment frames are inlined (F * T * 24); more frames are
+#: subsampled evenly, keeping the first (flat) and the last (assembled).
+MAX_FRAME_VALUES = 1_000_000
+#: Tile corners of different tiles closer than this fraction of the median tile edge coincide
+#: (a hinge in the flat pose, a shared corner in the assembled pose).
+COINCIDENT_CORNER_REL = 0.02
+
+SIDE_NAMES = ("bottom", "right", "top", "left")
+
+#: Vertex ids of the six faces of a tile, wound outwards (top, bottom, side 0..3).
+TILE_FACES = np.array(
+    [[0, 1, 2, 3], [4, 7, 6, 5]] + [[k, 4 + k, 4 + (k + 1) % 4, (k + 1) % 4] for k in range(4)]
+)
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+# ----------------------------------------------------------------------------------------------
+# Reading the output folder
+# ----------------------------------------------------------------------------------------------
+
+
+def read_obj_tiles(path: Path) -> FloatArray:
+    """Tiles of an output OBJ (``assembled.obj``, ``flat.obj``).
+
+    Parameters
+    ----------
+    path : OBJ written by the pipeline: 8 vertices per tile in tile order, top corners 0..3
+        then bottom corners 4..7.
+
+    Returns
+    -------
+    tiles : (T, 8, 3) float, mm.
+
+    Raises
+    ------
+    InputError
+        If the file holds no vertices or a vertex count that is not a multiple of 8.
+    """
+    rows = [
+        line.split()[1:4]
+        for line in path.read_text(encoding="utf-8").splitlines()
+        if line.startswith("v ")
+    ]
+    vertices = np.asarray(rows, dtype=float).reshape(-1, 3)
+    if len(vertices) == 0 or len(vertices) % 8:
+        raise InputError(
+            f"{path.name} has {len(vertices)} vertices, not 8 per tile; rerun drawstring design"
+        )
+    return vertices.reshape(-1, 8, 3)
+
+
+def read_obj_quads(path: Path) -> FloatArray:
+    """Quads of ``lifted.obj`` (one quad per tile, tile order), as (T, 4, 3) float, mm.
+
+    Raises
+    ------
+    InputError
+        If a face is not a quad or refers to a missing vertex.
+    """
+    vertices: list[list[str]] = []
+    faces: list[list[int]] = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if line.startswith("v "):
+            vertices.append(line.split()[1:4])
+        elif line.startswith("f "):
+            faces.append([int(item.split("/")[0]) - 1 for item in line.split()[1:]])
+    points = np.asarray(vertices, dtype=float).reshape(-1, 3)
+    if not faces or any(len(f) != 4 for f in faces) or np.max(faces) >= len(points):
+        raise InputError(f"{path.name} does not hold one quad per tile; rerun drawstring design")
+    return points[np.asarray(faces, dtype=np.int64)]
+
+
+def read_deploy_frames(path: Path) -> FloatArray:
+    """Deployment frames of ``deploy.npz``: key ``frames``, (F, T, 8, 3) float, mm."""
+    with np.load(path) as npz:
+        if "frames" not in npz.files:
+            raise InputError(f"{path.name} has no 'frames' array; rerun drawstring design")
+        frames = np.asarray(npz["frames"], dtype=float)
+    if frames.ndim != 4 or frames.shape[2:] != (8, 3) or frames.shape[0] < 1:
+        raise InputError(
+            f"{path.name} frames have shape {frames.shape}, not (F, T, 8, 3); "
+            "rerun drawstring design"
+        )
+    return frames
+
+
+@dataclass(frozen=True)
+class Route:
+    """The string route of ``route.json``.
+
+    Attributes
+    ----------
+    steps : (S, 4) int, ``(gap or -1, tile, enter_side, leave_side)`` in pulling order (closed).
+    lift : (L, 2) int, ``(gap, tile)`` of every lift point; the string leaves through the top
+        face of ``tile`` (``-1`` where the file does not say).
+    length_mm : string length when the file gives it, else ``None``.
+    """
+
+    steps: IntArray
+    lift: IntArray
+    length_mm: float | None
+
+
+def _step_row(item: Any) -> list[int]:
+    if isinstance(item, dict):
+        keys = (("gap",), ("tile",), ("enter_side", "enter"), ("leave_side", "leave"))
+        values = [next((item[k] for k in names if k in item), None) for names in keys]
+        if values[1] is None or values[2] is None or values[3] is None:
+            raise ValueError(f"route step {item} lacks tile, enter_side or leave_side")
+        return [int(v) if v is not None else -1 for v in values]
+    row = [int(v) for v in item]
+    if len(row) != 4:
+        raise ValueError(f"route step {item} is not (gap, tile, enter_side, leave_side)")
+    return row
+
+
+def _lift_row(item: Any) -> list[int]:
+    if isinstance(item, dict):
+        return [int(item.get("gap", -1)), int(item.get("tile", -1))]
+    if isinstance(item, int | float):
+        return [int(item), -1]
+    row = [int(v) for v in item]
+    return row if len(row) == 2 else [row[0], -1]
+
+
+def read_route(path: Path) -> Route:
+    """Parse ``route.json`` (steps as 4-lists or dicts; lift points as dicts or pairs).
+
+    Raises
+    ------
+    InputError
+        If the file is not valid JSON or its steps cannot be read.
+    """
+    try:
+        raw = json.loads(path.read_text(encoding="utf-8"))
+        steps_raw = raw if isinstance(raw, list) else raw.get("steps", raw.get("route", []))
+        steps = [_step_row(s) for s in steps_raw]
+        lift_raw = [] if isinstance(raw, list) else _first(raw, "lift", "lift_points", "lifts")
+        lift = [_lift_row(x) for x in lift_raw or []]
+        length = None if isinstance(raw, list) else _first(raw, "length_mm", "string_length_mm")
+    except (ValueError, TypeError, AttributeError) as err:
+        raise InputError(f"{path.name} cannot be read ({err}); rerun drawstring design") from err
+    # A lift point given by its gap only: take the tile the route passes at that gap.
+    step_arr = np.asarray(steps, dtype=np.int64).reshape(-1, 4)
+    for row in lift:
+        if row[1] < 0:
+            at_gap = step_arr[step_arr[:, 0] == row[0], 1]
+            row[1] = int(at_gap[0]) if len(at_gap) else -1
+    return Route(
+        steps=step_arr,
+        lift=np.asarray(lift, dtype=np.int64).reshape(-1, 2),
+        length_mm=float(length) if isinstance(length, int | float) else None,
+    )
+
+
+def _first(mapping: dict[str, Any], *keys: str) -> Any:
+    return next((mapping[k] for k in keys if k in mapping), None)
+
+
+# ----------------------------------------------------------------------------------------------
+# Geometry measured for the page
+# ----------------------------------------------------------------------------------------------
+
+
+def median_edge_length(tiles: FloatArray) -> float:
+    """Median length (mm) of the top-face edges of (T, 8, 3) tiles."""
+    top = tiles[:, :4]
+    return float(np.median(np.linalg.norm(np.roll(top, -1, axis=1) - top, axis=2)))
+
+
+def coincident_corners(tiles: FloatArray, rel_tol: float = COINCIDENT_CORNER_REL) -> IntArray:
+    """Pairs of corners of different tiles that coincide.
+
+    Parameters
+    ----------
+    tiles : (T, 8, 3) float, mm.
+    rel_tol : distance below which two corners coincide, as a fraction of the median edge.
+
+    Returns
+    -------
+    pairs : (P, 4) int, rows ``(tile_a, vertex_a, tile_b, vertex_b)`` with ``tile_a < tile_b``
+        and vertex ids 0..7.
+    """
+    points = tiles.reshape(-1, 3)
+    tol = rel_tol * median_edge_length(tiles)
+    found = cKDTree(points).query_pairs(max(tol, 1e-9), output_type="ndarray")
+    found = found[found[:, 0] // 8 != found[:, 1] // 8]
+    a, b = found.min(axis=1), found.max(axis=1)
+    rows = np.stack([a // 8, a % 8, b // 8, b % 8], axis=1).astype(np.int64)
+    order = np.lexsort(rows.T[::-1])
+    return rows[order].reshape(-1, 4)
+
+
+def hinges_from_flat(tiles_flat: FloatArray) -> tuple[IntArray, IntArray]:
+    """Hinges of a flat layout: tile corners of two tiles at the same place.
+
+    In the flat pose hinged corners coincide and every other pair of corners is apart (gaps
+    are open), so coincidence finds the hinges.
+
+    Returns
+    -------
+    hinges : (H, 4) int, ``(tile_a, corner_a, tile_b, corner_b)``, corners 0..3.
+    side : (H,) int, 0 the top corners coincide, 1 the bottom ones, 2 both.
+    """
+    pairs = coincident_corners(tiles_flat)
+    if len(pairs) == 0:
+        return np.zeros((0, 4), np.int64), np.zeros(0, np.int64)
+    key = np.stack([pairs[:, 0], pairs[:, 1] % 4, pairs[:, 2], pairs[:, 3] % 4], axis=1)
+    is_bottom = (pairs[:, 1] >= 4) & (pairs[:, 3] >= 4)
+    is_top = (pairs[:, 1] < 4) & (pairs[:, 3] < 4)
+    keep = is_top | is_bottom
+    key, is_bottom = key[keep], is_bottom[keep]
+    hinges, inverse = np.unique(key, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    bottom = np.zeros(len(hinges), bool)
+    top = np.zeros(len(hinges), bool)
+    np.logical_or.at(bottom, inverse, is_bottom)
+    np.logical_or.at(top, inverse, ~is_bottom)
+    side = np.where(top & bottom, 2, np.where(bottom, 1, 0)).astype(np.int64)
+    return hinges.astype(np.int64), side
+
+
+def touching_tiles(tiles_assembled: FloatArray) -> IntArray:
+    """Pairs of tiles sharing a top edge (two top corners) in the assembled pose.
+
+    Returns
+    -------
+    pairs : (P, 2) int, ``tile_a < tile_b``.
+    """
+    pairs = coincident_corners(tiles_assembled)
+    pairs = pairs[(pairs[:, 1] < 4) & (pairs[:, 3] < 4)]
+    tile_pairs, counts = np.unique(pairs[:, [0, 2]], axis=0, return_counts=True)
+    return tile_pairs[counts >= 2].reshape(-1, 2).astype(np.int64)
+
+
+def neighbour_lists(n_tiles: int, pairs: IntArray) -> list[list[int]]:
+    """Sorted neighbour ids of every tile from (P, 2) tile pairs."""
+    out: list[set[int]] = [set() for _ in range(n_tiles)]
+    for a, b in np.asarray(pairs, dtype=np.int64).reshape(-1, 2):
+        if 0 <= a < n_tiles and 0 <= b < n_tiles and a != b:
+            out[a].add(int(b))
+            out[b].add(int(a))
+    return [sorted(s) for s in out]
+
+
+def tile_volumes(tiles: FloatArray) -> FloatArray:
+    """Volume (mm^3) of every closed (T, 8, 3) tile, by the divergence theorem."""
+    quads = tiles[:, TILE_FACES]  # (T, 6, 4, 3)
+    a, b, c, d = (quads[:, :, k] for k in range(4))
+    signed = np.einsum("tfi,tfi->t", a, np.cross(b, c)) + np.einsum("tfi,tfi->t", a, np.cross(c, d))
+    return np.abs(signed) / 6.0
+
+
+def subsample_frames(frames: FloatArray, max_values: int = MAX_FRAME_VALUES) -> FloatArray:
+    """At most ``max_values`` coordinates of (F, T, 8, 3) frames; first and last kept."""
+    per_frame = max(1, int(np.prod(frames.shape[1:])))
+    keep = max(2, max_values // per_frame)
+    if len(frames) <= keep:
+        return frames
+    return frames[np.unique(np.linspace(0, len(frames) - 1, keep).round().astype(int))]
+
+
+# ----------------------------------------------------------------------------------------------
+# Metrics: targets and marks
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class MetricRule:
+    """What a metric means and its target; ``check`` is None for numbers shown without a mark."""
+
+    meaning: str
+    target: Callable[[dict[str, Any]], str]
+    check: Callable[[Any, dict[str, Any]], bool] | None
+
+
+def _opt(design: dict[str, Any], key: str, default: float) -> float:
+    value = design.get("options", {}).get(key)
+    return float(value) if isinstance(value, int | float) else default
+
+
+def _diag(design: dict[str, Any]) -> float:
+    value = design.get("target", {}).get("bbox_diagonal_mm")
+    return float(value) if isinstance(value, int | float) and value > 0 else math.nan
+
+
+def _const(text: str) -> Callable[[dict[str, Any]], str]:
+    return lambda _design: text
+
+
+def _at_most(limit: float) -> Callable[[Any, dict[str, Any]], bool]:
+    return lambda v, _design: float(v) <= limit
+
+
+#: Known metrics of design.json (dotted names for nested ones) and their targets.  Targets are
+#: what the report calls good enough to print; they are not solver tolerances.
+METRIC_RULES: dict[str, MetricRule] = {
+    "scale_factor_max": MetricRule(
+        "max/min conformal area scale over the tiles (a quad linkage expands at most 2x)",
+        lambda d: f"≤ {_opt(d, 'max_scale_factor', 2.0):g}",
+        lambda v, d: float(v) <= _opt(d, "max_scale_factor", 2.0) + 1e-9,
+    ),
+    "scale_factor_max_before_splits": MetricRule(
+        "the same ratio before splits were cut", _const("(before splits)"), None
+    ),
+    "planarity_max_mm": MetricRule(
+        "largest distance of a face corner from its best-fit plane (top, bottom, contact faces)",
+        _const("≤ 0.01 mm"),
+        _at_most(0.01),
+    ),
+    "contact_gap_max_mm": MetricRule(
+        "assembled: largest gap between the contact faces of neighbouring tiles",
+        _const("≤ 0.05 mm"),
+        _at_most(0.05),
+    ),
+    "contact_angle_max_deg": MetricRule(
+        "assembled: largest angle between the contact faces of neighbouring tiles",
+        _const("≤ 0.5°"),
+        _at_most(0.5),
+    ),
+    "surface_distance_max_mm": MetricRule(
+        "largest distance of a tile corner from the target surface",
+        lambda d: f"≤ 2 % of the diagonal ({0.02 * _diag(d):.2f} mm)",
+        lambda v, d: float(v) <= 0.02 * _diag(d),
+    ),
+    "surface_distance_mean_mm": MetricRule(
+        "mean distance of the tile corners from the target surface",
+        lambda d: f"≤ 0.5 % of the diagonal ({0.005 * _diag(d):.2f} mm)",
+        lambda v, d: float(v) <= 0.005 * _diag(d),
+    ),
+    "flat_edge_error_max_mm": MetricRule(
+        "largest edge length difference between the flat and the assembled tiles",
+        _const("≤ 0.01 mm"),
+        _at_most(0.01),
+    ),
+    "flat_overlap_area_mm2": MetricRule(
+        "total area where tiles overlap in the flat layout",
+        _const("= 0 mm² (≤ 0.01)"),
+        _at_most(0.01),
+    ),
+    "flat_gap_angle_min_deg": MetricRule(
+        "smallest opening angle of a gap in the flat layout (room for the printer or cutter)",
+        lambda d: f"≥ {_opt(d, 'min_gap_angle_deg', 0.0):g}°",
+        lambda v, d: float(v) >= _opt(d, "min_gap_angle_deg", 0.0) - 0.01,
+    ),
+    "flat_gap_angle_max_deg": MetricRule(
+        "largest opening angle of a gap in the flat layout (square gaps open 90°)",
+        _const("≤ 90°"),
+        _at_most(90.0),
+    ),
+    "hinge_gap_max_mm": MetricRule(
+        "largest distance between the two corners a hinge joins, flat layout",
+        _const("≤ 0.01 mm"),
+        _at_most(0.01),
+    ),
+    "lift_points": MetricRule(
+        "points where the string leaves the top face to lift the structure",
+        _const("(count)"),
+        None,
+    ),
+    "route.tiles": MetricRule("tiles the string passes through", _const("(count)"), None),
+    "route.boundary_tiles_covered": MetricRule(
+        "boundary tiles the string passes through (closing the boundary assembles the linkage)",
+        lambda d: f"all ({d.get('linkage', {}).get('boundary_tiles', '?')})",
+        lambda v, d: (
+            (float(v) >= 1.0)
+            if isinstance(v, float) and float(v) <= 1.0
+            else float(v) >= float(d.get("linkage", {}).get("boundary_tiles", math.inf))
+        ),
+    ),
+    "route.turn_angle_total_rad": MetricRule(
+        "total turning of the string (friction grows with it)", _const("(lower is better)"), None
+    ),
+    "route.crossings": MetricRule(
+        "places where the string crosses itself", _const("= 0"), _at_most(0)
+    ),
+    "route.capstan_factor": MetricRule(
+        "pull force over the force at the far end, exp(μ·turning)",
+        _const("(lower is better)"),
+        None,
+    ),
+    "route.length_mm": MetricRule("string length through the channels", _const("(mm)"), None),
+    "simulation.deployed": MetricRule(
+        "the simulated pull brings the flat layout to the assembled shape",
+        _const("yes"),
+        lambda v, _d: bool(v) is True,
+    ),
+    "simulation.steps": MetricRule("simulation steps", _const("(count)"), None),
+    "simulation.final_max_deviation_mm": MetricRule(
+        "after the simulated pull: largest distance of a tile corner from the assembled pose",
+        lambda d: f"≤ 1 % of the diagonal ({0.01 * _diag(d):.2f} mm)",
+        lambda v, d: float(v) <= 0.01 * _diag(d),
+    ),
+    "simulation.max_penetration_mm": MetricRule(
+        "largest overlap between tiles during the simulated pull",
+        _const("≤ 0.1 mm"),
+        _at_most(0.1),
+    ),
+}
+
+
+@dataclass(frozen=True)
+class MetricRow:
+    """One line of the metrics table; ``passed`` is None where no target applies."""
+
+    name: str
+    value: str
+    meaning: str
+    target: str
+    passed: bool | None
+
+
+def _flatten_metrics(metrics: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for key, value in metrics.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            flat.update(_flatten_metrics(value, name + "."))
+        else:
+            flat[name] = value
+    return flat
+
+
+def _format_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            return str(value)
+        if value != 0 and (abs(value) < 1e-3 or abs(value) >= 1e6):
+            return f"{value:.3e}"
+        return f"{value:.4g}" if abs(value) < 1000 else f"{value:.1f}"
+    if isinstance(value, list):
+        return f"{len(value)} item{'s' if len(value) != 1 else ''}"
+    return str(value)
+
+
+def evaluate_metrics(design: dict[str, Any]) -> list[MetricRow]:
+    """Every metric of design.json with its target and mark (known names) or no mark."""
+    rows = []
+    for name, value in _flatten_metrics(design.get("metrics", {}) or {}).items():
+        rule = METRIC_RULES.get(name)
+        passed: bool | None = None
+        target = ""
+        meaning = ""
+        if rule is not None:
+            meaning = rule.meaning
+            target = rule.target(design)
+            if rule.check is not None and isinstance(value, int | float):
+                try:
+                    passed = bool(rule.check(value, design))
+                except (TypeError, ValueError):
+                    passed = None
+                if not math.isfinite(float(value)):
+                    passed = False
+        rows.append(MetricRow(name, _format_value(value), meaning, target, passed))
+    return rows
+
+
+# ----------------------------------------------------------------------------------------------
+# Page
+# ----------------------------------------------------------------------------------------------
+
+#: Files of the output folder and what each is for (ARCHITECTURE.md section 4).
+FILE_PURPOSES: dict[str, str] = {
+    "report.html": "this page",
+    "design.json": "every option used and every number measured on the design",
+    "lifted.obj": "the quad grid lifted onto the target, before optimization",
+    "assembled.obj": "the tiles in their assembled (curved) pose, closed meshes, mm",
+    "flat.obj": "the tiles in their flat (fabrication) pose, closed meshes, mm",
+    "route.json": "the string route: the tiles and sides it passes, and the lift points",
+    "deploy.npz": "the simulated deployment, flat to assembled (frames of tile corners)",
+    "scale_factor.png": "picture: conformal scale factor and splits",
+    "lifted.png": "picture: the lifted grid on the target",
+    "assembled.png": "picture: the assembled shape",
+    "flat.png": "picture: flat layout with gaps, hinges, route and lift points",
+    "lift.png": "picture: gap energy and the chosen lift points",
+    "deploy.gif": "animation of the deployment",
+    "fabrication": "files to print or cut, for the chosen profile",
+}
+#: Pictures in the order the page shows them, with captions.
+PICTURES: dict[str, str] = {
+    "flat.png": "Flat layout: tiles, gaps, hinges, the string route and the lift points.",
+    "assembled.png": "The assembled shape.",
+    "scale_factor.png": "Conformal scale factor of the flattening (and splits, if any).",
+    "lifted.png": "The quad grid lifted onto the target surface.",
+    "lift.png": "Gap potential energy and the chosen lift points.",
+    "deploy.gif": "Deployment from flat to assembled.",
+}
+#: What a complete design has; each missing one is named on the page.
+EXPECTED: dict[str, str] = {
+    "design.json": "design.json (options and metrics)",
+    "assembled.obj": "the assembled tiles (assembled.obj)",
+    "flat.obj": "the flat layout (flat.obj)",
+    "route.json": "the string route and lift points (route.json)",
+    "deploy.npz": "the deployment simulation (deploy.npz)",
+    "fabrication": "fabrication files (fabrication/)",
+}
+
+
+def _e(value: Any) -> str:
+    return html.escape(str(value), quote=True)
+
+
+def _web_text(name: str) -> str:
+    return (resources.files("drawstring.fabrication") / "web" / name).read_text(encoding="utf-8")
+
+
+def three_module_as_global() -> str:
+    """The vendored three.js module with its final ``export {...}`` turned into ``THREE``.
+
+    The module has no imports; its one export list at the end is rewritten to
+    ``globalThis.THREE = {...}`` so the page's own module can use it without fetching anything
+    (file:// pages cannot import modules from disk).
+    """
+    src = _web_text(THREE_FILE)
+    match = re.search(r"export\s*\{([^}]*)\}\s*;?\s*$", src)
+    if match is None or "</script" in src.lower():
+        raise RuntimeError(f"web/{THREE_FILE} is not the expected single-file three.js module")
+    members = []
+    for item in match.group(1).split(","):
+        parts = item.strip().split(" as ")
+        local, exported = (parts[0], parts[-1])
+        members.append(f"{exported.strip()}:{local.strip()}")
+    return src[: match.start()] + "globalThis.THREE=Object.freeze({" + ",".join(members) + "});"
+
+
+def _data_uri(path: Path) -> str:
+    mime = "image/gif" if path.suffix.lower() == ".gif" else "image/png"
+    return f"data:{mime};base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+
+
+def _rounded(array: FloatArray) -> list[Any]:
+    return np.round(np.asarray(array, dtype=float), GEOMETRY_DECIMALS).reshape(-1).tolist()
+
+
+@dataclass(frozen=True)
+class _Folder:
+    """What the report found in the output folder."""
+
+    folder: Path
+    design: dict[str, Any]
+    assembled: FloatArray | None
+    flat: FloatArray | None
+    frames: FloatArray | None
+    route: Route | None
+    problems: tuple[str, ...]
+    assembled_source: str = "assembled.obj"
+
+
+def _load(folder: Path) -> _Folder:
+    problems: list[str] = []
+    design: dict[str, Any] = {}
+    path = folder / "design.json"
+    if path.is_file():
+        try:
+            design = json.loads(path.read_text(encoding="utf-8"))
+        except ValueError as err:
+            problems.append(f"design.json is not valid JSON ({err})")
+
+    def attempt(name: str, reader: Callable[[Path], Any]) -> Any:
+        if not (folder / name).is_file():
+            return None
+        try:
+            return reader(folder / name)
+        except (InputError, OSError, ValueError) as err:
+            problems.append(f"{name} could not be read: {err}")
+            return None
+
+    assembled = attempt("assembled.obj", read_obj_tiles)
+    assembled_source = "assembled.obj"
+    if assembled is None and not (folder / "assembled.obj").exists():
+        quads = attempt("lifted.obj", read_obj_quads)
+        if quads is not None:  # the lifted grid stands in, as tiles without thickness
+            assembled = np.concatenate([quads, quads], axis=1)
+            assembled_source = "lifted.obj"
+    flat = attempt("flat.obj", read_obj_tiles)
+    frames = attempt("deploy.npz", read_deploy_frames)
+    route = attempt("route.json", read_route)
+    counts = {len(x) for x in (assembled, flat) if x is not None}
+    if frames is not None:
+        counts.add(frames.shape[1])
+    if len(counts) > 1:
+        problems.append(
+            f"the files disagree on the number of tiles ({sorted(counts)}); the 3D view shows "
+            "the assembled and flat poses only"
+        )
+        frames = None
+    return _Folder(
+        folder, design, assembled, flat, frames, route, tuple(problems), assembled_source
+    )
+
+
+def _neighbours(found: _Folder, n_tiles: int) -> tuple[list[list[int]], list[list[int]], str]:
+    """Hinges (with side) and neighbour lists, from the best source the folder has."""
+    design_hinges = found.design.get("linkage", {}).get("hinges")
+    if isinstance(design_hinges, list) and design_hinges:
+        hinges = np.asarray(design_hinges, dtype=np.int64).reshape(-1, 4)
+        sides_raw = found.design.get("linkage", {}).get("hinge_side") or []
+        side = [1 if s == "bottom" else 0 if s == "top" else 2 for s in sides_raw]
+        side += [2] * (len(hinges) - len(side))
+        rule = "sharing a hinge"
+    elif found.flat is not None:
+        hinges, side_arr = hinges_from_flat(found.flat)
+        side = side_arr.tolist()
+        rule = "sharing a hinge"
+    elif found.assembled is not None:
+        pairs = touching_tiles(found.assembled)
+        return [], neighbour_lists(n_tiles, pairs), "touching along an edge"
+    else:
+        return [], [[] for _ in range(n_tiles)], "none known"
+    rows = [
+        [int(a), int(ca), int(b), int(cb), int(s)]
+        for (a, ca, b, cb), s in zip(hinges, side, strict=True)
+    ]
+    return rows, neighbour_lists(n_tiles, hinges[:, [0, 2]]), rule
+
+
+def _view_data(found: _Folder) -> dict[str, Any]:
+    n_tiles = next(
+        (len(x) for x in (found.assembled, found.flat) if x is not None),
+        found.frames.shape[1] if found.frames is not None else 0,
+    )
+    hinges, neighbours, rule = _neighbours(found, n_tiles)
+    frames = None if found.frames is None else subsample_frames(found.frames)
+    route = None
+    if found.route is not None and len(found.route.steps):
+        steps = found.route.steps
+        ok = (steps[:, 1] >= 0) & (steps[:, 1] < n_tiles)
+        ok &= (steps[:, 2:] >= 0).all(axis=1) & (steps[:, 2:] < 4).all(axis=1)
+        lift = found.route.lift[(found.route.lift[:, 1] >= 0) & (found.route.lift[:, 1] < n_tiles)]
+        route = {"steps": steps[ok].tolist(), "lift": lift.tolist()}
+    return {
+        "tiles": int(n_tiles),
+        "poses": {
+            "flat": None if found.flat is None else _rounded(found.flat),
+            "assembled": None if found.assembled is None else _rounded(found.assembled),
+        },
+        "frames": None if frames is None else [_rounded(f) for f in frames],
+        "frames_in_file": None if found.frames is None else int(len(found.frames)),
+        "hinges": hinges,
+        "neighbours": neighbours,
+        "neighbour_rule": rule,
+        "route": route,
+        "assembled_source": found.assembled_source,
+    }
+
+
+def _mass_g(found: _Folder) -> tuple[float | None, str]:
+    metrics = found.design.get("metrics", {}) or {}
+    for key in ("mass_g", "total_mass_g"):
+        if isinstance(metrics.get(key), int | float):
+            return float(metrics[key]), "from design.json"
+    if found.assembled is None or found.assembled_source != "assembled.obj":
+        return None, ""
+    volume_mm3 = float(tile_volumes(found.assembled).sum())
+    profile_name = found.design.get("options", {}).get("profile") or found.design.get("profile")
+    if not profile_name:
+        return None, f"tile volume {volume_mm3 / 1000:.1f} cm³ (no profile to give a density)"
+    from .profiles import load_profile
+
+    try:
+        profile = load_profile(str(profile_name))
+    except (InputError, OSError):
+        return None, f"tile volume {volume_mm3 / 1000:.1f} cm³ (profile {profile_name} not found)"
+    grams = volume_mm3 * 1e-9 * profile.density_kg_m3 * profile.infill_fraction * 1000.0
+    return grams, (
+        f"estimate: tile volume {volume_mm3 / 1000:.1f} cm³ × {profile.density_kg_m3:g} kg/m³ "
+        f"{profile.tile_material} × {profile.infill_fraction:g} infill; no hinges or string"
+    )
+
+
+def _bed_note(found: _Folder) -> str:
+    if found.flat is None:
+        return ""
+    extent = np.ptp(found.flat.reshape(-1, 3)[:, :2], axis=0)
+    text = f"{extent[0]:.0f} × {extent[1]:.0f} mm"
+    profile_name = found.design.get("options", {}).get("profile") or found.design.get("profile")
+    if not profile_name:
+        return text
+    from .profiles import load_profile
+
+    try:
+        profile = load_profile(str(profile_name))
+    except (InputError, OSError):
+        return text
+    bed = (profile.bed_x_mm, profile.bed_y_mm)
+    fits = (extent[0] <= bed[0] and extent[1] <= bed[1]) or (
+        extent[0] <= bed[1] and extent[1] <= bed[0]
+    )
+    verdict = "fits" if fits else "does not fit"
+    return f"{text} ({verdict} the {bed[0]:g} × {bed[1]:g} mm bed of {profile.name})"
+
+
+def _summary(found: _Folder, view: dict[str, Any]) -> str:
+    d = found.design
+    target = d.get("target", {})
+    linkage = d.get("linkage", {})
+    metrics = d.get("metrics", {}) or {}
+    rows: list[tuple[str, str]] = []
+    name = target.get("name")
+    if name:
+        extra = f" ({target['source']})" if target.get("source") else ""
+        rows.append(("Target", f"{name}{extra}"))
+    profile = d.get("profile") or d.get("options", {}).get("profile")
+    if profile:
+        rows.append(("Profile", str(profile)))
+    tiles = linkage.get("tiles", view["tiles"] or None)
+    if tiles:
+        grid = linkage.get("grid")
+        grid_text = f" on a {grid[0]} × {grid[1]} grid" if isinstance(grid, list) else ""
+        rows.append(("Tiles", f"{tiles}{grid_text}"))
+    for key, label in (("hinges", "Hinges"), ("splits", "Splits"), ("components", "Parts")):
+        if isinstance(linkage.get(key), int):
+            rows.append((label, str(linkage[key])))
+    if found.assembled is not None:
+        ext = np.ptp(found.assembled.reshape(-1, 3), axis=0)
+        what = "assembled" if found.assembled_source == "assembled.obj" else "lifted grid"
+        rows.append((f"Size ({what})", f"{ext[0]:.0f} × {ext[1]:.0f} × {ext[2]:.0f} mm"))
+    elif isinstance(target.get("size_mm"), int | float):
+        rows.append(("Size", f"{target['size_mm']:.0f} mm longest side (target)"))
+    bed = _bed_note(found)
+    if bed:
+        rows.append(("Flat layout", bed))
+    grams, how = _mass_g(found)
+    if grams is not None:
+        rows.append(("Mass", f"{grams:.0f} g <span class=note>({_e(how)})</span>"))
+    elif how:
+        rows.append(("Mass", f"<span class=note>{_e(how)}</span>"))
+    length = (metrics.get("route") or {}).get("length_mm") if isinstance(metrics, dict) else None
+    if length is None and found.route is not None:
+        length = found.route.length_mm
+    rows.append(
+        (
+            "String length",
+            f"{float(length):.0f} mm" if isinstance(length, int | float) else "not computed yet",
+        )
+    )
+    lifts = metrics.get("lift_points")
+    if isinstance(lifts, list):
+        lifts = len(lifts)
+    if lifts is None and found.route is not None:
+        lifts = len(found.route.lift)
+    lift_tiles = (
+        ", ".join(f"tile {t}" for t in found.route.lift[:, 1] if t >= 0)
+        if found.route is not None
+        else ""
+    )
+    rows.append(
+        (
+            "Lift points",
+            (f"{lifts}" + (f" ({lift_tiles})" if lift_tiles else ""))
+            if lifts is not None
+            else "not computed yet",
+        )
+    )
+    body = "".join(
+        f"<tr><th>{_e(k)}</th><td>{v if '<span' in v else _e(v)}</td></tr>" for k, v in rows
+    )
+    return f"<table class=kv>{body}</table>"
+
+
+def _missing(found: _Folder) -> list[str]:
+    return [text for name, text in EXPECTED.items() if not (found.folder / name).exists()]
+
+
+def _verdict(rows: list[MetricRow]) -> str:
+    marked = [r for r in rows if r.passed is not None]
+    failed = [r for r in marked if not r.passed]
+    if not marked:
+        return "<p class='verdict info'>No checks yet: this design has no metric with a target.</p>"
+    if failed:
+        names = ", ".join(r.name for r in failed)
+        return (
+            f"<p class='verdict fail'>✗ {len(failed)} of {len(marked)} checks fail: {_e(names)}. "
+            "Look at these before printing.</p>"
+        )
+    if len(marked) == 1:
+        return f"<p class='verdict pass'>✓ The one check ({_e(marked[0].name)}) passes.</p>"
+    return f"<p class='verdict pass'>✓ All {len(marked)} checks pass.</p>"
+
+
+def _metrics_table(rows: list[MetricRow]) -> str:
+    if not rows:
+        return "<p class=note>design.json has no metrics yet.</p>"
+    lines = []
+    for r in rows:
+        if r.passed is None:
+            mark = "<td class='mark info'>–</td>"
+        elif r.passed:
+            mark = "<td class='mark pass'>✓ pass</td>"
+        else:
+            mark = "<td class='mark fail'>✗ fail</td>"
+        cls = " class=fail" if r.passed is False else ""
+        meaning = _e(r.meaning) if r.meaning else "<span class=note>(no target known)</span>"
+        lines.append(
+            f"<tr{cls}><td class=mono>{_e(r.name)}</td><td class=num>{_e(r.value)}</td>"
+            f"<td>{_e(r.target)}</td>{mark}<td>{meaning}</td></tr>"
+        )
+    head = "<tr><th>metric</th><th>value</th><th>target</th><th></th><th>what it measures</th></tr>"
+    return f"<table>{head}{''.join(lines)}</table>"
+
+
+def _pictures(folder: Path) -> str:
+    figures = []
+    names = list(PICTURES) + sorted(p.name for p in folder.glob("*.png") if p.name not in PICTURES)
+    for name in names:
+        path = folder / name
+        if path.is_file():
+            caption = PICTURES.get(name, name)
+            figures.append(
+                f"<figure><img alt='{_e(name)}' src='{_data_uri(path)}'>"
+                f"<figcaption>{_e(caption)} <span class=mono>{_e(name)}</span></figcaption>"
+                "</figure>"
+            )
+    missing = [n for n in PICTURES if not (folder / n).is_file()]
+    note = f"<p class=note>Not in this design yet: {_e(', '.join(missing))}.</p>" if missing else ""
+    if not figures:
+        return "<p class=note>No pictures in this design yet.</p>" + note
+    return f"<div class=pictures>{''.join(figures)}</div>{note}"
+
+
+def _files(folder: Path) -> str:
+    rows = []
+    entries = sorted(p for p in folder.iterdir() if not p.name.startswith("."))
+    for path in entries:
+        name = path.name + ("/" if path.is_dir() else "")
+        purpose = FILE_PURPOSES.get(path.name, "")
+        if path.is_dir():
+            inner = sorted(q.relative_to(path).as_posix() for q in path.rglob("*") if q.is_file())
+            shown = ", ".join(inner[:12]) + (f", … ({len(inner)} files)" if len(inner) > 12 else "")
+            purpose = f"{purpose}: {shown}" if purpose else shown
+            size = ""
+        else:
+            size = _size(path.stat().st_size)
+        rows.append(
+            f"<tr><td class=mono><a href='{_e(path.name)}'>{_e(name)}</a></td>"
+            f"<td class=num>{size}</td><td>{_e(purpose)}</td></tr>"
+        )
+    if not any(p.name == "report.html" for p in entries):
+        rows.append("<tr><td class=mono>report.html</td><td></td><td>this page</td></tr>")
+    head = "<tr><th>file</th><th>size</th><th>what it is for</th></tr>"
+    return f"<table>{head}{''.join(rows)}</table>"
+
+
+def _size(n_bytes: int) -> str:
+    if n_bytes < 1000:
+        return f"{n_bytes} B"
+    if n_bytes < 1_000_000:
+        return f"{n_bytes / 1e3:.1f} kB"
+    return f"{n_bytes / 1e6:.1f} MB"
+
+
+def _assembly(found: _Folder) -> str:
+    d = found.design
+    profile = d.get("profile") or d.get("options", {}).get("profile") or "the chosen profile"
+    splits = d.get("linkage", {}).get("splits")
+    has_fab = (found.folder / "fabrication").is_dir()
+    steps = [
+        (
+            f"Print or cut the flat layout with <b>{_e(profile)}</b> from the files in "
+            "<span class=mono>fabrication/</span>."
+            if has_fab
+            else "Print or cut the flat layout (<span class=mono>flat.obj</span>). "
+            "<span class=note>The fabrication files are not in this design yet.</span>"
+        ),
+        "Check every hinge bends freely and clear any strings or burrs out of the channels.",
+    ]
+    if isinstance(splits, int) and splits > 0:
+        steps.append(
+            f"The design has {splits} split{'s' if splits != 1 else ''}: press the magnets into "
+            "the pockets on the split faces, minding the poles so that facing magnets attract."
+        )
+    route = found.route
+    if route is None or len(route.steps) == 0:
+        steps.append(
+            "<span class=note>The string route is not computed yet (no route.json): threading "
+            "and lift-point steps will appear here once it is.</span>"
+        )
+    else:
+        first = route.steps[0]
+        start = (
+            f"tile {first[1]}, {SIDE_NAMES[first[2] % 4]} side"
+            if first[0] < 0
+            else f"gap {first[0]} into tile {first[1]} ({SIDE_NAMES[first[2] % 4]} side)"
+        )
+        order = " → ".join(str(t) for t in route.steps[:, 1])
+        steps.append(
+            f"Thread the string through the {len(route.steps)} tiles of the route, starting at "
+            f"{_e(start)}, in this order (tile ids, shown in the 3D view when you click a tile): "
+            f"<details><summary>tile order</summary><p class=mono>{_e(order)}</p></details>"
+        )
+        if len(route.lift):
+            where = ", ".join(f"tile {t}" for t in route.lift[:, 1] if t >= 0) or "see route.json"
+            steps.append(
+                f"At the {len(route.lift)} lift point{'s' if len(route.lift) != 1 else ''} "
+                f"({_e(where)}) the string leaves through the top face: hold it there as a loop."
+            )
+        steps.append(
+            "Lay the linkage flat, pull both ends of the string steadily "
+            + ("while lifting the lift loops, " if len(route.lift) else "")
+            + "until every gap has closed, then tie the string off."
+        )
+    items = "".join(f"<li>{s}</li>" for s in steps)
+    return f"<ol class=steps>{items}</ol>"
+
+
+def _viewer(view: dict[str, Any]) -> str:
+    frames, in_file = view["frames"], view["frames_in_file"]
+    if frames is None:
+        frames_note = "deploy.npz is not in this design yet: there is no deployment to scrub."
+    else:
+        shown = f", {len(frames)} shown" if len(frames) != in_file else ""
+        frames_note = f"{in_file} frames from deploy.npz{shown}"
+    route_note = "" if view["route"] else " (none yet)"
+    if view["assembled_source"] != "assembled.obj" and view["poses"]["assembled"] is not None:
+        frames_note += (
+            " The assembled pose shown is lifted.obj: the quad grid on the target before "
+            "optimization, without thickness (assembled.obj is not in this design yet)."
+        )
+    hinge_note = "" if view["hinges"] else " (none known)"
+    return f"""
+<div class=controls>
+  <span class=group><button data-pose=flat>Flat</button>
+    <button data-pose=assembled>Assembled</button></span>
+  <label><input type=checkbox id=show-tiles checked> tiles</label>
+  <label><input type=checkbox id=show-edges checked> edges</label>
+  <label><input type=checkbox id=show-hinges checked{" disabled" if hinge_note else ""}>
+    <span class=legend style="background:#1c7ed6"></span>hinges{hinge_note}</label>
+  <label><input type=checkbox id=show-route checked{" disabled" if route_note else ""}>
+    <span class=legend style="background:#e03131"></span>string route{route_note}</label>
+  <label><input type=checkbox id=show-lifts checked{" disabled" if route_note else ""}>
+    <span class=legend style="background:#a61e4d"></span>lift points{route_note}</label>
+</div>
+<div class=viewer><div id=view></div></div>
+<div class=deploy><span>Deployment: flat</span>
+  <input type=range id=deploy min=0 max=0 step=1 value=0><span>assembled</span>
+  <button id=play>Play</button><span id=deploy-label>{_e(frames_note)}</span></div>
+<div id=tile-info>Click a tile to see its id and its neighbours.</div>
+<p class=note>Drag to turn, shift-drag or right-drag to pan, wheel to zoom, double-click to reset.
+Neighbours: tiles {_e(view["neighbour_rule"])}.
+The string is drawn through the tiles on top of them.</p>
+"""
+
+
+def _json_for_script(value: Any) -> str:
+    text = json.dumps(value, separators=(",", ":"), allow_nan=False)
+    return text.replace("</", "<\\/").replace("<!--", "<\\!--")
+
+
+def render_report(folder: Path) -> str:
+    """The report page of an output folder, as HTML text."""
+    found = _load(folder)
+    view = _view_data(found)
+    rows = evaluate_metrics(found.design)
+    target = found.design.get("target", {}).get("name") or folder.name
+    missing = _missing(found)
+    missing_html = (
+        "<div class=missing><b>This design does not have yet:</b><ul>"
+        + "".join(f"<li>{_e(m)}</li>" for m in missing)
+        + "</ul>The sections below show what there is.</div>"
+        if missing
+        else ""
+    )
+    problems_html = "".join(f"<p class='verdict fail'>{_e(p)}</p>" for p in found.problems)
+    version = found.design.get("drawstring_version", "")
+    version_text = f" · drawstring {version}" if version else ""
+    summary = _verdict(rows) + problems_html + _summary(found, view) + missing_html
+    licence = _web_text(THREE_LICENCE_FILE)
+    body = f"""
+<header><h1>drawstring design: {_e(target)}</h1>
+<div class=sub>{_e(str(folder.resolve()))}{_e(version_text)}</div></header>
+<main>
+<div class=top>
+<section id=summary><h2>Summary</h2>{summary}</section>
+<section id=view3d><h2>3D view</h2>{_viewer(view)}</section>
+</div>
+<section id=metrics><h2>Checks</h2>{_metrics_table(rows)}</section>
+<section id=pictures><h2>Pictures</h2>{_pictures(folder)}</section>
+<section id=assembly><h2>Assembly</h2>{_assembly(found)}</section>
+<section id=files><h2>Files</h2>{_files(folder)}</section>
+</main>
+<footer>Written by drawstring from the files of this folder. The 3D view uses three.js
+r{THREE_VERSION.split(".")[1]} (MIT licence), included in this page.
+<details><summary>three.js licence</summary><pre>{_e(licence)}</pre></details></footer>
+"""
+    parts = {
+        "title": _e(f"drawstring design: {target}"),
+        "style": _web_text("report.css"),
+        "body": body,
+        "data": _json_for_script(view),
+        "three": three_module_as_global(),
+        "app": _web_text("report.js"),
+    }
+    template = _web_text("report.html")
+    return re.sub(r"\{\{(\w+)\}\}", lambda m: parts[m.group(1)], template)
+
+
+def write_report(folder: Path | str) -> Path:
+    """Write ``folder/report.html`` from the files already in the output folder.
+
+    Raises
+    ------
+    InputError
+        If ``folder`` is not a folder.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder} is not a folder; pass the output folder of drawstring design")
+    page = render_report(folder)
+    path = folder / "report.html"
+    path.write_text(page, encoding="utf-8")
+    log.info("wrote %s (%.1f MB)", path, len(page.encode("utf-8")) / 1e6)
+    return path
+
+
+def open_report(folder: Path | str) -> Path:
+    """Open ``folder/report.html`` in the default browser, writing it first if missing."""
+    folder = Path(folder)
+    path = folder / "report.html"
+    if not path.is_file():
+        path = write_report(folder)
+    webbrowser.open(path.resolve().as_uri())
+    return path
