@@ -1,0 +1,1157 @@
+"""Projective local-global solver shared by every optimization of the pipeline.
+
+The solver minimizes a sum of constraint-group energies
+
+    E(X) = sum_i w_i * || A_i X - P_i(X) ||_F^2
+
+over vertex positions ``X : (n, dim)`` (Bouaziz et al. 2012, "Shape-Up"; Bouaziz et al. 2014,
+"Projective Dynamics"). Each group ``i`` is vectorized over all its elements: a constant sparse
+matrix ``A_i`` (rows x n, applied identically to every coordinate column) and a batched
+projection ``P_i`` that maps the current ``A_i X`` to the closest point of the group's constraint
+set. One iteration is
+
+- local step: ``p_i = P_i(X)`` for every group (one batched numpy call per group);
+- global step: ``(sum_i w_i A_i^T A_i + eps I) X' = sum_i w_i A_i^T p_i + eps X``, solved with a
+  sparse LU factor that is computed once and reused until the set of groups or a weight changes.
+
+Because each projection is the exact closest point of its set, the alternation never increases
+``E`` (the projection step lowers it for fixed ``X``, the global step for fixed projections).
+
+Null space and regularisation
+-----------------------------
+Groups built from differences (edge lengths, centred planarity, similarity) do not pin
+translations, which makes ``sum w A^T A`` singular. The solver always adds a weak proximal term
+``eps * ||X' - X||^2`` with ``eps = regularization * mean(diag(sum w A^T A))`` (default ``1e-7``).
+It vanishes at a fixed point, never raises the energy, keeps null-space components where they
+are, and changes convergence speed by a negligible amount. Vertices listed in ``fixed`` are not
+moved at all.
+
+Anderson acceleration
+---------------------
+With ``anderson = m > 0`` the local-global step is treated as a fixed-point map ``G`` and
+accelerated with Anderson mixing over the last ``m`` differences (Peng, Deng, Zhang, Liu 2018,
+"Anderson Acceleration for Geometry Optimization and Physics Simulation", ACM TOG 37(4)). The
+safeguard evaluates ``E`` at the accelerated iterate (its projections are then reused by the next
+global step); when it is not lower than the energy of the last accepted iterate, the iterate is
+discarded, the plain local-global step is taken instead and the history is reset. The accepted
+energies therefore decrease monotonically exactly as without acceleration.
+
+Adding a group
+--------------
+Subclass :class:`ConstraintGroup`: give ``matrix(n_vertices)`` (the constant ``A``) and
+``project(ax, x)`` (batched closest points for the rows of ``A X``). Examples of later groups:
+a rigid tile is :class:`EdgeLength` over its 18 edges; a hinge connection is a difference row
+``v_a - v_b`` projected to zero; a lift is :class:`ClosenessToPoints` whose targets are moved with
+:meth:`ClosenessToPoints.set_targets` (no refactor); an inequality (collision, gap angle) returns
+the current value of ``A X`` where it is satisfied so its matrix stays constant.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import igl
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from numpy.typing import ArrayLike, NDArray
+
+from drawstring.geometry.errors import InputError
+from drawstring.geometry.tolerances import SOLVER_REL_ENERGY_TOL
+
+logger = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+__all__ = [
+    "ClosenessToPoints",
+    "ClosenessToSurface",
+    "ConstraintGroup",
+    "EdgeLength",
+    "LocalGlobalSolver",
+    "PlanarizeResult",
+    "Plane",
+    "SimilarityToSquare",
+    "Slab",
+    "SolverResult",
+    "planarize_quads",
+    "quad_planarity",
+    "plane_fit",
+]
+
+
+# --------------------------------------------------------------------------------------------
+# Sparse operators shared by the groups
+# --------------------------------------------------------------------------------------------
+
+
+def selection_matrix(indices: IntArray, n_vertices: int) -> sp.csr_matrix:
+    """Rows that pick vertices: ``(A X)[r] = X[indices[r]]``.
+
+    Parameters
+    ----------
+    indices : (k,) int
+    n_vertices : int
+
+    Returns
+    -------
+    A : (k, n_vertices) sparse
+    """
+    k = len(indices)
+    return sp.csr_matrix(
+        (np.ones(k), (np.arange(k), np.asarray(indices, dtype=np.int64))), shape=(k, n_vertices)
+    )
+
+
+def difference_matrix(edges: IntArray, n_vertices: int) -> sp.csr_matrix:
+    """Rows ``(A X)[r] = X[edges[r, 1]] - X[edges[r, 0]]``.
+
+    Parameters
+    ----------
+    edges : (k, 2) int
+    n_vertices : int
+
+    Returns
+    -------
+    A : (k, n_vertices) sparse
+    """
+    k = len(edges)
+    rows = np.repeat(np.arange(k), 2)
+    cols = np.asarray(edges, dtype=np.int64).reshape(-1)
+    vals = np.tile([-1.0, 1.0], k)
+    return sp.csr_matrix((vals, (rows, cols)), shape=(k, n_vertices))
+
+
+def centering_matrix(elements: IntArray, n_vertices: int) -> sp.csr_matrix:
+    """Rows that give each element's vertices minus the element's centroid.
+
+    Parameters
+    ----------
+    elements : (k, s) int
+        Vertex indices of ``k`` elements of ``s`` vertices each.
+    n_vertices : int
+
+    Returns
+    -------
+    A : (k * s, n_vertices) sparse
+        Row ``e * s + a`` is ``X[elements[e, a]] - mean_b X[elements[e, b]]``.
+    """
+    elements = np.asarray(elements, dtype=np.int64)
+    k, s = elements.shape
+    rows = np.repeat(np.arange(k * s), s)
+    cols = np.repeat(elements, s, axis=0).reshape(-1)
+    block = np.eye(s) - 1.0 / s
+    vals = np.tile(block.reshape(-1), k)
+    return sp.csr_matrix((vals, (rows, cols)), shape=(k * s, n_vertices))
+
+
+def covariances(points: FloatArray) -> FloatArray:
+    """Scatter matrices ``sum_s p p^T`` of many point sets (points already centred).
+
+    Parameters
+    ----------
+    points : (k, s, dim) float
+
+    Returns
+    -------
+    scatter : (k, dim, dim) float
+    """
+    return np.matmul(points.transpose(0, 2, 1), points)
+
+
+def smallest_eigenvectors(matrices: FloatArray) -> FloatArray:
+    """Unit eigenvectors of the smallest eigenvalue of many symmetric matrices.
+
+    3x3 matrices use the closed-form trigonometric eigenvalue and a cross product of two rows
+    of ``M - lambda I`` (about 3x faster than batched ``eigh``); matrices where that is ill
+    conditioned (two smallest eigenvalues nearly equal) and other sizes fall back to ``eigh``.
+
+    Parameters
+    ----------
+    matrices : (k, d, d) float, symmetric
+
+    Returns
+    -------
+    vectors : (k, d) float
+    """
+    k, d, _ = matrices.shape
+    if d != 3 or k == 0:
+        return np.asarray(np.linalg.eigh(matrices)[1][:, :, 0])
+    a00, a11, a22 = matrices[:, 0, 0], matrices[:, 1, 1], matrices[:, 2, 2]
+    a01, a02, a12 = matrices[:, 0, 1], matrices[:, 0, 2], matrices[:, 1, 2]
+    mean = (a00 + a11 + a22) / 3.0
+    b00, b11, b22 = a00 - mean, a11 - mean, a22 - mean
+    spread = np.sqrt((b00**2 + b11**2 + b22**2 + 2.0 * (a01**2 + a02**2 + a12**2)) / 6.0)
+    safe = np.where(spread > 0, spread, 1.0)
+    det = (
+        b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)
+    ) / safe**3
+    angle = np.arccos(np.clip(0.5 * det, -1.0, 1.0)) / 3.0
+    lam = mean + 2.0 * spread * np.cos(angle + 2.0 * np.pi / 3.0)
+    shifted = matrices - lam[:, None, None] * np.eye(3)
+    crosses = np.stack(
+        [
+            np.cross(shifted[:, 0], shifted[:, 1]),
+            np.cross(shifted[:, 0], shifted[:, 2]),
+            np.cross(shifted[:, 1], shifted[:, 2]),
+        ],
+        axis=1,
+    )
+    norms2 = np.einsum("kij,kij->ki", crosses, crosses)
+    best = np.argmax(norms2, axis=1)
+    rows = np.arange(k)
+    best_norm2 = norms2[rows, best]
+    out = crosses[rows, best] / np.sqrt(np.where(best_norm2 > 0, best_norm2, 1.0))[:, None]
+    # well conditioned when |cross| ~ (gap between the two larger eigenvalues and lam)^2 is large
+    bad = best_norm2 <= (1e-6 * spread**2) ** 2
+    if np.any(bad):
+        out[bad] = np.linalg.eigh(matrices[bad])[1][:, :, 0]
+    return out
+
+
+def plane_fit(points: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Least-squares planes (hyperplanes in 2D: lines) of many point sets at once.
+
+    Parameters
+    ----------
+    points : (k, s, dim) float
+        ``k`` sets of ``s`` points.
+
+    Returns
+    -------
+    centroids : (k, dim) float
+    normals : (k, dim) float
+        Unit normals (direction of least variance; sign arbitrary).
+    """
+    centroids = points.mean(axis=1)
+    centred = points - centroids[:, None, :]
+    return centroids, smallest_eigenvectors(covariances(centred))
+
+
+# --------------------------------------------------------------------------------------------
+# Constraint groups
+# --------------------------------------------------------------------------------------------
+
+
+class ConstraintGroup(ABC):
+    """A vectorized set of constraints with one weight.
+
+    Its energy is ``weight * ||A X - P(X)||_F^2`` where ``A = matrix(n)`` is constant and
+    ``P = project`` returns the closest point of the constraint set for every row block.
+
+    Parameters
+    ----------
+    name : str
+        Unique within a solver; keys of the energy dictionaries.
+    weight : float
+        Non-negative; zero removes the group from the system.
+    """
+
+    def __init__(self, name: str, weight: float) -> None:
+        if not np.isfinite(weight) or weight < 0:
+            raise InputError(f"weight of group {name!r} is {weight}; use a finite value >= 0")
+        self.name = name
+        self.weight = float(weight)
+
+    @abstractmethod
+    def matrix(self, n_vertices: int) -> sp.csr_matrix:
+        """The constant operator ``A : (rows, n_vertices)``."""
+
+    @abstractmethod
+    def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
+        """Closest feasible targets for ``ax = A @ x``.
+
+        Parameters
+        ----------
+        ax : (rows, dim) float
+            The group's rows of ``A X``.
+        x : (n, dim) float
+            All current positions (for groups that need more than ``ax``).
+
+        Returns
+        -------
+        targets : (rows, dim) float
+        """
+
+
+class ClosenessToPoints(ConstraintGroup):
+    """Keep vertices near target points (anchors, lift targets).
+
+    Parameters
+    ----------
+    indices : (k,) int
+    targets : (k, dim) float, mm
+        Can be changed later with :meth:`set_targets` without refactoring.
+    """
+
+    def __init__(
+        self,
+        indices: ArrayLike,
+        targets: ArrayLike,
+        weight: float = 1.0,
+        name: str = "closeness",
+    ) -> None:
+        super().__init__(name, weight)
+        self.indices = np.asarray(indices, dtype=np.int64).reshape(-1)
+        self.targets = np.zeros((0, 0))
+        self.set_targets(targets)
+
+    def set_targets(self, targets: ArrayLike) -> None:
+        """Move the targets; the matrix does not change.
+
+        Parameters
+        ----------
+        targets : (k, dim) float, mm
+        """
+        arr = np.asarray(targets, dtype=np.float64)
+        if arr.ndim != 2 or arr.shape[0] != len(self.indices):
+            raise InputError(
+                f"group {self.name!r}: targets have shape {arr.shape}; "
+                f"give one row per index ({len(self.indices)})"
+            )
+        self.targets = arr.copy()
+
+    def matrix(self, n_vertices: int) -> sp.csr_matrix:
+        return selection_matrix(self.indices, n_vertices)
+
+    def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
+        return self.targets
+
+
+class ClosenessToSurface(ConstraintGroup):
+    """Pull vertices to their closest points on a triangle mesh (re-queried every iteration).
+
+    The AABB tree of the surface is built once here.
+
+    Parameters
+    ----------
+    indices : (k,) int
+    surface_vertices : (p, 3) float, mm
+    surface_faces : (f, 3) int
+    """
+
+    def __init__(
+        self,
+        indices: ArrayLike,
+        surface_vertices: ArrayLike,
+        surface_faces: ArrayLike,
+        weight: float = 1.0,
+        name: str = "surface",
+    ) -> None:
+        super().__init__(name, weight)
+        self.indices = np.asarray(indices, dtype=np.int64).reshape(-1)
+        self.surface_vertices = np.ascontiguousarray(surface_vertices, dtype=np.float64)
+        self.surface_faces = np.ascontiguousarray(surface_faces, dtype=np.int64)
+        if self.surface_vertices.ndim != 2 or self.surface_vertices.shape[1] != 3:
+            raise InputError("surface vertices must have shape (p, 3); pass a 3D triangle mesh")
+        if self.surface_faces.ndim != 2 or self.surface_faces.shape[1] != 3:
+            raise InputError("surface faces must have shape (f, 3); triangulate the target mesh")
+        self.tree = igl.AABB()
+        self.tree.init(self.surface_vertices, self.surface_faces)
+
+    def closest_points(self, points: FloatArray) -> FloatArray:
+        """Closest points on the surface.
+
+        Parameters
+        ----------
+        points : (k, 3) float, mm
+
+        Returns
+        -------
+        closest : (k, 3) float, mm
+        """
+        _, _, closest = self.tree.squared_distance(
+            self.surface_vertices, self.surface_faces, np.ascontiguousarray(points)
+        )
+        return np.asarray(closest, dtype=np.float64)
+
+    def matrix(self, n_vertices: int) -> sp.csr_matrix:
+        return selection_matrix(self.indices, n_vertices)
+
+    def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
+        return self.closest_points(ax)
+
+
+class EdgeLength(ConstraintGroup):
+    """Edge vectors projected to their target lengths, keeping their directions (paper eq. 3–4).
+
+    Parameters
+    ----------
+    edges : (k, 2) int
+    lengths : (k,) float, mm
+        Per-edge targets; change them with :meth:`set_lengths` (no refactor).
+    """
+
+    def __init__(
+        self,
+        edges: ArrayLike,
+        lengths: ArrayLike,
+        weight: float = 1.0,
+        name: str = "edge_length",
+    ) -> None:
+        super().__init__(name, weight)
+        self.edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+        self.lengths = np.zeros(0)
+        self.set_lengths(lengths)
+
+    def set_lengths(self, lengths: ArrayLike) -> None:
+        """Replace the target lengths.
+
+        Parameters
+        ----------
+        lengths : (k,) float, mm
+        """
+        arr = np.asarray(lengths, dtype=np.float64).reshape(-1)
+        if arr.shape[0] != len(self.edges) or np.any(arr < 0) or not np.all(np.isfinite(arr)):
+            raise InputError(
+                f"group {self.name!r}: need {len(self.edges)} finite non-negative target lengths"
+            )
+        self.lengths = arr.copy()
+
+    def matrix(self, n_vertices: int) -> sp.csr_matrix:
+        return difference_matrix(self.edges, n_vertices)
+
+    def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
+        norms = np.linalg.norm(ax, axis=1)
+        direction = np.zeros_like(ax)
+        ok = norms > 0
+        direction[ok] = ax[ok] / norms[ok, None]
+        direction[~ok, 0] = 1.0  # a collapsed edge gets an arbitrary direction
+        return direction * self.lengths[:, None]
+
+
+class Plane(ConstraintGroup):
+    """Each face's vertices projected onto the face's least-squares plane (paper eq. 2).
+
+    ``A`` centres each face (vertex minus face centroid), so the group does not pin translation.
+    All faces are projected with one batched ``eigh`` of the ``(dim, dim)`` covariances.
+
+    Parameters
+    ----------
+    faces : (k, s) int or sequence of k index arrays of one size s >= 3
+    """
+
+    def __init__(
+        self,
+        faces: ArrayLike | Sequence[ArrayLike],
+        weight: float = 1.0,
+        name: str = "planarity",
+    ) -> None:
+        super().__init__(name, weight)
+        arr = np.asarray(faces, dtype=np.int64)
+        if arr.ndim != 2 or arr.shape[1] < 3:
+            raise InputError("Plane faces must be (k, s) with one size s >= 3; split by size")
+        self.faces = arr
+
+    def matrix(self, n_vertices: int) -> sp.csr_matrix:
+        return centering_matrix(self.faces, n_vertices)
+
+    def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
+        k, s = self.faces.shape
+        pts = ax.reshape(k, s, -1)
+        normal = smallest_eigenvectors(covariances(pts))
+        height = np.einsum("ksi,ki->ks", pts, normal)
+        return (pts - height[:, :, None] * normal[:, None, :]).reshape(ax.shape)
+
+
+def _square_template(dim: int) -> FloatArray:
+    """Corners of a centred square of side 2, counter-clockwise, padded to ``dim`` columns."""
+    template = np.zeros((4, dim))
+    template[:, :2] = [[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]]
+    return template
+
+
+def _closest_squares_planar_template(pts: FloatArray) -> FloatArray:
+    """Closed-form batched Umeyama fit of a square to centred quads in 2D or 3D.
+
+    With the template ``T`` in the first two coordinates, ``Sigma = Q^T T`` has two non-zero
+    columns ``c1, c2``; the optimal rotated template axes are the orthonormal polar factor
+    ``[u1 u2] = [c1 c2] S^(-1/2)`` with ``S = [c1 c2]^T [c1 c2]`` (2x2, closed-form square root),
+    which in 3D can always be completed to a proper rotation. In 2D the rotation angle is
+    ``atan2(c1_y - c2_x, c1_x + c2_y)`` (no reflection). Scale is ``trace(S^(1/2)) / |T|^2``.
+    Degenerate quads (collapsed to a segment or point) fall back to the SVD route.
+
+    Parameters
+    ----------
+    pts : (k, 4, dim) float, centred quads, dim in {2, 3}
+
+    Returns
+    -------
+    squares : (k, 4, dim) float
+    """
+    k, _, dim = pts.shape
+    tx = np.array([-1.0, 1.0, 1.0, -1.0])
+    ty = np.array([-1.0, -1.0, 1.0, 1.0])
+    norm_t = 8.0
+    c1 = np.einsum("ksi,s->ki", pts, tx)
+    c2 = np.einsum("ksi,s->ki", pts, ty)
+    if dim == 2:
+        a = c1[:, 0] + c2[:, 1]
+        b = c1[:, 1] - c2[:, 0]
+        r = np.hypot(a, b)
+        cos = np.where(r > 0, a / np.where(r > 0, r, 1.0), 1.0)
+        sin = np.where(r > 0, b / np.where(r > 0, r, 1.0), 0.0)
+        scale = r / norm_t
+        u1 = np.stack([cos, sin], axis=1) * scale[:, None]
+        u2 = np.stack([-sin, cos], axis=1) * scale[:, None]
+    else:
+        s11 = np.einsum("ki,ki->k", c1, c1)
+        s12 = np.einsum("ki,ki->k", c1, c2)
+        s22 = np.einsum("ki,ki->k", c2, c2)
+        det = s11 * s22 - s12 * s12
+        root_det = np.sqrt(np.maximum(det, 0.0))
+        trace_root = np.sqrt(np.maximum(s11 + s22 + 2.0 * root_det, 0.0))  # trace of S^(1/2)
+        ok = root_det > 1e-12 * np.maximum(s11 + s22, 1e-300)
+        # S^(1/2) = (S + sqrt(det) I) / trace_root ; its inverse in closed form (2x2)
+        safe_tr = np.where(ok, trace_root, 1.0)
+        r11 = (s11 + root_det) / safe_tr
+        r22 = (s22 + root_det) / safe_tr
+        r12 = s12 / safe_tr
+        root_det2 = r11 * r22 - r12 * r12
+        inv_det = np.where(ok, 1.0 / np.where(ok, root_det2, 1.0), 0.0)
+        i11, i22, i12 = r22 * inv_det, r11 * inv_det, -r12 * inv_det
+        scale = trace_root / norm_t
+        u1 = (c1 * i11[:, None] + c2 * i12[:, None]) * scale[:, None]
+        u2 = (c1 * i12[:, None] + c2 * i22[:, None]) * scale[:, None]
+        if not np.all(ok):
+            bad = ~ok
+            fallback = _closest_squares_svd(pts[bad])
+            out = tx[None, :, None] * u1[:, None, :] + ty[None, :, None] * u2[:, None, :]
+            out[bad] = fallback
+            return np.asarray(out)
+    return np.asarray(tx[None, :, None] * u1[:, None, :] + ty[None, :, None] * u2[:, None, :])
+
+
+def _closest_squares_svd(pts: FloatArray) -> FloatArray:
+    """Batched Umeyama closest square through an SVD (any dimension).
+
+    Parameters
+    ----------
+    pts : (k, 4, dim) float, centred quads
+
+    Returns
+    -------
+    squares : (k, 4, dim) float
+    """
+    dim = pts.shape[2]
+    template = _square_template(dim)
+    cross = np.einsum("ksi,sj->kij", pts, template)  # Sigma = Q^T T
+    u, sing, vt = np.linalg.svd(cross)
+    sign = np.sign(np.linalg.det(u) * np.linalg.det(vt))
+    sign[sign == 0] = 1.0
+    u[:, :, -1] *= sign[:, None]
+    rot = u @ vt
+    sing[:, -1] *= sign
+    scale = sing.sum(axis=1) / np.sum(template * template)
+    return np.asarray(scale[:, None, None] * np.einsum("sj,kij->ksi", template, rot))
+
+
+class SimilarityToSquare(ConstraintGroup):
+    """Each quad projected onto the closest similarity transform of a square.
+
+    Batched Umeyama (1991) closest similarity (rotation, no reflection: ``det R = +1``, uniform
+    scale) of a square template to the centred quad. In 3D the exact closest square is returned;
+    its plane coincides with the quad's best-fit plane for planar quads and differs from it only
+    at second order otherwise. Being the exact closest point keeps the solver monotone.
+
+    Parameters
+    ----------
+    quads : (k, 4) int
+        Corners in cyclic order.
+    """
+
+    def __init__(self, quads: ArrayLike, weight: float = 1.0, name: str = "square_shape") -> None:
+        super().__init__(name, weight)
+        arr = np.asarray(quads, dtype=np.int64)
+        if arr.ndim != 2 or arr.shape[1] != 4:
+            raise InputError("SimilarityToSquare needs quads of shape (k, 4)")
+        self.quads = arr
+
+    def matrix(self, n_vertices: int) -> sp.csr_matrix:
+        return centering_matrix(self.quads, n_vertices)
+
+    def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
+        dim = ax.shape[1]
+        pts = ax.reshape(-1, 4, dim)
+        if dim in (2, 3):
+            return _closest_squares_planar_template(pts).reshape(ax.shape)
+        return _closest_squares_svd(pts).reshape(ax.shape)
+
+
+def _unit_normal_with_offset(matrix: FloatArray, linear: FloatArray) -> FloatArray:
+    """Minimize ``n^T M n - 2 g^T n`` over unit vectors ``n``, for many (M, g) at once.
+
+    The minimizer is ``n = (M - lam I)^{-1} g`` with ``lam <= lambda_min(M)`` and ``|n| = 1``
+    (the trust-region boundary problem); ``lam`` is found by Newton's method on
+    ``1 / |n(lam)| - 1`` in the eigenbasis of ``M``, which converges monotonically from the left.
+
+    Parameters
+    ----------
+    matrix : (k, d, d) float, symmetric
+    linear : (k, d) float
+
+    Returns
+    -------
+    n : (k, d) float, unit
+    """
+    mu, vecs = np.linalg.eigh(matrix)
+    gam = np.einsum("kji,kj->ki", vecs, linear)
+    gnorm = np.linalg.norm(gam, axis=1)
+    hard = np.abs(gam[:, 0]) <= 1e-12 * np.maximum(gnorm, 1e-300)
+    # shift t = mu_0 - lam > 0; Newton on phi(t) = 1/|p(t)| - 1 with p_i = gam_i / (mu_i - mu_0 + t)
+    t = np.where(hard, 1.0, np.abs(gam[:, 0]))
+    gap = mu - mu[:, :1]
+    for _ in range(60):
+        denom = gap + t[:, None]
+        p = gam / denom
+        pn = np.linalg.norm(p, axis=1)
+        dpn = -np.sum(gam * gam / denom**3, axis=1) / pn  # d|p|/dt
+        phi = 1.0 / pn - 1.0
+        dphi = -dpn / pn**2
+        step = phi / dphi
+        t_new = np.maximum(t - step, 0.5 * t)
+        done = np.abs(t_new - t) <= 1e-15 * np.maximum(t, 1e-300)
+        t = t_new
+        if np.all(done | hard):
+            break
+    p = gam / (gap + t[:, None])
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    if np.any(hard):
+        p[hard] = 0.0
+        p[hard, 0] = 1.0
+    return np.einsum("kij,kj->ki", vecs, p)
+
+
+class Slab(ConstraintGroup):
+    """Tile top and bottom on two parallel planes a given distance apart (frustum extrusion).
+
+    Each tile's top vertices are projected onto one plane and its bottom vertices onto the
+    parallel plane ``thickness`` below it (along the common normal, which points from bottom to
+    top). The common normal solves the exact closest-point problem, a unit-sphere quadratic
+    ``n^T (C + s/2 d d^T) n - s h d^T n`` (``C`` the summed covariances of top and bottom, ``d``
+    the top-minus-bottom centroid offset, ``s`` the vertices per face), batched over all tiles.
+
+    Parameters
+    ----------
+    top : (k, s) int
+        Top face vertex indices of each tile.
+    bottom : (k, s) int
+        Bottom face vertex indices, ``bottom[t, a]`` under ``top[t, a]``.
+    thickness : (k,) float or float, mm
+    """
+
+    def __init__(
+        self,
+        top: ArrayLike,
+        bottom: ArrayLike,
+        thickness: ArrayLike,
+        weight: float = 1.0,
+        name: str = "slab",
+    ) -> None:
+        super().__init__(name, weight)
+        top_arr = np.asarray(top, dtype=np.int64)
+        bottom_arr = np.asarray(bottom, dtype=np.int64)
+        if top_arr.ndim != 2 or top_arr.shape != bottom_arr.shape or top_arr.shape[1] < 3:
+            raise InputError("Slab top and bottom must both be (k, s) index arrays with s >= 3")
+        self.top = top_arr
+        self.bottom = bottom_arr
+        thick = np.broadcast_to(np.asarray(thickness, dtype=np.float64), (len(top_arr),)).copy()
+        if np.any(thick < 0) or not np.all(np.isfinite(thick)):
+            raise InputError("Slab thickness must be finite and >= 0")
+        self.thickness = thick
+
+    def matrix(self, n_vertices: int) -> sp.csr_matrix:
+        return centering_matrix(np.hstack([self.top, self.bottom]), n_vertices)
+
+    def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
+        k, s = self.top.shape
+        dim = ax.shape[1]
+        pts = ax.reshape(k, 2 * s, dim)
+        top, bottom = pts[:, :s], pts[:, s:]
+        top_c, bottom_c = top.mean(axis=1), bottom.mean(axis=1)
+        dt, db = top - top_c[:, None], bottom - bottom_c[:, None]
+        cov = np.einsum("ksi,ksj->kij", dt, dt) + np.einsum("ksi,ksj->kij", db, db)
+        offset = top_c - bottom_c
+        half = 0.5 * s
+        quad = cov + half * np.einsum("ki,kj->kij", offset, offset)
+        lin = half * self.thickness[:, None] * offset
+        normal = _unit_normal_with_offset(quad, lin)
+        a = np.einsum("ki,ki->k", normal, top_c)
+        b = np.einsum("ki,ki->k", normal, bottom_c)
+        level_top = 0.5 * (a + b + self.thickness)
+        level_bottom = level_top - self.thickness
+        h_top = np.einsum("ksi,ki->ks", top, normal) - level_top[:, None]
+        h_bottom = np.einsum("ksi,ki->ks", bottom, normal) - level_bottom[:, None]
+        out = np.empty_like(pts)
+        out[:, :s] = top - h_top[:, :, None] * normal[:, None, :]
+        out[:, s:] = bottom - h_bottom[:, :, None] * normal[:, None, :]
+        return out.reshape(ax.shape)
+
+
+# --------------------------------------------------------------------------------------------
+# Solver
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SolverResult:
+    """Outcome of :meth:`LocalGlobalSolver.solve`.
+
+    Attributes
+    ----------
+    X : (n, dim) float
+        Final positions.
+    iterations : int
+        Global solves taken (one per iteration).
+    converged : bool
+        Stopped by ``rel_tol`` / ``abs_tol`` rather than ``max_iter``.
+    energy_before, energy_after : dict[str, float]
+        Weighted energy ``w ||A X - P(X)||^2`` per group at the start and at the end.
+    energy_history : (iterations + 1,) float
+        Total energy of every accepted iterate, starting with the initial one.
+    time_s : float
+    accelerated_accepted, accelerated_rejected : int
+        Anderson iterates kept / discarded by the energy safeguard.
+    factorizations : int
+        Sparse factorizations performed during this solve (0 when a cached factor was reused).
+    """
+
+    X: FloatArray
+    iterations: int
+    converged: bool
+    energy_before: dict[str, float]
+    energy_after: dict[str, float]
+    energy_history: FloatArray
+    time_s: float
+    accelerated_accepted: int
+    accelerated_rejected: int
+    factorizations: int
+
+    @property
+    def energy_total_before(self) -> float:
+        return float(sum(self.energy_before.values()))
+
+    @property
+    def energy_total_after(self) -> float:
+        return float(sum(self.energy_after.values()))
+
+    @property
+    def per_iteration_ms(self) -> float:
+        return 1e3 * self.time_s / max(self.iterations, 1)
+
+
+class LocalGlobalSolver:
+    """Local-global solver over a fixed set of constraint groups.
+
+    Parameters
+    ----------
+    n_vertices : int
+    groups : sequence of ConstraintGroup
+        Names must be unique.
+    fixed : (f,) int, optional
+        Vertices that never move.
+    regularization : float
+        Relative weight of the proximal term ``eps ||X' - X||^2`` (see module docstring).
+    """
+
+    def __init__(
+        self,
+        n_vertices: int,
+        groups: Sequence[ConstraintGroup],
+        *,
+        fixed: ArrayLike | None = None,
+        regularization: float = 1e-7,
+    ) -> None:
+        if n_vertices <= 0:
+            raise InputError("the solver needs at least one vertex")
+        if regularization < 0:
+            raise InputError("regularization must be >= 0")
+        self.n_vertices = int(n_vertices)
+        self.regularization = float(regularization)
+        self._groups: list[ConstraintGroup] = []
+        fixed_arr = np.unique(np.asarray([] if fixed is None else fixed, dtype=np.int64))
+        if fixed_arr.size and (fixed_arr[0] < 0 or fixed_arr[-1] >= n_vertices):
+            raise InputError("fixed vertex indices out of range")
+        is_free = np.ones(self.n_vertices, dtype=bool)
+        is_free[fixed_arr] = False
+        self.free = np.flatnonzero(is_free)
+        self.fixed = fixed_arr
+        self._factor: spla.SuperLU | None = None
+        self._matrices: dict[str, sp.csr_matrix] = {}
+        for group in groups:
+            self.add_group(group)
+
+    # ---- constraint set -----------------------------------------------------------------
+
+    @property
+    def groups(self) -> tuple[ConstraintGroup, ...]:
+        return tuple(self._groups)
+
+    def group(self, name: str) -> ConstraintGroup:
+        """The group called ``name``."""
+        for g in self._groups:
+            if g.name == name:
+                return g
+        raise KeyError(name)
+
+    def add_group(self, group: ConstraintGroup) -> None:
+        """Add a group (invalidates the factor)."""
+        if any(g.name == group.name for g in self._groups):
+            raise InputError(f"a group named {group.name!r} already exists; pick another name")
+        mat = sp.csr_matrix(group.matrix(self.n_vertices))
+        if mat.shape[1] != self.n_vertices:
+            raise InputError(f"group {group.name!r} matrix has {mat.shape[1]} columns")
+        self._groups.append(group)
+        self._matrices[group.name] = mat
+        self.invalidate()
+
+    def remove_group(self, name: str) -> None:
+        """Remove the group called ``name`` (invalidates the factor)."""
+        self._groups = [g for g in self._groups if g.name != name]
+        self._matrices.pop(name, None)
+        self.invalidate()
+
+    def replace_group(self, group: ConstraintGroup) -> None:
+        """Swap the group of the same name for ``group`` (invalidates the factor)."""
+        index = next(i for i, g in enumerate(self._groups) if g.name == group.name)
+        self._groups[index] = group
+        self._matrices[group.name] = sp.csr_matrix(group.matrix(self.n_vertices))
+        self.invalidate()
+
+    def set_weight(self, name: str, weight: float) -> None:
+        """Change a group's weight (invalidates the factor when it changes)."""
+        if not np.isfinite(weight) or weight < 0:
+            raise InputError(f"weight of group {name!r} is {weight}; use a finite value >= 0")
+        group = self.group(name)
+        if group.weight != weight:
+            group.weight = float(weight)
+            self.invalidate()
+
+    def invalidate(self) -> None:
+        """Drop the cached factor (call after changing a group's matrix in place)."""
+        self._factor = None
+
+    # ---- assembly -----------------------------------------------------------------------
+
+    def _active(self) -> list[ConstraintGroup]:
+        return [g for g in self._groups if g.weight > 0]
+
+    def _assemble(self) -> int:
+        """Build the stacked operator and factor the free block; returns factorizations done."""
+        if self._factor is not None:
+            return 0
+        active = self._active()
+        if not active:
+            raise InputError("no constraint group has a positive weight")
+        blocks = [self._matrices[g.name] for g in active]
+        self._stack = sp.vstack(blocks, format="csr")
+        self._row_weights = np.concatenate(
+            [np.full(b.shape[0], g.weight) for g, b in zip(active, blocks, strict=True)]
+        )
+        self._splits = np.cumsum([b.shape[0] for b in blocks])[:-1]
+        weighted_t = (self._stack.T @ sp.diags(self._row_weights)).tocsr()
+        self._weighted_t = weighted_t
+        system = (weighted_t @ self._stack).tocsc()
+        free = self.free
+        m_ff = system[free][:, free]
+        self._m_fc = system[free][:, self.fixed].tocsr()
+        diag = m_ff.diagonal()
+        self._eps = self.regularization * float(np.mean(diag)) if diag.size else 0.0
+        m_ff = (m_ff + self._eps * sp.identity(len(free), format="csc")).tocsc()
+        self._factor = spla.splu(
+            m_ff,
+            permc_spec="MMD_AT_PLUS_A",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        )
+        self._active_groups = active
+        return 1
+
+    # ---- steps --------------------------------------------------------------------------
+
+    def _local(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Projections of every active group, stacked, and each group's weighted energy."""
+        ax = self._stack @ x
+        parts = np.split(ax, self._splits)
+        proj = [
+            g.project(part, x) for g, part in zip(self._active_groups, parts, strict=True)
+        ]
+        stacked = np.concatenate(proj, axis=0)
+        resid = (ax - stacked) ** 2
+        per_row = resid.sum(axis=1) * self._row_weights
+        energies = np.array([p.sum() for p in np.split(per_row, self._splits)])
+        return stacked, energies
+
+    def _global(self, proj: FloatArray, x: FloatArray, rhs_fixed: FloatArray) -> FloatArray:
+        assert self._factor is not None
+        rhs = (self._weighted_t @ proj)[self.free] - rhs_fixed + self._eps * x[self.free]
+        out = x.copy()
+        out[self.free] = self._factor.solve(np.asfortranarray(rhs))
+        return out
+
+    def energies(self, x: ArrayLike) -> dict[str, float]:
+        """Weighted energy of every group (zero-weight groups report 0) at ``x``.
+
+        Parameters
+        ----------
+        x : (n, dim) float
+        """
+        arr = np.asarray(x, dtype=np.float64)
+        self._assemble()
+        _, energies = self._local(arr)
+        return self._energy_dict(energies)
+
+    def _energy_dict(self, energies: FloatArray) -> dict[str, float]:
+        out = {g.name: 0.0 for g in self._groups}
+        for g, e in zip(self._active_groups, energies, strict=True):
+            out[g.name] = float(e)
+        return out
+
+    # ---- main loop ----------------------------------------------------------------------
+
+    def solve(
+        self,
+        x0: ArrayLike,
+        *,
+        rel_tol: float = SOLVER_REL_ENERGY_TOL,
+        abs_tol: float = 0.0,
+        max_iter: int = 1000,
+        anderson: int = 5,
+    ) -> SolverResult:
+        """Run local-global iterations from ``x0``.
+
+        Parameters
+        ----------
+        x0 : (n, dim) float
+            Start positions; ``fixed`` vertices keep these values.
+        rel_tol : float
+            Stop when an iteration lowers the total energy by less than ``rel_tol`` times it.
+        abs_tol : float
+            Stop when the total energy is at most this (mm^2, weighted).
+        max_iter : int
+            Maximum number of iterations (global solves).
+        anderson : int
+            Anderson history length ``m``; 0 switches acceleration off.
+
+        Returns
+        -------
+        SolverResult
+        """
+        start = time.perf_counter()
+        x = np.array(x0, dtype=np.float64)
+        if x.ndim != 2 or x.shape[0] != self.n_vertices or not np.all(np.isfinite(x)):
+            raise InputError(
+                f"start positions must be a finite ({self.n_vertices}, dim) array, got {x.shape}"
+            )
+        if max_iter < 0 or anderson < 0:
+            raise InputError("max_iter and anderson must be >= 0")
+        factorizations = self._assemble()
+        if self.fixed.size:
+            rhs_fixed = np.asarray(self._m_fc @ x[self.fixed])
+        else:
+            rhs_fixed = np.zeros((len(self.free), x.shape[1]))
+
+        proj, energies = self._local(x)
+        before = self._energy_dict(energies)
+        energy = float(energies.sum())
+        history = [energy]
+        accepted = rejected = 0
+        converged = energy <= abs_tol
+        dim = x.shape[1]
+        diff_f: list[FloatArray] = []
+        diff_g: list[FloatArray] = []
+        prev_f: FloatArray | None = None
+        prev_g: FloatArray | None = None
+        iterations = 0
+        while not converged and iterations < max_iter:
+            iterations += 1
+            plain = self._global(proj, x, rhs_fixed)
+            if anderson > 0:
+                g_vec = plain[self.free].reshape(-1)
+                f_vec = g_vec - x[self.free].reshape(-1)
+                if prev_f is not None and prev_g is not None:
+                    diff_f.append(f_vec - prev_f)
+                    diff_g.append(g_vec - prev_g)
+                    if len(diff_f) > anderson:
+                        diff_f.pop(0)
+                        diff_g.pop(0)
+                prev_f, prev_g = f_vec, g_vec
+                if diff_f:
+                    mat_f = np.stack(diff_f, axis=1)
+                    theta = np.linalg.lstsq(mat_f, f_vec, rcond=None)[0]
+                    mixed = g_vec - np.stack(diff_g, axis=1) @ theta
+                    candidate = x.copy()
+                    candidate[self.free] = mixed.reshape(-1, dim)
+                    cand_proj, cand_energies = self._local(candidate)
+                    cand_energy = float(cand_energies.sum())
+                    if np.isfinite(cand_energy) and cand_energy < energy:
+                        accepted += 1
+                        x, proj, energies = candidate, cand_proj, cand_energies
+                    else:
+                        rejected += 1
+                        diff_f.clear()
+                        diff_g.clear()
+                        x = plain
+                        proj, energies = self._local(x)
+                else:
+                    x = plain
+                    proj, energies = self._local(x)
+            else:
+                x = plain
+                proj, energies = self._local(x)
+            new_energy = float(energies.sum())
+            history.append(new_energy)
+            if new_energy <= abs_tol or energy - new_energy <= rel_tol * energy:
+                converged = True
+            energy = new_energy
+
+        elapsed = time.perf_counter() - start
+        logger.debug(
+            "local-global: %d iterations, energy %.3e -> %.3e, %.3f s (AA %d/%d)",
+            iterations,
+            history[0],
+            history[-1],
+            elapsed,
+            accepted,
+            rejected,
+        )
+        return SolverResult(
+            X=x,
+            iterations=iterations,
+            converged=converged,
+            energy_before=before,
+            energy_after=self._energy_dict(energies),
+            energy_history=np.asarray(history),
+            time_s=elapsed,
+            accelerated_accepted=accepted,
+            accelerated_rejected=rejected,
+            factorizations=factorizations,
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# Exact planarity by Gauss-Newton projection
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PlanarizeResult:
+    """Outcome of :func:`planarize_quads`.
+
+    Attributes
+    ----------
+    X : (n, 3) float, mm
+    iterations : int
+    planarity_before_mm, planarity_after_mm : float
+        Max vertex distance to its face's best-fit plane over all quads.
+    max_move_mm : float
+        Largest vertex displacement.
+    """
+
+    X: FloatArray
+    iterations: int
+    planarity_before_mm: float
+    planarity_after_mm: float
+    max_move_mm: float
+
+
+def quad_planarity(x: FloatArray, quads: IntArray) -> FloatArray:
+    """Max distance of each quad's vertices to the quad's best-fit plane.
+
+    Parameters
+    ----------
+    x : (n, 3) float, mm
+    quads : (k, 4) int
+
+    Returns
+    -------
+    distance : (k,) float, mm
+    """
+    pts = x[quads]
+    centroids, normals = plane_fit(pts)
+    return np.max(np.abs(np.einsum("ksi,ki->ks", pts - centroids[:, None], normals)), axis=1)
+
+
+def planarize_quads(
+    x: ArrayLike,
+    quads: ArrayLike,
+    *,
+    fixed: ArrayLike | None = None,
+    tol_mm: float = 0.0,
+    max_iter: int = 8,
+) -> PlanarizeResult:
+    """Nearest configuration with every quad exactly planar (Gauss-Newton, minimum-norm steps).
+
+    Each quad contributes the scalar constraint ``det[v1 - v0, v2 - v0, v3 - v0] = 0`` (scaled by
+    its size). Every step moves the vertices by the least-norm correction
+    ``dX = -J^T (J J^T + delta I)^{-1} c`` of the linearized constraints, so the result stays as
+    close as possible to ``x``; convergence is quadratic from a nearly planar start, as left by
+    the local-global solver. Intended as a final polish, not as a design energy.
+
+    Parameters
+    ----------
+    x : (n, 3) float, mm
+    quads : (k, 4) int
+    fixed : (f,) int, optional
+        Vertices that must not move.
+    tol_mm : float
+        Stop when every quad's planarity (max vertex-to-plane distance) is at most this.
+    max_iter : int
+
+    Returns
+    -------
+    PlanarizeResult
+    """
+    x_start = np.array(x, dtype=np.float64)
+    pos = x_start.copy()
+    quad_arr = np.asarray(quads, dtype=np.int64)
+    n = len(pos)
+    movable = np.ones(n, dtype=bool)
+    if fixed is not None:
+        movable[np.asarray(fixed, dtype=np.int64)] = False
+    col_mask = np.repeat(movable, 3)
+    before = float(quad_planarity(pos, quad_arr).max(initial=0.0))
+    size = np.linalg.norm(pos[quad_arr[:, 2]] - pos[quad_arr[:, 0]], axis=1)
+    size = np.maximum(size, 1e-300)
+    scale = 1.0 / size**2
+    k = len(quad_arr)
+    rows = np.repeat(np.arange(k), 12)
+    cols = (3 * quad_arr[:, :, None] + np.arange(3)[None, None, :]).reshape(k, 12).reshape(-1)
+    iterations = 0
+    after = before
+    while iterations < max_iter and after > tol_mm:
+        p0, p1, p2, p3 = (pos[quad_arr[:, a]] for a in range(4))
+        e1, e2, e3 = p1 - p0, p2 - p0, p3 - p0
+        g1 = np.cross(e2, e3)
+        g2 = np.cross(e3, e1)
+        g3 = np.cross(e1, e2)
+        value = np.einsum("ki,ki->k", e1, g1) * scale
+        grads = np.stack([-(g1 + g2 + g3), g1, g2, g3], axis=1) * scale[:, None, None]
+        jac = sp.csr_matrix((grads.reshape(-1), (rows, cols)), shape=(k, 3 * n))
+        jac = jac[:, np.flatnonzero(col_mask)] if not movable.all() else jac
+        normal_eq = (jac @ jac.T).tocsc()
+        delta = 1e-12 * float(normal_eq.diagonal().mean())
+        normal_eq = normal_eq + delta * sp.identity(k, format="csc")
+        lam = spla.splu(normal_eq, permc_spec="MMD_AT_PLUS_A").solve(value)
+        step = jac.T @ lam
+        flat = pos.reshape(-1)
+        flat[col_mask] -= step
+        pos = flat.reshape(n, 3)
+        iterations += 1
+        new_after = float(quad_planarity(pos, quad_arr).max(initial=0.0))
+        if new_after >= after and iterations > 1:
+            after = new_after
+            break
+        after = new_after
+    return PlanarizeResult(
+        X=pos,
+        iterations=iterations,
+        planarity_before_mm=before,
+        planarity_after_mm=after,
+        max_move_mm=float(np.linalg.norm(pos - x_start, axis=1).max(initial=0.0)),
+    )

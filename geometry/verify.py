@@ -1,0 +1,399 @@
+"""Independent measurements of the flat layout and the hinged tiles (issue 4, part 3).
+
+Everything here is measured on output geometry (tile corners, tile vertices), never taken from an
+optimizer.  Each measurement names the tolerance it is compared to (``geometry.tolerances``):
+
+=============================  =====================================  ==========================
+measurement                    what                                   tolerance
+=============================  =====================================  ==========================
+flat_overlap_area_mm2          sum of exact pairwise footprint        FLAT_OVERLAP_TOL_MM2
+                               overlap areas (convex clipping)
+interpenetration_volume_mm3    sum of exact pairwise 3D intersection  FLAT_INTERPENETRATION_TOL_MM3
+                               volumes of tile hulls (manifold3d)
+flat_edge_error_max_mm         max |len K2D - len K3D| over sides     FLAT_EDGE_ERROR_TOL_MM
+                               and diagonals
+flat_gap_angle_min/max_deg     opening angle at every slit end        [theta_min, 90] +-
+                                                                      FLAT_GAP_ANGLE_TOL_DEG
+hinge_gap_max_mm               max distance of paired hinge vertices  HINGE_GAP_TOL_MM
+=============================  =====================================  ==========================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from drawstring.geometry.constraints import quad_overlap_mtv, signed_angles
+from drawstring.geometry.linkage import Linkage
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+#: Faces of a tile (8 vertices: top BL, BR, TR, TL, then bottom under them), outward-oriented.
+TILE_FACES: IntArray = np.array(
+    [[0, 1, 2, 3], [4, 7, 6, 5], [0, 4, 5, 1], [1, 5, 6, 2], [2, 6, 7, 3], [3, 7, 4, 0]],
+    dtype=np.int64,
+)
+
+#: The 18 rigidity edges of a tile (3 * 8 - 6, Maxwell): 4 top, 4 bottom, 4 vertical edges and
+#: one diagonal on each of the 6 faces.
+RIGID_EDGES: IntArray = np.array(
+    [
+        [0, 1], [1, 2], [2, 3], [3, 0],
+        [4, 5], [5, 6], [6, 7], [7, 4],
+        [0, 4], [1, 5], [2, 6], [3, 7],
+        [0, 2], [4, 6], [0, 5], [1, 6], [2, 7], [3, 4],
+    ],
+    dtype=np.int64,
+)  # fmt: skip
+
+__all__ = [
+    "RIGID_EDGES",
+    "TILE_FACES",
+    "FlatMetrics",
+    "clip_convex_polygons",
+    "convex_polygon_overlap",
+    "flat_edge_errors",
+    "flat_overlap",
+    "gap_opening_angles_deg",
+    "heightfield_tiles",
+    "hinge_gaps",
+    "interpenetration",
+    "polygon_area",
+    "polygon_in_convex_polyhedron_area",
+]
+
+
+def polygon_area(poly: FloatArray) -> float:
+    """Signed shoelace area of one 2D polygon ``(k, 2)`` (positive counter-clockwise), mm^2."""
+    if len(poly) < 3:
+        return 0.0
+    x, y = poly[:, 0], poly[:, 1]
+    return float(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def clip_convex_polygons(subject: FloatArray, clip: FloatArray) -> FloatArray:
+    """Intersection of two convex counter-clockwise polygons (Sutherland-Hodgman).
+
+    Parameters
+    ----------
+    subject, clip : (k, 2), (m, 2) float
+
+    Returns
+    -------
+    (p, 2) float
+        The intersection polygon (possibly empty).
+    """
+    out = np.asarray(subject, dtype=np.float64)
+    m = len(clip)
+    for e in range(m):
+        if len(out) == 0:
+            break
+        a, b = clip[e], clip[(e + 1) % m]
+        edge = b - a
+        side = edge[0] * (out[:, 1] - a[1]) - edge[1] * (out[:, 0] - a[0])  # >= 0 inside
+        nxt = np.roll(out, -1, axis=0)
+        side_n = np.roll(side, -1)
+        pts: list[FloatArray] = []
+        for i in range(len(out)):
+            if side[i] >= 0:
+                pts.append(out[i])
+            if (side[i] >= 0) != (side_n[i] >= 0):
+                t = side[i] / (side[i] - side_n[i])
+                pts.append(out[i] + t * (nxt[i] - out[i]))
+        out = np.array(pts).reshape(-1, 2)
+    return out
+
+
+def convex_polygon_overlap(a: FloatArray, b: FloatArray) -> float:
+    """Exact overlap area of two convex polygons (either orientation), mm^2."""
+    a = a if polygon_area(a) >= 0 else a[::-1]
+    b = b if polygon_area(b) >= 0 else b[::-1]
+    return max(polygon_area(clip_convex_polygons(a, b)), 0.0)
+
+
+def _candidate_pairs(centres: FloatArray, radius: float) -> IntArray:
+    tree = cKDTree(centres)
+    return np.asarray(tree.query_pairs(2.0 * radius * (1 + 1e-9), output_type="ndarray"))
+
+
+def flat_overlap(footprints: ArrayLike) -> tuple[float, IntArray, FloatArray]:
+    """Exact pairwise overlap area of convex tile footprints.
+
+    Broad phase: pairs whose centres are within twice the largest circumradius (k-d tree);
+    separating-axis test (exact for convex polygons) drops separated pairs; the rest are clipped
+    exactly.  Tiles hinged together touch at a point and contribute (numerically) zero.
+
+    Parameters
+    ----------
+    footprints : (T, k, 2) float, mm
+        Convex tile outlines (K2D top faces: k = 4).
+
+    Returns
+    -------
+    total : float, mm^2
+        Compare with ``FLAT_OVERLAP_TOL_MM2``.
+    pairs : (P, 2) int
+        Pairs with positive overlap area.
+    areas : (P,) float, mm^2
+    """
+    poly = np.asarray(footprints, dtype=np.float64)
+    centres = poly.mean(axis=1)
+    radius = float(np.max(np.linalg.norm(poly - centres[:, None], axis=2), initial=0.0))
+    cand = _candidate_pairs(centres, radius)
+    if len(cand) == 0:
+        return 0.0, np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    if poly.shape[1] == 4:
+        depth, _ = quad_overlap_mtv(poly[cand[:, 0]], poly[cand[:, 1]])
+        cand = cand[depth > 0]
+    areas = np.array([convex_polygon_overlap(poly[i], poly[j]) for i, j in cand])
+    hit = areas > 0
+    return float(areas.sum()), cand[hit].astype(np.int64), areas[hit]
+
+
+def _hull_separated(tiles: FloatArray, pairs: IntArray) -> NDArray[np.bool_]:
+    """Pairs of 8-vertex tiles separated along some face normal of either tile (conservative)."""
+    a, b = tiles[pairs[:, 0]], tiles[pairs[:, 1]]
+
+    def face_normals(t: FloatArray) -> FloatArray:
+        f = t[:, TILE_FACES]  # (k, 6, 4, 3)
+        n = np.cross(f[:, :, 2] - f[:, :, 0], f[:, :, 3] - f[:, :, 1])
+        return np.asarray(n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300))
+
+    axes = np.concatenate([face_normals(a), face_normals(b)], axis=1)  # (k, 12, 3)
+    pa = np.einsum("kai,kvi->kav", axes, a)
+    pb = np.einsum("kai,kvi->kav", axes, b)
+    gap = np.maximum(pb.min(axis=2) - pa.max(axis=2), pa.min(axis=2) - pb.max(axis=2))
+    return np.asarray(np.any(gap >= 0, axis=1))
+
+
+def interpenetration(tiles: ArrayLike) -> tuple[float, IntArray, FloatArray]:
+    """Exact pairwise intersection volume of tile hulls (manifold3d).
+
+    Parameters
+    ----------
+    tiles : (T, 8, 3) float, mm
+
+    Returns
+    -------
+    total : float, mm^3
+        Compare with ``FLAT_INTERPENETRATION_TOL_MM3``.
+    pairs : (P, 2) int
+        Pairs with positive volume.
+    volumes : (P,) float, mm^3
+    """
+    import manifold3d as m3d
+
+    t = np.asarray(tiles, dtype=np.float64)
+    centres = t.mean(axis=1)
+    radius = float(np.max(np.linalg.norm(t - centres[:, None], axis=2), initial=0.0))
+    cand = _candidate_pairs(centres, radius)
+    if len(cand) == 0:
+        return 0.0, np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    cand = cand[~_hull_separated(t, cand)]
+    hulls: dict[int, object] = {}
+
+    def hull(i: int) -> m3d.Manifold:
+        if i not in hulls:
+            hulls[i] = m3d.Manifold.hull_points(t[i])
+        return hulls[i]
+
+    vols = np.array([(hull(int(i)) ^ hull(int(j))).volume() for i, j in cand])
+    hit = vols > 0
+    return float(vols.sum()), cand[hit].astype(np.int64), vols[hit]
+
+
+def flat_edge_errors(corners_2d: ArrayLike, top_3d: ArrayLike) -> FloatArray:
+    """|length K2D - length K3D| of every tile's 4 sides and 2 diagonals.
+
+    Parameters
+    ----------
+    corners_2d : (T, 4, 2) or (T, 4, 3) float, mm
+    top_3d : (T, 4, 3) float, mm
+
+    Returns
+    -------
+    (T, 6) float, mm
+        Max compared with ``FLAT_EDGE_ERROR_TOL_MM``.
+    """
+    pairs = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [0, 2], [1, 3]])
+    c2 = np.asarray(corners_2d, dtype=np.float64)
+    c3 = np.asarray(top_3d, dtype=np.float64)
+    l2 = np.linalg.norm(c2[:, pairs[:, 1]] - c2[:, pairs[:, 0]], axis=2)
+    l3 = np.linalg.norm(c3[:, pairs[:, 1]] - c3[:, pairs[:, 0]], axis=2)
+    return np.asarray(np.abs(l2 - l3))
+
+
+def gap_opening_angles_deg(linkage: Linkage, corners_2d: ArrayLike) -> FloatArray:
+    """Opening angle at every slit end, measured on tile corners.
+
+    At a slit end two gap sides meet at a hinge: the angle is measured from the corners of the
+    two tiles themselves (each arm from its own tile's hinge corner), counter-clockwise inside the
+    void; negative means the gap is inverted.
+
+    Parameters
+    ----------
+    linkage : Linkage
+    corners_2d : (T, 4, 2) float, mm
+
+    Returns
+    -------
+    (E,) float, deg
+        Compared with ``[theta_min, 90]`` up to ``FLAT_GAP_ANGLE_TOL_DEG``.
+    """
+    c = np.asarray(corners_2d, dtype=np.float64)[..., :2]
+    cn = linkage.corner_node
+    u_list: list[FloatArray] = []
+    v_list: list[FloatArray] = []
+    for g in range(linkage.n_gaps):
+        sides = linkage.gap_sides[g]
+        sides = sides[sides[:, 0] >= 0]
+        m = len(sides)
+        for k in range(m):
+            t0, s0 = (int(v) for v in sides[k])
+            t1, s1 = (int(v) for v in sides[(k + 1) % m])
+            if cn[t0, s0] != cn[t1, (s1 + 1) % 4]:
+                continue
+            if linkage.tile_corners[t0, s0] == linkage.gap_vertex[g]:
+                continue  # a side vertex of the gap, not a slit end
+            u_list.append(c[t1, s1] - c[t1, (s1 + 1) % 4])
+            v_list.append(c[t0, (s0 + 1) % 4] - c[t0, s0])
+    if not u_list:
+        return np.zeros(0)
+    return np.degrees(signed_angles(np.array(u_list), np.array(v_list)))
+
+
+def hinge_gaps(tiles: ArrayLike, hinge_vertices: ArrayLike) -> FloatArray:
+    """Distance between the two vertices of every hinge.
+
+    Parameters
+    ----------
+    tiles : (T, 8, 3) float, mm
+    hinge_vertices : (H, 2) int
+        Flat vertex ids ``8 * tile + vertex`` of both sides of each hinge.
+
+    Returns
+    -------
+    (H,) float, mm
+        Max compared with ``HINGE_GAP_TOL_MM``.
+    """
+    flat = np.asarray(tiles, dtype=np.float64).reshape(-1, 3)
+    hv = np.asarray(hinge_vertices, dtype=np.int64).reshape(-1, 2)
+    return np.asarray(np.linalg.norm(flat[hv[:, 0]] - flat[hv[:, 1]], axis=1))
+
+
+def polygon_in_convex_polyhedron_area(
+    polygon: FloatArray,
+    plane_points: FloatArray,
+    plane_normals: FloatArray,
+    tol: float = 1e-9,
+) -> float:
+    """Area of the part of a planar 3D polygon inside a convex polyhedron.
+
+    Parameters
+    ----------
+    polygon : (k, 3) float, mm
+        Planar convex polygon.
+    plane_points, plane_normals : (f, 3) float
+        The polyhedron as half-spaces ``(x - p) . n <= 0`` (outward normals).
+    tol : float, mm
+        Points within ``tol`` outside a plane count as inside, so polygons lying on the
+        polyhedron's boundary (a contact face that is also a face of the overlap) are kept.
+
+    Returns
+    -------
+    float, mm^2
+    """
+    out = np.asarray(polygon, dtype=np.float64)
+    for p, n in zip(plane_points, plane_normals, strict=True):
+        if len(out) == 0:
+            break
+        side = tol - (out - p) @ n  # >= 0 inside
+        nxt = np.roll(out, -1, axis=0)
+        side_n = np.roll(side, -1)
+        pts3: list[FloatArray] = []
+        for i in range(len(out)):
+            if side[i] >= 0:
+                pts3.append(out[i])
+            if (side[i] >= 0) != (side_n[i] >= 0):
+                t = side[i] / (side[i] - side_n[i])
+                pts3.append(out[i] + t * (nxt[i] - out[i]))
+        out = np.array(pts3).reshape(-1, 3)
+    if len(out) < 3:
+        return 0.0
+    cross = np.cross(out - out[0], np.roll(out, -1, axis=0) - out[0]).sum(axis=0)
+    return float(0.5 * np.linalg.norm(cross))
+
+
+@dataclass(frozen=True)
+class FlatMetrics:
+    """Summary numbers for design.json (see the table in the module docstring)."""
+
+    flat_overlap_area_mm2: float
+    flat_interpenetration_mm3: float
+    flat_edge_error_max_mm: float
+    flat_gap_angle_min_deg: float
+    flat_gap_angle_max_deg: float
+    hinge_gap_max_mm: float | None = None
+    hinge_lost_contact_area_mm2: float | None = None
+
+    def to_json(self) -> dict[str, float]:
+        return {k: float(v) for k, v in self.__dict__.items() if v is not None}
+
+
+def heightfield_tiles(
+    uv: ArrayLike,
+    quads: ArrayLike,
+    surface: str,
+    thickness: float,
+    parameter: float,
+) -> tuple[FloatArray, FloatArray]:
+    """Test and benchmark fixture: T3D tiles of a grid lifted onto an analytic surface.
+
+    Top = lifted grid vertices, bottom = top offset by ``-thickness`` along the exact surface
+    normal (upward), shared between neighbours.
+
+    Parameters
+    ----------
+    uv : (n, 2) float, mm, grid positions.
+    quads : (T, 4) int, tile corners.
+    surface : ``"plane" | "cylinder" | "cylinder_inside" | "saddle" | "dome"``
+        Cylinders are wrapped isometrically (``uv`` x is arc length) around the y axis of radius
+        ``parameter``; ``cylinder`` is seen from outside (convex side up), ``cylinder_inside``
+        from inside.  ``saddle`` is ``z = p (x^2 - y^2)``, ``dome`` ``z = -p (x^2 + y^2)``.
+    thickness : float, mm
+    parameter : float
+
+    Returns
+    -------
+    top : (T, 4, 3) float, mm
+    tiles : (T, 8, 3) float, mm
+    """
+    uv_arr = np.asarray(uv, dtype=np.float64)
+    x, y = uv_arr[:, 0], uv_arr[:, 1]
+    if surface in ("cylinder", "cylinder_inside"):
+        r = parameter
+        ang = x / r
+        if surface == "cylinder":
+            pts = np.stack([r * np.sin(ang), y, r * np.cos(ang) - r], axis=1)
+            nrm = np.stack([np.sin(ang), 0 * y, np.cos(ang)], axis=1)
+        else:
+            pts = np.stack([r * np.sin(ang), y, r - r * np.cos(ang)], axis=1)
+            nrm = np.stack([-np.sin(ang), 0 * y, np.cos(ang)], axis=1)
+    else:
+        if surface == "plane":
+            z, zx, zy = 0 * x, 0 * x, 0 * x
+        elif surface == "saddle":
+            z, zx, zy = parameter * (x**2 - y**2), 2 * parameter * x, -2 * parameter * y
+        elif surface == "dome":
+            z, zx, zy = -parameter * (x**2 + y**2), -2 * parameter * x, -2 * parameter * y
+        else:
+            raise ValueError(f"unknown surface {surface!r}")
+        pts = np.stack([x, y, z], axis=1)
+        nrm = np.stack([-zx, -zy, np.ones_like(x)], axis=1)
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    bottom = pts - thickness * nrm
+    q = np.asarray(quads, dtype=np.int64)
+    return pts[q], np.concatenate([pts[q], bottom[q]], axis=1)

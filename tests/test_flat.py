@@ -1,0 +1,106 @@
+"""Flat configuration K2D / T2D and its independent verification (issue 4)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from drawstring.geometry.flat import extrude_flat, gap_junctions, optimize_flat
+from drawstring.geometry.linkage import build_linkage
+from drawstring.geometry.verify import (
+    convex_polygon_overlap,
+    flat_edge_errors,
+    flat_overlap,
+    gap_opening_angles_deg,
+    heightfield_tiles,
+    interpenetration,
+)
+
+
+def _grid(n: int, size: float = 100.0):
+    linkage = build_linkage(np.ones((n, n), dtype=bool))
+    uv = linkage.vertex_ij * (size / n) - 0.5 * size
+    return linkage, uv
+
+
+def test_convex_overlap_known_area() -> None:
+    a = np.array([[0.0, 0], [1, 0], [1, 1], [0, 1]])
+    assert convex_polygon_overlap(a, a + 0.5) == pytest.approx(0.25)
+    assert convex_polygon_overlap(a, a + 2.0) == 0.0
+    assert convex_polygon_overlap(a, a[::-1] + [0.5, 0]) == pytest.approx(0.5)
+
+
+def test_planar_target_gives_plain_opened_grid() -> None:
+    linkage, uv = _grid(6)
+    top, tiles = heightfield_tiles(uv, linkage.tile_corners, "plane", 3.0, 0.0)
+    flat = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=12.0)
+    assert flat.problems == ()
+    # Every tile is a square congruent to its K3D face; every gap opens by theta_min.
+    assert flat_edge_errors(flat.corners, top).max() < 1e-9
+    angles = gap_opening_angles_deg(linkage, flat.corners)
+    np.testing.assert_allclose(angles, 12.0, atol=1e-6)
+    total, pairs, _ = flat_overlap(flat.corners)
+    assert total < 1e-9 and len(pairs) == 0
+    t2 = extrude_flat(flat, tiles)
+    np.testing.assert_allclose(t2[:, :4, 2], 3.0, atol=1e-9)
+    np.testing.assert_allclose(t2[:, 4:, 2], 0.0, atol=1e-9)
+    assert interpenetration(t2)[0] < 1e-9
+
+
+def test_cylinder_gives_uniform_gaps() -> None:
+    linkage, uv = _grid(8)
+    top, tiles = heightfield_tiles(uv, linkage.tile_corners, "cylinder", 4.0, 60.0)
+    flat = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=8.0)
+    angles = gap_opening_angles_deg(linkage, flat.corners)
+    assert angles.max() - angles.min() < 1e-6
+    assert flat_edge_errors(flat.corners, top).max() < 1e-6
+    t2 = extrude_flat(flat, tiles)
+    # Extrusion is rigid: every tile keeps its T3D edge lengths.
+    d3 = np.linalg.norm(tiles[:, :, None] - tiles[:, None], axis=-1)
+    d2 = np.linalg.norm(t2[:, :, None] - t2[:, None], axis=-1)
+    assert np.abs(d2 - d3).max() < 1e-9
+
+
+def test_curved_target_within_gap_bounds() -> None:
+    linkage, uv = _grid(8)
+    top, _ = heightfield_tiles(uv, linkage.tile_corners, "dome", 3.0, 0.004)
+    flat = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=10.0)
+    angles = gap_opening_angles_deg(linkage, flat.corners)
+    assert angles.min() >= 10.0 - 0.011 and angles.max() <= 90.0 + 0.011
+    assert flat_overlap(flat.corners)[0] < 1e-9
+    assert flat_edge_errors(flat.corners, top).max() == pytest.approx(flat.edge_error_max_mm)
+
+
+def test_perturbed_layout_overlap_is_detected() -> None:
+    linkage, uv = _grid(4)
+    top, tiles = heightfield_tiles(uv, linkage.tile_corners, "plane", 3.0, 0.0)
+    flat = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=10.0)
+    corners = flat.corners.copy()
+    t = 5  # an interior tile: turn it by 25 degrees about its centre
+    c = corners[t].mean(axis=0)
+    a = np.radians(25.0)
+    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    corners[t] = (corners[t] - c) @ rot.T + c
+    total, pairs, _ = flat_overlap(corners)
+    assert total > 1.0
+    assert np.all(np.any(pairs == t, axis=1))
+    assert gap_opening_angles_deg(linkage, corners).min() < 0  # an inverted gap
+    assert interpenetration(extrude_flat(corners, tiles))[0] > 1.0
+
+
+def test_scale_ratio_too_large_is_reported() -> None:
+    linkage, uv = _grid(4)
+    top, _ = heightfield_tiles(uv, linkage.tile_corners, "plane", 3.0, 0.0)
+    top = top.copy()
+    top[0] = top[0].mean(axis=0) + 1.6 * (top[0] - top[0].mean(axis=0))  # area x 2.56
+    flat = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=10.0, max_iter=20)
+    assert any("area ratio" in p for p in flat.problems)
+
+
+def test_gap_junctions_of_a_2x2_block() -> None:
+    linkage, _ = _grid(2)
+    junctions = gap_junctions(linkage)
+    # The central gap has 4 junctions (2 ends); the two unhinged boundary slits (bottom and top
+    # middle vertices) one end each; the left and right middle vertices are hinged shut.
+    assert linkage.n_gaps == 3
+    assert len(junctions.elements) == 6
+    assert junctions.is_end.sum() == 2 + 2

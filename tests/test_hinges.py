@@ -1,0 +1,123 @@
+"""Hinge sides, top-hinge trimming and the dual-hinge layout (issue 4)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from drawstring.geometry.flat import extrude_flat, optimize_flat
+from drawstring.geometry.hinges import (
+    hinge_sides,
+    hinge_vertex_json,
+    layout_hinges,
+    top_hinge_trims,
+    write_flat_obj,
+)
+from drawstring.geometry.linkage import build_linkage
+from drawstring.geometry.verify import TILE_FACES, heightfield_tiles, hinge_gaps, interpenetration
+
+
+def _grid(n: int, size: float = 100.0):
+    linkage = build_linkage(np.ones((n, n), dtype=bool))
+    uv = linkage.vertex_ij * (size / n) - 0.5 * size
+    return linkage, uv
+
+
+def _block(flare: float, h: float) -> np.ndarray:
+    """2x2 closed block of 10 mm tiles whose bottoms are ``flare`` mm wider on every side."""
+    tiles = []
+    for j in range(2):
+        for i in range(2):
+            x0, y0 = 10.0 * i, 10.0 * j
+            sq = np.array([[x0, y0], [x0 + 10, y0], [x0 + 10, y0 + 10], [x0, y0 + 10]])
+            grow = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * flare
+            top = np.c_[sq, np.full(4, h)]
+            bottom = np.c_[sq + grow, np.zeros(4)]
+            tiles.append(np.vstack([top, bottom]))
+    return np.array(tiles)
+
+
+def test_hinge_sides_on_cylinders() -> None:
+    linkage, uv = _grid(6)
+    _, outside = heightfield_tiles(uv, linkage.tile_corners, "cylinder", 4.0, 40.0)
+    _, inside = heightfield_tiles(uv, linkage.tile_corners, "cylinder_inside", 4.0, 40.0)
+    assert not hinge_sides(linkage, outside).any()
+    assert hinge_sides(linkage, inside).all()
+    _, plane = heightfield_tiles(uv, linkage.tile_corners, "plane", 4.0, 0.0)
+    assert not hinge_sides(linkage, plane).any()
+
+
+def test_hand_built_block_sides_and_trim() -> None:
+    linkage, _ = _grid(2)
+    h = 3.0
+    flared = _block(1.0, h)  # bottoms overhang: every hinge goes to the bottom
+    assert hinge_sides(linkage, flared).all()
+    assert not hinge_sides(linkage, _block(-1.0, h)).any()
+    # Top hinges on the closed flared block: neighbours overlap in the wedge between their
+    # leaning contact faces.  At depth fraction u below the top the overlap is 2u wide and
+    # 10 + 2u long, so its volume is h * int_0^1 2u (10 + 2u) du = h (10 + 4/3).  The trimmed tile
+    # loses its whole contact face toward the other (a trapezoid, 11 L with L = sqrt(h^2 + 1)) and
+    # a triangle of area L on each of the two faces beside it: 13 L.
+    trims = top_hinge_trims(linkage, flared)
+    assert len(trims) == linkage.n_hinges == 4
+    slant = np.sqrt(h * h + 1.0)
+    for trim in trims:
+        ta, _, tb, _ = linkage.hinges[trim.hinge]
+        assert trim.tile == max(ta, tb)
+        assert trim.volume_mm3 == pytest.approx(h * (10.0 + 4.0 / 3.0), rel=1e-9)
+        assert trim.contact_area_lost_mm2 == pytest.approx(13.0 * slant, rel=1e-6)
+
+
+def test_dual_layout_inside_cylinder_meets_hinges() -> None:
+    linkage, uv = _grid(6)
+    top, t3 = heightfield_tiles(uv, linkage.tile_corners, "cylinder_inside", 4.0, 40.0)
+    flat = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=10.0)
+    t2 = extrude_flat(flat, t3)
+    assert interpenetration(t2)[0] > 0.1  # top hinges would collide here
+    layout = layout_hinges(linkage, flat, t2, t3, strategy="dual")
+    assert layout.bottom.all()
+    assert layout.hinge_gap_max_mm < 1e-9
+    assert hinge_gaps(layout.tiles, layout.hinge_vertices).max() == 0.0
+    assert interpenetration(layout.tiles)[0] < 1e-9
+    top_layout = layout_hinges(linkage, flat, t2, t3, strategy="top")
+    assert top_layout.contact_area_lost_mm2 > 0 and top_layout.problems
+
+
+def test_flat_obj_is_closed_and_outward(tmp_path: Path) -> None:
+    tiles = _block(-0.5, 2.0)
+    path = tmp_path / "flat.obj"
+    write_flat_obj(path, tiles)
+    verts = np.array(
+        [
+            [float(v) for v in ln.split()[1:]]
+            for ln in path.read_text().splitlines()
+            if ln[:2] == "v "
+        ]
+    )
+    faces = [
+        [int(v) - 1 for v in ln.split()[1:]]
+        for ln in path.read_text().splitlines()
+        if ln.startswith("f ")
+    ]
+    assert len(faces) == 6 * len(tiles)
+    np.testing.assert_allclose(verts.reshape(-1, 8, 3), tiles)
+    volume = 0.0
+    for f in faces[:6]:
+        for k in range(1, 3):
+            a, b, c = verts[f[0]], verts[f[k]], verts[f[k + 1]]
+            volume += np.dot(a, np.cross(b, c)) / 6.0
+    assert volume > 0  # outward orientation
+    edges = {tuple(sorted(e)) for f in TILE_FACES for e in zip(f, np.roll(f, -1), strict=True)}
+    assert len(edges) == 12  # closed box
+
+
+def test_hinge_json_serializes() -> None:
+    linkage, uv = _grid(3)
+    top, t3 = heightfield_tiles(uv, linkage.tile_corners, "saddle", 3.0, 0.004)
+    flat = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=10.0)
+    layout = layout_hinges(linkage, flat, extrude_flat(flat, t3), t3)
+    data = hinge_vertex_json(layout, linkage)
+    assert len(data["hinges"]) == linkage.n_hinges
+    json.dumps(data)
