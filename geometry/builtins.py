@@ -181,7 +181,7 @@ def _saddle(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
 
 
 #: Half-side of the square that the dome's stereographic chart covers (1 = the equator).
-_DOME_CHART_HALF_SIDE = 0.6
+_DOME_CHART_HALF_SIDE = 0.7
 
 
 def _dome(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:

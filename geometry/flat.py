@@ -258,14 +258,14 @@ def initial_flat_layout(
         ``c`` per component.
     problems : list of str
     """
-    cell_uv = uv[linkage.tile_corners]  # (T, 4, 2)
+    # Per-vertex grid positions, or per-tile corner positions (each component flattened alone).
+    cell_uv = uv if uv.ndim == 3 else uv[linkage.tile_corners]  # (T, 4, 2)
     cell_centre = cell_uv.mean(axis=1)
     cell_area = np.abs(_polygon_signed_area(cell_uv))
     tile_area = _polygon_signed_area(plane_tiles)
     if np.any(tile_area <= 0) or np.any(cell_area <= 0):
         raise InputError("a tile or grid cell has zero or negative area; check the K3D tiles")
-    cell_mean = float(np.median(cell_area))
-    tile_scale = tile_area / cell_mean
+    tile_scale = tile_area / cell_area
     problems: list[str] = []
     comp = linkage.tile_component
     layout_scale = np.zeros(linkage.n_components)
@@ -420,9 +420,11 @@ def _gauss_newton_edges(
 
 
 def _separate_components(
-    linkage: Linkage, nodes: FloatArray, uv: FloatArray, clearance: float
+    linkage: Linkage, nodes: FloatArray, cell_corners_uv: FloatArray, clearance: float
 ) -> tuple[FloatArray, FloatArray]:
     """Translate components apart (away from each other along their uv offsets).
+
+    ``cell_corners_uv`` (T, 4, 2) are the tiles' corners in the flat domain.
 
     Returns the new nodes and the ``(C, 2)`` offsets applied.
     """
@@ -432,7 +434,7 @@ def _separate_components(
         return nodes, offsets
     comp_of_node = np.zeros(linkage.n_nodes, dtype=np.int64)
     comp_of_node[linkage.corner_node.ravel()] = np.repeat(linkage.tile_component, 4)
-    cell_uv = uv[linkage.tile_corners].mean(axis=1)
+    cell_uv = cell_corners_uv.mean(axis=1)
     overall = cell_uv.mean(axis=0)
     sizes = np.bincount(linkage.tile_component)
     order = np.argsort(-sizes, kind="stable")
@@ -496,8 +498,9 @@ def optimize_flat(
     linkage : Linkage
     tile_top_3d : (T, 4, 3) float, mm
         K3D top face corners BL, BR, TR, TL of every tile.
-    uv : (n, 2) float, mm
-        Flat (conformal) grid vertex positions.
+    uv : (n, 2) or (T, 4, 2) float, mm
+        Flat (conformal) grid vertex positions, or every tile's corners in a flattening of its
+        own component (``Tiling.layout_uv``); only shapes within a component matter.
     min_gap_angle_deg : float, deg
         ``theta_min``; the maximum is 90 deg.
     w_edge, w_collision, w_fab : float
@@ -517,12 +520,15 @@ def optimize_flat(
     uv_arr = np.asarray(uv, dtype=np.float64)
     if top.shape != (linkage.n_tiles, 4, 3):
         raise InputError(f"tile_top_3d has shape {top.shape}; pass (T, 4, 3) K3D corners")
-    if (
-        uv_arr.ndim != 2
-        or uv_arr.shape[1] != 2
-        or len(uv_arr) < int(linkage.tile_corners.max()) + 1
-    ):
-        raise InputError("uv must be (n, 2) flat positions of the linkage's grid vertices")
+    per_vertex = (
+        uv_arr.ndim == 2
+        and uv_arr.shape[1] == 2
+        and len(uv_arr) >= int(linkage.tile_corners.max()) + 1
+    )
+    if not per_vertex and uv_arr.shape != (linkage.n_tiles, 4, 2):
+        raise InputError(
+            "uv must be (n, 2) flat grid-vertex positions or (T, 4, 2) flat tile corners"
+        )
     if not 0.0 <= min_gap_angle_deg < 90.0:
         raise InputError(f"--min-gap-angle {min_gap_angle_deg} deg must be in [0, 90)")
     theta_min = np.radians(min_gap_angle_deg)
@@ -573,8 +579,9 @@ def optimize_flat(
         nodes = result.X
         iterations += result.iterations
     if separate_components:
-        cell = float(np.sqrt(np.median(np.abs(_polygon_signed_area(uv_arr[linkage.tile_corners])))))
-        nodes, offsets = _separate_components(linkage, nodes, uv_arr, 0.5 * cell)
+        cell_uv = uv_arr if uv_arr.ndim == 3 else uv_arr[linkage.tile_corners]
+        cell = float(np.sqrt(np.median(np.abs(_polygon_signed_area(cell_uv)))))
+        nodes, offsets = _separate_components(linkage, nodes, cell_uv, 0.5 * cell)
     else:
         offsets = np.zeros((linkage.n_components, 2))
     corners = nodes[linkage.corner_node]

@@ -326,3 +326,27 @@ def rotating_squares_layout(
     cos, sin = np.cos(angle), np.sin(angle)
     rot = np.stack([np.stack([cos, -sin], -1), np.stack([sin, cos], -1)], -2)  # (T, 2, 2)
     return np.asarray(centres[:, None, :] + np.einsum("tij,kj->tki", rot, square))
+
+
+def gap_centroids(linkage: Linkage, corners: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Centroid of every gap: the mean of the endpoints of the tile sides bounding it.
+
+    Parameters
+    ----------
+    linkage : topology.
+    corners : (T, 4, d) float, tile corner positions (flat top faces, or assembled tops).
+
+    Returns
+    -------
+    (G, d) float.
+    """
+    corners = np.asarray(corners, dtype=np.float64)
+    sides = linkage.gap_sides
+    valid = sides[..., 0] >= 0
+    tile = np.where(valid, sides[..., 0], 0)
+    side = np.where(valid, sides[..., 1], 0)
+    start = corners[tile, side]
+    end = corners[tile, (side + 1) % 4]
+    weight = valid[..., None].astype(np.float64)
+    total = ((start + end) * weight).sum(axis=1)
+    return np.asarray(total / (2.0 * weight.sum(axis=1)))

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from .errors import InputError
+from .flatten import flatten
 from .linkage import Linkage, Split, build_linkage
 from .tolerances import MAX_SCALE_FACTOR
 
@@ -24,6 +25,10 @@ log = logging.getLogger(__name__)
 
 #: Grid vertices farther than this fraction of a cell from the flattened mesh count as outside.
 CROP_TOLERANCE_CELLS = 1e-6
+
+#: A split never leaves a part narrower than this many cells across the cut (a thinner strip has
+#: no interior gaps to pull shut and would hang off its neighbours by magnets alone).
+MIN_PART_CELLS = 3
 
 
 @dataclass(frozen=True)
@@ -36,10 +41,15 @@ class Tiling:
     uv : (n, 2) float, mm, grid vertex positions in the flattened domain.
     vertices : (n, 3) float, mm, grid vertices lifted onto the target (M3D).
     cell_size : float, mm, side of a grid cell in the flat domain.
-    tile_area_scale : (T,) float, lifted tile area over flat cell area.
+    tile_area_scale : (T,) float, each tile's area scale in its part's own free-boundary
+        conformal flattening, normalized to 1 at the part's largest (see ``part_area_scale``).
+    tile_conformal_scale : (T,) float, lifted tile area over flat cell area in the global map.
+    layout_uv : (T, 4, 2) float, mm, tile corners in their component's own free-boundary
+        flattening: the start of the flat layout.
     vertex_gaussian_curvature : (n,) float, 1/mm^2, target Gaussian curvature at each grid vertex.
-    scale_factor_max : float, max over components of (max / min tile area scale).
-    scale_factor_max_unsplit : float, the same ratio over all tiles before splitting.
+    scale_factor_max : float, max over components of (max / min tile area scale), each
+        component measured in its own conformal flattening.
+    scale_factor_max_unsplit : float, the same ratio for the whole grid before splitting.
     notes : human-readable remarks (e.g. a bound that could not be met).
     """
 
@@ -48,6 +58,8 @@ class Tiling:
     vertices: NDArray[np.float64]
     cell_size: float
     tile_area_scale: NDArray[np.float64]
+    tile_conformal_scale: NDArray[np.float64]
+    layout_uv: NDArray[np.float64]
     vertex_gaussian_curvature: NDArray[np.float64]
     scale_factor_max: float
     scale_factor_max_unsplit: float
@@ -123,6 +135,89 @@ def quad_vector_area(
     return 0.5 * np.linalg.norm(np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1]), axis=1)
 
 
+def part_flattening(
+    vertices: NDArray[np.float64], quads: NDArray[np.int64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A part of the lifted grid flattened on its own, and its per-tile area scale.
+
+    The part (its lifted quads, each split into two triangles) is flattened with free-boundary
+    BFF (the least area distortion); each tile's 3D area is divided by its flat area, and the
+    scales are normalized so the part's largest is 1: the value is how much the flat layout must
+    open locally around that tile (1 to the part's ratio).  A split part gets its own flat
+    layout, so this, not the global rectangle map, decides whether it fits.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float, mm, lifted grid vertices.
+    quads : (t, 4) int, the part's tiles.
+
+    Returns
+    -------
+    corners_uv : (t, 4, 2) float, mm, the tiles' corners in the part's flattening.
+    scale : (t,) float, normalized area scale.
+    """
+    used, local = np.unique(quads, return_inverse=True)
+    local = local.reshape(-1, 4)
+    tris = np.concatenate([local[:, [0, 1, 2]], local[:, [0, 2, 3]]])
+    flat = flatten(vertices[used], tris, mode="free")
+    uv3 = np.hstack([flat.uv, np.zeros((len(used), 1))])
+    scale = quad_vector_area(vertices[used], local) / quad_vector_area(uv3, local)
+    return flat.uv[local], np.asarray(scale / scale.max())
+
+
+def part_area_scale(vertices: NDArray[np.float64], quads: NDArray[np.int64]) -> NDArray[np.float64]:
+    """(t,) normalized per-tile area scale of a part in its own flattening (see above)."""
+    return part_flattening(vertices, quads)[1]
+
+
+def component_flattenings(
+    linkage: Linkage, vertices: NDArray[np.float64], grid_uv: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Flatten every component of a tile mesh on its own (see :func:`part_flattening`).
+
+    Parameters
+    ----------
+    linkage : topology (components after splits).
+    vertices : (n, 3) float, mm, grid vertices in 3D (the lifted grid, or K3D after its
+        optimization: the flat layout should follow the tiles it lays out).
+    grid_uv : (n, 2) float, mm, grid vertices in the global flat domain; each component's own
+        flattening is moved onto it by the best similarity, so components keep their places.
+
+    Returns
+    -------
+    layout_uv : (T, 4, 2) float, mm, tile corners in their component's flattening.
+    area_scale : (T,) float, normalized area scale per tile (max 1 in each component).
+    """
+    area_scale = np.empty(linkage.n_tiles)
+    layout_uv = np.empty((linkage.n_tiles, 4, 2))
+    for c in range(linkage.n_components):
+        members = np.nonzero(linkage.tile_component == c)[0]
+        quads = linkage.tile_corners[members]
+        own_uv, area_scale[members] = part_flattening(vertices, quads)
+        layout_uv[members] = _align_similarity(own_uv, grid_uv[quads])
+    return layout_uv, area_scale
+
+
+def _align_similarity(
+    source: NDArray[np.float64], target: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Move 2D points ``source`` by the rotation, uniform scale and translation that best fit
+    them to ``target`` in the least-squares sense (Umeyama; reflections excluded).
+
+    Both are (..., 2) arrays of the same shape; the result has the shape of ``source``.
+    """
+    src = source.reshape(-1, 2)
+    dst = target.reshape(-1, 2)
+    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
+    a, b = src - mu_s, dst - mu_d
+    u, sigma, vt = np.linalg.svd(b.T @ a)
+    d = np.sign(np.linalg.det(u @ vt))
+    fix = np.diag([1.0, d])
+    rotation = u @ fix @ vt
+    scale = float(np.trace(np.diag(sigma) @ fix) / max((a**2).sum(), 1e-300))
+    return np.asarray((scale * a @ rotation.T + mu_d).reshape(source.shape))
+
+
 def _scale_ratio(scale: NDArray[np.float64]) -> float:
     return float(scale.max() / scale.min()) if scale.size else 1.0
 
@@ -194,23 +289,23 @@ def tile_surface(
     tile_uv = grid_uv[flat_index]
     tile_xyz = lifted_all[flat_index]
     vertex_gauss = gauss_all[flat_index]
-    area_scale = quad_vector_area(tile_xyz, base.tile_corners) / cell**2
-    if np.any(area_scale <= 0):
-        raise InputError(
-            "the lifted grid has degenerate tiles; the flattening folded, check the mesh"
-        )
-    unsplit = _scale_ratio(area_scale)
+    conformal_scale = quad_vector_area(tile_xyz, base.tile_corners) / cell**2
+    if np.any(conformal_scale <= 0):
+        raise InputError("the lifted grid has degenerate tiles; the flattening folded")
+    unsplit = _scale_ratio(part_area_scale(tile_xyz, base.tile_corners))
 
     notes: list[str] = []
     splits: tuple[Split, ...] = ()
     if split and unsplit > max_scale_factor:
-        splits, unmet = _choose_splits(cells, base, area_scale, vertex_gauss, max_scale_factor)
+        splits, unmet = _choose_splits(cells, base, tile_xyz, vertex_gauss, max_scale_factor)
         if unmet:
             notes.append(
-                f"{unmet} part(s) still exceed the scale-factor bound {max_scale_factor:g} after "
-                "splitting down to single rows; use more tiles or a flatter target"
+                f"{unmet} part(s) still exceed the scale-factor bound {max_scale_factor:g}: no "
+                f"split leaves {MIN_PART_CELLS} or more cells on each side; use more tiles, "
+                "other --corners or a flatter target"
             )
     linkage = build_linkage(cells, splits) if splits else base
+    layout_uv, area_scale = component_flattenings(linkage, tile_xyz, tile_uv)
     per_component = [
         _scale_ratio(area_scale[linkage.tile_component == c]) for c in range(linkage.n_components)
     ]
@@ -220,6 +315,8 @@ def tile_surface(
         vertices=tile_xyz,
         cell_size=float(cell),
         tile_area_scale=area_scale,
+        tile_conformal_scale=conformal_scale,
+        layout_uv=layout_uv,
         vertex_gaussian_curvature=vertex_gauss,
         scale_factor_max=max(per_component),
         scale_factor_max_unsplit=unsplit,
@@ -243,7 +340,7 @@ def _vertex_gaussian_curvature(
 def _choose_splits(
     cells: NDArray[np.bool_],
     base: Linkage,
-    area_scale: NDArray[np.float64],
+    tile_xyz: NDArray[np.float64],
     vertex_gauss: NDArray[np.float64],
     bound: float,
 ) -> tuple[tuple[Split, ...], int]:
@@ -259,8 +356,14 @@ def _choose_splits(
     tile_of_cell[base.tile_cells[:, 0], base.tile_cells[:, 1]] = np.arange(base.n_tiles)
     vertex_of_ij = {(int(a), int(b)): k for k, (a, b) in enumerate(base.vertex_ij)}
 
+    cache: dict[bytes, float] = {}
+
     def ratio_of(mask: NDArray[np.bool_]) -> float:
-        return _scale_ratio(area_scale[tile_of_cell[mask]])
+        key = np.packbits(mask).tobytes()
+        if key not in cache:
+            quads = base.tile_corners[tile_of_cell[mask]]
+            cache[key] = _scale_ratio(part_area_scale(tile_xyz, quads))
+        return cache[key]
 
     def halves(mask: NDArray[np.bool_], axis: str, line: int) -> list[NDArray[np.bool_]]:
         low = mask.copy()
@@ -287,8 +390,13 @@ def _choose_splits(
     def candidate_lines(mask: NDArray[np.bool_]) -> list[tuple[str, int]]:
         ii, jj = np.nonzero(mask)
         lines: list[tuple[str, int]] = []
-        lines += [("x", int(x)) for x in range(ii.min() + 1, ii.max() + 1)]
-        lines += [("y", int(y)) for y in range(jj.min() + 1, jj.max() + 1)]
+        # Leave at least MIN_PART_CELLS columns (rows) of the part on each side of a cut.
+        lines += [
+            ("x", int(x)) for x in range(ii.min() + MIN_PART_CELLS, ii.max() + 2 - MIN_PART_CELLS)
+        ]
+        lines += [
+            ("y", int(y)) for y in range(jj.min() + MIN_PART_CELLS, jj.max() + 2 - MIN_PART_CELLS)
+        ]
         # Keep only lines that actually separate cells of the part.
         valid = []
         for axis, line in lines:

@@ -6,6 +6,7 @@ from collections import Counter
 
 import numpy as np
 import pytest
+
 from drawstring.geometry.linkage import Split, build_linkage, rotating_squares_layout
 
 

@@ -6,6 +6,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
+
 from drawstring.fabrication.profiles import SHIPPED_PROFILES, load_profile, parse_profile
 from drawstring.geometry.errors import InputError
 

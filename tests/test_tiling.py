@@ -5,6 +5,7 @@ from __future__ import annotations
 import igl
 import numpy as np
 import pytest
+
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.tiling import grid_shape_for, lift_points, tile_surface
 

@@ -1,0 +1,115 @@
+"""Benchmark every stage: built-in targets and the scanned face mesh at three resolutions.
+
+Run with ``.venv/bin/python benchmarks/run.py`` (``--quick`` for a smaller sweep).  Prints a table
+and writes ``benchmarks/results.json`` with the machine's core count.  Targets (2 cores):
+flattening the 34k-triangle face under 1 s; tiling under 0.5 s at 1600 tiles; the per-stage
+targets of the other issues are listed next to their rows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+from drawstring.geometry.builtins import BUILTIN_TARGETS  # noqa: E402
+from drawstring.geometry.flatten import flatten  # noqa: E402
+from drawstring.geometry.target import load_target  # noqa: E402
+from drawstring.geometry.tiling import tile_surface  # noqa: E402
+
+FACE = HERE / "data" / "face.obj"
+TARGETS_S = {"flatten_face": 1.0, "tiling_1600": 0.5}
+
+
+def timed(fn: Any, *args: Any, repeat: int = 3, **kwargs: Any) -> tuple[Any, float]:
+    """Best wall time of ``repeat`` calls (seconds) and the last result."""
+    best = float("inf")
+    result = None
+    for _ in range(repeat):
+        start = time.perf_counter()
+        result = fn(*args, **kwargs)
+        best = min(best, time.perf_counter() - start)
+    return result, best
+
+
+def foundation_rows(tile_counts: tuple[int, ...], names: list[str]) -> list[dict[str, Any]]:
+    rows: list[dict[str, Any]] = []
+    cases = [(n, n) for n in names] + [("face", str(FACE))]
+    for name, spec in cases:
+        target, t_load = timed(load_target, spec, size_mm=200.0, repeat=1)
+        flat, t_flat = timed(flatten, target.vertices, target.faces, repeat=3)
+        for tiles in tile_counts:
+            tiling, t_tile = timed(
+                tile_surface, target.vertices, target.faces, flat.uv, tiles=tiles, repeat=3
+            )
+            rows.append(
+                {
+                    "case": name,
+                    "triangles": int(len(target.faces)),
+                    "tiles": tiling.linkage.n_tiles,
+                    "load_s": round(t_load, 4),
+                    "flatten_s": round(t_flat, 4),
+                    "tiling_s": round(t_tile, 4),
+                    "splits": len(tiling.linkage.splits),
+                    "scale_factor_max": round(tiling.scale_factor_max, 3),
+                }
+            )
+    return rows
+
+
+def extra_rows() -> dict[str, list[dict[str, Any]]]:
+    """Rows from the per-stage benchmark modules that exist (``bench_*.py`` with ``run()``)."""
+    out: dict[str, list[dict[str, Any]]] = {}
+    for path in sorted(HERE.glob("bench_*.py")):
+        module = importlib.import_module(path.stem)
+        if hasattr(module, "run"):
+            out[path.stem] = module.run()
+    return out
+
+
+def print_table(rows: list[dict[str, Any]]) -> None:
+    if not rows:
+        return
+    keys = list(rows[0])
+    widths = {k: max(len(k), *(len(str(r.get(k, ""))) for r in rows)) for k in keys}
+    print("  ".join(k.ljust(widths[k]) for k in keys))
+    for r in rows:
+        print("  ".join(str(r.get(k, "")).ljust(widths[k]) for k in keys))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--quick", action="store_true", help="two targets, two resolutions")
+    args = parser.parse_args()
+    names = list(BUILTIN_TARGETS)[:2] if args.quick else list(BUILTIN_TARGETS)
+    counts = (100, 400) if args.quick else (100, 400, 1600)
+    rows = foundation_rows(counts, names)
+    print_table(rows)
+    extras = extra_rows()
+    for name, stage_rows in extras.items():
+        print(f"\n{name}")
+        print_table(stage_rows)
+    results = {
+        "machine": {
+            "cores": os.cpu_count(),
+            "python": platform.python_version(),
+            "platform": platform.platform(),
+        },
+        "targets_s": TARGETS_S,
+        "foundation": rows,
+        **extras,
+    }
+    (HERE / "results.json").write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
+
+
+if __name__ == "__main__":
+    main()

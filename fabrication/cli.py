@@ -1,0 +1,165 @@
+"""``drawstring`` command line: a thin layer that parses options and calls the library.
+
+Exit status: 0 success, 2 bad input (one line on stderr naming the problem and the fix),
+3 a design that cannot meet its targets.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NoReturn
+
+from drawstring.geometry.errors import DesignError, InputError
+
+EXIT_INPUT = 2
+EXIT_DESIGN = 3
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line and exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_INPUT, f"drawstring: error: {message} (see: {self.prog} --help)\n")
+
+
+def _add_design_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("target", help="a mesh file (.obj .off .ply .stl) or a built-in target name")
+    p.add_argument(
+        "--profile",
+        default="fdm-dual",
+        help="fabrication profile: fdm-dual, laser-epdm, plywood-cnc or a .toml file",
+    )
+    p.add_argument("--out", type=Path, help="output folder (default ./TARGET-drawstring)")
+    size = p.add_mutually_exclusive_group()
+    size.add_argument("--tiles", type=int, help="approximate number of tiles")
+    size.add_argument("--grid", type=int, nargs=2, metavar=("I", "J"), help="grid columns rows")
+    p.add_argument("--size", type=float, dest="size_mm", help="longest side of the shape in mm")
+    p.add_argument(
+        "--resolution",
+        type=int,
+        default=10_000,
+        help="triangles of a built-in target (default 10000)",
+    )
+    p.add_argument("--thickness", type=float, dest="thickness_mm", help="tile thickness in mm")
+    p.add_argument(
+        "--min-gap-angle", type=float, dest="min_gap_angle_deg", help="degrees, flat layout"
+    )
+    p.add_argument(
+        "--max-scale-factor",
+        type=float,
+        default=2.0,
+        help="split parts whose tile area scale ratio exceeds this (default 2)",
+    )
+    p.add_argument(
+        "--corners",
+        type=int,
+        nargs=4,
+        metavar="V",
+        help="boundary vertex ids of the rectangle corners (default: chosen automatically)",
+    )
+    p.add_argument("--no-cad", action="store_true", help="skip solids and fabrication files")
+    p.add_argument("--seed", type=int, default=0, help="seed for any randomized step")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="drawstring",
+        description="Turn a curved surface into a flat auxetic linkage pulled shut by one string.",
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="log what each stage does")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    design_p = sub.add_parser("design", help="design a linkage for a target and write its files")
+    _add_design_options(design_p)
+    sub.add_parser("targets", help="list the built-in targets")
+    prof = sub.add_parser("profiles", help="list the fabrication profiles")
+    prof.add_argument("--show", metavar="NAME", help="print a profile as TOML to copy and edit")
+    return parser
+
+
+def _run_design(args: argparse.Namespace) -> int:
+    from .pipeline import DesignOptions, Progress, check_out_dir, default_out_dir, design
+    from .pipeline import write_design as write
+
+    options = DesignOptions(
+        profile=args.profile,
+        tiles=args.tiles,
+        grid=tuple(args.grid) if args.grid else None,
+        size_mm=args.size_mm,
+        resolution=args.resolution,
+        thickness_mm=args.thickness_mm,
+        min_gap_angle_deg=args.min_gap_angle_deg,
+        max_scale_factor=args.max_scale_factor,
+        corners=tuple(args.corners) if args.corners else None,
+        cad=not args.no_cad,
+        seed=args.seed,
+    )
+    options.validate()
+    out = args.out if args.out is not None else default_out_dir(args.target)
+    check_out_dir(out)  # refuse before hours of work, not after
+    progress = Progress(quiet=args.quiet)
+    result = design(args.target, options, progress=progress)
+    folder = write(result, out)
+    if not args.quiet:
+        print(f"wrote {folder}")
+        for note in result.notes:
+            print(f"note: {note}")
+    return 0
+
+
+def _run_targets() -> int:
+    from drawstring.geometry.builtins import BUILTIN_TARGETS
+
+    width = max(len(name) for name in BUILTIN_TARGETS)
+    for name, builtin in BUILTIN_TARGETS.items():
+        print(f"{name:<{width}}  {builtin.description}")
+    return 0
+
+
+def _run_profiles(args: argparse.Namespace) -> int:
+    from .profiles import SHIPPED_PROFILES, load_profile
+
+    if args.show:
+        print(load_profile(args.show).to_toml(), end="")
+        return 0
+    for name in SHIPPED_PROFILES:
+        profile = load_profile(name)
+        print(f"{name}: {profile.description}")
+        print(
+            f"    tiles {profile.tile_material}, {profile.thickness_mm:g} mm thick; hinges "
+            f"{profile.hinge_material}; string {profile.string_material}; "
+            f"default size {profile.default_size_mm:g} mm"
+        )
+    print("Copy one with `drawstring profiles --show NAME > my.toml` and use --profile my.toml.")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    try:
+        if args.command == "design":
+            return _run_design(args)
+        if args.command == "targets":
+            return _run_targets()
+        if args.command == "profiles":
+            return _run_profiles(args)
+    except InputError as exc:
+        print(f"drawstring: error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    except DesignError as exc:
+        print(f"drawstring: design problem: {exc}", file=sys.stderr)
+        return EXIT_DESIGN
+    parser.error(f"unknown command {args.command}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

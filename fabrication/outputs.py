@@ -1,0 +1,132 @@
+"""Files of the output folder, one writer per file group.
+
+Each writer takes the :class:`~drawstring.fabrication.pipeline.Design` and the (staging) folder,
+writes its files and returns their paths relative to the folder.  Output is deterministic: fixed
+float formatting, no timestamps in files.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drawstring.geometry.linkage import gap_centroids
+from drawstring.geometry.route import route_to_json
+from drawstring.geometry.verify import TILE_FACES
+
+from . import pictures
+
+if TYPE_CHECKING:
+    from .pipeline import Design, Writer
+
+
+def format_obj(
+    vertices: NDArray[np.float64],
+    faces: NDArray[np.int64] | list[list[int]],
+    header: str = "",
+    groups: list[tuple[str, int, int]] | None = None,
+) -> str:
+    """Wavefront OBJ text: ``v`` lines with 6 decimals (mm) and 1-based polygon ``f`` lines.
+
+    ``groups`` optionally names consecutive face ranges ``(name, first_face, end_face)``.
+    """
+    lines = [f"# {line}" for line in header.splitlines()]
+    lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in np.asarray(vertices, dtype=float)]
+    starts = {first: name for name, first, _ in groups or []}
+    for k, face in enumerate(faces):
+        if k in starts:
+            lines.append(f"g {starts[k]}")
+        lines.append("f " + " ".join(str(int(i) + 1) for i in face))
+    return "\n".join(lines) + "\n"
+
+
+def write_lifted_mesh(result: Design, folder: Path) -> list[str]:
+    """``lifted.obj``: the quad grid lifted onto the target (M3D), before optimization."""
+    tiling = result.tiling
+    text = format_obj(
+        tiling.vertices,
+        tiling.quads,
+        header="drawstring lifted quad grid M3D (mm); one quad per tile, tile order as design.json",
+    )
+    (folder / "lifted.obj").write_text(text, encoding="utf-8")
+    return ["lifted.obj"]
+
+
+def write_pictures(result: Design, folder: Path) -> list[str]:
+    """``scale_factor.png`` and ``lifted.png``."""
+    pictures.save_scale_factor(result.tiling, folder / "scale_factor.png")
+    pictures.save_lifted(result.target, result.tiling, folder / "lifted.png")
+    return ["scale_factor.png", "lifted.png"]
+
+
+def write_tiles(result: Design, folder: Path) -> list[str]:
+    """``assembled.obj`` (T3D) and ``flat.obj`` (T2D, fabrication pose), tiles as closed meshes."""
+    header = (
+        "drawstring {what} (mm): tile t is group tile_t, vertices 8t+1..8t+8 = top BL, BR, TR,"
+        " TL, then the bottom corners under them; faces outward"
+    )
+    for name, tiles, what in (
+        ("assembled.obj", result.tiles_assembled, "assembled configuration T3D"),
+        ("flat.obj", result.tiles_flat, "flat configuration T2D, top faces up"),
+    ):
+        (folder / name).write_text(tiles_obj(tiles, header.format(what=what)), encoding="utf-8")
+    return ["assembled.obj", "flat.obj"]
+
+
+def tiles_obj(tiles: NDArray[np.float64], header: str) -> str:
+    """OBJ text of (T, 8, 3) tiles as closed outward quad meshes, one group per tile."""
+    count = len(tiles)
+    faces = (TILE_FACES[None, :, :] + 8 * np.arange(count)[:, None, None]).reshape(-1, 4)
+    groups = [(f"tile_{t}", 6 * t, 6 * t + 6) for t in range(count)]
+    return format_obj(tiles.reshape(-1, 3), faces, header=header, groups=groups)
+
+
+def write_route(result: Design, folder: Path) -> list[str]:
+    """``route.json``: the ordered string route with sides, positions and lift points."""
+    linkage = result.tiling.linkage
+    document = route_to_json(
+        result.route,
+        linkage,
+        gap_centroids(linkage, result.tiles_flat[:, :4, :2]),
+        gap_centroids(linkage, result.tiles_assembled[:, :4]),
+        result.lift.lift_gaps,
+    )
+    text = json.dumps(_rounded(document), indent=1, allow_nan=False)
+    (folder / "route.json").write_text(text + "\n", encoding="utf-8")
+    return ["route.json"]
+
+
+def _rounded(value: Any, digits: int = 6) -> Any:
+    """JSON-ready copy with floats rounded (numpy values become Python ones)."""
+    if isinstance(value, dict):
+        return {str(k): _rounded(v, digits) for k, v in value.items()}
+    if isinstance(value, list | tuple | np.ndarray):
+        return [_rounded(v, digits) for v in value]
+    if isinstance(value, np.bool_ | bool):
+        return bool(value)
+    if isinstance(value, np.integer | int):
+        return int(value)
+    if isinstance(value, np.floating | float):
+        return round(float(value), digits) if np.isfinite(value) else None
+    return value
+
+
+def write_stage_pictures(result: Design, folder: Path) -> list[str]:
+    """``assembled.png``, ``flat.png`` (tiles, hinges, gaps, route, lift points), ``lift.png``."""
+    pictures.save_assembled(result, folder / "assembled.png")
+    pictures.save_flat(result, folder / "flat.png")
+    pictures.save_lift(result, folder / "lift.png")
+    return ["assembled.png", "flat.png", "lift.png"]
+
+
+DEFAULT_WRITERS: tuple[Writer, ...] = (
+    write_lifted_mesh,
+    write_tiles,
+    write_route,
+    write_pictures,
+    write_stage_pictures,
+)

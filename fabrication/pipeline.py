@@ -1,0 +1,528 @@
+"""The design pipeline: target -> flattening -> tiling -> ... -> output folder.
+
+``design(target, options)`` runs every stage in order, times each one and returns a
+:class:`Design`; ``write_design(design, out_dir)`` writes the output folder atomically.  The CLI
+and the Python API both go through these two functions::
+
+    from drawstring.fabrication.pipeline import DesignOptions, design, write_design
+    result = design("saddle", DesignOptions(tiles=200))
+    write_design(result, "saddle-drawstring")
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import shutil
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field, replace
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drawstring.geometry import verify
+from drawstring.geometry.assembled import AssembledResult, optimize_assembled
+from drawstring.geometry.errors import InputError
+from drawstring.geometry.flat import FlatResult, extrude_flat, optimize_flat
+from drawstring.geometry.flatten import Flattening, flatten
+from drawstring.geometry.hinges import HingeLayout, HingeStrategy, layout_hinges
+from drawstring.geometry.lift import LiftPoints, select_lift_points, tile_masses_from_volumes
+from drawstring.geometry.linkage import gap_centroids
+from drawstring.geometry.route import Route, plan_route, route_metrics
+from drawstring.geometry.target import Target, load_target
+from drawstring.geometry.tiling import Tiling, component_flattenings, tile_surface
+from drawstring.geometry.tolerances import (
+    FLAT_EDGE_ERROR_TOL_MM,
+    FLAT_GAP_ANGLE_TOL_DEG,
+    FLAT_INTERPENETRATION_TOL_MM3,
+    FLAT_OVERLAP_TOL_MM2,
+    HINGE_GAP_TOL_MM,
+    MAX_SCALE_FACTOR,
+)
+
+from .profiles import Profile, load_profile
+
+log = logging.getLogger(__name__)
+
+#: Stages in order; ``timings_s`` uses these keys.
+STAGES = ("target", "flatten", "tiling", "assembled", "flat", "hinges", "lift", "route")
+HINGE_STRATEGIES: tuple[HingeStrategy, ...] = ("dual", "top")
+
+
+@dataclass(frozen=True)
+class DesignOptions:
+    """Every option of ``drawstring design``; ``None`` means "take the profile's default"."""
+
+    profile: str = "fdm-dual"
+    tiles: int | None = None
+    grid: tuple[int, int] | None = None
+    size_mm: float | None = None
+    resolution: int = 10_000
+    thickness_mm: float | None = None
+    min_gap_angle_deg: float | None = None
+    max_scale_factor: float = MAX_SCALE_FACTOR
+    corners: tuple[int, int, int, int] | None = None
+    hinges: HingeStrategy = "dual"
+    cad: bool = True
+    seed: int = 0
+
+    def validate(self) -> None:
+        """Refuse values out of range with a one-line :class:`InputError`."""
+        if self.tiles is not None and not 1 <= self.tiles <= 20_000:
+            raise InputError(f"--tiles must be between 1 and 20000 (got {self.tiles})")
+        if self.grid is not None and (
+            len(self.grid) != 2 or min(self.grid) < 1 or self.grid[0] * self.grid[1] > 20_000
+        ):
+            raise InputError(
+                f"--grid I J needs two whole numbers >= 1 with I*J <= 20000 (got {self.grid})"
+            )
+        if self.size_mm is not None and not (math.isfinite(self.size_mm) and self.size_mm > 0):
+            raise InputError(
+                f"--size must be a positive number of millimetres (got {self.size_mm})"
+            )
+        if not 100 <= self.resolution <= 1_000_000:
+            raise InputError(
+                f"--resolution must be between 100 and 1000000 triangles (got {self.resolution})"
+            )
+        if self.thickness_mm is not None and not (
+            math.isfinite(self.thickness_mm) and self.thickness_mm > 0
+        ):
+            raise InputError(
+                f"--thickness must be a positive number of millimetres (got {self.thickness_mm})"
+            )
+        if self.min_gap_angle_deg is not None and not 0 <= self.min_gap_angle_deg < 90:
+            raise InputError(
+                f"--min-gap-angle must be in [0, 90) degrees (got {self.min_gap_angle_deg})"
+            )
+        if self.hinges not in HINGE_STRATEGIES:
+            raise InputError(f"--hinges must be dual or top (got {self.hinges!r})")
+        if not (math.isfinite(self.max_scale_factor) and 1 < self.max_scale_factor <= 2):
+            raise InputError(
+                f"--max-scale-factor must be in (1, 2] (got {self.max_scale_factor}); "
+                "a quad linkage expands at most 2x"
+            )
+
+
+@dataclass(frozen=True)
+class ResolvedOptions:
+    """Options with every default filled in from the profile; written to design.json."""
+
+    profile: str
+    tiles: int | None
+    grid: tuple[int, int] | None
+    size_mm: float
+    resolution: int
+    thickness_mm: float
+    min_gap_angle_deg: float
+    max_scale_factor: float
+    corners: tuple[int, int, int, int] | None
+    hinges: HingeStrategy
+    cad: bool
+    seed: int
+
+
+@dataclass(frozen=True)
+class Design:
+    """Everything the pipeline computed."""
+
+    options: ResolvedOptions
+    profile: Profile
+    target: Target
+    flattening: Flattening
+    tiling: Tiling
+    assembled: AssembledResult
+    flat: FlatResult
+    hinge_layout: HingeLayout
+    lift: LiftPoints
+    route: Route
+    measured: dict[str, Any] = field(default_factory=dict)
+    timings_s: dict[str, float] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+    problems: tuple[str, ...] = ()
+
+    @property
+    def tiles_assembled(self) -> NDArray[np.float64]:
+        """(T, 8, 3) T3D tiles, mm."""
+        return self.assembled.tiles
+
+    @property
+    def tiles_flat(self) -> NDArray[np.float64]:
+        """(T, 8, 3) T2D tiles after the hinge layout, mm (fabrication pose)."""
+        return self.hinge_layout.tiles
+
+    def metrics(self) -> dict[str, Any]:
+        """Numbers measured on the output geometry (ARCHITECTURE.md section 4)."""
+        return {
+            "scale_factor_max": round(self.tiling.scale_factor_max, 6),
+            "scale_factor_max_before_splits": round(self.tiling.scale_factor_max_unsplit, 6),
+            **self.measured,
+        }
+
+    def to_json(self) -> dict[str, Any]:
+        target = self.target
+        return {
+            "drawstring_version": _version(),
+            "target": {
+                "name": target.name,
+                "source": target.source,
+                "vertices": int(len(target.vertices)),
+                "faces": int(len(target.faces)),
+                "size_mm": _round(float(np.ptp(target.vertices, axis=0).max())),
+                "bbox_diagonal_mm": _round(target.bbox_diagonal_mm),
+                "notes": list(target.notes),
+            },
+            "options": _jsonable(asdict(self.options)),
+            "profile": self.profile.name,
+            "linkage": {
+                **self.tiling.linkage.counts(),
+                "grid": list(self.tiling.linkage.grid_shape),
+                "cell_size_mm": _round(self.tiling.cell_size),
+                "split_lines": [s.to_json() for s in self.tiling.linkage.splits],
+            },
+            "metrics": self.metrics(),
+            "notes": list(self.notes),
+            "problems": list(self.problems),
+            "timings_s": {k: round(v, 3) for k, v in self.timings_s.items()},
+        }
+
+
+def _round(value: float, digits: int = 6) -> float:
+    return float(round(value, digits))
+
+
+def _jsonable(value: Any) -> Any:
+    """Plain JSON values: numpy scalars and arrays become Python numbers and lists."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple | np.ndarray):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.bool_ | bool):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating | float):
+        return float(value) if math.isfinite(value) else None
+    return value
+
+
+def _version() -> str:
+    try:
+        return metadata.version("drawstring")
+    except metadata.PackageNotFoundError:  # running from a checkout without install
+        return "0+unknown"
+
+
+class Progress:
+    """Stage progress on stderr for stages longer than a second; silent when quiet or piped."""
+
+    def __init__(self, quiet: bool = False) -> None:
+        self.enabled = not quiet and sys.stderr.isatty()
+        self.timings: dict[str, float] = {}
+
+    @contextmanager
+    def stage(self, name: str) -> Iterator[None]:
+        start = time.perf_counter()
+        if self.enabled:
+            print(f"  {name} ...", end="", file=sys.stderr, flush=True)
+        yield
+        elapsed = time.perf_counter() - start
+        self.timings[name] = elapsed
+        if self.enabled:
+            print(f" {elapsed:.1f} s", file=sys.stderr, flush=True)
+        log.info("stage %s took %.3f s", name, elapsed)
+
+
+def resolve_options(options: DesignOptions, profile: Profile) -> ResolvedOptions:
+    """Fill profile defaults into the options."""
+    options.validate()
+    tiles = options.tiles
+    if options.grid is None and tiles is None:
+        tiles = profile.default_tiles
+    return ResolvedOptions(
+        profile=profile.name if profile.source.endswith("(shipped)") else profile.source,
+        tiles=tiles if options.grid is None else None,
+        grid=tuple(options.grid) if options.grid is not None else None,  # type: ignore[arg-type]
+        size_mm=options.size_mm if options.size_mm is not None else profile.default_size_mm,
+        resolution=options.resolution,
+        thickness_mm=options.thickness_mm
+        if options.thickness_mm is not None
+        else profile.thickness_mm,
+        min_gap_angle_deg=options.min_gap_angle_deg
+        if options.min_gap_angle_deg is not None
+        else profile.min_gap_angle_deg,
+        max_scale_factor=options.max_scale_factor,
+        corners=options.corners,
+        hinges=options.hinges,
+        cad=options.cad,
+        seed=options.seed,
+    )
+
+
+def split_bound(options: ResolvedOptions) -> float:
+    """Largest tile area ratio a part may have: ``--max-scale-factor``, and no more than a quad
+    linkage can absorb with every gap opening between ``--min-gap-angle`` and 90 degrees: a gap
+    opened by theta expands the layout by ``1 + sin(theta)``, so the ratio is at most
+    ``2 / (1 + sin(theta_min))``."""
+    absorbable = 2.0 / (1.0 + math.sin(math.radians(options.min_gap_angle_deg)))
+    return min(options.max_scale_factor, absorbable)
+
+
+def design(
+    target: str | os.PathLike[str],
+    options: DesignOptions | None = None,
+    *,
+    quiet: bool = True,
+    progress: Progress | None = None,
+) -> Design:
+    """Run the design pipeline on a mesh path or built-in target name.
+
+    Raises
+    ------
+    InputError
+        For bad input (the CLI prints its one-line message and exits with status 2).
+    """
+    options = options or DesignOptions()
+    options.validate()
+    profile = load_profile(options.profile)
+    resolved = resolve_options(options, profile)
+    progress = progress or Progress(quiet=quiet)
+    notes: list[str] = []
+
+    with progress.stage("target"):
+        loaded = load_target(target, size_mm=resolved.size_mm, resolution=resolved.resolution)
+    with progress.stage("flatten"):
+        flat_map = flatten(
+            loaded.vertices, loaded.faces, mode="rectangle", corners=resolved.corners
+        )
+    with progress.stage("tiling"):
+        tiling = tile_surface(
+            loaded.vertices,
+            loaded.faces,
+            flat_map.uv,
+            tiles=resolved.tiles,
+            grid=resolved.grid,
+            max_scale_factor=split_bound(resolved),
+        )
+    notes.extend(tiling.notes)
+    linkage = tiling.linkage
+    with progress.stage("assembled"):
+        assembled = optimize_assembled(
+            tiling.vertices,
+            tiling.quads,
+            loaded.vertices,
+            loaded.faces,
+            thickness=resolved.thickness_mm,
+        )
+    with progress.stage("flat"):
+        flat = optimize_flat(
+            linkage,
+            assembled.tiles[:, :4],
+            uv=component_flattenings(linkage, assembled.top, tiling.uv)[0],
+            min_gap_angle_deg=resolved.min_gap_angle_deg,
+        )
+        tiles_2d = extrude_flat(flat, assembled.tiles, resolved.thickness_mm)
+    with progress.stage("hinges"):
+        hinge_layout = layout_hinges(
+            linkage, flat, tiles_2d, assembled.tiles, strategy=resolved.hinges
+        )
+    with progress.stage("lift"):
+        masses = tile_masses_from_volumes(
+            assembled.tiles, profile.density_kg_m3 * profile.infill_fraction
+        )
+        lift = select_lift_points(
+            linkage,
+            assembled.tiles.mean(axis=1),
+            masses,
+            gap_positions=gap_centroids(linkage, assembled.tiles[:, :4]),
+        )
+    with progress.stage("route"):
+        flat_gap_xy = gap_centroids(linkage, hinge_layout.tiles[:, :4, :2])
+        route = plan_route(linkage, flat_gap_xy, lift.lift_gaps)
+    measured, problems = measure_design(
+        resolved, profile, tiling, assembled, flat, hinge_layout, lift, route, masses
+    )
+    problems = [*flat.problems, *hinge_layout.problems, *problems]
+    if resolved.cad:
+        notes.append("CAD and fabrication exports are not built yet in this version; use --no-cad")
+    return Design(
+        options=resolved,
+        profile=profile,
+        target=loaded,
+        flattening=flat_map,
+        tiling=tiling,
+        assembled=assembled,
+        flat=flat,
+        hinge_layout=hinge_layout,
+        lift=lift,
+        route=route,
+        measured=measured,
+        timings_s=dict(progress.timings),
+        notes=tuple(notes),
+        problems=tuple(dict.fromkeys(problems)),
+    )
+
+
+def measure_design(
+    options: ResolvedOptions,
+    profile: Profile,
+    tiling: Tiling,
+    assembled: AssembledResult,
+    flat: FlatResult,
+    hinge_layout: HingeLayout,
+    lift: LiftPoints,
+    route: Route,
+    masses: NDArray[np.float64],
+) -> tuple[dict[str, Any], list[str]]:
+    """Measure the output geometry (not the optimizers' beliefs) and list unmet targets.
+
+    Returns the ``metrics`` entries of design.json and one sentence per target not met.
+    """
+    linkage = tiling.linkage
+    a = assembled.metrics
+    metrics: dict[str, Any] = {
+        key: _round(float(a[key]), 9)
+        for key in (
+            "planarity_max_mm",
+            "planarity_max_before_mm",
+            "contact_gap_max_mm",
+            "contact_angle_max_deg",
+            "surface_distance_max_mm",
+            "surface_distance_mean_mm",
+            "tile_side_mean_mm",
+            "tile_side_spread",
+        )
+        if key in a
+    }
+    tiles_2d = hinge_layout.tiles
+    top_2d = tiles_2d[:, :4, :2]
+    overlap_area, _, _ = verify.flat_overlap(top_2d)
+    volume, _, _ = verify.interpenetration(tiles_2d)
+    edge_error = float(verify.flat_edge_errors(top_2d, assembled.tiles[:, :4]).max(initial=0.0))
+    angles = verify.gap_opening_angles_deg(linkage, top_2d)
+    metrics.update(
+        {
+            "flat_overlap_area_mm2": _round(overlap_area, 9),
+            "flat_interpenetration_mm3": _round(volume, 9),
+            "flat_edge_error_max_mm": _round(edge_error, 9),
+            "flat_gap_angle_min_deg": _round(float(angles.min(initial=90.0)), 6),
+            "flat_gap_angle_max_deg": _round(float(angles.max(initial=0.0)), 6),
+            "hinge_gap_max_mm": _round(hinge_layout.hinge_gap_max_mm, 9),
+            "hinges_bottom": int(np.count_nonzero(hinge_layout.bottom)),
+            "mass_g": _round(float(masses.sum()) * 1000.0, 3),
+        }
+    )
+    if options.hinges == "top":
+        metrics["contact_area_lost_mm2"] = _round(hinge_layout.contact_area_lost_mm2, 6)
+    metrics["lift_points"] = lift.to_json()
+    assembled_gaps = gap_centroids(linkage, assembled.tiles[:, :4])
+    flat_gaps = gap_centroids(linkage, top_2d)
+    metrics["route"] = _jsonable(
+        route_metrics(route, linkage, flat_gaps, assembled_gaps, profile.friction_coefficient)
+    )
+    problems: list[str] = []
+    if overlap_area > FLAT_OVERLAP_TOL_MM2:
+        problems.append(f"flat tiles overlap by {overlap_area:.3g} mm^2")
+    if volume > FLAT_INTERPENETRATION_TOL_MM3:
+        problems.append(f"flat tiles interpenetrate by {volume:.3g} mm^3")
+    if edge_error > FLAT_EDGE_ERROR_TOL_MM:
+        problems.append(
+            f"flat edge error {edge_error:.2g} mm exceeds {FLAT_EDGE_ERROR_TOL_MM:g} mm"
+        )
+    low = options.min_gap_angle_deg - FLAT_GAP_ANGLE_TOL_DEG
+    if angles.size and (angles.min() < low or angles.max() > 90 + FLAT_GAP_ANGLE_TOL_DEG):
+        problems.append(
+            f"gap angles {angles.min():.2f}..{angles.max():.2f} deg leave "
+            f"[{options.min_gap_angle_deg:g}, 90]"
+        )
+    if hinge_layout.hinge_gap_max_mm > HINGE_GAP_TOL_MM:
+        problems.append(
+            f"hinge gap {hinge_layout.hinge_gap_max_mm:.2g} mm exceeds {HINGE_GAP_TOL_MM:g} mm"
+        )
+    if tiling.scale_factor_max > split_bound(options):
+        problems.append(
+            f"scale factor {tiling.scale_factor_max:.2f} exceeds {split_bound(options):.3g}"
+        )
+    if route.crossings:
+        problems.append(f"the string route crosses itself {route.crossings} time(s)")
+    if not route.boundary_tiles_covered:
+        problems.append("the string route misses some boundary tiles")
+    return metrics, problems
+
+
+def default_out_dir(target: str | os.PathLike[str]) -> Path:
+    """``./NAME-drawstring`` for a built-in name or a mesh file's stem."""
+    return Path.cwd() / f"{Path(str(target)).stem}-drawstring"
+
+
+def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
+    """Refuse an output path that cannot become the design folder, before any work is done."""
+    out = Path(out_dir).absolute()
+    if out.exists() and not out.is_dir():
+        raise InputError(f"output path {out} exists and is a file; choose another --out")
+    if out.is_dir() and any(out.iterdir()) and not (out / "design.json").is_file():
+        raise InputError(
+            f"output folder {out} exists and is not a drawstring design; choose another --out"
+        )
+    parent = out.parent
+    probe = parent
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+        raise InputError(f"cannot write into {probe}; choose a writable --out folder")
+    return out
+
+
+Writer = Callable[[Design, Path], list[str]]
+
+
+def write_design(
+    result: Design,
+    out_dir: str | os.PathLike[str],
+    writers: tuple[Writer, ...] | None = None,
+) -> Path:
+    """Write the output folder atomically.
+
+    Everything is written into a temporary sibling folder, which replaces ``out_dir`` only when
+    every file was written.  On any failure the temporary folder is removed and ``out_dir`` is
+    left as it was.
+    """
+    from .outputs import DEFAULT_WRITERS
+
+    out = check_out_dir(out_dir)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    try:
+        files: list[str] = []
+        for writer in writers or DEFAULT_WRITERS:
+            files.extend(writer(result, staging))
+        document = result.to_json()
+        document["files"] = sorted([*files, "design.json"])
+        (staging / "design.json").write_text(
+            json.dumps(document, indent=2, allow_nan=False) + "\n", encoding="utf-8"
+        )
+        os.chmod(staging, 0o755)
+        if out.exists():
+            retired = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
+            os.rename(out, retired / out.name)
+            os.rename(staging, out)
+            shutil.rmtree(retired, ignore_errors=True)
+        else:
+            os.rename(staging, out)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return out
+
+
+def with_options(options: DesignOptions, **changes: Any) -> DesignOptions:
+    """A copy of ``options`` with some fields changed (for scripts and tests)."""
+    return replace(options, **changes)

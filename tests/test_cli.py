@@ -1,0 +1,193 @@
+"""The command line end to end: outputs, determinism, and refusal of bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drawstring.fabrication.cli import main
+
+SMALL = ["--grid", "6", "4", "--resolution", "1500", "--no-cad", "--quiet"]
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    """Run ``drawstring`` in a subprocess, as a user would."""
+    return subprocess.run(
+        [sys.executable, "-m", "drawstring.fabrication.cli", *args],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+
+
+def test_design_writes_the_output_contract(tmp_path: Path) -> None:
+    out = tmp_path / "saddle"
+    assert main(["design", "saddle", *SMALL, "--out", str(out)]) == 0
+    doc = json.loads((out / "design.json").read_text())
+    for key in ("drawstring_version", "target", "options", "linkage", "metrics", "timings_s"):
+        assert key in doc
+    assert doc["linkage"]["tiles"] == 24
+    assert doc["options"]["grid"] == [6, 4]
+    assert doc["options"]["thickness_mm"] > 0  # defaults are recorded, not only what was given
+    assert doc["metrics"]["scale_factor_max"] >= 1.0
+    assert set(doc["timings_s"]) >= {"target", "flatten", "tiling"}
+    for name in doc["files"]:
+        assert (out / name).is_file(), name
+    for png in ("scale_factor.png", "lifted.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # The lifted mesh has one quad per tile.
+    faces = [ln for ln in (out / "lifted.obj").read_text().splitlines() if ln.startswith("f ")]
+    assert len(faces) == 24
+    # No staging folders are left next to the output.
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["saddle"]
+
+
+def test_outputs_are_deterministic(tmp_path: Path) -> None:
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert main(["design", "saddle", *SMALL, "--out", str(a)]) == 0
+    assert main(["design", "saddle", *SMALL, "--out", str(b)]) == 0
+    files = sorted(p.name for p in a.iterdir())
+    assert files == sorted(p.name for p in b.iterdir())
+    for name in files:
+        if name == "design.json":
+            da, db = (json.loads((d / name).read_text()) for d in (a, b))
+            da.pop("timings_s"), db.pop("timings_s")  # wall-clock times are the only difference
+            assert da == db
+        else:
+            assert (a / name).read_bytes() == (b / name).read_bytes(), name
+
+
+def test_rerun_replaces_previous_output(tmp_path: Path) -> None:
+    out = tmp_path / "d"
+    assert main(["design", "saddle", *SMALL, "--out", str(out)]) == 0
+    assert main(["design", "saddle", *SMALL, "--out", str(out)]) == 0
+    assert (out / "design.json").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
+
+
+def test_targets_and_profiles_listings() -> None:
+    done = run_cli("targets")
+    assert done.returncode == 0
+    names = [line.split()[0] for line in done.stdout.splitlines()]
+    for name in ("saddle", "dome", "peanut", "seashell", "three-shell", "cloud", "wave", "chair"):
+        assert name in names
+    done = run_cli("profiles")
+    assert done.returncode == 0
+    assert "fdm-dual" in done.stdout and "plywood-cnc" in done.stdout
+    done = run_cli("profiles", "--show", "laser-epdm")
+    assert done.returncode == 0 and 'process = "laser-epdm"' in done.stdout
+
+
+def write(path: Path, text: str) -> Path:
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def closed_tetrahedron(path: Path) -> Path:
+    return write(
+        path,
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n",
+    )
+
+
+def annulus(path: Path) -> Path:
+    """A flat ring: one patch with two boundary loops."""
+    lines = []
+    n = 12
+    for r in (1.0, 2.0):
+        for k in range(n):
+            a = 2 * np.pi * k / n
+            lines.append(f"v {r * np.cos(a):.6f} {r * np.sin(a):.6f} 0")
+    for k in range(n):
+        i, j = k + 1, (k + 1) % n + 1
+        lines.append(f"f {i} {j} {j + n}")
+        lines.append(f"f {i} {j + n} {i + n}")
+    return write(path, "\n".join(lines) + "\n")
+
+
+def two_patches(path: Path) -> Path:
+    return write(
+        path,
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 0 0\nv 6 0 0\nv 5 1 0\nf 1 2 3\nf 4 5 6\n",
+    )
+
+
+BAD_INPUTS = {
+    "closed": (closed_tetrahedron, "closed"),
+    "holes": (annulus, "boundary"),
+    "components": (two_patches, "component"),
+    "nan": (lambda p: write(p, "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n"), "finite"),
+    "empty": (lambda p: write(p, ""), "empty"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_INPUTS))
+def test_bad_meshes_exit_2_with_one_line_and_no_folder(case: str, tmp_path: Path) -> None:
+    make, words = BAD_INPUTS[case]
+    mesh = make(tmp_path / f"{case}.obj")
+    out = tmp_path / "out"
+    done = run_cli("design", str(mesh), *SMALL, "--out", str(out))
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, done.stderr
+    assert words in lines[0].lower()
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [mesh.name]
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (["missing.obj"], "does not exist"),
+        (["mesh.xyz"], "extension"),
+        (["saddle", "--tiles", "0"], "--tiles"),
+        (["saddle", "--size", "-5"], "--size"),
+        (["saddle", "--size", "nan"], "--size"),
+        (["saddle", "--profile", "resin"], "unknown profile"),
+        (["saddle", "--min-gap-angle", "120"], "--min-gap-angle"),
+        (["saddle", "--max-scale-factor", "3"], "--max-scale-factor"),
+        (["no-such-target"], "no-such-target"),
+        (["saddle", "--tiles", "abc"], "invalid int"),
+    ],
+)
+def test_bad_options_exit_2(args: list[str], words: str, tmp_path: Path) -> None:
+    (tmp_path / "mesh.xyz").write_text("v 0 0 0\n")
+    out = tmp_path / "out"
+    done = subprocess.run(
+        [sys.executable, "-m", "drawstring.fabrication.cli", "design", *args, "--out", str(out)],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        check=False,
+    )
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, done.stderr
+    assert words in lines[0]
+    assert not out.exists()
+
+
+def test_output_path_that_is_a_file_is_refused(tmp_path: Path) -> None:
+    blocker = write(tmp_path / "taken", "not a folder")
+    done = run_cli("design", "saddle", *SMALL, "--out", str(blocker))
+    assert done.returncode == 2
+    assert "is a file" in done.stderr
+    assert blocker.read_text() == "not a folder"
+    done = run_cli("design", "saddle", *SMALL, "--out", str(blocker / "sub"))
+    assert done.returncode == 2
+    assert "cannot write" in done.stderr
+
+
+def test_bad_profile_file_is_refused(tmp_path: Path) -> None:
+    shown = run_cli("profiles", "--show", "fdm-dual").stdout
+    bad = write(tmp_path / "mine.toml", shown.replace("thickness_mm = 6.0", "thickness_mm = -6.0"))
+    out = tmp_path / "out"
+    done = run_cli("design", "saddle", *SMALL, "--profile", str(bad), "--out", str(out))
+    assert done.returncode == 2
+    assert "tile.thickness_mm = -6.0 is out of range" in done.stderr
+    assert not out.exists()
