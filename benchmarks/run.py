@@ -66,6 +66,31 @@ def foundation_rows(tile_counts: tuple[int, ...], names: list[str]) -> list[dict
     return rows
 
 
+def pipeline_rows(names: list[str], tiles: int) -> list[dict[str, Any]]:
+    """Every stage of ``design`` on each built-in at about ``tiles`` tiles, with its quality."""
+    from drawstring.fabrication.pipeline import DesignOptions, design
+
+    rows: list[dict[str, Any]] = []
+    for name in names:
+        result = design(name, DesignOptions(tiles=tiles, size_mm=200.0, cad=False))
+        m = result.metrics()
+        rows.append(
+            {
+                "case": name,
+                "tiles": result.tiling.linkage.n_tiles,
+                **{f"{k}_s": round(v, 3) for k, v in result.timings_s.items()},
+                "planarity_mm": m.get("planarity_max_mm"),
+                "overlap_mm2": m.get("flat_overlap_area_mm2"),
+                "gap_deg": f"{m.get('flat_gap_angle_min_deg', 0):.1f}-"
+                f"{m.get('flat_gap_angle_max_deg', 0):.1f}",
+                "hinge_gap_mm": m.get("hinge_gap_max_mm"),
+                "lift": m["lift_points"]["count"],
+                "problems": len(result.problems),
+            }
+        )
+    return rows
+
+
 def extra_rows() -> dict[str, list[dict[str, Any]]]:
     """Rows from the per-stage benchmark modules that exist (``bench_*.py`` with ``run()``)."""
     out: dict[str, list[dict[str, Any]]] = {}
@@ -94,6 +119,9 @@ def main() -> None:
     counts = (100, 400) if args.quick else (100, 400, 1600)
     rows = foundation_rows(counts, names)
     print_table(rows)
+    stages = pipeline_rows(names, 200)
+    print("\npipeline at about 200 tiles, 200 mm")
+    print_table(stages)
     extras = extra_rows()
     for name, stage_rows in extras.items():
         print(f"\n{name}")
@@ -106,6 +134,7 @@ def main() -> None:
         },
         "targets_s": TARGETS_S,
         "foundation": rows,
+        "pipeline_200": stages,
         **extras,
     }
     (HERE / "results.json").write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")

@@ -76,6 +76,8 @@ def build_parser() -> argparse.ArgumentParser:
     design_p = sub.add_parser("design", help="design a linkage for a target and write its files")
     _add_design_options(design_p)
     sub.add_parser("targets", help="list the built-in targets")
+    view = sub.add_parser("view", help="open a design's report.html in the browser")
+    view.add_argument("folder", type=Path, help="a design folder written by `drawstring design`")
     prof = sub.add_parser("profiles", help="list the fabrication profiles")
     prof.add_argument("--show", metavar="NAME", help="print a profile as TOML to copy and edit")
     return parser
@@ -108,6 +110,16 @@ def _run_design(args: argparse.Namespace) -> int:
         print(f"wrote {folder}")
         for note in result.notes:
             print(f"note: {note}")
+        for warning in result.warnings:
+            print(f"warning: {warning}")
+    if result.problems:
+        listed = "; ".join(result.problems)
+        print(
+            f"drawstring: design problem: {listed} (the design was written to {folder}; "
+            "see design.json 'problems')",
+            file=sys.stderr,
+        )
+        return EXIT_DESIGN
     return 0
 
 
@@ -138,6 +150,16 @@ def _run_profiles(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_view(args: argparse.Namespace) -> int:
+    from .report import open_report
+
+    folder = Path(args.folder)
+    if not (folder / "design.json").is_file():
+        raise InputError(f"{folder} is not a drawstring design folder (no design.json)")
+    print(open_report(folder))
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -152,6 +174,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _run_targets()
         if args.command == "profiles":
             return _run_profiles(args)
+        if args.command == "view":
+            return _run_view(args)
     except InputError as exc:
         print(f"drawstring: error: {exc}", file=sys.stderr)
         return EXIT_INPUT

@@ -148,6 +148,7 @@ class Design:
     timings_s: dict[str, float] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
     problems: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
 
     @property
     def tiles_assembled(self) -> NDArray[np.float64]:
@@ -191,6 +192,7 @@ class Design:
             "metrics": self.metrics(),
             "notes": list(self.notes),
             "problems": list(self.problems),
+            "warnings": list(self.warnings),
             "timings_s": {k: round(v, 3) for k, v in self.timings_s.items()},
         }
 
@@ -347,10 +349,11 @@ def design(
     with progress.stage("route"):
         flat_gap_xy = gap_centroids(linkage, hinge_layout.tiles[:, :4, :2])
         route = plan_route(linkage, flat_gap_xy, lift.lift_gaps)
-    measured, problems = measure_design(
+    measured, problems, warnings = measure_design(
         resolved, profile, tiling, assembled, flat, hinge_layout, lift, route, masses
     )
-    problems = [*flat.problems, *hinge_layout.problems, *problems]
+    notes.extend(f"flat stage: {p}" for p in flat.problems)
+    notes.extend(f"hinge stage: {p}" for p in hinge_layout.problems)
     if resolved.cad:
         notes.append("CAD and fabrication exports are not built yet in this version; use --no-cad")
     return Design(
@@ -367,7 +370,8 @@ def design(
         measured=measured,
         timings_s=dict(progress.timings),
         notes=tuple(notes),
-        problems=tuple(dict.fromkeys(problems)),
+        problems=tuple(problems),
+        warnings=tuple(warnings),
     )
 
 
@@ -381,10 +385,15 @@ def measure_design(
     lift: LiftPoints,
     route: Route,
     masses: NDArray[np.float64],
-) -> tuple[dict[str, Any], list[str]]:
+) -> tuple[dict[str, Any], list[str], list[str]]:
     """Measure the output geometry (not the optimizers' beliefs) and list unmet targets.
 
-    Returns the ``metrics`` entries of design.json and one sentence per target not met.
+    Returns the ``metrics`` entries of design.json, the *problems* (targets whose failure makes
+    the part unbuildable: overlapping tiles, gaps outside their angle bounds, an invalid route,
+    a scale range no layout can absorb) and the *warnings* (accuracy targets not met: the flat
+    edge error and the hinge gap, which rigid tiles cannot in general bring to zero because the
+    flat linkage is over-determined: 3 degrees of freedom per tile against about 4 hinge
+    equations per tile).
     """
     linkage = tiling.linkage
     a = assembled.metrics
@@ -429,12 +438,13 @@ def measure_design(
         route_metrics(route, linkage, flat_gaps, assembled_gaps, profile.friction_coefficient)
     )
     problems: list[str] = []
+    warnings: list[str] = []
     if overlap_area > FLAT_OVERLAP_TOL_MM2:
         problems.append(f"flat tiles overlap by {overlap_area:.3g} mm^2")
     if volume > FLAT_INTERPENETRATION_TOL_MM3:
         problems.append(f"flat tiles interpenetrate by {volume:.3g} mm^3")
     if edge_error > FLAT_EDGE_ERROR_TOL_MM:
-        problems.append(
+        warnings.append(
             f"flat edge error {edge_error:.2g} mm exceeds {FLAT_EDGE_ERROR_TOL_MM:g} mm"
         )
     low = options.min_gap_angle_deg - FLAT_GAP_ANGLE_TOL_DEG
@@ -444,7 +454,7 @@ def measure_design(
             f"[{options.min_gap_angle_deg:g}, 90]"
         )
     if hinge_layout.hinge_gap_max_mm > HINGE_GAP_TOL_MM:
-        problems.append(
+        warnings.append(
             f"hinge gap {hinge_layout.hinge_gap_max_mm:.2g} mm exceeds {HINGE_GAP_TOL_MM:g} mm"
         )
     if tiling.scale_factor_max > split_bound(options):
@@ -455,7 +465,7 @@ def measure_design(
         problems.append(f"the string route crosses itself {route.crossings} time(s)")
     if not route.boundary_tiles_covered:
         problems.append("the string route misses some boundary tiles")
-    return metrics, problems
+    return metrics, problems, warnings
 
 
 def default_out_dir(target: str | os.PathLike[str]) -> Path:
@@ -496,6 +506,7 @@ def write_design(
     left as it was.
     """
     from .outputs import DEFAULT_WRITERS
+    from .report import write_report
 
     out = check_out_dir(out_dir)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -505,10 +516,11 @@ def write_design(
         for writer in writers or DEFAULT_WRITERS:
             files.extend(writer(result, staging))
         document = result.to_json()
-        document["files"] = sorted([*files, "design.json"])
+        document["files"] = sorted([*files, "design.json", "report.html"])
         (staging / "design.json").write_text(
             json.dumps(document, indent=2, allow_nan=False) + "\n", encoding="utf-8"
         )
+        write_report(staging)  # last: it reads every other file of the folder
         os.chmod(staging, 0o755)
         if out.exists():
             retired = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))

@@ -28,9 +28,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from drawstring.geometry.errors import InputError
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
+
+from drawstring.geometry.errors import InputError
 
 log = logging.getLogger(__name__)
 

@@ -991,10 +991,12 @@ def draw_route(ax: Any, route: Route, gap_centroids_flat: ArrayLike, lift_points
     """
     pos = np.asarray(gap_centroids_flat, dtype=np.float64)[:, :2]
     gaps = np.append(route.gaps, route.gaps[:1])
-    ax.plot(pos[gaps, 0], pos[gaps, 1], "-", color="tab:blue", lw=1.6, label="string")
-    ax.plot(pos[route.gaps, 0], pos[route.gaps, 1], ".", color="tab:blue", ms=4)
+    ax.plot(pos[gaps, 0], pos[gaps, 1], "-", color="crimson", lw=1.8, label="string", zorder=4)
+    ax.plot(pos[route.gaps, 0], pos[route.gaps, 1], ".", color="crimson", ms=4, zorder=4)
     entr = route.gaps[route.labels == NODE_ENTRANCE]
-    ax.plot(pos[entr, 0], pos[entr, 1], "o", mfc="none", mec="tab:red", ms=5, label="entrances")
+    ax.plot(
+        pos[entr, 0], pos[entr, 1], "o", mfc="none", mec="k", ms=6, label="entrances", zorder=4
+    )
     lifts = np.asarray(getattr(lift_points, "lift_gaps", lift_points), dtype=np.int64)
     if lifts.size:
         ax.scatter(

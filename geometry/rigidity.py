@@ -1,0 +1,222 @@
+"""Infinitesimal rigidity of the assembled linkage (a numerical check of paper Theorem 5.1).
+
+Every tile is a rigid body with a twist ``(w_t, u_t)``: the velocity of a point ``p`` moving
+with tile ``t`` is ``u_t + w_t x (p - c_t)`` (``c_t`` the tile centroid).  Constraints, each
+three rows of the rigidity matrix ``R`` (columns ``6 T``, tile ``t`` at ``6t .. 6t + 5`` as
+``w_x, w_y, w_z, u_x, u_y, u_z``):
+
+* joint: the two hinged tiles' velocities agree at the hinge point (a ball joint);
+* string contact: for consecutive tiles on the route, the two tiles' velocities agree at the
+  midpoint of their shared contact face (``contact="midpoint"``), or at three points of that
+  face (``contact="face"``: two face corners and the midpoint; the faces then cannot slide or
+  turn against each other).
+
+The infinitesimal motions are the null space of ``R``; the six rigid-body motions always lie in
+it.  Its dimension comes from the singular values of ``R`` below ``RIGIDITY_SVD_REL`` times the
+largest; ``6`` means isostatic (or over-braced): no internal flex.  Internal flexes are the null
+vectors orthogonal to the rigid motions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from drawstring.geometry.errors import InputError
+from drawstring.geometry.tolerances import RIGIDITY_SVD_REL
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+ContactMode = Literal["midpoint", "face"]
+
+__all__ = ["RigidityReport", "rigid_motion_basis", "rigidity_matrix", "rigidity_report"]
+
+_SIDE_FACES = np.array([[k, (k + 1) % 4, 4 + (k + 1) % 4, 4 + k] for k in range(4)])
+
+
+def _skew_rows(tile: IntArray, arm: FloatArray, n_cols: int, sign: float) -> FloatArray:
+    """Rows ``sign * (u_t + w_t x arm)`` for points ``(k,)`` as a dense ``(3k, n_cols)`` block."""
+    k = len(tile)
+    out = np.zeros((3 * k, n_cols))
+    r = 3 * np.arange(k)
+    base = 6 * tile
+    # w x a = -a x w: rows of -[a]_x
+    ax, ay, az = arm[:, 0], arm[:, 1], arm[:, 2]
+    zero = np.zeros(k)
+    rows = ((zero, az, -ay), (-az, zero, ax), (ay, -ax, zero))
+    for row, coeffs in enumerate(rows):
+        for col, c in enumerate(coeffs):
+            out[r + row, base + col] += sign * c
+        out[r + row, base + 3 + row] += sign
+    return out
+
+
+def rigidity_matrix(
+    tiles: ArrayLike,
+    joints: ArrayLike,
+    contacts: ArrayLike = (),
+    *,
+    contact: ContactMode = "midpoint",
+) -> FloatArray:
+    """Rigidity (infinitesimal motion) matrix of rigid tiles joined at points.
+
+    Parameters
+    ----------
+    tiles : (T, 8, 3) float, mm, assembled tiles.
+    joints : (H, 2) int, hinge vertex ids ``tile * 8 + vertex`` (the joint point is their mean).
+    contacts : (P, 4) int, ``(tile_a, side_a, tile_b, side_b)`` faces held in contact.
+    contact : ``"midpoint"`` (one point per contact) or ``"face"`` (three points).
+
+    Returns
+    -------
+    R : (3 (H + P * m), 6 T) float, ``m = 1`` or ``3``.
+    """
+    pts = np.asarray(tiles, dtype=np.float64)
+    if pts.ndim != 3 or pts.shape[1:] != (8, 3):
+        raise InputError(f"tiles must be (T, 8, 3), got {pts.shape}")
+    n_tiles = len(pts)
+    cols = 6 * n_tiles
+    centroid = pts.mean(axis=1)
+    flat = pts.reshape(-1, 3)
+    j = np.asarray(joints, dtype=np.int64).reshape(-1, 2)
+    ta, tb = j[:, 0] // 8, j[:, 1] // 8
+    point = 0.5 * (flat[j[:, 0]] + flat[j[:, 1]])
+    tile_a, tile_b, where = [ta], [tb], [point]
+    c = np.asarray(contacts, dtype=np.int64).reshape(-1, 4)
+    if len(c):
+        fa = pts[c[:, 0, None], _SIDE_FACES[c[:, 1]]]  # (P, 4, 3)
+        fb = pts[c[:, 2, None], _SIDE_FACES[c[:, 3]]]
+        mid = 0.5 * (fa.mean(axis=1) + fb.mean(axis=1))
+        if contact == "midpoint":
+            extra = [mid]
+        elif contact == "face":
+            extra = [mid, 0.5 * (fa[:, 0] + fa[:, 1]), 0.5 * (fa[:, 0] + fa[:, 3])]
+        else:
+            raise InputError(f"contact mode {contact!r}; use 'midpoint' or 'face'")
+        for p in extra:
+            tile_a.append(c[:, 0])
+            tile_b.append(c[:, 2])
+            where.append(p)
+    ta_all = np.concatenate(tile_a)
+    tb_all = np.concatenate(tile_b)
+    p_all = np.concatenate(where)
+    return np.asarray(
+        _skew_rows(ta_all, p_all - centroid[ta_all], cols, 1.0)
+        + _skew_rows(tb_all, p_all - centroid[tb_all], cols, -1.0)
+    )
+
+
+def rigid_motion_basis(tiles: ArrayLike) -> FloatArray:
+    """Orthonormal basis ``(6 T, 6)`` of the global rigid motions in twist coordinates.
+
+    A global motion ``v(p) = u + w x p`` gives tile ``t`` the twist ``(w, u + w x c_t)``.
+    """
+    pts = np.asarray(tiles, dtype=np.float64)
+    centroid = pts.mean(axis=1)
+    n_tiles = len(pts)
+    basis = np.zeros((6 * n_tiles, 6))
+    for axis in range(3):
+        e = np.zeros(3)
+        e[axis] = 1.0
+        for t in range(n_tiles):
+            basis[6 * t + axis, axis] = 1.0  # rotation rate
+            basis[6 * t + 3 : 6 * t + 6, axis] = np.cross(e, centroid[t])
+            basis[6 * t + 3 + axis, 3 + axis] = 1.0  # translation
+    q, _ = np.linalg.qr(basis)
+    return np.asarray(q)
+
+
+@dataclass(frozen=True)
+class RigidityReport:
+    """Outcome of :func:`rigidity_report`.
+
+    Attributes
+    ----------
+    null_dimension : number of independent infinitesimal motions (6 = rigid only).
+    internal_flexes : null_dimension - 6 (never negative for a valid matrix).
+    flexes : (6 T, internal_flexes) float, orthonormal internal flexes (orthogonal to the rigid
+        motions), twist coordinates.
+    singular_values : (6 T,) float, ascending.
+    tolerance : float, threshold used on the singular values.
+    rows, cols : shape of the rigidity matrix.
+    """
+
+    null_dimension: int
+    internal_flexes: int
+    flexes: FloatArray
+    singular_values: FloatArray
+    tolerance: float
+    rows: int
+    cols: int
+
+    @property
+    def isostatic(self) -> bool:
+        return self.null_dimension == 6
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "null_dimension": self.null_dimension,
+            "internal_flexes": self.internal_flexes,
+            "isostatic": self.isostatic,
+            "svd_tolerance": self.tolerance,
+            "smallest_nonzero_singular_value": float(
+                self.singular_values[self.null_dimension]
+                if self.null_dimension < len(self.singular_values)
+                else 0.0
+            ),
+        }
+
+
+def rigidity_report(
+    tiles: ArrayLike,
+    joints: ArrayLike,
+    contacts: ArrayLike = (),
+    *,
+    contact: ContactMode = "midpoint",
+    rel_tol: float = RIGIDITY_SVD_REL,
+) -> RigidityReport:
+    """Null space of the rigidity matrix: dimension and internal flexes.
+
+    Lengths are scaled by the mean tile size first so that rotation and translation columns are
+    comparable and the tolerance is unit-free.
+
+    Parameters
+    ----------
+    tiles, joints, contacts, contact : see :func:`rigidity_matrix`.
+    rel_tol : singular values ``<= rel_tol * s_max`` count as zero.
+
+    Returns
+    -------
+    RigidityReport
+    """
+    pts = np.asarray(tiles, dtype=np.float64)
+    scale = float(np.linalg.norm(pts[:, 0] - pts[:, 2], axis=1).mean()) or 1.0
+    pts = (pts - pts.reshape(-1, 3).mean(axis=0)) / scale
+    mat = rigidity_matrix(pts, joints, contacts, contact=contact)
+    cols = mat.shape[1]
+    full = np.zeros((max(mat.shape[0], cols), cols))
+    full[: mat.shape[0]] = mat  # pad so the SVD returns all right singular vectors
+    _, sing, vt = np.linalg.svd(full)
+    tol = rel_tol * float(sing.max(initial=0.0))
+    null = vt[sing <= tol].T  # (6T, d)
+    order = np.argsort(sing)
+    rigid = rigid_motion_basis(pts)
+    # Flexes: the null space with the rigid motions projected out.
+    resid = null - rigid @ (rigid.T @ null)
+    if resid.size:
+        u, s, _ = np.linalg.svd(resid, full_matrices=False)
+        flexes = u[:, s > 1e-6]
+    else:
+        flexes = np.zeros((cols, 0))
+    return RigidityReport(
+        null_dimension=int(null.shape[1]),
+        internal_flexes=int(flexes.shape[1]),
+        flexes=np.asarray(flexes),
+        singular_values=np.asarray(sing[order]),
+        tolerance=tol,
+        rows=int(mat.shape[0]),
+        cols=int(cols),
+    )

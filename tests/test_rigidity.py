@@ -1,0 +1,67 @@
+"""Infinitesimal rigidity of assembled linkages with and without the boundary string."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drawstring.geometry import simulate as S
+from drawstring.geometry.rigidity import rigid_motion_basis, rigidity_matrix, rigidity_report
+
+
+def generic(scene: S.DeploymentScene, seed: int = 0) -> np.ndarray:
+    """The scene's assembled tiles moved into generic position (exact cylinders are special)."""
+    rng = np.random.default_rng(seed)
+    return scene.tiles_assembled + rng.normal(scale=0.3, size=scene.tiles_assembled.shape)
+
+
+@pytest.mark.parametrize("n", [3, 4])
+def test_boundary_string_makes_linkage_isostatic(n: int) -> None:
+    scene = S.cylinder_scene(n, n)
+    pairs, _ = S.route_snap_pairs(scene.route)
+    tiles = generic(scene)
+    with_string = rigidity_report(tiles, scene.hinge_vertices, pairs)
+    without = rigidity_report(tiles, scene.hinge_vertices)
+    assert with_string.null_dimension == 6 and with_string.isostatic
+    assert with_string.internal_flexes == 0
+    # Ball-jointed tiles: 6 T - 3 H motions; for an n x n grid that is 6 n.
+    assert without.null_dimension == 6 * scene.linkage.n_tiles - 3 * scene.linkage.n_hinges
+    assert without.null_dimension == 6 * n
+    assert without.internal_flexes == without.null_dimension - 6
+
+
+def test_rigid_motions_are_in_the_null_space() -> None:
+    scene = S.cylinder_scene(3, 3)
+    pairs, _ = S.route_snap_pairs(scene.route)
+    mat = rigidity_matrix(scene.tiles_assembled, scene.hinge_vertices, pairs)
+    basis = rigid_motion_basis(scene.tiles_assembled)
+    assert np.abs(mat @ basis).max() < 1e-9
+    assert np.allclose(basis.T @ basis, np.eye(6))
+
+
+def test_flexes_are_orthogonal_to_rigid_motions_and_move_nothing() -> None:
+    scene = S.cylinder_scene(3, 3)
+    tiles = generic(scene, 1)
+    rep = rigidity_report(tiles, scene.hinge_vertices)
+    centred = (tiles - tiles.reshape(-1, 3).mean(axis=0)) / np.linalg.norm(
+        tiles[:, 0] - tiles[:, 2], axis=1
+    ).mean()
+    basis = rigid_motion_basis(centred)
+    assert np.abs(basis.T @ rep.flexes).max() < 1e-8
+    mat = rigidity_matrix(centred, scene.hinge_vertices)
+    assert np.abs(mat @ rep.flexes).max() < 1e-8
+
+
+def test_exact_cylinder_special_position() -> None:
+    """Odd grids on the exact cylinder are isostatic; even ones keep flexes (non-generic).
+
+    Face contact (three points per contact) removes them on small grids.
+    """
+    s3 = S.cylinder_scene(3, 3)
+    p3, _ = S.route_snap_pairs(s3.route)
+    assert rigidity_report(s3.tiles_assembled, s3.hinge_vertices, p3).null_dimension == 6
+    s4 = S.cylinder_scene(4, 4)
+    p4, _ = S.route_snap_pairs(s4.route)
+    assert rigidity_report(s4.tiles_assembled, s4.hinge_vertices, p4).internal_flexes > 0
+    face = rigidity_report(s4.tiles_assembled, s4.hinge_vertices, p4, contact="face")
+    assert face.null_dimension == 6

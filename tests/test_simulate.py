@@ -1,0 +1,150 @@
+"""Deployment simulation: known answers on exact frustum linkages (cylinder patches)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drawstring.geometry import simulate as S
+from drawstring.geometry.errors import InputError
+
+
+@pytest.fixture(scope="module")
+def scene2() -> S.DeploymentScene:
+    return S.cylinder_scene(2, 2)
+
+
+@pytest.fixture(scope="module")
+def scene4() -> S.DeploymentScene:
+    return S.cylinder_scene(4, 4)
+
+
+def centre_gap(scene: S.DeploymentScene) -> int:
+    link = scene.linkage
+    centre = np.array(link.grid_shape) / 2.0
+    return int(np.argmin(np.linalg.norm(link.vertex_ij[link.gap_vertex] - centre, axis=1)))
+
+
+def run(scene: S.DeploymentScene, *, string: bool = True, lift: bool = False) -> S.SimulationResult:
+    pairs, gaps = S.route_snap_pairs(scene.route)
+    verts, targets = S.lift_targets_for_gaps(
+        scene.linkage, scene.tiles_assembled, [centre_gap(scene)] if lift else []
+    )
+    if not string:
+        pairs, gaps, verts, targets = pairs[:0], gaps[:0], verts[:0], targets[:0]
+    return S.simulate_deployment(
+        scene.linkage,
+        scene.tiles_flat,
+        scene.tiles_assembled,
+        scene.hinge_vertices,
+        pairs,
+        verts,
+        targets,
+        snap_gaps=gaps,
+        thickness=scene.thickness,
+    )
+
+
+def test_scene_is_exact(scene4: S.DeploymentScene) -> None:
+    """Flat and assembled tiles are congruent; hinges and route faces coincide in T3D."""
+    flat, goal = scene4.tiles_flat, scene4.tiles_assembled
+    assert np.allclose(S.tile_edge_lengths(flat), S.tile_edge_lengths(goal), atol=1e-9)
+    pts3, pts2 = goal.reshape(-1, 3), flat.reshape(-1, 3)
+    hv = scene4.hinge_vertices
+    assert np.allclose(pts3[hv[:, 0]], pts3[hv[:, 1]], atol=1e-9)
+    assert np.allclose(pts2[hv[:, 0]], pts2[hv[:, 1]], atol=1e-9)  # top hinges close in T2D
+    pairs, gaps = S.route_snap_pairs(scene4.route)
+    mids = S.side_face_midpoints(goal)
+    assert np.allclose(mids[pairs[:, 0], pairs[:, 1]], mids[pairs[:, 2], pairs[:, 3]], atol=1e-9)
+    assert len(pairs) == 12 and np.all(gaps >= 0)
+    assert np.isclose(flat[:, :4, 2], scene4.thickness).all()
+    assert S.max_penetration(goal, S.neighbour_tile_pairs(scene4.linkage)) < 1e-9
+
+
+def test_route_snap_pairs_wrap_and_skip() -> None:
+    route = [(5, 0, 3, 1), (6, 1, 3, 2), (7, 1, 2, 2), (-1, 2, 0, 3)]
+    pairs, gaps = S.route_snap_pairs(route)
+    assert pairs.tolist() == [[0, 1, 1, 3], [1, 2, 2, 0], [2, 3, 0, 3]]
+    assert gaps.tolist() == [6, -1, 5]
+    with pytest.raises(InputError):
+        S.route_snap_pairs([(0, 0, 0, 1)])
+
+
+def test_kabsch_deviation_ignores_rigid_motion(scene2: S.DeploymentScene) -> None:
+    tiles = scene2.tiles_assembled
+    angle = 0.7
+    rot = np.array(
+        [[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]]
+    )
+    moved = tiles @ rot.T + np.array([3.0, -2.0, 5.0])
+    assert S.kabsch_deviation(moved, tiles).max() < 1e-9
+
+
+def test_2x2_deploys(scene2: S.DeploymentScene) -> None:
+    res = run(scene2)
+    side = S.mean_tile_side(scene2.tiles_assembled)
+    assert res.deployed, res.reasons
+    assert res.final_max_deviation_mm <= 0.01 * side
+    assert res.open_gaps == ()
+    assert res.frames.shape[1:] == (4, 8, 3) and res.frames.dtype == np.float32
+    assert np.allclose(res.frames[0], scene2.tiles_flat, atol=1e-5)
+
+
+def test_4x4_deploys_with_centre_lift(scene4: S.DeploymentScene) -> None:
+    res = run(scene4, lift=True)
+    side = S.mean_tile_side(scene4.tiles_assembled)
+    assert res.deployed, res.reasons
+    assert res.final_max_deviation_mm <= 0.01 * side
+    assert res.max_penetration_mm <= 0.01 * side
+    assert np.all(res.gap_distance_mm <= 0.01 * side)
+    # Rigid tiles keep their edge lengths in every frame.
+    rest = S.tile_edge_lengths(scene4.tiles_flat)
+    err = np.abs(S.tile_edge_lengths(res.frames.astype(np.float64)) - rest).max()
+    assert err <= 0.005 * side
+    assert res.max_edge_error_mm <= 0.005 * side
+    block = res.to_json()
+    assert block["deployed"] is True and block["steps"] == res.steps
+
+
+def test_without_string_nothing_deploys(scene4: S.DeploymentScene) -> None:
+    res = run(scene4, string=False)
+    assert not res.deployed
+    # The tiles stay (close to) flat on the table: nothing pulls them together.
+    assert res.final_max_deviation_mm > 0.1 * S.mean_tile_side(scene4.tiles_assembled)
+    assert np.ptp(res.frames[-1][..., 2]) < 1.5 * scene4.thickness
+
+
+def test_open_gaps_reported_when_stuck(scene4: S.DeploymentScene) -> None:
+    """A step budget too small to reel the string in reports the open route gaps."""
+    pairs, gaps = S.route_snap_pairs(scene4.route)
+    res = S.simulate_deployment(
+        scene4.linkage,
+        scene4.tiles_flat,
+        scene4.tiles_assembled,
+        scene4.hinge_vertices,
+        pairs,
+        snap_gaps=gaps,
+        settings=S.SimulationSettings(max_steps=10, ramp_steps=100),
+    )
+    assert not res.deployed
+    assert set(res.open_gaps) <= set(gaps.tolist()) and len(res.open_gaps) > 0
+
+
+def test_deploy_check_plugs_into_lift_sweep(scene2: S.DeploymentScene) -> None:
+    check = S.deploy_check_from_simulation(
+        scene2.linkage,
+        scene2.tiles_flat,
+        scene2.tiles_assembled,
+        scene2.hinge_vertices,
+        scene2.route,
+    )
+    assert "simulation" in check.name  # type: ignore[attr-defined]
+    assert check(np.zeros(0, dtype=np.int64)) is True
+
+
+def test_bad_input() -> None:
+    scene = S.cylinder_scene(2, 2)
+    with pytest.raises(InputError):
+        S.simulate_deployment(
+            scene.linkage, scene.tiles_flat[:, :4], scene.tiles_assembled, scene.hinge_vertices, []
+        )
