@@ -6,14 +6,21 @@ Exit status: 0 success, 2 bad input (one line on stderr naming the problem and t
 
 from __future__ import annotations
 
-import argparse
-import logging
-import sys
-from collections.abc import Sequence
-from pathlib import Path
-from typing import NoReturn
+import os
 
-from drawstring.geometry.errors import DesignError, InputError
+# Dense algebra here is on small blocks (boundary loops, 3x3 fits); threaded BLAS stalls on
+# them when the cores are busy. Set before numpy loads; a user's own setting wins.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import logging  # noqa: E402
+import sys  # noqa: E402
+from collections.abc import Sequence  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import NoReturn  # noqa: E402
+
+from drawstring.geometry.errors import DesignError, InputError  # noqa: E402
 
 EXIT_INPUT = 2
 EXIT_DESIGN = 3

@@ -1,0 +1,798 @@
+"""Boundary First Flattening (Sawhney & Crane 2017, "Boundary First Flattening", ACM TOG 37(1)).
+
+A disk-topology surface is mapped conformally to the plane. Write ``A`` for the positive
+semi-definite cotangent Laplacian (``-igl.cotmatrix``), ``Omega`` for the angle defect at interior
+vertices and ``k`` for the exterior (turning) angle ``pi - sum of corner angles`` at boundary
+vertices. A log conformal scale factor ``u`` changes these curvatures to
+
+    Omega~ = Omega + (A u)_I        (interior),
+    k~     = k     + (A u)_B        (boundary),
+
+the discrete Cherrier problem. A flat metric needs ``Omega~ = 0``. Prescribing ``u`` on the
+boundary and solving for the interior gives ``k~`` (Dirichlet-to-Neumann); prescribing ``k~`` and
+solving for ``u`` uses the Schur complement of ``A`` on the boundary (Neumann-to-Dirichlet). The
+boundary curve is then integrated from the turning angles ``k~`` and the scaled edge lengths
+``exp((u_i + u_j) / 2) l_ij``, closed by the smallest weighted change of those lengths, and
+extended into the interior harmonically (both coordinates, so the curve is met exactly).
+
+Every solve reuses one sparse LU factorization of the interior block ``A_II``. The Schur complement
+``S = A_BB - A_BI A_II^-1 A_IB`` is formed from the same factors: with the symmetric ordering and
+diagonal pivoting used here ``P A_II P^T = L D L^T``, so ``A_BI A_II^-1 A_IB = Z^T D^-1 Z`` with
+``Z = L^-1 P A_IB``. Because ``A_IB`` touches only the interior vertices next to the boundary,
+``Z`` is nonzero only on their ancestors in the elimination tree, a small triangular solve.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import igl
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+import scipy.sparse.csgraph as csgraph
+import scipy.sparse.linalg as spla
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import InputError
+from .tolerances import (
+    DEGENERATE_FACE_REL_AREA,
+    FLATTEN_MIN_CLOSED_LENGTH_REL,
+    FLATTEN_SCHUR_NULL_REL,
+)
+
+log = logging.getLogger(__name__)
+
+Mode = Literal["free", "rectangle"]
+
+#: Boundary vertices sampled at equal arc length as corner candidates in automatic corner choice.
+CORNER_EVEN_SAMPLES = 24
+#: At most this many boundary turning peaks are added to the corner candidates.
+CORNER_TURNING_PEAKS = 8
+#: Each of the four rectangle sides spans at least this fraction of the boundary length.
+CORNER_MIN_ARC_FRACTION = 1.0 / 48.0
+#: Best-scoring corner quadruples tried, in order, until one flattens without flipped triangles.
+CORNER_MAX_TRIES = 8
+#: Right-hand sides per SuperLU triangular solve call (see ``_solve_interior``).
+SOLVE_BLOCK_COLUMNS = 4
+#: Largest dense block ``Z`` (rows x columns) for the elimination-tree Schur complement solve.
+SCHUR_DENSE_MAX_ENTRIES = 10_000_000
+
+
+@dataclass(frozen=True)
+class Flattening:
+    """A conformal flattening of a disk-topology surface.
+
+    Attributes
+    ----------
+    uv : (n, 2) float, mm, flat vertex positions. In ``"rectangle"`` mode the domain is the
+        axis-aligned rectangle ``[0, width] x [0, height]`` with ``corners[0]`` at ``(0, 0)``,
+        ``corners[1]`` at ``(width, 0)``, ``corners[2]`` at ``(width, height)`` and ``corners[3]``
+        at ``(0, height)``; its area equals the 3D surface area. In ``"free"`` mode the first
+        boundary edge points along +x and the bounding box starts at the origin.
+    log_scale : (n,) float, per-vertex log conformal scale factor ``u``: a flat edge is about
+        ``exp((u_i + u_j) / 2)`` times as long as the 3D edge. Exactly 0 on the boundary in
+        ``"free"`` mode; in ``"rectangle"`` mode its additive constant is fitted to the flat face
+        areas (area-weighted least squares of ``log(flat area / 3D area) / 2``).
+    boundary : (k,) int, the boundary loop, counter-clockwise in uv (starts at ``corners[0]`` in
+        ``"rectangle"`` mode).
+    corners : (4,) int or None, vertex ids of the rectangle corners in boundary order; None in
+        ``"free"`` mode.
+    mode : which domain was produced.
+    """
+
+    uv: NDArray[np.float64]
+    log_scale: NDArray[np.float64]
+    boundary: NDArray[np.int64]
+    corners: NDArray[np.int64] | None
+    mode: Mode
+
+    @property
+    def width(self) -> float:
+        """Extent of ``uv`` along x, mm (the rectangle width in ``"rectangle"`` mode)."""
+        return float(np.ptp(self.uv[:, 0]))
+
+    @property
+    def height(self) -> float:
+        """Extent of ``uv`` along y, mm (the rectangle height in ``"rectangle"`` mode)."""
+        return float(np.ptp(self.uv[:, 1]))
+
+
+@dataclass(frozen=True)
+class _System:
+    """Everything BFF needs about one mesh, computed once (internal)."""
+
+    n: int
+    faces: NDArray[np.int64]  # (m, 3)
+    interior: NDArray[np.int64]  # (nI,) vertex ids
+    boundary: NDArray[np.int64]  # (k,) vertex ids, counter-clockwise loop
+    A_IB: sp.csc_matrix  # (nI, k) block of the positive semi-definite cotangent Laplacian
+    A_BB: sp.csc_matrix  # (k, k)
+    lu: spla.SuperLU | None  # factorization of A_II (None when there is no interior vertex)
+    omega: NDArray[np.float64]  # (nI,) angle defect, rad
+    turning: NDArray[np.float64]  # (k,) boundary exterior angle pi - angle sum, rad
+    edge_length: NDArray[np.float64]  # (k,) length of boundary edge b[i] -> b[i+1], mm
+    face_area: NDArray[np.float64]  # (m,) 3D face area, mm^2
+    mass: NDArray[np.float64]  # (n,) vertex area (a third of the incident face areas), mm^2
+    area: float  # total surface area, mm^2
+
+
+def flatten(
+    vertices: ArrayLike,
+    faces: ArrayLike,
+    mode: Mode = "rectangle",
+    corners: Sequence[int] | None = None,
+) -> Flattening:
+    """Flatten a disk-topology mesh conformally with Boundary First Flattening.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float, mm, vertex positions.
+    faces : (m, 3) int, triangles, consistently oriented (outward normal by the right-hand rule),
+        one boundary loop, every vertex used.
+    mode : ``"free"`` keeps the boundary scale factor at zero (``u = 0`` on the boundary) and
+        lets the boundary take its natural shape; among all conformal flattenings this one has
+        the least area distortion in the sense of the smallest Dirichlet energy of ``u``.
+        ``"rectangle"`` maps to an axis-aligned rectangle: four boundary corners get exterior angle
+        pi/2 and all other boundary vertices zero; the result is scaled so that its area equals the
+        3D surface area.
+    corners : 4 boundary vertex ids, rectangle mode only, in any order; ``corners[0]`` goes to the
+        origin and the others follow counter-clockwise along the boundary. If None, the corners
+        are chosen automatically: boundary vertices are sampled (``CORNER_EVEN_SAMPLES`` at equal
+        arc length plus up to ``CORNER_TURNING_PEAKS`` peaks of the boundary turning angle), every
+        quadruple of samples whose four arcs each span at least ``CORNER_MIN_ARC_FRACTION`` of the
+        boundary is scored by the area-weighted variance of the resulting log scale factor
+        ``u`` over the whole surface (exact, from precomputed responses), and the lowest-variance
+        quadruple that flattens without flipped triangles is used (up to ``CORNER_MAX_TRIES``
+        tried). ``corners[0]`` is then chosen so that width >= height.
+
+    Returns
+    -------
+    Flattening
+        uv (mm), log scale factor, boundary loop and corners.
+
+    Raises
+    ------
+    InputError
+        If the mesh is not a valid disk, ``mode`` is unknown, or ``corners`` are not four distinct
+        boundary vertices (or are given in free mode).
+    """
+    t0 = time.perf_counter()
+    V = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces)
+    if mode not in ("free", "rectangle"):
+        raise InputError(f"unknown flattening mode {mode!r}; use 'free' or 'rectangle'")
+    if mode == "free" and corners is not None:
+        raise InputError("corners only apply to mode='rectangle'; drop corners or change mode")
+    boundary = _boundary_loop(V, F)
+    system = _build_system(V, F.astype(np.int64), boundary)
+    t1 = time.perf_counter()
+    if mode == "free":
+        uv, u, loop, corner_ids = _flatten_free(system)
+    else:
+        named = None if corners is None else _order_corners(system.boundary, corners)
+        uv, u, loop, corner_ids = _flatten_rectangle(system, named)
+    t2 = time.perf_counter()
+    log.debug(
+        "flatten %s: %d vertices, setup+factor %.3f s, solve %.3f s", mode, len(V), t1 - t0, t2 - t1
+    )
+    flips = int(np.count_nonzero(flipped_faces(F, uv)))
+    if flips:
+        log.warning("flattening has %d flipped triangles; the mesh may be too coarse", flips)
+    for array in (uv, u, loop):
+        array.flags.writeable = False
+    if corner_ids is not None:
+        corner_ids.flags.writeable = False
+    return Flattening(uv=uv, log_scale=u, boundary=loop, corners=corner_ids, mode=mode)
+
+
+def quasi_conformal_distortion(
+    vertices: ArrayLike, faces: ArrayLike, uv: ArrayLike
+) -> NDArray[np.float64]:
+    """Per-face quasi-conformal distortion of a piecewise-linear map to the plane.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float, mm, 3D vertex positions.
+    faces : (m, 3) int, triangles.
+    uv : (n, 2) float, mm, flat vertex positions.
+
+    Returns
+    -------
+    (m,) float, ratio ``sigma_max / sigma_min >= 1`` of the singular values of each face's
+    Jacobian (1 for a similarity); ``inf`` where the flat triangle has zero area.
+    """
+    V = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces, dtype=np.int64)
+    W = np.asarray(uv, dtype=np.float64)
+    e1 = V[F[:, 1]] - V[F[:, 0]]
+    e2 = V[F[:, 2]] - V[F[:, 0]]
+    len1 = np.linalg.norm(e1, axis=1)
+    x_axis = e1 / len1[:, None]
+    a = np.einsum("ij,ij->i", e2, x_axis)
+    b = np.linalg.norm(e2 - a[:, None] * x_axis, axis=1)
+    # 3D triangle in a local frame: p1 = (len1, 0), p2 = (a, b); J = Q P^-1.
+    q1 = W[F[:, 1]] - W[F[:, 0]]
+    q2 = W[F[:, 2]] - W[F[:, 0]]
+    j_col0 = q1 / len1[:, None]
+    j_col1 = (q2 - a[:, None] * j_col0) / b[:, None]
+    # J = [[p, q], [r, s]] splits into a similarity part (|f_z|) and an anti-similarity part
+    # (|f_zbar|); the singular values are their sum and difference.
+    p, r = j_col0[:, 0], j_col0[:, 1]
+    q, s = j_col1[:, 0], j_col1[:, 1]
+    f_z = np.hypot(p + s, r - q)
+    f_zbar = np.hypot(p - s, r + q)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = (f_z + f_zbar) / np.abs(f_z - f_zbar)
+    ratio[f_z == f_zbar] = np.inf
+    return np.asarray(np.maximum(ratio, 1.0), dtype=np.float64)
+
+
+def flipped_faces(faces: ArrayLike, uv: ArrayLike) -> NDArray[np.bool_]:
+    """Faces whose flat image has non-positive signed area.
+
+    Parameters
+    ----------
+    faces : (m, 3) int, triangles.
+    uv : (n, 2) float, mm, flat vertex positions.
+
+    Returns
+    -------
+    (m,) bool, True where the triangle is flipped or degenerate in uv.
+    """
+    F = np.asarray(faces, dtype=np.int64)
+    W = np.asarray(uv, dtype=np.float64)
+    d1 = W[F[:, 1]] - W[F[:, 0]]
+    d2 = W[F[:, 2]] - W[F[:, 0]]
+    return np.asarray(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0] <= 0.0)
+
+
+# --------------------------------------------------------------------------------------------
+# mesh checks and precomputation
+
+
+def _boundary_loop(V: NDArray[np.float64], F: NDArray[np.generic]) -> NDArray[np.int64]:
+    """Check that (V, F) is a disk and return its boundary loop, counter-clockwise.
+
+    The loop follows the direction the boundary edges have in their faces, so the surface lies to
+    its left; it starts at the smallest boundary vertex id.
+    """
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0 or not np.all(np.isfinite(V)):
+        raise InputError(f"vertices must be a finite (n, 3) array, got shape {V.shape}")
+    if F.ndim != 2 or F.shape[1] != 3 or len(F) == 0 or not np.issubdtype(F.dtype, np.integer):
+        raise InputError(f"faces must be an (m, 3) integer array, got shape {F.shape}")
+    n = len(V)
+    if F.min() < 0 or F.max() >= n:
+        raise InputError(f"faces index vertices outside 0..{n - 1}; fix the face list")
+    Fi = F.astype(np.int64)
+    if np.any((Fi[:, 0] == Fi[:, 1]) | (Fi[:, 1] == Fi[:, 2]) | (Fi[:, 2] == Fi[:, 0])):
+        raise InputError("some faces repeat a vertex; remove degenerate faces")
+    used = np.bincount(Fi.ravel(), minlength=n) > 0
+    if not used.all():
+        raise InputError(
+            f"{int(n - used.sum())} vertices are not used by any face; remove unreferenced vertices"
+        )
+    tail = Fi.ravel()
+    head = Fi[:, [1, 2, 0]].ravel()
+    key = tail * n + head
+    sorted_keys = np.sort(key)
+    if np.any(sorted_keys[1:] == sorted_keys[:-1]):
+        raise InputError(
+            "a directed edge appears in two faces: faces are inconsistently oriented or an edge "
+            "is non-manifold; orient and repair the mesh"
+        )
+    twin = head * n + tail
+    at = np.minimum(np.searchsorted(sorted_keys, twin), len(sorted_keys) - 1)
+    has_twin = sorted_keys[at] == twin
+    b_tail, b_head = tail[~has_twin], head[~has_twin]
+    n_edges = (len(key) + len(b_tail)) // 2
+    euler = n - n_edges + len(Fi)
+    if len(b_tail) == 0:
+        raise InputError("the mesh is closed (no boundary); cut it open into a disk first")
+    if np.any(np.bincount(b_tail, minlength=n) > 1):
+        raise InputError("a boundary vertex is non-manifold (pinched); repair the mesh")
+    successor = np.full(n, -1, dtype=np.int64)
+    successor[b_tail] = b_head
+    loop = [int(b_tail.min())]
+    for _ in range(len(b_tail) - 1):
+        nxt = int(successor[loop[-1]])
+        if nxt == loop[0]:
+            break
+        loop.append(nxt)
+    if len(loop) != len(b_tail):
+        raise InputError(
+            "the mesh has more than one boundary loop; flatten needs a disk (fill holes or cut)"
+        )
+    if euler != 1:
+        raise InputError(
+            f"the mesh has Euler characteristic {euler}, not 1: it is not a disk; cut it open"
+        )
+    return np.asarray(loop, dtype=np.int64)
+
+
+def _corner_angles(V: NDArray[np.float64], F: NDArray[np.int64]) -> NDArray[np.float64]:
+    """(m, 3) float, rad, interior angle of each face at each of its corners."""
+    P = V[F]
+    angles = np.empty(F.shape, dtype=np.float64)
+    for c in range(3):
+        a = P[:, (c + 1) % 3] - P[:, c]
+        b = P[:, (c + 2) % 3] - P[:, c]
+        angles[:, c] = np.arctan2(
+            np.linalg.norm(np.cross(a, b), axis=1), np.einsum("ij,ij->i", a, b)
+        )
+    return angles
+
+
+def _build_system(
+    V: NDArray[np.float64], F: NDArray[np.int64], boundary: NDArray[np.int64]
+) -> _System:
+    """Cotangent Laplacian blocks, curvatures, lengths and the one factorization of ``A_II``."""
+    n = len(V)
+    double_area = np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    if np.any(double_area <= DEGENERATE_FACE_REL_AREA * double_area.mean()):
+        raise InputError("the mesh has zero-area faces; remove or repair degenerate triangles")
+    is_boundary = np.zeros(n, dtype=bool)
+    is_boundary[boundary] = True
+    interior = np.flatnonzero(~is_boundary)
+    A = (-igl.cotmatrix(V, F)).tocsr()
+    A_I = A[interior]
+    A_IB = A_I[:, boundary].tocsc()
+    A_BB = A[boundary][:, boundary].tocsc()
+    angle_sum = np.bincount(F.ravel(), weights=_corner_angles(V, F).ravel(), minlength=n)
+    mass = np.bincount(F.ravel(), weights=np.repeat(double_area / 6.0, 3), minlength=n)
+    lu = None
+    if len(interior):
+        lu = spla.splu(
+            A_I[:, interior].tocsc(),
+            permc_spec="MMD_AT_PLUS_A",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        )
+    edge_length = np.linalg.norm(V[np.roll(boundary, -1)] - V[boundary], axis=1)
+    return _System(
+        n=n,
+        faces=F,
+        interior=interior,
+        boundary=boundary,
+        A_IB=A_IB,
+        A_BB=A_BB,
+        lu=lu,
+        omega=np.asarray(2.0 * math.pi - angle_sum[interior], dtype=np.float64),
+        turning=np.asarray(math.pi - angle_sum[boundary], dtype=np.float64),
+        edge_length=edge_length,
+        face_area=0.5 * double_area,
+        mass=np.asarray(mass, dtype=np.float64),
+        area=float(double_area.sum() / 2.0),
+    )
+
+
+def _order_corners(boundary: NDArray[np.int64], corners: Sequence[int]) -> NDArray[np.int64]:
+    """Positions in the boundary loop of four named corners, ``corners[0]`` first, then CCW."""
+    ids = np.asarray(corners).ravel()
+    if ids.shape != (4,) or not np.issubdtype(ids.dtype, np.integer):
+        raise InputError(f"corners must be 4 vertex ids, got {list(np.asarray(corners).ravel())}")
+    if len(np.unique(ids)) != 4:
+        raise InputError(f"corners must be 4 distinct vertex ids, got {ids.tolist()}")
+    position = np.full(int(max(boundary.max(), ids.max())) + 1, -1, dtype=np.int64)
+    position[boundary] = np.arange(len(boundary))
+    pos = np.where(ids >= 0, position[np.clip(ids, 0, None)], -1)
+    if np.any(pos < 0):
+        raise InputError(
+            f"corner vertices {ids[pos < 0].tolist()} are not on the mesh boundary; "
+            "pick boundary vertex ids"
+        )
+    return np.asarray(pos[np.argsort((pos - pos[0]) % len(boundary))], dtype=np.int64)
+
+
+# --------------------------------------------------------------------------------------------
+# linear algebra on the one factorization
+
+
+def _solve_interior(system: _System, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Solve ``A_II x = rhs`` for one or more right-hand sides, (nI,) or (nI, c).
+
+    Columns go to SuperLU a few at a time (``SOLVE_BLOCK_COLUMNS``): as fast as one wide solve
+    on an idle machine, and it keeps the BLAS calls small enough to stay single-threaded, which
+    avoids multi-threaded BLAS stalls when the cores are busy.
+    """
+    if system.lu is None:
+        return np.zeros_like(rhs)
+    if rhs.ndim == 1:
+        return np.asarray(system.lu.solve(rhs), dtype=np.float64)
+    out = np.empty_like(rhs, dtype=np.float64)
+    for start in range(0, rhs.shape[1], SOLVE_BLOCK_COLUMNS):
+        block = slice(start, start + SOLVE_BLOCK_COLUMNS)
+        out[:, block] = system.lu.solve(np.asfortranarray(rhs[:, block]))
+    return out
+
+
+def _schur_complement(system: _System) -> NDArray[np.float64]:
+    """(k, k) dense Dirichlet-to-Neumann matrix ``S = A_BB - A_BI A_II^-1 A_IB``.
+
+    Uses ``P A_II P^T = L D L^T`` from the symmetric LU: the solve ``Z = L^-1 P A_IB`` is confined
+    to the elimination-tree ancestors of the interior vertices next to the boundary. Falls back to
+    full multi-right-hand-side solves if the factorization pivoted off the diagonal.
+    """
+    A_BB = system.A_BB.toarray()
+    lu = system.lu
+    if lu is None:
+        return A_BB
+    A_IB = system.A_IB
+    n_i = A_IB.shape[0]
+    reach = None
+    if np.array_equal(lu.perm_r, lu.perm_c):
+        L = lu.L  # CSC, unit diagonal stored first in each column
+        if not L.has_sorted_indices:
+            L.sort_indices()
+        parent = np.full(n_i, n_i, dtype=np.int64)  # n_i stands for "root"
+        has_parent = np.diff(L.indptr) > 1
+        parent[has_parent] = L.indices[L.indptr[:-1][has_parent] + 1]
+        PC = A_IB.tocsr()[np.argsort(lu.perm_r)]
+        starts = np.flatnonzero(np.diff(PC.indptr))
+        # Elimination-tree ancestors of the start rows: search from an extra source vertex.
+        src = n_i + 1
+        tree = sp.csr_matrix(
+            (
+                np.ones(n_i + len(starts)),
+                (np.append(np.arange(n_i), np.full(len(starts), src)), np.append(parent, starts)),
+            ),
+            shape=(n_i + 2, n_i + 2),
+        )
+        found = csgraph.breadth_first_order(tree, src, directed=True, return_predecessors=False)
+        reach = np.sort(found[found < n_i])
+        if len(reach) * A_IB.shape[1] > SCHUR_DENSE_MAX_ENTRIES:
+            reach = None
+    if reach is None:
+        W = _solve_interior(system, A_IB.toarray())
+        S = A_BB - (A_IB.T @ W)
+    else:
+        local = np.full(n_i, -1, dtype=np.int64)
+        local[reach] = np.arange(len(reach))
+        L_cols = L[:, reach]
+        L_rr = sp.csc_matrix(
+            (L_cols.data, local[L_cols.indices], L_cols.indptr), shape=(len(reach), len(reach))
+        )
+        Z = spla.spsolve_triangular(L_rr, PC[reach].toarray(), lower=True, unit_diagonal=True)
+        d = lu.U.diagonal()[reach]
+        S = A_BB - Z.T @ (Z / d[:, None])
+    return np.asarray(0.5 * (S + S.T), dtype=np.float64)
+
+
+def _neumann_solve(S: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Solve ``S x = rhs`` on the boundary, with ``S`` singular only along the constants.
+
+    Uses a Cholesky factorization of ``S + c 1 1^T`` (``c`` the mean diagonal entry over ``k``),
+    which is positive definite and agrees with ``S`` up to an added constant in ``x``: for a
+    right-hand side that sums to zero (a compatible Neumann problem) it returns the mean-zero
+    solution, and the map is linear, so sums of such columns stay consistent. Falls back to an
+    eigen-decomposition pseudo-inverse if the factorization fails.
+
+    Parameters
+    ----------
+    S : (k, k) float, the Dirichlet-to-Neumann matrix.
+    rhs : (k,) or (k, c) float.
+    """
+    k = len(S)
+    shifted = S + float(np.trace(S)) / (k * k)
+    try:
+        factor = sla.cho_factor(shifted, lower=True, check_finite=False)
+        return np.asarray(sla.cho_solve(factor, rhs, check_finite=False), dtype=np.float64)
+    except np.linalg.LinAlgError:
+        evals, evecs = np.linalg.eigh(S)
+        keep = evals > FLATTEN_SCHUR_NULL_REL * max(float(evals[-1]), 1e-300)
+        return np.asarray(
+            (evecs[:, keep] / evals[keep]) @ (evecs[:, keep].T @ rhs), dtype=np.float64
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# boundary curve and extension
+
+
+def _close_lengths(
+    lengths: NDArray[np.float64], tangents: NDArray[np.float64], weights: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Closest lengths ``x`` to ``lengths`` with ``sum x_e T_e = 0``.
+
+    Minimizes ``sum_e (x_e - l_e)^2 / w_e`` subject to the closing condition (BFF eq. for the
+    length-closing step, with ``w_e`` the original 3D edge length).
+
+    Parameters
+    ----------
+    lengths : (k,) float, mm, target edge lengths.
+    tangents : (k, 2) float, unit edge directions.
+    weights : (k,) float, mm, how freely each edge may change.
+    """
+    T = tangents.T  # (2, k)
+    gram = (T * weights) @ T.T
+    lam = np.linalg.solve(gram, T @ lengths)
+    return np.asarray(lengths - weights * (T.T @ lam), dtype=np.float64)
+
+
+def _harmonic_extension(system: _System, boundary_uv: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(n, 2) float: boundary positions extended harmonically (cotangent weights) inside."""
+    uv = np.empty((system.n, 2), dtype=np.float64)
+    uv[system.boundary] = boundary_uv
+    if len(system.interior):
+        uv[system.interior] = _solve_interior(system, -(system.A_IB @ boundary_uv))
+    return uv
+
+
+def _scaled_lengths(system: _System, u_boundary: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(k,) float, mm: boundary edge lengths scaled by ``exp`` of the mean endpoint factor."""
+    return np.asarray(
+        system.edge_length * np.exp(0.5 * (u_boundary + np.roll(u_boundary, -1))), dtype=np.float64
+    )
+
+
+def _check_lengths(closed: NDArray[np.float64], target: NDArray[np.float64]) -> bool:
+    return bool(np.all(closed > FLATTEN_MIN_CLOSED_LENGTH_REL * target))
+
+
+def _flatten_free(
+    system: _System,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], None]:
+    """Free boundary: ``u = 0`` on the boundary, turning angles from Dirichlet-to-Neumann."""
+    u = np.zeros(system.n)
+    u_interior = _solve_interior(system, -system.omega)
+    u[system.interior] = u_interior
+    target_turning = system.turning + system.A_IB.T @ u_interior
+    angle = np.concatenate([[0.0], np.cumsum(target_turning[1:])])
+    tangents = np.column_stack([np.cos(angle), np.sin(angle)])
+    lengths = system.edge_length
+    closed = _close_lengths(lengths, tangents, system.edge_length)
+    if not _check_lengths(closed, lengths):
+        log.warning("free-boundary curve needed a large closing correction")
+    steps = closed[:, None] * tangents
+    boundary_uv = np.concatenate([np.zeros((1, 2)), np.cumsum(steps[:-1], axis=0)])
+    uv = _harmonic_extension(system, boundary_uv)
+    uv -= uv.min(axis=0)
+    return uv, u, system.boundary.copy(), None
+
+
+# --------------------------------------------------------------------------------------------
+# rectangle mode
+
+
+_SIDE_DIRECTIONS = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+
+
+def _rectangle_curve(
+    system: _System, u_boundary: NDArray[np.float64], corner_pos: NDArray[np.int64]
+) -> tuple[NDArray[np.float64], bool]:
+    """Rectangle through the scaled boundary lengths, starting at ``corner_pos[0]``.
+
+    Returns the (k, 2) boundary positions in loop order and whether the length closing kept every
+    edge at a positive length.
+    """
+    k = len(system.boundary)
+    side = np.zeros(k, dtype=np.int64)  # side index of edge b[i] -> b[i+1]
+    side[corner_pos[1:]] = 1
+    side = np.roll(np.cumsum(np.roll(side, -corner_pos[0])), corner_pos[0])
+    target = _scaled_lengths(system, u_boundary)
+    closed = _close_lengths(target, _SIDE_DIRECTIONS[side], system.edge_length)
+    ok = _check_lengths(closed, target)
+    width = float(closed[side == 0].sum())
+    height = float(closed[side == 1].sum())
+    # Place each side exactly on the rectangle by its cumulative length fraction.
+    points = np.empty((k, 2), dtype=np.float64)
+    starts = np.array([[0.0, 0.0], [width, 0.0], [width, height], [0.0, height]])
+    extents = np.array([width, height, width, height])
+    for s in range(4):
+        a, b = corner_pos[s], corner_pos[(s + 1) % 4]
+        edges = np.arange(a, a + (b - a) % k) % k
+        total = closed[edges].sum()
+        frac = np.cumsum(closed[edges])[:-1] / total if total > 0 else np.zeros(len(edges) - 1)
+        points[edges[0]] = starts[s]
+        points[edges[1:]] = starts[s] + (frac * extents[s])[:, None] * _SIDE_DIRECTIONS[s]
+    return points, ok
+
+
+def _turning_peaks(system: _System, arc: NDArray[np.float64], window: float) -> NDArray[np.int64]:
+    """Loop positions of up to ``CORNER_TURNING_PEAKS`` well-separated peaks of boundary turning.
+
+    The turning angle is summed over an arc-length window of half-width ``window``; ties go to
+    the vertex that turns most itself.
+    """
+    perimeter = float(arc[-1] + system.edge_length[-1])
+    cum = np.concatenate([[0.0], np.cumsum(np.tile(system.turning, 3))])
+    positions = np.concatenate([arc - perimeter, arc, arc + perimeter])
+    lo = np.searchsorted(positions, arc - window, side="left")
+    hi = np.searchsorted(positions, arc + window, side="right")
+    smooth = cum[hi] - cum[lo]
+    chosen: list[int] = []
+    for i in np.lexsort((-system.turning, -np.round(smooth, 9))):
+        if smooth[i] <= 0.0 or len(chosen) == CORNER_TURNING_PEAKS:
+            break
+        gap = np.abs(arc[chosen] - arc[i])
+        if np.all(np.minimum(gap, perimeter - gap) > 2.0 * window):
+            chosen.append(int(i))
+    return np.asarray(chosen, dtype=np.int64)
+
+
+def _corner_samples(system: _System) -> NDArray[np.int64]:
+    """Sorted loop positions sampled as corner candidates (equal arc length + turning peaks).
+
+    Short boundaries use every vertex. Turning is summed over windows of half-width
+    ``perimeter * CORNER_MIN_ARC_FRACTION / 2``, so two peaks are at least one minimum arc apart.
+    """
+    k = len(system.boundary)
+    if k <= CORNER_EVEN_SAMPLES + CORNER_TURNING_PEAKS:
+        return np.arange(k, dtype=np.int64)
+    arc = np.concatenate([[0.0], np.cumsum(system.edge_length[:-1])])
+    perimeter = float(system.edge_length.sum())
+    targets = np.arange(CORNER_EVEN_SAMPLES) * perimeter / CORNER_EVEN_SAMPLES
+    even = np.clip(np.searchsorted(arc, targets), 0, k - 1)
+    before = np.clip(even - 1, 0, k - 1)
+    even = np.where(np.abs(arc[before] - targets) < np.abs(arc[even] - targets), before, even)
+    peaks = _turning_peaks(system, arc, 0.5 * CORNER_MIN_ARC_FRACTION * perimeter)
+    return np.unique(np.concatenate([even, peaks]))
+
+
+def _quadruples(
+    samples: NDArray[np.int64], arc: NDArray[np.float64], perimeter: float
+) -> NDArray[np.int64]:
+    """(q, 4) indices into ``samples`` of increasing quadruples with every arc long enough."""
+    d = len(samples)
+    combos = np.fromiter(
+        itertools.chain.from_iterable(itertools.combinations(range(d), 4)),
+        dtype=np.int64,
+        count=4 * math.comb(d, 4),
+    ).reshape(-1, 4)
+    s = arc[samples[combos]]
+    arcs = np.diff(np.column_stack([s, s[:, 0] + perimeter]), axis=1)
+    good = np.all(arcs >= CORNER_MIN_ARC_FRACTION * perimeter, axis=1)
+    return combos[good] if np.any(good) else combos
+
+
+def _landscape_start(
+    system: _System, u_boundary: NDArray[np.float64], corner_pos: NDArray[np.int64]
+) -> NDArray[np.int64]:
+    """Rotate increasing corner positions so the side ``corners[0] -> corners[1]`` is the longer."""
+    lengths = _scaled_lengths(system, u_boundary)
+    cum = np.concatenate([[0.0], np.cumsum(lengths)])
+    at = cum[corner_pos]  # corner_pos is increasing here
+    side = np.diff(np.append(at, at[0] + cum[-1]))
+    if side[1] + side[3] > side[0] + side[2]:
+        return np.roll(corner_pos, -1)
+    return corner_pos
+
+
+def _log_scale_offset(system: _System, u: NDArray[np.float64], uv: NDArray[np.float64]) -> float:
+    """Constant ``c`` fitting ``exp(u + c)`` to the flat map's area scale (least squares).
+
+    Minimizes ``sum_f A_f (log(A~_f / A_f) / 2 - mean_f(u) - c)^2`` over unflipped faces, with
+    ``A_f`` the 3D and ``A~_f`` the flat face area. It absorbs both the global scale and the
+    part of the boundary length that the discrete corner singularities miss.
+    """
+    F = system.faces
+    d1 = uv[F[:, 1]] - uv[F[:, 0]]
+    d2 = uv[F[:, 2]] - uv[F[:, 0]]
+    flat = 0.5 * (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+    good = flat > 0.0
+    weight = system.face_area[good]
+    misfit = 0.5 * np.log(flat[good] / weight) - u[F[good]].mean(axis=1)
+    return float(weight @ misfit / weight.sum())
+
+
+def _corner_responses(
+    system: _System, samples: NDArray[np.int64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Log scale factor as an affine function of which sampled boundary vertices are corners.
+
+    With target turning ``pi/2`` at the corners and 0 elsewhere, the Neumann-to-Dirichlet solve
+    gives ``u = a + (pi/2) * Y[:, corners].sum(axis=1)``: ``S u_B = k~ - k - A_BI A_II^-1 f_I``
+    with ``f_I = -omega``, and ``u_I = A_II^-1 (f_I - A_IB u_B)``. All columns come from one
+    multi-right-hand-side solve with the factorization of ``A_II``.
+
+    Parameters
+    ----------
+    system : the mesh's BFF system.
+    samples : (d,) int, loop positions of candidate corner vertices.
+
+    Returns
+    -------
+    a : (n,) float, u for target turning 0 everywhere (defined up to a constant).
+    Y : (n, d) float, response of u to target turning 1 rad at each sample.
+    """
+    w0 = _solve_interior(system, -system.omega)
+    unit = np.zeros((len(system.boundary), len(samples)))
+    unit[samples, np.arange(len(samples))] = 1.0
+    responses = _neumann_solve(
+        _schur_complement(system),
+        np.column_stack([-system.turning - system.A_IB.T @ w0, unit]),
+    )
+    a_boundary, Y_boundary = responses[:, 0], responses[:, 1:]
+    interior = _solve_interior(system, system.A_IB @ np.column_stack([a_boundary, Y_boundary]))
+    a = np.empty(system.n)
+    a[system.boundary] = a_boundary
+    a[system.interior] = w0 - interior[:, 0]
+    Y = np.empty((system.n, len(samples)))
+    Y[system.boundary] = Y_boundary
+    Y[system.interior] = -interior[:, 1:]
+    return a, Y
+
+
+def _corner_scores(
+    system: _System,
+    a: NDArray[np.float64],
+    Y: NDArray[np.float64],
+    corner_sets: NDArray[np.int64],
+) -> NDArray[np.float64]:
+    """(q,) float: area-weighted variance of ``u`` over the surface for each corner quadruple.
+
+    ``u = a + (pi/2) Y x`` with ``x`` the indicator of the quadruple, so the variance is a
+    quadratic form in ``x`` evaluated for all quadruples at once.
+    """
+    weight = system.mass / system.mass.sum()
+    a_c = a - weight @ a
+    Y_c = Y - weight @ Y
+    g = (Y_c * weight[:, None]).T @ a_c
+    Q = (Y_c * weight[:, None]).T @ Y_c
+    c = corner_sets
+    h = 0.5 * math.pi
+    quad = Q[c[:, :, None], c[:, None, :]].sum(axis=(1, 2))
+    return np.asarray(float(weight @ a_c**2) + 2.0 * h * g[c].sum(axis=1) + h * h * quad)
+
+
+def _flatten_rectangle(
+    system: _System, named: NDArray[np.int64] | None
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """Rectangle mode: target turning pi/2 at four corners, 0 elsewhere (Neumann-to-Dirichlet).
+
+    Named corners are used as given; otherwise quadruples of sampled boundary vertices are tried
+    in order of increasing area-weighted variance of ``u`` until one has no flipped triangle.
+    """
+    k = len(system.boundary)
+    if k < 4:
+        raise InputError(f"the boundary has only {k} vertices; a rectangle needs at least 4")
+    if named is not None:
+        samples = named
+        corner_sets = np.arange(4, dtype=np.int64)[None, :]
+        order = np.zeros(1, dtype=np.int64)
+    else:
+        samples = _corner_samples(system)
+        arc = np.concatenate([[0.0], np.cumsum(system.edge_length[:-1])])
+        corner_sets = _quadruples(samples, arc, float(system.edge_length.sum()))
+    a, Y = _corner_responses(system, samples)
+    if named is None:
+        scores = _corner_scores(system, a, Y, corner_sets)
+        order = np.argsort(scores, kind="stable")[:CORNER_MAX_TRIES]
+        log.debug(
+            "corner choice: %d samples, %d quadruples, best std of u %.4f",
+            len(samples),
+            len(corner_sets),
+            math.sqrt(max(float(scores[order[0]]), 0.0)),
+        )
+    # The best-scoring closed candidate, replaced by the first one without flipped triangles.
+    chosen: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]] | None = None
+    for attempt, index in enumerate(order):
+        u = a + 0.5 * math.pi * Y[:, corner_sets[index]].sum(axis=1)
+        corner_pos = samples[corner_sets[index]]
+        if named is None:
+            corner_pos = _landscape_start(system, u[system.boundary], np.sort(corner_pos))
+        points, closed_ok = _rectangle_curve(system, u[system.boundary], corner_pos)
+        if not closed_ok:
+            log.debug("corner candidate %d: the length closing failed", attempt)
+            continue
+        scale = math.sqrt(system.area / float(np.prod(points[corner_pos[2]])))
+        uv = _harmonic_extension(system, scale * points)
+        result = (uv, u + _log_scale_offset(system, u, uv), corner_pos)
+        if chosen is None:
+            chosen = result
+        if named is not None or not np.any(flipped_faces(system.faces, uv)):
+            chosen = result
+            break
+        log.debug("corner candidate %d: flipped triangles, trying the next", attempt)
+    if chosen is None:
+        raise InputError(
+            "these corners give no closed rectangle boundary; pick corners farther apart"
+        )
+    uv, u, corner_pos = chosen
+    return uv, u, np.roll(system.boundary, -corner_pos[0]), system.boundary[corner_pos]
