@@ -76,7 +76,7 @@ def save_scale_factor(tiling: Tiling, path: Path) -> None:
 def _equal_3d(ax: Axes, points: NDArray[np.float64]) -> None:
     lo, hi = points.min(axis=0), points.max(axis=0)
     centre, half = (lo + hi) / 2, (hi - lo).max() / 2
-    ax.set_xlim(centre[0] - half, centre[0] + half)  # type: ignore[attr-defined]
+    ax.set_xlim(centre[0] - half, centre[0] + half)
     ax.set_ylim(centre[1] - half, centre[1] + half)
     ax.set_zlim(centre[2] - half, centre[2] + half)  # type: ignore[attr-defined]
     ax.set_box_aspect((1, 1, 1))  # type: ignore[arg-type]
@@ -88,15 +88,15 @@ def save_lifted(target: Target, tiling: Tiling, path: Path) -> None:
     ax = fig.add_subplot(projection="3d")
     tris = target.vertices[target.faces]
     surface = Poly3DCollection(list(tris), facecolors="0.85", edgecolors="none", alpha=0.35)
-    ax.add_collection3d(surface)  # type: ignore[attr-defined]
+    ax.add_collection3d(surface)
     quads = tiling.vertices[tiling.quads]
     edges = np.concatenate([quads[:, [k, (k + 1) % 4]] for k in range(4)])
     colours = [COMPONENT_COLOURS[c % len(COMPONENT_COLOURS)] for c in tiling.linkage.tile_component]
     tiles = Poly3DCollection(list(quads), facecolors=colours, edgecolors="none", alpha=0.55)
-    ax.add_collection3d(tiles)  # type: ignore[attr-defined]
-    ax.add_collection3d(Line3DCollection(list(edges), colors="k", linewidths=0.4))  # type: ignore[attr-defined]
+    ax.add_collection3d(tiles)
+    ax.add_collection3d(Line3DCollection(list(edges), colors="k", linewidths=0.4))
     _equal_3d(ax, target.vertices)
-    ax.view_init(elev=32, azim=-60)  # type: ignore[attr-defined]
+    ax.view_init(elev=32, azim=-60)
     ax.set_title(
         f"{target.name}: {tiling.linkage.n_tiles} tiles lifted onto the target", fontsize=10
     )
@@ -139,7 +139,7 @@ def save_assembled(result: Design, path: Path) -> None:
     fig = plt.figure(figsize=(7, 6))
     ax = fig.add_subplot(projection="3d")
     draw_tiles_3d(ax, result.tiles_assembled, result.tiling.linkage.tile_component)
-    ax.view_init(elev=32, azim=-60)  # type: ignore[attr-defined]
+    ax.view_init(elev=32, azim=-60)
     ax.set_axis_off()
     m = result.metrics()
     ax.set_title(

@@ -18,6 +18,7 @@ from drawstring.geometry.errors import InputError
 Process = Literal["fdm-dual", "laser-epdm", "plywood-cnc"]
 SHIPPED_PROFILES: tuple[str, ...] = ("fdm-dual", "laser-epdm", "plywood-cnc")
 Interlock = Literal["through-holes", "dovetail", "glue-recess", "screws", "staples"]
+Joint = Literal["none", "butt", "finger"]
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,8 @@ SCHEMA: dict[str, Field] = {
     "tile_material": Field("tile", "material", str),
     "density_kg_m3": Field("tile", "density_kg_m3", float, 10.0, 20_000.0, "kg/m^3"),
     "infill_fraction": Field("tile", "infill_fraction", float, 0.01, 1.0, "fraction"),
+    "panel_thickness_mm": Field("tile", "panel_thickness_mm", float, 0.0, 100.0, "mm"),
+    "joint": Field("tile", "joint", str, choices=get_args(Joint)),
     "string_diameter_mm": Field("string", "diameter_mm", float, 0.05, 50.0, "mm"),
     "channel_clearance_mm": Field("string", "channel_clearance_mm", float, 0.0, 20.0, "mm"),
     "min_bend_radius_mm": Field("string", "min_bend_radius_mm", float, 0.0, 1000.0, "mm"),
@@ -55,6 +58,7 @@ SCHEMA: dict[str, Field] = {
     "hinge_width_mm": Field("hinge", "width_mm", float, 0.1, 200.0, "mm"),
     "hinge_pad_length_mm": Field("hinge", "pad_length_mm", float, 0.1, 500.0, "mm"),
     "hinge_interlock": Field("hinge", "interlock", str, choices=get_args(Interlock)),
+    "hinge_density_kg_m3": Field("hinge", "density_kg_m3", float, 100.0, 20_000.0, "kg/m^3"),
     "magnet_diameter_mm": Field("magnet", "diameter_mm", float, 0.5, 100.0, "mm"),
     "magnet_height_mm": Field("magnet", "height_mm", float, 0.2, 100.0, "mm"),
     "magnet_clearance_mm": Field("magnet", "clearance_mm", float, 0.0, 5.0, "mm"),
@@ -63,6 +67,13 @@ SCHEMA: dict[str, Field] = {
     "nozzle_mm": Field("machine", "nozzle_mm", float, 0.0, 5.0, "mm"),
     "kerf_mm": Field("machine", "kerf_mm", float, 0.0, 5.0, "mm"),
     "tool_diameter_mm": Field("machine", "tool_diameter_mm", float, 0.0, 50.0, "mm"),
+    "print_rate_mm3_s": Field("machine", "print_rate_mm3_s", float, 0.0, 500.0, "mm^3/s"),
+    "cut_speed_mm_s": Field("machine", "cut_speed_mm_s", float, 0.0, 2000.0, "mm/s"),
+    "currency": Field("cost", "currency", str),
+    "tile_price_per_kg": Field("cost", "tile_material_per_kg", float, 0.0, 100_000.0, "per kg"),
+    "hinge_price_per_kg": Field("cost", "hinge_material_per_kg", float, 0.0, 100_000.0, "per kg"),
+    "string_price_per_m": Field("cost", "string_per_m", float, 0.0, 100_000.0, "per m"),
+    "magnet_price_each": Field("cost", "magnet_each", float, 0.0, 100_000.0, "each"),
 }
 
 
@@ -80,6 +91,8 @@ class Profile:
     tile_material: str
     density_kg_m3: float
     infill_fraction: float
+    panel_thickness_mm: float
+    joint: Joint
     string_diameter_mm: float
     channel_clearance_mm: float
     min_bend_radius_mm: float
@@ -90,6 +103,7 @@ class Profile:
     hinge_width_mm: float
     hinge_pad_length_mm: float
     hinge_interlock: Interlock
+    hinge_density_kg_m3: float
     magnet_diameter_mm: float
     magnet_height_mm: float
     magnet_clearance_mm: float
@@ -98,6 +112,13 @@ class Profile:
     nozzle_mm: float
     kerf_mm: float
     tool_diameter_mm: float
+    print_rate_mm3_s: float
+    cut_speed_mm_s: float
+    currency: str
+    tile_price_per_kg: float
+    hinge_price_per_kg: float
+    string_price_per_m: float
+    magnet_price_each: float
     source: str = ""
 
     def to_json(self) -> dict[str, Any]:
@@ -188,7 +209,7 @@ def parse_profile(data: dict[str, Any], source: str) -> Profile:
             )
         if spec.choices and value not in spec.choices:
             raise InputError(f"{source}: {where} = {value!r} must be {_describe_range(spec)}")
-        if spec.low is not None and spec.high is not None:
+        if spec.low is not None and spec.high is not None and isinstance(value, int | float):
             if not (spec.low <= value <= spec.high):
                 raise InputError(
                     f"{source}: {where} = {value!r} is out of range ({_describe_range(spec)})"

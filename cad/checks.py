@@ -1,0 +1,233 @@
+"""Checks measured on the built solids (not on the arrays they were built from).
+
+* :func:`check_valid` - BRepCheck, closed (every edge between two faces), positive volume.
+* :func:`interference` - intersection volumes of overlapping pairs, with manifold3d meshes.
+* :func:`face_openings` - round holes in a planar face of a solid (centre, radius).
+* :func:`channel_continuity` - where consecutive tiles' channel openings meet when assembled.
+* :func:`pockets_paired` - where the two pockets of each magnet pair meet when assembled.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import build123d as bd
+import manifold3d
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from drawstring.cad.design import route_links
+from drawstring.cad.features import MagnetPair, channel_radius
+from drawstring.cad.kernel import tessellate
+from drawstring.cad.tiles import apply_transform, face_planes
+
+if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
+    from drawstring.fabrication.profiles import Profile
+
+
+def check_valid(solids: Sequence[bd.Shape]) -> NDArray[np.bool_]:
+    """(n,) bool: each shape is one solid that passes BRepCheck, is closed and has volume > 0."""
+    return np.array(
+        [
+            isinstance(s, bd.Solid) and s.is_valid and s.is_manifold and s.volume > 0.0
+            for s in solids
+        ],
+        dtype=bool,
+    )
+
+
+def to_manifold(solid: bd.Shape, tolerance: float = 0.01) -> manifold3d.Manifold:
+    """manifold3d solid from a tessellation of ``solid`` (chordal tolerance in mm)."""
+    vertices, faces = tessellate(solid, tolerance)
+    mesh = manifold3d.Mesh(
+        vert_properties=np.ascontiguousarray(vertices, dtype=np.float32),
+        tri_verts=np.ascontiguousarray(faces, dtype=np.uint32),
+    )
+    manifold = manifold3d.Manifold(mesh)
+    if manifold.status() != manifold3d.Error.NoError:
+        mesh.merge()
+        manifold = manifold3d.Manifold(mesh)
+    if manifold.status() != manifold3d.Error.NoError:
+        raise RuntimeError(f"tessellation is not a closed manifold: {manifold.status()}")
+    return manifold
+
+
+@dataclass(frozen=True)
+class Interference:
+    """Intersection volumes of the candidate pairs (bounding boxes overlap).
+
+    pairs : (K, 2) int, index into the first and the second list.
+    volumes : (K,) float, mm^3.
+    """
+
+    pairs: NDArray[np.int64]
+    volumes: NDArray[np.float64]
+
+    @property
+    def max_volume(self) -> float:
+        return float(self.volumes.max()) if self.volumes.size else 0.0
+
+    def worst(self) -> tuple[int, int] | None:
+        if not self.volumes.size:
+            return None
+        a, b = self.pairs[int(np.argmax(self.volumes))]
+        return int(a), int(b)
+
+
+def _boxes(meshes: Sequence[manifold3d.Manifold]) -> NDArray[np.float64]:
+    return np.array([m.bounding_box() for m in meshes], dtype=np.float64).reshape(-1, 2, 3)
+
+
+def interference(
+    solids_a: Sequence[bd.Shape],
+    solids_b: Sequence[bd.Shape] | None = None,
+    allowed_contact: set[tuple[int, int]] | None = None,
+    tolerance: float = 0.01,
+) -> Interference:
+    """Intersection volume of every pair whose bounding boxes overlap.
+
+    Parameters
+    ----------
+    solids_a : solids; with ``solids_b`` None, pairs within ``solids_a`` (i < j) are tested.
+    solids_b : a second list; then pairs (i in a, j in b) are tested.
+    allowed_contact : pairs that may touch (hinges); they are measured all the same, since a
+        touching contact has no volume; listed pairs are reported for context only.
+    tolerance : chordal tessellation tolerance (mm); curved faces shared by two solids are
+        meshed alike, so touching solids give volumes near zero.
+    """
+    del allowed_contact
+    meshes_a = [to_manifold(s, tolerance) for s in solids_a]
+    meshes_b = meshes_a if solids_b is None else [to_manifold(s, tolerance) for s in solids_b]
+    boxes_a, boxes_b = _boxes(meshes_a), _boxes(meshes_b)
+    if not len(boxes_a) or not len(boxes_b):
+        return Interference(np.zeros((0, 2), dtype=np.int64), np.zeros(0))
+    centres_a, centres_b = boxes_a.mean(axis=1), boxes_b.mean(axis=1)
+    reach = 0.5 * (
+        np.linalg.norm(np.ptp(boxes_a, axis=1), axis=1).max()
+        + np.linalg.norm(np.ptp(boxes_b, axis=1), axis=1).max()
+    )
+    tree_a, tree_b = cKDTree(centres_a), cKDTree(centres_b)
+    candidates = []
+    for i, near in enumerate(tree_a.query_ball_tree(tree_b, reach + 1e-9)):
+        for j in near:
+            if solids_b is None and j <= i:
+                continue
+            if np.all(boxes_a[i, 0] <= boxes_b[j, 1]) and np.all(boxes_b[j, 0] <= boxes_a[i, 1]):
+                candidates.append((i, j))
+    pairs = np.array(candidates, dtype=np.int64).reshape(-1, 2)
+    volumes = np.array([(meshes_a[i] ^ meshes_b[j]).volume() for i, j in pairs], dtype=np.float64)
+    return Interference(pairs, volumes)
+
+
+def face_openings(
+    solid: bd.Shape, point: NDArray[np.float64], normal: NDArray[np.float64], tol: float = 1e-6
+) -> list[tuple[NDArray[np.float64], float]]:
+    """Holes in the planar face(s) of ``solid`` lying in the plane (``point``, ``normal``).
+
+    Returns
+    -------
+    list of (centre (3,) float mm, mean radius float mm), one per inner wire.
+    """
+    unit = np.asarray(normal, dtype=np.float64) / np.linalg.norm(normal)
+    found = []
+    for face in solid.faces():
+        if face.geom_type != bd.GeomType.PLANE:
+            continue
+        centre = np.array(tuple(face.center()))
+        face_normal = np.array(tuple(face.normal_at()))
+        if abs(abs(face_normal @ unit) - 1.0) > 1e-6 or abs((centre - point) @ unit) > tol:
+            continue
+        for wire in face.inner_wires():
+            middle = np.array(tuple(wire.center(bd.CenterOf.MASS)))
+            samples = np.array(
+                [tuple(wire.position_at(t)) for t in np.linspace(0.0, 1.0, 24, endpoint=False)]
+            )
+            radius = float(np.linalg.norm(samples - middle, axis=1).mean())
+            found.append((middle, radius))
+    return found
+
+
+def _opening(
+    solid: bd.Shape, tile: NDArray[np.float64], side: int, radius: float
+) -> NDArray[np.float64] | None:
+    """Centre of the hole in side face ``side`` whose radius is closest to ``radius``."""
+    centroids, normals = face_planes(tile)
+    holes = face_openings(solid, centroids[side], normals[side])
+    if not holes:
+        return None
+    centre, _ = min(holes, key=lambda h: abs(h[1] - radius))
+    return centre
+
+
+@dataclass(frozen=True)
+class OpeningMatch:
+    """Distances (mm) between openings that should meet in the assembled pose.
+
+    links : (K, 4) int ``(tile_a, side_a, tile_b, side_b)``.
+    distances : (K,) float, mm; ``inf`` where an opening was not found on the solid.
+    """
+
+    links: NDArray[np.int64]
+    distances: NDArray[np.float64]
+
+    @property
+    def max_distance(self) -> float:
+        return float(self.distances.max()) if self.distances.size else 0.0
+
+
+def _match(
+    tile_solids: Sequence[bd.Shape],
+    tiles_flat: NDArray[np.float64],
+    transforms: NDArray[np.float64],
+    links: NDArray[np.int64],
+    radius: float,
+) -> OpeningMatch:
+    distances = np.full(len(links), np.inf)
+    for index, (tile_a, side_a, tile_b, side_b) in enumerate(links):
+        centre_a = _opening(tile_solids[tile_a], tiles_flat[tile_a], side_a, radius)
+        centre_b = _opening(tile_solids[tile_b], tiles_flat[tile_b], side_b, radius)
+        if centre_a is None or centre_b is None:
+            continue
+        placed_a = apply_transform(transforms[tile_a], centre_a)
+        placed_b = apply_transform(transforms[tile_b], centre_b)
+        distances[index] = float(np.linalg.norm(placed_a - placed_b))
+    return OpeningMatch(np.asarray(links, dtype=np.int64).reshape(-1, 4), distances)
+
+
+def channel_continuity(
+    tile_solids: Sequence[bd.Shape],
+    tiles_flat: NDArray[np.float64],
+    transforms: NDArray[np.float64],
+    route_steps: NDArray[np.int64],
+    profile: Profile,
+) -> OpeningMatch:
+    """Distance between each channel exit and the next tile's entry in the assembled pose.
+
+    Openings are measured on the flat solids (the hole in the side face) and moved by the
+    tiles' rigid flat-to-assembled transforms (``CadResult.transforms``).
+    """
+    links = route_links(route_steps)
+    return _match(tile_solids, tiles_flat, transforms, links, channel_radius(profile))
+
+
+def pockets_paired(
+    tile_solids: Sequence[bd.Shape],
+    tiles_flat: NDArray[np.float64],
+    transforms: NDArray[np.float64],
+    magnets: Sequence[MagnetPair],
+) -> tuple[OpeningMatch, NDArray[np.float64]]:
+    """Distance between the two pockets of each magnet pair in the assembled pose, and the dot
+    product of their face normals there (-1 when the pockets face each other)."""
+    links = np.array([(m.tile_a, m.side_a, m.tile_b, m.side_b) for m in magnets], dtype=np.int64)
+    links = links.reshape(-1, 4)
+    radius = magnets[0].diameter_mm / 2 if magnets else 0.0
+    match = _match(tile_solids, tiles_flat, transforms, links, radius)
+    facing = np.zeros(len(links))
+    for index, (tile_a, side_a, tile_b, side_b) in enumerate(links):
+        normal_a = transforms[tile_a, :3, :3] @ face_planes(tiles_flat[tile_a])[1][side_a]
+        normal_b = transforms[tile_b, :3, :3] @ face_planes(tiles_flat[tile_b])[1][side_b]
+        facing[index] = float(normal_a @ normal_b)
+    return match, facing

@@ -1,0 +1,361 @@
+"""Build every tile and hinge part of a design as B-rep solids, in parallel worker processes.
+
+Each tile is cut once, with only the tools that touch it (channels and lift bores of its route
+steps, its hinges' pad recesses and interlocks, its magnet pockets, trims and its label).  Work is
+split into chunks of tiles; each worker builds the tools it needs from plain arrays (nothing but
+numbers cross the process boundary on the way in; the finished solids pickle on the way out).
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Literal
+
+import build123d as bd
+import numpy as np
+from numpy.typing import NDArray
+
+from drawstring.cad.features import (
+    BEND_RADIUS_SLACK_MM,
+    SIDE_TOP_FACE,
+    HingeSide,
+    MagnetPair,
+    build_tile,
+    channel_path,
+    hinge_pad,
+    label_engraving,
+    lift_bore,
+    lift_path,
+    magnet_pockets,
+    string_channel,
+    trim_tool,
+)
+from drawstring.cad.features import channel_radius as _channel_radius
+from drawstring.cad.tiles import move_solid, rigid_transforms, tile_solid
+from drawstring.geometry.errors import InputError
+
+if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
+    from drawstring.fabrication.profiles import Profile
+
+log = logging.getLogger(__name__)
+
+Pose = Literal["flat", "assembled"]
+
+#: Below this many tiles the build runs in the calling process (worker start-up does not pay).
+PARALLEL_MIN_TILES = 24
+
+
+@dataclass(frozen=True)
+class CadResult:
+    """Solids of a design.
+
+    Attributes
+    ----------
+    pose : ``"flat"`` (fabrication pose, T2D) or ``"assembled"`` (tiles moved rigidly onto T3D;
+        hinge pads are left out because they bend).
+    tiles : T solids in linkage tile order.
+    pads : hinge parts (TPU pads or rubber strips), one per hinge in ``pad_hinge``.
+    pad_hinge : (P,) int, hinge index of each pad.
+    magnets : the magnet pairs with centre and polarity.
+    channel_min_radius : (S,) float, mm, smallest bend radius of each route step's channel.
+    transforms : (T, 4, 4) float, rigid motions from the flat pose to the assembled pose.
+    notes : human-readable problems (features that did not fit, tight bends).
+    """
+
+    pose: Pose
+    tiles: tuple[bd.Solid, ...]
+    pads: tuple[bd.Solid, ...]
+    pad_hinge: NDArray[np.int64]
+    magnets: tuple[MagnetPair, ...]
+    channel_min_radius: NDArray[np.float64]
+    transforms: NDArray[np.float64]
+    notes: tuple[str, ...] = field(default=())
+
+    def records(self) -> dict[str, object]:
+        """JSON-ready summary: magnet pairs with polarity, pads per hinge, notes."""
+        return {
+            "pose": self.pose,
+            "tiles": len(self.tiles),
+            "pads": [int(h) for h in self.pad_hinge],
+            "magnets": [m.to_json() for m in self.magnets],
+            "channel_min_radius_mm": [
+                None if not np.isfinite(r) else round(float(r), 4) for r in self.channel_min_radius
+            ],
+            "notes": list(self.notes),
+        }
+
+
+@dataclass
+class _TileJob:
+    """Everything a worker needs to build one tile (plain numbers and small tool solids)."""
+
+    tile: int
+    vertices: NDArray[np.float64]
+    channels: list[tuple[int, int]] = field(default_factory=list)
+    lifts: list[int] = field(default_factory=list)
+    tools: list[bd.Solid] = field(default_factory=list)
+    trims: list[NDArray[np.float64]] = field(default_factory=list)
+    hinges: list[tuple[int, bool]] = field(default_factory=list)
+    label: bool = False
+    pads: list[int] = field(default_factory=list)
+
+
+_HingeData = tuple[NDArray[np.float64], int, NDArray[np.float64], int, HingeSide]
+_JobResult = tuple[int, bd.Solid, list[tuple[int, bd.Solid]], list[str]]
+
+
+def normalize_route(route_steps: NDArray[np.int64] | Sequence[Sequence[int]]) -> NDArray[np.int64]:
+    """Route steps as an (S, 4) int array ``(gap, tile, enter_side, leave_side)``.
+
+    Accepts (S, 3) ``(tile, enter, leave)`` (gap column filled with 0) or (S, 4).  Sides are 0..3
+    or ``SIDE_TOP_FACE`` (4, through the top face); gap -1 marks a virtual entrance.
+    """
+    steps = np.asarray(route_steps, dtype=np.int64)
+    if steps.size == 0:
+        return np.zeros((0, 4), dtype=np.int64)
+    if steps.ndim != 2 or steps.shape[1] not in (3, 4):
+        raise InputError(f"route steps must be (S, 3) or (S, 4) ints, got shape {steps.shape}")
+    if steps.shape[1] == 3:
+        steps = np.hstack([np.zeros((len(steps), 1), dtype=np.int64), steps])
+    sides = steps[:, 2:]
+    if np.any((sides < 0) | (sides > SIDE_TOP_FACE)):
+        raise InputError(f"route sides must be 0..3 or {SIDE_TOP_FACE} (top face)")
+    return steps
+
+
+def route_links(route_steps: NDArray[np.int64]) -> NDArray[np.int64]:
+    """(K, 4) int ``(tile_a, leave_side_a, tile_b, enter_side_b)`` for consecutive steps (cyclic)
+    whose string passes from one tile's side face straight into the next tile's side face."""
+    steps = normalize_route(route_steps)
+    links = []
+    for index in range(len(steps)):
+        here, after = steps[index], steps[(index + 1) % len(steps)]
+        if len(steps) < 2 or after[0] < 0:
+            continue
+        if here[3] == SIDE_TOP_FACE or after[2] == SIDE_TOP_FACE:
+            continue
+        links.append((here[1], here[3], after[1], after[2]))
+    return np.array(links, dtype=np.int64).reshape(-1, 4)
+
+
+def _build_job(job: _TileJob, profile: Profile, hinge_data: tuple[_HingeData, ...]) -> _JobResult:
+    """Worker: build the tools of one tile, cut them, and build the pads this tile owns."""
+    notes: list[str] = []
+    tools: list[bd.Shape] = list(job.tools)
+    tools += [string_channel(job.vertices, a, b, profile) for a, b in job.channels]
+    tools += [lift_bore(job.vertices, side, profile) for side in job.lifts]
+    tools += [trim_tool(points) for points in job.trims]
+    for hinge, is_a in job.hinges:
+        tile_a, corner_a, tile_b, corner_b, side = hinge_data[hinge]
+        parts = hinge_pad(tile_a, corner_a, tile_b, corner_b, side, profile, build_pad=False)
+        tools.extend(parts.tools_a if is_a else parts.tools_b)
+        if is_a:
+            notes.extend(f"hinge {hinge}: {n}" for n in parts.notes)
+    if job.label:
+        engraving = label_engraving(job.vertices, job.tile, profile)
+        if engraving is None:
+            notes.append(f"tile {job.tile}: label too small to engrave")
+        else:
+            tools.append(engraving)
+    solid = build_tile(tile_solid(job.vertices), tools)
+    pads = []
+    for hinge in job.pads:
+        tile_a, corner_a, tile_b, corner_b, side = hinge_data[hinge]
+        parts = hinge_pad(tile_a, corner_a, tile_b, corner_b, side, profile, build_pad=True)
+        assert parts.pad is not None
+        pads.append((hinge, parts.pad))
+    return job.tile, solid, pads, notes
+
+
+def _build_chunk(
+    jobs: list[_TileJob], profile: Profile, hinge_data: tuple[_HingeData, ...]
+) -> list[_JobResult]:
+    return [_build_job(job, profile, hinge_data) for job in jobs]
+
+
+def _check_tiles(name: str, tiles: NDArray[np.float64]) -> NDArray[np.float64]:
+    array = np.asarray(tiles, dtype=np.float64)
+    if array.ndim != 3 or array.shape[1:] != (8, 3):
+        raise InputError(f"{name} must be a (T, 8, 3) array of tile vertices, got {array.shape}")
+    return array
+
+
+def build_design_solids(
+    tiles_2d: NDArray[np.float64],
+    tiles_3d: NDArray[np.float64],
+    hinges: NDArray[np.int64],
+    hinge_side: Sequence[HingeSide],
+    route_steps: NDArray[np.int64] | Sequence[Sequence[int]],
+    lift_tiles: NDArray[np.int64] | Sequence[Sequence[int]],
+    magnet_pairs: NDArray[np.int64] | Sequence[Sequence[int]],
+    trims: dict[int, Sequence[NDArray[np.float64]]] | None,
+    profile: Profile,
+    pose: Pose = "flat",
+    *,
+    labels: bool = True,
+    workers: int | None = None,
+) -> CadResult:
+    """Solids of every tile with all its features, and the hinge parts.
+
+    Parameters
+    ----------
+    tiles_2d : (T, 8, 3) float, mm, fabrication pose (features are cut here).
+    tiles_3d : (T, 8, 3) float, mm, assembled pose (magnet pockets are placed here so that the
+        pairs face each other; the assembled result moves the flat tiles rigidly onto it).
+    hinges : (H, 4) int ``(tile_a, corner_a, tile_b, corner_b)``.
+    hinge_side : (H,) ``"top"`` | ``"bottom"``.
+    route_steps : (S, 3) ``(tile, enter, leave)`` or (S, 4) ``(gap, tile, enter, leave)``; a
+        side of ``SIDE_TOP_FACE`` (4) makes a chamfered lift bore through the top face.
+    lift_tiles : (L, 2) int ``(tile, side)``: extra lift bores from side ``side`` to the top.
+    magnet_pairs : (M, 4) int ``(tile_a, side_a, tile_b, side_b)``, faces touching across splits.
+    trims : tile -> convex polyhedra ((k, 3) float, flat pose) to subtract, or None.
+    profile : dimensions of every feature.
+    pose : ``"flat"`` or ``"assembled"``.
+    labels : engrave tile numbers on the bottom faces.
+    workers : worker processes (default: CPU count, used from ``PARALLEL_MIN_TILES`` tiles on).
+    """
+    if pose not in ("flat", "assembled"):
+        raise InputError(f"pose {pose!r} must be 'flat' or 'assembled'")
+    flat = _check_tiles("tiles_2d", tiles_2d)
+    assembled = _check_tiles("tiles_3d", tiles_3d)
+    if flat.shape != assembled.shape:
+        raise InputError(f"tiles_2d {flat.shape} and tiles_3d {assembled.shape} differ in shape")
+    n_tiles = len(flat)
+    hinge_rows = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
+    sides = list(hinge_side)
+    if len(sides) != len(hinge_rows):
+        raise InputError(f"hinge_side has {len(sides)} entries for {len(hinge_rows)} hinges")
+    steps = normalize_route(route_steps)
+    lifts = np.asarray(lift_tiles, dtype=np.int64).reshape(-1, 2)
+    pairs = np.asarray(magnet_pairs, dtype=np.int64).reshape(-1, 4)
+    for name, ids in (
+        ("hinges", hinge_rows[:, [0, 2]]),
+        ("route_steps", steps[:, 1]),
+        ("lift_tiles", lifts[:, 0]),
+        ("magnet_pairs", pairs[:, [0, 2]]),
+    ):
+        if ids.size and (ids.min() < 0 or ids.max() >= n_tiles):
+            raise InputError(f"{name} refers to a tile outside 0..{n_tiles - 1}")
+
+    jobs = [_TileJob(t, flat[t], label=labels) for t in range(n_tiles)]
+    notes: list[str] = []
+    min_radius = np.full(len(steps), np.inf)
+    channel_sides: list[set[int]] = [set() for _ in range(n_tiles)]
+    for index, (_, tile, enter, leave) in enumerate(steps):
+        if SIDE_TOP_FACE in (enter, leave):
+            if enter == leave:
+                raise InputError(f"route step {index} enters and leaves through the top face")
+            min_radius[index] = lift_path(flat[tile], int(min(enter, leave))).radius
+        else:
+            min_radius[index] = channel_path(flat[tile], int(enter), int(leave)).min_radius
+        if min_radius[index] < profile.min_bend_radius_mm - BEND_RADIUS_SLACK_MM:
+            notes.append(
+                f"route step {index} (tile {tile}): bend radius {min_radius[index]:.2f} mm is "
+                f"below the profile's {profile.min_bend_radius_mm} mm"
+            )
+        if SIDE_TOP_FACE in (enter, leave):
+            side = leave if enter == SIDE_TOP_FACE else enter
+            jobs[tile].lifts.append(int(side))
+            channel_sides[tile].add(int(side))
+        else:
+            jobs[tile].channels.append((int(enter), int(leave)))
+            channel_sides[tile].update((int(enter), int(leave)))
+    for tile, side in lifts:
+        jobs[tile].lifts.append(int(side))
+        channel_sides[tile].add(int(side))
+
+    magnets = []
+    clearance = _channel_radius(profile) + 0.5 * profile.magnet_diameter_mm
+    clearance += profile.magnet_clearance_mm + max(profile.nozzle_mm, 0.5)
+    for tile_a, side_a, tile_b, side_b in pairs:
+        shared = side_a in channel_sides[tile_a] or side_b in channel_sides[tile_b]
+        tool_a, tool_b, record = magnet_pockets(
+            assembled[tile_a],
+            int(side_a),
+            assembled[tile_b],
+            int(side_b),
+            profile,
+            flat_a=flat[tile_a],
+            flat_b=flat[tile_b],
+            offset_mm=clearance if shared else 0.0,
+            tile_ids=(int(tile_a), int(tile_b)),
+        )
+        jobs[tile_a].tools.append(tool_a)
+        jobs[tile_b].tools.append(tool_b)
+        magnets.append(record)
+        if not record.fits:
+            notes.append(
+                f"magnet pocket between tiles {tile_a} and {tile_b} breaks out of the face "
+                f"(pocket diameter {record.diameter_mm:.2f} mm)"
+            )
+
+    for tile, polyhedra in (trims or {}).items():
+        if not 0 <= tile < n_tiles:
+            raise InputError(f"trims refer to tile {tile} outside 0..{n_tiles - 1}")
+        for points in polyhedra:
+            jobs[tile].trims.append(np.asarray(points, dtype=np.float64))
+
+    for side in sides:
+        if side not in ("top", "bottom"):
+            raise InputError(f"hinge side {side!r} must be 'top' or 'bottom'")
+    hinge_data = tuple(
+        (flat[a], int(ca), flat[b], int(cb), side)
+        for (a, ca, b, cb), side in zip(hinge_rows, sides, strict=True)
+    )
+    for index, (a, _, b, _) in enumerate(hinge_rows):
+        jobs[a].hinges.append((index, True))
+        jobs[b].hinges.append((index, False))
+        jobs[a].pads.append(index)  # tile a's worker builds the pad
+
+    results = _run_jobs(jobs, profile, hinge_data, workers)
+
+    tiles: list[bd.Solid | None] = [None] * n_tiles
+    pads: dict[int, bd.Solid] = {}
+    for tile, solid, tile_pads, tile_notes in results:
+        tiles[tile] = solid
+        pads.update(tile_pads)
+        notes.extend(tile_notes)
+    transforms, residual = rigid_transforms(flat, assembled)
+    if residual.size and residual.max() > 1e-3:
+        notes.append(
+            f"flat and assembled tiles differ by up to {residual.max():.3g} mm beyond a rigid "
+            "motion; checks in the assembled pose are approximate"
+        )
+    built = tuple(t for t in tiles if t is not None)
+    pad_hinge = np.array(sorted(pads), dtype=np.int64)
+    pad_solids = tuple(pads[h] for h in pad_hinge)
+    if pose == "assembled":
+        built = tuple(move_solid(s, m) for s, m in zip(built, transforms, strict=True))
+        pad_solids, pad_hinge = (), np.zeros(0, dtype=np.int64)
+    for note in notes:
+        log.warning("%s", note)
+    return CadResult(
+        pose, built, pad_solids, pad_hinge, tuple(magnets), min_radius, transforms, tuple(notes)
+    )
+
+
+def _run_jobs(
+    jobs: list[_TileJob],
+    profile: Profile,
+    hinge_data: tuple[_HingeData, ...],
+    workers: int | None,
+) -> list[_JobResult]:
+    count = workers if workers is not None else (os.cpu_count() or 1)
+    if count <= 1 or len(jobs) < PARALLEL_MIN_TILES:
+        return _build_chunk(jobs, profile, hinge_data)
+    # Interleave tiles over chunks so each chunk gets a similar mix of features.
+    n_chunks = min(len(jobs), 4 * count)
+    chunks = [jobs[i::n_chunks] for i in range(n_chunks)]
+    methods = multiprocessing.get_all_start_methods()
+    context = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
+    results: list[_JobResult] = []
+    with ProcessPoolExecutor(max_workers=count, mp_context=context) as pool:
+        futures = [pool.submit(_build_chunk, chunk, profile, hinge_data) for chunk in chunks]
+        for future in futures:
+            results.extend(future.result())
+    return results

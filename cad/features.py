@@ -1,0 +1,940 @@
+"""Fabrication features cut into (or added next to) the tiles, each dimensioned from a Profile.
+
+Every function takes tile vertices ((8, 3) float, mm, contract order; see :mod:`.tiles`) and
+returns build123d solids: *tools* to subtract from a tile, or separate parts (hinge pads, rubber
+strips).  Tools poke ``TOOL_OVERSHOOT_MM`` out of the faces they open so that no boolean meets a
+coplanar face.
+
+Route sides: ``0..3`` are the tile's side faces; ``SIDE_TOP_FACE`` (4) means the top face (a lift
+point, where the string leaves the linkage upward).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Literal
+
+import build123d as bd
+import numpy as np
+from numpy.typing import NDArray
+
+from drawstring.cad.kernel import bounding_box, clean_solid, cut, fuse, polyhedron_solid
+from drawstring.cad.tiles import FACE_BOTTOM, FACE_TOP, convex_solid, face_planes, tile_solid
+from drawstring.geometry.errors import InputError
+
+if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
+    from drawstring.fabrication.profiles import Profile
+
+log = logging.getLogger(__name__)
+
+HingeSide = Literal["top", "bottom"]
+SIDE_TOP_FACE = FACE_TOP
+
+#: Length (mm) by which a cutting tool extends past the face it opens.
+TOOL_OVERSHOOT_MM = 0.3
+#: A bend this little (mm) below the profile's minimum radius is not reported (rounding).
+BEND_RADIUS_SLACK_MM = 1e-6
+#: Handle lengths tried for the channel's cubic Bezier, as fractions of the chord.
+_HANDLE_FRACTIONS = np.linspace(0.15, 0.85, 15)
+#: Labels: text fits inside this fraction of the bottom face's inscribed radius.
+LABEL_FILL = 0.6
+#: Labels: digit width and spacing over digit height; stroke over height.
+_DIGIT_WIDTH, _DIGIT_SPACING, _DIGIT_STROKE = 0.55, 0.22, 0.18
+#: Glue recess depth as a fraction of the rubber strip thickness.
+GLUE_RECESS_DEPTH_FRACTION = 0.5
+
+
+# --------------------------------------------------------------------------------------------
+# small geometry helpers
+
+
+def _unit(vector: NDArray[np.float64]) -> NDArray[np.float64]:
+    length = float(np.linalg.norm(vector))
+    if length < 1e-12:
+        raise InputError("degenerate feature geometry (zero-length direction); check the tiles")
+    return np.asarray(vector / length)
+
+
+def _vec(point: NDArray[np.float64]) -> bd.Vector:
+    return bd.Vector(float(point[0]), float(point[1]), float(point[2]))
+
+
+def _plane(origin: NDArray[np.float64], normal: NDArray[np.float64]) -> bd.Plane:
+    return bd.Plane(origin=_vec(origin), z_dir=_vec(_unit(normal)))
+
+
+def _check_side(side: int, name: str) -> None:
+    if side not in (0, 1, 2, 3):
+        raise InputError(f"{name} = {side} is not a side index; use 0, 1, 2 or 3")
+
+
+def channel_radius(profile: Profile) -> float:
+    """Radius (mm) of a string channel: half of string diameter plus clearance."""
+    return 0.5 * (profile.string_diameter_mm + profile.channel_clearance_mm)
+
+
+def _bezier_points(control: NDArray[np.float64], samples: int = 65) -> NDArray[np.float64]:
+    s = np.linspace(0.0, 1.0, samples)[:, None]
+    basis = np.hstack([(1 - s) ** 3, 3 * s * (1 - s) ** 2, 3 * s**2 * (1 - s), s**3])
+    return np.asarray(basis @ control)
+
+
+def _bezier_min_radius(control: NDArray[np.float64], samples: int = 65) -> float:
+    """Smallest radius of curvature (mm) of a cubic Bezier; ``inf`` for a straight one."""
+    s = np.linspace(0.0, 1.0, samples)[:, None]
+    d1 = 3 * (
+        (1 - s) ** 2 * (control[1] - control[0])
+        + 2 * s * (1 - s) * (control[2] - control[1])
+        + s**2 * (control[3] - control[2])
+    )
+    d2 = 6 * (
+        (1 - s) * (control[2] - 2 * control[1] + control[0])
+        + s * (control[3] - 2 * control[2] + control[1])
+    )
+    speed = np.linalg.norm(d1, axis=1)
+    curvature = np.linalg.norm(np.cross(d1, d2), axis=1) / np.maximum(speed, 1e-300) ** 3
+    peak = float(curvature.max())
+    return float("inf") if peak < 1e-12 else 1.0 / peak
+
+
+@dataclass(frozen=True)
+class ChannelPath:
+    """Centre line of a string channel inside one tile.
+
+    Attributes
+    ----------
+    control : (4, 3) float, mm, cubic Bezier control points from the entry to the exit opening.
+    start_tangent, end_tangent : (3,) float, unit directions at the openings (into the tile at
+        the entry, out of the tile at the exit).
+    min_radius : float, mm, smallest radius of curvature (``inf`` when straight).
+    """
+
+    control: NDArray[np.float64]
+    start_tangent: NDArray[np.float64]
+    end_tangent: NDArray[np.float64]
+    min_radius: float
+
+    def points(self, samples: int = 65) -> NDArray[np.float64]:
+        """(samples, 3) float, mm, points along the centre line."""
+        return _bezier_points(self.control, samples)
+
+
+def smooth_path(
+    start: NDArray[np.float64],
+    start_tangent: NDArray[np.float64],
+    end: NDArray[np.float64],
+    end_tangent: NDArray[np.float64],
+) -> ChannelPath:
+    """The cubic Bezier from ``start`` to ``end`` with the given end tangents whose smallest
+    radius of curvature is largest among a few handle lengths."""
+    chord = float(np.linalg.norm(end - start))
+    if chord < 1e-9:
+        raise InputError("channel entry and exit coincide; check the route sides")
+    best: ChannelPath | None = None
+    for fraction in _HANDLE_FRACTIONS:
+        handle = fraction * chord
+        control = np.stack([start, start + handle * start_tangent, end - handle * end_tangent, end])
+        radius = _bezier_min_radius(control)
+        if best is None or radius > best.min_radius:
+            best = ChannelPath(control, start_tangent, end_tangent, radius)
+    assert best is not None
+    return best
+
+
+def channel_path(tile: NDArray[np.float64], enter_side: int, leave_side: int) -> ChannelPath:
+    """Centre line of the channel from side ``enter_side`` to ``leave_side`` (or the top face).
+
+    Openings sit at the face centroids (mid-thickness on a side face), and the line meets each
+    face along its normal, so the channels of two tiles whose faces touch line up across the
+    contact.
+    """
+    if enter_side == leave_side:
+        raise InputError(f"route enters and leaves tile through the same side {enter_side}")
+    for side, name in ((enter_side, "enter_side"), (leave_side, "leave_side")):
+        if side not in (0, 1, 2, 3, SIDE_TOP_FACE):
+            raise InputError(f"{name} = {side} must be a side 0..3 or {SIDE_TOP_FACE} (top face)")
+    centroids, normals = face_planes(np.asarray(tile, dtype=np.float64))
+    return smooth_path(
+        centroids[enter_side], -normals[enter_side], centroids[leave_side], normals[leave_side]
+    )
+
+
+def _tube(path: ChannelPath, radius: float) -> bd.Solid:
+    """Circular tube of ``radius`` around ``path``, extended straight past both openings."""
+    overshoot = radius + TOOL_OVERSHOOT_MM
+    start, end = path.control[0], path.control[3]
+    outer_start = start - overshoot * path.start_tangent
+    outer_end = end + overshoot * path.end_tangent
+    offsets = path.control - start
+    chord = _unit(end - start)
+    if np.abs(offsets - np.outer(offsets @ chord, chord)).max() < 1e-9:
+        # Straight: a plain cylinder (sweeping along a straight line has no defined frame).
+        length = float(np.linalg.norm(outer_end - outer_start))
+        return bd.Solid.make_cylinder(radius, length, _plane(outer_start, chord))
+    edges = [
+        bd.Edge.make_line(_vec(outer_start), _vec(start)),
+        bd.Edge.make_bezier(*[_vec(p) for p in path.control]),
+        bd.Edge.make_line(_vec(end), _vec(outer_end)),
+    ]
+    section = bd.Wire([bd.Edge.make_circle(radius, _plane(outer_start, path.start_tangent))])
+    tube = bd.Solid.sweep(section, bd.Wire(edges), transition=bd.Transition.ROUND)
+    return clean_solid(tube)
+
+
+def string_channel(
+    tile: NDArray[np.float64], enter_side: int, leave_side: int, profile: Profile
+) -> bd.Solid:
+    """Tool: the string channel through one tile.
+
+    Parameters
+    ----------
+    tile : (8, 3) float, mm.
+    enter_side, leave_side : side faces 0..3 the string enters and leaves through.
+    profile : gives the bore diameter (string diameter + clearance).
+
+    Returns
+    -------
+    Solid tube of diameter ``string + clearance`` swept along :func:`channel_path`; a bend
+    tighter than ``profile.min_bend_radius_mm`` is logged (the tile is too small for it).
+    """
+    _check_side(enter_side, "enter_side")
+    _check_side(leave_side, "leave_side")
+    path = channel_path(tile, enter_side, leave_side)
+    if path.min_radius < profile.min_bend_radius_mm - BEND_RADIUS_SLACK_MM:
+        log.debug(
+            "channel bend radius %.2f mm < profile minimum %.2f mm",
+            path.min_radius,
+            profile.min_bend_radius_mm,
+        )
+    return _tube(path, channel_radius(profile))
+
+
+@dataclass(frozen=True)
+class LiftPath:
+    """Centre line of a lift bore: straight in from a side face, one circular arc, up and out.
+
+    Attributes
+    ----------
+    entry : (3,) float, mm, centroid of the side face.
+    arc : (3, 3) float, mm, start, middle and end of the arc; the arc ends on the top face.
+    start_tangent, end_tangent : (3,) unit directions (into the tile; out of the top face).
+    radius : float, mm, the arc radius (the tightest bend of the bore).
+    """
+
+    entry: NDArray[np.float64]
+    arc: NDArray[np.float64]
+    start_tangent: NDArray[np.float64]
+    end_tangent: NDArray[np.float64]
+    radius: float
+
+
+def lift_path(tile: NDArray[np.float64], side: int) -> LiftPath:
+    """The lift bore's centre line from side ``side`` to the top face.
+
+    The arc turns from the side's inward normal to the top's outward normal with the largest
+    radius that still ends on the top face; a straight run before it brings the exit near the
+    top face's centroid.
+    """
+    _check_side(side, "side")
+    centroids, normals = face_planes(np.asarray(tile, dtype=np.float64))
+    entry, inward = centroids[side], -normals[side]
+    up = normals[FACE_TOP]
+    cos_turn = float(np.clip(inward @ up, -1.0, 1.0))
+    across = _unit(up - cos_turn * inward)
+    sin_turn = float(np.sqrt(1.0 - cos_turn**2))
+    height = float((centroids[FACE_TOP] - entry) @ up)
+    reach = float((centroids[FACE_TOP] - entry) @ inward)
+    run = 0.0
+    radius = height / sin_turn
+    for _ in range(3):
+        radius = (height - run * cos_turn) / sin_turn
+        run = max(0.0, reach - radius * (1.0 - cos_turn * cos_turn) / sin_turn * sin_turn)
+    radius = (height - run * cos_turn) / sin_turn
+    if radius <= 0.0:
+        raise InputError("tile too thin for a lift bore; check the tile vertices")
+    start = entry + run * inward
+    centre = start + radius * across
+
+    def on_arc(angle: float) -> NDArray[np.float64]:
+        return np.asarray(centre + radius * (np.sin(angle) * inward - np.cos(angle) * across))
+
+    turn = float(np.arccos(cos_turn))
+    arc = np.stack([on_arc(0.0), on_arc(0.5 * turn), on_arc(turn)])
+    return LiftPath(entry, arc, inward, up, radius)
+
+
+def lift_bore(tile: NDArray[np.float64], side: int, profile: Profile) -> bd.Solid:
+    """Tool: a channel from side ``side`` that leaves upward through the top face.
+
+    Follows :func:`lift_path`.  The exit is chamfered at 45 degrees (depth
+    ``max(radius, 0.5 mm)``) so the string, pulled upward, does not run over a sharp edge.
+    """
+    tile = np.asarray(tile, dtype=np.float64)
+    radius = channel_radius(profile)
+    path = lift_path(tile, side)
+    if path.radius < profile.min_bend_radius_mm - BEND_RADIUS_SLACK_MM:
+        log.debug(
+            "lift bore bend radius %.2f mm < profile minimum %.2f mm",
+            path.radius,
+            profile.min_bend_radius_mm,
+        )
+    overshoot = radius + TOOL_OVERSHOOT_MM
+    outer_start = path.entry - overshoot * path.start_tangent
+    exit_point = path.arc[2]
+    outer_end = exit_point + overshoot * path.end_tangent
+    edges = [bd.Edge.make_line(_vec(outer_start), _vec(path.arc[0]))]
+    edges.append(bd.Edge.make_three_point_arc(*[_vec(p) for p in path.arc]))
+    edges.append(bd.Edge.make_line(_vec(exit_point), _vec(outer_end)))
+    section = bd.Wire([bd.Edge.make_circle(radius, _plane(outer_start, path.start_tangent))])
+    tube = clean_solid(bd.Solid.sweep(section, bd.Wire(edges), transition=bd.Transition.ROUND))
+    chamfer = max(radius, 0.5)
+    cone_base = exit_point - chamfer * path.end_tangent
+    height = chamfer + TOOL_OVERSHOOT_MM
+    cone = bd.Solid.make_cone(radius, radius + height, height, _plane(cone_base, path.end_tangent))
+    return clean_solid(fuse(tube, [cone]))
+
+
+# --------------------------------------------------------------------------------------------
+# magnets
+
+
+@dataclass(frozen=True)
+class MagnetPair:
+    """Two pockets facing each other across a split contact in the assembled pose.
+
+    ``polarity_a`` is the pole of tile a's magnet that faces out of its face; tile b's magnet
+    shows the other pole, so the pair attracts.
+    """
+
+    tile_a: int
+    side_a: int
+    tile_b: int
+    side_b: int
+    centre: NDArray[np.float64]
+    diameter_mm: float
+    depth_mm: float
+    polarity_a: Literal["N", "S"]
+    polarity_b: Literal["N", "S"]
+    fits: bool
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "tile_a": self.tile_a,
+            "side_a": self.side_a,
+            "tile_b": self.tile_b,
+            "side_b": self.side_b,
+            "centre_mm": [round(float(c), 6) for c in self.centre],
+            "diameter_mm": self.diameter_mm,
+            "depth_mm": self.depth_mm,
+            "polarity_a": self.polarity_a,
+            "polarity_b": self.polarity_b,
+            "fits": self.fits,
+        }
+
+
+def _side_quad(tile: NDArray[np.float64], side: int) -> NDArray[np.float64]:
+    """(4, 3): top k, top k+1, bottom k, bottom k+1 of side ``side``."""
+    nxt = (side + 1) % 4
+    return np.asarray(tile[[side, nxt, 4 + side, 4 + nxt]])
+
+
+def _bilinear(quad: NDArray[np.float64], u: float, v: float) -> NDArray[np.float64]:
+    """Point at (u along the top edge, v from top to bottom) of a side quad."""
+    top = (1 - u) * quad[0] + u * quad[1]
+    bottom = (1 - u) * quad[2] + u * quad[3]
+    return np.asarray((1 - v) * top + v * bottom)
+
+
+def _invert_bilinear(quad: NDArray[np.float64], point: NDArray[np.float64], u: float, v: float):
+    """(u, v) of the point of a side quad nearest ``point`` (Gauss-Newton from a guess)."""
+    for _ in range(20):
+        residual = _bilinear(quad, u, v) - point
+        du = (1 - v) * (quad[1] - quad[0]) + v * (quad[3] - quad[2])
+        dv = ((1 - u) * quad[2] + u * quad[3]) - ((1 - u) * quad[0] + u * quad[1])
+        jac = np.stack([du, dv], axis=1)
+        step = np.linalg.lstsq(jac, -residual, rcond=None)[0]
+        u, v = u + float(step[0]), v + float(step[1])
+        if np.linalg.norm(step) < 1e-14:
+            break
+    return u, v
+
+
+def _pocket(
+    centre: NDArray[np.float64], outward: NDArray[np.float64], radius: float, depth: float
+) -> bd.Solid:
+    origin = centre + TOOL_OVERSHOOT_MM * outward
+    return bd.Solid.make_cylinder(radius, depth + TOOL_OVERSHOOT_MM, _plane(origin, -outward))
+
+
+def _pocket_fits(quad: NDArray[np.float64], u: float, v: float, radius: float) -> bool:
+    """Whether a pocket circle at (u, v) stays inside the side face (mid-lines test)."""
+    centre = _bilinear(quad, u, v)
+    edges = (
+        (_bilinear(quad, 0, 0), _bilinear(quad, 1, 0)),
+        (_bilinear(quad, 0, 1), _bilinear(quad, 1, 1)),
+        (_bilinear(quad, 0, 0), _bilinear(quad, 0, 1)),
+        (_bilinear(quad, 1, 0), _bilinear(quad, 1, 1)),
+    )
+    for a, b in edges:
+        direction = _unit(b - a)
+        offset = centre - a
+        distance = np.linalg.norm(offset - (offset @ direction) * direction)
+        if distance < radius:
+            return False
+    return True
+
+
+def magnet_pockets(
+    tile_a: NDArray[np.float64],
+    side_a: int,
+    tile_b: NDArray[np.float64],
+    side_b: int,
+    profile: Profile,
+    *,
+    flat_a: NDArray[np.float64] | None = None,
+    flat_b: NDArray[np.float64] | None = None,
+    offset_mm: float = 0.0,
+    tile_ids: tuple[int, int] = (-1, -1),
+) -> tuple[bd.Solid, bd.Solid, MagnetPair]:
+    """Tools: one cylindrical magnet pocket in each of two faces that touch across a split.
+
+    Parameters
+    ----------
+    tile_a, tile_b : (8, 3) float, mm, the two tiles in the assembled pose (faces touching).
+    side_a, side_b : the touching side faces.
+    profile : magnet diameter and height; pocket diameter ``d + 2 clearance``, depth
+        ``height + clearance``.
+    flat_a, flat_b : (8, 3) float, mm, the same tiles in the pose to cut (default: assembled).
+        The pocket keeps its place on the face (bilinear face coordinates).
+    offset_mm : shift of the pocket along the face from its centre (to clear a channel).
+    tile_ids : tile numbers written into the record.
+
+    Returns
+    -------
+    tool_a, tool_b : pocket cylinders for tile a and tile b.
+    record : the pair, its assembled centre and polarity (tile a north out, tile b south out).
+    """
+    _check_side(side_a, "side_a")
+    _check_side(side_b, "side_b")
+    tile_a = np.asarray(tile_a, dtype=np.float64)
+    tile_b = np.asarray(tile_b, dtype=np.float64)
+    quad_a, quad_b = _side_quad(tile_a, side_a), _side_quad(tile_b, side_b)
+    width = float(np.linalg.norm(_bilinear(quad_a, 1, 0.5) - _bilinear(quad_a, 0, 0.5)))
+    u_a, v_a = 0.5 + offset_mm / width, 0.5
+    centre = _bilinear(quad_a, u_a, v_a)
+    u_b, v_b = _invert_bilinear(quad_b, centre, 1.0 - u_a, v_a)
+    radius = 0.5 * profile.magnet_diameter_mm + profile.magnet_clearance_mm
+    depth = profile.magnet_height_mm + profile.magnet_clearance_mm
+    fits = _pocket_fits(quad_a, u_a, v_a, radius) and _pocket_fits(quad_b, u_b, v_b, radius)
+    tools = []
+    for flat, side, u, v in (
+        (flat_a if flat_a is not None else tile_a, side_a, u_a, v_a),
+        (flat_b if flat_b is not None else tile_b, side_b, u_b, v_b),
+    ):
+        flat = np.asarray(flat, dtype=np.float64)
+        _, normals = face_planes(flat)
+        tools.append(_pocket(_bilinear(_side_quad(flat, side), u, v), normals[side], radius, depth))
+    record = MagnetPair(
+        tile_ids[0], side_a, tile_ids[1], side_b, centre, 2 * radius, depth, "N", "S", fits
+    )
+    return tools[0], tools[1], record
+
+
+# --------------------------------------------------------------------------------------------
+# labels
+
+_SEGMENTS_OF_DIGIT = {
+    "0": "abcdef",
+    "1": "bc",
+    "2": "abged",
+    "3": "abgcd",
+    "4": "fgbc",
+    "5": "afgcd",
+    "6": "afgedc",
+    "7": "abc",
+    "8": "abcdefg",
+    "9": "abcdfg",
+}
+
+
+def _segment_rectangles(text: str, height: float) -> list[NDArray[np.float64]]:
+    """Seven-segment outlines of ``text`` ((4, 2) rectangles, mm), centred on the origin.
+
+    Segments of a digit are separated by small gaps, so the rectangles never touch.
+    """
+    width, stroke = _DIGIT_WIDTH * height, _DIGIT_STROKE * height
+    gap = 0.2 * stroke
+    spacing = _DIGIT_SPACING * height
+    total = len(text) * width + (len(text) - 1) * spacing
+    half = 0.5 * height
+    boxes = {
+        "a": (stroke + gap, width - stroke - gap, height - stroke, height),
+        "g": (stroke + gap, width - stroke - gap, half - stroke / 2, half + stroke / 2),
+        "d": (stroke + gap, width - stroke - gap, 0.0, stroke),
+        "f": (0.0, stroke, half + gap, height - gap),
+        "b": (width - stroke, width, half + gap, height - gap),
+        "e": (0.0, stroke, gap, half - gap),
+        "c": (width - stroke, width, gap, half - gap),
+    }
+    rectangles = []
+    for index, char in enumerate(text):
+        x0 = -0.5 * total + index * (width + spacing)
+        for segment in _SEGMENTS_OF_DIGIT[char]:
+            a, b, c, d = boxes[segment]
+            rectangles.append(
+                np.array([[x0 + a, c], [x0 + b, c], [x0 + b, d], [x0 + a, d]]) - [0.0, half]
+            )
+    return rectangles
+
+
+def _prism(
+    outline: NDArray[np.float64],
+    origin: NDArray[np.float64],
+    axis_x: NDArray[np.float64],
+    axis_y: NDArray[np.float64],
+    direction: NDArray[np.float64],
+    start: float,
+    stop: float,
+) -> bd.Solid:
+    """Straight prism over a planar convex outline ((k, 2) in the (axis_x, axis_y) frame)."""
+    base = origin + outline[:, :1] * axis_x + outline[:, 1:] * axis_y
+    k = len(outline)
+    points = np.vstack([base + stop * direction, base + start * direction])
+    ring = list(range(k))
+    faces = [ring, [k + i for i in reversed(ring)]]
+    faces += [[i, k + i, k + (i + 1) % k, (i + 1) % k] for i in ring]
+    # Orient: the cap at ``stop`` must be counter-clockwise seen from ``direction``.
+    if np.cross(axis_x, axis_y) @ direction * _signed_area(outline) < 0:
+        faces = [list(reversed(f)) for f in faces]
+    return polyhedron_solid(points, faces)
+
+
+def _cross2(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """z component of the cross product of 2D vectors (..., 2)."""
+    return np.asarray(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0])
+
+
+def _signed_area(outline: NDArray[np.float64]) -> float:
+    x, y = outline[:, 0], outline[:, 1]
+    return float(0.5 * (x @ np.roll(y, -1) - y @ np.roll(x, -1)))
+
+
+def label_depth(profile: Profile) -> float:
+    """Engraving depth (mm) of tile labels: 7 % of the tile thickness, within 0.3 .. 2 mm."""
+    return float(np.clip(0.07 * profile.thickness_mm, 0.3, 2.0))
+
+
+def label_engraving(
+    tile: NDArray[np.float64], tile_id: int, profile: Profile
+) -> bd.Compound | None:
+    """Tool: the tile number engraved in seven-segment digits on the bottom face.
+
+    The text reads correctly when the bottom face is seen from outside, runs along side 0, is
+    centred on the face and fits inside ``LABEL_FILL`` of the face's inscribed radius.  Returns
+    ``None`` (and logs) when the strokes would be thinner than the machine can make
+    (``max(nozzle, 2 kerf, 0.3 mm)``).
+    """
+    if tile_id < 0:
+        raise InputError(f"tile_id = {tile_id} must be >= 0")
+    tile = np.asarray(tile, dtype=np.float64)
+    centroids, normals = face_planes(tile)
+    centre, outward = centroids[FACE_BOTTOM], normals[FACE_BOTTOM]
+    axis_x = _unit(tile[5] - tile[4])
+    axis_x = _unit(axis_x - (axis_x @ outward) * outward)
+    axis_y = np.cross(outward, axis_x)
+    corners = tile[4:8] - centre
+    corners2d = np.stack([corners @ axis_x, corners @ axis_y], axis=1)
+    nxt = np.roll(corners2d, -1, axis=0)
+    edge = nxt - corners2d
+    inradius = float(np.min(np.abs(_cross2(edge, -corners2d)) / np.linalg.norm(edge, axis=1)))
+    text = str(tile_id)
+    width_over_height = len(text) * _DIGIT_WIDTH + (len(text) - 1) * _DIGIT_SPACING
+    height = LABEL_FILL * inradius / float(np.hypot(0.5 * width_over_height, 0.5))
+    min_stroke = max(profile.nozzle_mm, 2 * profile.kerf_mm, 0.3)
+    if _DIGIT_STROKE * height < min_stroke:
+        log.warning("tile %d: label strokes %.2f mm too thin; no label", tile_id, height / 7)
+        return None
+    depth = label_depth(profile)
+    solids = [
+        _prism(rect, centre, axis_x, axis_y, -outward, -TOOL_OVERSHOOT_MM, depth)
+        for rect in _segment_rectangles(text, height)
+    ]
+    return bd.Compound(solids)
+
+
+# --------------------------------------------------------------------------------------------
+# hinges
+
+
+@dataclass(frozen=True)
+class HingeParts:
+    """What one hinge adds: a separate part (TPU pad or rubber strip) and tools for its tiles.
+
+    Attributes
+    ----------
+    pad : the part, or None when only the tools were asked for.
+    tools_a, tools_b : tools to subtract from tile a and from tile b.
+    notes : interlock parts that did not fit and were left out.
+    """
+
+    pad: bd.Solid | None
+    tools_a: tuple[bd.Solid, ...]
+    tools_b: tuple[bd.Solid, ...]
+    notes: tuple[str, ...] = field(default=())
+
+
+@dataclass(frozen=True)
+class _HingeFrame:
+    """Layout of a hinge strip on the hinge face plane (mm).
+
+    points : (k, 3) polyline: end inside tile a, corner a, [corner b], end inside tile b.
+    normal : (3,) outward normal of the hinge face (up for "top", down for "bottom").
+    halves : per tile, (corner point, unit direction from the corner into the tile).
+    """
+
+    points: NDArray[np.float64]
+    normal: NDArray[np.float64]
+    halves: tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...]
+
+
+def _hinge_frame(
+    tile_a: NDArray[np.float64],
+    corner_a: int,
+    tile_b: NDArray[np.float64],
+    corner_b: int,
+    side: HingeSide,
+    half_length: float,
+) -> _HingeFrame:
+    if side not in ("top", "bottom"):
+        raise InputError(f"hinge side {side!r} must be 'top' or 'bottom'")
+    for corner, name in ((corner_a, "corner_a"), (corner_b, "corner_b")):
+        if corner not in (0, 1, 2, 3):
+            raise InputError(f"{name} = {corner} must be a corner index 0..3")
+    face = FACE_TOP if side == "top" else FACE_BOTTOM
+    shift = 0 if side == "top" else 4
+    normal = _unit(face_planes(tile_a)[1][face] + face_planes(tile_b)[1][face])
+    point_a, point_b = tile_a[shift + corner_a], tile_b[shift + corner_b]
+    level = 0.5 * (point_a + point_b) @ normal
+    halves = []
+    for tile, point in ((tile_a, point_a), (tile_b, point_b)):
+        point = point - (point @ normal - level) * normal
+        towards = tile[shift : shift + 4].mean(axis=0) - point
+        halves.append((point, _unit(towards - (towards @ normal) * normal)))
+    (pa, da), (pb, db) = halves
+    points = [pa + half_length * da]
+    for candidate in (pa, pb, pb + half_length * db):
+        if np.linalg.norm(candidate - points[-1]) > 1e-6:
+            points.append(candidate)
+    kept = [points[0]]  # drop interior points where the polyline runs straight on
+    for i in range(1, len(points) - 1):
+        turn = np.cross(_unit(points[i] - kept[-1]), _unit(points[i + 1] - points[i]))
+        if np.linalg.norm(turn) > 1e-6:
+            kept.append(points[i])
+    kept.append(points[-1])
+    return _HingeFrame(np.array(kept), normal, (halves[0], halves[1]))
+
+
+def _strip_outline(points: NDArray[np.float64], width: float, normal: NDArray) -> bd.Face:
+    """Planar face: the polyline ``points`` thickened to ``width`` with round ends and joints."""
+    if len(points) == 2:
+        return _stadium(points[0], points[1], width, normal)
+    wire = bd.Wire.make_polygon([_vec(p) for p in points], close=False)
+    outline = wire.offset_2d(0.5 * width, kind=bd.Kind.ARC, side=bd.Side.BOTH)
+    return bd.Face(outline)
+
+
+def _stadium(
+    a: NDArray[np.float64], b: NDArray[np.float64], width: float, normal: NDArray[np.float64]
+) -> bd.Face:
+    """Planar face: segment ``a``-``b`` thickened to ``width`` with round ends."""
+    along = _unit(b - a)
+    across = 0.5 * width * _unit(np.cross(normal, along))
+    cap = 0.5 * width * along
+    edges = [
+        bd.Edge.make_line(_vec(a - across), _vec(b - across)),
+        bd.Edge.make_three_point_arc(_vec(b - across), _vec(b + cap), _vec(b + across)),
+        bd.Edge.make_line(_vec(b + across), _vec(a + across)),
+        bd.Edge.make_three_point_arc(_vec(a + across), _vec(a - cap), _vec(a - across)),
+    ]
+    return bd.Face(bd.Wire(edges))
+
+
+def _slab(
+    frame: _HingeFrame, points: NDArray[np.float64], width: float, start: float, stop: float
+) -> bd.Solid:
+    """The strip outline between depths ``start`` and ``stop`` (mm, positive into the tiles)."""
+    face = _strip_outline(points - start * frame.normal, width, frame.normal)
+    return clean_solid(bd.Solid.extrude(face, _vec(-(stop - start) * frame.normal)))
+
+
+def _footprint_margin(
+    tile: NDArray[np.float64], point: NDArray[np.float64], normal: NDArray[np.float64]
+) -> float:
+    """Smallest signed distance (mm) from the line through ``point`` along ``normal`` to the
+    edges of the tile's top and bottom faces (negative: outside a face)."""
+    helper = [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0]
+    axis_u = _unit(np.cross(normal, helper))
+    axis_v = np.cross(normal, axis_u)
+    margins = []
+    for ring in (tile[0:4], tile[4:8]):
+        rel = ring - point
+        poly = np.stack([rel @ axis_u, rel @ axis_v], axis=1)
+        edge = np.roll(poly, -1, axis=0) - poly
+        signed = _cross2(edge, -poly) / np.linalg.norm(edge, axis=1)
+        margins.append(float(np.min(signed * np.sign(_signed_area(poly)))))
+    return min(margins)
+
+
+def _depth_to_opposite(
+    tile: NDArray[np.float64], side: HingeSide, point: NDArray[np.float64], normal: NDArray
+) -> tuple[float, bool]:
+    """Distance (mm) along ``-normal`` from ``point`` on the hinge face to the opposite face,
+    shortest over a pin's rim when the faces are not parallel, and whether they are parallel."""
+    centroids, normals = face_planes(tile)
+    face = FACE_BOTTOM if side == "top" else FACE_TOP
+    cosine = float(-normal @ normals[face])
+    distance = float((centroids[face] - point) @ normals[face] / cosine)
+    return distance, abs(abs(cosine) - 1.0) < 1e-12
+
+
+def _place_holes(
+    tile: NDArray[np.float64],
+    corner: NDArray[np.float64],
+    direction: NDArray[np.float64],
+    normal: NDArray[np.float64],
+    stations: tuple[float, ...],
+    radius: float,
+    wall: float,
+) -> tuple[list[NDArray[np.float64]], list[str]]:
+    """Hole axes along one half of a strip, each slid inward until it keeps ``wall`` from the
+    tile's side faces; stations that never fit are reported."""
+    placed, notes = [], []
+    for station in stations:
+        for distance in np.linspace(station, station + 4.0 * radius, 17):
+            point = corner + distance * direction
+            if _footprint_margin(tile, point, normal) >= radius + wall:
+                placed.append(point)
+                break
+        else:
+            notes.append(f"hole {station:.2f} mm from the hinge corner does not fit the tile")
+    return placed, notes
+
+
+def _cylinder_between(
+    point: NDArray[np.float64],
+    normal: NDArray[np.float64],
+    radius: float,
+    start: float,
+    stop: float,
+) -> bd.Solid:
+    """Cylinder on the axis through ``point`` along ``-normal`` between two depths (mm)."""
+    return bd.Solid.make_cylinder(radius, stop - start, _plane(point - start * normal, -normal))
+
+
+def _tpu_pad(
+    tiles: tuple[NDArray[np.float64], NDArray[np.float64]],
+    frame: _HingeFrame,
+    side: HingeSide,
+    profile: Profile,
+    build_pad: bool,
+) -> HingeParts:
+    """Dual-material FDM pad: a TPU strip sunk into both tiles, keyed by pins or a dovetail."""
+    thickness, width = profile.hinge_thickness_mm, profile.hinge_width_mm
+    half = 0.5 * profile.hinge_pad_length_mm
+    wall = max(profile.nozzle_mm, 0.3)
+    recess = _slab(frame, frame.points, width, -TOOL_OVERSHOOT_MM, thickness)
+    tools: tuple[list[bd.Solid], list[bd.Solid]] = ([recess], [recess])
+    keys: list[bd.Solid] = []
+    notes: list[str] = []
+    for index, (tile, (corner, direction)) in enumerate(zip(tiles, frame.halves, strict=True)):
+        if profile.hinge_interlock == "through-holes":
+            # A TPU pin through the tile at the inner end of the strip (a "lollipop").
+            radius = max(0.75 * width, 1.5 * profile.nozzle_mm)
+            points, missing = _place_holes(
+                tile, corner, direction, frame.normal, (half - radius,), radius, wall
+            )
+            notes += missing
+            for point in points:
+                depth, through = _depth_to_opposite(tile, side, point, frame.normal)
+                if not through:
+                    depth -= radius * 2.0  # tilted opposite face: keep the hole blind
+                stop = depth + (TOOL_OVERSHOOT_MM if through else 0.0)
+                tools[index].append(
+                    _cylinder_between(point, frame.normal, radius, -TOOL_OVERSHOOT_MM, stop)
+                )
+                keys.append(_cylinder_between(point, frame.normal, radius, 0.5 * thickness, depth))
+        else:
+            # Dovetail: a key 1.8 x wider than the strip just above it, held by the narrow neck.
+            key_width = 1.8 * width
+            inner = next(
+                (
+                    distance
+                    for distance in np.linspace(0.0, half, 41)
+                    if _footprint_margin(tile, corner + distance * direction, frame.normal)
+                    >= 0.5 * key_width + wall
+                ),
+                None,
+            )
+            if inner is None or half - inner < 0.5 * width:
+                notes.append("dovetail key does not fit in the pad length")
+                continue
+            segment = np.stack([corner + inner * direction, corner + half * direction])
+            key = _slab(frame, segment, key_width, 0.5 * thickness, 2.0 * thickness)
+            tools[index].append(key)
+            keys.append(key)
+    pad = None
+    if build_pad:
+        pad = clean_solid(fuse(_slab(frame, frame.points, width, 0.0, thickness), keys))
+    return HingeParts(pad, tuple(tools[0]), tuple(tools[1]), tuple(notes))
+
+
+def glue_recess(
+    tile_a: NDArray[np.float64],
+    corner_a: int,
+    tile_b: NDArray[np.float64],
+    corner_b: int,
+    side: HingeSide,
+    profile: Profile,
+    build_pad: bool = True,
+) -> HingeParts:
+    """Laser-cut rubber hinge: a shallow recess where the strip is glued, and the strip itself.
+
+    The recess is ``GLUE_RECESS_DEPTH_FRACTION`` of the strip thickness deep and follows the
+    strip outline (``hinge_width_mm`` wide, ``hinge_pad_length_mm`` long); the strip (``pad``)
+    sits in it and stands proud by the rest of its thickness.
+    """
+    tile_a, tile_b = np.asarray(tile_a, dtype=float), np.asarray(tile_b, dtype=float)
+    thickness, width = profile.hinge_thickness_mm, profile.hinge_width_mm
+    half = 0.5 * profile.hinge_pad_length_mm
+    frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, half)
+    depth = GLUE_RECESS_DEPTH_FRACTION * thickness
+    recess = (_slab(frame, frame.points, width, -TOOL_OVERSHOOT_MM, depth),)
+    pad = _slab(frame, frame.points, width, depth - thickness, depth) if build_pad else None
+    return HingeParts(pad, recess, recess)
+
+
+def strip_holes(
+    tile_a: NDArray[np.float64],
+    corner_a: int,
+    tile_b: NDArray[np.float64],
+    corner_b: int,
+    side: HingeSide,
+    profile: Profile,
+    build_pad: bool = True,
+) -> HingeParts:
+    """Plywood hinge: the rubber strip lying on the face and pilot holes for screws or staples.
+
+    Screws: two holes per tile at a third and two thirds of the half strip, diameter
+    ``clip(0.12 width, 2, 5) mm``; staples: one pair of 1 mm holes per tile across the strip.
+    Holes are a quarter of the tile thickness deep.  ``pad`` is the strip, touching the face.
+    """
+    tile_a, tile_b = np.asarray(tile_a, dtype=float), np.asarray(tile_b, dtype=float)
+    thickness, width = profile.hinge_thickness_mm, profile.hinge_width_mm
+    half = 0.5 * profile.hinge_pad_length_mm
+    frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, half)
+    wall = max(profile.tool_diameter_mm, 1.0)
+    depth = 0.25 * profile.thickness_mm
+    tools: tuple[list[bd.Solid], list[bd.Solid]] = ([], [])
+    notes: list[str] = []
+    for index, (tile, (corner, direction)) in enumerate(
+        zip((tile_a, tile_b), frame.halves, strict=True)
+    ):
+        if profile.hinge_interlock == "screws":
+            radius = 0.5 * float(np.clip(0.12 * width, 2.0, 5.0))
+            points, missing = _place_holes(
+                tile, corner, direction, frame.normal, (half / 3, 2 * half / 3), radius, wall
+            )
+        else:
+            radius = 0.5
+            across = 0.25 * width * _unit(np.cross(frame.normal, direction))
+            points = []
+            missing = []
+            for shift in (across, -across):
+                found, lost = _place_holes(
+                    tile, corner + shift, direction, frame.normal, (half / 2,), radius, wall
+                )
+                points += found
+                missing += lost
+        notes += missing
+        for point in points:
+            tools[index].append(
+                _cylinder_between(point, frame.normal, radius, -TOOL_OVERSHOOT_MM, depth)
+            )
+    pad = _slab(frame, frame.points, width, -thickness, 0.0) if build_pad else None
+    return HingeParts(pad, tuple(tools[0]), tuple(tools[1]), tuple(notes))
+
+
+def hinge_pad(
+    tile_a: NDArray[np.float64],
+    corner_a: int,
+    tile_b: NDArray[np.float64],
+    corner_b: int,
+    side: HingeSide,
+    profile: Profile,
+    build_pad: bool = True,
+) -> HingeParts:
+    """The hinge part and tile tools for the profile's process.
+
+    Parameters
+    ----------
+    tile_a, tile_b : (8, 3) float, mm, the two tiles in the fabrication (flat) pose; their hinge
+        faces lie in one plane.
+    corner_a, corner_b : hinged corners 0..3.
+    side : ``"top"`` or ``"bottom"``: the face whose corners the hinge joins.
+    profile : ``hinge_interlock`` picks the kind.  ``through-holes`` / ``dovetail``: a TPU pad
+        ``hinge_thickness_mm`` thick and ``hinge_width_mm`` wide running ``hinge_pad_length_mm``
+        / 2 from each corner into its tile, sunk flush into both tiles, keyed by a TPU pin
+        through each tile (diameter ``max(1.5 width, 3 nozzle)``) or by a key 1.8 x wider under
+        the strip.  ``glue-recess``: :func:`glue_recess`.  ``screws`` / ``staples``:
+        :func:`strip_holes`.
+    build_pad : also build the part (tile jobs only need the tools).
+
+    Returns
+    -------
+    HingeParts: the pad (touching the tiles once the tools are cut, not overlapping them) and
+    the tools to subtract from tile a and from tile b.
+    """
+    tile_a = np.asarray(tile_a, dtype=np.float64)
+    tile_b = np.asarray(tile_b, dtype=np.float64)
+    if profile.hinge_interlock in ("through-holes", "dovetail"):
+        frame = _hinge_frame(
+            tile_a, corner_a, tile_b, corner_b, side, 0.5 * profile.hinge_pad_length_mm
+        )
+        return _tpu_pad((tile_a, tile_b), frame, side, profile, build_pad)
+    if profile.hinge_interlock == "glue-recess":
+        return glue_recess(tile_a, corner_a, tile_b, corner_b, side, profile, build_pad)
+    return strip_holes(tile_a, corner_a, tile_b, corner_b, side, profile, build_pad)
+
+
+# --------------------------------------------------------------------------------------------
+# trims and the batched cut
+
+
+def trim_tool(points: NDArray[np.float64]) -> bd.Solid:
+    """Tool: the convex polyhedron spanned by ``points`` ((k, 3) float, mm), to subtract."""
+    array = np.asarray(points, dtype=np.float64)
+    if array.ndim != 2 or array.shape[1] != 3 or len(array) < 4:
+        raise InputError(f"a trim polyhedron needs (k >= 4, 3) points, got shape {array.shape}")
+    return convex_solid(array)
+
+
+def build_tile(tile: NDArray[np.float64] | bd.Solid, tools: list[bd.Shape]) -> bd.Solid:
+    """The tile minus the tools that touch it, in one boolean operation.
+
+    Tools whose bounding box misses the tile's are skipped.  If the cut splits the tile, the
+    largest piece is kept and a warning is logged.
+    """
+    base = tile if isinstance(tile, bd.Solid) else tile_solid(np.asarray(tile))
+    box = bounding_box(base)
+    touching = []
+    for tool in tools:
+        tool_box = bounding_box(tool)
+        if np.all(tool_box[0] <= box[1] + 1e-6) and np.all(tool_box[1] >= box[0] - 1e-6):
+            touching.append(tool)
+    pieces = cut(base, touching)
+    if not pieces:
+        raise RuntimeError("cutting the features removed the whole tile")
+    if len(pieces) > 1:
+        log.warning("features split a tile into %d pieces; keeping the largest", len(pieces))
+    return clean_solid(max(pieces, key=lambda s: s.volume))

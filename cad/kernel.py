@@ -1,0 +1,161 @@
+"""Thin helpers over OCP (the OpenCASCADE kernel behind build123d).
+
+build123d's own boolean wrappers clean every result (``UnifySameDomain``) and keep a history
+object that cannot be pickled; the tile builder cuts hundreds of solids in worker processes, so it
+calls the OCCT boolean directly: one ``BRepAlgoAPI_Cut`` with all tools at once, serial inside
+the process (parallelism comes from processes), oriented bounding boxes on.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import build123d as bd
+import numpy as np
+from numpy.typing import NDArray
+from OCP.BRep import BRep_Builder
+from OCP.BRepAlgoAPI import BRepAlgoAPI_BooleanOperation, BRepAlgoAPI_Cut, BRepAlgoAPI_Fuse
+from OCP.BRepBuilderAPI import (
+    BRepBuilderAPI_MakeEdge,
+    BRepBuilderAPI_MakeFace,
+    BRepBuilderAPI_MakeVertex,
+    BRepBuilderAPI_MakeWire,
+)
+from OCP.collections import List_TopoDS_Shape
+from OCP.gp import gp_Dir, gp_Pln, gp_Pnt
+from OCP.TopAbs import TopAbs_SOLID
+from OCP.TopExp import TopExp_Explorer
+from OCP.TopoDS import TopoDS, TopoDS_Shape, TopoDS_Shell, TopoDS_Solid
+
+from drawstring.geometry.errors import InputError
+
+
+def polyhedron_solid(vertices: NDArray[np.float64], faces: Sequence[Sequence[int]]) -> bd.Solid:
+    """Exact planar-faced solid from vertices and outward (counter-clockwise) polygon faces.
+
+    Vertices and edges are shared between faces, so the shell is closed by construction (no
+    sewing tolerance).  Each face must be planar; a non-planar face raises :class:`InputError`.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float, mm.
+    faces : polygons as vertex indices, counter-clockwise seen from outside.
+    """
+    points = np.asarray(vertices, dtype=np.float64)
+    occ_vertices = [BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, p))).Vertex() for p in points]
+    edges: dict[tuple[int, int], object] = {}
+    builder = BRep_Builder()
+    shell = TopoDS_Shell()
+    builder.MakeShell(shell)
+    for face_index, polygon in enumerate(faces):
+        wire_maker = BRepBuilderAPI_MakeWire()
+        for position, start in enumerate(polygon):
+            end = polygon[(position + 1) % len(polygon)]
+            key = (min(start, end), max(start, end))
+            if key not in edges:
+                edges[key] = BRepBuilderAPI_MakeEdge(
+                    occ_vertices[key[0]], occ_vertices[key[1]]
+                ).Edge()
+            wire_maker.Add(edges[key])
+        # The face lies on the plane whose normal is the polygon's (Newell) normal, so it is
+        # oriented by the vertex order (MakeFace from a bare wire picks its own orientation).
+        ring = points[list(polygon)]
+        normal = np.cross(ring, np.roll(ring, -1, axis=0)).sum(axis=0)
+        length = float(np.linalg.norm(normal))
+        if length < 1e-300:
+            raise InputError(f"polyhedron face {face_index} has zero area")
+        normal /= length
+        deviation = float(np.abs((ring - ring.mean(axis=0)) @ normal).max())
+        if deviation > 1e-7 * (1.0 + float(np.ptp(ring, axis=0).max())):
+            raise InputError(
+                f"polyhedron face {face_index} is not planar (deviation {deviation:.3g} mm); "
+                "snap the vertices to planes first"
+            )
+        plane = gp_Pln(gp_Pnt(*map(float, ring.mean(axis=0))), gp_Dir(*map(float, normal)))
+        face_maker = BRepBuilderAPI_MakeFace(plane, wire_maker.Wire(), True)
+        if not face_maker.IsDone():
+            raise RuntimeError(f"OCCT could not make polyhedron face {face_index}")
+        builder.Add(shell, face_maker.Face())
+    shell.Closed(True)
+    solid = TopoDS_Solid()
+    builder.MakeSolid(solid)
+    builder.Add(solid, shell)
+    return bd.Solid(solid)
+
+
+def _solids_in(shape: TopoDS_Shape) -> list[bd.Solid]:
+    explorer = TopExp_Explorer(shape, TopAbs_SOLID)
+    found: list[bd.Solid] = []
+    while explorer.More():
+        found.append(bd.Solid(TopoDS.Solid(explorer.Current())))
+        explorer.Next()
+    return found
+
+
+def _run(
+    operation: BRepAlgoAPI_BooleanOperation, base: bd.Shape, tools: Sequence[bd.Shape]
+) -> list[bd.Solid]:
+    arguments = List_TopoDS_Shape()
+    arguments.Append(base.wrapped)
+    tool_list = List_TopoDS_Shape()
+    for tool in tools:
+        tool_list.Append(tool.wrapped)
+    operation.SetArguments(arguments)
+    operation.SetTools(tool_list)
+    operation.SetRunParallel(False)
+    operation.SetUseOBB(True)
+    operation.SetCheckInverted(False)
+    operation.Build()
+    if not operation.IsDone():
+        raise RuntimeError("OCCT boolean operation failed")
+    return _solids_in(operation.Shape())
+
+
+def cut(base: bd.Solid, tools: Sequence[bd.Shape]) -> list[bd.Solid]:
+    """``base`` minus all ``tools`` in one OCCT operation; the resulting solids (usually one)."""
+    if not tools:
+        return [base]
+    return _run(BRepAlgoAPI_Cut(), base, tools)
+
+
+def fuse(base: bd.Solid, tools: Sequence[bd.Shape]) -> bd.Solid:
+    """Union of ``base`` and ``tools`` in one OCCT operation; the largest resulting solid."""
+    if not tools:
+        return base
+    solids = _run(BRepAlgoAPI_Fuse(), base, tools)
+    return max(solids, key=lambda s: s.volume)
+
+
+def bounding_box(shape: bd.Shape) -> NDArray[np.float64]:
+    """(2, 3) float, mm: axis-aligned box (min row, max row) of ``shape``."""
+    box = shape.bounding_box()
+    return np.array([[box.min.X, box.min.Y, box.min.Z], [box.max.X, box.max.Y, box.max.Z]])
+
+
+def tessellate(
+    shape: bd.Shape, tolerance: float = 0.01, angular_tolerance: float = 0.2
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Closed triangle mesh of ``shape`` with coincident vertices merged.
+
+    Returns
+    -------
+    V : (n, 3) float, mm.
+    F : (m, 3) int, outward triangles.
+    """
+    points, triangles = shape.tessellate(tolerance, angular_tolerance)
+    vertices = np.array([[p.X, p.Y, p.Z] for p in points], dtype=np.float64).reshape(-1, 3)
+    faces = np.array(triangles, dtype=np.int64).reshape(-1, 3)
+    # Faces are meshed separately; shared edges carry the same nodes, so merge exact duplicates
+    # (rounded far below any model length).
+    key = np.round(vertices / 1e-9).astype(np.int64)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    faces = inverse.reshape(-1)[faces]
+    keep = (
+        (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])
+    )
+    return vertices[first], faces[keep]
+
+
+def clean_solid(shape: bd.Shape) -> bd.Solid:
+    """A fresh :class:`build123d.Solid` around ``shape.wrapped`` (drops history; pickles)."""
+    return bd.Solid(shape.wrapped)

@@ -1,0 +1,217 @@
+"""Exact planar-faced B-rep tiles from the eight vertices of a quad frustum.
+
+Vertex order (CONTRACTS.md): top corners 0..3 counter-clockwise seen from outside (above), then
+bottom corners 4..7 under them.  Faces, each counter-clockwise seen from outside:
+
+* top ``(0, 1, 2, 3)``, bottom ``(4, 7, 6, 5)``;
+* side ``k`` (from corner ``k`` to ``k + 1``): ``(k, 4 + k, 4 + (k + 1) % 4, (k + 1) % 4)``.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import build123d as bd
+import numpy as np
+from numpy.typing import NDArray
+from OCP.BRepBuilderAPI import BRepBuilderAPI_Transform
+from OCP.gp import gp_Trsf
+from scipy.spatial import ConvexHull
+
+from drawstring.cad.kernel import polyhedron_solid
+from drawstring.geometry.errors import InputError
+from drawstring.geometry.tolerances import CAD_MAX_FACE_DEVIATION_MM, CAD_PLANAR_EXACT_MM
+
+log = logging.getLogger(__name__)
+
+FACE_TOP = 4
+FACE_BOTTOM = 5
+#: Faces of a tile as vertex indices: sides 0..3, then top (index 4) and bottom (index 5).
+TILE_FACES: tuple[tuple[int, int, int, int], ...] = (
+    (0, 4, 5, 1),
+    (1, 5, 6, 2),
+    (2, 6, 7, 3),
+    (3, 7, 4, 0),
+    (0, 1, 2, 3),
+    (4, 7, 6, 5),
+)
+_FACES = np.array(TILE_FACES, dtype=np.int64)
+
+
+def face_planes(vertices: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Best-fit plane of each of the six faces.
+
+    Parameters
+    ----------
+    vertices : (8, 3) float, mm.
+
+    Returns
+    -------
+    centroids : (6, 3) float, mm, mean of each face's four vertices.
+    normals : (6, 3) float, unit outward normals (Newell's method, exact for planar faces).
+    """
+    quads = np.asarray(vertices, dtype=np.float64)[_FACES]  # (6, 4, 3)
+    centroids = quads.mean(axis=1)
+    following = np.roll(quads, -1, axis=1)
+    normals = np.cross(quads, following).sum(axis=1)
+    lengths = np.linalg.norm(normals, axis=1, keepdims=True)
+    if np.any(lengths < 1e-300):
+        raise InputError("a tile has a face of zero area; check the tile vertices")
+    return centroids, normals / lengths
+
+
+def face_deviation(vertices: NDArray[np.float64]) -> float:
+    """Largest distance (mm) of a vertex from the best-fit plane of a face it belongs to."""
+    centroids, normals = face_planes(vertices)
+    quads = np.asarray(vertices, dtype=np.float64)[_FACES]
+    return float(np.abs(np.einsum("fkd,fd->fk", quads - centroids[:, None], normals)).max())
+
+
+def snap_to_planes(vertices: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Move each vertex to the intersection of the best-fit planes of its three faces.
+
+    The result has exactly planar faces and differs from the input by about the input's face
+    deviation.
+
+    Parameters
+    ----------
+    vertices : (8, 3) float, mm.
+
+    Returns
+    -------
+    (8, 3) float, mm.
+    """
+    centroids, normals = face_planes(vertices)
+    offsets = np.einsum("fd,fd->f", centroids, normals)
+    corner = np.arange(8) % 4
+    cap = np.where(np.arange(8) < 4, FACE_TOP, FACE_BOTTOM)
+    rows = np.stack([cap, corner, (corner - 1) % 4], axis=1)  # (8, 3) faces meeting at a vertex
+    matrices = normals[rows]  # (8, 3, 3)
+    rhs = offsets[rows]  # (8, 3)
+    return np.asarray(np.linalg.solve(matrices, rhs[..., None])[..., 0])
+
+
+def mesh_volume(vertices: NDArray[np.float64]) -> float:
+    """Signed volume (mm^3) of the tile mesh, quads split along their 0-2 diagonal."""
+    quads = np.asarray(vertices, dtype=np.float64)[_FACES]
+    first = np.einsum("fd,fd->f", quads[:, 0], np.cross(quads[:, 1], quads[:, 2]))
+    second = np.einsum("fd,fd->f", quads[:, 0], np.cross(quads[:, 2], quads[:, 3]))
+    return float((first + second).sum() / 6.0)
+
+
+def tile_solid(vertices: NDArray[np.float64]) -> bd.Solid:
+    """Exact planar-faced B-rep of one tile.
+
+    Parameters
+    ----------
+    vertices : (8, 3) float, mm, in the contract's vertex order.
+
+    Returns
+    -------
+    build123d.Solid with six planar faces, twelve edges and eight vertices, closed and outward.
+    Faces whose vertices deviate from a plane by more than ``CAD_PLANAR_EXACT_MM`` are first
+    snapped (:func:`snap_to_planes`); beyond ``CAD_MAX_FACE_DEVIATION_MM`` the tile is rejected.
+    """
+    points = np.asarray(vertices, dtype=np.float64)
+    if points.shape != (8, 3) or not np.all(np.isfinite(points)):
+        raise InputError(f"a tile needs (8, 3) finite vertices, got shape {points.shape}")
+    if mesh_volume(points) <= 0.0:
+        raise InputError(
+            "tile has non-positive volume: order corners counter-clockwise seen from the top, "
+            "top corners 0..3 then bottom corners 4..7"
+        )
+    deviation = face_deviation(points)
+    if deviation > CAD_MAX_FACE_DEVIATION_MM:
+        raise InputError(
+            f"tile face is not planar (deviation {deviation:.3g} mm > "
+            f"{CAD_MAX_FACE_DEVIATION_MM} mm); planarize the tiles before building solids"
+        )
+    if deviation > CAD_PLANAR_EXACT_MM:
+        points = snap_to_planes(points)
+    return polyhedron_solid(points, TILE_FACES)
+
+
+def tile_solids(tiles: NDArray[np.float64]) -> list[bd.Solid]:
+    """:func:`tile_solid` for every tile of a (T, 8, 3) array (mm)."""
+    array = np.asarray(tiles, dtype=np.float64)
+    if array.ndim != 3 or array.shape[1:] != (8, 3):
+        raise InputError(f"tiles must be a (T, 8, 3) array, got shape {array.shape}")
+    return [tile_solid(t) for t in array]
+
+
+def convex_solid(points: NDArray[np.float64]) -> bd.Solid:
+    """Exact planar-faced B-rep of the convex hull of ``points`` ((k, 3) float, mm)."""
+    array = np.asarray(points, dtype=np.float64)
+    hull = ConvexHull(array)
+    scale = float(np.ptp(array, axis=0).max())
+    planes: dict[tuple[int, ...], list[int]] = {}
+    for simplex, equation in zip(hull.simplices, hull.equations, strict=True):
+        key = tuple(np.round(equation / np.array([1e-7, 1e-7, 1e-7, 1e-7 * scale])).astype(int))
+        planes.setdefault(key, []).extend(int(i) for i in simplex)
+    used = np.unique(hull.simplices)
+    remap = -np.ones(len(array), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    polygons: list[list[int]] = []
+    for key, ids in planes.items():
+        normal = np.array(key[:3], dtype=np.float64)
+        normal /= np.linalg.norm(normal)
+        unique = np.unique(ids)
+        centre = array[unique].mean(axis=0)
+        axis_u = np.cross(normal, [1.0, 0.0, 0.0])
+        if np.linalg.norm(axis_u) < 0.5:
+            axis_u = np.cross(normal, [0.0, 1.0, 0.0])
+        axis_u /= np.linalg.norm(axis_u)
+        axis_v = np.cross(normal, axis_u)
+        rel = array[unique] - centre
+        order = np.argsort(np.arctan2(rel @ axis_v, rel @ axis_u))
+        polygons.append([int(remap[i]) for i in unique[order]])
+    return polyhedron_solid(array[used], polygons)
+
+
+def rigid_transforms(
+    source: NDArray[np.float64], target: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Best rigid motion (Kabsch) taking each source tile onto the target tile.
+
+    Parameters
+    ----------
+    source, target : (T, 8, 3) float, mm (for example T2D and T3D).
+
+    Returns
+    -------
+    transforms : (T, 4, 4) float, homogeneous matrices ``target ~ R @ source + t``.
+    residual : (T,) float, mm, largest vertex distance after the motion (0 for congruent tiles).
+    """
+    src = np.asarray(source, dtype=np.float64)
+    dst = np.asarray(target, dtype=np.float64)
+    src_mean = src.mean(axis=1, keepdims=True)
+    dst_mean = dst.mean(axis=1, keepdims=True)
+    covariance = np.einsum("tki,tkj->tij", src - src_mean, dst - dst_mean)
+    u, _, vt = np.linalg.svd(covariance)
+    det = np.linalg.det(np.einsum("tij,tjk->tik", u, vt))
+    fix = np.ones((len(src), 3))
+    fix[:, 2] = np.sign(det)
+    rotation = np.einsum("tji,tj,tkj->tik", vt, fix, u)  # V diag(fix) U^T
+    translation = dst_mean[:, 0] - np.einsum("tij,tj->ti", rotation, src_mean[:, 0])
+    transforms = np.zeros((len(src), 4, 4))
+    transforms[:, :3, :3] = rotation
+    transforms[:, :3, 3] = translation
+    transforms[:, 3, 3] = 1.0
+    moved = np.einsum("tij,tkj->tki", rotation, src) + translation[:, None]
+    residual = np.linalg.norm(moved - dst, axis=2).max(axis=1)
+    return transforms, residual
+
+
+def apply_transform(transform: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray:
+    """Apply a (4, 4) homogeneous transform to (..., 3) points (mm)."""
+    array = np.asarray(points, dtype=np.float64)
+    return np.asarray(array @ transform[:3, :3].T + transform[:3, 3])
+
+
+def move_solid(solid: bd.Shape, transform: NDArray[np.float64]) -> bd.Shape:
+    """A copy of ``solid`` moved by a rigid (4, 4) transform."""
+    trsf = gp_Trsf()
+    m = np.asarray(transform, dtype=np.float64)
+    trsf.SetValues(*(float(m[i, j]) for i in range(3) for j in range(4)))
+    moved = BRepBuilderAPI_Transform(solid.wrapped, trsf, True).Shape()
+    return type(solid)(moved)

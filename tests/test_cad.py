@@ -1,0 +1,332 @@
+"""CAD layer: exact tiles, features and the checks measured on the solids (issue 7)."""
+
+from __future__ import annotations
+
+import dataclasses
+import pickle
+
+import numpy as np
+import pytest
+
+bd = pytest.importorskip("build123d")
+
+from drawstring.cad import checks  # noqa: E402
+from drawstring.cad.design import CadResult, build_design_solids, route_links  # noqa: E402
+from drawstring.cad.features import (  # noqa: E402
+    SIDE_TOP_FACE,
+    build_tile,
+    channel_path,
+    hinge_pad,
+    label_engraving,
+    lift_path,
+    magnet_pockets,
+    string_channel,
+    trim_tool,
+)
+from drawstring.cad.samples import SampleDesign, cylinder_design  # noqa: E402
+from drawstring.cad.tiles import (  # noqa: E402
+    convex_solid,
+    face_deviation,
+    mesh_volume,
+    rigid_transforms,
+    snap_to_planes,
+    tile_solid,
+    tile_solids,
+)
+from drawstring.fabrication.profiles import Profile, load_profile  # noqa: E402
+from drawstring.geometry.errors import InputError  # noqa: E402
+from drawstring.geometry.tolerances import CAD_OPENING_MATCH_MM  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def profile() -> Profile:
+    # Small magnets: the shipped 6 mm magnets do not fit a 6 mm thick tile's side face.
+    return dataclasses.replace(
+        load_profile("fdm-dual"), magnet_diameter_mm=3.0, magnet_height_mm=1.5
+    )
+
+
+@pytest.fixture(scope="module")
+def design() -> SampleDesign:
+    return cylinder_design((3, 3))
+
+
+@pytest.fixture(scope="module")
+def built(design: SampleDesign, profile: Profile) -> CadResult:
+    return build_design_solids(
+        design.tiles_2d,
+        design.tiles_3d,
+        design.linkage.hinges,
+        design.hinge_side,
+        design.route_steps,
+        design.lift_tiles,
+        design.magnet_pairs,
+        design.trims,
+        profile,
+        workers=1,
+    )
+
+
+def _box(size: float = 2.0) -> np.ndarray:
+    top = np.array([[0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], dtype=float) * size
+    return np.vstack([top, top - [0, 0, size]])
+
+
+# --- tiles -----------------------------------------------------------------------------------
+
+
+def test_cube_tile_is_exact() -> None:
+    solid = tile_solid(_box(2.0))
+    assert solid.is_valid and solid.is_manifold
+    assert len(solid.faces()) == 6 and len(solid.edges()) == 12 and len(solid.vertices()) == 8
+    assert all(f.geom_type == bd.GeomType.PLANE for f in solid.faces())
+    assert solid.volume == pytest.approx(8.0, rel=1e-12)
+    top = max(solid.faces(), key=lambda f: f.center().Z)
+    assert tuple(top.normal_at()) == pytest.approx((0.0, 0.0, 1.0))
+
+
+def test_design_tiles_match_mesh_volume(design: SampleDesign) -> None:
+    for tiles in (design.tiles_2d, design.tiles_3d):
+        solids = tile_solids(tiles)
+        assert checks.check_valid(solids).all()
+        volumes = np.array([s.volume for s in solids])
+        expected = np.array([mesh_volume(t) for t in tiles])
+        np.testing.assert_allclose(volumes, expected, rtol=1e-6)
+
+
+def test_near_planar_tile_is_snapped() -> None:
+    vertices = _box(10.0)
+    vertices[2] += [0.0, 0.0, 5e-7]  # top face off-plane by ~1e-7 mm
+    assert 1e-9 < face_deviation(vertices) < 1e-6
+    snapped = snap_to_planes(vertices)
+    assert face_deviation(snapped) < 1e-9
+    assert np.abs(snapped - vertices).max() < 1e-6
+    solid = tile_solid(vertices)
+    assert solid.is_valid
+    assert solid.volume == pytest.approx(mesh_volume(vertices), rel=1e-6)
+
+
+def test_bad_tiles_raise() -> None:
+    with pytest.raises(InputError, match="counter-clockwise"):
+        tile_solid(_box()[[3, 2, 1, 0, 7, 6, 5, 4]])
+    bent = _box(10.0)
+    bent[2, 2] += 0.5
+    with pytest.raises(InputError, match="not planar"):
+        tile_solid(bent)
+    with pytest.raises(InputError, match=r"\(8, 3\)"):
+        tile_solid(np.zeros((6, 3)))
+
+
+def test_convex_solid_of_a_cube_has_six_faces() -> None:
+    rng = np.random.default_rng(3)
+    corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=float)
+    inside = rng.uniform(0.2, 0.8, size=(10, 3))
+    solid = convex_solid(np.vstack([corners, inside]))
+    assert solid.is_valid and len(solid.faces()) == 6
+    assert solid.volume == pytest.approx(1.0, rel=1e-12)
+    assert trim_tool(corners).volume == pytest.approx(1.0, rel=1e-12)
+
+
+def test_rigid_transforms_recover_the_fabrication_motion(design: SampleDesign) -> None:
+    transforms, residual = rigid_transforms(design.tiles_2d, design.tiles_3d)
+    assert residual.max() < 1e-9
+    rotations = transforms[:, :3, :3]
+    np.testing.assert_allclose(np.linalg.det(rotations), 1.0, atol=1e-12)
+
+
+# --- features, one at a time -----------------------------------------------------------------
+
+
+def test_channel_meets_side_faces_along_their_normals(profile: Profile) -> None:
+    tile = _box(12.0)
+    path = channel_path(tile, 3, 0)  # left side to bottom side: a quarter turn
+    np.testing.assert_allclose(path.control[0], [0.0, 6.0, 6.0])
+    np.testing.assert_allclose(path.control[3], [6.0, 0.0, 6.0])
+    np.testing.assert_allclose(path.start_tangent, [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(path.end_tangent, [0.0, -1.0, 0.0])
+    assert 4.0 < path.min_radius < 6.0  # the quarter circle would have radius 6
+    straight = channel_path(tile, 3, 1)
+    assert straight.min_radius == np.inf
+    tube = string_channel(tile, 3, 0, profile)
+    assert tube.is_valid
+    with pytest.raises(InputError, match="same side"):
+        channel_path(tile, 2, 2)
+
+
+def test_lift_path_turns_up_through_the_top() -> None:
+    tile = _box(12.0)
+    path = lift_path(tile, 0)
+    assert path.arc[2][2] == pytest.approx(12.0)  # ends on the top face
+    assert path.radius == pytest.approx(6.0)  # from mid-thickness: rise 6 mm in a quarter turn
+    np.testing.assert_allclose(path.end_tangent, [0.0, 0.0, 1.0])
+
+
+def test_label_is_sized_to_the_bottom_face(profile: Profile) -> None:
+    tile = _box(12.0)
+    engraving = label_engraving(tile, 187, profile)
+    assert engraving is not None
+    box = engraving.bounding_box()
+    assert box.min.Z < 0.0 < box.max.Z < 1.0  # opens the bottom face, shallow
+    assert max(abs(box.min.X - 6), abs(box.max.X - 6), abs(box.min.Y - 6), abs(box.max.Y - 6)) < 6
+    assert len(engraving.solids()) == 2 + 7 + 3  # segments of "1", "8", "7"
+    assert label_engraving(_box(1.0), 187, profile) is None  # too small to engrave
+    with pytest.raises(InputError):
+        label_engraving(tile, -1, profile)
+
+
+def test_magnet_pockets_face_each_other(profile: Profile) -> None:
+    left = _box(12.0)
+    right = left + [12.0, 0.0, 0.0]
+    tool_a, tool_b, record = magnet_pockets(left, 1, right, 3, profile, tile_ids=(0, 1))
+    assert record.fits and (record.polarity_a, record.polarity_b) == ("N", "S")
+    np.testing.assert_allclose(record.centre, [12.0, 6.0, 6.0])
+    assert record.diameter_mm == pytest.approx(3.0 + 2 * 0.15)
+    for tool, inside_x in ((tool_a, 12.0 - 1.65), (tool_b, 12.0 + 1.65)):
+        box = tool.bounding_box()
+        assert min(abs(box.min.X - inside_x), abs(box.max.X - inside_x)) < 1e-9
+
+
+@pytest.mark.parametrize("interlock", ["through-holes", "dovetail", "glue-recess", "screws"])
+def test_hinge_parts_do_not_overlap_their_tiles(profile: Profile, interlock: str) -> None:
+    # Two 12 mm tiles touching only at one corner (a straight strip: the stadium outline).
+    tile_a = _box(12.0)
+    tile_b = _box(12.0) + [12.0, 12.0, 0.0]
+    hinge_profile = dataclasses.replace(profile, hinge_interlock=interlock, hinge_pad_length_mm=6.0)
+    corner_a, corner_b = 2, 0
+    parts = hinge_pad(tile_a, corner_a, tile_b, corner_b, "bottom", hinge_profile)
+    assert parts.pad is not None and parts.pad.is_valid
+    solid_a = build_tile(tile_a, list(parts.tools_a))
+    solid_b = build_tile(tile_b, list(parts.tools_b))
+    assert solid_a.volume < tile_solid(tile_a).volume
+    clash = checks.interference([solid_a, solid_b], [parts.pad])
+    assert clash.max_volume < 1e-3
+    if interlock in ("through-holes", "dovetail"):
+        assert parts.pad.volume > 0.6 * 0.8 * 6.0  # strip plus keys or pins
+
+
+# --- the whole design ------------------------------------------------------------------------
+
+
+def test_every_solid_is_valid(built: CadResult, design: SampleDesign) -> None:
+    assert len(built.tiles) == design.linkage.n_tiles
+    assert len(built.pads) == design.linkage.n_hinges
+    assert checks.check_valid(built.tiles).all()
+    assert checks.check_valid(built.pads).all()
+
+
+def test_features_remove_material_and_labels_are_present(
+    built: CadResult, design: SampleDesign
+) -> None:
+    for tile, solid in enumerate(built.tiles):
+        plain = tile_solid(design.tiles_2d[tile])
+        assert solid.volume < plain.volume
+        assert len(solid.faces()) > 6 + 7  # channel, pads, pins and the label's segments
+        bottom = [f for f in solid.faces() if abs(f.center().Z) < 1e-6 and f.normal_at().Z < 0]
+        plain_bottom = min(plain.faces(), key=lambda f: f.center().Z)
+        # the label (and pad recesses) take area from the bottom face
+        assert sum(f.area for f in bottom) < plain_bottom.area - 0.5
+
+
+def test_no_interference_in_the_flat_pose(built: CadResult) -> None:
+    tiles = checks.interference(built.tiles)
+    assert len(tiles.pairs) > 0
+    assert tiles.max_volume < 1e-6
+    pads = checks.interference(built.tiles, built.pads)
+    assert len(pads.pairs) >= 2 * len(built.pads)
+    assert pads.max_volume < 1e-3  # tessellations of shared curved walls differ slightly
+    assert checks.interference(built.pads).max_volume < 1e-6
+
+
+def test_channels_are_continuous_when_assembled(
+    built: CadResult, design: SampleDesign, profile: Profile
+) -> None:
+    match = checks.channel_continuity(
+        built.tiles, design.tiles_2d, built.transforms, design.route_steps, profile
+    )
+    assert len(match.links) == len(design.route_steps) - 1  # the two lift ends are open
+    assert match.max_distance < CAD_OPENING_MATCH_MM
+
+
+def test_magnet_pockets_are_paired(built: CadResult, design: SampleDesign) -> None:
+    assert len(built.magnets) == len(design.magnet_pairs) == 1
+    match, facing = checks.pockets_paired(
+        built.tiles, design.tiles_2d, built.transforms, built.magnets
+    )
+    assert match.max_distance < CAD_OPENING_MATCH_MM
+    np.testing.assert_allclose(facing, -1.0, atol=1e-9)
+    # the route also crosses this face: the pocket moved off the channel opening
+    record = built.magnets[0]
+    tile, side = record.tile_a, record.side_a
+    centroid = design.tiles_3d[tile][[side, (side + 1) % 4, 4 + side, 4 + (side + 1) % 4]]
+    assert np.linalg.norm(record.centre - centroid.mean(axis=0)) > 1.0
+
+
+def test_lift_bores_open_the_top_face(built: CadResult, design: SampleDesign) -> None:
+    lift_tiles = {int(s[0]) for s in design.route_steps if SIDE_TOP_FACE in s[1:]}
+    lift_tiles |= {int(t) for t, _ in design.lift_tiles}
+    assert len(lift_tiles) == 3
+    for tile, solid in enumerate(built.tiles):
+        chamfers = [f for f in solid.faces() if f.geom_type == bd.GeomType.CONE]
+        assert bool(chamfers) == (tile in lift_tiles)
+        for cone in chamfers:  # the flared exit sits on the top face
+            assert cone.bounding_box().max.Z == pytest.approx(design.tiles_2d[tile, :4, 2].max())
+
+
+def test_route_links_skip_lift_ends(design: SampleDesign) -> None:
+    links = route_links(design.route_steps)
+    assert links.shape == (len(design.route_steps) - 1, 4)
+    assert not np.any(links[:, [1, 3]] == SIDE_TOP_FACE)
+
+
+def test_records_and_pickling(built: CadResult) -> None:
+    records = built.records()
+    assert records["magnets"][0]["polarity_a"] == "N"  # type: ignore[index]
+    assert any("bend radius" in n for n in built.notes)  # the lift bores are tight here
+    clone = pickle.loads(pickle.dumps(built.tiles[0]))
+    assert clone.volume == pytest.approx(built.tiles[0].volume)
+
+
+def test_assembled_pose_moves_tiles_rigidly(design: SampleDesign, profile: Profile) -> None:
+    result = build_design_solids(
+        design.tiles_2d[:2],
+        design.tiles_3d[:2],
+        np.zeros((0, 4), dtype=np.int64),
+        (),
+        [(0, 3, 1)],
+        [],
+        [],
+        None,
+        profile,
+        pose="assembled",
+        labels=False,
+        workers=1,
+    )
+    assert result.pads == ()
+    for tile, solid in enumerate(result.tiles):
+        box = solid.bounding_box()
+        lo, hi = design.tiles_3d[tile].min(axis=0), design.tiles_3d[tile].max(axis=0)
+        np.testing.assert_allclose([box.min.X, box.min.Y, box.min.Z], lo, atol=1e-5)
+        np.testing.assert_allclose([box.max.X, box.max.Y, box.max.Z], hi, atol=1e-5)
+
+
+def test_bad_design_inputs_raise(design: SampleDesign, profile: Profile) -> None:
+    with pytest.raises(InputError, match="tiles_2d"):
+        build_design_solids(
+            design.tiles_2d[:, :4], design.tiles_3d, [], [], [], [], [], None, profile
+        )
+    with pytest.raises(InputError, match="outside"):
+        build_design_solids(
+            design.tiles_2d, design.tiles_3d, [], [], [(99, 0, 1)], [], [], None, profile
+        )
+    with pytest.raises(InputError, match="hinge_side"):
+        build_design_solids(
+            design.tiles_2d,
+            design.tiles_3d,
+            design.linkage.hinges,
+            ("top",),
+            [],
+            [],
+            [],
+            None,
+            profile,
+        )
