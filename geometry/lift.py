@@ -509,7 +509,7 @@ def select_lift_points(
     sweep: list[tuple[float, int, bool]] = []
     for tau in taus:
         clusters, roots = cluster_peaks(coupling, tau)
-        lift_gaps = peaks[roots]
+        lift_gaps = interior_lift_gaps(linkage, energy, edges, peaks[roots])
         passed = bool(check(lift_gaps))
         sweep.append((tau, int(len(lift_gaps)), passed))
         log.info("lift points: tau=%s -> %d lift points, check passed=%s", tau, len(roots), passed)
@@ -545,6 +545,35 @@ def select_lift_points(
         check_passed=passed,
         sweep=tuple(sweep),
     )
+
+
+def interior_lift_gaps(
+    linkage: Linkage,
+    energy: NDArray[np.float64],
+    edges: NDArray[np.int64],
+    gaps: NDArray[np.int64],
+) -> NDArray[np.int64]:
+    """Move lift points off split and boundary gaps onto the best interior gap next to them.
+
+    The string reaches a lift point from the boundary through interior gaps and may not enter
+    through a split gap (paper sec. 5.3), and a gap on a split seam joins two separate parts, so
+    a peak that falls on a split (or boundary) gap is lifted at the highest-energy horizontal or
+    vertical gap sharing a tile with it.  Order is kept; duplicates are dropped.
+    """
+    interior = np.array([k in ("horizontal", "vertical") for k in linkage.gap_kind], dtype=bool)
+    neighbours: dict[int, list[int]] = {}
+    for a, b in edges.tolist():
+        neighbours.setdefault(a, []).append(b)
+        neighbours.setdefault(b, []).append(a)
+    moved: list[int] = []
+    for gap in np.asarray(gaps, dtype=np.int64).tolist():
+        if not interior[gap]:
+            options = [n for n in neighbours.get(gap, []) if interior[n]]
+            if options:
+                gap = max(options, key=lambda n: (energy[n], -n))
+        if gap not in moved:
+            moved.append(gap)
+    return np.array(moved, dtype=np.int64)
 
 
 # --------------------------------------------------------------------------------------------

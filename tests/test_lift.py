@@ -6,6 +6,8 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
+
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.lift import (
     cluster_peaks,
@@ -18,7 +20,6 @@ from drawstring.geometry.lift import (
     tile_masses_from_volumes,
 )
 from drawstring.geometry.linkage import Linkage, build_linkage
-from numpy.typing import NDArray
 
 HeightField = Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
 
@@ -173,3 +174,21 @@ def test_tile_mass_of_a_box_and_a_frustum() -> None:
     np.testing.assert_allclose(m[2], m[0])
     with pytest.raises(InputError):
         tile_masses_from_volumes(np.zeros((2, 4, 3)), 1000.0)
+
+
+def test_peak_on_a_split_is_lifted_at_the_next_interior_gap() -> None:
+    """A dome split through its apex: the peak gap lies on the seam, the lift point next to it."""
+    from drawstring.geometry.linkage import Split, build_linkage
+
+    link = build_linkage(np.ones((8, 8), dtype=bool), (Split("y", 4, 0, 8),))
+    centres = (link.tile_cells + 0.5).astype(float)
+    xy = centres - 4.0
+    z = 20.0 - (xy**2).sum(axis=1)
+    tiles = np.c_[centres * 10.0, z]
+    lift = select_lift_points(link, tiles, np.ones(link.n_tiles))
+    assert len(lift.lift_gaps) == 1
+    gap = int(lift.lift_gaps[0])
+    assert link.gap_kind[gap] in ("horizontal", "vertical")
+    # It is next to the apex: its grid vertex is one step from (4, 4).
+    i, j = link.vertex_ij[link.gap_vertex[gap]]
+    assert abs(int(i) - 4) + abs(int(j) - 4) == 1

@@ -1,0 +1,134 @@
+"""Glue between the geometry stages and the CAD layer: what each tile's solid needs.
+
+The geometry pipeline speaks in linkages, routes and hinge layouts; :mod:`drawstring.cad` takes
+plain arrays.  This module translates one into the other and runs the CAD build in both poses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drawstring.geometry.linkage import SIDE_BOTTOM, SIDE_LEFT, SIDE_RIGHT, SIDE_TOP, Linkage
+from drawstring.geometry.route import Route
+
+if TYPE_CHECKING:
+    from drawstring.cad.design import CadResult
+
+    from .pipeline import Design
+
+
+@dataclass(frozen=True)
+class CadInputs:
+    """Arrays :func:`drawstring.cad.design.build_design_solids` takes, derived from a design.
+
+    Attributes
+    ----------
+    route_steps : (S, 4) int, ``(gap, tile, enter_side, leave_side)`` in route order.
+    lift_tiles : (L, 2) int, ``(tile, side)``: the string leaves ``tile`` through side ``side``
+        into a lift gap; a bore from that side up through the top face lets it out.
+    magnet_pairs : (M, 4) int, ``(tile_a, side_a, tile_b, side_b)`` touching across a split.
+    trims : tile -> convex polyhedra (vertex arrays, flat pose) to subtract (top hinges only).
+    """
+
+    route_steps: NDArray[np.int64]
+    lift_tiles: NDArray[np.int64]
+    magnet_pairs: NDArray[np.int64]
+    trims: dict[int, list[NDArray[np.float64]]]
+
+
+def route_steps(route: Route) -> NDArray[np.int64]:
+    """(S, 4) int rows ``(gap, tile, enter_side, leave_side)`` of a route."""
+    return np.stack([route.gaps, route.tiles, route.enter_side, route.leave_side], axis=1).astype(
+        np.int64
+    )
+
+
+def lift_exits(route: Route, lift_gaps: NDArray[np.int64]) -> NDArray[np.int64]:
+    """(L, 2) ``(tile, side)`` for the string to leave and re-enter through the top faces.
+
+    At a lift gap the route arrives from the previous step's tile (through its leaving side) and
+    departs into this step's tile (through its entering side); both tiles get a bore from that
+    side up through the top face, so the pulled loop runs out of one and back into the other.
+    """
+    rows: list[tuple[int, int]] = []
+    count = len(route.gaps)
+    for gap in np.asarray(lift_gaps, dtype=np.int64).tolist():
+        hits = np.flatnonzero(route.gaps == gap)
+        for k in hits.tolist():
+            before = (k - 1) % count
+            rows.append((int(route.tiles[before]), int(route.leave_side[before])))
+            rows.append((int(route.tiles[k]), int(route.enter_side[k])))
+    return np.array(sorted(set(rows)), dtype=np.int64).reshape(-1, 2)
+
+
+def split_contacts(linkage: Linkage) -> NDArray[np.int64]:
+    """(M, 4) ``(tile_a, side_a, tile_b, side_b)``: neighbours across every split line."""
+    tile_at = {(int(i), int(j)): t for t, (i, j) in enumerate(linkage.tile_cells)}
+    rows: list[tuple[int, int, int, int]] = []
+    for split in linkage.splits:
+        for k in range(split.lo, split.hi):
+            if split.axis == "x":
+                a = tile_at.get((split.line - 1, k))
+                b = tile_at.get((split.line, k))
+                sides = (SIDE_RIGHT, SIDE_LEFT)
+            else:
+                a = tile_at.get((k, split.line - 1))
+                b = tile_at.get((k, split.line))
+                sides = (SIDE_TOP, SIDE_BOTTOM)
+            if a is not None and b is not None:
+                rows.append((a, sides[0], b, sides[1]))
+    return np.array(sorted(set(rows)), dtype=np.int64).reshape(-1, 4)
+
+
+def cad_inputs(result: Design) -> CadInputs:
+    """Collect the CAD layer's inputs from a finished geometry design."""
+    trims: dict[int, list[NDArray[np.float64]]] = {}
+    for trim in result.hinge_layout.trims:
+        trims.setdefault(int(trim.tile), []).append(np.asarray(trim.vertices, dtype=np.float64))
+    return CadInputs(
+        route_steps=route_steps(result.route),
+        lift_tiles=lift_exits(result.route, result.lift.lift_gaps),
+        magnet_pairs=split_contacts(result.tiling.linkage),
+        trims=trims,
+    )
+
+
+def print_tiles(result: Design) -> NDArray[np.float64]:
+    """(T, 8, 3) flat tiles to fabricate: each assembled tile T3D moved rigidly onto its place
+    in the flat layout (best fit).  Printed tiles must be congruent to the assembled ones; the
+    layout's residual hinge mismatch (``hinge_gap_max_mm``) is left to the hinge parts."""
+    from drawstring.cad.tiles import rigid_transforms
+
+    transforms, _ = rigid_transforms(result.tiles_assembled, result.tiles_flat)
+    rotation, translation = transforms[:, :3, :3], transforms[:, :3, 3]
+    moved = np.einsum("tij,tkj->tki", rotation, result.tiles_assembled) + translation[:, None]
+    return np.asarray(moved)
+
+
+def build_cad(result: Design) -> tuple[CadResult, CadResult]:
+    """Solids of every tile and hinge part, in the flat (print) and the assembled pose."""
+    from drawstring.cad.design import build_design_solids
+
+    inputs = cad_inputs(result)
+    flat_tiles = print_tiles(result)
+    built = []
+    for pose in ("flat", "assembled"):
+        built.append(
+            build_design_solids(
+                flat_tiles,
+                result.tiles_assembled,
+                result.tiling.linkage.hinges,
+                result.hinge_layout.sides,
+                inputs.route_steps,
+                inputs.lift_tiles,
+                inputs.magnet_pairs,
+                inputs.trims,
+                result.profile,
+                pose=pose,  # type: ignore[arg-type]
+            )
+        )
+    return built[0], built[1]
