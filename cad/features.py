@@ -637,11 +637,29 @@ def _hinge_frame(
 
 def _strip_outline(points: NDArray[np.float64], width: float, normal: NDArray) -> bd.Face:
     """Planar face: the polyline ``points`` thickened to ``width`` with round ends and joints."""
+    points = _merge_short_segments(points, width)
     if len(points) == 2:
         return _stadium(points[0], points[1], width, normal)
     wire = bd.Wire.make_polygon([_vec(p) for p in points], close=False)
     outline = wire.offset_2d(0.5 * width, kind=bd.Kind.ARC, side=bd.Side.BOTH)
     return bd.Face(outline)
+
+
+def _merge_short_segments(points: NDArray[np.float64], width: float) -> NDArray[np.float64]:
+    """Join interior polyline points closer than ``width`` into their midpoint.
+
+    OCCT's 2D offset fails on a polyline whose middle segment is shorter than the offset (a
+    hinge whose two corners are a fraction of a millimetre apart); at that scale the pad is
+    the same with the two joints merged.
+    """
+    pts = [np.asarray(p, dtype=np.float64) for p in points]
+    k = 1
+    while k < len(pts) - 2:
+        if np.linalg.norm(pts[k + 1] - pts[k]) < width:
+            pts[k : k + 2] = [0.5 * (pts[k] + pts[k + 1])]
+        else:
+            k += 1
+    return np.array(pts)
 
 
 def _stadium(

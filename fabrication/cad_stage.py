@@ -6,8 +6,9 @@ plain arrays.  This module translates one into the other and runs the CAD build 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,7 +38,7 @@ class CadInputs:
     route_steps: NDArray[np.int64]
     lift_tiles: NDArray[np.int64]
     magnet_pairs: NDArray[np.int64]
-    trims: dict[int, list[NDArray[np.float64]]]
+    trims: dict[int, Sequence[NDArray[np.float64]]]
 
 
 def route_steps(route: Route) -> NDArray[np.int64]:
@@ -86,9 +87,10 @@ def split_contacts(linkage: Linkage) -> NDArray[np.int64]:
 
 def cad_inputs(result: Design) -> CadInputs:
     """Collect the CAD layer's inputs from a finished geometry design."""
-    trims: dict[int, list[NDArray[np.float64]]] = {}
+    pieces: dict[int, list[NDArray[np.float64]]] = {}
     for trim in result.hinge_layout.trims:
-        trims.setdefault(int(trim.tile), []).append(np.asarray(trim.vertices, dtype=np.float64))
+        pieces.setdefault(int(trim.tile), []).append(np.asarray(trim.vertices, dtype=np.float64))
+    trims: dict[int, Sequence[NDArray[np.float64]]] = dict(pieces)
     return CadInputs(
         route_steps=route_steps(result.route),
         lift_tiles=lift_exits(result.route, result.lift.lift_gaps),
@@ -112,23 +114,77 @@ def print_tiles(result: Design) -> NDArray[np.float64]:
 def build_cad(result: Design) -> tuple[CadResult, CadResult]:
     """Solids of every tile and hinge part, in the flat (print) and the assembled pose."""
     from drawstring.cad.design import build_design_solids
+    from drawstring.cad.tiles import move_solid
+
+    inputs = cad_inputs(result)
+    flat = build_design_solids(
+        print_tiles(result),
+        result.tiles_assembled,
+        result.tiling.linkage.hinges,
+        result.hinge_layout.sides,
+        inputs.route_steps,
+        inputs.lift_tiles,
+        inputs.magnet_pairs,
+        inputs.trims,
+        result.profile,
+        pose="flat",
+    )
+    # The assembled pose is the same solids moved rigidly (hinge parts bend, so they stay out).
+    moved = tuple(
+        move_solid(solid, motion) for solid, motion in zip(flat.tiles, flat.transforms, strict=True)
+    )
+    assembled = replace(
+        flat, pose="assembled", tiles=moved, pads=(), pad_hinge=np.zeros(0, dtype=np.int64)
+    )
+    return flat, assembled
+
+
+def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
+    """Checks measured on the solids (issue 7 section 3), for design.json ``metrics.cad``.
+
+    Validity (BRepCheck, closed, positive volume) of every tile and hinge part; interference
+    volumes between tiles and between tiles and hinge parts in the flat print pose (manifold3d);
+    channel continuity (distance between each channel exit and the next tile's entry in the
+    assembled pose); magnet pockets paired (distance apart and facing) in the assembled pose.
+    """
+    from drawstring.cad.checks import (
+        channel_continuity,
+        check_valid,
+        interference,
+        pockets_paired,
+    )
 
     inputs = cad_inputs(result)
     flat_tiles = print_tiles(result)
-    built = []
-    for pose in ("flat", "assembled"):
-        built.append(
-            build_design_solids(
-                flat_tiles,
-                result.tiles_assembled,
-                result.tiling.linkage.hinges,
-                result.hinge_layout.sides,
-                inputs.route_steps,
-                inputs.lift_tiles,
-                inputs.magnet_pairs,
-                inputs.trims,
-                result.profile,
-                pose=pose,  # type: ignore[arg-type]
-            )
-        )
-    return built[0], built[1]
+    valid_tiles = check_valid(cad_flat.tiles)
+    valid_pads = check_valid(cad_flat.pads)
+    tiles_vs_tiles = interference(cad_flat.tiles)
+    tiles_vs_pads = interference(cad_flat.tiles, cad_flat.pads) if cad_flat.pads else None
+    channels = channel_continuity(
+        cad_flat.tiles, flat_tiles, cad_flat.transforms, inputs.route_steps, result.profile
+    )
+    pockets, facing = pockets_paired(
+        cad_flat.tiles, flat_tiles, cad_flat.transforms, cad_flat.magnets
+    )
+    return {
+        "solids_valid": bool(valid_tiles.all() and valid_pads.all()),
+        "tiles": len(cad_flat.tiles),
+        "hinge_parts": len(cad_flat.pads),
+        "interference_tiles_max_mm3": round(tiles_vs_tiles.max_volume, 6),
+        "interference_tiles_pads_max_mm3": round(
+            tiles_vs_pads.max_volume if tiles_vs_pads is not None else 0.0, 6
+        ),
+        "channel_opening_distance_max_mm": round(_max(channels.distances), 6),
+        "channel_openings_missing": int(np.count_nonzero(~np.isfinite(channels.distances))),
+        "magnet_pairs": len(cad_flat.magnets),
+        "magnet_pocket_distance_max_mm": round(_max(pockets.distances), 6),
+        "magnet_pockets_missing": int(np.count_nonzero(~np.isfinite(pockets.distances))),
+        "magnet_pockets_facing": bool(np.all(facing < -0.999)) if len(facing) else True,
+        "notes": list(cad_flat.notes),
+    }
+
+
+def _max(values: NDArray[np.float64]) -> float:
+    finite = np.asarray(values, dtype=np.float64)
+    finite = finite[np.isfinite(finite)]
+    return float(finite.max()) if finite.size else 0.0

@@ -123,10 +123,48 @@ def write_stage_pictures(result: Design, folder: Path) -> list[str]:
     return ["assembled.png", "flat.png", "lift.png"]
 
 
+def write_hinges(result: Design, folder: Path) -> list[str]:
+    """``hinges.json``: every hinge's tiles, corners, side (top/bottom), OBJ vertex ids in
+    ``flat.obj`` and position; the trimmed overlaps for the ``top`` strategy."""
+    from drawstring.geometry.hinges import hinge_vertex_json
+
+    document = hinge_vertex_json(result.hinge_layout, result.tiling.linkage)
+    text = json.dumps(_rounded(document), indent=1, allow_nan=False)
+    (folder / "hinges.json").write_text(text + "\n", encoding="utf-8")
+    return ["hinges.json"]
+
+
+def write_fabrication_files(result: Design, folder: Path) -> list[str]:
+    """The profile's fabrication files under ``fabrication/`` (only when CAD ran)."""
+    if result.cad_flat is None:
+        return []
+    from .cad_stage import cad_inputs, print_tiles
+    from .exports import write_fabrication
+
+    inputs = cad_inputs(result)
+    return write_fabrication(
+        folder,
+        profile=result.profile,
+        linkage=result.tiling.linkage,
+        tiles_flat=print_tiles(result),
+        tiles_assembled=result.tiles_assembled,
+        hinge_side=result.hinge_layout.sides,
+        route_steps=inputs.route_steps,
+        lift_tiles=inputs.lift_tiles,
+        magnet_pairs=inputs.magnet_pairs,
+        trims=inputs.trims,
+        cad_flat=result.cad_flat,
+        cad_assembled=result.cad_assembled,
+        design_name=result.target.name,
+    )
+
+
 DEFAULT_WRITERS: tuple[Writer, ...] = (
     write_lifted_mesh,
     write_tiles,
     write_route,
     write_pictures,
     write_stage_pictures,
+    write_hinges,
+    write_fabrication_files,
 )

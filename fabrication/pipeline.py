@@ -51,6 +51,9 @@ from drawstring.geometry.tolerances import (
 
 from .profiles import Profile, load_profile
 
+#: Largest distance (mm) between a channel's exit and the next tile's entry, assembled pose.
+CHANNEL_MATCH_TOL_MM = 0.05
+
 log = logging.getLogger(__name__)
 
 #: Stages in order; ``timings_s`` uses these keys.
@@ -145,6 +148,8 @@ class Design:
     lift: LiftPoints
     route: Route
     measured: dict[str, Any] = field(default_factory=dict)
+    cad_flat: Any = None
+    cad_assembled: Any = None
     timings_s: dict[str, float] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
     problems: tuple[str, ...] = ()
@@ -354,9 +359,7 @@ def design(
     )
     notes.extend(f"flat stage: {p}" for p in flat.problems)
     notes.extend(f"hinge stage: {p}" for p in hinge_layout.problems)
-    if resolved.cad:
-        notes.append("CAD and fabrication exports are not built yet in this version; use --no-cad")
-    return Design(
+    result = Design(
         options=resolved,
         profile=profile,
         target=loaded,
@@ -372,6 +375,42 @@ def design(
         notes=tuple(notes),
         problems=tuple(problems),
         warnings=tuple(warnings),
+    )
+    if resolved.cad:
+        result = with_cad(result, progress)
+    return result
+
+
+def with_cad(result: Design, progress: Progress) -> Design:
+    """Build the solids (flat and assembled pose) and measure them; the export stage writes
+    them out in :func:`write_design`."""
+    from .cad_stage import build_cad, measure_cad
+
+    with progress.stage("cad"):
+        cad_flat, cad_assembled = build_cad(result)
+        measured = measure_cad(result, cad_flat)
+    problems = list(result.problems)
+    if not measured["solids_valid"]:
+        problems.append("some tile or hinge solids are not valid B-rep solids")
+    overlap = measured["interference_tiles_max_mm3"]
+    if overlap > FLAT_INTERPENETRATION_TOL_MM3:
+        problems.append(f"tile solids interfere in the print pose ({overlap} mm^3)")
+    apart = measured["channel_opening_distance_max_mm"]
+    missing = measured["channel_openings_missing"]
+    if missing or apart > CHANNEL_MATCH_TOL_MM:
+        problems.append(
+            "string channels do not line up between consecutive tiles in the assembled pose "
+            f"({apart} mm apart, {missing} openings missing)"
+        )
+    notes = [*result.notes, *(f"cad: {n}" for n in cad_flat.notes)]
+    return replace(
+        result,
+        cad_flat=cad_flat,
+        cad_assembled=cad_assembled,
+        measured={**result.measured, "cad": measured},
+        problems=tuple(problems),
+        notes=tuple(notes),
+        timings_s=dict(progress.timings),
     )
 
 
