@@ -11,6 +11,7 @@ import time
 from typing import Any
 
 import numpy as np
+
 from drawstring.geometry.flat import extrude_flat, optimize_flat
 from drawstring.geometry.hinges import layout_hinges
 from drawstring.geometry.linkage import build_linkage

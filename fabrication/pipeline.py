@@ -453,9 +453,11 @@ def measure_design(
     tiles_2d = hinge_layout.tiles
     top_2d = tiles_2d[:, :4, :2]
     overlap_area, _, _ = verify.flat_overlap(top_2d)
-    volume, _, _ = verify.interpenetration(tiles_2d)
+    trims = [(trim.tile, trim.vertices) for trim in hinge_layout.trims]
+    volume, _, _ = verify.interpenetration(tiles_2d, trims=trims)
     edge_error = float(verify.flat_edge_errors(top_2d, assembled.tiles[:, :4]).max(initial=0.0))
-    angles = verify.gap_opening_angles_deg(linkage, top_2d)
+    # Each slit end measured on the face that carries its hinge (top or bottom).
+    angles = verify.gap_opening_angles_deg(linkage, tiles_2d, hinge_layout.bottom)
     metrics.update(
         {
             "flat_overlap_area_mm2": _round(overlap_area, 9),

@@ -1013,11 +1013,16 @@ def render_report(folder: Path) -> str:
     problems_html = "".join(f"<p class='verdict fail'>{_e(p)}</p>" for p in found.problems)
     version = found.design.get("drawstring_version", "")
     version_text = f" · drawstring {version}" if version else ""
+    source = str(found.design.get("target", {}).get("source", "")) or target
+    profile = str(found.design.get("profile", ""))
+    # The page names the target and profile, not the folder: a design is written into a
+    # temporary folder first, and the page must be byte-identical whatever folder it lands in.
+    origin = f"target {source}" + (f" · profile {profile}" if profile else "")
     summary = _verdict(rows) + problems_html + _summary(found, view) + missing_html
     licence = _web_text(THREE_LICENCE_FILE)
     body = f"""
 <header><h1>drawstring design: {_e(target)}</h1>
-<div class=sub>{_e(str(folder.resolve()))}{_e(version_text)}</div></header>
+<div class=sub>{_e(origin)}{_e(version_text)}</div></header>
 <main>
 <div class=top>
 <section id=summary><h2>Summary</h2>{summary}</section>

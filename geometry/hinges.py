@@ -41,19 +41,23 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from drawstring.geometry.constraints import HalfPlane3D, HingeConnection
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
+
+from drawstring.geometry.constraints import signed_angles
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.flat import FlatResult
 from drawstring.geometry.linkage import Linkage
-from drawstring.geometry.solver import EdgeLength, LocalGlobalSolver
-from drawstring.geometry.tolerances import HINGE_GAP_TOL_MM
-from drawstring.geometry.verify import (
-    RIGID_EDGES,
-    TILE_FACES,
-    hinge_gaps,
-    polygon_in_convex_polyhedron_area,
+from drawstring.geometry.tolerances import (
+    HINGE_ANGLE_MARGIN_DEG,
+    HINGE_LAYOUT_CLEARANCE_MM,
+    HINGE_LAYOUT_FEASIBLE_MM,
+    HINGE_LAYOUT_TOUCH_MM,
+    HINGE_TRIM_GROW_MM,
 )
-from numpy.typing import ArrayLike, NDArray
+from drawstring.geometry.verify import TILE_FACES, hinge_gaps, polygon_in_convex_polyhedron_area
 
 logger = logging.getLogger(__name__)
 
@@ -74,7 +78,10 @@ __all__ = [
     "hinge_sides",
     "hinge_vertex_json",
     "layout_hinges",
-    "rigid_hinge_polish",
+    "rigid_layout",
+    "RigidLayoutResult",
+    "SlitEnds",
+    "slit_ends",
     "top_hinge_trims",
     "write_flat_obj",
 ]
@@ -146,7 +153,8 @@ class HingeTrim:
     tile : int
         The tile trimmed (the larger id of the pair).
     vertices : (p, 3) float, mm
-        Vertices of the convex overlap polyhedron (CAD subtracts their hull).
+        Vertices of the convex overlap polyhedron, each moved ``HINGE_TRIM_GROW_MM`` away from
+        their centroid (CAD subtracts their hull; the growth leaves no numerical sliver).
     volume_mm3 : float
     contact_area_lost_mm2 : float
         Area of the trimmed tile's side faces inside the overlap.
@@ -242,188 +250,785 @@ def top_hinge_trims(linkage: Linkage, tiles_2d: ArrayLike) -> tuple[HingeTrim, .
             polygon_in_convex_polyhedron_area(tiles[trimmed][face], p0[keep], normals)
             for face in TILE_FACES[2:]
         )
-        trims.append(HingeTrim(index, trimmed, verts, volume, float(lost)))
+        # Record the trim grown by a hair so that subtracting it leaves no numerical sliver.
+        away = verts - verts.mean(axis=0)
+        away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-300)
+        grown = verts + HINGE_TRIM_GROW_MM * away
+        trims.append(HingeTrim(index, trimmed, grown, volume, float(lost)))
     return tuple(trims)
 
 
-def _separating_normals(linkage: Linkage, flat: FlatResult, tiles: FloatArray) -> FloatArray:
-    """Horizontal unit normal ``(H, 3)`` of a plane through each hinge separating its tiles.
+# ---------------------------------------------------------------------------------------------
+# Rigid planar hinge layout
+# ---------------------------------------------------------------------------------------------
 
-    The plane runs along the bisector of the gap whose slit ends at the hinge (the two tiles'
-    corner wedges lie on either side of it); without such a gap, across the centre line.
+
+def _perp(v: FloatArray) -> FloatArray:
+    """Vectors ``(k, 2)`` turned by +90 degrees."""
+    return np.stack([-v[..., 1], v[..., 0]], axis=-1)
+
+
+def _rotate2(v: FloatArray, angle: FloatArray) -> FloatArray:
+    """Rotate vectors ``(..., 2)`` counter-clockwise by ``angle`` (broadcast)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], axis=-1)
+
+
+@dataclass(frozen=True)
+class SlitEnds:
+    """Slit ends of all gaps: the hinged corner pairs whose opening angle is bounded.
+
+    The opening angle at slit end ``j`` measured on face ``f`` (0 top, 4 bottom) is the
+    counter-clockwise angle from ``x[t1, f + s1] - x[t1, f + s1 + 1]`` to
+    ``x[t0, f + s0 + 1] - x[t0, f + s0]`` (as in :func:`~drawstring.geometry.verify.
+    gap_opening_angles_deg`); rigid tiles turned by ``phi`` change it by ``phi[t0] - phi[t1]``.
+
+    Attributes
+    ----------
+    tiles : (E, 2) int
+        ``(t0, t1)``.
+    sides : (E, 2) int
+        ``(s0, s1)``.
+    hinge : (E,) int
+        Index into ``linkage.hinges`` of the hinge at the slit end.
     """
+
+    tiles: IntArray
+    sides: IntArray
+    hinge: IntArray
+
+    def angles(self, tiles: FloatArray, face: IntArray | int) -> FloatArray:
+        """Opening angles ``(E,)`` in rad of tiles ``(T, 8, 2+)`` on ``face`` (0 or 4, per end)."""
+        f = np.broadcast_to(np.asarray(face, dtype=np.int64), (len(self.hinge),))
+        t0, t1 = self.tiles[:, 0], self.tiles[:, 1]
+        s0, s1 = self.sides[:, 0], self.sides[:, 1]
+        u = tiles[t1, f + s1, :2] - tiles[t1, f + (s1 + 1) % 4, :2]
+        v = tiles[t0, f + (s0 + 1) % 4, :2] - tiles[t0, f + s0, :2]
+        return signed_angles(u, v)
+
+
+def slit_ends(linkage: Linkage) -> SlitEnds:
+    """All slit ends of ``linkage`` (same order as ``verify.gap_opening_angles_deg``)."""
+    cn = linkage.corner_node
+    hinge_at = -np.ones((linkage.n_tiles, 4), dtype=np.int64)
     h = linkage.hinges
-    node = linkage.corner_node[h[:, 0], h[:, 1]]
-    centre_dir = tiles[h[:, 2], :4, :2].mean(axis=1) - tiles[h[:, 0], :4, :2].mean(axis=1)
-    normal = centre_dir.copy()
-    ends = flat.junctions.ends
-    apex_to_end = {int(a): i for i, a in enumerate(ends[:, 0])}
-    nodes = flat.nodes
-    for k, nd in enumerate(node):
-        i = apex_to_end.get(int(nd))
-        if i is None:
-            continue
-        apex, q, p = ends[i]
-        u = nodes[q] - nodes[apex]
-        v = nodes[p] - nodes[apex]
-        bis = u / np.linalg.norm(u) + v / np.linalg.norm(v)
-        if np.linalg.norm(bis) < 1e-12:
-            continue
-        n = np.array([-bis[1], bis[0]])
-        normal[k] = n if n @ centre_dir[k] >= 0 else -n
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-    return np.concatenate([normal, np.zeros((len(normal), 1))], axis=1)
+    hinge_at[h[:, 0], h[:, 1]] = np.arange(linkage.n_hinges)
+    hinge_at[h[:, 2], h[:, 3]] = np.arange(linkage.n_hinges)
+    rows: list[tuple[int, int, int, int, int]] = []
+    for g in range(linkage.n_gaps):
+        sides = linkage.gap_sides[g]
+        sides = sides[sides[:, 0] >= 0]
+        m = len(sides)
+        for k in range(m):
+            t0, s0 = (int(v) for v in sides[k])
+            t1, s1 = (int(v) for v in sides[(k + 1) % m])
+            if cn[t0, s0] != cn[t1, (s1 + 1) % 4]:
+                continue
+            if linkage.tile_corners[t0, s0] == linkage.gap_vertex[g]:
+                continue
+            rows.append((t0, t1, s0, s1, int(hinge_at[t0, s0])))
+    arr = np.array(rows, dtype=np.int64).reshape(-1, 5)
+    return SlitEnds(tiles=arr[:, :2], sides=arr[:, 2:4], hinge=arr[:, 4])
 
 
-def _skew_neg(r: FloatArray) -> FloatArray:
-    """``-[r]_x`` for many vectors ``(k, 3) -> (k, 3, 3)``: ``-[r]_x w = w x r``."""
-    z = np.zeros(len(r))
-    return np.stack(
-        [
-            np.stack([z, r[:, 2], -r[:, 1]], -1),
-            np.stack([-r[:, 2], z, r[:, 0]], -1),
-            np.stack([r[:, 1], -r[:, 0], z], -1),
-        ],
-        -2,
-    )
+@dataclass(frozen=True)
+class _Planes:
+    """Separating planes of close tile pairs; each plane is attached rigidly to its tile ``a``.
+
+    In world coordinates the plane of pair ``p`` is ``w . (x_xy - o_a) + nz * x_z = offset``
+    with ``w = R(phi_a) normal[p, :2]``, ``nz = normal[p, 2]`` and ``o_a`` tile ``a``'s
+    origin.  Vertex ``v`` of ``b`` must satisfy ``value - offset >= delta_b[p, v]`` and vertex
+    ``u`` of ``a`` ``offset - value >= delta_a[p, u]`` (``inf``: not constrained).
+    """
+
+    a: IntArray
+    b: IntArray
+    hinge: IntArray
+    normal: FloatArray
+    offset: FloatArray
+    delta_a: FloatArray
+    delta_b: FloatArray
+    score: FloatArray
 
 
-def _rotation_from_vectors(w: FloatArray) -> FloatArray:
-    """Rodrigues: rotation matrices ``(k, 3, 3)`` of rotation vectors ``(k, 3)``."""
-    theta = np.linalg.norm(w, axis=1)
-    axis = w / np.maximum(theta, 1e-300)[:, None]
-    k = -_skew_neg(axis)  # [axis]_x
-    s, c = np.sin(theta)[:, None, None], np.cos(theta)[:, None, None]
-    eye = np.eye(3)[None]
-    return np.asarray(eye + s * k + (1 - c) * np.einsum("kij,kjl->kil", k, k))
+def _candidate_normals(az_step_deg: float, tilts: FloatArray) -> FloatArray:
+    """Unit normals ``(K, 3)``: every azimuth step combined with every vertical component."""
+    az = np.radians(np.arange(0.0, 360.0, az_step_deg))
+    s = np.asarray(tilts, dtype=np.float64)
+    c = np.sqrt(1.0 - s * s)
+    azg, sg = np.meshgrid(az, s, indexing="ij")
+    cg = np.meshgrid(az, c, indexing="ij")[1]
+    return np.stack([cg * np.cos(azg), cg * np.sin(azg), sg], axis=-1).reshape(-1, 3)
 
 
-def rigid_hinge_polish(
-    tiles_flat: FloatArray,
-    tiles_now: FloatArray,
-    pairs: IntArray,
+def _plane_scores(
+    rel_a: FloatArray,
+    rel_b: FloatArray,
+    normals: FloatArray,
+    anchor: IntArray,
+    delta_a: FloatArray,
+    delta_b: FloatArray,
+    clearance: float,
+) -> tuple[FloatArray, FloatArray]:
+    """Score and offset ``(P, K)`` of candidate planes (per-pair candidates ``(P, K, 3)``).
+
+    ``anchor[p] >= 0``: the plane passes through that vertex of ``a`` (hinged pair); otherwise
+    it lies ``clearance`` beyond ``a``'s farthest vertex.  The score is the smallest margin
+    beyond the required ones; a violation on ``a``'s side (which the layout cannot repair, the
+    plane moving with ``a``) counts ten times.
+    """
+    sa = np.einsum("pvi,pki->pvk", rel_a, normals)
+    sb = np.einsum("pvi,pki->pvk", rel_b, normals)
+    ka = np.isfinite(delta_a)
+    kb = np.isfinite(delta_b)
+    far = np.max(np.where(ka[:, :, None], sa, -np.inf), axis=1) + clearance
+    hinged = anchor >= 0
+    p = np.arange(len(anchor))
+    through = sa[p, np.maximum(anchor, 0)]
+    offset = np.where(hinged[:, None], through, far)
+    da = np.where(ka, delta_a, 0.0)[:, :, None]
+    db = np.where(kb, delta_b, 0.0)[:, :, None]
+    margin_a = np.where(ka[:, :, None], offset[:, None] - sa - da, np.inf).min(axis=1)
+    margin_b = np.where(kb[:, :, None], sb - offset[:, None] - db, np.inf).min(axis=1)
+    margin_a = np.where(margin_a < 0, 10.0 * margin_a, margin_a)
+    return np.minimum(margin_a, margin_b), offset
+
+
+class _RigidLayout:
+    """Rigid, still-flat tiles (3 DOF each: turn about z, translate in x, y).
+
+    Minimizes the squared horizontal distance of paired hinge vertices subject to gap opening
+    angle bounds and separating planes between close tile pairs, by an augmented Lagrangian
+    whose subproblems are solved by Levenberg-Marquardt (sparse normal equations).
+    """
+
+    def __init__(self, shapes: FloatArray) -> None:
+        self.shapes = shapes
+        self.n = len(shapes)
+        self.centre = shapes[:, :, :2].mean(axis=1)
+        self.local = shapes[:, :, :2] - self.centre[:, None]
+        self.z = shapes[:, :, 2]
+        self.phi = np.zeros(self.n)
+        self.trans = np.zeros((self.n, 2))
+
+    def positions(
+        self, phi: FloatArray | None = None, trans: FloatArray | None = None
+    ) -> FloatArray:
+        """World ``(T, 8, 3)`` vertices for a pose (default: the current one)."""
+        phi = self.phi if phi is None else phi
+        trans = self.trans if trans is None else trans
+        xy = _rotate2(self.local, phi[:, None]) + (self.centre + trans)[:, None]
+        return np.concatenate([xy, self.z[..., None]], axis=-1)
+
+    def origin(self, trans: FloatArray | None = None) -> FloatArray:
+        return self.centre + (self.trans if trans is None else trans)
+
+
+def _close_pairs(x: FloatArray, reach: float) -> IntArray:
+    """Tile pairs ``(P, 2)`` whose vertex sets (x, y) may come within ``reach`` of each other."""
+    centres = x[:, :, :2].mean(axis=1)
+    radius = float(np.max(np.linalg.norm(x[:, :, :2] - centres[:, None], axis=2), initial=0.0))
+    tree = cKDTree(centres)
+    return np.asarray(tree.query_pairs(2.0 * radius + reach, output_type="ndarray"), dtype=np.int64)
+
+
+def _select_planes(
+    layout: _RigidLayout,
+    linkage: Linkage,
+    hinge_ids: IntArray,
+    strategy: HingeStrategy,
+    clearance: float,
+    reach: float,
     *,
-    planes: tuple[IntArray, FloatArray] | None = None,
-    w_collision: float = 100.0,
-    steps: int = 20,
-    step_tol: float = 1e-10,
-) -> FloatArray:
-    """Exactly rigid, still flat tiles placed so paired hinge vertices meet.
+    touch: float = HINGE_LAYOUT_TOUCH_MM,
+    x: FloatArray | None = None,
+    pairs: IntArray | None = None,
+) -> _Planes:
+    """Best separating plane of every close pair (sampled, then refined).
 
-    Each tile keeps the shape of ``tiles_flat`` (its T2D pose: top face horizontal) and may only
-    turn about the vertical axis and translate in the plane.  Its pose is first fitted to
-    ``tiles_now`` (2D Procrustes), then Levenberg-Marquardt minimizes
-    ``sum |x_a - x_b|^2`` over hinge pairs plus ``w_collision`` times the squared violation of
-    the separating half-planes.  This is the limit ``w_rigid -> infinity`` of the paper's hinge
-    energy, used as the precise finish of the local-global solve.
+    ``x`` defaults to the current pose's vertices (pass merged vertices to re-check them);
+    ``pairs`` defaults to all pairs within ``reach`` (plus twice the clearance); ``touch`` is
+    the separation required where a hinged pair may touch.  The returned score of each plane
+    is its smallest margin beyond the required ones.
+    """
+    x = layout.positions() if x is None else x
+    if pairs is None:
+        pairs = _close_pairs(x, reach + 2.0 * clearance)
+    h = linkage.hinges
+    key = {(int(a), int(b)): k for k, (a, b) in enumerate(h[:, [0, 2]])}
+    n_p = len(pairs)
+    a = pairs[:, 0].copy()
+    b = pairs[:, 1].copy()
+    hinge = -np.ones(n_p, dtype=np.int64)
+    for p in range(n_p):
+        i, j = int(a[p]), int(b[p])
+        k = key.get((i, j))
+        if k is None:
+            k = key.get((j, i))
+            if k is not None:
+                a[p], b[p] = j, i
+        if k is not None:
+            hinge[p] = k
+    hinged = hinge >= 0
+    hk = np.maximum(hinge, 0)
+    va = hinge_ids[hk, 0] % 8  # a's hinge vertex (tile a is hinges[:, 0])
+    vb = hinge_ids[hk, 1] % 8
+    delta_a = np.full((n_p, 8), clearance)
+    delta_b = np.full((n_p, 8), clearance)
+    rows = np.flatnonzero(hinged)
+    if strategy == "top":
+        delta_a[rows, 4:] = np.inf
+        delta_b[rows, 4:] = np.inf
+    else:
+        # the other face's corner under/over the hinge may touch the plane
+        delta_a[rows, (va[rows] + 4) % 8] = touch
+        delta_b[rows, (vb[rows] + 4) % 8] = touch
+    delta_a[rows, va[rows]] = np.inf  # the plane passes through it
+    delta_b[rows, vb[rows]] = 0.0  # b's hinge vertex meets the plane when merged
+    anchor = np.where(hinged, va, -1)
+    origin = layout.origin()
+    o3 = np.concatenate([origin, np.zeros((layout.n, 1))], axis=1)
+    rel_a = x[a] - o3[a][:, None]
+    rel_b = x[b] - o3[a][:, None]
+    top_only = hinged & (strategy == "top")
+    dual_hinged = hinged & (strategy == "dual")
+    k_all = np.arange(n_p)
+    # For a hinged pair the tight vertices are the corners of the other face at the hinge: for a
+    # horizontal direction e their margins are linear in the plane's vertical slope t, so the
+    # best slope is found exactly (a's margin kept >= 0 since the plane moves with a).
+    d_pa = rel_a[k_all, (va + 4) % 8] - rel_a[k_all, va]
+    d_pb = rel_b[k_all, (vb + 4) % 8] - rel_a[k_all, va]
+
+    def slopes(az: FloatArray) -> FloatArray:
+        e = np.stack([np.cos(az), np.sin(az)], axis=-1)  # (P, K, 2)
+        al1 = -np.einsum("pki,pi->pk", e, d_pa[:, :2])
+        be1 = -d_pa[:, 2][:, None]
+        al2 = np.einsum("pki,pi->pk", e, d_pb[:, :2])
+        be2 = d_pb[:, 2][:, None]
+        den = be2 - be1
+        t = np.where(np.abs(den) > 1e-12, (al1 - al2) / np.where(den == 0, 1.0, den), 0.0)
+        low = al1 + be1 * t < 0
+        t = np.where(low & (np.abs(be1) > 1e-12), -al1 / np.where(be1 == 0, 1.0, be1), t)
+        return np.asarray(np.clip(t, -0.8, 0.8))
+
+    def candidates(az: FloatArray, tilt: FloatArray) -> FloatArray:
+        """Unit normals ``(P, K * S, 3)`` from azimuths ``(P, K)`` and slopes ``(P, K, S)``."""
+        az3 = np.broadcast_to(az[:, :, None], tilt.shape)
+        norm = np.sqrt(1.0 + tilt * tilt)
+        n = np.stack([np.cos(az3) / norm, np.sin(az3) / norm, tilt / norm], axis=-1)
+        return n.reshape(n_p, -1, 3)
+
+    def tilts(az: FloatArray, spread: FloatArray, base: FloatArray) -> FloatArray:
+        t = base[:, None, None] + spread[None, None, :]
+        t = np.broadcast_to(t, (n_p, az.shape[1], len(spread))).copy()
+        exact = slopes(az)[:, :, None] + spread[None, None, :] * 0.1
+        t = np.where(dual_hinged[:, None, None], exact, t)
+        return np.where(top_only[:, None, None], 0.0, t)
+
+    az = np.broadcast_to(np.radians(np.arange(0.0, 360.0, 3.0)), (n_p, 120))
+    spread = np.array([0.0, 0.15, -0.15, 0.35, -0.35])
+    cand = candidates(az, tilts(az, spread, np.zeros(n_p)))
+    best = np.zeros((n_p, 3))
+    chunk = 256
+    for s in range(0, n_p, chunk):
+        sl = slice(s, s + chunk)
+        score, _ = _plane_scores(
+            rel_a[sl], rel_b[sl], cand[sl], anchor[sl], delta_a[sl], delta_b[sl], clearance
+        )
+        best[sl] = cand[sl][np.arange(len(score)), np.argmax(score, axis=1)]
+    # Refine: azimuth +-3 deg by 0.25 deg, slope +-0.05.
+    az = np.arctan2(best[:, 1], best[:, 0])[:, None] + np.radians(np.arange(-3.0, 3.01, 0.25))
+    base = best[:, 2] / np.sqrt(np.maximum(1.0 - best[:, 2] ** 2, 1e-12))
+    cand = candidates(az, tilts(az, np.array([0.0, 0.025, -0.025, 0.05, -0.05]), base))
+    score, offset = _plane_scores(rel_a, rel_b, cand, anchor, delta_a, delta_b, clearance)
+    pick = np.argmax(score, axis=1)
+    normal = cand[k_all, pick]
+    body = np.concatenate([_rotate2(normal[:, :2], -layout.phi[a]), normal[:, 2:]], axis=1)
+    return _Planes(a, b, hinge, body, offset[k_all, pick], delta_a, delta_b, score[k_all, pick])
+
+
+def _plane_values(
+    layout: _RigidLayout, planes: _Planes, x: FloatArray, phi: FloatArray, trans: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Signed distances ``(P, 8)`` of ``b``'s and ``a``'s vertices beyond their required margins,
+    and the world plane normals ``(P, 2)`` (x, y part)."""
+    origin = layout.centre + trans
+    w = _rotate2(planes.normal[:, :2], phi[planes.a])
+    nz = planes.normal[:, 2]
+
+    def value(t: IntArray) -> FloatArray:
+        d = x[t, :, :2] - origin[planes.a][:, None]
+        return np.asarray(
+            np.einsum("pvi,pi->pv", d, w) + nz[:, None] * x[t, :, 2] - planes.offset[:, None]
+        )
+
+    gb = value(planes.b) - np.where(np.isfinite(planes.delta_b), planes.delta_b, -np.inf)
+    ga = -value(planes.a) - np.where(np.isfinite(planes.delta_a), planes.delta_a, -np.inf)
+    return gb, ga, w
+
+
+@dataclass
+class _Constraints:
+    """Current inequality set ``g(pose) >= 0`` of the layout (planes and angle bounds)."""
+
+    planes: _Planes
+    ends: SlitEnds
+    faces: IntArray  # (F,) faces whose angles are bounded (0 top, 4 bottom)
+    angle0: FloatArray  # (F, E) rad at zero pose
+    lo: FloatArray  # (F, E) rad
+    hi: FloatArray  # (F, E) rad
+    scale: float  # mm per rad (mean tile side)
+
+
+def _constraint_values(
+    layout: _RigidLayout,
+    con: _Constraints,
+    phi: FloatArray,
+    trans: FloatArray,
+    rows: IntArray | None = None,
+) -> tuple[FloatArray, sp.csr_matrix | None]:
+    """All inequality values ``(m,)`` (mm) at a pose, and the Jacobian ``(len(rows), 3T)`` of
+    the selected ones (plane rows first, then lower and upper angle bounds per face)."""
+    x = layout.positions(phi, trans)
+    planes = con.planes
+    gb, _, w = _plane_values(layout, planes, x, phi, trans)
+    mask = np.isfinite(gb)
+    g_planes = gb[mask]
+    t0, t1 = con.ends.tiles[:, 0], con.ends.tiles[:, 1]
+    ang = con.angle0 + (phi[t0] - phi[t1])[None, :]
+    g_lo = ((ang - con.lo) * con.scale).ravel()
+    g_hi = ((con.hi - ang) * con.scale).ravel()
+    g = np.concatenate([g_planes, g_lo, g_hi])
+    if rows is None:
+        return g, None
+    m_p = len(g_planes)
+    pr = rows[rows < m_p]
+    ar = rows[rows >= m_p] - m_p
+    p_idx, v_idx = np.nonzero(mask)
+    p_idx, v_idx = p_idx[pr], v_idx[pr]
+    a, b = planes.a[p_idx], planes.b[p_idx]
+    wp = w[p_idx]
+    origin = layout.centre + trans
+    xb = x[b, v_idx, :2]
+    cols = np.stack([3 * b, 3 * b + 1, 3 * b + 2, 3 * a, 3 * a + 1, 3 * a + 2], axis=1)
+    vals = np.stack(
+        [
+            np.einsum("ki,ki->k", wp, _perp(xb - origin[b])),
+            wp[:, 0],
+            wp[:, 1],
+            np.einsum("ki,ki->k", _perp(wp), xb - origin[a]),
+            -wp[:, 0],
+            -wp[:, 1],
+        ],
+        axis=1,
+    )
+    # Angle bounds, linear in phi: angle = angle0 + phi[t0] - phi[t1].
+    end = ar % len(t0)
+    sign = np.where(ar < g_lo.size, 1.0, -1.0) * con.scale
+    cols_a = np.stack([3 * t0[end], 3 * t1[end]], axis=1)
+    vals_a = np.stack([sign, -sign], axis=1)
+    n_pr = len(pr)
+    row_ids = np.concatenate(
+        [np.repeat(np.arange(n_pr), 6), n_pr + np.repeat(np.arange(len(ar)), 2)]
+    )
+    jac = sp.csr_matrix(
+        (
+            np.concatenate([vals.ravel(), vals_a.ravel()]),
+            (row_ids, np.concatenate([cols.ravel(), cols_a.ravel()])),
+        ),
+        shape=(len(rows), 3 * layout.n),
+    )
+    return g, jac
+
+
+def _hinge_residuals(
+    layout: _RigidLayout, ids: IntArray, phi: FloatArray, trans: FloatArray, weight: FloatArray
+) -> tuple[FloatArray, sp.csr_matrix]:
+    """Horizontal hinge mismatch ``(2H,)`` (mm, weighted) and its Jacobian ``(2H, 3T)``."""
+    x = layout.positions(phi, trans)
+    ta, va = ids[:, 0] // 8, ids[:, 0] % 8
+    tb, vb = ids[:, 1] // 8, ids[:, 1] % 8
+    origin = layout.centre + trans
+    xa, xb = x[ta, va, :2], x[tb, vb, :2]
+    sw = np.sqrt(weight)
+    res = (sw[:, None] * (xa - xb)).ravel()
+    h = len(ids)
+    pa, pb = _perp(xa - origin[ta]), _perp(xb - origin[tb])
+    rows = np.repeat(np.arange(2 * h), 4)
+    cols = np.stack(
+        [
+            np.stack([3 * ta, 3 * ta + 1, 3 * tb, 3 * tb + 1], axis=1),
+            np.stack([3 * ta, 3 * ta + 2, 3 * tb, 3 * tb + 2], axis=1),
+        ],
+        axis=1,
+    ).ravel()
+    one = np.ones(h)
+    vals = (
+        np.stack(
+            [
+                np.stack([pa[:, 0], one, -pb[:, 0], -one], axis=1),
+                np.stack([pa[:, 1], one, -pb[:, 1], -one], axis=1),
+            ],
+            axis=1,
+        )
+        * sw[:, None, None]
+    )
+    jac = sp.csr_matrix((vals.ravel(), (rows, cols)), shape=(2 * h, 3 * layout.n))
+    return res, jac
+
+
+def _augmented_lagrangian(
+    layout: _RigidLayout,
+    con: _Constraints,
+    ids: IntArray,
+    lam: FloatArray,
+    rho: float,
+    inner: int,
+    weight: FloatArray,
+    pin: FloatArray,
+) -> tuple[FloatArray, int]:
+    """Minimize ``|hinge mismatch|^2 + rho * sum max(0, lam / rho - g)^2`` over the pose.
+
+    ``pin`` ``(3T,)`` is 1 on the pose variables held fixed.
+
+    Damped Gauss-Newton (the objective is piecewise quadratic up to the small rotations); the
+    layout's pose is updated in place.  Returns the constraint values at the end and the number
+    of accepted steps.
+    """
+    sr = np.sqrt(rho)
+
+    def evaluate(phi: FloatArray, trans: FloatArray) -> tuple[float, FloatArray, FloatArray]:
+        rh, _ = _hinge_residuals(layout, ids, phi, trans, weight)
+        g, _ = _constraint_values(layout, con, phi, trans)
+        slack = np.maximum(lam / rho - g, 0.0)
+        return float(rh @ rh + rho * (slack @ slack)), rh, g
+
+    def jacobian(phi: FloatArray, trans: FloatArray, g: FloatArray, rh: FloatArray):
+        _, jh = _hinge_residuals(layout, ids, phi, trans, weight)
+        slack = lam / rho - g
+        act = np.flatnonzero(slack > 0)
+        _, jg = _constraint_values(layout, con, phi, trans, act)
+        assert jg is not None
+        res = np.concatenate([rh, sr * slack[act]])
+        return res, sp.vstack([jh, -sr * jg], format="csr")
+
+    cost, rh, g = evaluate(layout.phi, layout.trans)
+    steps = 0
+    for _ in range(inner):
+        res, jac = jacobian(layout.phi, layout.trans, g, rh)
+        jtj = (jac.T @ jac).tocsc()
+        grad = jac.T @ res
+        diag = jtj.diagonal()
+        top = max(float(diag.max(initial=0.0)), 1e-12)
+        # Every component's free rigid motion is fixed by pinning one of its tiles (``pin``);
+        # a tiny Levenberg term keeps the system regular.
+        damp = sp.diags(1e-9 * np.maximum(diag, 1e-6 * top) + pin * 1e6 * top)
+        step = spla.splu(
+            (jtj + damp).tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        ).solve(-grad).reshape(layout.n, 3)  # fmt: skip
+        accepted = False
+        alpha = 1.0
+        for _ls in range(12):
+            phi_new = layout.phi + alpha * step[:, 0]
+            trans_new = layout.trans + alpha * step[:, 1:]
+            cost_new, rh_new, g_new = evaluate(phi_new, trans_new)
+            if cost_new < cost:
+                accepted = True
+                break
+            alpha *= 0.3
+        if not accepted:
+            break
+        improvement = cost - cost_new
+        layout.phi, layout.trans = phi_new, trans_new
+        cost, rh, g = cost_new, rh_new, g_new
+        steps += 1
+        if improvement <= 1e-7 * cost or alpha * float(np.abs(step).max()) < 1e-11:
+            break
+    return g, steps
+
+
+@dataclass(frozen=True)
+class RigidLayoutResult:
+    """Outcome of :func:`rigid_layout`.
+
+    Attributes
+    ----------
+    tiles : (T, 8, 3) float, mm
+        Rigid tiles (congruent to the input shapes) before merging.
+    merged : (T, 8, 3) float, mm
+        Tiles with every merged hinge pair moved to its shared point.
+    points : (H, 3) float, mm
+        Hinge points (shared point, or the midpoint of an unmerged pair).
+    is_merged : (H,) bool
+    gap_mm : (H,) float
+        3D distance of each hinge pair before merging.
+    violation_mm : float
+        Largest remaining violation of a separating plane or angle bound (angle bounds in rad
+        times the mean tile side), rigid tiles.
+    iterations : int
+        Accepted Levenberg-Marquardt steps over all rounds.
+    """
+
+    tiles: FloatArray
+    merged: FloatArray
+    points: FloatArray
+    is_merged: NDArray[np.bool_]
+    gap_mm: FloatArray
+    violation_mm: float
+    iterations: int
+
+
+def _merge_points(
+    layout: _RigidLayout, planes: _Planes, ids: IntArray, x: FloatArray
+) -> FloatArray:
+    """Shared point ``(H, 3)`` of every hinge pair: the midpoint moved horizontally onto the
+    pair's separating plane (so both tiles stay on their own side after merging)."""
+    flat = x.reshape(-1, 3)
+    mid = 0.5 * (flat[ids[:, 0]] + flat[ids[:, 1]])
+    pair_of = -np.ones(len(ids), dtype=np.int64)
+    hinged = np.flatnonzero(planes.hinge >= 0)
+    pair_of[planes.hinge[hinged]] = hinged
+    out = mid.copy()
+    ok = pair_of >= 0
+    p = pair_of[ok]
+    a = planes.a[p]
+    w = _rotate2(planes.normal[p, :2], layout.phi[a])
+    nz = planes.normal[p, 2]
+    origin = layout.origin()[a]
+    value = np.einsum("ki,ki->k", mid[ok, :2] - origin, w) + nz * mid[ok, 2] - planes.offset[p]
+    out[ok, :2] -= (value / np.maximum(np.einsum("ki,ki->k", w, w), 1e-300))[:, None] * w
+    return out
+
+
+def rigid_layout(
+    linkage: Linkage,
+    shapes: ArrayLike,
+    hinge_ids: ArrayLike,
+    *,
+    strategy: HingeStrategy = "dual",
+    min_gap_angle_deg: float = 12.0,
+    clearance_mm: float = HINGE_LAYOUT_CLEARANCE_MM,
+    max_rounds: int = 40,
+    inner_steps: int = 60,
+) -> RigidLayoutResult:
+    """Lay rigid flat tiles out so paired hinge vertices meet as closely as possible.
+
+    Every tile keeps its shape (``shapes``, the T2D pose: top face horizontal) and may only
+    turn about the vertical axis and translate in the plane (3 DOF).  Minimized: the squared
+    horizontal distance of every hinge pair.  Subject to
+
+    * every slit end's opening angle in ``[min_gap_angle_deg, 90]`` on the top faces and, for
+      ``dual``, on the bottom faces (linear in the rotations);
+    * every close pair of tiles separated by a plane attached to one of them (tiles are convex,
+      so this is exact non-interpenetration): with ``clearance_mm`` to spare, except that a
+      hinged pair's plane passes through the hinge, which with the corner of the other face at
+      the hinge may touch it; for ``top`` hinged pairs only the top faces are separated (their
+      3D overlap is trimmed).  Planes are re-chosen (sampled max-margin) in the first rounds.
+
+    The solver is an augmented Lagrangian whose subproblems are solved by Levenberg-Marquardt.
+    Hinge pairs are then merged at their midpoint moved horizontally onto the pair's plane; a
+    merge that would break an angle bound (after raising that bound's margin and re-solving) or
+    a plane is undone, leaving that pair rigid and apart.
 
     Parameters
     ----------
-    tiles_flat : (T, 8, 3) float, mm
-        Rigid shapes in the flat pose (T2D).
-    tiles_now : (T, 8, 3) float, mm
-        Start layout.
-    pairs : (H, 2) int
-        Flat vertex ids ``8 * tile + vertex``.
-    planes : ((k, 2) int, (k, 3) float), optional
-        Half-plane elements ``(vertex, anchor)`` and horizontal unit normals.
+    linkage : Linkage
+    shapes : (T, 8, 3) float, mm
+        T2D tiles (start layout and rigid shapes).
+    hinge_ids : (H, 2) int
+        ``8 * tile + vertex`` of both vertices of every hinge (tile order of ``linkage.hinges``).
+    strategy : "dual" | "top"
+    min_gap_angle_deg : float, deg
+    clearance_mm : float, mm
+    max_rounds, inner_steps : solver limits (augmented Lagrangian rounds, LM steps per round).
 
     Returns
     -------
-    (T, 8, 3) float, mm
+    RigidLayoutResult
     """
-    import scipy.sparse as sp
-    import scipy.sparse.linalg as spla
+    t2 = np.asarray(shapes, dtype=np.float64)
+    ids = np.asarray(hinge_ids, dtype=np.int64).reshape(-1, 2)
+    layout = _RigidLayout(t2)
+    ends = slit_ends(linkage)
+    faces = np.array([0, 4] if strategy == "dual" else [0], dtype=np.int64)
+    angle0 = np.stack([ends.angles(t2, int(f)) for f in faces])
+    lo_deg = np.full(angle0.shape, float(min_gap_angle_deg) + HINGE_ANGLE_MARGIN_DEG)
+    hi_deg = np.full(angle0.shape, 90.0 - HINGE_ANGLE_MARGIN_DEG)
+    side = np.linalg.norm(t2[:, [1, 2, 3, 0], :2] - t2[:, :4, :2], axis=2)
+    scale = float(side.mean()) if side.size else 1.0
+    weight = np.ones(len(ids))
+    reach = 0.5 * scale
+    pin = np.zeros(3 * layout.n)
+    comp = linkage.tile_component
+    first = np.unique(comp, return_index=True)[1]
+    pin[(3 * first[:, None] + np.arange(3)).ravel()] = 1.0
+    total_steps = 0
 
-    n_t = len(tiles_flat)
-    centre = tiles_flat[:, :, :2].mean(axis=1)
-    local = tiles_flat[:, :, :2] - centre[:, None]
-    target = tiles_now[:, :, :2] - tiles_now[:, :, :2].mean(axis=1, keepdims=True)
-    cross = np.sum(local[..., 0] * target[..., 1] - local[..., 1] * target[..., 0], axis=1)
-    phi = np.arctan2(cross, np.sum(local * target, axis=(1, 2)))
-    trans = tiles_now[:, :, :2].mean(axis=1)
-    z = tiles_flat[:, :, 2]
-
-    def positions(phi: FloatArray, trans: FloatArray) -> FloatArray:
-        c, s = np.cos(phi)[:, None], np.sin(phi)[:, None]
-        x = c * local[..., 0] - s * local[..., 1] + trans[:, :1]
-        y = s * local[..., 0] + c * local[..., 1] + trans[:, 1:]
-        return np.stack([x, y], axis=-1)
-
-    def point_jac(x: FloatArray, ids: IntArray, trans: FloatArray) -> FloatArray:
-        """d(xy of vertex ids) / d(phi, tx, ty): (k, 2, 3)."""
-        t = ids // 8
-        r = x[t, ids % 8] - trans[t]
-        k = len(ids)
-        out = np.zeros((k, 2, 3))
-        out[:, 0, 0], out[:, 1, 0] = -r[:, 1], r[:, 0]
-        out[:, 0, 1] = out[:, 1, 2] = 1.0
-        return out
-
-    def residual_jac(phi: FloatArray, trans: FloatArray) -> tuple[FloatArray, sp.csr_matrix]:
-        x = positions(phi, trans)
-        flat = x.reshape(-1, 2)
-        res_parts = [(flat[pairs[:, 0]] - flat[pairs[:, 1]]).reshape(-1)]
-        h = len(pairs)
-        ja, jb = point_jac(x, pairs[:, 0], trans), point_jac(x, pairs[:, 1], trans)
-        rows = np.repeat(np.arange(2 * h).reshape(h, 2, 1), 3, axis=2)
-        ca = np.broadcast_to(3 * (pairs[:, 0] // 8)[:, None, None] + np.arange(3), (h, 2, 3))
-        cb = np.broadcast_to(3 * (pairs[:, 1] // 8)[:, None, None] + np.arange(3), (h, 2, 3))
-        vals = [ja.ravel(), -jb.ravel()]
-        rr = [rows.ravel(), rows.ravel()]
-        cc = [ca.ravel(), cb.ravel()]
-        n_rows = 2 * h
-        if planes is not None and w_collision > 0 and len(planes[0]):
-            el, nrm = planes
-            nrm2 = nrm[:, :2]
-            side = np.einsum("ki,ki->k", flat[el[:, 0]] - flat[el[:, 1]], nrm2)
-            act = np.flatnonzero(side < 0)
-            if act.size:
-                sw = np.sqrt(w_collision)
-                res_parts.append(sw * side[act])
-                jv = np.einsum("kij,ki->kj", point_jac(x, el[act, 0], trans), nrm2[act])
-                jn = np.einsum("kij,ki->kj", point_jac(x, el[act, 1], trans), nrm2[act])
-                r_act = n_rows + np.arange(act.size)
-                for ids, jj, sign in ((el[act, 0], jv, sw), (el[act, 1], jn, -sw)):
-                    vals.append((sign * jj).ravel())
-                    rr.append(np.repeat(r_act, 3))
-                    cc.append((3 * (ids // 8)[:, None] + np.arange(3)).ravel())
-                n_rows += act.size
-        jac = sp.csr_matrix(
-            (np.concatenate(vals), (np.concatenate(rr), np.concatenate(cc))),
-            shape=(n_rows, 3 * n_t),
+    def constraints(planes: _Planes) -> _Constraints:
+        return _Constraints(
+            planes, ends, faces, angle0, np.radians(lo_deg), np.radians(hi_deg), scale
         )
-        return np.concatenate(res_parts), jac
 
-    res, jac = residual_jac(phi, trans)
-    cost = float(res @ res)
-    lam = 1e-6
-    for _ in range(steps):
-        if cost == 0.0:
+    state: dict[str, Any] = {"lam": None, "rho": 10.0}
+
+    def solve(planes: _Planes, rounds: int, reselect: int) -> tuple[_Planes, float]:
+        """Augmented Lagrangian rounds; multipliers carry over between calls."""
+        nonlocal total_steps
+        con = constraints(planes)
+        g, _ = _constraint_values(layout, con, layout.phi, layout.trans)
+        lam = state["lam"] if state["lam"] is not None and len(state["lam"]) == len(g) else None
+        lam = np.zeros(len(g)) if lam is None else lam
+        rho = float(state["rho"])
+        prev = np.inf
+        viol = float(np.max(-g, initial=0.0))
+        for r in range(rounds):
+            if 0 < r <= reselect:
+                planes = _select_planes(layout, linkage, ids, strategy, clearance_mm, reach)
+                n_old = len(lam)
+                con = constraints(planes)
+                g, _ = _constraint_values(layout, con, layout.phi, layout.trans)
+                n_ang = 2 * angle0.size
+                lam = np.concatenate([np.zeros(len(g) - n_ang), lam[n_old - n_ang :]])
+            g, steps = _augmented_lagrangian(layout, con, ids, lam, rho, inner_steps, weight, pin)
+            total_steps += steps
+            viol = float(np.max(-g, initial=0.0))
+            lam = np.maximum(0.0, lam - rho * g)
+            logger.debug("rigid layout round %d: violation %.3g mm, rho %.3g", r, viol, rho)
+            if viol <= HINGE_LAYOUT_FEASIBLE_MM and r >= reselect:
+                break
+            if viol > 0.25 * prev:
+                rho = min(rho * 5.0, 1e5)
+            prev = viol
+        state["lam"] = lam
+        return planes, viol
+
+    planes = _select_planes(layout, linkage, ids, strategy, clearance_mm, reach)
+    planes, violation = solve(planes, max_rounds, 2)
+    is_merged = np.ones(len(ids), dtype=bool)
+    for attempt in range(4):
+        x = layout.positions()
+        points = _merge_points(layout, planes, ids, x)
+        merged = _merged_tiles(x, ids, points, is_merged)
+        ang = np.stack([np.degrees(ends.angles(merged, int(f))) for f in faces])
+        lo_def = min_gap_angle_deg - ang
+        hi_def = ang - 90.0
+        need_lo = lo_def > -0.25 * HINGE_ANGLE_MARGIN_DEG
+        need_hi = hi_def > -0.25 * HINGE_ANGLE_MARGIN_DEG
+        bad_ends = (need_lo | need_hi).any(axis=0)
+        if not bad_ends.any():
             break
-        jtj = (jac.T @ jac).tocsc()
-        mu = lam * max(float(jtj.diagonal().mean()), 1e-300)
-        step = spla.splu(
-            (jtj + mu * sp.identity(3 * n_t, format="csc")).tocsc(),
-            permc_spec="MMD_AT_PLUS_A",
-            diag_pivot_thresh=0.0,
-            options={"SymmetricMode": True},
-        ).solve(-(jac.T @ res))
-        step = step.reshape(n_t, 3)
-        phi_new, trans_new = phi + step[:, 0], trans + step[:, 1:]
-        res_new, jac_new = residual_jac(phi_new, trans_new)
-        cost_new = float(res_new @ res_new)
-        if cost_new < cost:
-            done = cost - cost_new <= 1e-12 * cost or float(np.abs(step).max()) < step_tol
-            phi, trans, res, jac, cost = phi_new, trans_new, res_new, jac_new, cost_new
-            lam = max(0.5 * lam, 1e-12)
-            if done:
-                break
-        else:
-            lam *= 8.0
-            if lam > 1e3:
-                break
-    return np.concatenate([positions(phi, trans), z[..., None]], axis=2)
+        if attempt == 3:
+            is_merged &= ~_hinges_of_ends(ends, bad_ends, ids, faces)
+            break
+        lo_deg[need_lo] += np.maximum(lo_def[need_lo], 0.0) + HINGE_ANGLE_MARGIN_DEG
+        hi_deg[need_hi] -= np.maximum(hi_def[need_hi], 0.0) + HINGE_ANGLE_MARGIN_DEG
+        planes, violation = solve(planes, max_rounds, 0)
+    x = layout.positions()
+    points = _merge_points(layout, planes, ids, x)
+    gap = hinge_gaps(x, ids)
+    for _ in range(len(ids) + 1):
+        merged = _merged_tiles(x, ids, points, is_merged)
+        undo = _broken_merges(
+            layout,
+            linkage,
+            strategy,
+            planes,
+            ends,
+            faces,
+            merged,
+            ids,
+            is_merged,
+            min_gap_angle_deg,
+        )
+        if not undo.any():
+            break
+        is_merged &= ~undo
+    points = np.where(
+        is_merged[:, None],
+        points,
+        0.5 * (x.reshape(-1, 3)[ids[:, 0]] + x.reshape(-1, 3)[ids[:, 1]]),
+    )
+    return RigidLayoutResult(x, merged, points, is_merged, gap, violation, total_steps)
+
+
+def _merged_tiles(
+    x: FloatArray, ids: IntArray, points: FloatArray, is_merged: NDArray[np.bool_]
+) -> FloatArray:
+    """Tiles ``(T, 8, 3)`` with both vertices of every merged hinge moved to its point."""
+    flat = x.reshape(-1, 3).copy()
+    flat[ids[is_merged, 0]] = points[is_merged]
+    flat[ids[is_merged, 1]] = points[is_merged]
+    return flat.reshape(x.shape)
+
+
+def _hinges_of_ends(
+    ends: SlitEnds, bad: NDArray[np.bool_], ids: IntArray, faces: IntArray
+) -> NDArray[np.bool_]:
+    """Hinges whose merged vertices enter the angle of any ``bad`` slit end."""
+    t0, t1 = ends.tiles[bad, 0], ends.tiles[bad, 1]
+    s0, s1 = ends.sides[bad, 0], ends.sides[bad, 1]
+    verts = []
+    for f in faces:
+        verts += [
+            8 * t1 + f + s1,
+            8 * t1 + f + (s1 + 1) % 4,
+            8 * t0 + f + s0,
+            8 * t0 + f + (s0 + 1) % 4,
+        ]
+    used = np.unique(np.concatenate(verts)) if verts else np.zeros(0, dtype=np.int64)
+    return np.asarray(np.isin(ids[:, 0], used) | np.isin(ids[:, 1], used))
+
+
+def _broken_merges(
+    layout: _RigidLayout,
+    linkage: Linkage,
+    strategy: HingeStrategy,
+    planes: _Planes,
+    ends: SlitEnds,
+    faces: IntArray,
+    merged: FloatArray,
+    ids: IntArray,
+    is_merged: NDArray[np.bool_],
+    min_gap_angle_deg: float,
+) -> NDArray[np.bool_]:
+    """Merged hinges to undo: those whose moved vertices leave two tiles without a separating
+    plane, or a gap angle out of its bounds (checked on the merged tiles)."""
+    tol = 1e-9
+    gb, ga, _ = _plane_values(layout, planes, merged, layout.phi, layout.trans)
+    # Separation only (the clearance is a target of the layout, not a validity condition).
+    gb = gb + np.where(np.isfinite(planes.delta_b), planes.delta_b, 0.0)
+    ga = ga + np.where(np.isfinite(planes.delta_a), planes.delta_a, 0.0)
+    suspect = np.flatnonzero(np.any(gb < -tol, axis=1) | np.any(ga < -tol, axis=1))
+    undo = np.zeros(len(ids), dtype=bool)
+    if suspect.size:
+        pairs = np.stack([planes.a[suspect], planes.b[suspect]], axis=1)
+        again = _select_planes(
+            layout, linkage, ids, strategy, 0.0, 0.0, touch=0.0, x=merged, pairs=pairs
+        )
+        broken = again.score < -tol
+        tiles = np.concatenate([again.a[broken], again.b[broken]])
+        undo |= is_merged & (np.isin(ids[:, 0] // 8, tiles) | np.isin(ids[:, 1] // 8, tiles))
+        # only hinges that moved a vertex of a broken pair matter; undo them pairwise
+        if broken.any():
+            pair_tiles = np.stack([again.a[broken], again.b[broken]], axis=1)
+            mine = np.zeros(len(ids), dtype=bool)
+            for ta, tb in pair_tiles:
+                mine |= np.isin(ids[:, 0] // 8, (ta, tb)) | np.isin(ids[:, 1] // 8, (ta, tb))
+            undo &= mine
+    bad = np.zeros(len(ends.hinge), dtype=bool)
+    for f in faces:
+        ang = np.degrees(ends.angles(merged, int(f)))
+        bad |= (ang < min_gap_angle_deg) | (ang > 90.0)
+    logger.debug(
+        "merge check: %d suspect pairs, %d undone for separation, %d bad angles",
+        suspect.size,
+        int(undo.sum()),
+        int(bad.sum()),
+    )
+    if bad.any():
+        undo |= is_merged & _hinges_of_ends(ends, bad, ids, faces)
+    return undo
 
 
 def layout_hinges(
@@ -433,31 +1038,35 @@ def layout_hinges(
     tiles_3d: ArrayLike,
     *,
     strategy: HingeStrategy = "dual",
-    w_rigid: float = 100.0,
-    w_collision: float = 100.0,
-    w_conn: float = 1.0,
-    max_iter: int = 100,
-    anderson: int = 5,
-    polish_steps: int = 20,
+    min_gap_angle_deg: float | None = None,
+    clearance_mm: float = HINGE_LAYOUT_CLEARANCE_MM,
+    max_rounds: int = 40,
 ) -> HingeLayout:
     """Place hinges and lay the rigid tiles out so paired hinge vertices meet.
+
+    ``dual``: each hinge goes to the top or the bottom (:func:`hinge_sides`); ``top``: all on
+    top.  Then :func:`rigid_layout` moves the rigid T2D tiles in the plane (this is the paper's
+    ``E_Hinge`` with ``w_rigid -> infinity``: tiles exactly rigid; ``E_Collision`` as hard
+    separating planes; ``E_Conn`` minimized) keeping every gap angle within
+    ``[theta_min, 90]`` deg, and merges every hinge pair into one point where that keeps the
+    layout valid.  For ``top`` the 3D overlap of each hinged pair is then computed and recorded
+    as a trim of the tile with the larger id.
 
     Parameters
     ----------
     linkage : Linkage
     flat : FlatResult
-        K2D (used for the gap bisectors of the collision planes).
+        K2D (gives ``theta_min`` unless ``min_gap_angle_deg`` is passed).
     tiles_2d : (T, 8, 3) float, mm
         T2D from :func:`~drawstring.geometry.flat.extrude_flat`.
     tiles_3d : (T, 8, 3) float, mm
-        T3D (rigidity targets and hinge sides).
+        T3D (hinge sides).
     strategy : "dual" | "top"
-    w_rigid, w_collision, w_conn : float
-        ``dual`` weights (paper defaults 100, 100, 1).
-    max_iter, anderson : local-global solver options.
-    polish_steps : int
-        Levenberg-Marquardt steps of :func:`rigid_hinge_polish` after the local-global solve
-        (tiles exactly rigid, hinge pairs least-squares); 0 to skip.
+    min_gap_angle_deg : float, deg, optional
+    clearance_mm : float, mm
+        Least distance between tiles away from their shared hinge point.
+    max_rounds : int
+        Augmented Lagrangian rounds.
 
     Returns
     -------
@@ -470,79 +1079,42 @@ def layout_hinges(
         raise InputError("tiles_2d and tiles_3d must both be (T, 8, 3) for the linkage's tiles")
     if strategy not in ("dual", "top"):
         raise InputError(f"--hinges {strategy!r} is not known; use dual or top")
+    theta = flat.min_gap_angle_deg if min_gap_angle_deg is None else float(min_gap_angle_deg)
     problems: list[str] = []
     if strategy == "top":
         bottom = np.zeros(linkage.n_hinges, dtype=bool)
-        ids = _hinge_vertex_ids(linkage, bottom)
-        gap = float(hinge_gaps(t2, ids).max(initial=0.0))
-        trims = top_hinge_trims(linkage, t2)
+    else:
+        bottom = hinge_sides(linkage, t3)
+    ids = _hinge_vertex_ids(linkage, bottom)
+    result = rigid_layout(
+        linkage, t2, ids, strategy=strategy, min_gap_angle_deg=theta,
+        clearance_mm=clearance_mm, max_rounds=max_rounds,
+    )  # fmt: skip
+    gap_max = float(result.gap_mm.max(initial=0.0))
+    if result.violation_mm > HINGE_LAYOUT_FEASIBLE_MM:
+        problems.append(
+            f"hinge layout: tiles could not be separated with every gap angle in [{theta:g}, 90] "
+            f"deg (constraint violation {result.violation_mm:.3g} mm)"
+        )
+    n_apart = int(np.count_nonzero(~result.is_merged))
+    if n_apart:
+        problems.append(
+            f"{n_apart} hinge pairs left unmerged (up to "
+            f"{float(result.gap_mm[~result.is_merged].max()):.3g} mm apart): merging them would "
+            "overlap tiles or break a gap-angle bound"
+        )
+    trims: tuple[HingeTrim, ...] = ()
+    lost = 0.0
+    if strategy == "top":
+        trims = top_hinge_trims(linkage, result.merged)
         lost = float(sum(tr.contact_area_lost_mm2 for tr in trims))
         if trims:
             problems.append(
                 f"top hinges: {len(trims)} hinged pairs overlap in the flat pose; trimmed "
                 f"{sum(tr.volume_mm3 for tr in trims):.3g} mm^3, losing {lost:.3g} mm^2 of contact"
             )
-        points = t2.reshape(-1, 3)[ids].mean(axis=1)
-        return HingeLayout(
-            strategy, t2.copy(), bottom, ids, points, gap, trims, lost, 0,
-            time.perf_counter() - start, tuple(problems),
-        )  # fmt: skip
-
-    bottom = hinge_sides(linkage, t3)
-    ids = _hinge_vertex_ids(linkage, bottom)
-    n_vert = 8 * linkage.n_tiles
-    rigid_pairs = (8 * np.arange(linkage.n_tiles)[:, None, None] + RIGID_EDGES[None]).reshape(-1, 2)
-    flat3 = t3.reshape(-1, 3)
-    targets = np.linalg.norm(flat3[rigid_pairs[:, 1]] - flat3[rigid_pairs[:, 0]], axis=1)
-    groups: list = [
-        EdgeLength(rigid_pairs, targets, weight=w_rigid, name="rigid"),
-        HingeConnection(ids, weight=w_conn, name="conn"),
-    ]
-    planes: tuple[IntArray, FloatArray] | None = None
-    if w_collision > 0 and linkage.n_hinges:
-        normals = _separating_normals(linkage, flat, t2)
-        elements: list[FloatArray] = []
-        plane_n: list[FloatArray] = []
-        h = linkage.hinges
-        for side, (ta, tb), sign in (("b", (2, 0), 1.0), ("a", (0, 2), -1.0)):
-            del side
-            tile = h[:, ta]
-            anchor = ids[:, 1 if ta == 0 else 0]
-            verts = 8 * tile[:, None] + np.arange(8)[None, :]
-            own = ids[:, 0 if ta == 0 else 1]
-            for v in range(8):
-                keep = verts[:, v] != own
-                elements.append(np.stack([verts[keep, v], anchor[keep]], axis=1))
-                plane_n.append(sign * normals[keep])
-            del tb
-        el = np.concatenate(elements)
-        nm = np.concatenate(plane_n)
-        # Only constrain vertices that start on the correct side (the rest is the overlap the
-        # hinge side choice could not avoid; pushing them would fight rigidity).
-        x0 = t2.reshape(-1, 3)
-        ok = np.einsum("ki,ki->k", x0[el[:, 0]] - x0[el[:, 1]], nm) >= -1e-9
-        planes = (el[ok], nm[ok])
-        groups.append(HalfPlane3D(el[ok], nm[ok], weight=w_collision, name="collision"))
-    solver = LocalGlobalSolver(n_vert, groups)
-    result = solver.solve(t2.reshape(-1, 3), max_iter=max_iter, anderson=anderson)
-    x = result.X
-    if polish_steps > 0:
-        x = rigid_hinge_polish(
-            t2, x.reshape(-1, 8, 3), ids, planes=planes, w_collision=w_collision,
-            steps=polish_steps,
-        ).reshape(-1, 3)  # fmt: skip
-    gaps = hinge_gaps(x.reshape(-1, 8, 3), ids)
-    gap_max = float(gaps.max(initial=0.0))
-    if gap_max > HINGE_GAP_TOL_MM:
-        problems.append(
-            f"hinge gap {gap_max:.3g} mm before merging exceeds {HINGE_GAP_TOL_MM:g} mm"
-        )
-    mid = 0.5 * (x[ids[:, 0]] + x[ids[:, 1]])
-    merged = x.copy()
-    merged[ids[:, 0]] = mid
-    merged[ids[:, 1]] = mid
     return HingeLayout(
-        strategy, merged.reshape(-1, 8, 3), bottom, ids, mid, gap_max, (), 0.0,
+        strategy, result.merged, bottom, ids, result.points, gap_max, trims, lost,
         result.iterations, time.perf_counter() - start, tuple(problems),
     )  # fmt: skip
 
@@ -612,8 +1184,8 @@ def draw_flat(
     from matplotlib.collections import PolyCollection
 
     tiles = layout.tiles
-    comp_cmap = colormaps["tab10"]
-    colours = [comp_cmap(int(c) % 10) for c in linkage.tile_component]
+    comp_cmap = colormaps["Pastel1"]
+    colours = [comp_cmap(int(c) % 9) for c in linkage.tile_component]
     if flat is not None and flat.junctions.elements.size:
         nodes = flat.nodes
         gap_polys: list[FloatArray] = []

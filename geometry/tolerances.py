@@ -89,3 +89,25 @@ ASSEMBLED_PLANARITY_REL = 1e-6
 #: Relative energy change at which the assembled-stage local-global solves stop; the exact
 #: planarity polish that follows each solve removes what is left of the planarity residual.
 ASSEMBLED_SOLVER_REL_TOL = 1e-6
+
+#: Hinge layout: least distance (mm) kept between flat tiles away from a shared hinge point (a
+#: hinged pair may touch only at the hinge and along the corner edge under/over it).  Also
+#: bounds how far merging a hinge pair may move a vertex without reaching another tile.
+HINGE_LAYOUT_CLEARANCE_MM = 0.1
+
+#: Hinge layout: constraint violation (mm; angle bounds in rad times the mean tile side) at
+#: which the rigid layout counts as converged (below HINGE_LAYOUT_TOUCH_MM, so still valid).
+HINGE_LAYOUT_FEASIBLE_MM = 1e-6
+
+#: Hinge layout: separation (mm) aimed at where a hinged pair may touch (the hinge vertex and
+#: the corner of the other face at the hinge); any positive value keeps the tiles apart, this
+#: one absorbs the solver's residual violation.
+HINGE_LAYOUT_TOUCH_MM = 1e-5
+
+#: Hinge layout: gap angle bounds are aimed at this much (deg) inside [theta_min, 90] so that
+#: merging hinge pairs (which turns tile sides slightly) keeps them within bounds.
+HINGE_ANGLE_MARGIN_DEG = 0.02
+
+#: Top-hinge trims: the recorded overlap polyhedron is grown by this much (mm) so that
+#: subtracting it leaves no numerical sliver of interpenetration.
+HINGE_TRIM_GROW_MM = 1e-3

@@ -20,13 +20,15 @@ hinge_gap_max_mm               max distance of paired hinge vertices  HINGE_GAP_
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from drawstring.geometry.constraints import quad_overlap_mtv, signed_angles
-from drawstring.geometry.linkage import Linkage
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
+
+from drawstring.geometry.constraints import quad_overlap_mtv, signed_angles
+from drawstring.geometry.linkage import Linkage
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -169,12 +171,19 @@ def _hull_separated(tiles: FloatArray, pairs: IntArray) -> NDArray[np.bool_]:
     return np.asarray(np.any(gap >= 0, axis=1))
 
 
-def interpenetration(tiles: ArrayLike) -> tuple[float, IntArray, FloatArray]:
+def interpenetration(
+    tiles: ArrayLike,
+    trims: Sequence[tuple[int, ArrayLike]] | None = None,
+) -> tuple[float, IntArray, FloatArray]:
     """Exact pairwise intersection volume of tile hulls (manifold3d).
 
     Parameters
     ----------
     tiles : (T, 8, 3) float, mm
+    trims : sequence of (tile, (k, 3) float), optional
+        Convex polyhedra (vertex sets, mm) removed from a tile before measuring (``top`` hinge
+        strategy: the overlap with a hinged neighbour that CAD subtracts); a tile may be listed
+        several times.
 
     Returns
     -------
@@ -194,10 +203,16 @@ def interpenetration(tiles: ArrayLike) -> tuple[float, IntArray, FloatArray]:
         return 0.0, np.zeros((0, 2), dtype=np.int64), np.zeros(0)
     cand = cand[~_hull_separated(t, cand)]
     hulls: dict[int, object] = {}
+    removed: dict[int, list[FloatArray]] = {}
+    for tile, points in trims or ():
+        removed.setdefault(int(tile), []).append(np.asarray(points, dtype=np.float64))
 
     def hull(i: int) -> m3d.Manifold:
         if i not in hulls:
-            hulls[i] = m3d.Manifold.hull_points(t[i])
+            solid = m3d.Manifold.hull_points(t[i])
+            for points in removed.get(i, ()):
+                solid = solid - m3d.Manifold.hull_points(points)
+            hulls[i] = solid
         return hulls[i]
 
     vols = np.array([(hull(int(i)) ^ hull(int(j))).volume() for i, j in cand])
@@ -226,17 +241,32 @@ def flat_edge_errors(corners_2d: ArrayLike, top_3d: ArrayLike) -> FloatArray:
     return np.asarray(np.abs(l2 - l3))
 
 
-def gap_opening_angles_deg(linkage: Linkage, corners_2d: ArrayLike) -> FloatArray:
+def gap_opening_angles_deg(
+    linkage: Linkage,
+    corners_2d: ArrayLike,
+    bottom: ArrayLike | None = None,
+) -> FloatArray:
     """Opening angle at every slit end, measured on tile corners.
 
     At a slit end two gap sides meet at a hinge: the angle is measured from the corners of the
     two tiles themselves (each arm from its own tile's hinge corner), counter-clockwise inside the
-    void; negative means the gap is inverted.
+    void; negative means the gap is inverted.  The angle depends only on the directions of the
+    two sides, i.e. on the two tiles' rotations.
+
+    Which face to measure: the gap opens about its hinge, so its opening is the wedge between
+    the two sides *of the face that carries the hinge* (a bottom hinge joins bottom corners; the
+    top sides of a bottom-hinged pair do not meet and are generally not parallel to the bottom
+    sides, so their angle differs by a fixed per-pair amount).  Pass whole tiles and ``bottom``
+    to measure every slit end on its hinge's face; with top corners only (or ``bottom`` omitted)
+    every angle is measured on the top faces.
 
     Parameters
     ----------
     linkage : Linkage
-    corners_2d : (T, 4, 2) float, mm
+    corners_2d : (T, 4, 2+) or (T, 8, 2+) float, mm
+        Top corners, or whole tiles (top corners 0..3, bottom 4..7); only x, y are used.
+    bottom : (H,) bool, optional
+        Hinge side per hinge of ``linkage.hinges`` (True: bottom); needs whole tiles.
 
     Returns
     -------
@@ -245,6 +275,14 @@ def gap_opening_angles_deg(linkage: Linkage, corners_2d: ArrayLike) -> FloatArra
     """
     c = np.asarray(corners_2d, dtype=np.float64)[..., :2]
     cn = linkage.corner_node
+    offset = np.zeros((linkage.n_tiles, 4), dtype=np.int64)
+    if bottom is not None:
+        if c.shape[1] != 8:
+            raise ValueError("measuring on the hinge faces needs whole (T, 8, 3) tiles")
+        h = linkage.hinges
+        b = np.asarray(bottom, dtype=bool)
+        offset[h[:, 0], h[:, 1]] = np.where(b, 4, 0)
+        offset[h[:, 2], h[:, 3]] = np.where(b, 4, 0)
     u_list: list[FloatArray] = []
     v_list: list[FloatArray] = []
     for g in range(linkage.n_gaps):
@@ -258,8 +296,9 @@ def gap_opening_angles_deg(linkage: Linkage, corners_2d: ArrayLike) -> FloatArra
                 continue
             if linkage.tile_corners[t0, s0] == linkage.gap_vertex[g]:
                 continue  # a side vertex of the gap, not a slit end
-            u_list.append(c[t1, s1] - c[t1, (s1 + 1) % 4])
-            v_list.append(c[t0, (s0 + 1) % 4] - c[t0, s0])
+            f = int(offset[t0, s0])
+            u_list.append(c[t1, f + s1] - c[t1, f + (s1 + 1) % 4])
+            v_list.append(c[t0, f + (s0 + 1) % 4] - c[t0, f + s0])
     if not u_list:
         return np.zeros(0)
     return np.degrees(signed_angles(np.array(u_list), np.array(v_list)))

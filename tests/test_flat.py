@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from drawstring.geometry.flat import extrude_flat, gap_junctions, optimize_flat
 from drawstring.geometry.linkage import build_linkage
 from drawstring.geometry.verify import (

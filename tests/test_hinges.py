@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from drawstring.geometry.flat import extrude_flat, optimize_flat
 from drawstring.geometry.hinges import (
     hinge_sides,
@@ -121,3 +122,61 @@ def test_hinge_json_serializes() -> None:
     data = hinge_vertex_json(layout, linkage)
     assert len(data["hinges"]) == linkage.n_hinges
     json.dumps(data)
+
+
+@pytest.mark.parametrize("surface", ["saddle", "dome"])
+@pytest.mark.parametrize("strategy", ["dual", "top"])
+def test_hinged_layout_is_valid(surface: str, strategy: str) -> None:
+    """Hard requirements after the hinge layout and the merge: every gap angle (top faces and
+    hinge faces) within [theta_min, 90], no footprint overlap, no 3D interpenetration (for
+    ``top`` after subtracting the recorded trims)."""
+    from drawstring.geometry.tolerances import (
+        FLAT_GAP_ANGLE_TOL_DEG,
+        FLAT_INTERPENETRATION_TOL_MM3,
+        FLAT_OVERLAP_TOL_MM2,
+    )
+    from drawstring.geometry.verify import flat_overlap, gap_opening_angles_deg
+
+    linkage, uv = _grid(8)
+    top, t3 = heightfield_tiles(uv, linkage.tile_corners, surface, 6.0, 0.004)
+    flat = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=12.0)
+    t2 = extrude_flat(flat, t3, 6.0)
+    layout = layout_hinges(linkage, flat, t2, t3, strategy=strategy)
+    tiles = layout.tiles
+    assert flat_overlap(tiles[:, :4, :2])[0] <= FLAT_OVERLAP_TOL_MM2
+    trims = [(tr.tile, tr.vertices) for tr in layout.trims]
+    assert interpenetration(tiles, trims=trims)[0] <= FLAT_INTERPENETRATION_TOL_MM3
+    for angles in (
+        gap_opening_angles_deg(linkage, tiles[:, :4]),
+        gap_opening_angles_deg(linkage, tiles, layout.bottom),
+    ):
+        assert angles.min() >= 12.0 - FLAT_GAP_ANGLE_TOL_DEG
+        assert angles.max() <= 90.0 + FLAT_GAP_ANGLE_TOL_DEG
+    merged = hinge_gaps(tiles, layout.hinge_vertices)
+    assert np.count_nonzero(merged == 0.0) >= 0.9 * linkage.n_hinges
+    # Tiles stay rigid up to the merge: every vertex moved by at most half the hinge gap.
+    assert layout.hinge_gap_max_mm < 1.0
+
+
+def test_hinge_face_angle_measure() -> None:
+    """A bottom-hinged slit end is measured on the bottom sides: flaring the bottoms turns
+    the measured sides, and the measure follows the hinge face."""
+    from drawstring.geometry.verify import gap_opening_angles_deg
+
+    linkage, _ = _grid(2)
+    tiles = _block(1.0, 3.0)
+    ends_top = gap_opening_angles_deg(linkage, tiles[:, :4])
+    bottom = np.ones(linkage.n_hinges, dtype=bool)
+    ends_bottom = gap_opening_angles_deg(linkage, tiles, bottom)
+    # Closed block: top and bottom sides of neighbours are parallel, so both are 0 here; open
+    # the block by turning the bottom faces only and the bottom measure alone changes.
+    np.testing.assert_allclose(ends_top, 0.0, atol=1e-9)
+    np.testing.assert_allclose(ends_bottom, 0.0, atol=1e-9)
+    turned = tiles.copy()
+    c = turned[0, 4:, :2].mean(axis=0)
+    ang = np.radians(5.0)
+    rot = np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])
+    turned[0, 4:, :2] = (turned[0, 4:, :2] - c) @ rot.T + c
+    moved_bottom = np.abs(gap_opening_angles_deg(linkage, turned, bottom))
+    assert np.allclose(gap_opening_angles_deg(linkage, turned[:, :4]), ends_top)
+    assert np.isclose(moved_bottom.max(), 5.0)
