@@ -34,7 +34,15 @@ accelerated with Anderson mixing over the last ``m`` differences (Peng, Deng, Zh
 safeguard evaluates ``E`` at the accelerated iterate (its projections are then reused by the next
 global step); when it is not lower than the energy of the last accepted iterate, the iterate is
 discarded, the plain local-global step is taken instead and the history is reset. The accepted
-energies therefore decrease monotonically exactly as without acceleration.
+energies therefore decrease monotonically exactly as without acceleration. After a rejection
+the next attempt waits 1, 2, 4, ... plain steps (up to ``ANDERSON_MAX_BACKOFF``), so that stiff
+problems where acceleration keeps failing do not pay for a wasted projection every iteration.
+
+Exact planarity
+---------------
+Soft planarity converges linearly and leaves a residual of order ``w_other / w_planar``;
+:func:`planarize_quads` removes it with a few Gauss-Newton minimum-norm steps on the quads'
+coplanarity constraints (used after the solves of the assembled stage).
 
 Adding a group
 --------------
@@ -68,6 +76,13 @@ logger = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
+#: Iterations over which the relative energy decrease is averaged by the stopping test.
+STOP_WINDOW = 10
+
+#: After a rejected Anderson step, plain steps are taken before the next attempt: 1, 2, 4, ...
+#: after consecutive rejections, at most this many (reset by an accepted step).
+ANDERSON_MAX_BACKOFF = 16
+
 __all__ = [
     "ClosenessToPoints",
     "ClosenessToSurface",
@@ -80,8 +95,9 @@ __all__ = [
     "Slab",
     "SolverResult",
     "planarize_quads",
-    "quad_planarity",
     "plane_fit",
+    "quad_planarity",
+    "smallest_eigenvectors",
 ]
 
 
@@ -150,6 +166,15 @@ def centering_matrix(elements: IntArray, n_vertices: int) -> sp.csr_matrix:
     return sp.csr_matrix((vals, (rows, cols)), shape=(k * s, n_vertices))
 
 
+def cross3(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Row-wise cross products of (..., 3) arrays (cheaper than ``np.cross`` on small batches)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
 def covariances(points: FloatArray) -> FloatArray:
     """Scatter matrices ``sum_s p p^T`` of many point sets (points already centred).
 
@@ -189,19 +214,14 @@ def smallest_eigenvectors(matrices: FloatArray) -> FloatArray:
     spread = np.sqrt((b00**2 + b11**2 + b22**2 + 2.0 * (a01**2 + a02**2 + a12**2)) / 6.0)
     safe = np.where(spread > 0, spread, 1.0)
     det = (
-        b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)
+        b00 * (b11 * b22 - a12 * a12)
+        - a01 * (a01 * b22 - a12 * a02)
+        + a02 * (a01 * a12 - b11 * a02)
     ) / safe**3
     angle = np.arccos(np.clip(0.5 * det, -1.0, 1.0)) / 3.0
     lam = mean + 2.0 * spread * np.cos(angle + 2.0 * np.pi / 3.0)
     shifted = matrices - lam[:, None, None] * np.eye(3)
-    crosses = np.stack(
-        [
-            np.cross(shifted[:, 0], shifted[:, 1]),
-            np.cross(shifted[:, 0], shifted[:, 2]),
-            np.cross(shifted[:, 1], shifted[:, 2]),
-        ],
-        axis=1,
-    )
+    crosses = cross3(shifted[:, [0, 0, 1]], shifted[:, [1, 2, 2]])
     norms2 = np.einsum("kij,kij->ki", crosses, crosses)
     best = np.argmax(norms2, axis=1)
     rows = np.arange(k)
@@ -554,23 +574,43 @@ def _closest_squares_svd(pts: FloatArray) -> FloatArray:
 class SimilarityToSquare(ConstraintGroup):
     """Each quad projected onto the closest similarity transform of a square.
 
-    Batched Umeyama (1991) closest similarity (rotation, no reflection: ``det R = +1``, uniform
-    scale) of a square template to the centred quad. In 3D the exact closest square is returned;
-    its plane coincides with the quad's best-fit plane for planar quads and differs from it only
-    at second order otherwise. Being the exact closest point keeps the solver monotone.
+    Without ``reference_normals`` (and always in 2D): batched Umeyama (1991) closest similarity
+    (rotation with ``det R = +1``, uniform scale) of a square template to the centred quad, the
+    exact closest square. In 3D a rotation can turn the square over, so a quad that folded over
+    still counts as a perfect square.
+
+    With ``reference_normals`` (3D): the square lies in the quad's best-fit plane, whose normal
+    is oriented to agree with the quad's reference normal, and runs counter-clockwise about it
+    (no reflection within the plane). A quad that turned over relative to its reference then
+    projects onto a far-away square, which keeps tiles from folding over; the projection is the
+    closest square in that oriented plane (for a planar quad, the closest oriented square).
 
     Parameters
     ----------
     quads : (k, 4) int
         Corners in cyclic order.
+    reference_normals : (k, 3) float, optional
+        Outward direction of each quad (e.g. its initial normal).
     """
 
-    def __init__(self, quads: ArrayLike, weight: float = 1.0, name: str = "square_shape") -> None:
+    def __init__(
+        self,
+        quads: ArrayLike,
+        weight: float = 1.0,
+        name: str = "square_shape",
+        reference_normals: ArrayLike | None = None,
+    ) -> None:
         super().__init__(name, weight)
         arr = np.asarray(quads, dtype=np.int64)
         if arr.ndim != 2 or arr.shape[1] != 4:
             raise InputError("SimilarityToSquare needs quads of shape (k, 4)")
         self.quads = arr
+        self.reference_normals: FloatArray | None = None
+        if reference_normals is not None:
+            ref = np.asarray(reference_normals, dtype=np.float64)
+            if ref.shape != (len(arr), 3):
+                raise InputError("reference_normals must have shape (k, 3), one per quad")
+            self.reference_normals = ref
 
     def matrix(self, n_vertices: int) -> sp.csr_matrix:
         return centering_matrix(self.quads, n_vertices)
@@ -578,9 +618,39 @@ class SimilarityToSquare(ConstraintGroup):
     def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
         dim = ax.shape[1]
         pts = ax.reshape(-1, 4, dim)
+        if dim == 3 and self.reference_normals is not None:
+            return _closest_oriented_squares(pts, self.reference_normals).reshape(ax.shape)
         if dim in (2, 3):
             return _closest_squares_planar_template(pts).reshape(ax.shape)
         return _closest_squares_svd(pts).reshape(ax.shape)
+
+
+def _closest_oriented_squares(pts: FloatArray, reference: FloatArray) -> FloatArray:
+    """Closest counter-clockwise squares in each quad's best-fit plane, oriented by ``reference``.
+
+    Parameters
+    ----------
+    pts : (k, 4, 3) float, centred quads
+    reference : (k, 3) float
+
+    Returns
+    -------
+    squares : (k, 4, 3) float
+    """
+    normal = smallest_eigenvectors(covariances(pts))
+    normal *= np.where(np.einsum("ki,ki->k", normal, reference) < 0, -1.0, 1.0)[:, None]
+    # in-plane frame (e1, e2, normal), right-handed
+    seed = pts[:, 1] + pts[:, 2] - pts[:, 0] - pts[:, 3]
+    seed -= np.einsum("ki,ki->k", seed, normal)[:, None] * normal
+    fallback = cross3(normal, np.eye(3)[np.argmin(np.abs(normal), axis=1)])
+    length = np.linalg.norm(seed, axis=1, keepdims=True)
+    small = length[:, 0] <= 1e-12 * np.maximum(np.abs(pts).max(axis=(1, 2)), 1e-300)
+    seed[small] = fallback[small]
+    e1 = seed / np.linalg.norm(seed, axis=1, keepdims=True)
+    e2 = cross3(normal, e1)
+    flat = np.stack([np.einsum("ksi,ki->ks", pts, e1), np.einsum("ksi,ki->ks", pts, e2)], axis=2)
+    square = _closest_squares_planar_template(flat)
+    return np.asarray(square[:, :, :1] * e1[:, None, :] + square[:, :, 1:] * e2[:, None, :])
 
 
 def _unit_normal_with_offset(matrix: FloatArray, linear: FloatArray) -> FloatArray:
@@ -878,9 +948,7 @@ class LocalGlobalSolver:
         """Projections of every active group, stacked, and each group's weighted energy."""
         ax = self._stack @ x
         parts = np.split(ax, self._splits)
-        proj = [
-            g.project(part, x) for g, part in zip(self._active_groups, parts, strict=True)
-        ]
+        proj = [g.project(part, x) for g, part in zip(self._active_groups, parts, strict=True)]
         stacked = np.concatenate(proj, axis=0)
         resid = (ax - stacked) ** 2
         per_row = resid.sum(axis=1) * self._row_weights
@@ -930,7 +998,8 @@ class LocalGlobalSolver:
         x0 : (n, dim) float
             Start positions; ``fixed`` vertices keep these values.
         rel_tol : float
-            Stop when an iteration lowers the total energy by less than ``rel_tol`` times it.
+            Stop when the total energy falls by less than ``rel_tol`` times itself per iteration,
+            on average over the last ``STOP_WINDOW`` iterations (fewer at the start).
         abs_tol : float
             Stop when the total energy is at most this (mm^2, weighted).
         max_iter : int
@@ -967,6 +1036,7 @@ class LocalGlobalSolver:
         diff_g: list[FloatArray] = []
         prev_f: FloatArray | None = None
         prev_g: FloatArray | None = None
+        skip = backoff = 0
         iterations = 0
         while not converged and iterations < max_iter:
             iterations += 1
@@ -981,7 +1051,7 @@ class LocalGlobalSolver:
                         diff_f.pop(0)
                         diff_g.pop(0)
                 prev_f, prev_g = f_vec, g_vec
-                if diff_f:
+                if diff_f and skip == 0:
                     mat_f = np.stack(diff_f, axis=1)
                     theta = np.linalg.lstsq(mat_f, f_vec, rcond=None)[0]
                     mixed = g_vec - np.stack(diff_g, axis=1) @ theta
@@ -991,14 +1061,18 @@ class LocalGlobalSolver:
                     cand_energy = float(cand_energies.sum())
                     if np.isfinite(cand_energy) and cand_energy < energy:
                         accepted += 1
+                        backoff = 0
                         x, proj, energies = candidate, cand_proj, cand_energies
                     else:
                         rejected += 1
+                        backoff = min(2 * backoff if backoff else 1, ANDERSON_MAX_BACKOFF)
+                        skip = backoff
                         diff_f.clear()
                         diff_g.clear()
                         x = plain
                         proj, energies = self._local(x)
                 else:
+                    skip = max(skip - 1, 0)
                     x = plain
                     proj, energies = self._local(x)
             else:
@@ -1006,7 +1080,12 @@ class LocalGlobalSolver:
                 proj, energies = self._local(x)
             new_energy = float(energies.sum())
             history.append(new_energy)
-            if new_energy <= abs_tol or energy - new_energy <= rel_tol * energy:
+            # relative decrease per iteration, averaged over a window so that one unlucky
+            # iteration (e.g. right after an Anderson reset) does not stop a slow descent
+            span = min(STOP_WINDOW, iterations)
+            if new_energy <= abs_tol or history[-1 - span] - new_energy <= (
+                span * rel_tol * new_energy
+            ):
                 converged = True
             energy = new_energy
 
@@ -1127,9 +1206,9 @@ def planarize_quads(
     while iterations < max_iter and after > tol_mm:
         p0, p1, p2, p3 = (pos[quad_arr[:, a]] for a in range(4))
         e1, e2, e3 = p1 - p0, p2 - p0, p3 - p0
-        g1 = np.cross(e2, e3)
-        g2 = np.cross(e3, e1)
-        g3 = np.cross(e1, e2)
+        g1 = cross3(e2, e3)
+        g2 = cross3(e3, e1)
+        g3 = cross3(e1, e2)
         value = np.einsum("ki,ki->k", e1, g1) * scale
         grads = np.stack([-(g1 + g2 + g3), g1, g2, g3], axis=1) * scale[:, None, None]
         jac = sp.csr_matrix((grads.reshape(-1), (rows, cols)), shape=(k, 3 * n))

@@ -111,3 +111,22 @@ HINGE_ANGLE_MARGIN_DEG = 0.02
 #: Top-hinge trims: the recorded overlap polyhedron is grown by this much (mm) so that
 #: subtracting it leaves no numerical sliver of interpenetration.
 HINGE_TRIM_GROW_MM = 1e-3
+
+#: Simulation: after locking, the run stops as stuck once no vertex moved more than this
+#: fraction of the mean tile side in five consecutive steps (a slow creep towards the assembled
+#: state is not stuck).
+SIM_STILL_REL = 1e-6
+
+#: Simulation: relative shrink of the largest tile deviation over ``stall_checks`` checks that
+#: still counts as progress; less means stuck.
+SIM_STALL_PROGRESS = 0.02
+
+#: Flat layout solver: gap-angle bounds count as met when violated by at most this (deg); well
+#: inside FLAT_GAP_ANGLE_TOL_DEG so the verified angles meet their bounds.
+FLAT_SOLVER_ANGLE_TOL_DEG = 1e-4
+
+#: Flat layout: smallest interior angle (rad) at any gap junction (keeps gaps from inverting).
+FLAT_ORIENTATION_MIN_RAD = 1e-3
+
+#: Flat layout: clearance between two tiles found overlapping, relative to the mean tile side.
+FLAT_SEPARATION_MARGIN_REL = 1e-3

@@ -1,0 +1,301 @@
+"""Known answers and invariants of the projective local-global solver."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drawstring.geometry.errors import InputError
+from drawstring.geometry.solver import (
+    ClosenessToPoints,
+    ClosenessToSurface,
+    EdgeLength,
+    LocalGlobalSolver,
+    Plane,
+    SimilarityToSquare,
+    Slab,
+    planarize_quads,
+    quad_planarity,
+    smallest_eigenvectors,
+)
+
+
+def grid(nx: int, ny: int, step: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+    """Flat regular grid in z = 0: vertices (n, 3) and counter-clockwise quads (m, 4)."""
+    i, j = np.meshgrid(np.arange(nx + 1), np.arange(ny + 1), indexing="ij")
+    vertices = np.c_[i.ravel() * step, j.ravel() * step, np.zeros(i.size)]
+    col, row = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    a, b = col.ravel(), row.ravel()
+
+    def vid(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+        return p * (ny + 1) + q
+
+    quads = np.stack([vid(a, b), vid(a + 1, b), vid(a + 1, b + 1), vid(a, b + 1)], axis=1)
+    return vertices, quads
+
+
+def warped_grid(nx: int = 12, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    vertices, quads = grid(nx, nx)
+    rng = np.random.default_rng(seed)
+    x, y = vertices[:, 0], vertices[:, 1]
+    vertices[:, 2] = 0.01 * (x - 30) * (y - 30) + 3 * np.sin(x / 9) + rng.normal(0, 0.2, len(x))
+    return vertices, quads
+
+
+def assert_monotone(history: np.ndarray) -> None:
+    """Total energy never rises (up to round-off of the energy evaluation itself)."""
+    rises = np.diff(history)
+    assert np.all(rises <= 1e-12 * history[:-1] + 1e-15 * history[0]), rises.max()
+
+
+@pytest.mark.parametrize("anderson", [0, 5])
+def test_energy_never_rises_planarity_closeness(anderson: int) -> None:
+    vertices, quads = warped_grid()
+    solver = LocalGlobalSolver(
+        len(vertices),
+        [Plane(quads, 1e3), ClosenessToPoints(np.arange(len(vertices)), vertices, 1.0)],
+    )
+    result = solver.solve(vertices, max_iter=300, anderson=anderson, rel_tol=0.0)
+    assert len(result.energy_history) == result.iterations + 1
+    assert_monotone(result.energy_history)
+    assert result.energy_total_after < 0.5 * result.energy_total_before
+
+
+@pytest.mark.parametrize("anderson", [0, 5])
+def test_energy_never_rises_assembled_terms(anderson: int) -> None:
+    """Planarity, edge lengths, squareness and a target surface together (paper eq. 1)."""
+    vertices, quads = warped_grid(8, seed=1)
+    target, tris = grid(30, 30, step=2.0)
+    target[:, :2] -= 10.0
+    target[:, 2] = 0.01 * (target[:, 0] - 30) * (target[:, 1] - 30)
+    triangles = np.vstack([tris[:, [0, 1, 2]], tris[:, [0, 2, 3]]])
+    edges = np.unique(np.sort(np.stack([quads, np.roll(quads, -1, 1)], 2).reshape(-1, 2)), axis=0)
+    groups = [
+        Plane(quads, 1e4),
+        EdgeLength(edges, np.full(len(edges), 5.0), 10.0),
+        SimilarityToSquare(quads, 10.0),
+        ClosenessToSurface(np.arange(len(vertices)), target, triangles, 0.1),
+    ]
+    result = LocalGlobalSolver(len(vertices), groups).solve(
+        vertices, max_iter=200, anderson=anderson, rel_tol=0.0
+    )
+    assert_monotone(result.energy_history)
+    assert set(result.energy_after) == {"planarity", "edge_length", "square_shape", "surface"}
+
+
+def test_planar_grid_does_not_move() -> None:
+    vertices, quads = grid(6, 5)
+    solver = LocalGlobalSolver(
+        len(vertices),
+        [Plane(quads, 1e4), ClosenessToPoints(np.arange(len(vertices)), vertices, 1.0)],
+    )
+    result = solver.solve(vertices, max_iter=50)
+    assert np.abs(result.X - vertices).max() < 1e-12
+    assert result.converged
+
+
+def test_one_warped_quad_becomes_planar() -> None:
+    quad = np.array([[0.0, 0.0, 0.3], [10.0, 0.0, -0.2], [10.0, 10.0, 0.4], [0.0, 10.0, -0.1]])
+    solver = LocalGlobalSolver(4, [Plane([[0, 1, 2, 3]])])
+    result = solver.solve(quad, max_iter=20)
+    assert quad_planarity(result.X, np.array([[0, 1, 2, 3]]))[0] <= 1e-9 * 10.0
+    # the centroid (a translation) is not affected by the centred planarity rows
+    assert np.allclose(result.X.mean(axis=0), quad.mean(axis=0), atol=1e-12)
+
+
+def test_zero_weight_group_has_no_effect() -> None:
+    vertices, quads = warped_grid(6)
+    base = [Plane(quads, 1e3), ClosenessToPoints(np.arange(len(vertices)), vertices, 1.0)]
+    without = LocalGlobalSolver(len(vertices), base).solve(vertices, max_iter=40)
+    extra = SimilarityToSquare(quads, 0.0)
+    with_zero = LocalGlobalSolver(len(vertices), [*base, extra]).solve(vertices, max_iter=40)
+    assert np.array_equal(without.X, with_zero.X)
+    assert with_zero.energy_after["square_shape"] == 0.0
+
+
+def test_edge_length_chain_reaches_targets() -> None:
+    points = np.c_[np.arange(6.0), np.zeros(6), np.zeros(6)] + np.array([0, 0.3, 0])[None] * (
+        np.arange(6)[:, None] % 2
+    )
+    edges = np.c_[np.arange(5), np.arange(1, 6)]
+    targets = np.array([1.0, 2.0, 1.5, 0.5, 3.0])
+    solver = LocalGlobalSolver(6, [EdgeLength(edges, targets)], fixed=[0])
+    result = solver.solve(points, max_iter=2000, rel_tol=0.0, abs_tol=1e-24)
+    lengths = np.linalg.norm(result.X[edges[:, 1]] - result.X[edges[:, 0]], axis=1)
+    assert np.allclose(lengths, targets, atol=1e-9)
+    assert np.array_equal(result.X[0], points[0])
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_similarity_turns_rhombus_into_square(dim: int) -> None:
+    p, q = 6.0, 2.0  # half diagonals
+    rhombus = np.zeros((4, dim))
+    rhombus[:, :2] = [[p, 0], [0, q], [-p, 0], [0, -q]]
+    rhombus += 1.5  # off the origin
+    solver = LocalGlobalSolver(4, [SimilarityToSquare([[0, 1, 2, 3]])])
+    result = solver.solve(rhombus, max_iter=10)
+    x = result.X
+    sides = np.linalg.norm(np.roll(x, -1, axis=0) - x, axis=1)
+    # closest square has half diagonal (p + q) / 2, i.e. side sqrt(2) (p + q) / 2
+    assert np.allclose(sides, np.sqrt(2) * (p + q) / 2, atol=1e-9)
+    diag = x[2] - x[0], x[3] - x[1]
+    assert abs(np.dot(*diag)) < 1e-9
+    # same orientation (no reflection) and same centre
+    assert np.allclose(x.mean(axis=0), rhombus.mean(axis=0))
+    assert np.dot(x[0] - x.mean(axis=0), rhombus[0] - rhombus.mean(axis=0)) > 0
+
+
+def test_two_dimensional_problem() -> None:
+    """dim = 2: a square-ish 2D quad mesh under edge lengths, squareness and an anchor."""
+    vertices, quads = grid(3, 3, step=2.0)
+    flat = vertices[:, :2] + np.random.default_rng(4).normal(0, 0.2, (len(vertices), 2))
+    edges = np.unique(np.sort(np.stack([quads, np.roll(quads, -1, 1)], 2).reshape(-1, 2)), axis=0)
+    groups = [
+        EdgeLength(edges, np.full(len(edges), 2.0)),
+        SimilarityToSquare(quads),
+        ClosenessToPoints([0], flat[:1], 1.0, name="anchor"),
+    ]
+    result = LocalGlobalSolver(len(flat), groups).solve(flat, max_iter=3000, rel_tol=1e-14)
+    assert result.X.shape == flat.shape
+    lengths = np.linalg.norm(result.X[edges[:, 1]] - result.X[edges[:, 0]], axis=1)
+    assert np.allclose(lengths, 2.0, atol=1e-6)
+    assert_monotone(result.energy_history)
+
+
+def test_closeness_to_surface_projects_onto_plane() -> None:
+    target, quads = grid(4, 4, step=10.0)
+    triangles = np.vstack([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    points = np.array([[12.0, 7.0, 5.0], [33.0, 21.0, -2.0]])
+    group = ClosenessToSurface([0, 1], target, triangles)
+    result = LocalGlobalSolver(2, [group]).solve(points, max_iter=200, rel_tol=0.0, abs_tol=1e-20)
+    assert np.allclose(result.X[:, 2], 0.0, atol=1e-9)
+    assert np.allclose(result.X[:, :2], points[:, :2], atol=1e-9)
+
+
+def test_slab_projects_to_parallel_planes_at_thickness() -> None:
+    rng = np.random.default_rng(2)
+    top = np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0], [0, 10, 0]], dtype=float)
+    bottom = top - [0, 0, 3.0]
+    points = np.vstack([top, bottom]) + rng.normal(0, 0.3, (8, 3))
+    group = Slab([[0, 1, 2, 3]], [[4, 5, 6, 7]], 3.0)
+    solver = LocalGlobalSolver(8, [group])
+    x = solver.solve(points, max_iter=5).X
+    top_n = np.linalg.svd(x[:4] - x[:4].mean(0))[2][-1]
+    bottom_n = np.linalg.svd(x[4:] - x[4:].mean(0))[2][-1]
+    assert abs(abs(top_n @ bottom_n) - 1) < 1e-12
+    assert np.abs((x[:4] - x[:4].mean(0)) @ top_n).max() < 1e-10
+    assert np.abs((x[4:] - x[:4].mean(0)) @ top_n).max() == pytest.approx(3.0, abs=1e-10)
+
+
+def test_slab_projection_is_the_closest_point() -> None:
+    """Compare the batched normal with a dense search over the unit sphere."""
+    rng = np.random.default_rng(5)
+    top = np.array([[0, 0, 0], [6, 0, 0], [6, 6, 0], [0, 6, 0]], dtype=float)
+    pts = np.vstack([top, top - [0, 0, 2.0]]) + rng.normal(0, 0.6, (8, 3))
+    pts -= pts.mean(axis=0)
+    group = Slab([[0, 1, 2, 3]], [[4, 5, 6, 7]], 2.0)
+    projected = group.project(pts, pts)
+    best = np.sum((projected - pts) ** 2)
+
+    theta, phi = np.meshgrid(np.linspace(0, np.pi, 400), np.linspace(0, 2 * np.pi, 800))
+    normals = np.c_[
+        (np.sin(theta) * np.cos(phi)).ravel(),
+        (np.sin(theta) * np.sin(phi)).ravel(),
+        np.cos(theta).ravel(),
+    ]
+    t, b = pts[:4], pts[4:]
+    ht, hb = t @ normals.T, b @ normals.T
+    a, c = ht.mean(0), hb.mean(0)
+    cost = ((ht - a) ** 2).sum(0) + ((hb - c) ** 2).sum(0) + 2 * (a - c - 2.0) ** 2
+    assert best <= cost.min() + 1e-9
+    assert best == pytest.approx(cost.min(), rel=1e-3)
+
+
+@pytest.mark.parametrize("anderson", [0, 5])
+def test_energy_never_rises_extrusion(anderson: int) -> None:
+    vertices, quads = warped_grid(5, seed=3)
+    n = len(vertices)
+    bottom = vertices - [0, 0, 2.0]
+    faces = np.vstack([quads, quads + n])
+    groups = [
+        Plane(faces),
+        Slab(quads, quads + n, 2.0),
+        ClosenessToPoints(np.arange(n), vertices, 1.0),
+    ]
+    result = LocalGlobalSolver(2 * n, groups).solve(
+        np.vstack([vertices, bottom]), max_iter=150, anderson=anderson, rel_tol=0.0
+    )
+    assert_monotone(result.energy_history)
+
+
+def test_factor_is_reused_and_refreshed_on_weight_change() -> None:
+    vertices, quads = warped_grid(4)
+    solver = LocalGlobalSolver(
+        len(vertices),
+        [Plane(quads, 10.0), ClosenessToPoints(np.arange(len(vertices)), vertices, name="keep")],
+    )
+    assert solver.solve(vertices, max_iter=3).factorizations == 1
+    assert solver.solve(vertices, max_iter=3).factorizations == 0
+    solver.set_weight("keep", 2.0)
+    assert solver.solve(vertices, max_iter=3).factorizations == 1
+    group = solver.group("keep")
+    assert isinstance(group, ClosenessToPoints)
+    group.set_targets(vertices + 1.0)  # moving targets need no refactor
+    assert solver.solve(vertices, max_iter=3).factorizations == 0
+
+
+def test_fixed_vertices_do_not_move() -> None:
+    vertices, quads = warped_grid(5)
+    fixed = np.array([0, 7, 20])
+    solver = LocalGlobalSolver(len(vertices), [Plane(quads)], fixed=fixed)
+    result = solver.solve(vertices, max_iter=100)
+    assert np.array_equal(result.X[fixed], vertices[fixed])
+    assert quad_planarity(result.X, quads).max() < quad_planarity(vertices, quads).max()
+
+
+def test_anderson_reaches_lower_energy_in_same_iterations() -> None:
+    vertices, quads = warped_grid(12)
+    groups = [Plane(quads, 1e3), ClosenessToPoints(np.arange(len(vertices)), vertices, 1.0)]
+    plain = LocalGlobalSolver(len(vertices), groups).solve(
+        vertices, max_iter=100, anderson=0, rel_tol=0.0
+    )
+    fast = LocalGlobalSolver(len(vertices), groups).solve(
+        vertices, max_iter=100, anderson=5, rel_tol=0.0
+    )
+    assert fast.accelerated_accepted > 0
+    assert fast.energy_history[-1] < plain.energy_history[-1]
+
+
+def test_planarize_quads_exact_and_respects_fixed() -> None:
+    vertices, quads = warped_grid(8)
+    fixed = np.array([0, 1, 2])
+    result = planarize_quads(vertices, quads, fixed=fixed, max_iter=20)
+    assert result.planarity_after_mm < 1e-10
+    assert result.planarity_before_mm > 0.1
+    assert np.array_equal(result.X[fixed], vertices[fixed])
+
+
+def test_smallest_eigenvectors_match_eigh() -> None:
+    rng = np.random.default_rng(7)
+    pts = rng.normal(size=(500, 4, 3)) * [1.0, 2.0, 1e-3]
+    pts -= pts.mean(axis=1, keepdims=True)
+    cov = pts.transpose(0, 2, 1) @ pts
+    cov[:3] = np.eye(3)  # fully degenerate: any unit vector is fine
+    fast = smallest_eigenvectors(cov)
+    ref = np.linalg.eigh(cov)[1][:, :, 0]
+    assert np.allclose(np.linalg.norm(fast, axis=1), 1.0)
+    assert np.allclose(np.abs(np.einsum("ki,ki->k", fast[3:], ref[3:])), 1.0, atol=1e-9)
+
+
+def test_bad_input_raises() -> None:
+    with pytest.raises(InputError):
+        Plane(np.array([[0, 1]]))
+    with pytest.raises(InputError):
+        EdgeLength([[0, 1]], [-1.0])
+    with pytest.raises(InputError):
+        LocalGlobalSolver(3, [Plane([[0, 1, 2]], 0.0)]).solve(np.zeros((3, 3)))
+    solver = LocalGlobalSolver(3, [Plane([[0, 1, 2]])])
+    with pytest.raises(InputError):
+        solver.solve(np.zeros((4, 3)))
+    with pytest.raises(InputError):
+        solver.set_weight("planarity", -1.0)
