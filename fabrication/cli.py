@@ -68,6 +68,20 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
         metavar="V",
         help="boundary vertex ids of the rectangle corners (default: chosen automatically)",
     )
+    p.add_argument(
+        "--hinges",
+        choices=("dual", "top"),
+        default="dual",
+        help="hinges on top or bottom faces as the curvature asks (dual), or all on top (top)",
+    )
+    p.add_argument(
+        "--weights",
+        type=float,
+        nargs=3,
+        metavar=("PLANAR", "SQUARE", "SURFACE"),
+        default=(1e4, 10.0, 0.1),
+        help="assembled-shape weights (paper: 10000 10 0.1; 10000 1 100 hugs the target)",
+    )
     p.add_argument("--no-cad", action="store_true", help="skip solids and fabrication files")
     p.add_argument("--seed", type=int, default=0, help="seed for any randomized step")
     p.add_argument("--quiet", action="store_true", help="no progress output")
@@ -104,6 +118,8 @@ def _run_design(args: argparse.Namespace) -> int:
         min_gap_angle_deg=args.min_gap_angle_deg,
         max_scale_factor=args.max_scale_factor,
         corners=tuple(args.corners) if args.corners else None,
+        hinges=args.hinges,
+        weights=tuple(args.weights),
         cad=not args.no_cad,
         seed=args.seed,
     )

@@ -51,6 +51,10 @@ from drawstring.geometry.tolerances import (
 
 from .profiles import Profile, load_profile
 
+#: Mean distance of K3D to the target, as a fraction of the mean tile side, above which the
+#: design is flagged (issue 3 quality target).
+SURFACE_MEAN_REL = 0.02
+
 #: Largest distance (mm) between a channel's exit and the next tile's entry, assembled pose.
 CHANNEL_MATCH_TOL_MM = 0.05
 
@@ -75,6 +79,7 @@ class DesignOptions:
     max_scale_factor: float = MAX_SCALE_FACTOR
     corners: tuple[int, int, int, int] | None = None
     hinges: HingeStrategy = "dual"
+    weights: tuple[float, float, float] = (1e4, 10.0, 0.1)
     cad: bool = True
     seed: int = 0
 
@@ -106,6 +111,11 @@ class DesignOptions:
             raise InputError(
                 f"--min-gap-angle must be in [0, 90) degrees (got {self.min_gap_angle_deg})"
             )
+        if len(self.weights) != 3 or not all(math.isfinite(w) and w >= 0 for w in self.weights):
+            raise InputError(
+                f"--weights needs three non-negative numbers (planar square surface), got "
+                f"{self.weights}"
+            )
         if self.hinges not in HINGE_STRATEGIES:
             raise InputError(f"--hinges must be dual or top (got {self.hinges!r})")
         if not (math.isfinite(self.max_scale_factor) and 1 < self.max_scale_factor <= 2):
@@ -129,6 +139,7 @@ class ResolvedOptions:
     max_scale_factor: float
     corners: tuple[int, int, int, int] | None
     hinges: HingeStrategy
+    weights: tuple[float, float, float]
     cad: bool
     seed: int
 
@@ -269,6 +280,7 @@ def resolve_options(options: DesignOptions, profile: Profile) -> ResolvedOptions
         max_scale_factor=options.max_scale_factor,
         corners=options.corners,
         hinges=options.hinges,
+        weights=tuple(options.weights),  # type: ignore[arg-type]
         cad=options.cad,
         seed=options.seed,
     )
@@ -328,6 +340,9 @@ def design(
             loaded.vertices,
             loaded.faces,
             thickness=resolved.thickness_mm,
+            w_planar=resolved.weights[0],
+            w_square=resolved.weights[1],
+            w_surface=resolved.weights[2],
         )
     with progress.stage("flat"):
         flat = optimize_flat(
@@ -493,6 +508,14 @@ def measure_design(
         problems.append(
             f"gap angles {angles.min():.2f}..{angles.max():.2f} deg leave "
             f"[{options.min_gap_angle_deg:g}, 90]"
+        )
+    side = float(a.get("tile_side_mean_mm", 0.0))
+    mean_distance = float(a.get("surface_distance_mean_mm", 0.0))
+    if side > 0 and mean_distance > SURFACE_MEAN_REL * side:
+        warnings.append(
+            f"tiles sit {mean_distance:.2f} mm from the target on average, more than "
+            f"{100 * SURFACE_MEAN_REL:g} % of the mean tile side; raise the surface weight "
+            "(--weights 1e4 1 100 fits closely) or use more tiles"
         )
     if hinge_layout.hinge_gap_max_mm > HINGE_GAP_TOL_MM:
         warnings.append(

@@ -153,6 +153,10 @@ def test_bad_meshes_exit_2_with_one_line_and_no_folder(case: str, tmp_path: Path
         (["saddle", "--max-scale-factor", "3"], "--max-scale-factor"),
         (["no-such-target"], "no-such-target"),
         (["saddle", "--tiles", "abc"], "invalid int"),
+        (["saddle", "--weights", "1", "-1", "2"], "--weights"),
+        (["saddle", "--hinges", "middle"], "invalid choice"),
+        (["saddle", "--grid", "0", "5"], "--grid"),
+        (["saddle", "--thickness", "0"], "--thickness"),
     ],
 )
 def test_bad_options_exit_2(args: list[str], words: str, tmp_path: Path) -> None:
