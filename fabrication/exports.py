@@ -1,0 +1,994 @@
+"""Fabrication exports under ``DIR/fabrication/``: the files a maker prints, cuts and assembles.
+
+All profiles: ``flat.step`` and ``assembled.step`` (assemblies with a named, coloured part per
+tile ``tile_<id>`` and per hinge part ``hinge_<id>``), ``bom.csv``, ``manifest.json`` and
+``assembly.md`` with pictures (``assembly-tiles.png``, ``assembly-threading.png``,
+``assembly-pull.png``).
+
+* ``fdm-dual``: ``print.3mf``, one object per print job, tiles as volumes for extruder 1 and TPU
+  pads for extruder 2, with PrusaSlicer's and Bambu/Orca's configs.  A layout larger than the
+  bed is split into jobs along rows of hinges; pads of the hinges between jobs are printed loose
+  in a last job and glued in (listed in ``assembly.md``).
+* ``laser-epdm``: ``tiles.3mf`` (single material), ``hinges.dxf`` (kerf-compensated rubber strips
+  nested on sheets, tile numbers engraved as strokes), ``placement.dxf`` and ``placement.svg``.
+* ``plywood-cnc``: ``panels.dxf`` (six panels per tile, butt or finger joints with dog-bones,
+  cable holes, engraved labels, nested on sheets), ``hinges.dxf``, ``cutlist.csv``,
+  ``placement.dxf`` / ``.svg``; cable and channel-tube lengths in ``bom.csv``.
+
+Every file is deterministic: STEP headers carry a fixed timestamp, zip members fixed dates, DXF
+fixed metadata, PNGs no software tag.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import itertools
+import json
+import logging
+import math
+import multiprocessing
+import re
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import build123d as bd
+import numpy as np
+from numpy.typing import NDArray
+
+from drawstring.cad.design import normalize_route
+from drawstring.cad.features import SIDE_TOP_FACE
+from drawstring.fabrication import exports_3mf as m3f
+from drawstring.fabrication.exports_dxf import (
+    Nesting,
+    nest_parts,
+    write_sheets_dxf,
+)
+from drawstring.fabrication.exports_panels import Panel, cable_runs, tile_panels
+from drawstring.fabrication.exports_parts import (
+    route_length,
+    route_openings,
+    strip_part,
+    write_placement,
+)
+
+if TYPE_CHECKING:
+    from drawstring.cad.design import CadResult
+    from drawstring.fabrication.profiles import Profile
+    from drawstring.geometry.linkage import Linkage
+
+log = logging.getLogger(__name__)
+
+#: String length = flat route length x (1 + margin) + two tails to hold while pulling.
+STRING_MARGIN = 0.20
+STRING_TAIL_MIN_MM = 150.0
+#: Assumed seconds per tool change (dual extruder); two changes per layer with both materials.
+TOOL_CHANGE_S = 15.0
+#: Fixed timestamp written into STEP headers.
+STEP_TIMESTAMP = "2000-01-01T00:00:00"
+
+_COLOURS = {
+    "PLA": (0.91, 0.64, 0.24),
+    "TPU": (0.16, 0.36, 0.69),
+    "EPDM": (0.12, 0.12, 0.12),
+    "rubber": (0.2, 0.2, 0.2),
+    "plywood": (0.85, 0.70, 0.47),
+}
+
+
+def _colour(material: str) -> bd.Color:
+    for key, rgb in _COLOURS.items():
+        if key.lower() in material.lower():
+            return bd.Color(*rgb)
+    return bd.Color(0.7, 0.7, 0.7)
+
+
+@dataclass
+class _Record:
+    """What the exports measured, for bom.csv and manifest.json."""
+
+    bom: list[dict[str, Any]] = field(default_factory=list)
+    estimates: dict[str, Any] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    jobs: list[dict[str, Any]] = field(default_factory=list)
+    sheets: dict[str, Any] = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------------------------
+# STEP
+
+
+def write_step(path: Path, parts: Sequence[tuple[str, bd.Shape, str]], label: str) -> None:
+    """An assembly of named, coloured parts, with the header timestamp fixed.
+
+    parts : (name, solid, material) per part.
+    """
+    children = []
+    for name, solid, material in parts:
+        child = type(solid)(solid.wrapped)
+        child.label = name
+        child.color = _colour(material)
+        children.append(child)
+    assembly = bd.Compound(children=children, label=label)
+    with tempfile.TemporaryDirectory(prefix="drawstring-step-") as folder:
+        scratch = Path(folder) / "out.step"
+        bd.export_step(assembly, scratch)
+        text = scratch.read_text(encoding="utf-8", errors="replace")
+    text = re.sub(
+        r"(FILE_NAME\('[^']*',)'[^']*'",
+        lambda m: f"{m.group(1)}'{STEP_TIMESTAMP}'",
+        text,
+        count=1,
+    )
+    # OCCT numbers assembly usages with a counter that lives as long as the process; number
+    # them from 1 in file order instead.
+    counter = itertools.count(1)
+    text = re.sub(
+        r"NEXT_ASSEMBLY_USAGE_OCCURRENCE\('\d+'(.*?)\);",
+        lambda m: (
+            f"NEXT_ASSEMBLY_USAGE_OCCURRENCE('{next(counter)}'"
+            + re.sub(r"\n\s*", "", m.group(1))
+            + ");"
+        ),
+        text,
+        flags=re.S,
+    )
+    path.write_bytes(text.encode("utf-8"))
+
+
+# --------------------------------------------------------------------------------------------
+# pictures
+
+
+def _figure_png(fig: Any, path: Path) -> None:
+    fig.savefig(path, dpi=110, metadata={"Software": None})
+
+
+def write_pictures(
+    out: Path,
+    tiles_flat: NDArray[np.float64],
+    tiles_assembled: NDArray[np.float64],
+    hinges: NDArray[np.int64],
+    hinge_side: Sequence[str],
+    steps: NDArray[np.int64],
+    lift_points: NDArray[np.float64],
+) -> list[str]:
+    """Three pictures for assembly.md: numbered tiles with hinges, threading order, pulling."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+
+    names = []
+    top = tiles_flat[:, :4, :2]
+    centres = top.mean(axis=1)
+    size = float(np.ptp(tiles_flat[:, :, :2].reshape(-1, 2), axis=0).max())
+    font = max(4.0, min(10.0, 300.0 / math.sqrt(len(tiles_flat))))
+
+    def base(title: str) -> tuple[Any, Any]:
+        fig, ax = plt.subplots(figsize=(7, 7))
+        ax.add_collection(
+            PolyCollection(list(top), facecolors="#f3d3a0", edgecolors="#444", lw=0.6)
+        )
+        ax.set_aspect("equal")
+        ax.autoscale_view()
+        ax.set_title(title)
+        ax.set_xlabel("mm")
+        return fig, ax
+
+    fig, ax = base("Where each tile goes (flat layout, seen from above)")
+    for tile, (x, y) in enumerate(centres):
+        ax.text(x, y, str(tile), ha="center", va="center", fontsize=font)
+    for (a, ca, b, cb), side in zip(hinges, hinge_side, strict=True):
+        shift = 0 if side == "top" else 4
+        p, q = tiles_flat[a, shift + ca, :2], tiles_flat[b, shift + cb, :2]
+        colour = "#1f4fd0" if side == "top" else "#c02090"
+        ax.plot([p[0], q[0]], [p[1], q[1]], "o", color=colour, ms=3)
+    ax.plot([], [], "o", color="#1f4fd0", ms=3, label="hinge on top faces")
+    ax.plot([], [], "o", color="#c02090", ms=3, label="hinge on bottom faces")
+    ax.legend(loc="upper right", fontsize=7)
+    _figure_png(fig, out / "assembly-tiles.png")
+    plt.close(fig)
+    names.append("assembly-tiles.png")
+
+    fig, ax = base("Threading order: follow the numbers from 1")
+    if len(steps):
+        entry, exit_, _ = route_openings(tiles_flat, steps)
+        path = np.concatenate([np.stack([entry, exit_], axis=1).reshape(-1, 3)])[:, :2]
+        ax.plot(path[:, 0], path[:, 1], "-", color="#c03020", lw=1.0)
+        every = max(1, len(steps) // 60)
+        for index in range(0, len(steps), every):
+            mid = 0.5 * (entry[index, :2] + exit_[index, :2])
+            ax.annotate(
+                str(index + 1), mid, fontsize=max(4.0, font - 1), color="#c03020", ha="center"
+            )
+        for index in range(len(steps) - 1):
+            a, b = exit_[index, :2], entry[index + 1, :2]
+            ax.annotate("", b, a, arrowprops={"arrowstyle": "->", "color": "#c03020", "lw": 0.6})
+        tops = [i for i, (_, _, e, lv) in enumerate(steps) if SIDE_TOP_FACE in (e, lv)]
+        for i in tops:
+            point = entry[i] if steps[i, 2] == SIDE_TOP_FACE else exit_[i]
+            ax.plot(point[0], point[1], "^", color="k", ms=6)
+        ax.plot([], [], "^", color="k", label="string leaves through the top face")
+        ax.legend(loc="upper right", fontsize=7)
+    _figure_png(fig, out / "assembly-threading.png")
+    plt.close(fig)
+    names.append("assembly-threading.png")
+
+    fig = plt.figure(figsize=(7, 6))
+    ax3 = fig.add_subplot(projection="3d")
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    ax3.add_collection3d(
+        Poly3DCollection(list(tiles_assembled[:, :4]), facecolors="#f3d3a0", edgecolors="#444")
+    )
+    lows, highs = (
+        tiles_assembled.reshape(-1, 3).min(axis=0),
+        tiles_assembled.reshape(-1, 3).max(axis=0),
+    )
+    span = float((highs - lows).max())
+    for point in lift_points:
+        ax3.quiver(*point, 0, 0, 0.3 * span, color="#c03020", arrow_length_ratio=0.2)
+    centre = 0.5 * (lows + highs)
+    ax3.set_xlim(centre[0] - 0.5 * span, centre[0] + 0.5 * span)
+    ax3.set_ylim(centre[1] - 0.5 * span, centre[1] + 0.5 * span)
+    ax3.set_zlim(centre[2] - 0.5 * span, centre[2] + 0.5 * span)
+    ax3.set_title("Pull the string ends up (red) until the shape closes")
+    _figure_png(fig, out / "assembly-pull.png")
+    plt.close(fig)
+    names.append("assembly-pull.png")
+    del size
+    return names
+
+
+# --------------------------------------------------------------------------------------------
+# process-specific exports
+
+
+def _tile_mass_g(volume_mm3: float, profile: Profile) -> float:
+    return volume_mm3 * 1e-9 * profile.density_kg_m3 * profile.infill_fraction * 1e3
+
+
+def _fdm_exports(
+    out: Path,
+    profile: Profile,
+    tiles_flat: NDArray[np.float64],
+    hinges: NDArray[np.int64],
+    cad_flat: CadResult,
+    design_name: str,
+    record: _Record,
+    workers: int | None,
+    with_pads: bool,
+    file_name: str,
+) -> list[str]:
+    """Meshes, print jobs and the 3MF (dual material when ``with_pads``)."""
+    tolerance = m3f.mesh_tolerance(profile.thickness_mm)
+    items: list[tuple[bd.Shape, str, m3f.PartKind]] = [
+        (solid, f"tile_{i}", "tile") for i, solid in enumerate(cad_flat.tiles)
+    ]
+    if with_pads:
+        items += [
+            (s, f"hinge_{h}", "pad") for h, s in zip(cad_flat.pad_hinge, cad_flat.pads, strict=True)
+        ]
+    meshes = m3f.mesh_solids(items, tolerance, workers)
+    tile_mesh = {i: meshes[i] for i in range(len(cad_flat.tiles))}
+    pad_mesh = (
+        {int(h): meshes[len(cad_flat.tiles) + k] for k, h in enumerate(cad_flat.pad_hinge)}
+        if with_pads
+        else {}
+    )
+    pad_boxes = {
+        h: np.stack([m.vertices.min(axis=0), m.vertices.max(axis=0)]) for h, m in pad_mesh.items()
+    }
+    bed = (profile.bed_x_mm, profile.bed_y_mm)
+    jobs, cut = m3f.plan_print_jobs(
+        tiles_flat, hinges if with_pads else np.zeros((0, 4), int), bed, pad_boxes
+    )
+    objects = []
+    stride = profile.bed_x_mm + 20.0  # jobs side by side beyond the bed, one object each
+    for index, job in enumerate(jobs):
+        shift = job.offset + [index * stride, 0.0, 0.0]
+        parts = [
+            m3f.PartMesh(
+                tile_mesh[t].name, "tile", tile_mesh[t].vertices + shift, tile_mesh[t].triangles
+            )
+            for t in job.tiles
+        ]
+        parts += [
+            m3f.PartMesh(
+                pad_mesh[h].name, "pad", pad_mesh[h].vertices + shift, pad_mesh[h].triangles
+            )
+            for h in job.pads
+            if h in pad_mesh
+        ]
+        objects.append(m3f.Object3mf(f"job {index + 1}", tuple(parts)))
+        record.jobs.append(
+            {
+                "job": index + 1,
+                "tiles": list(job.tiles),
+                "pads": list(job.pads),
+                "size_mm": [round(float(v), 2) for v in job.size],
+            }
+        )
+    loose = [pad_mesh[h] for h in cut if h in pad_mesh]
+    if loose:
+        flipped = []
+        for h, mesh in zip([h for h in cut if h in pad_mesh], loose, strict=True):
+            side_top = bool(np.mean(mesh.vertices[:, 2]) > 0.5 * profile.thickness_mm)
+            flipped.append(m3f.flip_upside_down(mesh) if side_top else mesh)
+            del h
+        placed, fits = m3f.arrange_loose(flipped, bed, 3.0)
+        shift = np.array([len(jobs) * stride, 0.0, 0.0])
+        parts = [m3f.PartMesh(m.name, "pad", m.vertices + shift, m.triangles) for m in placed]
+        objects.append(m3f.Object3mf(f"job {len(jobs) + 1} loose hinge pads", tuple(parts)))
+        record.jobs.append(
+            {"job": len(jobs) + 1, "tiles": [], "pads": [int(h) for h in cut], "loose": True}
+        )
+        if not fits:
+            record.notes.append(
+                "the loose hinge pads do not all fit one bed; print them in two runs"
+            )
+    record.estimates["cut_hinges"] = [int(h) for h in cut]
+    title = f"{design_name} ({profile.name})"
+    if with_pads:
+        m3f.write_3mf(
+            out / file_name,
+            objects,
+            title=title,
+            extruders={"tile": 1, "pad": 2},
+            materials={"tile": profile.tile_material, "pad": profile.hinge_material},
+        )
+    else:
+        m3f.write_3mf(
+            out / file_name, objects, title=title, materials={"tile": profile.tile_material}
+        )
+    tile_volume = record.estimates["_tile_volume"]
+    pad_volume = record.estimates["_pad_volume"] if with_pads else 0.0
+    if profile.print_rate_mm3_s > 0:
+        printed = tile_volume * profile.infill_fraction + pad_volume
+        seconds = printed / profile.print_rate_mm3_s
+        layer = max(0.5 * profile.nozzle_mm, 0.1)
+        layers = math.ceil(profile.thickness_mm / layer)
+        if with_pads:
+            seconds += len(jobs) * layers * 2 * TOOL_CHANGE_S
+        record.estimates["print_time_h"] = round(seconds / 3600.0, 2)
+        record.estimates["print_time_basis"] = (
+            f"printed volume / {profile.print_rate_mm3_s} mm^3/s"
+            + (f" + 2 tool changes of {TOOL_CHANGE_S:.0f} s per layer" if with_pads else "")
+        )
+    return [file_name]
+
+
+def _strip_parts(
+    profile: Profile,
+    tiles_flat: NDArray[np.float64],
+    hinges: NDArray[np.int64],
+    hinge_side: Sequence[str],
+    cad_flat: CadResult,
+    record: _Record,
+) -> tuple[list[Any], list[tuple[int, str, NDArray[np.float64]]]]:
+    parts = []
+    placed = []
+    unlabelled = 0
+    for h, pad in zip(cad_flat.pad_hinge, cad_flat.pads, strict=True):
+        part, fits = strip_part(
+            int(h),
+            pad,
+            tiles_flat,
+            hinges[h],
+            hinge_side[h],
+            profile.hinge_width_mm,
+            0.5 * profile.hinge_pad_length_mm,
+        )
+        unlabelled += not fits
+        parts.append(part)
+        placed.append((int(h), hinge_side[h], part.outline))
+    if unlabelled:
+        record.notes.append(f"{unlabelled} hinge strips too small for engraved tile numbers")
+    return parts, placed
+
+
+def _nesting_record(name: str, nesting: Nesting) -> dict[str, Any]:
+    return {
+        "file": name,
+        "sheets": len(nesting.sheets),
+        "sheet_mm": [float(v) for v in nesting.sheet_size],
+        "parts": sum(len(s) for s in nesting.sheets),
+        "utilisation": [round(float(u), 3) for u in nesting.utilisation],
+    }
+
+
+def _cut_length(nesting: Nesting) -> tuple[float, float]:
+    """(cut, engrave) path lengths in mm."""
+    cut = engrave = 0.0
+    for sheet in nesting.sheets:
+        for part in sheet:
+            for ring in [part.outline, *part.holes]:
+                cut += float(np.linalg.norm(np.roll(ring, -1, axis=0) - ring, axis=1).sum())
+            cut += float(2 * np.pi * part.circles[:, 2].sum()) if len(part.circles) else 0.0
+            for stroke in part.strokes:
+                engrave += float(np.linalg.norm(np.diff(stroke, axis=0), axis=1).sum())
+    return cut, engrave
+
+
+def _write_cutlist(path: Path, panels: Sequence[Panel], sheet_of: dict[str, int]) -> None:
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    header = ["panel", "tile", "face", "blank_x_mm", "blank_y_mm", "thickness_mm", "area_mm2"]
+    header += ["holes", "sheet"]
+    for k in range(4):
+        header += [
+            f"edge{k}_neighbour",
+            f"edge{k}_dihedral_deg",
+            f"edge{k}_bevel_deg",
+            f"edge{k}_fingers",
+        ]
+    writer.writerow(header)
+    for panel in panels:
+        span = np.ptp(panel.part.outline, axis=0)
+        row: list[Any] = [
+            panel.name,
+            panel.tile,
+            panel.face,
+            f"{span[0]:.2f}",
+            f"{span[1]:.2f}",
+            f"{panel.thickness:g}",
+            f"{panel.area:.1f}",
+            len(panel.part.circles),
+            sheet_of.get(panel.part.name, 0),
+        ]
+        for edge in panel.edges:
+            row += [
+                edge.neighbour,
+                f"{edge.dihedral_deg:.2f}",
+                f"{edge.bevel_deg:.2f}",
+                edge.fingers,
+            ]
+        writer.writerow(row)
+    path.write_text(buffer.getvalue(), encoding="utf-8")
+
+
+# --------------------------------------------------------------------------------------------
+# entry point
+
+
+def write_fabrication(
+    folder: Path,
+    *,
+    profile: Profile,
+    linkage: Linkage,
+    tiles_flat: NDArray[np.float64],
+    tiles_assembled: NDArray[np.float64],
+    hinge_side: Sequence[str],
+    route_steps: NDArray[np.int64] | Sequence[Sequence[int]],
+    lift_tiles: NDArray[np.int64] | Sequence[Sequence[int]],
+    magnet_pairs: NDArray[np.int64] | Sequence[Sequence[int]],
+    trims: dict[int, Sequence[NDArray[np.float64]]] | None,
+    cad_flat: CadResult,
+    cad_assembled: CadResult,
+    design_name: str,
+    workers: int | None = None,
+) -> list[str]:
+    """Write every fabrication file of the profile's process under ``folder / "fabrication"``.
+
+    Parameters
+    ----------
+    folder : the design's output folder.
+    profile : the fabrication profile (its ``process`` picks the files).
+    linkage : topology (hinges ``(H, 4)``).
+    tiles_flat, tiles_assembled : (T, 8, 3) float, mm, T2D and T3D.
+    hinge_side : (H,) ``"top"`` | ``"bottom"``.
+    route_steps : (S, 3) or (S, 4) int route (see :func:`drawstring.cad.design.normalize_route`).
+    lift_tiles : (L, 2) int ``(tile, side)`` extra lift bores.
+    magnet_pairs : (M, 4) int (the polarity comes from ``cad_flat.magnets``).
+    trims : unused here (already cut into the CAD solids); accepted for a uniform call.
+    cad_flat, cad_assembled : the solids in both poses.
+    design_name : shown in titles.
+    workers : processes for tessellation (default: CPU count).
+
+    Returns
+    -------
+    Paths written, relative to ``folder`` (``fabrication/...``), sorted.
+    """
+    del trims, magnet_pairs
+    out = Path(folder) / "fabrication"
+    out.mkdir(parents=True, exist_ok=True)
+    tiles_flat = np.asarray(tiles_flat, dtype=np.float64)
+    tiles_assembled = np.asarray(tiles_assembled, dtype=np.float64)
+    hinges = np.asarray(linkage.hinges, dtype=np.int64).reshape(-1, 4)
+    sides = list(hinge_side)
+    steps = normalize_route(route_steps)
+    lifts = np.asarray(lift_tiles, dtype=np.int64).reshape(-1, 2)
+    record = _Record()
+    record.notes += list(cad_flat.notes)
+    written: list[str] = []
+
+    tile_parts = [(f"tile_{i}", s, profile.tile_material) for i, s in enumerate(cad_flat.tiles)]
+    pad_parts = [
+        (f"hinge_{h}", s, profile.hinge_material)
+        for h, s in zip(cad_flat.pad_hinge, cad_flat.pads, strict=True)
+    ]
+    assembled_parts = [
+        (f"tile_{i}", s, profile.tile_material) for i, s in enumerate(cad_assembled.tiles)
+    ]
+    step_jobs = [
+        (out / "flat.step", tile_parts + pad_parts, f"{design_name} flat"),
+        (out / "assembled.step", assembled_parts, f"{design_name} assembled"),
+    ]
+    # OCCT's STEP writer is serial and the slowest export: write both files in forked
+    # processes (they inherit the solids, nothing is pickled) while the rest is made here.
+    step_processes = _start_step_writers(step_jobs, workers)
+    written += ["flat.step", "assembled.step"]
+
+    tile_volume = float(sum(s.volume for s in cad_flat.tiles))
+    pad_volume = float(sum(s.volume for s in cad_flat.pads))
+    record.estimates["_tile_volume"] = tile_volume
+    record.estimates["_pad_volume"] = pad_volume
+    n_tiles, n_pads = len(cad_flat.tiles), len(cad_flat.pads)
+    hinge_mass = pad_volume * 1e-9 * profile.hinge_density_kg_m3 * 1e3
+    panels: list[Panel] = []
+
+    if profile.process == "fdm-dual":
+        written += _fdm_exports(
+            out,
+            profile,
+            tiles_flat,
+            hinges,
+            cad_flat,
+            design_name,
+            record,
+            workers,
+            True,
+            "print.3mf",
+        )
+        tile_mass = _tile_mass_g(tile_volume, profile)
+        record.bom.append(
+            _row(
+                "tile",
+                "printed tile",
+                n_tiles,
+                profile.tile_material,
+                tile_mass,
+                "tile_<id> in print.3mf, extruder 1",
+            )
+        )
+        record.bom.append(
+            _row(
+                "hinge pad",
+                "printed hinge pad",
+                n_pads,
+                profile.hinge_material,
+                hinge_mass,
+                "hinge_<id> in print.3mf, extruder 2",
+            )
+        )
+    else:
+        strips, placed = _strip_parts(profile, tiles_flat, hinges, sides, cad_flat, record)
+        spacing = max(2.0, 2.0 * profile.kerf_mm, profile.tool_diameter_mm + 2.0)
+        strip_nesting = nest_parts(
+            strips, (profile.bed_x_mm, profile.bed_y_mm), profile.kerf_mm, spacing
+        )
+        write_sheets_dxf(out / "hinges.dxf", strip_nesting, "H#")
+        record.sheets["hinges"] = _nesting_record("hinges.dxf", strip_nesting)
+        write_placement(out / "placement.dxf", out / "placement.svg", tiles_flat, placed)
+        written += ["hinges.dxf", "placement.dxf", "placement.svg"]
+        cut, engrave = _cut_length(strip_nesting)
+        strip_length = profile.hinge_pad_length_mm + profile.hinge_width_mm
+        strip_size = (
+            f"{profile.hinge_width_mm:g} x {strip_length:g} x {profile.hinge_thickness_mm:g} mm"
+        )
+        record.bom.append(
+            _row(
+                "hinge strip",
+                f"laser/CNC-cut strip {strip_size}",
+                n_pads,
+                profile.hinge_material,
+                hinge_mass,
+                "hinges.dxf; glue/screw as placement.svg shows",
+            )
+        )
+        cut_total, engrave_total = cut, engrave
+        if profile.process == "laser-epdm":
+            written += _fdm_exports(
+                out,
+                profile,
+                tiles_flat,
+                hinges,
+                cad_flat,
+                design_name,
+                record,
+                workers,
+                False,
+                "tiles.3mf",
+            )
+            tile_mass = _tile_mass_g(tile_volume, profile)
+            record.bom.append(
+                _row(
+                    "tile",
+                    "printed tile",
+                    n_tiles,
+                    profile.tile_material,
+                    tile_mass,
+                    "tile_<id> in tiles.3mf",
+                )
+            )
+            record.bom.append(
+                _row("glue", "contact glue for rubber to PLA", 1, "", 0.0, "one small tube")
+            )
+        else:
+            drill: dict[int, list[tuple[int, NDArray[np.float64]]]] = {}
+            runs = cable_runs(tiles_flat, steps, lifts)
+            for run in runs:
+                drill.setdefault(run.tile, []).extend(run.drill_points)
+            for tile in range(n_tiles):
+                panels += tile_panels(tile, tiles_flat[tile], profile, drill.get(tile, []))
+            panel_spacing = max(5.0, 2.0 * profile.tool_diameter_mm)
+            panel_nesting = nest_parts(
+                [p.part for p in panels],
+                (profile.bed_x_mm, profile.bed_y_mm),
+                profile.kerf_mm,
+                panel_spacing,
+            )
+            write_sheets_dxf(out / "panels.dxf", panel_nesting, "P#")
+            record.sheets["panels"] = _nesting_record("panels.dxf", panel_nesting)
+            sheet_of = {
+                part.name: k + 1 for k, sheet in enumerate(panel_nesting.sheets) for part in sheet
+            }
+            _write_cutlist(out / "cutlist.csv", panels, sheet_of)
+            written += ["panels.dxf", "cutlist.csv"]
+            panel_area = sum(p.area for p in panels)
+            panel_mass = (
+                panel_area * profile.panel_thickness_mm * 1e-9 * profile.density_kg_m3 * 1e3
+            )
+            record.bom.append(
+                _row(
+                    "panel",
+                    f"plywood panel {profile.panel_thickness_mm:g} mm ({profile.joint} joints)",
+                    len(panels),
+                    profile.tile_material,
+                    panel_mass,
+                    f"panels.dxf on {len(panel_nesting.sheets)} sheets of "
+                    f"{profile.bed_x_mm:g} x {profile.bed_y_mm:g} mm; cutlist.csv",
+                )
+            )
+            tube_total = sum(r.tube_length_mm for r in runs)
+            record.bom.append(
+                _row(
+                    "channel tube",
+                    "plastic tube, outer diameter "
+                    f"{profile.string_diameter_mm + profile.channel_clearance_mm:g} mm",
+                    len(runs),
+                    "plastic",
+                    0.0,
+                    f"total {tube_total / 1000:.2f} m; one per route step, lengths in "
+                    "manifest.json",
+                )
+            )
+            record.estimates["channel_tubes_mm"] = [round(r.tube_length_mm, 1) for r in runs]
+            screws = 4 * n_pads if profile.hinge_interlock == "screws" else 0
+            if screws:
+                record.bom.append(
+                    _row(
+                        "screw",
+                        "wood screw through the rubber strip",
+                        screws,
+                        "steel",
+                        0.0,
+                        "2 per tile per hinge",
+                    )
+                )
+            record.bom.append(_row("glue", "wood glue for the panel joints", 1, "", 0.0, ""))
+            pc, pe = _cut_length(panel_nesting)
+            cut_total += pc
+            engrave_total += pe
+            tile_mass = panel_mass
+        if profile.cut_speed_mm_s > 0:
+            seconds = (cut_total + engrave_total) / profile.cut_speed_mm_s
+            record.estimates["cut_time_h"] = round(seconds / 3600.0, 2)
+            record.estimates["cut_time_basis"] = (
+                f"{cut_total / 1000:.1f} m cut + {engrave_total / 1000:.1f} m engraved at "
+                f"{profile.cut_speed_mm_s:g} mm/s, one pass"
+            )
+
+    flat_route = route_length(tiles_flat, steps)
+    tail = max(STRING_TAIL_MIN_MM, 0.1 * flat_route)
+    string_mm = flat_route * (1.0 + STRING_MARGIN) + 2.0 * tail
+    record.bom.append(
+        _row(
+            "string",
+            profile.string_material,
+            1,
+            profile.string_material,
+            0.0,
+            f"{string_mm / 1000:.3f} m = flat route {flat_route / 1000:.3f} m x "
+            f"{1 + STRING_MARGIN:g} + 2 tails of {tail:.0f} mm",
+            length_mm=string_mm,
+        )
+    )
+    magnets = cad_flat.magnets
+    if magnets:
+        polarity = "; ".join(
+            f"tile {m.tile_a} side {m.side_a} {m.polarity_a} out / "
+            f"tile {m.tile_b} side {m.side_b} {m.polarity_b} out"
+            for m in magnets
+        )
+        record.bom.append(
+            _row(
+                "magnet",
+                f"disc magnet {profile.magnet_diameter_mm:g} x {profile.magnet_height_mm:g} mm",
+                2 * len(magnets),
+                "NdFeB",
+                0.0,
+                polarity,
+            )
+        )
+    cost = (
+        tile_mass / 1000 * profile.tile_price_per_kg
+        + hinge_mass / 1000 * profile.hinge_price_per_kg
+        + string_mm / 1000 * profile.string_price_per_m
+        + 2 * len(magnets) * profile.magnet_price_each
+    )
+    del record.estimates["_tile_volume"], record.estimates["_pad_volume"]
+    record.estimates.update(
+        {
+            "tile_volume_mm3": round(tile_volume, 1),
+            "hinge_volume_mm3": round(pad_volume, 1),
+            "tile_mass_g": round(tile_mass, 1),
+            "hinge_mass_g": round(hinge_mass, 1),
+            "string_length_mm": round(string_mm, 1),
+            "flat_route_length_mm": round(flat_route, 1),
+            "string_rule": f"flat route x {1 + STRING_MARGIN:g} + 2 x "
+            f"max({STRING_TAIL_MIN_MM:g} mm, 10 % of the route)",
+            "material_cost": round(cost, 2),
+            "currency": profile.currency,
+        }
+    )
+    _finish_step_writers(step_processes)
+    lift_points = _lift_points(tiles_assembled, steps, lifts)
+    pictures = write_pictures(out, tiles_flat, tiles_assembled, hinges, sides, steps, lift_points)
+    written += pictures
+    _write_bom(out / "bom.csv", record, profile)
+    written.append("bom.csv")
+    _write_assembly(
+        out / "assembly.md",
+        profile,
+        design_name,
+        record,
+        hinges,
+        sides,
+        steps,
+        magnets,
+        panels,
+        pictures,
+    )
+    written.append("assembly.md")
+    manifest = {
+        "design": design_name,
+        "profile": profile.name,
+        "process": profile.process,
+        "tiles": n_tiles,
+        "hinge_parts": n_pads,
+        "print_jobs": record.jobs,
+        "sheets": record.sheets,
+        "estimates": record.estimates,
+        "magnets": [m.to_json() for m in magnets],
+        "notes": record.notes,
+        "files": [
+            {
+                "path": f"fabrication/{name}",
+                "bytes": (out / name).stat().st_size,
+                "sha256": hashlib.sha256((out / name).read_bytes()).hexdigest(),
+            }
+            for name in sorted(written)
+        ],
+    }
+    (out / "manifest.json").write_text(
+        json.dumps(manifest, indent=1, sort_keys=True) + "\n", encoding="utf-8"
+    )
+    written.append("manifest.json")
+    return sorted(f"fabrication/{name}" for name in written)
+
+
+def _start_step_writers(
+    jobs: Sequence[tuple[Path, Sequence[tuple[str, bd.Shape, str]], str]], workers: int | None
+) -> list[Any]:
+    """Write the STEP files in forked processes, or here when fork is unavailable or
+    ``workers == 1``."""
+    if workers == 1 or "fork" not in multiprocessing.get_all_start_methods():
+        for path, parts, label in jobs:
+            write_step(path, parts, label)
+        return []
+    context = multiprocessing.get_context("fork")
+    processes = [context.Process(target=write_step, args=job) for job in jobs]
+    for process in processes:
+        process.start()
+    return processes
+
+
+def _finish_step_writers(processes: Sequence[Any]) -> None:
+    for process in processes:
+        process.join()
+        if process.exitcode != 0:
+            raise RuntimeError(f"writing a STEP file failed (exit code {process.exitcode})")
+
+
+def _lift_points(
+    tiles: NDArray[np.float64], steps: NDArray[np.int64], lifts: NDArray[np.int64]
+) -> NDArray[np.float64]:
+    """(L, 3) float, mm: where the string leaves the top faces (assembled pose)."""
+    from drawstring.cad.features import lift_path
+
+    points = []
+    for _, tile, enter, leave in steps:
+        if SIDE_TOP_FACE in (enter, leave):
+            side = int(leave if enter == SIDE_TOP_FACE else enter)
+            points.append(lift_path(tiles[tile], side).arc[2])
+    for tile, side in lifts:
+        points.append(lift_path(tiles[tile], int(side)).arc[2])
+    return np.array(points).reshape(-1, 3)
+
+
+def _row(
+    item: str,
+    description: str,
+    count: int,
+    material: str,
+    mass_g: float,
+    note: str,
+    length_mm: float | None = None,
+) -> dict[str, Any]:
+    return {
+        "item": item,
+        "description": description,
+        "count": int(count),
+        "material": material,
+        "mass_g": round(float(mass_g), 1),
+        "length_mm": "" if length_mm is None else round(float(length_mm), 1),
+        "note": note,
+    }
+
+
+def _write_bom(path: Path, record: _Record, profile: Profile) -> None:
+    buffer = io.StringIO()
+    writer = csv.DictWriter(
+        buffer,
+        ["item", "description", "count", "material", "mass_g", "length_mm", "note"],
+        lineterminator="\n",
+    )
+    writer.writeheader()
+    for row in record.bom:
+        writer.writerow(row)
+    estimates = record.estimates
+    for key in ("print_time_h", "cut_time_h"):
+        if key in estimates:
+            basis = estimates[key.replace("_h", "_basis")]
+            writer.writerow(
+                {"item": key.replace("_h", ""), "description": f"{estimates[key]} h", "note": basis}
+            )
+    writer.writerow(
+        {
+            "item": "material cost",
+            "description": f"{estimates['material_cost']} {profile.currency}",
+            "note": "rough: masses x the profile's [cost] prices",
+        }
+    )
+    path.write_text(buffer.getvalue(), encoding="utf-8")
+
+
+def _write_assembly(
+    path: Path,
+    profile: Profile,
+    design_name: str,
+    record: _Record,
+    hinges: NDArray[np.int64],
+    sides: Sequence[str],
+    steps: NDArray[np.int64],
+    magnets: Sequence[Any],
+    panels: Sequence[Panel],
+    pictures: Sequence[str],
+) -> None:
+    est = record.estimates
+    lines = [
+        f"# Assembling {design_name} ({profile.name})",
+        "",
+        f"Parts: see `bom.csv`. String: **{est['string_length_mm'] / 1000:.2f} m** of "
+        f"{profile.string_material} ({est['string_rule']}).",
+        "",
+    ]
+    if profile.process == "fdm-dual":
+        lines += ["## 1. Print", ""]
+        lines.append(
+            f"`print.3mf` holds {len(record.jobs)} object(s), one per print job. Tiles are "
+            f"assigned to extruder 1 ({profile.tile_material}), hinge pads to extruder 2 "
+            f"({profile.hinge_material}); PrusaSlicer, Bambu Studio and OrcaSlicer read the "
+            "assignment from the file. Print one job at a time (delete the other objects)."
+        )
+        lines.append("")
+        for job in record.jobs:
+            kind = "loose hinge pads" if job.get("loose") else f"{len(job['tiles'])} tiles"
+            lines.append(f"- job {job['job']}: {kind}, {len(job['pads'])} pads")
+        cut = est.get("cut_hinges", [])
+        if cut:
+            lines += [
+                "",
+                "The layout is larger than the bed, so it was split along rows of hinges. "
+                "Join the jobs with the loose pads of the last job: press each pad's pins "
+                "into the holes of both tiles and glue it into the recess (CA glue):",
+                "",
+            ]
+            for h in cut:
+                a, _, b, _ = hinges[h]
+                lines.append(f"- hinge {h}: tile {a} to tile {b} ({sides[h]} faces)")
+        lines.append("")
+    else:
+        lines += ["## 1. Make the parts", ""]
+        if profile.process == "laser-epdm":
+            lines.append("Print the tiles from `tiles.3mf` (single material).")
+        else:
+            lines.append(
+                f"Cut the panels from `panels.dxf` ({record.sheets['panels']['sheets']} sheets) "
+                "with "
+                "the inner face up: engraved labels (tile number + face: S0..S3 sides, T top, "
+                "B bottom) end up inside the box. Glue each tile's six panels together; "
+                "`cutlist.csv` gives each edge's dihedral and bevel angle (sand or bevel proud "
+                "edges flush). Glue a channel tube through each pair of cable holes (lengths in "
+                "`manifest.json`)."
+            )
+        lines.append(
+            f"Cut the hinge strips from `hinges.dxf` ({record.sheets['hinges']['sheets']} sheets; "
+            "layers: ENGRAVE green first, CUT_INNER blue, CUT_OUTER black; SHEET red is only the "
+            "sheet outline). Each half of a strip is engraved with the number of the tile it "
+            "joins."
+        )
+        lines.append("")
+        lines.append(
+            "Print `placement.svg` at 100 % (1:1), lay the tiles on it by number, and fix each "
+            "strip where the template shows it (blue: on the top faces, pink: on the bottom "
+            "faces)."
+        )
+        lines.append("")
+    lines += ["## 2. Where each tile goes", "", f"![tiles]({pictures[0]})", ""]
+    lines += [
+        "## 3. Thread the string",
+        "",
+        f"![threading]({pictures[1]})",
+        "",
+        "Follow the route step by step (tile, in through side, out through side; sides 0 bottom, "
+        "1 right, 2 top, 3 left, 4 top face):",
+        "",
+    ]
+    for index, (_, tile, enter, leave) in enumerate(steps):
+        lines.append(f"{index + 1}. tile {tile}: in {int(enter)}, out {int(leave)}")
+    lines.append("")
+    if magnets:
+        lines += [
+            "## 4. Magnets",
+            "",
+            "Glue the magnets into their pockets with these poles facing out:",
+            "",
+        ]
+        for m in magnets:
+            lines.append(
+                f"- tile {m.tile_a} side {m.side_a}: {m.polarity_a} out; "
+                f"tile {m.tile_b} side {m.side_b}: {m.polarity_b} out"
+            )
+        lines.append("")
+    lines += [
+        "## 5. Pull",
+        "",
+        f"![pull]({pictures[2]})",
+        "",
+        "Hold the flat linkage on a table, take both string ends where they leave the top "
+        "faces, and pull them up slowly and evenly. The tiles rotate about the hinges and close "
+        "into the shape. Tie the ends off when every gap has closed.",
+        "",
+    ]
+    if record.notes:
+        lines += ["## Notes", ""] + [f"- {n}" for n in record.notes] + [""]
+    del panels
+    path.write_text("\n".join(lines), encoding="utf-8")

@@ -1,0 +1,300 @@
+"""Plywood box tiles: each frustum tile as six flat panels with butt or finger joints.
+
+Construction (``panel_thickness_mm = p``).  Face ``f`` of a tile has its outer plane
+``n_f . x = d_f`` and its inner plane ``n_f . x = d_f - p``.  Along the edge shared by faces
+``f`` and ``g`` one panel *owns* the joint region (it reaches ``g``'s outer plane) and the other
+stops at the owner's inner plane.  Ends of every edge belong to the face with the lower index
+(sides 0..3, top 4, bottom 5), a total order, so the panels neither overlap nor leave holes at
+the tile corners.  Butt joints: the whole edge follows that rule.  Finger joints: the edge is cut
+into an odd number of fingers that alternate owners, with dog-bone relief of the router's radius
+on every inside corner.
+
+Panels are cut square on a 3-axis machine.  Where a joint's dihedral angle is not 90 degrees the
+edge is laid at the larger of its two face positions (the panel is slightly proud and is sanded
+or bevelled flush); ``cutlist.csv`` lists the dihedral and bevel angle of every edge for a
+tilting saw or a 5-axis machine.  Panels are drawn as seen from *inside* the tile: cut them with
+the inner face up, so the engraved labels end up hidden inside the box.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drawstring.cad.features import SIDE_TOP_FACE, channel_path, channel_radius, lift_path
+from drawstring.cad.tiles import TILE_FACES, face_planes
+from drawstring.fabrication.exports_dxf import Part2D, text_strokes, text_width
+
+if TYPE_CHECKING:
+    from drawstring.fabrication.profiles import Profile
+
+FACE_NAMES = ("S0", "S1", "S2", "S3", "T", "B")
+#: Finger width as a multiple of the panel thickness (at least twice the tool diameter).
+FINGER_WIDTH_FACTOR = 3.0
+#: Points per dog-bone half circle.
+DOGBONE_SEGMENTS = 12
+
+
+@dataclass(frozen=True)
+class PanelEdge:
+    """One edge of a panel: the neighbouring face and the joint angles."""
+
+    neighbour: str
+    dihedral_deg: float
+    bevel_deg: float
+    fingers: int
+
+
+@dataclass(frozen=True)
+class Panel:
+    """A flat panel of one tile.
+
+    tile, face : tile id and face (``S0``..``S3``, ``T``, ``B``).
+    part : the 2D part (outline with fingers and dog-bones, drilled holes, engraved label).
+    edges : the four edges in outline order.
+    thickness : mm.
+    """
+
+    tile: int
+    face: str
+    part: Part2D
+    edges: tuple[PanelEdge, ...]
+    thickness: float
+
+    @property
+    def name(self) -> str:
+        return f"{self.tile}{self.face}"
+
+    @property
+    def area(self) -> float:
+        """Area (mm^2) of the outline minus its holes."""
+        from drawstring.fabrication.exports_dxf import signed_area
+
+        holes = sum(abs(signed_area(h)) for h in self.part.holes)
+        circles = float(np.pi * np.sum(self.part.circles[:, 2] ** 2))
+        return abs(signed_area(self.part.outline)) - holes - circles
+
+
+def _face_edges() -> list[list[tuple[int, int]]]:
+    """Per face, its four edges in order as (neighbour face, index of the edge's first vertex)."""
+    edge_face: dict[tuple[int, int], int] = {}
+    for face, ring in enumerate(TILE_FACES):
+        for i in range(4):
+            edge_face[(ring[i], ring[(i + 1) % 4])] = face
+    result = []
+    for ring in TILE_FACES:
+        result.append([(edge_face[(ring[(i + 1) % 4], ring[i])], i) for i in range(4)])
+    return result
+
+
+_EDGES = _face_edges()
+
+
+def _frame(normal: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """In-plane axes (a, b) with a x b = -normal (the face seen from inside)."""
+    helper = np.array([0.0, 0.0, 1.0]) if abs(normal[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    axis_a = np.cross(helper, normal)
+    axis_a /= np.linalg.norm(axis_a)
+    axis_b = np.cross(normal, axis_a)  # a x b = -n ... check below
+    if np.cross(axis_a, axis_b) @ normal > 0:
+        axis_b = -axis_b
+    return axis_a, axis_b
+
+
+def _dogbones(outline: NDArray[np.float64], radius: float) -> NDArray[np.float64]:
+    """Replace each inside (right-turn) corner of a counter-clockwise outline by a dog-bone."""
+    points = []
+    n = len(outline)
+    for i in range(n):
+        corner = outline[i]
+        before, after = outline[i - 1], outline[(i + 1) % n]
+        d_in, d_out = before - corner, after - corner
+        len_in, len_out = np.linalg.norm(d_in), np.linalg.norm(d_out)
+        u, v = corner - before, after - corner
+        turn = u[0] * v[1] - u[1] * v[0]
+        if turn >= -1e-9 or len_in < 1e-9 or len_out < 1e-9:
+            points.append(corner)
+            continue
+        d_in, d_out = d_in / len_in, d_out / len_out
+        bisector = d_in + d_out
+        if np.linalg.norm(bisector) < 1e-9:
+            points.append(corner)
+            continue
+        bisector /= np.linalg.norm(bisector)
+        centre = corner + radius * bisector
+        start = corner + 2 * radius * (bisector @ d_in) * d_in
+        end = corner + 2 * radius * (bisector @ d_out) * d_out
+        a0 = np.arctan2(*(start - centre)[::-1])
+        a1 = np.arctan2(*(end - centre)[::-1])
+        through = np.arctan2(*(corner - centre)[::-1])
+        # Sweep from start to end through the corner (clockwise for a concave corner).
+        sweep = (a1 - a0) % (2 * np.pi)
+        if not ((through - a0) % (2 * np.pi) < sweep):
+            sweep -= 2 * np.pi
+        angles = a0 + sweep * np.linspace(0.0, 1.0, DOGBONE_SEGMENTS + 1)
+        points.extend(centre + radius * np.stack([np.cos(angles), np.sin(angles)], axis=1))
+    return np.array(points)
+
+
+def tile_panels(
+    tile_id: int,
+    vertices: NDArray[np.float64],
+    profile: Profile,
+    drill_points: Sequence[tuple[int, NDArray[np.float64]]] = (),
+) -> list[Panel]:
+    """The six panels of one tile.
+
+    Parameters
+    ----------
+    tile_id : tile number (for labels).
+    vertices : (8, 3) float, mm, the tile (any pose).
+    profile : ``panel_thickness_mm``, ``joint``, ``tool_diameter_mm``, string and clearance.
+    drill_points : (face, (3,) point) where the cable passes through a panel; a hole of the
+        channel diameter is drilled there, perpendicular to the panel.
+    """
+    p = profile.panel_thickness_mm
+    centroids, normals = face_planes(vertices)
+    offsets = np.einsum("fd,fd->f", centroids, normals)
+    finger = profile.joint == "finger"
+    tool_radius = 0.5 * profile.tool_diameter_mm
+    finger_width = max(FINGER_WIDTH_FACTOR * p, 4.0 * tool_radius)
+    hole_radius = channel_radius(profile)
+    panels = []
+    for face in range(6):
+        normal = normals[face]
+        axis_a, axis_b = _frame(normal)
+        origin = centroids[face]
+
+        def to2d(point: NDArray[np.float64], origin=origin, a=axis_a, b=axis_b) -> NDArray:
+            rel = point - origin
+            return np.array([rel @ a, rel @ b])
+
+        # Each edge as a 2D line: unit direction e, inward normal m, and two positions along m
+        # (owner: reaches the neighbour's outer plane; other: stops at its inner plane).
+        lines = []
+        edges = []
+        for neighbour, first in _EDGES[face]:
+            ring = TILE_FACES[face]
+            start3, end3 = vertices[ring[first]], vertices[ring[(first + 1) % 4]]
+            n_g = normals[neighbour]
+            c = np.array([n_g @ axis_a, n_g @ axis_b])
+            scale = float(np.linalg.norm(c))
+            c /= scale
+            cos_fg = float(normal @ n_g)
+            positions = []
+            for level in (offsets[neighbour], offsets[neighbour] - p):
+                # Plane n_g.x = level cut with this panel's outer and inner plane: take the
+                # larger extent (the panel is left proud rather than short).
+                outer = (level - n_g @ origin) / scale
+                inner = (level - n_g @ (origin - p * normal)) / scale
+                positions.append(max(outer, inner))
+            dihedral = float(np.degrees(np.pi - np.arccos(np.clip(cos_fg, -1.0, 1.0))))
+            owner_ends = face < neighbour
+            lines.append((c, positions, owner_ends, to2d(start3), to2d(end3)))
+            edges.append((neighbour, dihedral))
+        # Base polygon: edge i at its end-owner position; corner i between edges i-1 and i.
+        base_level = [pos[0] if own else pos[1] for c, pos, own, _, _ in lines]
+        corners = []
+        for i in range(4):
+            c0, c1 = lines[i - 1][0], lines[i][0]
+            matrix = np.array([c0, c1])
+            corners.append(np.linalg.solve(matrix, [base_level[i - 1], base_level[i]]))
+        outline: list[NDArray[np.float64]] = []
+        panel_edges = []
+        for i in range(4):
+            c, positions, own_ends, start2, end2 = lines[i]
+            neighbour, dihedral = edges[i]
+            a = corners[i]
+            outline.append(a)
+            length = float(np.linalg.norm(end2 - start2))
+            count = 1
+            if finger and length >= 3 * finger_width:
+                count = int(length // finger_width)
+                count -= 1 - count % 2  # odd
+            if count > 1:
+                direction = (end2 - start2) / length
+                for k in range(1, count):
+                    t = float((start2 - a) @ direction) + k * length / count
+                    own_before = own_ends if (k - 1) % 2 == 0 else not own_ends
+                    own_after = own_ends if k % 2 == 0 else not own_ends
+                    for owned in (own_before, own_after):
+                        level = positions[0] if owned else positions[1]
+                        point = a + t * direction
+                        point = point + (level - c @ point) * c
+                        outline.append(point)
+            panel_edges.append(
+                PanelEdge(
+                    FACE_NAMES[neighbour], round(dihedral, 3), round(dihedral - 90.0, 3), count
+                )
+            )
+        polygon = np.array(outline)
+        # c points outward (the neighbour's normal), so the ring runs as the corners do;
+        # make it counter-clockwise in the frame seen from inside.
+        from drawstring.fabrication.exports_dxf import signed_area
+
+        if signed_area(polygon) < 0:
+            polygon = polygon[::-1]
+        if finger and tool_radius > 0:
+            polygon = _dogbones(polygon, tool_radius)
+        circles = np.array(
+            [[*to2d(point), hole_radius] for f, point in drill_points if f == face]
+        ).reshape(-1, 3)
+        label = f"{tile_id}{FACE_NAMES[face]}"
+        span = np.ptp(polygon, axis=0)
+        height = float(min(0.12 * span.min(), 25.0))
+        height = min(height, 0.6 * span.max() / max(text_width(label, 1.0), 1e-9))
+        centre = polygon.mean(axis=0)
+        for x, y, r in circles:
+            if np.all(
+                np.abs(centre - [x, y]) < [0.5 * text_width(label, height) + r, 0.5 * height + r]
+            ):
+                centre = np.array([centre[0], y - r - height])
+        strokes = text_strokes(label, height, centre)
+        part = Part2D(f"tile_{tile_id}_{FACE_NAMES[face]}", polygon, [], circles, strokes)
+        panels.append(Panel(tile_id, FACE_NAMES[face], part, tuple(panel_edges), p))
+    return panels
+
+
+@dataclass(frozen=True)
+class CableRun:
+    """Where the cable passes one tile: drill points per face and the channel tube length."""
+
+    tile: int
+    drill_points: tuple[tuple[int, NDArray[np.float64]], ...]
+    tube_length_mm: float
+
+
+def cable_runs(
+    tiles: NDArray[np.float64], route_steps: NDArray[np.int64], lift_tiles: NDArray[np.int64]
+) -> list[CableRun]:
+    """Holes and tube lengths of every route step and lift bore.
+
+    Parameters
+    ----------
+    tiles : (T, 8, 3) float, mm.
+    route_steps : (S, 4) int ``(gap, tile, enter, leave)``; side 4 is the top face.
+    lift_tiles : (L, 2) int ``(tile, side)``: extra bores from a side to the top face.
+    """
+    runs = []
+    items = [(int(t), int(e), int(lv)) for _, t, e, lv in route_steps]
+    items += [(int(t), int(s), SIDE_TOP_FACE) for t, s in lift_tiles]
+    for tile, enter, leave in items:
+        vertices = tiles[tile]
+        if SIDE_TOP_FACE in (enter, leave):
+            side = leave if enter == SIDE_TOP_FACE else enter
+            path = lift_path(vertices, side)
+            radius = path.radius
+            turn = float(np.arccos(np.clip(path.start_tangent @ path.end_tangent, -1, 1)))
+            length = float(np.linalg.norm(path.arc[0] - path.entry)) + radius * turn
+            points = ((side, path.entry), (SIDE_TOP_FACE, path.arc[2]))
+        else:
+            channel = channel_path(vertices, enter, leave)
+            samples = channel.points()
+            length = float(np.linalg.norm(np.diff(samples, axis=0), axis=1).sum())
+            points = ((enter, channel.control[0]), (leave, channel.control[3]))
+        runs.append(CableRun(tile, points, length))
+    return runs

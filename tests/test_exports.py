@@ -1,0 +1,381 @@
+"""Fabrication exports read back with independent readers (OCP, lib3mf, ezdxf, zip + XML)."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import itertools
+import shutil
+import subprocess
+import xml.etree.ElementTree as ET
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+bd = pytest.importorskip("build123d")
+ezdxf = pytest.importorskip("ezdxf")
+
+from drawstring.cad.design import CadResult, build_design_solids  # noqa: E402
+from drawstring.cad.samples import SampleDesign, cylinder_design  # noqa: E402
+from drawstring.cad.tiles import move_solid  # noqa: E402
+from drawstring.fabrication.exports import write_fabrication  # noqa: E402
+from drawstring.fabrication.exports_3mf import plan_print_jobs  # noqa: E402
+from drawstring.fabrication.exports_dxf import (  # noqa: E402
+    CUT_LAYERS,
+    LAYER_CUT_OUTER,
+    LAYER_SHEET,
+    offset_polygon,
+    shelf_pack,
+    signed_area,
+)
+from drawstring.fabrication.profiles import Profile, load_profile  # noqa: E402
+from drawstring.geometry.errors import InputError  # noqa: E402
+
+PROFILES = ("fdm-dual", "laser-epdm", "plywood-cnc")
+EXPECTED = {
+    "fdm-dual": {"print.3mf"},
+    "laser-epdm": {"tiles.3mf", "hinges.dxf", "placement.dxf", "placement.svg"},
+    "plywood-cnc": {"panels.dxf", "hinges.dxf", "cutlist.csv", "placement.dxf", "placement.svg"},
+}
+COMMON = {
+    "flat.step",
+    "assembled.step",
+    "bom.csv",
+    "manifest.json",
+    "assembly.md",
+    "assembly-tiles.png",
+    "assembly-threading.png",
+    "assembly-pull.png",
+}
+PLYWOOD_SIDE, PLYWOOD_RADIUS = 300.0, 1500.0
+
+
+@dataclasses.dataclass
+class Built:
+    profile: Profile
+    design: SampleDesign
+    flat: CadResult
+    assembled: CadResult
+    folder: Path
+    files: list[str]
+
+
+def _sample(name: str) -> tuple[Profile, SampleDesign]:
+    if name == "plywood-cnc":
+        design = cylinder_design((3, 3), side=PLYWOOD_SIDE, thickness=60.0, radius=PLYWOOD_RADIUS)
+        return load_profile(name), design
+    # 3 mm magnets: the shipped 6 mm ones do not fit a 6 mm tile's side face.
+    profile = dataclasses.replace(load_profile(name), magnet_diameter_mm=3.0, magnet_height_mm=1.5)
+    return profile, cylinder_design((3, 3))
+
+
+def _write(built: Built, folder: Path) -> list[str]:
+    d = built.design
+    return write_fabrication(
+        folder,
+        profile=built.profile,
+        linkage=d.linkage,
+        tiles_flat=d.tiles_2d,
+        tiles_assembled=d.tiles_3d,
+        hinge_side=d.hinge_side,
+        route_steps=d.route_steps,
+        lift_tiles=d.lift_tiles,
+        magnet_pairs=d.magnet_pairs,
+        trims=d.trims,
+        cad_flat=built.flat,
+        cad_assembled=built.assembled,
+        design_name="sample",
+        workers=1,
+    )
+
+
+@pytest.fixture(scope="module", params=PROFILES)
+def built(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Built:
+    profile, d = _sample(request.param)
+    args = (
+        d.tiles_2d,
+        d.tiles_3d,
+        d.linkage.hinges,
+        d.hinge_side,
+        d.route_steps,
+        d.lift_tiles,
+        d.magnet_pairs,
+        d.trims,
+        profile,
+    )
+    flat = build_design_solids(*args, workers=1)
+    # The assembled pose is the flat solids moved rigidly (what build_design_solids does).
+    assembled = dataclasses.replace(
+        flat,
+        pose="assembled",
+        tiles=tuple(move_solid(s, m) for s, m in zip(flat.tiles, flat.transforms, strict=True)),
+        pads=(),
+        pad_hinge=np.zeros(0, dtype=np.int64),
+    )
+    result = Built(profile, d, flat, assembled, tmp_path_factory.mktemp(request.param), [])
+    result.files = _write(result, result.folder)
+    return result
+
+
+def test_files_written(built: Built) -> None:
+    names = {Path(f).name for f in built.files}
+    assert names == COMMON | EXPECTED[built.profile.process]
+    assert all((built.folder / f).is_file() for f in built.files)
+
+
+def test_repeat_run_is_byte_identical(built: Built, tmp_path: Path) -> None:
+    again = _write(built, tmp_path)
+    assert again == built.files
+    for name in built.files:
+        assert (built.folder / name).read_bytes() == (tmp_path / name).read_bytes(), name
+
+
+def _step_solids(path: Path) -> list:
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.BRepGProp import BRepGProp
+    from OCP.GProp import GProp_GProps
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.STEPControl import STEPControl_Reader
+    from OCP.TopAbs import TopAbs_SOLID
+    from OCP.TopExp import TopExp_Explorer
+
+    reader = STEPControl_Reader()
+    assert reader.ReadFile(str(path)) == IFSelect_RetDone
+    reader.TransferRoots()
+    shape = reader.OneShape()
+    explorer = TopExp_Explorer(shape, TopAbs_SOLID)
+    volumes = []
+    while explorer.More():
+        solid = explorer.Current()
+        assert BRepCheck_Analyzer(solid).IsValid()
+        props = GProp_GProps()
+        BRepGProp.VolumeProperties_s(solid, props)
+        volumes.append(props.Mass())
+        explorer.Next()
+    return volumes
+
+
+@pytest.mark.parametrize("pose", ["flat", "assembled"])
+def test_step_assemblies_read_back(built: Built, pose: str) -> None:
+    path = built.folder / "fabrication" / f"{pose}.step"
+    cad = built.flat if pose == "flat" else built.assembled
+    expected = sorted([s.volume for s in cad.tiles] + [s.volume for s in cad.pads])
+    volumes = sorted(_step_solids(path))
+    assert len(volumes) == len(expected)
+    np.testing.assert_allclose(volumes, expected, rtol=1e-6)
+    text = path.read_text(encoding="utf-8")
+    assert "'tile_0'" in text and "2000-01-01T00:00:00" in text
+    if cad.pads:
+        assert f"'hinge_{int(cad.pad_hinge[0])}'" in text
+
+
+def _read_3mf(path: Path):
+    import lib3mf
+
+    wrapper = lib3mf.get_wrapper()
+    model = wrapper.CreateModel()
+    model.QueryReader("3mf").ReadFromFile(str(path))
+    meshes = []
+    iterator = model.GetMeshObjects()
+    while iterator.MoveNext():
+        mesh = iterator.GetCurrentMeshObject()
+        vertices = np.array([v.Coordinates[0:3] for v in mesh.GetVertices()])
+        triangles = np.array([t.Indices[0:3] for t in mesh.GetTriangleIndices()])
+        meshes.append((mesh.IsManifoldAndOriented(), vertices, triangles))
+    return meshes
+
+
+def _mesh_volume(vertices: np.ndarray, triangles: np.ndarray) -> float:
+    tri = vertices[triangles]
+    return float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6)
+
+
+def test_3mf_meshes_and_extruders(built: Built) -> None:
+    process = built.profile.process
+    if process == "plywood-cnc":
+        pytest.skip("no 3MF for plywood")
+    path = built.folder / "fabrication" / ("print.3mf" if process == "fdm-dual" else "tiles.3mf")
+    meshes = _read_3mf(path)
+    assert meshes and all(ok for ok, _, _ in meshes)
+    volume = sum(_mesh_volume(v, t) for _, v, t in meshes)
+    cad = sum(s.volume for s in built.flat.tiles)
+    if process == "fdm-dual":
+        cad += sum(s.volume for s in built.flat.pads)
+    assert volume == pytest.approx(cad, rel=0.01)
+    with zipfile.ZipFile(path) as archive:
+        names = archive.namelist()
+        if process != "fdm-dual":
+            assert "Metadata/Slic3r_PE_model.config" not in names
+            return
+        config = ET.fromstring(archive.read("Metadata/Slic3r_PE_model.config"))
+        bambu = ET.fromstring(archive.read("Metadata/model_settings.config"))
+    extruders = []
+    for obj, (_, _, triangles) in zip(config.findall("object"), meshes, strict=True):
+        next_first = 0
+        for volume_el in obj.findall("volume"):
+            first, last = int(volume_el.get("firstid")), int(volume_el.get("lastid"))
+            assert first == next_first and last >= first
+            next_first = last + 1
+            keys = {m.get("key"): m.get("value") for m in volume_el.findall("metadata")}
+            extruders.append((keys["name"].split("_")[0], keys["extruder"]))
+        assert next_first == len(triangles)
+    assert {e for k, e in extruders if k == "tile"} == {"1"}
+    assert {e for k, e in extruders if k == "hinge"} == {"2"}
+    assert sum(k == "tile" for k, _ in extruders) == len(built.flat.tiles)
+    assert sum(k == "hinge" for k, _ in extruders) == len(built.flat.pads)
+    parts = bambu.findall("object/part")
+    assert len(parts) == len(extruders)
+
+
+@pytest.mark.skipif(shutil.which("prusa-slicer") is None, reason="prusa-slicer not installed")
+def test_prusaslicer_slices_with_both_extruders(built: Built, tmp_path: Path) -> None:
+    if built.profile.process != "fdm-dual":
+        pytest.skip("dual extrusion only")
+    gcode = tmp_path / "out.gcode"
+    command = [
+        "prusa-slicer",
+        "--export-gcode",
+        "--bed-shape",
+        "0x0,330x0,330x240,0x240",
+        "--nozzle-diameter",
+        "0.4,0.4",
+        "--filament-diameter",
+        "1.75,1.75",
+        "--temperature",
+        "210,230",
+        "--first-layer-temperature",
+        "210,230",
+        "--center",
+        "165,120",
+        str(built.folder / "fabrication" / "print.3mf"),
+        "-o",
+        str(gcode),
+    ]
+    subprocess.run(command, check=True, capture_output=True, timeout=300)
+    lines = gcode.read_text(encoding="utf-8", errors="replace").splitlines()
+    assert any(line.startswith("T0") for line in lines)
+    assert any(line.startswith("T1") for line in lines)
+
+
+def _polyline_points(entity) -> np.ndarray:
+    from ezdxf import path as dxfpath
+
+    return np.array([(p.x, p.y) for p in dxfpath.make_path(entity).flattening(0.01)])
+
+
+@pytest.mark.parametrize("name", ["hinges.dxf", "panels.dxf", "placement.dxf"])
+def test_dxf_reads_back_clean(built: Built, name: str) -> None:
+    path = built.folder / "fabrication" / name
+    if not path.exists():
+        pytest.skip(f"{name} is not made for {built.profile.process}")
+    doc = ezdxf.readfile(path)
+    auditor = doc.audit()
+    assert not auditor.has_errors
+    assert doc.units == ezdxf.units.MM
+    msp = doc.modelspace()
+    assert not list(msp.query("TEXT MTEXT"))
+    if name == "placement.dxf":
+        return
+    for entity in msp:
+        if entity.dxf.layer in CUT_LAYERS:
+            assert entity.dxftype() == "LWPOLYLINE" and entity.closed
+    frames = []
+    for entity in msp.query(f"LWPOLYLINE[layer=='{LAYER_SHEET}']"):
+        if entity.closed:
+            points = _polyline_points(entity)
+            frames.append((points.min(axis=0), points.max(axis=0)))
+    assert frames
+    outers: dict[int, list] = {k: [] for k in range(len(frames))}
+    for entity in msp:
+        if entity.dxf.layer == LAYER_SHEET:
+            continue
+        points = _polyline_points(entity)
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        inside = [
+            k for k, (f_lo, f_hi) in enumerate(frames) if np.all(lo >= f_lo) and np.all(hi <= f_hi)
+        ]
+        assert len(inside) == 1, "an entity lies outside every sheet"
+        if entity.dxf.layer == LAYER_CUT_OUTER:
+            outers[inside[0]].append((lo, hi))
+    count = sum(len(v) for v in outers.values())
+    expected = len(built.flat.pads) if name == "hinges.dxf" else 6 * len(built.flat.tiles)
+    assert count == expected
+    for boxes in outers.values():
+        for (lo_a, hi_a), (lo_b, hi_b) in itertools.combinations(boxes, 2):
+            assert np.any(hi_a <= lo_b) or np.any(hi_b <= lo_a), "nested parts overlap"
+
+
+def test_hinge_strips_are_kerf_compensated(built: Built) -> None:
+    if built.profile.process == "fdm-dual":
+        pytest.skip("no cut hinges")
+    from drawstring.fabrication.exports_parts import planar_outline
+
+    doc = ezdxf.readfile(built.folder / "fabrication" / "hinges.dxf")
+    cut = sum(
+        abs(signed_area(_polyline_points(e)))
+        for e in doc.modelspace().query(f"LWPOLYLINE[layer=='{LAYER_CUT_OUTER}']")
+    )
+    expected = 0.0
+    for pad in built.flat.pads:
+        outline = planar_outline(pad)[0]
+        perimeter = float(np.linalg.norm(np.roll(outline, -1, axis=0) - outline, axis=1).sum())
+        expected += abs(signed_area(outline)) + 0.5 * built.profile.kerf_mm * perimeter
+    assert cut == pytest.approx(expected, rel=2e-3)
+    assert cut > sum(abs(signed_area(planar_outline(p)[0])) for p in built.flat.pads)
+
+
+def test_plywood_cutlist_known_dihedral(built: Built) -> None:
+    if built.profile.process != "plywood-cnc":
+        pytest.skip("plywood only")
+    rows = list(csv.DictReader((built.folder / "fabrication" / "cutlist.csv").open()))
+    assert len(rows) == 6 * len(built.flat.tiles)
+    # Cylinder tiles: top and side faces 1 and 3 meet at 90 - half the angular step.
+    step = np.degrees(2 * np.arcsin(PLYWOOD_SIDE / (2 * PLYWOOD_RADIUS)))
+    angles = {
+        float(row[f"edge{k}_dihedral_deg"]) for row in rows if row["face"] == "T" for k in range(4)
+    }
+    assert min(angles) == pytest.approx(90 - 0.5 * step, abs=0.01)
+    assert max(angles) == pytest.approx(90.0, abs=0.01)
+    assert sum(int(row["holes"]) for row in rows) > 0
+
+
+def test_bom_string_and_magnets(built: Built) -> None:
+    rows = list(csv.DictReader((built.folder / "fabrication" / "bom.csv").open()))
+    items = {row["item"]: row for row in rows}
+    assert float(items["string"]["length_mm"]) > 0
+    assert "x 1.2" in items["string"]["note"]
+    if built.flat.magnets:
+        assert int(items["magnet"]["count"]) == 2 * len(built.flat.magnets)
+        assert " N out" in items["magnet"]["note"] and " S out" in items["magnet"]["note"]
+
+
+def test_print_jobs_split_along_rows_or_refuse() -> None:
+    design = cylinder_design((4, 3))
+    tiles = design.tiles_2d
+    span = np.ptp(tiles[:, :, :2].reshape(-1, 2), axis=0)
+    jobs, cut = plan_print_jobs(tiles, design.linkage.hinges, (0.6 * span[0] + 10, span[1] + 20))
+    assert len(jobs) >= 2 and cut
+    assert sorted(t for job in jobs for t in job.tiles) == list(range(len(tiles)))
+    for job in jobs:
+        assert job.size[0] <= 0.6 * span[0] and job.size[1] <= span[1] + 10
+    with pytest.raises(InputError, match="does not fit the bed"):
+        plan_print_jobs(tiles, design.linkage.hinges, (12.0, 12.0))
+
+
+def test_offset_and_shelf_pack_known_answers() -> None:
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    assert signed_area(offset_polygon(square, 0.1)) == pytest.approx(1.44)
+    assert signed_area(offset_polygon(square[::-1], -0.1)) == pytest.approx(-0.64)
+    sizes = np.array([[30.0, 10.0], [10.0, 40.0], [25.0, 25.0], [50.0, 5.0]])
+    sheet, position, turned = shelf_pack(sizes, (60.0, 45.0), 2.0, 1.0)
+    placed = np.where(turned[:, None], sizes[:, ::-1], sizes)
+    for i, j in itertools.combinations(range(len(sizes)), 2):
+        if sheet[i] == sheet[j]:
+            a_lo, a_hi = position[i], position[i] + placed[i]
+            b_lo, b_hi = position[j], position[j] + placed[j]
+            assert np.any(a_hi <= b_lo) or np.any(b_hi <= a_lo)
+    assert np.all(position + placed <= [59.0, 44.0])
+    with pytest.raises(InputError, match="does not fit"):
+        shelf_pack(np.array([[100.0, 100.0]]), (60.0, 45.0), 2.0, 1.0)
