@@ -14,10 +14,11 @@ import time
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
+
 from drawstring.geometry.lift import select_lift_points
 from drawstring.geometry.linkage import Linkage, build_linkage, rotating_squares_layout
 from drawstring.geometry.route import plan_route, route_metrics
-from numpy.typing import NDArray
 
 
 def _flat_gap_centroids(linkage: Linkage, opening: float = 0.5) -> NDArray[np.float64]:
@@ -71,6 +72,9 @@ def run() -> list[dict[str, Any]]:
                 "turn_angle_total_rad": route.turn_angle_total_rad,
                 "lower_bound_rad": route.lower_bound_rad,
                 "crossings": route.crossings,
+                "channel_partners_ok": m["channel_partners_ok"],
+                "tiles_passed_once": m["tiles_passed_once"],
+                "lift_gaps_missed": m["lift_gaps_missed"],
                 "boundary_tiles_covered": route.boundary_tiles_covered,
                 "capstan_factor_mu0.3": m["capstan_factor"],
                 "route_gaps": len(route.gaps),

@@ -1,21 +1,27 @@
-"""String route on the gap graph (paper section 5.3): validity, optimality on tiny grids."""
+"""String route on the gap graph (paper section 5.3): contact partners, validity, optimality."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
+
+from drawstring.geometry.errors import DesignError
 from drawstring.geometry.linkage import Linkage, Split, build_linkage, rotating_squares_layout
 from drawstring.geometry.route import (
     NODE_ENTRANCE,
     NODE_SPLIT,
+    Route,
+    channel_partner_faults,
+    contact_partners,
     gap_graph,
     plan_route,
     route_metrics,
     route_to_json,
 )
-from numpy.typing import NDArray
 
 
 def _centroids(linkage: Linkage, opening: float = 0.5) -> NDArray[np.float64]:
@@ -35,113 +41,13 @@ def _gap_at(linkage: Linkage, i: int, j: int) -> int:
     return int(np.nonzero((ij[:, 0] == i) & (ij[:, 1] == j))[0][0])
 
 
-# ---- an independent brute force ---------------------------------------------------------------
-
-
-def _turn(a: NDArray[np.float64], b: NDArray[np.float64], c: NDArray[np.float64]) -> float:
-    d1, d2 = b - a, c - b
-    cos = float(d1 @ d2) / (np.linalg.norm(d1) * np.linalg.norm(d2))
-    return math.acos(max(-1.0, min(1.0, cos)))
-
-
-def _proper_cross(p1, p2, q1, q2) -> bool:  # type: ignore[no-untyped-def]
-    def side(a, b, c):  # type: ignore[no-untyped-def]
-        v = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
-        return 0 if abs(v) < 1e-9 else (1 if v > 0 else -1)
-
-    return side(q1, q2, p1) * side(q1, q2, p2) < 0 and side(p1, p2, q1) * side(p1, p2, q2) < 0
-
-
-def _covers(steps: list[set[int]], need: set[int]) -> bool:
-    """Can every needed tile get its own step (each step passes one of its tiles)? Kuhn."""
-    owner: dict[int, int] = {}
-
-    def augment(t: int, seen: set[int]) -> bool:
-        for s, opts in enumerate(steps):
-            if t in opts and s not in seen:
-                seen.add(s)
-                if s not in owner.values() or augment(
-                    next(k for k, v in owner.items() if v == s), seen
-                ):
-                    owner[t] = s
-                    return True
-        return False
-
-    return all(augment(t, set()) for t in sorted(need))
-
-
-def _brute_force(linkage: Linkage, pos: NDArray[np.float64], lifts: set[int]) -> float:
-    tiles = [set(linkage.gap_tiles(g).tolist()) for g in range(linkage.n_gaps)]
-    n = linkage.n_gaps
-    nbr = [[h for h in range(n) if h != g and tiles[g] & tiles[h]] for g in range(n)]
-    need = set(np.nonzero(linkage.boundary_tile)[0].tolist())
-    best = [math.inf]
-
-    def valid(cyc: list[int]) -> bool:
-        if not lifts <= set(cyc):
-            return False
-        r = len(cyc)
-        segs = [(pos[cyc[k]], pos[cyc[(k + 1) % r]]) for k in range(r)]
-        for a in range(r):
-            for b in range(a + 2, r):
-                if a == 0 and b == r - 1:
-                    continue
-                if _proper_cross(*segs[a], *segs[b]):
-                    return False
-        steps = [tiles[cyc[k]] & tiles[cyc[(k + 1) % r]] for k in range(r)]
-        return _covers(steps, need)
-
-    def dfs(path: list[int], cost: float) -> None:
-        if cost >= best[0] - 1e-12:
-            return
-        last = path[-1]
-        for nxt in nbr[last]:
-            if nxt == path[0] and len(path) >= 3:
-                total = (
-                    cost
-                    + _turn(pos[path[-2]], pos[last], pos[nxt])
-                    + _turn(pos[last], pos[nxt], pos[path[1]])
-                )
-                if total < best[0] - 1e-12 and valid(path):
-                    best[0] = total
-            elif nxt > path[0] and nxt not in path:
-                add = _turn(pos[path[-2]], pos[last], pos[nxt]) if len(path) >= 2 else 0.0
-                dfs([*path, nxt], cost + add)
-
-    for s in range(n):
-        dfs([s], 0.0)
-    return best[0]
-
-
-# ---- tests ------------------------------------------------------------------------------------
-
-
-@pytest.mark.parametrize(
-    ("shape", "lift"), [((3, 3), None), ((4, 3), None), ((4, 4), None), ((4, 4), (2, 2))]
-)
-def test_tiny_grids_match_the_brute_force_optimum(
-    shape: tuple[int, int], lift: tuple[int, int] | None
-) -> None:
-    linkage = build_linkage(np.ones(shape, dtype=bool))
-    pos = _centroids(linkage)
-    lifts = [] if lift is None else [_gap_at(linkage, *lift)]
-    route = plan_route(linkage, pos, lifts)
-    assert route.method == "exact"
-    optimum = _brute_force(linkage, pos, set(lifts))
-    assert route.turn_angle_total_rad == pytest.approx(optimum, abs=1e-7)
-    assert route.lower_bound_rad == pytest.approx(optimum, abs=1e-6)
-    assert route.crossings == 0 and route.boundary_tiles_covered
-    assert set(lifts) <= set(route.gaps.tolist())
-
-
-@pytest.mark.parametrize("exact_limit", [200, 0])
-def test_rectangle_route_is_closed_and_covers_every_boundary_tile(exact_limit: int) -> None:
-    linkage = build_linkage(np.ones((7, 5), dtype=bool))
-    pos = _centroids(linkage)
-    route = plan_route(linkage, pos, exact_limit=exact_limit)
-    assert route.method.startswith("exact" if exact_limit else "heuristic")
+def _check_valid(linkage: Linkage, pos: NDArray[np.float64], route: Route) -> None:
+    """Every invariant of a valid route, measured from the route itself."""
     r = len(route.gaps)
-    assert len(np.unique(route.gaps)) == r
+    assert len(np.unique(route.gaps)) == r  # each gap once
+    assert len(np.unique(route.tiles)) == r  # each tile once
+    assert route.tiles_passed_once and route.channel_partners_ok
+    assert channel_partner_faults(route, linkage).size == 0
     graph = gap_graph(linkage, pos)
     for k in range(r):  # closed: every consecutive pair (including last -> first) is a step
         u, v = int(route.gaps[k]), int(route.gaps[(k + 1) % r])
@@ -150,6 +56,166 @@ def test_rectangle_route_is_closed_and_covers_every_boundary_tile(exact_limit: i
     assert set(np.nonzero(linkage.boundary_tile)[0]) <= set(route.tiles.tolist())
     assert route.boundary_tiles_covered and route.crossings == 0
     assert route.turn_angle_total_rad >= 2 * math.pi - 1e-9
+    # never into the interior through a cut
+    on_split = route.labels == NODE_SPLIT
+    prev = np.roll(route.tiles, 1)
+    assert np.all(linkage.boundary_tile[route.tiles[on_split]])
+    assert np.all(linkage.boundary_tile[prev[on_split]])
+
+
+# ---- an independent brute force ---------------------------------------------------------------
+
+
+def _turn(a: NDArray[np.float64], b: NDArray[np.float64], c: NDArray[np.float64]) -> float:
+    d1, d2 = b - a, c - b
+    cos = float(d1 @ d2) / float(np.linalg.norm(d1) * np.linalg.norm(d2))
+    return math.acos(max(-1.0, min(1.0, cos)))
+
+
+def _proper_cross(
+    p1: NDArray[np.float64],
+    p2: NDArray[np.float64],
+    q1: NDArray[np.float64],
+    q2: NDArray[np.float64],
+) -> bool:
+    def side(a: NDArray[np.float64], b: NDArray[np.float64], c: NDArray[np.float64]) -> int:
+        v = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+        return 0 if abs(v) < 1e-9 else (1 if v > 0 else -1)
+
+    return side(q1, q2, p1) * side(q1, q2, p2) < 0 and side(p1, p2, q1) * side(p1, p2, q2) < 0
+
+
+def _slit_gap(linkage: Linkage, a: int, b: int) -> int:
+    """Gap where edge-adjacent tiles a, b may pass the string: the slit end of their edge.
+
+    Worked out from the grid alone: a vertical shared segment has its slit at the end vertex
+    with odd ``i + j`` (vertical slit), a horizontal one at the end with even ``i + j``.
+    """
+    (ia, ja), (ib, jb) = sorted([tuple(linkage.tile_cells[a]), tuple(linkage.tile_cells[b])])
+    if ja == jb:  # side by side: segment x = ib, y in [ja, ja + 1]
+        ends = [(ib, ja), (ib, ja + 1)]
+        want = 1
+    else:  # one above the other: segment y = jb, x in [ia, ia + 1]
+        ends = [(ia, jb), (ia + 1, jb)]
+        want = 0
+    i, j = next(e for e in ends if (e[0] + e[1]) % 2 == want)
+    return _gap_at(linkage, int(i), int(j))
+
+
+def _brute_force(linkage: Linkage, pos: NDArray[np.float64], lifts: set[int]) -> float:
+    """Minimum turn over all simple tile cycles (edge-adjacent steps, slit-end gaps)."""
+    cells = {tuple(c): t for t, c in enumerate(linkage.tile_cells.tolist())}
+    n = linkage.n_tiles
+    nbr: list[list[tuple[int, int]]] = [[] for _ in range(n)]
+    for t, (i, j) in enumerate(linkage.tile_cells.tolist()):
+        for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            u = cells.get((i + di, j + dj))
+            if u is not None:
+                nbr[t].append((u, _slit_gap(linkage, t, u)))
+    need = set(np.nonzero(linkage.boundary_tile)[0].tolist())
+    best = [math.inf]
+
+    def evaluate(tiles: list[int], gaps: list[int]) -> None:
+        # gaps[k] is crossed from tiles[k - 1] into tiles[k]
+        r = len(gaps)
+        if len(set(gaps)) < r or not need <= set(tiles) or not lifts <= set(gaps):
+            return
+        total = sum(_turn(pos[gaps[k - 1]], pos[gaps[k]], pos[gaps[(k + 1) % r]]) for k in range(r))
+        if total >= best[0] - 1e-12:
+            return
+        segs = [(pos[gaps[k]], pos[gaps[(k + 1) % r]]) for k in range(r)]
+        for a in range(r):
+            for b in range(a + 2, r):
+                if not (a == 0 and b == r - 1) and _proper_cross(*segs[a], *segs[b]):
+                    return
+        best[0] = total
+
+    def dfs(tiles: list[int], gaps: list[int]) -> None:
+        for u, g in nbr[tiles[-1]]:
+            if u == tiles[0] and len(tiles) >= 3:
+                evaluate(tiles, [g, *gaps])
+            elif u > tiles[0] and u not in tiles and g not in gaps:
+                dfs([*tiles, u], [*gaps, g])
+
+    for s in range(n):
+        dfs([s], [])
+    return best[0]
+
+
+# ---- tests ------------------------------------------------------------------------------------
+
+
+def test_contact_partners_follow_the_slit_parity() -> None:
+    linkage = build_linkage(np.ones((4, 3), dtype=bool))
+    rows = contact_partners(linkage)
+    got = {(g, a, b) for g, a, _sa, b, _sb in rows.tolist()}
+    want = set()
+    cells = {tuple(c): t for t, c in enumerate(linkage.tile_cells.tolist())}
+    for t, (i, j) in enumerate(linkage.tile_cells.tolist()):
+        for di, dj in ((1, 0), (0, 1)):
+            u = cells.get((i + di, j + dj))
+            if u is not None:
+                want.add((_slit_gap(linkage, t, u), t, u))
+    assert got == want
+    corners = linkage.tile_corners
+    for _g, a, sa, b, sb in rows.tolist():  # the two sides are one grid segment
+        assert {corners[a, sa], corners[a, (sa + 1) % 4]} == {
+            corners[b, sb],
+            corners[b, (sb + 1) % 4],
+        }
+
+
+@pytest.mark.parametrize(
+    ("shape", "lift"),
+    [((3, 3), None), ((4, 3), None), ((4, 4), None), ((5, 4), None), ((6, 5), (2, 4))],
+)
+def test_tiny_grids_match_the_brute_force_optimum(
+    shape: tuple[int, int], lift: tuple[int, int] | None
+) -> None:
+    linkage = build_linkage(np.ones(shape, dtype=bool))
+    pos = _centroids(linkage)
+    lifts = [] if lift is None else [_gap_at(linkage, *lift)]
+    route = plan_route(linkage, pos, lifts, exact_limit=200)
+    assert route.method == "exact"
+    optimum = _brute_force(linkage, pos, set(lifts))
+    assert route.turn_angle_total_rad == pytest.approx(optimum, abs=1e-7)
+    assert route.lower_bound_rad == pytest.approx(optimum, abs=1e-6)
+    _check_valid(linkage, pos, route)
+    assert set(lifts) <= set(route.gaps.tolist()) and route.lifts_missed.size == 0
+
+
+def test_an_unreachable_lift_gap_is_reported_not_faked() -> None:
+    # In a 4 x 4 grid the centre gap cannot join a route that also passes all 12 ring tiles.
+    linkage = build_linkage(np.ones((4, 4), dtype=bool))
+    pos = _centroids(linkage)
+    lift = _gap_at(linkage, 2, 2)
+    assert _brute_force(linkage, pos, {lift}) == math.inf
+    route = plan_route(linkage, pos, [lift])
+    assert route.lifts_missed.tolist() == [lift]
+    assert any(str(lift) in n for n in route.notes)
+    _check_valid(linkage, pos, route)
+
+
+@pytest.mark.parametrize("exact_limit", [200, 0])
+def test_rectangle_route_is_closed_and_covers_every_boundary_tile(exact_limit: int) -> None:
+    linkage = build_linkage(np.ones((7, 5), dtype=bool))
+    pos = _centroids(linkage)
+    route = plan_route(linkage, pos, exact_limit=exact_limit)
+    assert route.method.startswith("exact" if exact_limit else "heuristic")
+    _check_valid(linkage, pos, route)
+
+
+def test_heuristic_matches_exact_on_a_rectangle_with_a_lift_point() -> None:
+    linkage = build_linkage(np.ones((8, 7), dtype=bool))
+    pos = _centroids(linkage)
+    lift = [_gap_at(linkage, 4, 4)]
+    exact = plan_route(linkage, pos, lift, exact_limit=1000)
+    heur = plan_route(linkage, pos, lift, exact_limit=0)
+    for route in (exact, heur):
+        _check_valid(linkage, pos, route)
+        assert lift[0] in route.gaps.tolist()
+    assert exact.method == "exact"
+    assert heur.turn_angle_total_rad >= exact.turn_angle_total_rad - 1e-9
 
 
 def test_heuristic_on_a_larger_grid_with_lift_points_and_a_cropped_shape() -> None:
@@ -161,34 +227,51 @@ def test_heuristic_on_a_larger_grid_with_lift_points_and_a_cropped_shape() -> No
     route = plan_route(linkage, pos, lifts, exact_limit=0)
     assert route.method.startswith("heuristic")
     assert set(lifts) <= set(route.gaps.tolist())
-    assert route.boundary_tiles_covered and route.crossings == 0
+    _check_valid(linkage, pos, route)
     assert route.lower_bound_rad == pytest.approx(2 * math.pi)
 
 
+def test_a_staircase_boundary_is_routed() -> None:
+    i, j = np.meshgrid(np.arange(12), np.arange(12), indexing="ij")
+    linkage = build_linkage(i + j <= 14)
+    pos = _centroids(linkage)
+    route = plan_route(linkage, pos, [_gap_at(linkage, 4, 4)], exact_limit=0)
+    _check_valid(linkage, pos, route)
+    assert route.lifts_missed.size == 0
+
+
 def test_route_never_enters_the_interior_through_a_split_gap() -> None:
-    linkage = build_linkage(np.ones((8, 6), dtype=bool), (Split("x", 4, 0, 6),))
+    linkage = build_linkage(np.ones((10, 8), dtype=bool), (Split("x", 5, 0, 8),))
     assert linkage.n_components == 2
     pos = _centroids(linkage)
-    lift = _gap_at(linkage, 2, 3)
+    lift = _gap_at(linkage, 2, 4)
     for limit in (200, 0):
         route = plan_route(linkage, pos, [lift], exact_limit=limit)
-        n_tiles = (linkage.gap_sides[route.gaps, :, 0] >= 0).sum(axis=1)
-        on_split = route.labels == NODE_SPLIT
-        assert on_split.any()  # the loop crosses the cut at the outer boundary
-        assert np.all(n_tiles[on_split] < 4)  # never a split gap inside the structure
-        assert route.crossings == 0 and route.boundary_tiles_covered
+        _check_valid(linkage, pos, route)
+        assert (route.labels == NODE_SPLIT).any()  # the loop crosses the cut
         assert set(linkage.tile_component[route.tiles].tolist()) == {0, 1}
+        assert lift in route.gaps.tolist()
 
 
-def test_metrics_and_json() -> None:
-    linkage = build_linkage(np.ones((4, 4), dtype=bool))
+def test_a_strip_two_tiles_wide_has_no_valid_route() -> None:
+    # Both strands of the ring would cross the same interior gaps.
+    linkage = build_linkage(np.ones((6, 2), dtype=bool))
     pos = _centroids(linkage)
-    lift = _gap_at(linkage, 2, 2)
+    for limit in (200, 0):
+        with pytest.raises(DesignError):
+            plan_route(linkage, pos, exact_limit=limit)
+
+
+def test_metrics_json_and_the_partner_check() -> None:
+    linkage = build_linkage(np.ones((6, 5), dtype=bool))
+    pos = _centroids(linkage)
+    lift = _gap_at(linkage, 2, 4)
     route = plan_route(linkage, pos, [lift])
     asm = np.column_stack([pos, np.zeros(len(pos))]) * 0.9
     m = route_metrics(route, linkage, pos, asm, mu=0.3)
     assert m["capstan_factor"] == pytest.approx(math.exp(0.3 * route.turn_angle_total_rad))
     assert m["crossings"] == 0 and m["boundary_tiles_covered"]
+    assert m["channel_partners_ok"] and m["tiles_passed_once"] and m["lift_gaps_missed"] == []
     assert m["length_mm"]["assembled"] == pytest.approx(0.9 * m["length_mm"]["flat"])
     doc = route_to_json(route, linkage, pos, asm, [lift])
     assert len(doc["steps"]) == len(route.gaps)
@@ -196,3 +279,24 @@ def test_metrics_and_json() -> None:
     assert doc["lift_points"][0]["gap"] == lift and doc["lift_points"][0]["on_route"]
     labels = gap_graph(linkage, pos).nodes(data="label")
     assert {lab for _, lab in labels} <= {0, 1, NODE_ENTRANCE, NODE_SPLIT}
+    # the check measures: a route whose tile sequence skips a partner fails it
+    bad = dataclasses.replace(route, enter_side=(route.enter_side + 1) % 4)
+    assert not route_metrics(bad, linkage, pos, None, mu=0.3)["channel_partners_ok"]
+    assert channel_partner_faults(bad, linkage).size == len(route.gaps)
+
+
+def test_a_lift_in_a_narrow_split_strip_needs_the_same_component_rule() -> None:
+    # A 3-wide middle strip between two cuts: every other vertical crossing along its edge
+    # columns is a split gap, so under the default rule no detour reaches its middle.
+    cells = np.ones((11, 12), dtype=bool)
+    splits = (Split("x", 4, 0, 12), Split("x", 7, 0, 12))
+    linkage = build_linkage(cells, splits)
+    pos = _centroids(linkage)
+    lift = _gap_at(linkage, 5, 6)
+    strict = plan_route(linkage, pos, [lift], exact_limit=0)
+    assert strict.lifts_missed.tolist() == [lift]
+    _check_valid(linkage, pos, strict)
+    relaxed = plan_route(linkage, pos, [lift], exact_limit=0, split_rule="same-component")
+    assert relaxed.lifts_missed.size == 0 and lift in relaxed.gaps.tolist()
+    assert relaxed.channel_partners_ok and relaxed.tiles_passed_once and relaxed.crossings == 0
+    assert relaxed.boundary_tiles_covered
