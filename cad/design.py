@@ -162,7 +162,14 @@ def _build_job(job: _TileJob, profile: Profile, hinge_data: tuple[_HingeData, ..
             notes.append(f"tile {job.tile}: label too small to engrave")
         else:
             tools.append(engraving)
-    solid = build_tile(tile_solid(job.vertices), tools)
+    try:
+        solid = build_tile(tile_solid(job.vertices), tools)
+    except RuntimeError as exc:
+        kinds = (
+            f"{len(job.channels)} channel(s), {len(job.lifts)} lift bore(s), "
+            f"{len(job.trims)} trim(s), {len(job.hinges)} hinge(s), label {job.label}"
+        )
+        raise RuntimeError(f"tile {job.tile} ({kinds}): {exc}") from exc
     pads = []
     for hinge in job.pads:
         tile_a, corner_a, tile_b, corner_b, side = hinge_data[hinge]

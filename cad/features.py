@@ -937,6 +937,16 @@ def trim_tool(points: NDArray[np.float64]) -> bd.Solid:
     return convex_solid(array)
 
 
+#: Shifts (mm) tried, in order, when a single feature's boolean cut fails.
+_NUDGES_MM = ((0.0, 0.0, 0.0), (0.002, 0.0, 0.0), (0.0, 0.002, 0.0), (0.0, 0.0, 0.002))
+
+
+def _plausible(pieces: list[bd.Solid], base: bd.Solid) -> bool:
+    """A cut result is plausible when its largest piece keeps at least half the volume: the
+    features are small next to a tile, so anything less is a failed boolean."""
+    return bool(pieces) and max(p.volume for p in pieces) >= 0.5 * base.volume
+
+
 def build_tile(tile: NDArray[np.float64] | bd.Solid, tools: list[bd.Shape]) -> bd.Solid:
     """The tile minus the tools that touch it, in one boolean operation.
 
@@ -951,6 +961,22 @@ def build_tile(tile: NDArray[np.float64] | bd.Solid, tools: list[bd.Shape]) -> b
         if np.all(tool_box[0] <= box[1] + 1e-6) and np.all(tool_box[1] >= box[0] - 1e-6):
             touching.append(tool)
     pieces = cut(base, touching)
+    if not _plausible(pieces, base):
+        # OCCT's batched cut can fail where two tools share a face (a channel and a lift bore
+        # leaving through the same opening); cutting one tool at a time avoids that.
+        pieces = [base]
+        for tool in touching:
+            current = max(pieces, key=lambda s: s.volume)
+            for nudge in _NUDGES_MM:
+                # A coincident face can defeat the boolean; a micrometre shift does not change
+                # what is printed.
+                moved = tool if not any(nudge) else tool.moved(bd.Location(nudge))
+                attempt = cut(current, [moved])
+                if _plausible(attempt, current):
+                    pieces = attempt
+                    break
+            else:
+                raise RuntimeError("a feature's cut failed even after shifting it slightly")
     if not pieces:
         raise RuntimeError("cutting the features removed the whole tile")
     if len(pieces) > 1:
