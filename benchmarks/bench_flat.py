@@ -40,7 +40,9 @@ def run(sizes: tuple[int, ...] = (14, 40), min_gap_angle_deg: float = 10.0) -> l
         for surface, parameter in CASES:
             top, t3 = heightfield_tiles(uv, linkage.tile_corners, surface, 4.0, parameter)
             start = time.perf_counter()
-            flat = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=min_gap_angle_deg)
+            flat = optimize_flat(
+                linkage, top, uv=uv, min_gap_angle_deg=min_gap_angle_deg, tiles_3d=t3
+            )
             t_flat = time.perf_counter() - start
             start = time.perf_counter()
             t2 = extrude_flat(flat, t3)

@@ -350,6 +350,7 @@ def design(
             assembled.tiles[:, :4],
             uv=component_flattenings(linkage, assembled.top, tiling.uv)[0],
             min_gap_angle_deg=resolved.min_gap_angle_deg,
+            tiles_3d=assembled.tiles,
         )
         tiles_2d = extrude_flat(flat, assembled.tiles, resolved.thickness_mm)
     with progress.stage("hinges"):

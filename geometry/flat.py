@@ -1,17 +1,24 @@
 """Flat configuration K2D and its extrusion T2D (paper section 4.3).
 
 K2D is the linkage laid out in the plane: one 2D position per linkage node (hinged corners share
-a node, so every hinge pair coincides exactly).  It minimizes
-
-    w_edge * E_edge + w_collision * E_collision + w_fab * E_fab
+a node, so every hinge pair coincides exactly).  It minimizes ``w_edge * E_edge`` subject to hard
+constraints that stand for the paper's ``E_collision`` and ``E_fab``:
 
 * ``E_edge``: every tile's 4 sides and 2 diagonals have the length of its K3D top face (paper
   eq. 3-4 with K3D targets), so tiles are congruent to their assembled top faces;
-* ``E_collision``: every gap junction keeps a positive (counter-clockwise) interior angle, so no
-  gap turns inside out; tile pairs found overlapping after a solve get a separating-axis group
-  (:class:`~drawstring.geometry.constraints.QuadSeparation2D`) and the solve is repeated;
-* ``E_fab``: the opening angle at both ends of every gap's slit (0 closed, 90 deg when the
-  rhombus is a square) lies in ``[theta_min, 90 deg]``.
+* collision: every gap junction keeps a positive (counter-clockwise) interior angle, so no gap
+  turns inside out; tile pairs of one component found overlapping after a solve get linear
+  separating-axis rows and the solve is repeated;
+* fabrication clearance: the opening angle at both ends of every gap's slit (0 closed, 90 deg
+  when the rhombus is a square) lies in ``[theta_min, 90 deg]`` -- on the top faces and, when
+  the T3D tiles are given, on the bottom faces of the extruded tiles too.
+
+The paper's ``w_fab = 0.001`` is a soft hint that leaves angles far below ``theta_min`` where the
+least-squares edge optimum wants gaps closed (the flat linkage has a nearly free opening mode), so
+the bounds are imposed exactly: an augmented Lagrangian whose subproblems are solved by
+Levenberg-Marquardt (one sparse factorization per Gauss-Newton step).  The edge error left is
+the constrained least-squares optimum: a quad linkage with non-congruent tiles is
+over-constrained in the plane.
 
 Initial layout
 --------------
@@ -23,13 +30,9 @@ area ``c a``, so the local opening must satisfy ``s_t (1 + sin theta_t) = c``.  
 ``c = s_max (1 + sin theta_min)`` makes the largest tile open by exactly ``theta_min`` and all
 others wider; they stay within 90 deg iff ``s_max / s_min <= 2 / (1 + sin theta_min)``.  Each
 tile is placed as its K3D face (rigidly flattened, aligned with its grid cell), turned by
-``-(-1)^(i+j) theta_t / 2`` about its centre; shared nodes start at the mean of their corners.
-This is done per component (components share no node), and components are then moved apart.
-
-After the local-global solve (constant factor, Anderson acceleration) a few damped Gauss-Newton
-steps on the same energy sharpen the result: edge lengths are then at the least-squares optimum
-to machine precision, so the remaining edge error is what the target's geometry forces (a quad
-linkage with non-congruent tiles is over-constrained in the plane), not solver slack.
+``-(-1)^(i+j) theta_t / 2`` about its centre; tile translations are then chosen by linear least
+squares so hinged corners meet as well as they can, and shared nodes start at the mean of their
+corners.  Components are solved together (they share no node) and moved apart afterwards.
 """
 
 from __future__ import annotations
@@ -41,17 +44,20 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from drawstring.geometry.constraints import GapAngleBounds, QuadSeparation2D, quad_overlap_mtv
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
+
+from drawstring.geometry.constraints import quad_overlap_mtv, signed_angles
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import Linkage
-from drawstring.geometry.solver import EdgeLength, LocalGlobalSolver
 from drawstring.geometry.tolerances import (
     FLAT_EDGE_ERROR_TOL_MM,
     FLAT_GAP_ANGLE_TOL_DEG,
+    FLAT_ORIENTATION_MIN_RAD,
     FLAT_OVERLAP_TOL_MM2,
+    FLAT_SEPARATION_MARGIN_REL,
+    FLAT_SOLVER_ANGLE_TOL_DEG,
 )
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import cKDTree
 
 logger = logging.getLogger(__name__)
 
@@ -87,11 +93,18 @@ class GapJunctions:
     is_end : (J,) bool
         The junction is an end of the gap's slit (its angle is the opening angle); otherwise it
         is a side vertex (angle ``180 deg - opening`` in a rhombus).
+    tiles : (J, 2) int
+        ``(t0, t1)``: the tile whose side arrives at the apex (arm ``p``) and the tile whose side
+        leaves it (arm ``q``), counter-clockwise around the void.
+    sides : (J, 2) int
+        ``(s0, s1)``: those sides' indices.
     """
 
     elements: IntArray
     gap: IntArray
     is_end: NDArray[np.bool_]
+    tiles: IntArray
+    sides: IntArray
 
     @property
     def ends(self) -> IntArray:
@@ -110,6 +123,7 @@ def gap_junctions(linkage: Linkage) -> GapJunctions:
     elements: list[tuple[int, int, int]] = []
     gaps: list[int] = []
     ends: list[bool] = []
+    tile_side: list[tuple[int, int, int, int]] = []
     cn = linkage.corner_node
     for g in range(linkage.n_gaps):
         sides = linkage.gap_sides[g]
@@ -118,8 +132,6 @@ def gap_junctions(linkage: Linkage) -> GapJunctions:
         for k in range(m):
             t0, s0 = (int(v) for v in sides[k])
             t1, s1 = (int(v) for v in sides[(k + 1) % m])
-            if m == 2 and k == 1:
-                pass  # both junctions of a two-sided gap are checked
             end_node = cn[t0, s0]  # side k ends (void-ccw) at corner s0
             start_node = cn[t1, (s1 + 1) % 4]
             if end_node != start_node:
@@ -128,12 +140,15 @@ def gap_junctions(linkage: Linkage) -> GapJunctions:
             q = int(cn[t1, s1])  # next point along the void
             elements.append((int(end_node), q, p))
             gaps.append(g)
+            tile_side.append((t0, t1, s0, s1))
             at_vertex = linkage.tile_corners[t0, s0] == linkage.gap_vertex[g]
             ends.append(not bool(at_vertex))
     return GapJunctions(
         elements=np.array(elements, dtype=np.int64).reshape(-1, 3),
         gap=np.array(gaps, dtype=np.int64),
         is_end=np.array(ends, dtype=bool),
+        tiles=np.array(tile_side, dtype=np.int64).reshape(-1, 4)[:, :2],
+        sides=np.array(tile_side, dtype=np.int64).reshape(-1, 4)[:, 2:],
     )
 
 
@@ -291,9 +306,38 @@ def initial_flat_layout(
     parity = (linkage.tile_cells[:, 0] + linkage.tile_cells[:, 1]) % 2
     turn = np.where(parity == 0, -1.0, 1.0) * 0.5 * opening
     rot = _rotations_2d(align + turn)
-    centres = np.sqrt(layout_scale[comp])[:, None] * cell_centre
-    corners = centres[:, None, :] + np.einsum("tij,tkj->tki", rot, plane_tiles)
+    shapes = np.einsum("tij,tkj->tki", rot, plane_tiles)
+    centres = _hinge_matching_translations(
+        linkage, shapes, np.sqrt(layout_scale[comp])[:, None] * cell_centre
+    )
+    corners = centres[:, None, :] + shapes
     return _average_nodes(linkage, corners), tile_scale, layout_scale, problems
+
+
+def _hinge_matching_translations(
+    linkage: Linkage, shapes: FloatArray, guess: FloatArray, reg: float = 1e-6
+) -> FloatArray:
+    """Tile translations ``(T, 2)`` that best join the hinged corners of fixed tile shapes.
+
+    Minimizes ``sum_h |(c_a + x_a) - (c_b + x_b)|^2 + reg sum_t |x_t - guess_t|^2`` (linear;
+    the small pull to ``guess`` fixes each component's translation).
+
+    Parameters
+    ----------
+    shapes : (T, 4, 2) float, mm
+        Tile corners relative to the tile's translation.
+    guess : (T, 2) float, mm
+    """
+    h = linkage.hinges
+    n_t = linkage.n_tiles
+    rows = np.arange(len(h))
+    diff = sp.csr_matrix(
+        (np.r_[np.ones(len(h)), -np.ones(len(h))], (np.r_[rows, rows], np.r_[h[:, 0], h[:, 2]])),
+        shape=(len(h), n_t),
+    )
+    rhs = shapes[h[:, 2], h[:, 3]] - shapes[h[:, 0], h[:, 1]]  # x_a - x_b should equal this
+    mat = (diff.T @ diff + reg * sp.identity(n_t)).tocsc()
+    return np.asarray(spla.spsolve(mat, diff.T @ rhs + reg * guess))
 
 
 def _polygon_signed_area(poly: FloatArray) -> FloatArray:
@@ -311,7 +355,7 @@ def _edge_pairs(linkage: Linkage) -> IntArray:
 
 
 def _overlapping_pairs(
-    linkage: Linkage, corners: FloatArray, tol: float
+    linkage: Linkage, corners: FloatArray, tol: float, within_components: bool = True
 ) -> tuple[IntArray, FloatArray]:
     """Tile pairs whose footprints overlap deeper than ``tol`` (separating-axis broad phase)."""
     centres = corners.mean(axis=1)
@@ -319,104 +363,249 @@ def _overlapping_pairs(
     pairs = cKDTree(centres).query_pairs(2.0 * radius + 1e-9, output_type="ndarray")
     if len(pairs) == 0:
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    if within_components:  # components are moved apart after the solve
+        comp = linkage.tile_component
+        pairs = pairs[comp[pairs[:, 0]] == comp[pairs[:, 1]]]
     depth, _ = quad_overlap_mtv(corners[pairs[:, 0]], corners[pairs[:, 1]])
     hit = depth > tol
     return pairs[hit].astype(np.int64), depth[hit]
 
 
-def _gauss_newton_edges(
-    nodes: FloatArray,
-    edges: IntArray,
-    targets: FloatArray,
-    weights: FloatArray,
-    angle_group: GapAngleBounds | None,
-    angle_weight: float,
-    steps: int,
-    step_tol: float = 1e-9,
-) -> FloatArray:
-    """Damped Gauss-Newton on ``sum w (|x_j - x_i| - L)^2`` plus active angle-bound residuals.
+@dataclass(frozen=True)
+class _AngleRows:
+    """Inequalities ``lo <= angle(apex, q, p) + offset <= hi`` (rad) at junctions.
 
-    Angle residuals use the local-global projection distance ``sqrt((|u|^2 + |v|^2) / 4) * excess``
-    linearised in the angle.  Gauge freedom (rigid motions) is removed by a tiny Levenberg term.
+    ``arm`` (mm) scales each row so that its value is a length (angle times a typical arm),
+    comparable with the edge residuals.  Angles are read in ``(branch, branch + 2 pi]``, so a
+    reflex angle (a concave component boundary) is not mistaken for an inverted one.
     """
-    x = nodes.copy()
-    n = len(x)
-    k = len(edges)
-    sw = np.sqrt(weights)
 
-    def residual_jac(x: FloatArray) -> tuple[FloatArray, sp.csr_matrix]:
-        d = x[edges[:, 1]] - x[edges[:, 0]]
+    elements: IntArray
+    offset: FloatArray
+    lo: FloatArray
+    hi: FloatArray
+    arm: FloatArray
+    branch: float = -np.pi
+
+    @property
+    def n_rows(self) -> int:
+        return 2 * len(self.elements)
+
+    def angles(self, x: FloatArray) -> FloatArray:
+        """Angles ``(k,)`` in rad, offsets included."""
+        e = self.elements
+        raw = signed_angles(x[e[:, 1]] - x[e[:, 0]], x[e[:, 2]] - x[e[:, 0]]) + self.offset
+        return np.where(raw <= self.branch, raw + 2.0 * np.pi, raw)
+
+    def values(self, x: FloatArray) -> FloatArray:
+        """``(2k,)`` mm: lower-bound rows then upper-bound rows (``>= 0`` where they hold)."""
+        ang = self.angles(x)
+        return np.concatenate([self.arm * (ang - self.lo), self.arm * (self.hi - ang)])
+
+    def jacobian(self, x: FloatArray, rows: IntArray) -> sp.csr_matrix:
+        """Gradient rows ``(len(rows), 2n)`` of :meth:`values` for the given row ids."""
+        k = len(self.elements)
+        el = self.elements[rows % k]
+        sign = np.where(rows < k, 1.0, -1.0) * self.arm[rows % k]
+        u = x[el[:, 1]] - x[el[:, 0]]
+        v = x[el[:, 2]] - x[el[:, 0]]
+        du = -np.stack([-u[:, 1], u[:, 0]], axis=1) / np.einsum("ki,ki->k", u, u)[:, None]
+        dv = np.stack([-v[:, 1], v[:, 0]], axis=1) / np.einsum("ki,ki->k", v, v)[:, None]
+        vals = sign[:, None] * np.concatenate([-(du + dv), du, dv], axis=1)
+        cols = np.stack([2 * el, 2 * el + 1], axis=2).reshape(-1, 6)
+        r = np.repeat(np.arange(len(rows)), 6)
+        return sp.csr_matrix((vals.ravel(), (r, cols.ravel())), shape=(len(rows), 2 * len(x)))
+
+
+@dataclass(frozen=True)
+class _SeparationRows:
+    """Linear inequalities ``n . (x_b - x_a) >= margin`` keeping two tiles apart along ``n``."""
+
+    a: IntArray
+    b: IntArray
+    normal: FloatArray
+    margin: FloatArray
+
+    @property
+    def n_rows(self) -> int:
+        return len(self.a)
+
+    def values(self, x: FloatArray) -> FloatArray:
+        return np.einsum("ki,ki->k", x[self.b] - x[self.a], self.normal) - self.margin
+
+    def jacobian(self, x: FloatArray, rows: IntArray) -> sp.csr_matrix:
+        a, b, nrm = self.a[rows], self.b[rows], self.normal[rows]
+        cols = np.stack([2 * a, 2 * a + 1, 2 * b, 2 * b + 1], axis=1)
+        vals = np.concatenate([-nrm, nrm], axis=1)
+        r = np.repeat(np.arange(len(rows)), 4)
+        return sp.csr_matrix((vals.ravel(), (r, cols.ravel())), shape=(len(rows), 2 * len(x)))
+
+
+def _separation_rows(
+    corner_node: IntArray, pairs: IntArray, normals: FloatArray, margin: float
+) -> _SeparationRows:
+    """Rows keeping every corner of tile ``b`` beyond every corner of tile ``a`` along the pair's
+    axis (16 rows per pair, less the rows of a node both tiles share)."""
+    na = np.repeat(corner_node[pairs[:, 0]], 4, axis=1).ravel()
+    nb = np.tile(corner_node[pairs[:, 1]], (1, 4)).ravel()
+    nrm = np.repeat(normals, 16, axis=0)
+    keep = na != nb
+    return _SeparationRows(na[keep], nb[keep], nrm[keep], np.full(int(keep.sum()), margin))
+
+
+@dataclass
+class _EdgeLeastSquares:
+    """``sum w (|x_j - x_i| - L)^2`` with its Gauss-Newton Jacobian."""
+
+    edges: IntArray
+    targets: FloatArray
+    sqrt_w: FloatArray
+
+    def residual_jacobian(self, x: FloatArray) -> tuple[FloatArray, sp.csr_matrix]:
+        e = self.edges
+        d = x[e[:, 1]] - x[e[:, 0]]
         length = np.linalg.norm(d, axis=1)
         unit = d / np.maximum(length, 1e-300)[:, None]
-        res = [sw * (length - targets)]
-        rows = np.repeat(np.arange(k), 4)
-        cols = np.stack(
-            [2 * edges[:, 0], 2 * edges[:, 0] + 1, 2 * edges[:, 1], 2 * edges[:, 1] + 1], axis=1
-        ).ravel()
-        vals = (sw[:, None] * np.concatenate([-unit, unit], axis=1)).ravel()
-        blocks = [sp.csr_matrix((vals, (rows, cols)), shape=(k, 2 * n))]
-        if angle_group is not None and angle_weight > 0:
-            el = angle_group.elements
-            u = x[el[:, 1]] - x[el[:, 0]]
-            v = x[el[:, 2]] - x[el[:, 0]]
-            ang = angle_group.angles(x)
-            excess = ang - np.clip(ang, angle_group.lo, angle_group.hi)
-            act = np.flatnonzero(excess != 0)
-            if act.size:
-                uu, vv = u[act], v[act]
-                nu = np.einsum("ki,ki->k", uu, uu)
-                nv = np.einsum("ki,ki->k", vv, vv)
-                scale = np.sqrt(angle_weight * (nu + nv) / 4.0)
-                res.append(scale * excess[act])
-                dv = np.stack([-vv[:, 1], vv[:, 0]], axis=1) / nv[:, None]
-                du = -np.stack([-uu[:, 1], uu[:, 0]], axis=1) / nu[:, None]
-                da = -(du + dv)
-                m = act.size
-                e = el[act]
-                rows_a = np.repeat(np.arange(m), 6)
-                cols_a = np.stack(
-                    [
-                        2 * e[:, 0],
-                        2 * e[:, 0] + 1,
-                        2 * e[:, 1],
-                        2 * e[:, 1] + 1,
-                        2 * e[:, 2],
-                        2 * e[:, 2] + 1,
-                    ],
-                    axis=1,
-                ).ravel()
-                vals_a = (scale[:, None] * np.concatenate([da, du, dv], axis=1)).ravel()
-                blocks.append(sp.csr_matrix((vals_a, (rows_a, cols_a)), shape=(m, 2 * n)))
-        return np.concatenate(res), sp.vstack(blocks, format="csr")
+        cols = np.stack([2 * e[:, 0], 2 * e[:, 0] + 1, 2 * e[:, 1], 2 * e[:, 1] + 1], axis=1)
+        vals = self.sqrt_w[:, None] * np.concatenate([-unit, unit], axis=1)
+        rows = np.repeat(np.arange(len(e)), 4)
+        jac = sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(len(e), 2 * len(x)))
+        return self.sqrt_w * (length - self.targets), jac
 
-    r, jac = residual_jac(x)
-    cost = float(r @ r)
-    lam = 1e-6
-    for _ in range(steps):
-        jtj = (jac.T @ jac).tocsc()
-        mu = lam * float(jtj.diagonal().mean())
-        step = spla.splu(
-            (jtj + mu * sp.identity(2 * n, format="csc")).tocsc(),
-            permc_spec="MMD_AT_PLUS_A",
-            diag_pivot_thresh=0.0,
-            options={"SymmetricMode": True},
-        ).solve(-(jac.T @ r))
-        trial = x + step.reshape(n, 2)
-        r_new, jac_new = residual_jac(trial)
-        cost_new = float(r_new @ r_new)
-        logger.debug("gauss-newton: cost %.3e -> %.3e, step %.2e", cost, cost_new, abs(step).max())
-        if cost_new < cost:
-            x, r, jac = trial, r_new, jac_new
-            done = cost - cost_new <= 1e-10 * cost or float(np.abs(step).max()) < step_tol
-            cost = cost_new
-            lam = max(lam * 0.5, 1e-12)
-            if done:
+    def residual(self, x: FloatArray) -> FloatArray:
+        d = x[self.edges[:, 1]] - x[self.edges[:, 0]]
+        return self.sqrt_w * (np.linalg.norm(d, axis=1) - self.targets)
+
+
+def _constrained_edges(
+    x0: FloatArray,
+    objective: _EdgeLeastSquares,
+    constraints: list[_AngleRows | _SeparationRows],
+    *,
+    max_steps: int,
+    angle_tol: float,
+    length_tol: float,
+) -> tuple[FloatArray, int, float]:
+    """Minimize the edge energy subject to ``values >= 0`` of every constraint block.
+
+    Augmented Lagrangian (multipliers ``lam``, penalty ``rho``) whose subproblems
+    ``sum w r^2 + sum max(0, lam - rho g)^2 / (2 rho)`` are least-squares problems solved by
+    Levenberg-Marquardt (Gauss-Newton steps, one sparse factorization each).  Gauge freedom
+    (rigid motions) is removed by a tiny diagonal term.  Stops when every row holds to within
+    its tolerance (``angle_tol`` rad for angle rows, ``length_tol`` mm for separation rows) and
+    the positions have settled, or after ``max_steps`` factorizations.
+
+    Returns
+    -------
+    x : (n, 2) float, mm
+    steps : int
+        Factorizations used.
+    violation : float
+        Largest remaining violation in units of the row tolerances (``<= 1``: converged).
+    """
+    x = x0.copy()
+    n = len(x)
+    sizes = [c.n_rows for c in constraints]
+    offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    m = int(offsets[-1])
+    # Violation tolerance of each row, mm (angle rows: angle tolerance times the arm).
+    row_tol = np.concatenate(
+        [
+            np.tile(c.arm * angle_tol, 2)
+            if isinstance(c, _AngleRows)
+            else np.full(c.n_rows, length_tol)
+            for c in constraints
+        ]
+        or [np.zeros(0)]
+    )
+
+    def values(x: FloatArray) -> FloatArray:
+        if not constraints:
+            return np.zeros(0)
+        return np.concatenate([c.values(x) for c in constraints])
+
+    def penalty_rows(g: FloatArray, lam: FloatArray, rho: float) -> tuple[FloatArray, IntArray]:
+        c = np.maximum(0.0, lam - rho * g)
+        act = np.flatnonzero(c > 0)
+        return c[act] / np.sqrt(2.0 * rho), act
+
+    def jac_rows(x: FloatArray, act: IntArray) -> list[sp.csr_matrix]:
+        out = []
+        for k, c in enumerate(constraints):
+            sel = act[(act >= offsets[k]) & (act < offsets[k + 1])] - offsets[k]
+            if sel.size:
+                out.append(c.jacobian(x, sel))
+        return out
+
+    def cost(x: FloatArray, lam: FloatArray, rho: float) -> float:
+        r = objective.residual(x)
+        pen, _ = penalty_rows(values(x), lam, rho)
+        return float(r @ r + pen @ pen)
+
+    lam = np.zeros(m)
+    rho = 10.0
+    steps = 0
+    prev_viol = np.inf
+    mu = 1e-4
+    violation = 0.0
+    for _outer in range(60):
+        # --- Levenberg-Marquardt on the augmented Lagrangian subproblem -----------------
+        moved = 0.0
+        c0 = cost(x, lam, rho)
+        for _inner in range(40):
+            if steps >= max_steps:
                 break
-        else:
-            lam *= 8.0
-            if lam > 1e3:
+            r, jac = objective.residual_jacobian(x)
+            pen, act = penalty_rows(values(x), lam, rho)
+            blocks = [jac]
+            if act.size:
+                blocks += [-np.sqrt(0.5 * rho) * j for j in jac_rows(x, act)]
+            jr = sp.vstack(blocks, format="csr")
+            res = np.concatenate([r, pen])
+            jtj = (jr.T @ jr).tocsc()
+            grad = jr.T @ res
+            diag = jtj.diagonal()
+            scale = float(diag.mean()) if diag.size else 1.0
+            improved = False
+            for _try in range(8):
+                mat = jtj + sp.diags(mu * diag + 1e-10 * scale, format="csc")
+                step = spla.splu(
+                    mat, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                    options={"SymmetricMode": True},
+                ).solve(-grad)  # fmt: skip
+                steps += 1
+                trial = x + step.reshape(n, 2)
+                c1 = cost(trial, lam, rho)
+                if c1 < c0:
+                    x, improved = trial, True
+                    decrease = c0 - c1
+                    c0 = c1
+                    mu = max(mu / 3.0, 1e-12)
+                    moved = max(moved, float(np.abs(step).max()))
+                    break
+                mu *= 8.0
+            if not improved or decrease <= 1e-14 * max(c0, 1e-30) or np.abs(step).max() < 1e-10:
                 break
-    return x
+        # --- multiplier update ------------------------------------------------------------
+        g = values(x)
+        viol_rows = np.maximum(-g, 0.0) / row_tol if m else np.zeros(0)
+        violation = float(viol_rows.max(initial=0.0))  # in units of the tolerance
+        lam = np.maximum(0.0, lam - rho * g)
+        logger.debug(
+            "flat AL round %d: violation %.3g tol, rho %.3g, steps %d",
+            _outer,
+            violation,
+            rho,
+            steps,
+        )
+        if steps >= max_steps:
+            break
+        if violation <= 1.0 and moved < 1e-7:
+            break
+        if violation > 0.25 * prev_viol:
+            rho = min(rho * 10.0, 1e9)
+        prev_viol = violation
+    return x, steps, violation
 
 
 def _separate_components(
@@ -477,21 +666,42 @@ def _separate_components(
     return out, offsets
 
 
+def _bottom_offsets(
+    plane_tiles: FloatArray, tiles_3d: FloatArray, junctions: GapJunctions
+) -> FloatArray:
+    """Bottom-face minus top-face opening angle ``(E,)`` in rad at every slit end.
+
+    A rigid tile turns its top and bottom sides together, so the opening measured on the
+    bottom faces differs from the top one by a constant per slit end: the turn from each arm's
+    top side to its bottom side (tiles posed as in :func:`extrude_flat`).
+    """
+    posed = extrude_flat(plane_tiles, tiles_3d)[..., :2]
+    t = junctions.tiles[junctions.is_end]
+    s = junctions.sides[junctions.is_end]
+    t0, t1, s0, s1 = t[:, 0], t[:, 1], s[:, 0], s[:, 1]
+
+    def arm(tile: IntArray, a: IntArray, b: IntArray, face: int) -> FloatArray:
+        return np.asarray(posed[tile, face + a] - posed[tile, face + b])
+
+    u_top, u_bot = arm(t1, s1, (s1 + 1) % 4, 0), arm(t1, s1, (s1 + 1) % 4, 4)
+    v_top, v_bot = arm(t0, (s0 + 1) % 4, s0, 0), arm(t0, (s0 + 1) % 4, s0, 4)
+    return np.asarray(signed_angles(v_top, v_bot) - signed_angles(u_top, u_bot))
+
+
 def optimize_flat(
     linkage: Linkage,
     tile_top_3d: ArrayLike,
     *,
     uv: ArrayLike,
     min_gap_angle_deg: float = 10.0,
+    tiles_3d: ArrayLike | None = None,
     w_edge: float = 1.0,
     w_collision: float = 1.0,
     w_fab: float = 0.001,
     max_iter: int = 400,
-    anderson: int = 5,
-    polish_steps: int = 30,
     separate_components: bool = True,
 ) -> FlatResult:
-    """Optimize the flat configuration K2D (paper eq. 5).
+    """Optimize the flat configuration K2D (paper eq. 5, bounds enforced exactly).
 
     Parameters
     ----------
@@ -503,11 +713,19 @@ def optimize_flat(
         own component (``Tiling.layout_uv``); only shapes within a component matter.
     min_gap_angle_deg : float, deg
         ``theta_min``; the maximum is 90 deg.
-    w_edge, w_collision, w_fab : float
-        Energy weights (paper defaults 1, 1, 0.001).
-    max_iter, anderson : local-global solver options.
-    polish_steps : int
-        Damped Gauss-Newton steps after the local-global solve (0 to skip).
+    tiles_3d : (T, 8, 3) float, mm, optional
+        T3D tiles.  When given, the opening angles measured on the bottom faces of the extruded
+        tiles (which differ from the top ones by a fixed amount per slit end when side faces
+        are twisted) are kept within the bounds too, as the dual hinge layout requires.
+    w_edge : float
+        Weight of ``E_edge`` (only its ratio to nothing matters: the bounds are hard).
+    w_collision : float
+        ``0`` drops the collision constraints (gap orientation and tile separation).
+    w_fab : float
+        ``0`` drops the gap-angle bounds; any positive value enforces them exactly (the paper's
+        soft weight 0.001 cannot guarantee the bounds).
+    max_iter : int
+        Most Gauss-Newton steps (each one sparse factorization).
     separate_components : bool
         Move components apart after the solve.
 
@@ -531,6 +749,8 @@ def optimize_flat(
         )
     if not 0.0 <= min_gap_angle_deg < 90.0:
         raise InputError(f"--min-gap-angle {min_gap_angle_deg} deg must be in [0, 90)")
+    if min(w_edge, w_collision, w_fab) < 0 or w_edge == 0:
+        raise InputError("flat weights must be >= 0 and w_edge > 0")
     theta_min = np.radians(min_gap_angle_deg)
     plane = tile_plane_coordinates(top)
     nodes0, tile_scale, layout_scale, problems = initial_flat_layout(
@@ -539,68 +759,92 @@ def optimize_flat(
     edges = _edge_pairs(linkage)
     targets = np.linalg.norm(top[:, TILE_EDGES[:, 1]] - top[:, TILE_EDGES[:, 0]], axis=2)
     junctions = gap_junctions(linkage)
-    groups: list = [EdgeLength(edges, targets.ravel(), weight=w_edge, name="edge")]
-    fab = GapAngleBounds(junctions.ends, theta_min, 0.5 * np.pi, weight=w_fab, name="fab")
-    if len(junctions.ends) and w_fab > 0:
-        groups.append(fab)
-    orient = GapAngleBounds(junctions.elements, 1e-6, np.pi, weight=w_collision, name="orient")
+    side = float(np.mean(targets[:, :4]))
+    objective = _EdgeLeastSquares(edges, targets.ravel(), np.full(len(edges), np.sqrt(w_edge)))
+    constraints: list[_AngleRows | _SeparationRows] = []
+    ends = junctions.ends
+    if len(ends) and w_fab > 0:
+        hi = 0.5 * np.pi
+        constraints.append(
+            _AngleRows(ends, np.zeros(len(ends)), np.full(len(ends), theta_min),
+                       np.full(len(ends), hi), np.full(len(ends), side))
+        )  # fmt: skip
+        if tiles_3d is not None:
+            t3 = np.asarray(tiles_3d, dtype=np.float64)
+            if t3.shape != (linkage.n_tiles, 8, 3):
+                raise InputError(f"tiles_3d has shape {t3.shape}; pass (T, 8, 3) T3D tiles")
+            off = _bottom_offsets(plane, t3, junctions)
+            twisted = np.abs(off) > np.radians(FLAT_GAP_ANGLE_TOL_DEG)
+            if twisted.any():
+                k = int(twisted.sum())
+                constraints.append(
+                    _AngleRows(ends[twisted], off[twisted], np.full(k, theta_min),
+                               np.full(k, hi), np.full(k, side))
+                )  # fmt: skip
     if len(junctions.elements) and w_collision > 0:
-        groups.append(orient)
-    solver = LocalGlobalSolver(linkage.n_nodes, groups)
-    result = solver.solve(nodes0, max_iter=max_iter, anderson=anderson)
-    nodes = result.X
-    iterations = result.iterations
-    for round_ in range(3):
-        if polish_steps > 0:
-            nodes = _polish(nodes, edges, targets.ravel(), w_edge, fab, w_fab, polish_steps)
-            # E_fab is a soft penalty; raise its weight until the bounds hold (continuation).
-            w_fab_now = w_fab
-            for _ in range(6):
-                if not len(junctions.ends) or w_fab <= 0:
-                    break
-                ang = np.degrees(fab.angles(nodes))
-                excess = max(min_gap_angle_deg - ang.min(), ang.max() - 90.0)
-                if excess <= 0.5 * FLAT_GAP_ANGLE_TOL_DEG:
-                    break
-                w_fab_now *= 10.0
-                nodes = _polish(nodes, edges, targets.ravel(), w_edge, fab, w_fab_now, polish_steps)
-        pairs, _ = _overlapping_pairs(linkage, nodes[linkage.corner_node], FLAT_OVERLAP_TOL_MM2)
-        if len(pairs) == 0 or w_collision <= 0:
+        k = len(junctions.elements)
+        constraints.append(
+            _AngleRows(junctions.elements, np.zeros(k), np.full(k, FLAT_ORIENTATION_MIN_RAD),
+                       np.full(k, 1.5 * np.pi), np.full(k, side), branch=-0.5 * np.pi)
+        )  # fmt: skip
+    angle_tol = np.radians(FLAT_SOLVER_ANGLE_TOL_DEG)
+    nodes, iterations, violation = _constrained_edges(
+        nodes0, objective, constraints, max_steps=max_iter, angle_tol=angle_tol,
+        length_tol=angle_tol * side,
+    )  # fmt: skip
+    cn = linkage.corner_node
+    for round_ in range(4):
+        if w_collision <= 0:
+            break
+        pairs, _ = _overlapping_pairs(linkage, nodes[cn], FLAT_OVERLAP_TOL_MM2)
+        if len(pairs) == 0:
             break
         logger.info(
             "flat: %d overlapping tile pairs, adding separation (round %d)", len(pairs), round_
         )
-        cn = linkage.corner_node
-        name = f"separation{round_}"
-        solver.add_group(
-            QuadSeparation2D(cn[pairs[:, 0]], cn[pairs[:, 1]], weight=w_collision, name=name)
-        )
-        result = solver.solve(nodes, max_iter=max_iter, anderson=anderson)
-        nodes = result.X
-        iterations += result.iterations
+        _, normal = quad_overlap_mtv(nodes[cn[pairs[:, 0]]], nodes[cn[pairs[:, 1]]])
+        constraints.append(_separation_rows(cn, pairs, normal, FLAT_SEPARATION_MARGIN_REL * side))
+        nodes, steps, violation = _constrained_edges(
+            nodes, objective, constraints, max_steps=max(max_iter - iterations, 1),
+            angle_tol=angle_tol, length_tol=angle_tol * side,
+        )  # fmt: skip
+        iterations += steps
     if separate_components:
         cell_uv = uv_arr if uv_arr.ndim == 3 else uv_arr[linkage.tile_corners]
         cell = float(np.sqrt(np.median(np.abs(_polygon_signed_area(cell_uv)))))
         nodes, offsets = _separate_components(linkage, nodes, cell_uv, 0.5 * cell)
     else:
         offsets = np.zeros((linkage.n_components, 2))
-    corners = nodes[linkage.corner_node]
+    corners = nodes[cn]
     lengths = np.linalg.norm(corners[:, TILE_EDGES[:, 1]] - corners[:, TILE_EDGES[:, 0]], axis=2)
     edge_error = float(np.max(np.abs(lengths - targets), initial=0.0))
-    opening = np.degrees(fab.angles(nodes)) if len(junctions.ends) else np.zeros(0)
+    fab = _AngleRows(
+        ends, np.zeros(len(ends)), np.zeros(len(ends)), np.zeros(len(ends)), np.ones(len(ends))
+    )
+    opening = np.degrees(fab.angles(nodes)) if len(ends) else np.zeros(0)
     if edge_error > FLAT_EDGE_ERROR_TOL_MM:
         problems.append(
             f"flat edge error {edge_error:.3g} mm exceeds {FLAT_EDGE_ERROR_TOL_MM:g} mm: the tiles "
             "cannot all keep their assembled shape in the plane (least-squares optimum reached)"
         )
     if opening.size:
-        lo, hi = float(opening.min()), float(opening.max())
-        if lo < min_gap_angle_deg - FLAT_GAP_ANGLE_TOL_DEG or hi > 90.0 + FLAT_GAP_ANGLE_TOL_DEG:
+        lo, hi_deg = float(opening.min()), float(opening.max())
+        if (
+            lo < min_gap_angle_deg - FLAT_GAP_ANGLE_TOL_DEG
+            or hi_deg > 90.0 + FLAT_GAP_ANGLE_TOL_DEG
+        ):
             problems.append(
-                f"gap opening angles span [{lo:.2f}, {hi:.2f}] deg, outside the bounds "
+                f"gap opening angles span [{lo:.2f}, {hi_deg:.2f}] deg, outside the bounds "
                 f"[{min_gap_angle_deg:g}, 90] deg"
             )
+    remaining, _ = _overlapping_pairs(linkage, corners, FLAT_OVERLAP_TOL_MM2, False)
+    if len(remaining):
+        problems.append(f"{len(remaining)} pairs of flat tiles still overlap")
     elapsed = time.perf_counter() - start
+    logger.info(
+        "flat: %d Gauss-Newton steps, %.3f s, edge error %.3g mm, violation %.3g x tol",
+        iterations, elapsed, edge_error, violation,
+    )  # fmt: skip
     return FlatResult(
         nodes=nodes,
         corners=corners,
@@ -616,19 +860,6 @@ def optimize_flat(
         time_s=elapsed,
         problems=tuple(problems),
     )
-
-
-def _polish(
-    nodes: FloatArray,
-    edges: IntArray,
-    targets: FloatArray,
-    w_edge: float,
-    fab: GapAngleBounds,
-    w_fab: float,
-    steps: int,
-) -> FloatArray:
-    weights = np.full(len(edges), w_edge)
-    return _gauss_newton_edges(nodes, edges, targets, weights, fab, w_fab, steps)
 
 
 def _kabsch(src: FloatArray, dst: FloatArray) -> tuple[FloatArray, FloatArray]:

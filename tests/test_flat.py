@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from drawstring.geometry.flat import extrude_flat, gap_junctions, optimize_flat
-from drawstring.geometry.linkage import build_linkage
+from drawstring.geometry.linkage import Split, build_linkage
 from drawstring.geometry.verify import (
     convex_polygon_overlap,
     flat_edge_errors,
@@ -105,3 +105,48 @@ def test_gap_junctions_of_a_2x2_block() -> None:
     assert linkage.n_gaps == 3
     assert len(junctions.elements) == 6
     assert junctions.is_end.sum() == 2 + 2
+
+
+def test_dome_with_large_scale_range_keeps_every_gap_angle_in_bounds() -> None:
+    # Tile areas vary by 1.60x (the most 12 deg allows is 2 / (1 + sin 12 deg) = 1.656); the
+    # surface is split into two components whose own flattenings overlap (as per-component
+    # flattenings do): the solve must neither collide them nor let any gap close.
+    linkage = build_linkage(np.ones((10, 10), dtype=bool), (Split("y", 5, 0, 10),))
+    uv = linkage.vertex_ij * 10.0 - 50.0
+    top, _ = heightfield_tiles(uv, linkage.tile_corners, "dome", 3.0, 0.01)
+    cells = uv[linkage.tile_corners].copy()
+    cells[linkage.tile_component == 1] -= [0.0, 30.0]
+    flat = optimize_flat(linkage, top, uv=cells, min_gap_angle_deg=12.0)
+    angles = gap_opening_angles_deg(linkage, flat.corners)
+    assert angles.min() >= 12.0 - 1e-3 and angles.max() <= 90.0 + 1e-3
+    assert angles.min() == pytest.approx(12.0, abs=1e-3)  # the bound is active somewhere
+    assert flat_overlap(flat.corners)[0] == 0.0
+    # Edge error: the constrained least-squares optimum (0.025 mm here), far below a tile side.
+    assert flat_edge_errors(flat.corners, top).max() < 0.05
+    assert not any("angle" in p or "overlap" in p for p in flat.problems)
+
+
+def test_bottom_face_bounds_follow_twisted_side_faces() -> None:
+    # Twist every tile's bottom face by 3 deg about its own centre: opening angles measured on
+    # the bottom faces then differ from the top ones by +-6 deg, and both must stay in bounds.
+    linkage, uv = _grid(6)
+    top, tiles = heightfield_tiles(uv, linkage.tile_corners, "plane", 3.0, 0.0)
+    tiles = tiles.copy()
+    parity = (linkage.tile_cells[:, 0] + linkage.tile_cells[:, 1]) % 2
+    a = np.radians(3.0) * np.where(parity == 0, 1.0, -1.0)
+    rot = np.stack(
+        [np.stack([np.cos(a), -np.sin(a)], -1), np.stack([np.sin(a), np.cos(a)], -1)], -2
+    )
+    centre = tiles[:, 4:, :2].mean(axis=1, keepdims=True)
+    tiles[:, 4:, :2] = centre + np.einsum("tij,tkj->tki", rot, tiles[:, 4:, :2] - centre)
+    flat = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=12.0, tiles_3d=tiles)
+    t2 = extrude_flat(flat, tiles)
+    bottom = np.ones(linkage.n_hinges, dtype=bool)
+    for angles in (
+        gap_opening_angles_deg(linkage, t2),
+        gap_opening_angles_deg(linkage, t2, bottom),
+    ):
+        assert angles.min() >= 12.0 - 1e-3 and angles.max() <= 90.0 + 1e-3
+    plain = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=12.0)
+    bottom_plain = gap_opening_angles_deg(linkage, extrude_flat(plain, tiles), bottom)
+    assert bottom_plain.min() < 12.0 - 1.0  # without tiles_3d the bottom faces close further
