@@ -942,9 +942,15 @@ _NUDGES_MM = ((0.0, 0.0, 0.0), (0.002, 0.0, 0.0), (0.0, 0.002, 0.0), (0.0, 0.0, 
 
 
 def _plausible(pieces: list[bd.Solid], base: bd.Solid) -> bool:
-    """A cut result is plausible when its largest piece keeps at least half the volume: the
-    features are small next to a tile, so anything less is a failed boolean."""
-    return bool(pieces) and max(p.volume for p in pieces) >= 0.5 * base.volume
+    """A cut result is plausible when its largest piece is a valid, manifold solid keeping at
+    least half the volume: the features are small next to a tile, so anything less (or a
+    non-manifold seam where two tools touch) is a failed boolean."""
+    if not pieces:
+        return False
+    largest = max(pieces, key=lambda p: p.volume)
+    return bool(
+        largest.volume >= 0.5 * base.volume and largest.is_manifold and largest.is_valid
+    )
 
 
 def build_tile(tile: NDArray[np.float64] | bd.Solid, tools: list[bd.Shape]) -> bd.Solid:

@@ -190,6 +190,10 @@ class HingeLayout:
     iterations : int
     time_s : float
     problems : tuple of str
+    rigid_tiles : (T, 8, 3) float, mm, or None
+        The tiles before merging: congruent to T3D, separated by the layout's clearance
+        except at their hinge points.  These are what gets fabricated; the hinge parts bridge
+        the residual hinge mismatch.
     """
 
     strategy: HingeStrategy
@@ -203,6 +207,7 @@ class HingeLayout:
     iterations: int = 0
     time_s: float = 0.0
     problems: tuple[str, ...] = field(default=())
+    rigid_tiles: FloatArray | None = None
 
     @property
     def sides(self) -> tuple[HingeSide, ...]:
@@ -1115,7 +1120,7 @@ def layout_hinges(
             )
     return HingeLayout(
         strategy, result.merged, bottom, ids, result.points, gap_max, trims, lost,
-        result.iterations, time.perf_counter() - start, tuple(problems),
+        result.iterations, time.perf_counter() - start, tuple(problems), result.tiles,
     )  # fmt: skip
 
 
