@@ -1192,17 +1192,21 @@ def draw_flat(
     comp_cmap = colormaps["Pastel1"]
     colours = [comp_cmap(int(c) % 9) for c in linkage.tile_component]
     if flat is not None and flat.junctions.elements.size:
-        nodes = flat.nodes
         gap_polys: list[FloatArray] = []
         gap_vals: list[float] = []
-        ang = dict(zip(flat.junctions.gap[flat.junctions.is_end], flat.opening_deg, strict=True))
+        from .verify import gap_opening_angles_deg
+
+        measured = gap_opening_angles_deg(linkage, tiles, layout.bottom)
+        ang: dict[int, float] = {}
+        for g, value in zip(flat.junctions.gap[flat.junctions.is_end], measured, strict=True):
+            ang[int(g)] = min(ang.get(int(g), 90.0), float(value))
         for g in range(linkage.n_gaps):
             sides = linkage.gap_sides[g]
             sides = sides[sides[:, 0] >= 0]
             ring: list[FloatArray] = []
-            for t, s in sides:
-                ring.append(nodes[linkage.corner_node[t, (s + 1) % 4]])
-                ring.append(nodes[linkage.corner_node[t, s]])
+            for t, s in sides:  # the void, traced along the final tiles' top sides
+                ring.append(tiles[t, (s + 1) % 4, :2])
+                ring.append(tiles[t, s, :2])
             gap_polys.append(np.array(ring))
             gap_vals.append(float(ang.get(g, 0.0)))
         pc = PolyCollection(gap_polys, array=np.array(gap_vals), cmap="viridis", alpha=0.6)
