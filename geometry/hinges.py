@@ -46,10 +46,9 @@ import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-from drawstring.geometry.constraints import signed_angles
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.flat import FlatResult
-from drawstring.geometry.linkage import Linkage
+from drawstring.geometry.linkage import Linkage, SlitEnds, slit_ends
 from drawstring.geometry.tolerances import (
     HINGE_ANGLE_MARGIN_DEG,
     HINGE_LAYOUT_CLEARANCE_MM,
@@ -277,63 +276,6 @@ def _rotate2(v: FloatArray, angle: FloatArray) -> FloatArray:
     """Rotate vectors ``(..., 2)`` counter-clockwise by ``angle`` (broadcast)."""
     c, s = np.cos(angle), np.sin(angle)
     return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], axis=-1)
-
-
-@dataclass(frozen=True)
-class SlitEnds:
-    """Slit ends of all gaps: the hinged corner pairs whose opening angle is bounded.
-
-    The opening angle at slit end ``j`` measured on face ``f`` (0 top, 4 bottom) is the
-    counter-clockwise angle from ``x[t1, f + s1] - x[t1, f + s1 + 1]`` to
-    ``x[t0, f + s0 + 1] - x[t0, f + s0]`` (as in :func:`~drawstring.geometry.verify.
-    gap_opening_angles_deg`); rigid tiles turned by ``phi`` change it by ``phi[t0] - phi[t1]``.
-
-    Attributes
-    ----------
-    tiles : (E, 2) int
-        ``(t0, t1)``.
-    sides : (E, 2) int
-        ``(s0, s1)``.
-    hinge : (E,) int
-        Index into ``linkage.hinges`` of the hinge at the slit end.
-    """
-
-    tiles: IntArray
-    sides: IntArray
-    hinge: IntArray
-
-    def angles(self, tiles: FloatArray, face: IntArray | int) -> FloatArray:
-        """Opening angles ``(E,)`` in rad of tiles ``(T, 8, 2+)`` on ``face`` (0 or 4, per end)."""
-        f = np.broadcast_to(np.asarray(face, dtype=np.int64), (len(self.hinge),))
-        t0, t1 = self.tiles[:, 0], self.tiles[:, 1]
-        s0, s1 = self.sides[:, 0], self.sides[:, 1]
-        u = tiles[t1, f + s1, :2] - tiles[t1, f + (s1 + 1) % 4, :2]
-        v = tiles[t0, f + (s0 + 1) % 4, :2] - tiles[t0, f + s0, :2]
-        return signed_angles(u, v)
-
-
-def slit_ends(linkage: Linkage) -> SlitEnds:
-    """All slit ends of ``linkage`` (same order as ``verify.gap_opening_angles_deg``)."""
-    cn = linkage.corner_node
-    hinge_at = -np.ones((linkage.n_tiles, 4), dtype=np.int64)
-    h = linkage.hinges
-    hinge_at[h[:, 0], h[:, 1]] = np.arange(linkage.n_hinges)
-    hinge_at[h[:, 2], h[:, 3]] = np.arange(linkage.n_hinges)
-    rows: list[tuple[int, int, int, int, int]] = []
-    for g in range(linkage.n_gaps):
-        sides = linkage.gap_sides[g]
-        sides = sides[sides[:, 0] >= 0]
-        m = len(sides)
-        for k in range(m):
-            t0, s0 = (int(v) for v in sides[k])
-            t1, s1 = (int(v) for v in sides[(k + 1) % m])
-            if cn[t0, s0] != cn[t1, (s1 + 1) % 4]:
-                continue
-            if linkage.tile_corners[t0, s0] == linkage.gap_vertex[g]:
-                continue
-            rows.append((t0, t1, s0, s1, int(hinge_at[t0, s0])))
-    arr = np.array(rows, dtype=np.int64).reshape(-1, 5)
-    return SlitEnds(tiles=arr[:, :2], sides=arr[:, 2:4], hinge=arr[:, 4])
 
 
 @dataclass(frozen=True)

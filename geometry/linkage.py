@@ -350,3 +350,61 @@ def gap_centroids(linkage: Linkage, corners: NDArray[np.float64]) -> NDArray[np.
     weight = valid[..., None].astype(np.float64)
     total = ((start + end) * weight).sum(axis=1)
     return np.asarray(total / (2.0 * weight.sum(axis=1)))
+
+
+@dataclass(frozen=True)
+class SlitEnds:
+    """Slit ends of all gaps: the hinged corner pairs whose opening angle is bounded.
+
+    At slit end ``j`` the void's side of tile ``t0`` (side ``s0``) meets the side of tile
+    ``t1`` (side ``s1``) at a hinge.  The opening angle measured on face ``f`` (0 top, 4 bottom)
+    is the counter-clockwise angle from ``x[t1, f + s1] - x[t1, f + s1 + 1]`` to
+    ``x[t0, f + s0 + 1] - x[t0, f + s0]``.
+
+    Attributes
+    ----------
+    tiles : (E, 2) int, ``(t0, t1)``.
+    sides : (E, 2) int, ``(s0, s1)``.
+    hinge : (E,) int, index into ``linkage.hinges`` of the hinge at the slit end.
+    """
+
+    tiles: NDArray[np.int64]
+    sides: NDArray[np.int64]
+    hinge: NDArray[np.int64]
+
+    def angles(
+        self, tiles: NDArray[np.float64], face: NDArray[np.int64] | int
+    ) -> NDArray[np.float64]:
+        """Opening angles ``(E,)`` in rad of tiles ``(T, 8, 2+)`` (or top corners
+        ``(T, 4, 2+)`` with ``face`` 0) on ``face`` (0 top or 4 bottom, per end)."""
+        f = np.broadcast_to(np.asarray(face, dtype=np.int64), (len(self.hinge),))
+        t0, t1 = self.tiles[:, 0], self.tiles[:, 1]
+        s0, s1 = self.sides[:, 0], self.sides[:, 1]
+        u = tiles[t1, f + s1, :2] - tiles[t1, f + (s1 + 1) % 4, :2]
+        v = tiles[t0, f + (s0 + 1) % 4, :2] - tiles[t0, f + s0, :2]
+        cross = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+        return np.asarray(np.arctan2(cross, np.einsum("ki,ki->k", u, v)))
+
+
+def slit_ends(linkage: Linkage) -> SlitEnds:
+    """Every slit end of ``linkage``, gap by gap, in the order of ``gap_sides``."""
+    nodes = linkage.corner_node
+    hinge_at = -np.ones((linkage.n_tiles, 4), dtype=np.int64)
+    h = linkage.hinges
+    hinge_at[h[:, 0], h[:, 1]] = np.arange(linkage.n_hinges)
+    hinge_at[h[:, 2], h[:, 3]] = np.arange(linkage.n_hinges)
+    rows: list[tuple[int, int, int, int, int]] = []
+    for g in range(linkage.n_gaps):
+        sides = linkage.gap_sides[g]
+        sides = sides[sides[:, 0] >= 0]
+        count = len(sides)
+        for k in range(count):
+            t0, s0 = (int(v) for v in sides[k])
+            t1, s1 = (int(v) for v in sides[(k + 1) % count])
+            if nodes[t0, s0] != nodes[t1, (s1 + 1) % 4]:
+                continue  # the two sides do not meet at a hinge
+            if linkage.tile_corners[t0, s0] == linkage.gap_vertex[g]:
+                continue  # a side vertex of the gap, not a slit end
+            rows.append((t0, t1, s0, s1, int(hinge_at[t0, s0])))
+    arr = np.array(rows, dtype=np.int64).reshape(-1, 5)
+    return SlitEnds(tiles=arr[:, :2], sides=arr[:, 2:4], hinge=arr[:, 4])

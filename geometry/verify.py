@@ -27,8 +27,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-from drawstring.geometry.constraints import quad_overlap_mtv, signed_angles
-from drawstring.geometry.linkage import Linkage
+from drawstring.geometry.constraints import quad_overlap_mtv
+from drawstring.geometry.linkage import Linkage, slit_ends
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -274,7 +274,6 @@ def gap_opening_angles_deg(
         Compared with ``[theta_min, 90]`` up to ``FLAT_GAP_ANGLE_TOL_DEG``.
     """
     c = np.asarray(corners_2d, dtype=np.float64)[..., :2]
-    cn = linkage.corner_node
     offset = np.zeros((linkage.n_tiles, 4), dtype=np.int64)
     if bottom is not None:
         if c.shape[1] != 8:
@@ -283,25 +282,11 @@ def gap_opening_angles_deg(
         b = np.asarray(bottom, dtype=bool)
         offset[h[:, 0], h[:, 1]] = np.where(b, 4, 0)
         offset[h[:, 2], h[:, 3]] = np.where(b, 4, 0)
-    u_list: list[FloatArray] = []
-    v_list: list[FloatArray] = []
-    for g in range(linkage.n_gaps):
-        sides = linkage.gap_sides[g]
-        sides = sides[sides[:, 0] >= 0]
-        m = len(sides)
-        for k in range(m):
-            t0, s0 = (int(v) for v in sides[k])
-            t1, s1 = (int(v) for v in sides[(k + 1) % m])
-            if cn[t0, s0] != cn[t1, (s1 + 1) % 4]:
-                continue
-            if linkage.tile_corners[t0, s0] == linkage.gap_vertex[g]:
-                continue  # a side vertex of the gap, not a slit end
-            f = int(offset[t0, s0])
-            u_list.append(c[t1, f + s1] - c[t1, f + (s1 + 1) % 4])
-            v_list.append(c[t0, f + (s0 + 1) % 4] - c[t0, f + s0])
-    if not u_list:
+    ends = slit_ends(linkage)
+    if not len(ends.hinge):
         return np.zeros(0)
-    return np.degrees(signed_angles(np.array(u_list), np.array(v_list)))
+    face = offset[ends.tiles[:, 0], ends.sides[:, 0]]
+    return np.asarray(np.degrees(ends.angles(c, face)))
 
 
 def hinge_gaps(tiles: ArrayLike, hinge_vertices: ArrayLike) -> FloatArray:
