@@ -1,7 +1,8 @@
 """Pictures of the deployment simulation: an animated GIF and single frames.
 
 Tiles are drawn as their six quad faces (tops darker), the string as a red polyline, all from
-one fixed camera whose limits cover every frame.
+one fixed camera whose limits cover every frame.  The output is deterministic: the same frames
+give a byte-identical GIF (GIF has no timestamps; matplotlib's Agg rendering is deterministic).
 """
 
 from __future__ import annotations

@@ -8,39 +8,43 @@ Projective dynamics (Bouaziz et al. 2014) on the shared local-global solver
 with the inertia term written as closeness to moving targets ``y`` (one constant matrix, so the
 factor is reused), and these groups, each with its own module-level class below:
 
-* ``rigid`` -- :class:`~drawstring.geometry.solver.EdgeLength` over 18 edges per tile (4 top,
-  4 bottom, 4 side, and one diagonal per face, chosen so that the six diagonals form the
-  tetrahedron on vertices 0, 2, 5, 7: the 18-bar framework is then rigid);
+* ``rigid`` -- :class:`RigidShape`: each tile's eight vertices projected onto the closest rigid
+  copy of the fabricated (flat) tile (batched Kabsch);
 * ``hinge`` -- paired hinge vertices coincide (the linkage's joints);
-* ``contact`` -- neighbouring tiles (sharing a grid edge or a grid vertex) do not
-  interpenetrate: a separating-axis test over the 12 face normals of the two hexahedra, pushing
-  both tiles apart along the axis of least overlap.  Ignoring edge-edge axes can only
-  over-estimate the overlap, so the test is conservative;
-* ``ground`` -- the table: no vertex below the lowest vertex of the flat pose (frictionless);
-* ``snap`` -- the string: for consecutive tiles on the route, the midpoints of the leaving side
-  face of one tile and the entering side face of the next are pulled together (they coincide
-  in the assembled state);
-* ``lift`` -- the string's exits: the top corners around every lift gap are pulled towards their
-  assembled positions (placed on the table in the flat layout's frame).
+* ``contact`` -- :class:`FaceContact`: the side faces of grid neighbours (which touch in the
+  assembled state) do not pass through each other; half-space rows along an axis frozen once
+  per step, so the matrix is constant and a step costs no collision search;
+* ``snap`` -- the string: for consecutive tiles on the route, the paired side faces are reeled
+  in.  Faces that touch in the assembled state are pulled together corner by corner; where the
+  string crosses a gap between faces that do not meet, the midpoints are reeled in to their
+  assembled distance;
+* ``lift`` -- the string's exits: the top corners around every lift gap are pulled up to their
+  assembled height (the assembled tiles placed on the table under the flat layout);
+* the table -- tiles never dip below the lowest level of the flat pose (rigid push up).
 
-String actuation: the string is *reeled in*.  Each snap pair may be at most ``r(t)`` apart and
-``r(t)`` shrinks from the pair's initial distance to zero over ``ramp_steps``; lift targets move
-from the lift vertices' start positions to their targets over the same ramp.  Targets move
-without touching the system matrix.  String tension (the snap and lift weights) then rises in a
-few discrete levels (one refactorization each) to lock the structure.
+String actuation: the string is *reeled in*.  Each snap row may be at most ``r(t)`` long and
+``r(t)`` goes from its flat length to its assembled length over ``ramp_steps``; lift targets
+move over the same ramp.  Targets move without touching the system matrix.  Then the tension
+rises in a few discrete lock levels (every weight times 10, 100: one refactorization each),
+which makes the step quasi-static and locks the structure against gravity.
 
-Success is measured on the final state: every route gap closed within tolerance, every tile
-within ``deviation`` of the assembled tiles after one rigid (Kabsch) alignment over all
-vertices, the conservative penetration depth below tolerance, all within the step budget.
+Success is measured (every ``check_every`` steps after the last lock level; the run stops at the
+first success): every route pair at its assembled distance within tolerance, every tile within
+``deviation`` of the assembled tiles after one rigid (Kabsch) alignment over all vertices, the
+conservative penetration depth below tolerance, rigid edges within tolerance in every step, all
+within the step budget.  Otherwise the result is "stuck" with the open route gaps.
 """
 
 from __future__ import annotations
 
+import io
 import logging
 import time
+import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal, Protocol, runtime_checkable
 
 import numpy as np
 import scipy.sparse as sp
@@ -50,8 +54,8 @@ from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import Linkage, build_linkage, rotating_squares_layout
 from drawstring.geometry.solver import (
     ConstraintGroup,
-    EdgeLength,
     LocalGlobalSolver,
+    centering_matrix,
     difference_matrix,
 )
 from drawstring.geometry.tolerances import (
@@ -59,8 +63,12 @@ from drawstring.geometry.tolerances import (
     SIM_EDGE_LENGTH_REL,
     SIM_GAP_CLOSED_REL,
     SIM_PENETRATION_REL,
-    SIM_SETTLE_REL,
+    SIM_STALL_PROGRESS,
+    SIM_STILL_REL,
 )
+
+if TYPE_CHECKING:  # the fabrication layer is only named for typing (geometry stays below it)
+    from drawstring.fabrication.pipeline import Design
 
 logger = logging.getLogger(__name__)
 
@@ -82,7 +90,13 @@ __all__ = [
     "kabsch_deviation",
     "lift_targets_for_gaps",
     "max_penetration",
+    "contact_face_pairs",
     "route_snap_pairs",
+    "route_steps",
+    "save_deploy_npz",
+    "simulate_design",
+    "simulate_stage",
+    "snap_goal_length",
     "side_face_midpoints",
     "simulate_deployment",
     "tile_edge_lengths",
@@ -399,7 +413,10 @@ class Inertia(ConstraintGroup):
 
 
 class PointCoincidence(ConstraintGroup):
-    """Paired vertices coincide (hinges): rows ``(x_b - x_a) / sqrt 2`` projected to zero.
+    """Paired vertices coincide (hinges): rows ``(x_b - x_a) / sqrt 2`` shortened to ``radius``.
+
+    ``radius`` (per row, default zero) lets a hinge that is open in the fabricated layout close
+    over a few steps instead of jerking the tiles in the first one.
 
     Parameters
     ----------
@@ -409,27 +426,35 @@ class PointCoincidence(ConstraintGroup):
     def __init__(self, pairs: ArrayLike, weight: float, name: str = "hinge") -> None:
         super().__init__(name, weight)
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        self.radius = np.zeros(len(self.pairs))
 
     def matrix(self, n_vertices: int) -> sp.csr_matrix:
         return sp.csr_matrix(difference_matrix(self.pairs, n_vertices) / np.sqrt(2.0))
 
     def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
-        return np.zeros_like(ax)
+        if not np.any(self.radius):
+            return np.zeros_like(ax)
+        norm = np.linalg.norm(ax, axis=1)
+        scale = np.minimum(1.0, self.radius / np.maximum(norm, 1e-300))
+        return np.asarray(ax * scale[:, None])
 
 
 class FaceSnap(ConstraintGroup):
-    """Route neighbours' side faces pulled within a (shrinking) distance ``radius``.
+    """The string between route neighbours: each row kept at most ``radius`` long.
 
-    ``mode == "midpoint"`` (the paper): row ``p`` is ``mid(face_b) - mid(face_a)``.
-    ``mode == "face"``: four rows per pair, each face corner minus its partner corner of the
-    other face (``partner``), i.e. whole-face contact.  The projection shortens every row to at
-    most ``radius`` (the string still to be reeled in), zero at the end of the ramp.
+    A pair whose faces touch in the assembled state (``face[p]`` True, ``mode == "face"``) has
+    four rows, each corner of face a minus its partner corner of face b (``partner``): whole-face
+    contact.  Other pairs (the string crossing a gap whose two faces do not meet, and every pair
+    with ``mode == "midpoint"``, the paper's choice) have one row, ``mid(face_b) - mid(face_a)``.
+    The projection shortens every row to at most ``radius`` (the string still to be reeled in),
+    which the simulation moves from the start length to the assembled length.
 
     Parameters
     ----------
     pairs : (P, 4) int, ``(tile_a, side_a, tile_b, side_b)``.
-    partner : (P, 4) int, for ``"face"``: index into face b's corners of the partner of face
+    partner : (P, 4) int, for face rows: index into face b's corners of the partner of face
         a's corner ``c``.
+    face : (P,) bool, pairs that get face rows (default: all when ``mode == "face"``).
     """
 
     def __init__(
@@ -439,28 +464,43 @@ class FaceSnap(ConstraintGroup):
         mode: SnapMode = "midpoint",
         partner: IntArray | None = None,
         name: str = "snap",
+        face: ArrayLike | None = None,
     ) -> None:
         super().__init__(name, weight)
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 4)
         self.mode = mode
         self.partner = partner
-        per = 1 if mode == "midpoint" else 4
-        self.radius = np.zeros(len(self.pairs) * per)
+        k = len(self.pairs)
+        if mode == "midpoint":
+            self.face = np.zeros(k, dtype=bool)
+        elif face is None:
+            self.face = np.ones(k, dtype=bool)
+        else:
+            self.face = np.asarray(face, dtype=bool).reshape(k)
+        #: pair of every row
+        self.row_pair = np.concatenate(
+            [np.flatnonzero(self.face).repeat(4), np.flatnonzero(~self.face)]
+        )
+        self.radius = np.zeros(len(self.row_pair))
 
     def matrix(self, n_vertices: int) -> sp.csr_matrix:
         p = self.pairs
-        k = len(p)
-        va = p[:, 0, None] * 8 + SIDE_FACES[p[:, 1]]  # (k, 4)
+        va = p[:, 0, None] * 8 + SIDE_FACES[p[:, 1]]  # (P, 4)
         vb = p[:, 2, None] * 8 + SIDE_FACES[p[:, 3]]
-        if self.mode == "midpoint":
+        blocks = []
+        if self.face.any():
+            assert self.partner is not None
+            vb_match = np.take_along_axis(vb, self.partner, axis=1)[self.face]
+            edges = np.stack([va[self.face].reshape(-1), vb_match.reshape(-1)], axis=1)
+            blocks.append(difference_matrix(edges, n_vertices))
+        mid = ~self.face
+        if mid.any():
+            k = int(mid.sum())
             rows = np.repeat(np.arange(k), 8)
-            cols = np.concatenate([va, vb], axis=1).reshape(-1)
+            cols = np.concatenate([va[mid], vb[mid]], axis=1).reshape(-1)
             vals = np.tile(np.r_[-0.25 * np.ones(4), 0.25 * np.ones(4)], k)
-            return sp.csr_matrix((vals, (rows, cols)), shape=(k, n_vertices))
-        assert self.partner is not None
-        vb_match = np.take_along_axis(vb, self.partner, axis=1)
-        edges = np.stack([va.reshape(-1), vb_match.reshape(-1)], axis=1)
-        return difference_matrix(edges, n_vertices)
+            blocks.append(sp.csr_matrix((vals, (rows, cols)), shape=(k, n_vertices)))
+        return sp.csr_matrix(sp.vstack(blocks, format="csr"))
 
     def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
         norm = np.linalg.norm(ax, axis=1)
@@ -471,85 +511,147 @@ class FaceSnap(ConstraintGroup):
 class MovingTargets(ConstraintGroup):
     """Vertices pulled to targets that may move every step (lift actuation).
 
+    With ``height_only`` the targets prescribe only ``z`` (the string lifts; it does not drag
+    sideways): the projection keeps the current ``x, y``.
+
     Parameters
     ----------
     indices : (k,) int
     """
 
-    def __init__(self, indices: ArrayLike, weight: float, name: str = "lift") -> None:
+    def __init__(
+        self, indices: ArrayLike, weight: float, name: str = "lift", height_only: bool = False
+    ) -> None:
         super().__init__(name, weight)
         self.indices = np.asarray(indices, dtype=np.int64).reshape(-1)
         self.targets = np.zeros((len(self.indices), 3))
+        self.height_only = height_only
 
     def matrix(self, n_vertices: int) -> sp.csr_matrix:
         k = len(self.indices)
         return sp.csr_matrix((np.ones(k), (np.arange(k), self.indices)), shape=(k, n_vertices))
 
     def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
-        return self.targets
-
-
-class Ground(ConstraintGroup):
-    """Frictionless table: every vertex keeps ``z >= level``.
-
-    Parameters
-    ----------
-    n : number of vertices.
-    level : float, mm
-    """
-
-    def __init__(self, n: int, level: float, weight: float, name: str = "ground") -> None:
-        super().__init__(name, weight)
-        self.n = int(n)
-        self.level = float(level)
-
-    def matrix(self, n_vertices: int) -> sp.csr_matrix:
-        return sp.identity(n_vertices, format="csr")
-
-    def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
+        if not self.height_only:
+            return self.targets
         out = ax.copy()
-        np.maximum(out[:, 2], self.level, out=out[:, 2])
+        out[:, 2] = self.targets[:, 2]
         return out
 
 
-class TileContact(ConstraintGroup):
-    """Neighbouring tiles do not interpenetrate (conservative separating-axis projection).
+class RigidShape(ConstraintGroup):
+    """Every tile keeps its rest shape: its eight vertices projected onto the closest rigid copy.
 
-    ``A`` gives the 16 vertices of a pair minus the pair's centroid; where the tiles overlap
-    (see :func:`hexahedron_overlap`) tile ``a`` moves by ``-depth / 2`` and tile ``b`` by
-    ``+depth / 2`` along the axis of least overlap; elsewhere the current value is returned.
+    ``A`` gives each tile's vertices minus the tile centroid; the projection is the rest shape
+    (centred) turned by the best rotation (batched Kabsch via 3 x 3 SVDs), so the group is the
+    exact closest-point projection onto the rigid motions of the tile.
 
     Parameters
     ----------
-    pairs : (k, 2) int, tile pairs.
+    rest : (T, 8, 3) float, mm, the fabricated tiles.
+    """
+
+    def __init__(self, rest: ArrayLike, weight: float, name: str = "rigid") -> None:
+        super().__init__(name, weight)
+        arr = np.asarray(rest, dtype=np.float64)
+        self.rest = arr - arr.mean(axis=1, keepdims=True)
+
+    def matrix(self, n_vertices: int) -> sp.csr_matrix:
+        n_tiles = len(self.rest)
+        return centering_matrix(np.arange(n_tiles * 8).reshape(n_tiles, 8), n_vertices)
+
+    def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
+        cur = ax.reshape(-1, 8, 3)
+        cov = np.matmul(self.rest.transpose(0, 2, 1), cur)
+        u, _, vt = np.linalg.svd(cov)
+        flip = np.linalg.det(np.matmul(u, vt)) < 0
+        u[flip, :, 2] *= -1.0
+        return np.asarray(np.matmul(self.rest, np.matmul(u, vt)).reshape(ax.shape))
+
+
+def contact_face_pairs(linkage: Linkage) -> IntArray:
+    """Side faces of grid-neighbour tiles that touch in the assembled state.
+
+    Tiles in cells ``(i, j)`` and ``(i + 1, j)`` meet with sides 1 and 3, tiles in ``(i, j)``
+    and ``(i, j + 1)`` with sides 2 and 0.  Only hinged neighbours are listed: across a split
+    line the two parts may lie anywhere in the flat layout, where a face half-space would be
+    meaningless (the string's snap pairs bring them together).
+
+    Returns
+    -------
+    (k, 4) int, ``(tile_a, side_a, tile_b, side_b)``.
+    """
+    cells = linkage.tile_cells
+    index = {(int(i), int(j)): t for t, (i, j) in enumerate(cells)}
+    hinged = {(int(min(a, b)), int(max(a, b))) for a, _, b, _ in linkage.hinges}
+    out = []
+    for t, (i, j) in enumerate(cells):
+        right = index.get((int(i) + 1, int(j)))
+        if right is not None and (min(t, right), max(t, right)) in hinged:
+            out.append((t, 1, right, 3))
+        up = index.get((int(i), int(j) + 1))
+        if up is not None and (min(t, up), max(t, up)) in hinged:
+            out.append((t, 2, up, 0))
+    return np.array(out, dtype=np.int64).reshape(-1, 4)
+
+
+def _side_normals(tiles: FloatArray, tile: IntArray, side: IntArray) -> FloatArray:
+    """Unit normals ``(k, 3)`` of side faces, pointing into their tiles."""
+    face = tiles[tile[:, None], SIDE_FACES[side]]  # (k, 4, 3)
+    n = np.cross(face[:, 2] - face[:, 0], face[:, 3] - face[:, 1])
+    return np.asarray(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300))
+
+
+class FaceContact(ConstraintGroup):
+    """Touching side faces of neighbour tiles do not pass through each other.
+
+    For every pair, rows give the four corners of face b minus the centroid of face a, and the
+    four corners of face a minus the centroid of face b.  With the contact axis ``n`` (from a
+    towards b: the mean of the two faces' normals, frozen by :meth:`set_axes` once per time
+    step so the projection is a fixed convex set), the projection removes the negative part of
+    ``n . r`` (face b's corners stay in front of face a) and of ``-n . r`` (and vice versa).
+    Rows that are satisfied return their current value.
+
+    Parameters
+    ----------
+    pairs : (k, 4) int, ``(tile_a, side_a, tile_b, side_b)`` (:func:`contact_face_pairs`).
     """
 
     def __init__(self, pairs: ArrayLike, weight: float, name: str = "contact") -> None:
         super().__init__(name, weight)
-        self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 4)
+        self.axes = np.zeros((len(self.pairs), 3))
 
     def matrix(self, n_vertices: int) -> sp.csr_matrix:
         p = self.pairs
-        elements = np.concatenate(
-            [p[:, :1] * 8 + np.arange(8), p[:, 1:] * 8 + np.arange(8)], axis=1
+        k = len(p)
+        fa = p[:, 0, None] * 8 + SIDE_FACES[p[:, 1]]  # (k, 4)
+        fb = p[:, 2, None] * 8 + SIDE_FACES[p[:, 3]]
+        rows = np.arange(8 * k).reshape(2, k, 4)
+        corner = np.stack([fb, fa])  # block 0: corners of b, block 1: corners of a
+        other = np.stack([fa, fb])
+        r_all = np.concatenate(
+            [rows.reshape(-1), np.repeat(rows[..., None], 4, axis=3).reshape(-1)]
         )
-        k, s = elements.shape
-        rows = np.repeat(np.arange(k * s), s)
-        cols = np.repeat(elements, s, axis=0).reshape(-1)
-        vals = np.tile((np.eye(s) - 1.0 / s).reshape(-1), k)
-        return sp.csr_matrix((vals, (rows, cols)), shape=(k * s, n_vertices))
+        c_all = np.concatenate(
+            [corner.reshape(-1), np.repeat(other[:, :, None, :], 4, axis=2).reshape(-1)]
+        )
+        v_all = np.concatenate([np.ones(8 * k), np.full(32 * k, -0.25)])
+        return sp.csr_matrix((v_all, (r_all, c_all)), shape=(8 * k, n_vertices))
+
+    def set_axes(self, x: FloatArray) -> None:
+        """Freeze the contact axes at positions ``x : (T * 8, 3)``."""
+        tiles = x.reshape(-1, 8, 3)
+        p = self.pairs
+        n = _side_normals(tiles, p[:, 2], p[:, 3]) - _side_normals(tiles, p[:, 0], p[:, 1])
+        self.axes = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
     def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
-        pts = ax.reshape(-1, 16, 3)
-        depth, axis = hexahedron_overlap(pts[:, :8], pts[:, 8:])
-        hit = depth > 0
-        if not np.any(hit):
-            return ax
-        out = pts.copy()
-        shift = 0.5 * depth[hit, None] * axis[hit]
-        out[hit, :8] -= shift[:, None, :]
-        out[hit, 8:] += shift[:, None, :]
-        return out.reshape(ax.shape)
+        k = len(self.pairs)
+        r = ax.reshape(2, k, 4, 3)
+        axis = np.stack([self.axes, -self.axes])[:, :, None, :]
+        push = np.minimum(np.sum(r * axis, axis=3), 0.0)
+        return np.asarray((r - push[..., None] * axis).reshape(ax.shape))
 
 
 # --------------------------------------------------------------------------------------------
@@ -567,14 +669,15 @@ class SimulationTolerances:
     deviation_rel : every tile within this times ``s`` of T3D after rigid alignment.
     penetration_rel : conservative overlap depth at most this times ``s``.
     edge_length_rel : rigid edges within this times ``s`` of their rest length, every frame.
-    settle_rel : the run may stop when no vertex moved more than this times ``s`` in a step.
+    settle_rel : the run stops (stuck) when no vertex moved more than this times ``s`` in five
+        consecutive steps.
     """
 
     gap_closed_rel: float = SIM_GAP_CLOSED_REL
     deviation_rel: float = SIM_DEVIATION_REL
     penetration_rel: float = SIM_PENETRATION_REL
     edge_length_rel: float = SIM_EDGE_LENGTH_REL
-    settle_rel: float = SIM_SETTLE_REL
+    settle_rel: float = SIM_STILL_REL
 
 
 @dataclass(frozen=True)
@@ -586,30 +689,45 @@ class SimulationSettings:
     time_step_s : h, s.
     max_steps : step budget.
     ramp_steps : steps over which the string is reeled in (snap radius -> 0, lift -> target).
-    lock_levels : multipliers of the snap and lift weights applied after the ramp, one
-        refactorization each (the tension rising to lock the structure).
+    lock_levels : after the ramp, every ``lock_every`` steps all constraint weights are
+        multiplied by the next level (one refactorization each): the string tension rises until
+        the structure is locked against gravity, and the step becomes quasi-static.
+    lock_every : steps between lock levels.
+    check_every : after the last lock level, the success criteria are measured every this many
+        steps and the run stops as soon as they all hold.
+    stall_checks : the run stops as stuck when the largest tile deviation did not shrink by
+        ``SIM_STALL_PROGRESS`` over this many checks (or when nothing moves for five steps).
     iterations : local-global iterations per step (Anderson accelerated).
     anderson : Anderson history length.
     damping : fraction of the velocity removed every step.
-    rigid, hinge, contact, ground, snap, lift : weights / (m / h^2).
+    rigid, hinge, contact, snap, lift : weights / (m / h^2).
+    snap_mode : ``"face"`` (the four corner pairs of the contact faces) or ``"midpoint"``.
+    lift_height_only : lift targets prescribe only the height (the string pulls up, the
+        tiles find their own place sideways); else the whole assembled position on the table.
+    hinge_close_steps : hinges that are open in the flat layout close linearly over this many
+        steps.
+    table : keep every tile above the table (the lowest level of the flat pose).
     """
 
     time_step_s: float = 0.002
-    max_steps: int = 400
+    max_steps: int = 600
     ramp_steps: int = 150
-    lock_levels: tuple[float, ...] = (3.0, 10.0)
-    iterations: int = 12
+    lock_levels: tuple[float, ...] = (10.0, 100.0)
+    lock_every: int = 20
+    check_every: int = 10
+    stall_checks: int = 10
+    iterations: int = 10
     anderson: int = 5
     damping: float = 0.1
-    rigid: float = 1e4
-    hinge: float = 1e4
-    contact: float = 1e2
-    ground: float = 0.0
-    post_contact: int = 0
+    rigid: float = 3e4
+    hinge: float = 3e4
+    contact: float = 1e3
+    snap: float = 3e3
+    lift: float = 3e3
     snap_mode: SnapMode = "face"
+    lift_height_only: bool = True
+    hinge_close_steps: int = 80
     table: bool = True
-    snap: float = 1e2
-    lift: float = 1e2
 
 
 @dataclass(frozen=True)
@@ -730,8 +848,12 @@ def simulate_deployment(
     _check_inputs(flat, goal, hinges)
     if flat.shape[0] != linkage.n_tiles:
         raise InputError(f"{flat.shape[0]} tiles given for a linkage of {linkage.n_tiles}")
-    if frame_every < 1 or cfg.max_steps < 1 or cfg.ramp_steps < 1:
-        raise InputError("frame_every, max_steps and ramp_steps must be >= 1")
+    counts = (cfg.max_steps, cfg.ramp_steps, cfg.hinge_close_steps, cfg.check_every)
+    if min(frame_every, cfg.stall_checks, *counts) < 1:
+        raise InputError(
+            "frame_every, max_steps, ramp_steps, hinge_close_steps, check_every and "
+            "stall_checks must be >= 1"
+        )
     pairs = np.asarray(snap_pairs, dtype=np.int64).reshape(-1, 4)
     gaps_of_pairs = (
         np.arange(len(pairs)) if snap_gaps is None else np.asarray(snap_gaps, dtype=np.int64)
@@ -754,7 +876,6 @@ def simulate_deployment(
     n = n_tiles * 8
     x = flat.reshape(-1, 3).copy()
     rest = tile_edge_lengths(flat)  # (T, 18): the fabricated pieces
-    edges = (np.arange(n_tiles)[:, None, None] * 8 + TILE_EDGES[None]).reshape(-1, 2)
 
     # Tile masses from volume (mean 1): a tetrahedral decomposition of the hexahedron.
     masses = np.repeat(_tile_volumes(flat), 8)
@@ -762,67 +883,98 @@ def simulate_deployment(
 
     h = cfg.time_step_s
     w_in = 1.0 / h**2
-    contact_pairs = neighbour_tile_pairs(linkage)
     inertia = Inertia(masses, w_in)
-    groups: list[ConstraintGroup] = [
-        inertia,
-        EdgeLength(edges, rest.reshape(-1), weight=cfg.rigid * w_in, name="rigid"),
-    ]
-    table = float(flat[..., 2].min())
-    if cfg.ground > 0:
-        groups.append(Ground(n, table, cfg.ground * w_in))
+    base = {"rigid": cfg.rigid}
+    groups: list[ConstraintGroup] = [inertia, RigidShape(flat, cfg.rigid * w_in)]
+    hinge: PointCoincidence | None = None
     if len(hinges):
-        groups.append(PointCoincidence(hinges, cfg.hinge * w_in))
-    if len(contact_pairs) and cfg.contact > 0:
-        groups.append(TileContact(contact_pairs, cfg.contact * w_in))
+        hinge = PointCoincidence(hinges, cfg.hinge * w_in)
+        groups.append(hinge)
+        base["hinge"] = cfg.hinge
+        hinge_gap0 = np.linalg.norm(x[hinges[:, 1]] - x[hinges[:, 0]], axis=1) / np.sqrt(2.0)
+    contact: FaceContact | None = None
+    faces = contact_face_pairs(linkage)
+    if len(faces) and cfg.contact > 0:
+        contact = FaceContact(faces, cfg.contact * w_in)
+        groups.append(contact)
+        base["contact"] = cfg.contact
     snap: FaceSnap | None = None
     if len(pairs):
-        partner = _face_partners(goal, pairs) if cfg.snap_mode == "face" else None
-        snap = FaceSnap(pairs, cfg.snap * w_in, mode=cfg.snap_mode, partner=partner)
+        partner = _face_partners(goal, pairs)
+        touching = snap_goal_length(goal, pairs) <= tol.gap_closed_rel * side
+        snap = FaceSnap(pairs, cfg.snap * w_in, mode=cfg.snap_mode, partner=partner, face=touching)
         groups.append(snap)
+        base["snap"] = cfg.snap
     lift: MovingTargets | None = None
     placement = place_on_table(goal, flat)
     if len(lift_v):
-        lift = MovingTargets(lift_v, cfg.lift * w_in)
+        lift = MovingTargets(lift_v, cfg.lift * w_in, height_only=cfg.lift_height_only)
         groups.append(lift)
+        base["lift"] = cfg.lift
         lift_goal = _apply(placement, lift_t)
         lift_start = x[lift_v].copy()
     solver = LocalGlobalSolver(n, groups)
+    contact_pairs = neighbour_tile_pairs(linkage)
+
+    goal_len = snap_goal_length(goal, pairs)
 
     def snap_distances(pos: FloatArray) -> FloatArray:
-        mids = side_face_midpoints(pos.reshape(n_tiles, 8, 3))
-        return np.asarray(
-            np.linalg.norm(mids[pairs[:, 2], pairs[:, 3]] - mids[pairs[:, 0], pairs[:, 1]], axis=1)
-        )
+        """How far every pair is from its assembled midpoint distance, mm."""
+        if not len(pairs):
+            return np.zeros(0)
+        return np.asarray(np.abs(snap_goal_length(pos.reshape(n_tiles, 8, 3), pairs) - goal_len))
 
-    d0 = np.zeros(0)
+    def failures(pos: FloatArray) -> tuple[list[str], FloatArray, FloatArray, float]:
+        """Unmet success criteria at ``pos``, with the gap distances, deviations, penetration."""
+        tiles = pos.reshape(n_tiles, 8, 3)
+        dist = snap_distances(pos)
+        dev = kabsch_deviation(tiles, goal)
+        pen = max_penetration(tiles, contact_pairs)
+        reasons = []
+        n_open = int(np.count_nonzero(dist > tol.gap_closed_rel * side))
+        if n_open:
+            reasons.append(f"{n_open} route pairs open (> {tol.gap_closed_rel * side:.3g} mm)")
+        if dev.max() > tol.deviation_rel * side:
+            reasons.append(f"deviation {dev.max():.3g} mm > {tol.deviation_rel * side:.3g} mm")
+        if pen > tol.penetration_rel * side:
+            reasons.append(f"penetration {pen:.3g} mm > {tol.penetration_rel * side:.3g} mm")
+        return reasons, dist, dev, pen
+
+    d0 = d_end = np.zeros(0)
     if snap is not None:
-        ax0 = solver._matrices["snap"] @ x
-        d0 = np.linalg.norm(ax0, axis=1)
+        snap_rows = snap.matrix(n)
+        d0 = np.linalg.norm(snap_rows @ x, axis=1)
+        d_end = np.linalg.norm(snap_rows @ goal.reshape(-1, 3), axis=1)
     g_vec = np.asarray(gravity, dtype=np.float64)
     v = np.zeros_like(x)
     frames = [x.reshape(n_tiles, 8, 3).astype(np.float32)]
     max_edge_err = 0.0
     iterations = factorizations = 0
     settle = tol.settle_rel * side
-    lock_at = [cfg.ramp_steps + 10 * (i + 1) for i in range(len(cfg.lock_levels))]
+    table = float(flat[..., 2].min())
+    lock_at = {
+        cfg.ramp_steps + cfg.lock_every * (i + 1): level for i, level in enumerate(cfg.lock_levels)
+    }
+    check_from = max(lock_at, default=cfg.ramp_steps)
     quiet = 0
+    progress: list[float] = []
     step = 0
+    verdict: tuple[list[str], FloatArray, FloatArray, float] | None = None
     for step in range(1, cfg.max_steps + 1):
         ramp = min(1.0, step / cfg.ramp_steps)
         smooth = ramp * ramp * (3.0 - 2.0 * ramp)
         if snap is not None:
-            snap.radius = d0 * (1.0 - smooth)
+            snap.radius = d0 + smooth * (d_end - d0)
+        if hinge is not None:
+            hinge.radius = hinge_gap0 * max(0.0, 1.0 - step / cfg.hinge_close_steps)
         if lift is not None:
             lift.targets = lift_start + smooth * (lift_goal - lift_start)
-        for level, at in zip(cfg.lock_levels, lock_at, strict=True):
-            if step == at:
-                if snap is not None:
-                    solver.set_weight("snap", cfg.snap * level * w_in)
-                if lift is not None:
-                    solver.set_weight("lift", cfg.lift * level * w_in)
-                if cfg.contact > 0 and len(contact_pairs):
-                    solver.set_weight("contact", cfg.contact * level * w_in)
+        if step in lock_at:
+            for name, weight in base.items():
+                if weight > 0:
+                    solver.set_weight(name, weight * lock_at[step] * w_in)
+        if contact is not None:
+            contact.set_axes(x)
         y = x + h * v + h * h * g_vec
         if cfg.table:
             y = _lift_above(y, table, n_tiles)  # the table holds the inertial targets
@@ -830,12 +982,7 @@ def simulate_deployment(
         res = solver.solve(y, max_iter=cfg.iterations, anderson=cfg.anderson, rel_tol=1e-12)
         iterations += res.iterations
         factorizations += res.factorizations
-        x_new = res.X
-        if cfg.post_contact and len(contact_pairs):
-            x_new = _separate(x_new.reshape(n_tiles, 8, 3), contact_pairs, cfg.post_contact)
-            x_new = x_new.reshape(-1, 3)
-        if cfg.table:
-            x_new = _lift_above(x_new, table, n_tiles)
+        x_new = _lift_above(res.X, table, n_tiles) if cfg.table else res.X
         move = float(np.linalg.norm(x_new - x, axis=1).max())
         v = (1.0 - cfg.damping) * (x_new - x) / h
         x = x_new
@@ -843,37 +990,27 @@ def simulate_deployment(
         max_edge_err = max(max_edge_err, err)
         if step % frame_every == 0:
             frames.append(x.reshape(n_tiles, 8, 3).astype(np.float32))
-        if logger.isEnabledFor(logging.DEBUG) and step % 20 == 0 and len(pairs):
-            logger.debug(
-                "step %d: move %.3g gap %.3g edge %.3g energies %s",
-                step,
-                move,
-                snap_distances(x).max(),
-                err,
-                {k: f"{v:.2e}" for k, v in res.energy_after.items()},
-            )
-        locked = step >= (lock_at[-1] if lock_at else cfg.ramp_steps)
         quiet = quiet + 1 if move < settle else 0
-        if locked and quiet >= 5:
+        if step >= check_from and (step - check_from) % cfg.check_every == 0:
+            verdict = failures(x)
+            logger.debug("step %d: %s", step, "; ".join(verdict[0]) or "deployed")
+            if not verdict[0]:
+                break
+            progress.append(float(verdict[2].max()))
+            if len(progress) > cfg.stall_checks and min(progress[-cfg.stall_checks :]) > (
+                1.0 - SIM_STALL_PROGRESS
+            ) * min(progress[: -cfg.stall_checks]):
+                break  # stuck: the deviation stopped shrinking
+        verdict = None
+        if step >= check_from and quiet >= 5:
             break
     final = x.reshape(n_tiles, 8, 3)
     if step % frame_every != 0:
         frames.append(final.astype(np.float32))
 
-    dev = kabsch_deviation(final, goal)
-    pen = max_penetration(final, contact_pairs)
-    dist = snap_distances(x) if len(pairs) else np.zeros(0)
+    reasons, dist, dev, pen = verdict if verdict is not None else failures(x)
     open_mask = dist > tol.gap_closed_rel * side
     open_gaps = tuple(sorted({int(g) for g in gaps_of_pairs[open_mask]}))
-    reasons = []
-    if open_mask.any():
-        reasons.append(
-            f"{int(open_mask.sum())} route pairs open (> {tol.gap_closed_rel * side:.3g} mm)"
-        )
-    if dev.max() > tol.deviation_rel * side:
-        reasons.append(f"deviation {dev.max():.3g} mm > {tol.deviation_rel * side:.3g} mm")
-    if pen > tol.penetration_rel * side:
-        reasons.append(f"penetration {pen:.3g} mm > {tol.penetration_rel * side:.3g} mm")
     if max_edge_err > tol.edge_length_rel * side:
         reasons.append(f"edge error {max_edge_err:.3g} mm > {tol.edge_length_rel * side:.3g} mm")
     if len(pairs) == 0 and len(lift_v) == 0:
@@ -908,6 +1045,136 @@ def simulate_deployment(
     return result
 
 
+@runtime_checkable
+class _RouteLike(Protocol):
+    gaps: NDArray[np.int64]
+    tiles: NDArray[np.int64]
+    enter_side: NDArray[np.int64]
+    leave_side: NDArray[np.int64]
+
+
+def route_steps(route: _RouteLike | ArrayLike) -> IntArray:
+    """Route steps ``(gap, tile, enter_side, leave_side)`` as an ``(r, 4)`` int array.
+
+    Parameters
+    ----------
+    route : a :class:`~drawstring.geometry.route.Route` (``gaps``, ``tiles``, ``enter_side``,
+        ``leave_side``) or the steps themselves.
+    """
+    if isinstance(route, _RouteLike):
+        cols = [route.gaps, route.tiles, route.enter_side, route.leave_side]
+        return np.stack([np.asarray(c, dtype=np.int64).reshape(-1) for c in cols], axis=1)
+    return np.asarray(route, dtype=np.int64).reshape(-1, 4)
+
+
+def simulate_stage(
+    linkage: Linkage,
+    tiles_flat: ArrayLike,
+    tiles_assembled: ArrayLike,
+    hinge_vertices: ArrayLike,
+    route: _RouteLike | ArrayLike,
+    lift_gaps: ArrayLike,
+    thickness: float | None = None,
+    *,
+    gravity: tuple[float, float, float] = GRAVITY_MM_S2,
+    settings: SimulationSettings | None = None,
+    tolerances: SimulationTolerances | None = None,
+    frame_every: int = 5,
+) -> SimulationResult:
+    """The pipeline's simulation stage: deploy the flat linkage by its string route.
+
+    Parameters
+    ----------
+    linkage : topology.
+    tiles_flat : (T, 8, 3) float, mm, T2D after the hinge layout (fabricated tiles).
+    tiles_assembled : (T, 8, 3) float, mm, T3D.
+    hinge_vertices : (H, 2) int, ``tile * 8 + vertex`` of both tiles of every hinge.
+    route : the closed string route (:class:`~drawstring.geometry.route.Route` or ``(r, 4)``
+        steps).
+    lift_gaps : (L,) int, gap ids of the lift points.
+    thickness : float, mm, optional consistency check of the flat pose.
+    gravity, settings, tolerances, frame_every : see :func:`simulate_deployment`.
+
+    Returns
+    -------
+    SimulationResult
+    """
+    pairs, pair_gaps = route_snap_pairs(route_steps(route))
+    goal = np.asarray(tiles_assembled, dtype=np.float64)
+    verts, targets = lift_targets_for_gaps(linkage, goal, lift_gaps)
+    return simulate_deployment(
+        linkage,
+        tiles_flat,
+        goal,
+        hinge_vertices,
+        pairs,
+        verts,
+        targets,
+        snap_gaps=pair_gaps,
+        thickness=thickness,
+        gravity=gravity,
+        settings=settings,
+        tolerances=tolerances,
+        frame_every=frame_every,
+    )
+
+
+def simulate_design(
+    design: Design,
+    *,
+    settings: SimulationSettings | None = None,
+    tolerances: SimulationTolerances | None = None,
+    frame_every: int = 5,
+) -> SimulationResult:
+    """:func:`simulate_stage` on a pipeline :class:`~drawstring.fabrication.pipeline.Design`.
+
+    Reads ``design.tiling.linkage``, ``design.tiles_flat``, ``design.tiles_assembled``,
+    ``design.hinge_layout.hinge_vertices``, ``design.route``, ``design.lift.lift_gaps`` and
+    ``design.options.thickness_mm`` (no import of the fabrication layer at run time).
+    """
+    return simulate_stage(
+        design.tiling.linkage,
+        design.tiles_flat,
+        design.tiles_assembled,
+        design.hinge_layout.hinge_vertices,
+        design.route,
+        design.lift.lift_gaps,
+        design.options.thickness_mm,
+        settings=settings,
+        tolerances=tolerances,
+        frame_every=frame_every,
+    )
+
+
+def save_deploy_npz(result: SimulationResult, path: str | Path) -> Path:
+    """Write ``deploy.npz`` (key ``frames``: (F, T, 8, 3) float32, mm) byte-identically.
+
+    ``np.savez_compressed`` stamps the current time into the zip; this writes the same ``.npy``
+    member with a fixed date, so equal frames give equal files.  ``np.load`` reads it as usual.
+
+    Parameters
+    ----------
+    result : the simulation (only ``frames`` is written).
+    path : output file.
+
+    Returns
+    -------
+    The path written.
+    """
+    buffer = io.BytesIO()
+    np.lib.format.write_array(
+        buffer, np.ascontiguousarray(result.frames, dtype=np.float32), allow_pickle=False
+    )
+    info = zipfile.ZipInfo("frames.npy", date_time=(1980, 1, 1, 0, 0, 0))
+    info.compress_type = zipfile.ZIP_DEFLATED
+    info.create_system = 3
+    info.external_attr = 0o644 << 16
+    out = Path(path)
+    with zipfile.ZipFile(out, "w") as archive:
+        archive.writestr(info, buffer.getvalue(), compresslevel=6)
+    return out
+
+
 def _lift_above(x: FloatArray, level: float, n_tiles: int) -> FloatArray:
     """Translate every tile that dips below ``level`` straight up until it touches it (rigid).
 
@@ -928,6 +1195,24 @@ def _lift_above(x: FloatArray, level: float, n_tiles: int) -> FloatArray:
     return out.reshape(-1, 3)
 
 
+def snap_goal_length(tiles: FloatArray, pairs: IntArray) -> FloatArray:
+    """Distance between the paired side-face midpoints of every snap pair.
+
+    Parameters
+    ----------
+    tiles : (T, 8, 3) float, mm
+    pairs : (P, 4) int
+
+    Returns
+    -------
+    (P,) float, mm (zero in the assembled state for faces that touch there).
+    """
+    mids = side_face_midpoints(tiles)
+    return np.asarray(
+        np.linalg.norm(mids[pairs[:, 2], pairs[:, 3]] - mids[pairs[:, 0], pairs[:, 1]], axis=1)
+    )
+
+
 def _face_partners(goal: FloatArray, pairs: IntArray) -> IntArray:
     """For each snap pair, the corner of face b nearest (in T3D) to each corner of face a.
 
@@ -939,37 +1224,6 @@ def _face_partners(goal: FloatArray, pairs: IntArray) -> IntArray:
     fb = goal[pairs[:, 2, None], SIDE_FACES[pairs[:, 3]]]
     dist = np.linalg.norm(fa[:, :, None] - fb[:, None, :], axis=3)
     return np.asarray(np.argmin(dist, axis=2), dtype=np.int64)
-
-
-def _separate(tiles: FloatArray, pairs: IntArray, rounds: int) -> FloatArray:
-    """Push overlapping neighbour tiles apart rigidly (translations, Jacobi rounds).
-
-    Parameters
-    ----------
-    tiles : (T, 8, 3) float, mm
-    pairs : (k, 2) int
-    rounds : int
-
-    Returns
-    -------
-    (T, 8, 3) float, mm
-    """
-    out = tiles.copy()
-    n_tiles = len(tiles)
-    for _ in range(rounds):
-        depth, axis = hexahedron_overlap(out[pairs[:, 0]], out[pairs[:, 1]])
-        hit = depth > 0
-        if not np.any(hit):
-            break
-        shift = 0.5 * depth[hit, None] * axis[hit]
-        move = np.zeros((n_tiles, 3))
-        count = np.zeros(n_tiles)
-        np.add.at(move, pairs[hit, 0], -shift)
-        np.add.at(move, pairs[hit, 1], shift)
-        np.add.at(count, pairs[hit, 0], 1.0)
-        np.add.at(count, pairs[hit, 1], 1.0)
-        out += (move / np.maximum(count, 1.0)[:, None])[:, None, :]
-    return out
 
 
 def _tile_volumes(tiles: FloatArray) -> FloatArray:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -138,7 +140,7 @@ def test_deploy_check_plugs_into_lift_sweep(scene2: S.DeploymentScene) -> None:
         scene2.hinge_vertices,
         scene2.route,
     )
-    assert "simulation" in check.name  # type: ignore[attr-defined]
+    assert "simulation" in check.name
     assert check(np.zeros(0, dtype=np.int64)) is True
 
 
@@ -148,3 +150,54 @@ def test_bad_input() -> None:
         S.simulate_deployment(
             scene.linkage, scene.tiles_flat[:, :4], scene.tiles_assembled, scene.hinge_vertices, []
         )
+
+
+def test_8x8_deploys_with_gravity() -> None:
+    """A 64-tile linkage closes its boundary, curls up and locks within the step budget."""
+    scene = S.cylinder_scene(8, 8)
+    res = run(scene, lift=True)
+    side = S.mean_tile_side(scene.tiles_assembled)
+    assert res.deployed, res.reasons
+    assert res.steps < S.SimulationSettings().max_steps
+    assert res.final_max_deviation_mm <= 0.01 * side
+    assert res.max_penetration_mm <= 0.01 * side
+    assert res.max_edge_error_mm <= 0.005 * side
+
+
+def test_simulate_stage_takes_route_object(scene2: S.DeploymentScene) -> None:
+    class Route:
+        steps = np.array(scene2.route)
+        gaps, tiles, enter_side, leave_side = steps.T
+
+    res = S.simulate_stage(
+        scene2.linkage,
+        scene2.tiles_flat,
+        scene2.tiles_assembled,
+        scene2.hinge_vertices,
+        Route(),
+        [],
+        scene2.thickness,
+    )
+    assert res.deployed, res.reasons
+    assert np.array_equal(S.route_steps(Route()), np.array(scene2.route))
+
+
+def test_snap_goal_length_zero_only_for_touching_faces(scene4: S.DeploymentScene) -> None:
+    pairs, _ = S.route_snap_pairs(scene4.route)
+    assert np.allclose(S.snap_goal_length(scene4.tiles_assembled, pairs), 0.0, atol=1e-9)
+    faces = S.contact_face_pairs(scene4.linkage)
+    assert len(faces) == 2 * 4 * 3
+    assert np.allclose(S.snap_goal_length(scene4.tiles_assembled, faces), 0.0, atol=1e-9)
+    # Two tiles on the same side of one gap are a side length apart when assembled.
+    far = np.array([[0, 2, 1, 2]])
+    assert S.snap_goal_length(scene4.tiles_assembled, far)[0] > 5.0
+
+
+def test_deploy_npz_is_byte_identical(tmp_path: Path, scene2: S.DeploymentScene) -> None:
+    res = run(scene2)
+    a = S.save_deploy_npz(res, tmp_path / "a.npz")
+    b = S.save_deploy_npz(res, tmp_path / "b.npz")
+    assert a.read_bytes() == b.read_bytes()
+    with np.load(a) as data:
+        assert data["frames"].dtype == np.float32
+        assert np.array_equal(data["frames"], res.frames)
