@@ -100,18 +100,11 @@ def cad_inputs(result: Design) -> CadInputs:
 
 
 def print_tiles(result: Design) -> NDArray[np.float64]:
-    """(T, 8, 3) flat tiles to fabricate: each assembled tile T3D moved rigidly onto its place
-    in the hinge layout before merging (best fit; that layout keeps tiles apart except at their
-    hinge points).  Printed tiles must be congruent to the assembled ones; the residual hinge
-    mismatch (``hinge_gap_max_mm``) is bridged by the hinge parts."""
-    from drawstring.cad.tiles import rigid_transforms
+    """(T, 8, 3) flat tiles to fabricate (see :func:`~drawstring.fabrication.pipeline.
+    fabricated_tiles`): congruent to the assembled ones, placed by the hinge layout."""
+    from .pipeline import fabricated_tiles
 
-    layout = result.hinge_layout
-    placed = layout.rigid_tiles if layout.rigid_tiles is not None else layout.tiles
-    transforms, _ = rigid_transforms(result.tiles_assembled, placed)
-    rotation, translation = transforms[:, :3, :3], transforms[:, :3, 3]
-    moved = np.einsum("tij,tkj->tki", rotation, result.tiles_assembled) + translation[:, None]
-    return np.asarray(moved)
+    return fabricated_tiles(result.hinge_layout, result.tiles_assembled)
 
 
 def build_cad(result: Design) -> tuple[CadResult, CadResult]:

@@ -134,6 +134,21 @@ def write_hinges(result: Design, folder: Path) -> list[str]:
     return ["hinges.json"]
 
 
+def write_deployment(result: Design, folder: Path) -> list[str]:
+    """``deploy.npz`` (frames of tile vertices from flat to assembled) and ``deploy.gif``."""
+    if result.simulation is None:
+        return []
+    from drawstring.geometry.simulate import route_snap_pairs, route_steps, save_deploy_npz
+
+    from .deploy_pictures import route_polylines, save_deploy_gif
+
+    save_deploy_npz(result.simulation, folder / "deploy.npz")
+    pairs = route_snap_pairs(route_steps(result.route))[0]
+    frames = result.simulation.frames
+    save_deploy_gif(frames, route_polylines(frames, pairs), folder / "deploy.gif")
+    return ["deploy.npz", "deploy.gif"]
+
+
 def write_fabrication_files(result: Design, folder: Path) -> list[str]:
     """The profile's fabrication files under ``fabrication/`` (only when CAD ran)."""
     if result.cad_flat is None:
@@ -166,5 +181,6 @@ DEFAULT_WRITERS: tuple[Writer, ...] = (
     write_pictures,
     write_stage_pictures,
     write_hinges,
+    write_deployment,
     write_fabrication_files,
 )

@@ -38,6 +38,7 @@ from drawstring.geometry.hinges import HingeLayout, HingeStrategy, layout_hinges
 from drawstring.geometry.lift import LiftPoints, select_lift_points, tile_masses_from_volumes
 from drawstring.geometry.linkage import gap_centroids
 from drawstring.geometry.route import Route, plan_route, route_metrics
+from drawstring.geometry.simulate import simulate_stage
 from drawstring.geometry.target import Target, load_target
 from drawstring.geometry.tiling import Tiling, component_flattenings, tile_surface
 from drawstring.geometry.tolerances import (
@@ -61,7 +62,9 @@ CHANNEL_MATCH_TOL_MM = 0.05
 log = logging.getLogger(__name__)
 
 #: Stages in order; ``timings_s`` uses these keys.
-STAGES = ("target", "flatten", "tiling", "assembled", "flat", "hinges", "lift", "route")
+STAGES = (
+    "target", "flatten", "tiling", "assembled", "flat", "hinges", "lift", "route", "simulate",
+)  # fmt: skip
 HINGE_STRATEGIES: tuple[HingeStrategy, ...] = ("dual", "top")
 
 
@@ -80,6 +83,7 @@ class DesignOptions:
     corners: tuple[int, int, int, int] | None = None
     hinges: HingeStrategy = "dual"
     weights: tuple[float, float, float] = (1e4, 10.0, 0.1)
+    simulate: bool = True
     cad: bool = True
     seed: int = 0
 
@@ -140,6 +144,7 @@ class ResolvedOptions:
     corners: tuple[int, int, int, int] | None
     hinges: HingeStrategy
     weights: tuple[float, float, float]
+    simulate: bool
     cad: bool
     seed: int
 
@@ -161,6 +166,7 @@ class Design:
     measured: dict[str, Any] = field(default_factory=dict)
     cad_flat: Any = None
     cad_assembled: Any = None
+    simulation: Any = None
     timings_s: dict[str, float] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
     problems: tuple[str, ...] = ()
@@ -281,9 +287,27 @@ def resolve_options(options: DesignOptions, profile: Profile) -> ResolvedOptions
         corners=options.corners,
         hinges=options.hinges,
         weights=tuple(options.weights),  # type: ignore[arg-type]
+        simulate=options.simulate,
         cad=options.cad,
         seed=options.seed,
     )
+
+
+def fabricated_tiles(layout: HingeLayout, tiles_3d: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(T, 8, 3) the flat tiles as fabricated: each assembled tile moved rigidly onto its place
+    in the hinge layout before merging (congruent to T3D; the hinge parts bridge the residual
+    hinge gaps)."""
+    placed = layout.rigid_tiles if layout.rigid_tiles is not None else layout.tiles
+    source = np.asarray(tiles_3d, dtype=np.float64)
+    src_mean = source.mean(axis=1, keepdims=True)
+    dst_mean = placed.mean(axis=1, keepdims=True)
+    covariance = np.einsum("tki,tkj->tij", source - src_mean, placed - dst_mean)
+    u, _, vt = np.linalg.svd(covariance)
+    fix = np.ones((len(source), 3))
+    fix[:, 2] = np.sign(np.linalg.det(np.einsum("tij,tjk->tik", u, vt)))
+    rotation = np.einsum("tji,tj,tkj->tik", vt, fix, u)
+    moved = np.einsum("tij,tkj->tki", rotation, source - src_mean) + dst_mean
+    return np.asarray(moved)
 
 
 def split_bound(options: ResolvedOptions) -> float:
@@ -375,6 +399,26 @@ def design(
     )
     notes.extend(f"flat stage: {p}" for p in flat.problems)
     notes.extend(f"hinge stage: {p}" for p in hinge_layout.problems)
+    simulation = None
+    if resolved.simulate:
+        with progress.stage("simulate"):
+            simulation = simulate_stage(
+                linkage,
+                fabricated_tiles(hinge_layout, assembled.tiles),
+                assembled.tiles,
+                hinge_layout.hinge_vertices,
+                route,
+                lift.lift_gaps,
+                resolved.thickness_mm,
+            )
+        measured["simulation"] = _jsonable(simulation.to_json())
+        if not simulation.deployed:
+            warnings.append(
+                "the deployment simulation got stuck ("
+                f"{len(simulation.open_gaps)} route gaps open, tiles up to "
+                f"{simulation.final_max_deviation_mm:.2f} mm from the assembled shape); see "
+                "design.json metrics.simulation"
+            )
     result = Design(
         options=resolved,
         profile=profile,
@@ -386,6 +430,7 @@ def design(
         hinge_layout=hinge_layout,
         lift=lift,
         route=route,
+        simulation=simulation,
         measured=measured,
         timings_s=dict(progress.timings),
         notes=tuple(notes),
