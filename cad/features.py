@@ -948,9 +948,7 @@ def _plausible(pieces: list[bd.Solid], base: bd.Solid) -> bool:
     if not pieces:
         return False
     largest = max(pieces, key=lambda p: p.volume)
-    return bool(
-        largest.volume >= 0.5 * base.volume and largest.is_manifold and largest.is_valid
-    )
+    return bool(largest.volume >= 0.5 * base.volume and largest.is_manifold and largest.is_valid)
 
 
 def build_tile(tile: NDArray[np.float64] | bd.Solid, tools: list[bd.Shape]) -> bd.Solid:

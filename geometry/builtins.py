@@ -220,8 +220,12 @@ def _peanut(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
 
 
 def _seashell(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
-    """Scallop fan: log-polar grid, radial ribs deepening towards a rising, convex rim."""
-    r_hinge = 0.18
+    """Scallop fan: log-polar grid, radial ribs deepening towards a rising, convex rim.
+
+    The fan starts at 0.45 of its outer radius: a narrower hinge end makes tiles there so
+    small that the flat layout of a 200-tile linkage folds over.
+    """
+    r_hinge = 0.45
     half_opening = np.deg2rad(62.0)
     n_ribs = 9
     r = r_hinge ** (1.0 - u)  # log-polar: square cells everywhere

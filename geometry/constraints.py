@@ -19,9 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import ArrayLike, NDArray
+
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.solver import ConstraintGroup, difference_matrix
-from numpy.typing import ArrayLike, NDArray
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

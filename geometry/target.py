@@ -24,15 +24,16 @@ from pathlib import Path
 import igl
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import NDArray
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
 from drawstring.geometry.builtins import BUILTIN_TARGETS
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.tolerances import (
     COINCIDENT_VERTEX_REL_DIST,
     DEGENERATE_FACE_REL_AREA,
 )
-from numpy.typing import NDArray
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 logger = logging.getLogger(__name__)
 

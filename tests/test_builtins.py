@@ -5,13 +5,14 @@ from __future__ import annotations
 import igl
 import numpy as np
 import pytest
+from numpy.typing import NDArray
+
 from drawstring.geometry.builtins import (
     BUILTIN_TARGETS,
     alternating_grid,
     grid_shape,
 )
 from drawstring.geometry.target import load_target, validate_disk_mesh
-from numpy.typing import NDArray
 
 NAMES = list(BUILTIN_TARGETS)
 REQUIRED = ["saddle", "dome", "peanut", "seashell", "three-shell", "cloud", "wave", "chair"]

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+
 from drawstring.fabrication import report
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import Linkage, build_linkage, rotating_squares_layout

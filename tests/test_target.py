@@ -8,6 +8,8 @@ from pathlib import Path
 import igl
 import numpy as np
 import pytest
+from numpy.typing import NDArray
+
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.target import (
     Target,
@@ -16,7 +18,6 @@ from drawstring.geometry.target import (
     read_mesh,
     validate_disk_mesh,
 )
-from numpy.typing import NDArray
 
 DATA = Path(__file__).parent / "data"
 
