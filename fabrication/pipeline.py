@@ -310,6 +310,33 @@ def fabricated_tiles(layout: HingeLayout, tiles_3d: NDArray[np.float64]) -> NDAr
     return np.asarray(moved)
 
 
+def channel_turn_assembled(route: Route, tiles_3d: NDArray[np.float64]) -> float:
+    """Total turn (rad) of the string along its channels in the assembled state.
+
+    The string runs from the centre of each route tile's entry side face to the centre of its
+    exit side face, and on into the next tile through the coinciding face; the turn is summed
+    at every such point of the closed polyline.  This is the friction-relevant bend of the
+    channels (the issue's ``turn_angle_total_rad`` is measured through the flat gap centroids,
+    which zigzag across the boundary ring).
+    """
+    side = np.array([[0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])
+    tiles = route.tiles
+    entry = tiles_3d[tiles[:, None], side[route.enter_side]].mean(axis=1)
+    exit_ = tiles_3d[tiles[:, None], side[route.leave_side]].mean(axis=1)
+    points = np.stack([entry, exit_], axis=1).reshape(-1, 3)
+    keep = np.ones(len(points), dtype=bool)
+    keep[1:] = np.linalg.norm(np.diff(points, axis=0), axis=1) > 1e-9  # shared faces
+    points = points[keep]
+    if len(points) > 1 and np.linalg.norm(points[-1] - points[0]) <= 1e-9:
+        points = points[:-1]  # the loop closes on its first point
+    incoming = points - np.roll(points, 1, axis=0)
+    outgoing = np.roll(points, -1, axis=0) - points
+    norms = np.linalg.norm(incoming, axis=1) * np.linalg.norm(outgoing, axis=1)
+    valid = norms > 1e-12
+    cosine = np.einsum("ki,ki->k", incoming, outgoing)[valid] / norms[valid]
+    return float(np.arccos(np.clip(cosine, -1.0, 1.0)).sum())
+
+
 def split_bound(options: ResolvedOptions) -> float:
     """Largest tile area ratio a part may have: ``--max-scale-factor``, and no more than a quad
     linkage can absorb with every gap opening between ``--min-gap-angle`` and 90 degrees: a gap
@@ -538,6 +565,11 @@ def measure_design(
     flat_gaps = gap_centroids(linkage, top_2d)
     metrics["route"] = _jsonable(
         route_metrics(route, linkage, flat_gaps, assembled_gaps, profile.friction_coefficient)
+    )
+    channel_turn = channel_turn_assembled(route, assembled.tiles)
+    metrics["route"]["turn_angle_channels_assembled_rad"] = _round(channel_turn, 6)
+    metrics["route"]["capstan_factor_channels_assembled"] = _round(
+        math.exp(profile.friction_coefficient * channel_turn), 6
     )
     problems: list[str] = []
     warnings: list[str] = []

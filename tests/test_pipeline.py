@@ -1,0 +1,31 @@
+"""Pipeline helpers measured on known geometry."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from drawstring.fabrication.pipeline import channel_turn_assembled
+from drawstring.geometry.linkage import build_linkage, gap_centroids, rotating_squares_layout
+from drawstring.geometry.route import plan_route
+
+
+def flat_boxes(link, side: float = 10.0, thickness: float = 3.0) -> np.ndarray:
+    """Assembled tiles of a planar grid: boxes, top face at z = 0, bottom at -thickness."""
+    offsets = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)
+    corners = (link.tile_cells[:, None, :] + offsets[None]) * side
+    top = np.concatenate([corners, np.zeros((link.n_tiles, 4, 1))], axis=2)
+    bottom = top - np.array([0.0, 0.0, thickness])
+    return np.concatenate([top, bottom], axis=1)
+
+
+def test_channel_turn_of_a_planar_loop_is_at_least_one_full_turn() -> None:
+    link = build_linkage(np.ones((5, 4), dtype=bool))
+    layout = rotating_squares_layout(link, math.radians(30))
+    route = plan_route(link, gap_centroids(link, layout))
+    turn = channel_turn_assembled(route, flat_boxes(link))
+    # A closed loop in a plane turns by at least 2 pi; the channels bend only at the corners
+    # of the ring and where the route steps in and out, each by a right angle.
+    assert turn >= 2 * math.pi - 1e-9
+    assert math.isclose(turn / (math.pi / 2), round(turn / (math.pi / 2)), abs_tol=1e-9)
