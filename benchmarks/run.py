@@ -114,6 +114,11 @@ def print_table(rows: list[dict[str, Any]]) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--quick", action="store_true", help="two targets, two resolutions")
+    parser.add_argument(
+        "--stages",
+        action="store_true",
+        help="also run every per-stage benchmark (benchmarks/bench_*.py; several minutes)",
+    )
     args = parser.parse_args()
     names = list(BUILTIN_TARGETS)[:2] if args.quick else list(BUILTIN_TARGETS)
     counts = (100, 400) if args.quick else (100, 400, 1600)
@@ -122,7 +127,7 @@ def main() -> None:
     stages = pipeline_rows(names, 200)
     print("\npipeline at about 200 tiles, 200 mm")
     print_table(stages)
-    extras = extra_rows()
+    extras = extra_rows() if args.stages else {}
     for name, stage_rows in extras.items():
         print(f"\n{name}")
         print_table(stage_rows)
