@@ -98,6 +98,9 @@ def build_parser() -> argparse.ArgumentParser:
     design_p = sub.add_parser("design", help="design a linkage for a target and write its files")
     _add_design_options(design_p)
     sub.add_parser("targets", help="list the built-in targets")
+    sim = sub.add_parser("simulate", help="simulate the deployment of an existing design")
+    sim.add_argument("folder", type=Path, help="a design folder written by `drawstring design`")
+    sim.add_argument("--quiet", action="store_true", help="no progress output")
     view = sub.add_parser("view", help="open a design's report.html in the browser")
     view.add_argument("folder", type=Path, help="a design folder written by `drawstring design`")
     prof = sub.add_parser("profiles", help="list the fabrication profiles")
@@ -175,6 +178,23 @@ def _run_profiles(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_simulate(args: argparse.Namespace) -> int:
+    import json
+
+    from .pipeline import simulate_folder
+
+    folder = simulate_folder(args.folder, quiet=args.quiet)
+    block = json.loads((folder / "design.json").read_text())["metrics"]["simulation"]
+    verdict = "deployed" if block["deployed"] else f"stuck ({len(block['open_gaps'])} gaps open)"
+    if not args.quiet:
+        print(
+            f"{verdict} after {block['steps']} steps; tiles within "
+            f"{block['final_max_deviation_mm']:.3f} mm of the assembled shape; wrote "
+            f"{folder / 'deploy.gif'}"
+        )
+    return 0
+
+
 def _run_view(args: argparse.Namespace) -> int:
     from .report import open_report
 
@@ -201,6 +221,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _run_profiles(args)
         if args.command == "view":
             return _run_view(args)
+        if args.command == "simulate":
+            return _run_simulate(args)
     except InputError as exc:
         print(f"drawstring: error: {exc}", file=sys.stderr)
         return EXIT_INPUT

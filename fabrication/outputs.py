@@ -138,13 +138,19 @@ def write_deployment(result: Design, folder: Path) -> list[str]:
     """``deploy.npz`` (frames of tile vertices from flat to assembled) and ``deploy.gif``."""
     if result.simulation is None:
         return []
+    return save_deployment(result.simulation, result.route, folder)
+
+
+def save_deployment(simulation: Any, route: Any, folder: Path) -> list[str]:
+    """Write ``deploy.npz`` and ``deploy.gif`` of a simulation whose string follows ``route``
+    (a ``Route`` or (S, 4) steps ``(gap, tile, enter_side, leave_side)``)."""
     from drawstring.geometry.simulate import route_snap_pairs, route_steps, save_deploy_npz
 
     from .deploy_pictures import route_polylines, save_deploy_gif
 
-    save_deploy_npz(result.simulation, folder / "deploy.npz")
-    pairs = route_snap_pairs(route_steps(result.route))[0]
-    frames = result.simulation.frames
+    save_deploy_npz(simulation, folder / "deploy.npz")
+    pairs = route_snap_pairs(route_steps(route))[0]
+    frames = simulation.frames
     save_deploy_gif(frames, route_polylines(frames, pairs), folder / "deploy.gif")
     return ["deploy.npz", "deploy.gif"]
 

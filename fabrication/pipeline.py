@@ -210,6 +210,7 @@ class Design:
                 "grid": list(self.tiling.linkage.grid_shape),
                 "cell_size_mm": _round(self.tiling.cell_size),
                 "split_lines": [s.to_json() for s in self.tiling.linkage.splits],
+                "tile_cells": self.tiling.linkage.tile_cells.tolist(),
             },
             "metrics": self.metrics(),
             "notes": list(self.notes),
@@ -298,7 +299,13 @@ def fabricated_tiles(layout: HingeLayout, tiles_3d: NDArray[np.float64]) -> NDAr
     in the hinge layout before merging (congruent to T3D; the hinge parts bridge the residual
     hinge gaps)."""
     placed = layout.rigid_tiles if layout.rigid_tiles is not None else layout.tiles
-    source = np.asarray(tiles_3d, dtype=np.float64)
+    return rigid_copies(tiles_3d, placed)
+
+
+def rigid_copies(source: NDArray[np.float64], placed: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(T, 8, 3) each ``source`` tile moved by the rotation and translation (Kabsch, no
+    reflection) that best fits it onto the matching ``placed`` tile."""
+    source = np.asarray(source, dtype=np.float64)
     src_mean = source.mean(axis=1, keepdims=True)
     dst_mean = placed.mean(axis=1, keepdims=True)
     covariance = np.einsum("tki,tkj->tij", source - src_mean, placed - dst_mean)
@@ -684,3 +691,84 @@ def write_design(
 def with_options(options: DesignOptions, **changes: Any) -> DesignOptions:
     """A copy of ``options`` with some fields changed (for scripts and tests)."""
     return replace(options, **changes)
+
+
+def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Path:
+    """Run the deployment simulation on a design folder written by :func:`write_design`.
+
+    Reads ``design.json`` (options, linkage cells and splits, lift points), ``assembled.obj``,
+    ``flat.obj``, ``hinges.json`` and ``route.json``; writes ``deploy.npz`` and ``deploy.gif``,
+    the ``simulation`` metrics and timing into ``design.json``, and rewrites ``report.html``.
+    Every file is written next to its final name first and renamed into place.
+    """
+    from drawstring.geometry.linkage import Split, build_linkage
+
+    from .outputs import save_deployment
+    from .report import read_obj_tiles, write_report
+
+    root = Path(folder)
+    design_path = root / "design.json"
+    if not design_path.is_file():
+        raise InputError(f"{root} is not a drawstring design folder (no design.json)")
+    needed = ("assembled.obj", "flat.obj", "hinges.json", "route.json")
+    missing = [name for name in needed if not (root / name).is_file()]
+    if missing:
+        raise InputError(f"{root} lacks {', '.join(missing)}; run drawstring design again")
+    doc = json.loads(design_path.read_text(encoding="utf-8"))
+    block = doc.get("linkage", {})
+    if "tile_cells" not in block:
+        raise InputError(
+            f"{design_path} predates 'drawstring simulate'; run drawstring design again"
+        )
+    grid = tuple(block["grid"])
+    cells = np.zeros(grid, dtype=bool)
+    tile_cells = np.asarray(block["tile_cells"], dtype=np.int64).reshape(-1, 2)
+    cells[tile_cells[:, 0], tile_cells[:, 1]] = True
+    splits = tuple(
+        Split(s["axis"], int(s["line"]), int(s["lo"]), int(s["hi"]))
+        for s in block.get("split_lines", [])
+    )
+    linkage = build_linkage(cells, splits)
+    assembled = read_obj_tiles(root / "assembled.obj")
+    flat = read_obj_tiles(root / "flat.obj")
+    hinges = json.loads((root / "hinges.json").read_text(encoding="utf-8"))["hinges"]
+    hinge_vertices = np.array([h["vertices"] for h in hinges], dtype=np.int64).reshape(-1, 2)
+    route_doc = json.loads((root / "route.json").read_text(encoding="utf-8"))
+    steps = np.array(
+        [[s["gap"], s["tile"], s["enter_side"], s["leave_side"]] for s in route_doc["steps"]],
+        dtype=np.int64,
+    ).reshape(-1, 4)
+    points = doc.get("metrics", {}).get("lift_points", {}).get("points", [])
+    lift_gaps = np.array([p["gap"] for p in points], dtype=np.int64)
+    if len(assembled) != linkage.n_tiles or len(flat) != linkage.n_tiles:
+        raise InputError(f"{root}: the OBJ files do not match design.json; run design again")
+    progress = Progress(quiet=quiet)
+    with progress.stage("simulate"):
+        simulation = simulate_stage(
+            linkage,
+            rigid_copies(assembled, flat),
+            assembled,
+            hinge_vertices,
+            steps,
+            lift_gaps,
+            float(doc["options"]["thickness_mm"]),
+        )
+    result_block = _jsonable(simulation.to_json())
+    result_block.pop("time_s", None)
+    per_step = float(result_block.pop("per_step_ms", 0.0)) / 1000.0
+    doc.setdefault("metrics", {})["simulation"] = result_block
+    doc.setdefault("timings_s", {})["simulate"] = round(progress.timings["simulate"], 3)
+    doc["timings_s"]["simulate_per_step"] = round(per_step, 3)
+    staging = Path(tempfile.mkdtemp(prefix=f".{root.name}.", suffix=".tmp", dir=root.parent))
+    try:
+        written = save_deployment(simulation, steps, staging)
+        doc["files"] = sorted(set(doc.get("files", [])) | set(written))
+        (staging / "design.json").write_text(
+            json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8"
+        )
+        for name in [*written, "design.json"]:
+            os.replace(staging / name, root / name)
+        write_report(root)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return root

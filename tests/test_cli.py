@@ -195,3 +195,26 @@ def test_bad_profile_file_is_refused(tmp_path: Path) -> None:
     assert done.returncode == 2
     assert "tile.thickness_mm = -6.0 is out of range" in done.stderr
     assert not out.exists()
+
+
+def test_simulate_an_existing_design(tmp_path: Path) -> None:
+    out = tmp_path / "d"
+    args = ["design", "saddle", "--grid", "6", "5", "--resolution", "1500", "--no-cad"]
+    assert main([*args, "--no-simulate", "--quiet", "--out", str(out)]) == 0
+    assert not (out / "deploy.npz").exists()
+    assert "simulation" not in json.loads((out / "design.json").read_text())["metrics"]
+    assert main(["simulate", str(out), "--quiet"]) == 0
+    doc = json.loads((out / "design.json").read_text())
+    block = doc["metrics"]["simulation"]
+    assert {"deployed", "steps", "final_max_deviation_mm", "max_penetration_mm"} <= set(block)
+    assert {"deploy.npz", "deploy.gif"} <= set(doc["files"])
+    frames = np.load(out / "deploy.npz")["frames"]
+    assert frames.ndim == 4 and frames.shape[1:] == (30, 8, 3)
+    # No staging folder is left beside the design.
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
+
+
+def test_simulate_refuses_a_folder_that_is_not_a_design(tmp_path: Path) -> None:
+    done = run_cli("simulate", str(tmp_path))
+    assert done.returncode == 2
+    assert "not a drawstring design folder" in done.stderr
