@@ -409,7 +409,9 @@ METRIC_RULES: dict[str, MetricRule] = {
         "boundary tiles the string passes through (closing the boundary assembles the linkage)",
         lambda d: f"all ({d.get('linkage', {}).get('boundary_tiles', '?')})",
         lambda v, d: (
-            (float(v) >= 1.0)
+            bool(v)
+            if isinstance(v, bool)
+            else (float(v) >= 1.0)
             if isinstance(v, float) and float(v) <= 1.0
             else float(v) >= float(d.get("linkage", {}).get("boundary_tiles", math.inf))
         ),
@@ -778,15 +780,19 @@ def _summary(found: _Folder, view: dict[str, Any]) -> str:
     length = (metrics.get("route") or {}).get("length_mm") if isinstance(metrics, dict) else None
     if length is None and found.route is not None:
         length = found.route.length_mm
-    rows.append(
-        (
-            "String length",
-            f"{float(length):.0f} mm" if isinstance(length, int | float) else "not computed yet",
-        )
-    )
+    if isinstance(length, dict):  # route length in both configurations
+        parts = [f"{float(v):.0f} mm {k}" for k, v in length.items() if isinstance(v, int | float)]
+        length_text = "route " + ", ".join(parts) if parts else "not computed yet"
+    elif isinstance(length, int | float):
+        length_text = f"{float(length):.0f} mm"
+    else:
+        length_text = "not computed yet"
+    rows.append(("String length", length_text))
     lifts = metrics.get("lift_points")
     if isinstance(lifts, list):
         lifts = len(lifts)
+    elif isinstance(lifts, dict):
+        lifts = lifts.get("count")
     if lifts is None and found.route is not None:
         lifts = len(found.route.lift)
     lift_tiles = (
