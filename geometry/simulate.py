@@ -14,6 +14,11 @@ factor is reused), and these groups, each with its own module-level class below:
 * ``contact`` -- :class:`FaceContact`: the side faces of grid neighbours (which touch in the
   assembled state) do not pass through each other; half-space rows along an axis frozen once
   per step, so the matrix is constant and a step costs no collision search;
+* ``split_contact`` -- the same for the faces that touch across a split line
+  (:func:`split_contact_pairs`); such a pair engages (for good) once its faces come within half
+  a tile side, since far apart in the flat layout a half-space between them means nothing;
+* ``magnet`` -- the magnets across splits: an engaged split pair is reeled in corner by corner
+  (``magnet_rate`` tile sides per step) until its faces touch;
 * ``snap`` -- the string: for consecutive tiles on the route, the paired side faces are reeled
   in.  Faces that touch in the assembled state are pulled together corner by corner; where the
   string crosses a gap between faces that do not meet, the midpoints are reeled in to their
@@ -42,7 +47,7 @@ import logging
 import time
 import zipfile
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal, Protocol, runtime_checkable
 
@@ -81,6 +86,7 @@ __all__ = [
     "SimulationResult",
     "SimulationSettings",
     "SimulationTolerances",
+    "THOROUGH_SETTINGS",
     "TILE_EDGES",
     "TILE_FACES",
     "boundary_loop_route",
@@ -91,6 +97,7 @@ __all__ = [
     "lift_targets_for_gaps",
     "max_penetration",
     "contact_face_pairs",
+    "split_contact_pairs",
     "route_snap_pairs",
     "route_steps",
     "save_deploy_npz",
@@ -124,6 +131,9 @@ TILE_FACES: IntArray = np.array(
 SIDE_FACES: IntArray = TILE_FACES[2:]
 
 GRAVITY_MM_S2 = (0.0, 0.0, -9810.0)
+
+#: Snap radius of a row that exerts no pull (a magnet pair that has not engaged yet), mm.
+_FREE = 1e30
 
 
 # --------------------------------------------------------------------------------------------
@@ -595,6 +605,28 @@ def contact_face_pairs(linkage: Linkage) -> IntArray:
     return np.array(out, dtype=np.int64).reshape(-1, 4)
 
 
+def split_contact_pairs(linkage: Linkage) -> IntArray:
+    """Side faces of edge-neighbour tiles that touch across a split (no hinge joins them).
+
+    Same orientation as :func:`contact_face_pairs`: cells ``(i, j)`` and ``(i + 1, j)`` give
+    ``(a, 1, b, 3)``, cells ``(i, j)`` and ``(i, j + 1)`` give ``(a, 2, b, 0)``.
+
+    Returns
+    -------
+    (k, 4) int, ``(tile_a, side_a, tile_b, side_b)``.
+    """
+    cells = linkage.tile_cells
+    index = {(int(i), int(j)): t for t, (i, j) in enumerate(cells)}
+    hinged = {(int(min(a, b)), int(max(a, b))) for a, _, b, _ in linkage.hinges}
+    out = []
+    for t, (i, j) in enumerate(cells):
+        for (di, dj), sides in (((1, 0), (1, 3)), ((0, 1), (2, 0))):
+            other = index.get((int(i) + di, int(j) + dj))
+            if other is not None and (min(t, other), max(t, other)) not in hinged:
+                out.append((t, sides[0], other, sides[1]))
+    return np.array(out, dtype=np.int64).reshape(-1, 4)
+
+
 def _side_normals(tiles: FloatArray, tile: IntArray, side: IntArray) -> FloatArray:
     """Unit normals ``(k, 3)`` of side faces, pointing into their tiles."""
     face = tiles[tile[:, None], SIDE_FACES[side]]  # (k, 4, 3)
@@ -617,10 +649,19 @@ class FaceContact(ConstraintGroup):
     pairs : (k, 4) int, ``(tile_a, side_a, tile_b, side_b)`` (:func:`contact_face_pairs`).
     """
 
-    def __init__(self, pairs: ArrayLike, weight: float, name: str = "contact") -> None:
+    def __init__(
+        self,
+        pairs: ArrayLike,
+        weight: float,
+        name: str = "contact",
+        engage_distance: float | None = None,
+    ) -> None:
         super().__init__(name, weight)
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 4)
         self.axes = np.zeros((len(self.pairs), 3))
+        #: pairs whose rows act; all of them unless ``engage_distance`` gates them
+        self.engage_distance = engage_distance
+        self.active = np.full(len(self.pairs), engage_distance is None)
 
     def matrix(self, n_vertices: int) -> sp.csr_matrix:
         p = self.pairs
@@ -645,12 +686,22 @@ class FaceContact(ConstraintGroup):
         p = self.pairs
         n = _side_normals(tiles, p[:, 2], p[:, 3]) - _side_normals(tiles, p[:, 0], p[:, 1])
         self.axes = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        if self.engage_distance is not None:
+            # Gated pairs (across a split) engage for good once their faces come close while
+            # face b is still (nearly) in front of face a: far apart in the flat layout, a
+            # half-space between them would be meaningless.
+            mid_a = tiles[p[:, 0, None], SIDE_FACES[p[:, 1]]].mean(axis=1)
+            mid_b = tiles[p[:, 2, None], SIDE_FACES[p[:, 3]]].mean(axis=1)
+            gap = mid_b - mid_a
+            ahead = np.sum(gap * self.axes, axis=1) > -0.5 * self.engage_distance
+            near = np.linalg.norm(gap, axis=1) < self.engage_distance
+            self.active |= near & ahead
 
     def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
         k = len(self.pairs)
         r = ax.reshape(2, k, 4, 3)
         axis = np.stack([self.axes, -self.axes])[:, :, None, :]
-        push = np.minimum(np.sum(r * axis, axis=3), 0.0)
+        push = np.minimum(np.sum(r * axis, axis=3), 0.0) * self.active[None, :, None]
         return np.asarray((r - push[..., None] * axis).reshape(ax.shape))
 
 
@@ -697,7 +748,10 @@ class SimulationSettings:
         steps and the run stops as soon as they all hold.
     stall_checks : the run stops as stuck when the largest tile deviation did not shrink by
         ``SIM_STALL_PROGRESS`` over this many checks (or when nothing moves for five steps).
-    iterations : local-global iterations per step (Anderson accelerated).
+    iterations : local-global iterations per step (Anderson accelerated) while the string is
+        reeled in.
+    settle_iterations : local-global iterations per step from the first lock level on (the
+        quasi-static settling, where slow global modes need more iterations per step).
     anderson : Anderson history length.
     damping : fraction of the velocity removed every step.
     rigid, hinge, contact, snap, lift : weights / (m / h^2).
@@ -707,6 +761,11 @@ class SimulationSettings:
     hinge_close_steps : hinges that are open in the flat layout close linearly over this many
         steps.
     table : keep every tile above the table (the lowest level of the flat pose).
+    split_contact : side faces that touch across a split (:func:`split_contact_pairs`) do not
+        pass through each other once they came within half a tile side (weight ``contact``).
+    magnets : weight of the magnets across splits: once a split contact engaged, its two faces
+        are pulled together corner by corner (0: no magnets).
+    magnet_rate : how fast an engaged magnet reels its faces in, tile sides per step.
     """
 
     time_step_s: float = 0.002
@@ -717,6 +776,7 @@ class SimulationSettings:
     check_every: int = 10
     stall_checks: int = 10
     iterations: int = 10
+    settle_iterations: int = 10
     anderson: int = 5
     damping: float = 0.1
     rigid: float = 3e4
@@ -728,6 +788,17 @@ class SimulationSettings:
     lift_height_only: bool = True
     hinge_close_steps: int = 80
     table: bool = True
+    split_contact: bool = True
+    magnets: float = 3e3
+    magnet_rate: float = 0.1
+
+
+#: Slower, better converged settings: twice the local-global iterations per step, one more
+#: lock level and a larger step budget (used by :func:`simulate_stage` when the default run
+#: gets stuck).
+THOROUGH_SETTINGS = SimulationSettings(
+    iterations=20, settle_iterations=20, lock_levels=(10.0, 100.0, 1000.0), max_steps=1000
+)
 
 
 @dataclass(frozen=True)
@@ -892,12 +963,38 @@ def simulate_deployment(
         groups.append(hinge)
         base["hinge"] = cfg.hinge
         hinge_gap0 = np.linalg.norm(x[hinges[:, 1]] - x[hinges[:, 0]], axis=1) / np.sqrt(2.0)
-    contact: FaceContact | None = None
+    contact_groups: list[FaceContact] = []
+    split_contact: FaceContact | None = None
+    magnet: FaceSnap | None = None
     faces = contact_face_pairs(linkage)
     if len(faces) and cfg.contact > 0:
         contact = FaceContact(faces, cfg.contact * w_in)
         groups.append(contact)
+        contact_groups.append(contact)
         base["contact"] = cfg.contact
+    split_faces = split_contact_pairs(linkage)
+    if len(split_faces) and cfg.contact > 0 and cfg.split_contact:
+        split_contact = FaceContact(
+            split_faces, cfg.contact * w_in, name="split_contact", engage_distance=0.5 * side
+        )
+        groups.append(split_contact)
+        base["split_contact"] = cfg.contact
+        contact_groups.append(split_contact)
+        if cfg.magnets > 0:
+            # The magnets across the split: once a pair engaged, its faces are pulled together
+            # corner by corner (rows of a snap pair with radius 0; free before).
+            magnet = FaceSnap(
+                split_faces,
+                cfg.magnets * w_in,
+                mode="face",
+                partner=_face_partners(goal, split_faces),
+                name="magnet",
+            )
+            groups.append(magnet)
+            base["magnet"] = cfg.magnets
+            magnet_rows = magnet.matrix(n)
+            magnet.radius = np.full(len(magnet.row_pair), _FREE)
+            magnet_start = np.linalg.norm(magnet_rows @ x, axis=1)
     snap: FaceSnap | None = None
     if len(pairs):
         partner = _face_partners(goal, pairs)
@@ -973,13 +1070,24 @@ def simulate_deployment(
             for name, weight in base.items():
                 if weight > 0:
                     solver.set_weight(name, weight * lock_at[step] * w_in)
-        if contact is not None:
-            contact.set_axes(x)
+        for group in contact_groups:
+            group.set_axes(x)
+        if magnet is not None and split_contact is not None:
+            # An engaged magnet reels its pair in no faster than the string (the same ramp from
+            # the flat length) and, engaging late, from the length it had then by ``magnet_rate``
+            # tile sides per step instead of snapping it shut in one step.
+            length = np.linalg.norm(magnet_rows @ x, axis=1)
+            engaged = split_contact.active[magnet.row_pair]
+            reeled = np.maximum(np.minimum(magnet.radius, length) - cfg.magnet_rate * side, 0.0)
+            magnet.radius = np.where(
+                engaged, np.maximum(reeled, (1.0 - smooth) * magnet_start), _FREE
+            )
         y = x + h * v + h * h * g_vec
         if cfg.table:
             y = _lift_above(y, table, n_tiles)  # the table holds the inertial targets
         inertia.set_targets(y)
-        res = solver.solve(y, max_iter=cfg.iterations, anderson=cfg.anderson, rel_tol=1e-12)
+        n_iter = cfg.iterations if step <= cfg.ramp_steps else cfg.settle_iterations
+        res = solver.solve(y, max_iter=n_iter, anderson=cfg.anderson, rel_tol=1e-12)
         iterations += res.iterations
         factorizations += res.factorizations
         x_new = _lift_above(res.X, table, n_tiles) if cfg.table else res.X
@@ -1080,6 +1188,7 @@ def simulate_stage(
     settings: SimulationSettings | None = None,
     tolerances: SimulationTolerances | None = None,
     frame_every: int = 5,
+    retry: SimulationSettings | None = THOROUGH_SETTINGS,
 ) -> SimulationResult:
     """The pipeline's simulation stage: deploy the flat linkage by its string route.
 
@@ -1094,6 +1203,10 @@ def simulate_stage(
     lift_gaps : (L,) int, gap ids of the lift points.
     thickness : float, mm, optional consistency check of the flat pose.
     gravity, settings, tolerances, frame_every : see :func:`simulate_deployment`.
+    retry : when ``settings`` is not given and the default run gets stuck, run again with these
+        settings and keep whichever result deployed (else the smaller deviation); ``None``: no
+        retry.  The default settings are fast but converge slowly on some shapes (the chair
+        creeps); the thorough ones are slower per step and jam some others (the seashell).
 
     Returns
     -------
@@ -1102,21 +1215,33 @@ def simulate_stage(
     pairs, pair_gaps = route_snap_pairs(route_steps(route))
     goal = np.asarray(tiles_assembled, dtype=np.float64)
     verts, targets = lift_targets_for_gaps(linkage, goal, lift_gaps)
-    return simulate_deployment(
-        linkage,
-        tiles_flat,
-        goal,
-        hinge_vertices,
-        pairs,
-        verts,
-        targets,
-        snap_gaps=pair_gaps,
-        thickness=thickness,
-        gravity=gravity,
-        settings=settings,
-        tolerances=tolerances,
-        frame_every=frame_every,
-    )
+
+    def run(cfg: SimulationSettings | None) -> SimulationResult:
+        return simulate_deployment(
+            linkage,
+            tiles_flat,
+            goal,
+            hinge_vertices,
+            pairs,
+            verts,
+            targets,
+            snap_gaps=pair_gaps,
+            thickness=thickness,
+            gravity=gravity,
+            settings=cfg,
+            tolerances=tolerances,
+            frame_every=frame_every,
+        )
+
+    result = run(settings)
+    if result.deployed or settings is not None or retry is None:
+        return result
+    logger.info("simulation: stuck with the default settings; retrying with %s", retry)
+    second = run(retry)
+    total = result.time_s + second.time_s  # the reported wall time covers both runs
+    if second.deployed or second.final_max_deviation_mm < result.final_max_deviation_mm:
+        return replace(second, time_s=total)
+    return replace(result, time_s=total)
 
 
 def simulate_design(

@@ -201,3 +201,58 @@ def test_deploy_npz_is_byte_identical(tmp_path: Path, scene2: S.DeploymentScene)
     with np.load(a) as data:
         assert data["frames"].dtype == np.float32
         assert np.array_equal(data["frames"], res.frames)
+
+
+def split_scene() -> S.DeploymentScene:
+    """The 4 x 4 cylinder scene with a cut between columns 1 and 2 in rows 0 and 1."""
+    from drawstring.geometry.linkage import Split, build_linkage
+
+    base = S.cylinder_scene(4, 4)
+    link = build_linkage(np.ones((4, 4), dtype=bool), (Split("x", 2, 0, 2),))
+    return S.DeploymentScene(
+        linkage=link,
+        tiles_flat=base.tiles_flat,
+        tiles_assembled=base.tiles_assembled,
+        hinge_vertices=S.hinge_vertex_pairs(link),
+        route=S.boundary_loop_route(link),
+        thickness=base.thickness,
+    )
+
+
+def test_split_contact_pairs_are_the_unhinged_edge_neighbours() -> None:
+    scene = split_scene()
+    pairs = S.split_contact_pairs(scene.linkage)
+    cells = scene.linkage.tile_cells
+    got = {(tuple(cells[a]), sa, tuple(cells[b]), sb) for a, sa, b, sb in pairs.tolist()}
+    assert got == {((1, 0), 1, (2, 0), 3), ((1, 1), 1, (2, 1), 3)}
+    # Without a split every edge neighbour is hinged.
+    assert len(S.split_contact_pairs(S.cylinder_scene(3, 3).linkage)) == 0
+    # In the assembled state the split faces touch (same as hinged contact faces).
+    assert np.all(S.snap_goal_length(scene.tiles_assembled, pairs) < 1e-9)
+
+
+def test_split_contact_engages_only_when_close() -> None:
+    scene = split_scene()
+    pairs = S.split_contact_pairs(scene.linkage)
+    group = S.FaceContact(pairs, 1.0, engage_distance=1.0)
+    far = scene.tiles_assembled.copy()
+    far[pairs[:, 2]] += np.array([5.0, 0.0, 0.0])  # face b 5 mm in front of face a
+    group.set_axes(far.reshape(-1, 3))
+    assert not group.active.any()
+    ax = group.matrix(far.size // 3) @ far.reshape(-1, 3)
+    assert np.allclose(group.project(ax, far.reshape(-1, 3)), ax)
+    group.set_axes(scene.tiles_assembled.reshape(-1, 3))
+    assert group.active.all()
+    group.set_axes(far.reshape(-1, 3))
+    assert group.active.all()  # engaged for good
+
+
+def test_split_linkage_deploys_with_magnets() -> None:
+    scene = split_scene()
+    res = run(scene)
+    side = S.mean_tile_side(scene.tiles_assembled)
+    assert res.deployed, res.reasons
+    final = res.frames[-1].astype(np.float64)
+    pairs = S.split_contact_pairs(scene.linkage)
+    assert np.all(S.snap_goal_length(final, pairs) <= 0.01 * side)
+    assert res.max_penetration_mm <= 0.01 * side
