@@ -23,6 +23,10 @@ from drawstring.cad.design import route_links
 from drawstring.cad.features import MagnetPair, channel_radius
 from drawstring.cad.kernel import tessellate
 from drawstring.cad.tiles import apply_transform, face_planes
+from drawstring.geometry.tolerances import (
+    CAD_INTERFERENCE_ANGLE_RAD,
+    CAD_INTERFERENCE_DEFLECTION_MM,
+)
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.fabrication.profiles import Profile
@@ -39,9 +43,16 @@ def check_valid(solids: Sequence[bd.Shape]) -> NDArray[np.bool_]:
     )
 
 
-def to_manifold(solid: bd.Shape, tolerance: float = 0.01) -> manifold3d.Manifold:
-    """manifold3d solid from a tessellation of ``solid`` (chordal tolerance in mm)."""
-    vertices, faces = tessellate(solid, tolerance)
+def to_manifold(
+    solid: bd.Shape, tolerance: float = CAD_INTERFERENCE_DEFLECTION_MM
+) -> manifold3d.Manifold:
+    """manifold3d solid from a tessellation of ``solid``.
+
+    ``tolerance`` is the absolute chordal deflection (mm) of the triangles from the exact faces;
+    the angle between neighbouring triangles stays below ``CAD_INTERFERENCE_ANGLE_RAD``.  A mesh
+    the solid already carries is reused when it is at least that fine.
+    """
+    vertices, faces = tessellate(solid, tolerance, CAD_INTERFERENCE_ANGLE_RAD, relative=False)
     mesh = manifold3d.Mesh(
         vert_properties=np.ascontiguousarray(vertices, dtype=np.float32),
         tri_verts=np.ascontiguousarray(faces, dtype=np.uint32),
@@ -81,26 +92,32 @@ def _boxes(meshes: Sequence[manifold3d.Manifold]) -> NDArray[np.float64]:
     return np.array([m.bounding_box() for m in meshes], dtype=np.float64).reshape(-1, 2, 3)
 
 
+def _as_manifold(solid: bd.Shape | manifold3d.Manifold, tolerance: float) -> manifold3d.Manifold:
+    return solid if isinstance(solid, manifold3d.Manifold) else to_manifold(solid, tolerance)
+
+
 def interference(
-    solids_a: Sequence[bd.Shape],
-    solids_b: Sequence[bd.Shape] | None = None,
+    solids_a: Sequence[bd.Shape | manifold3d.Manifold],
+    solids_b: Sequence[bd.Shape | manifold3d.Manifold] | None = None,
     allowed_contact: set[tuple[int, int]] | None = None,
-    tolerance: float = 0.01,
+    tolerance: float = CAD_INTERFERENCE_DEFLECTION_MM,
 ) -> Interference:
     """Intersection volume of every pair whose bounding boxes overlap.
 
     Parameters
     ----------
-    solids_a : solids; with ``solids_b`` None, pairs within ``solids_a`` (i < j) are tested.
+    solids_a : solids (or their :func:`to_manifold` meshes, to reuse one tessellation across
+        calls); with ``solids_b`` None, pairs within ``solids_a`` (i < j) are tested.
     solids_b : a second list; then pairs (i in a, j in b) are tested.
     allowed_contact : pairs that may touch (hinges); they are measured all the same, since a
         touching contact has no volume; listed pairs are reported for context only.
-    tolerance : chordal tessellation tolerance (mm); curved faces shared by two solids are
-        meshed alike, so touching solids give volumes near zero.
+    tolerance : absolute chordal tessellation tolerance (mm, see :func:`to_manifold`); curved
+        faces shared by two solids are meshed alike, so touching solids give volumes near zero
+        (about ``tolerance`` times the shared curved area at most).
     """
     del allowed_contact
-    meshes_a = [to_manifold(s, tolerance) for s in solids_a]
-    meshes_b = meshes_a if solids_b is None else [to_manifold(s, tolerance) for s in solids_b]
+    meshes_a = [_as_manifold(s, tolerance) for s in solids_a]
+    meshes_b = meshes_a if solids_b is None else [_as_manifold(s, tolerance) for s in solids_b]
     boxes_a, boxes_b = _boxes(meshes_a), _boxes(meshes_b)
     if not len(boxes_a) or not len(boxes_b):
         return Interference(np.zeros((0, 2), dtype=np.int64), np.zeros(0))

@@ -150,12 +150,18 @@ def _build_job(job: _TileJob, profile: Profile, hinge_data: tuple[_HingeData, ..
     tools += [string_channel(job.vertices, a, b, profile) for a, b in job.channels]
     tools += [lift_bore(job.vertices, side, profile) for side in job.lifts]
     tools += [trim_tool(points) for points in job.trims]
+    owned = set(job.pads)
+    built_pads: dict[int, bd.Solid] = {}
     for hinge, is_a in job.hinges:
         tile_a, corner_a, tile_b, corner_b, side = hinge_data[hinge]
-        parts = hinge_pad(tile_a, corner_a, tile_b, corner_b, side, profile, build_pad=False)
+        # The pad this tile owns comes out of the same call as its tools (one frame, one build).
+        make_pad = hinge in owned and hinge not in built_pads
+        parts = hinge_pad(tile_a, corner_a, tile_b, corner_b, side, profile, build_pad=make_pad)
         tools.extend(parts.tools_a if is_a else parts.tools_b)
         if is_a:
             notes.extend(f"hinge {hinge}: {n}" for n in parts.notes)
+        if make_pad and parts.pad is not None:
+            built_pads[hinge] = parts.pad
     if job.label:
         engraving = label_engraving(job.vertices, job.tile, profile)
         if engraving is None:
@@ -172,10 +178,12 @@ def _build_job(job: _TileJob, profile: Profile, hinge_data: tuple[_HingeData, ..
         raise RuntimeError(f"tile {job.tile} ({kinds}): {exc}") from exc
     pads = []
     for hinge in job.pads:
-        tile_a, corner_a, tile_b, corner_b, side = hinge_data[hinge]
-        parts = hinge_pad(tile_a, corner_a, tile_b, corner_b, side, profile, build_pad=True)
-        assert parts.pad is not None
-        pads.append((hinge, parts.pad))
+        if hinge not in built_pads:
+            tile_a, corner_a, tile_b, corner_b, side = hinge_data[hinge]
+            parts = hinge_pad(tile_a, corner_a, tile_b, corner_b, side, profile, build_pad=True)
+            assert parts.pad is not None
+            built_pads[hinge] = parts.pad
+        pads.append((hinge, built_pads[hinge]))
     return job.tile, solid, pads, notes
 
 

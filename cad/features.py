@@ -947,8 +947,11 @@ def _plausible(pieces: list[bd.Solid], base: bd.Solid) -> bool:
     non-manifold seam where two tools touch) is a failed boolean."""
     if not pieces:
         return False
-    largest = max(pieces, key=lambda p: p.volume)
-    return bool(largest.volume >= 0.5 * base.volume and largest.is_manifold and largest.is_valid)
+    volumes = [p.volume for p in pieces]  # each volume integral once
+    largest = pieces[int(np.argmax(volumes))]
+    if max(volumes) < 0.5 * base.volume:
+        return False
+    return bool(largest.is_manifold and largest.is_valid)
 
 
 def build_tile(tile: NDArray[np.float64] | bd.Solid, tools: list[bd.Shape]) -> bd.Solid:
@@ -985,4 +988,4 @@ def build_tile(tile: NDArray[np.float64] | bd.Solid, tools: list[bd.Shape]) -> b
         raise RuntimeError("cutting the features removed the whole tile")
     if len(pieces) > 1:
         log.warning("features split a tile into %d pieces; keeping the largest", len(pieces))
-    return clean_solid(max(pieces, key=lambda s: s.volume))
+    return clean_solid(pieces[0] if len(pieces) == 1 else max(pieces, key=lambda s: s.volume))

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 import build123d as bd
 import numpy as np
 from numpy.typing import NDArray
-from OCP.BRep import BRep_Builder
+from OCP.BRep import BRep_Builder, BRep_Tool
 from OCP.BRepAlgoAPI import BRepAlgoAPI_BooleanOperation, BRepAlgoAPI_Cut, BRepAlgoAPI_Fuse
 from OCP.BRepBuilderAPI import (
     BRepBuilderAPI_MakeEdge,
@@ -21,10 +21,13 @@ from OCP.BRepBuilderAPI import (
     BRepBuilderAPI_MakeVertex,
     BRepBuilderAPI_MakeWire,
 )
+from OCP.BRepMesh import BRepMesh_IncrementalMesh
+from OCP.BRepTools import BRepTools
 from OCP.collections import List_TopoDS_Shape
 from OCP.gp import gp_Dir, gp_Pln, gp_Pnt
-from OCP.TopAbs import TopAbs_SOLID
+from OCP.TopAbs import TopAbs_FACE, TopAbs_REVERSED, TopAbs_SOLID
 from OCP.TopExp import TopExp_Explorer
+from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS, TopoDS_Shape, TopoDS_Shell, TopoDS_Solid
 
 from drawstring.geometry.errors import InputError
@@ -123,6 +126,8 @@ def fuse(base: bd.Solid, tools: Sequence[bd.Shape]) -> bd.Solid:
     if not tools:
         return base
     solids = _run(BRepAlgoAPI_Fuse(), base, tools)
+    if len(solids) == 1:  # the usual case: no volume integration needed to pick it
+        return solids[0]
     return max(solids, key=lambda s: s.volume)
 
 
@@ -132,19 +137,68 @@ def bounding_box(shape: bd.Shape) -> NDArray[np.float64]:
     return np.array([[box.min.X, box.min.Y, box.min.Z], [box.max.X, box.max.Y, box.max.Z]])
 
 
+def ensure_mesh(
+    shape: bd.Shape, tolerance: float, angular_tolerance: float, relative: bool = False
+) -> None:
+    """Attach an OCCT triangulation to ``shape`` unless it carries one at least that fine.
+
+    The triangulation travels with the shape when it is pickled, so a worker process can mesh
+    the solids it built and the parent reads the meshes without redoing the work.
+    ``tolerance``: chordal deflection (fraction of edge size when ``relative``, else mm);
+    ``angular_tolerance``: rad.
+    """
+    wrapped = shape.wrapped
+    if relative or not BRepTools.Triangulation_s(wrapped, tolerance):
+        BRepMesh_IncrementalMesh(wrapped, tolerance, relative, angular_tolerance, False)
+
+
 def tessellate(
-    shape: bd.Shape, tolerance: float = 0.01, angular_tolerance: float = 0.2
+    shape: bd.Shape,
+    tolerance: float = 0.01,
+    angular_tolerance: float = 0.2,
+    relative: bool = True,
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Closed triangle mesh of ``shape`` with coincident vertices merged.
+
+    The shape is meshed by OCCT (``BRepMesh_IncrementalMesh``) unless it already carries a mesh
+    at least that fine; nodes and triangles are read straight from OCCT's triangulation (no
+    per-node Python objects).  ``tolerance`` is the chordal deflection: a fraction of each
+    edge's size when ``relative`` (as build123d meshes), else mm; ``angular_tolerance`` in rad.
 
     Returns
     -------
     V : (n, 3) float, mm.
     F : (m, 3) int, outward triangles.
     """
-    points, triangles = shape.tessellate(tolerance, angular_tolerance)
-    vertices = np.array([[p.X, p.Y, p.Z] for p in points], dtype=np.float64).reshape(-1, 3)
-    faces = np.array(triangles, dtype=np.int64).reshape(-1, 3)
+    ensure_mesh(shape, tolerance, angular_tolerance, relative)
+    wrapped = shape.wrapped
+    node_blocks: list[NDArray[np.float64]] = []
+    face_blocks: list[NDArray[np.int64]] = []
+    offset = 0
+    explorer = TopExp_Explorer(wrapped, TopAbs_FACE)
+    while explorer.More():
+        face = TopoDS.Face(explorer.Current())
+        explorer.Next()
+        location = TopLoc_Location()
+        poly = BRep_Tool.Triangulation_s(face, location)
+        if poly is None:
+            continue
+        count = poly.NbNodes()
+        nodes = np.array([poly.Node(i).Coord() for i in range(1, count + 1)], dtype=np.float64)
+        if not location.IsIdentity():
+            trsf = location.Transformation()
+            matrix = np.array([[trsf.Value(r, c) for c in range(1, 5)] for r in range(1, 4)])
+            nodes = nodes @ matrix[:, :3].T + matrix[:, 3]
+        triangles = np.array(
+            [poly.Triangle(i).Get() for i in range(1, poly.NbTriangles() + 1)], dtype=np.int64
+        ).reshape(-1, 3)
+        if face.Orientation() == TopAbs_REVERSED:
+            triangles = triangles[:, [0, 2, 1]]
+        node_blocks.append(nodes.reshape(-1, 3))
+        face_blocks.append(triangles + (offset - 1))
+        offset += count
+    vertices = np.concatenate(node_blocks) if node_blocks else np.zeros((0, 3))
+    faces = np.concatenate(face_blocks) if face_blocks else np.zeros((0, 3), dtype=np.int64)
     # Faces are meshed separately; shared edges carry the same nodes, so merge exact duplicates
     # (rounded far below any model length).
     key = np.round(vertices / 1e-9).astype(np.int64)

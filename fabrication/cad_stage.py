@@ -148,14 +148,17 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
         check_valid,
         interference,
         pockets_paired,
+        to_manifold,
     )
 
     inputs = cad_inputs(result)
     flat_tiles = print_tiles(result)
     valid_tiles = check_valid(cad_flat.tiles)
     valid_pads = check_valid(cad_flat.pads)
-    tiles_vs_tiles = interference(cad_flat.tiles)
-    tiles_vs_pads = interference(cad_flat.tiles, cad_flat.pads) if cad_flat.pads else None
+    # One tessellation of each tile serves both interference checks.
+    tile_meshes = [to_manifold(solid) for solid in cad_flat.tiles]
+    tiles_vs_tiles = interference(tile_meshes)
+    tiles_vs_pads = interference(tile_meshes, cad_flat.pads) if cad_flat.pads else None
     channels = channel_continuity(
         cad_flat.tiles, flat_tiles, cad_flat.transforms, inputs.route_steps, result.profile
     )

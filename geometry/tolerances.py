@@ -130,3 +130,10 @@ FLAT_ORIENTATION_MIN_RAD = 1e-3
 
 #: Flat layout: clearance between two tiles found overlapping, relative to the mean tile side.
 FLAT_SEPARATION_MARGIN_REL = 1e-3
+
+#: CAD interference check: triangle meshes of the solids deviate from the exact surfaces by at
+#: most this chordal distance (mm, absolute) ...
+CAD_INTERFERENCE_DEFLECTION_MM = 0.02
+
+#: ... and by at most this angle (rad) between neighbouring triangles along a curved face.
+CAD_INTERFERENCE_ANGLE_RAD = 0.5
