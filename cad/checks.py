@@ -29,7 +29,7 @@ from drawstring.geometry.tolerances import (
 )
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
-    from drawstring.fabrication.profiles import Profile
+    from drawstring.cad.dimensions import FeatureDimensions as Profile
 
 
 def check_valid(solids: Sequence[bd.Shape]) -> NDArray[np.bool_]:

@@ -40,7 +40,7 @@ from drawstring.cad.tiles import move_solid, rigid_transforms, tile_solid
 from drawstring.geometry.errors import InputError
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
-    from drawstring.fabrication.profiles import Profile
+    from drawstring.cad.dimensions import FeatureDimensions as Profile
 
 log = logging.getLogger(__name__)
 

@@ -24,7 +24,7 @@ from drawstring.cad.tiles import FACE_BOTTOM, FACE_TOP, convex_solid, face_plane
 from drawstring.geometry.errors import InputError
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
-    from drawstring.fabrication.profiles import Profile
+    from drawstring.cad.dimensions import FeatureDimensions as Profile
 
 log = logging.getLogger(__name__)
 

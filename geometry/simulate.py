@@ -49,7 +49,7 @@ import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal, Protocol, runtime_checkable
+from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
 import scipy.sparse as sp
@@ -71,9 +71,6 @@ from drawstring.geometry.tolerances import (
     SIM_STALL_PROGRESS,
     SIM_STILL_REL,
 )
-
-if TYPE_CHECKING:  # the fabrication layer is only named for typing (geometry stays below it)
-    from drawstring.fabrication.pipeline import Design
 
 logger = logging.getLogger(__name__)
 
@@ -101,7 +98,6 @@ __all__ = [
     "route_snap_pairs",
     "route_steps",
     "save_deploy_npz",
-    "simulate_design",
     "simulate_stage",
     "snap_goal_length",
     "side_face_midpoints",
@@ -1242,33 +1238,6 @@ def simulate_stage(
     if second.deployed or second.final_max_deviation_mm < result.final_max_deviation_mm:
         return replace(second, time_s=total)
     return replace(result, time_s=total)
-
-
-def simulate_design(
-    design: Design,
-    *,
-    settings: SimulationSettings | None = None,
-    tolerances: SimulationTolerances | None = None,
-    frame_every: int = 5,
-) -> SimulationResult:
-    """:func:`simulate_stage` on a pipeline :class:`~drawstring.fabrication.pipeline.Design`.
-
-    Reads ``design.tiling.linkage``, ``design.tiles_flat``, ``design.tiles_assembled``,
-    ``design.hinge_layout.hinge_vertices``, ``design.route``, ``design.lift.lift_gaps`` and
-    ``design.options.thickness_mm`` (no import of the fabrication layer at run time).
-    """
-    return simulate_stage(
-        design.tiling.linkage,
-        design.tiles_flat,
-        design.tiles_assembled,
-        design.hinge_layout.hinge_vertices,
-        design.route,
-        design.lift.lift_gaps,
-        design.options.thickness_mm,
-        settings=settings,
-        tolerances=tolerances,
-        frame_every=frame_every,
-    )
 
 
 def save_deploy_npz(result: SimulationResult, path: str | Path) -> Path:
