@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -193,8 +194,9 @@ def save_lift(result: Design, path: Path) -> None:
     ax.set_aspect("equal")
     ax.autoscale_view()
     ax.set_title(
-        f"lift points: {len(result.lift.lift_gaps)} of {len(result.lift.peaks)} energy peaks "
-        f"(coupling threshold {result.lift.tau:g}; check: {result.lift.check_name})",
+        f"lift points (stars): {len(result.lift.lift_gaps)} of {len(result.lift.peaks)} energy "
+        f"peaks; gaps coloured by basin; coupling threshold {result.lift.tau:g}\n"
+        + "\n".join(textwrap.wrap(f"deployment check: {result.lift.check_name}", 90)),
         fontsize=9,
     )
     fig.tight_layout()
