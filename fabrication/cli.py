@@ -105,6 +105,8 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("folder", type=Path, help="a design folder written by `drawstring design`")
     prof = sub.add_parser("profiles", help="list the fabrication profiles")
     prof.add_argument("--show", metavar="NAME", help="print a profile as TOML to copy and edit")
+    prof.add_argument("--size", type=float, help="estimate for a design this size (mm)")
+    prof.add_argument("--tiles", type=int, help="estimate for this many tiles")
     return parser
 
 
@@ -161,20 +163,42 @@ def _run_targets() -> int:
 
 
 def _run_profiles(args: argparse.Namespace) -> int:
-    from .profiles import SHIPPED_PROFILES, load_profile
+    from .profiles import PROCESS_GUIDE, SHIPPED_PROFILES, load_profile, rough_estimate
 
     if args.show:
         print(load_profile(args.show).to_toml(), end="")
         return 0
+    if args.size is not None and not (args.size > 0 and args.size < float("inf")):
+        raise InputError(f"--size must be a positive number of millimetres (got {args.size})")
+    if args.tiles is not None and args.tiles < 1:
+        raise InputError(f"--tiles must be at least 1 (got {args.tiles})")
     for name in SHIPPED_PROFILES:
         profile = load_profile(name)
+        machine, outputs = PROCESS_GUIDE[profile.process]
+        size = args.size if args.size is not None else profile.default_size_mm
+        tiles = args.tiles if args.tiles is not None else profile.default_tiles
+        guess = rough_estimate(profile, size, tiles)
+        fits = "" if profile.size_min_mm <= size <= profile.size_max_mm else "  (outside its range)"
         print(f"{name}: {profile.description}")
+        print(f"    needs:     {machine}")
         print(
-            f"    tiles {profile.tile_material}, {profile.thickness_mm:g} mm thick; hinges "
-            f"{profile.hinge_material}; string {profile.string_material}; "
-            f"default size {profile.default_size_mm:g} mm"
+            f"    materials: {profile.tile_material} tiles {profile.thickness_mm:g} mm thick, "
+            f"{profile.hinge_material} hinges, {profile.string_material}"
         )
-    print("Copy one with `drawstring profiles --show NAME > my.toml` and use --profile my.toml.")
+        print(f"    makes:     {outputs}")
+        print(
+            f"    suits:     {profile.size_min_mm:g} to {profile.size_max_mm:g} mm "
+            f"(default {profile.default_size_mm:g} mm, {profile.default_tiles} tiles)"
+        )
+        print(
+            f"    roughly:   {guess.mass_g / 1000:.2f} kg, {guess.cost:.0f} "
+            f"{profile.currency} of material, {guess.hours:.1f} h of {guess.basis} for a "
+            f"{size:g} mm design of {tiles} tiles{fits}"
+        )
+    print(
+        "Estimate another design with `drawstring profiles --size MM --tiles N`; copy a "
+        "profile with `drawstring profiles --show NAME > my.toml` and use --profile my.toml."
+    )
     return 0
 
 

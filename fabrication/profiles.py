@@ -7,6 +7,7 @@ type or an out-of-range value raises :class:`InputError` naming the file, key, v
 
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import dataclass, fields
 from importlib import resources
@@ -41,6 +42,8 @@ SCHEMA: dict[str, Field] = {
     "description": Field("", "description", str),
     "default_size_mm": Field("design", "default_size_mm", float, 10.0, 10_000.0, "mm"),
     "default_tiles": Field("design", "default_tiles", int, 4, 20_000, "tiles"),
+    "size_min_mm": Field("design", "size_min_mm", float, 10.0, 10_000.0, "mm"),
+    "size_max_mm": Field("design", "size_max_mm", float, 10.0, 10_000.0, "mm"),
     "thickness_mm": Field("tile", "thickness_mm", float, 0.5, 500.0, "mm"),
     "min_gap_angle_deg": Field("tile", "min_gap_angle_deg", float, 0.0, 60.0, "deg"),
     "tile_material": Field("tile", "material", str),
@@ -86,6 +89,8 @@ class Profile:
     description: str
     default_size_mm: float
     default_tiles: int
+    size_min_mm: float
+    size_max_mm: float
     thickness_mm: float
     min_gap_angle_deg: float
     tile_material: str
@@ -215,6 +220,12 @@ def parse_profile(data: dict[str, Any], source: str) -> Profile:
                     f"{source}: {where} = {value!r} is out of range ({_describe_range(spec)})"
                 )
         values[attr] = value
+    if not values["size_min_mm"] <= values["default_size_mm"] <= values["size_max_mm"]:
+        raise InputError(
+            f"{source}: design.default_size_mm = {values['default_size_mm']} must lie between "
+            f"design.size_min_mm ({values['size_min_mm']}) and design.size_max_mm "
+            f"({values['size_max_mm']})"
+        )
     return Profile(**values, source=source)
 
 
@@ -241,3 +252,83 @@ def load_profile(name_or_path: str | Path) -> Profile:
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{source}: not valid TOML ({exc})") from None
     return parse_profile(data, source)
+
+
+#: What each process needs and makes, for ``drawstring profiles``.
+PROCESS_GUIDE: dict[str, tuple[str, str]] = {
+    "fdm-dual": (
+        "a dual-extruder FDM printer (or one with a tool changer / multi-material unit)",
+        "print.3mf with tiles on extruder 1 and hinge pads on extruder 2, STEP, BOM, guide",
+    ),
+    "laser-epdm": (
+        "a single-material FDM printer for the tiles and a laser cutter for 1 mm EPDM sheet",
+        "tiles.3mf, hinges.dxf (nested, kerf-compensated), a 1:1 placement template, BOM",
+    ),
+    "plywood-cnc": (
+        "a laser cutter or CNC router for plywood sheet, a drill, glue and screws",
+        "panels.dxf (finger-jointed box panels, nested), hinges.dxf, cutlist.csv, BOM, guide",
+    ),
+}
+
+
+@dataclass(frozen=True)
+class RoughEstimate:
+    """Order-of-magnitude material and machine time for a design of a given size."""
+
+    size_mm: float
+    tiles: int
+    mass_g: float
+    cost: float
+    hours: float
+    basis: str
+
+
+def rough_estimate(profile: Profile, size_mm: float, tiles: int) -> RoughEstimate:
+    """Estimate mass, material cost and print or cut time before designing anything.
+
+    The surface is taken as size^2 (a curved patch in a size x size box has about that much
+    area: the saddle built-in has 1.1 size^2), covered by
+    ``tiles`` tiles of the profile's thickness filled to its infill fraction; every tile has
+    about two hinges; the string runs about 1.2 times around a square of the size.  Print time
+    is the tile volume over the profile's volumetric rate; cut time is the cut length (six
+    panel outlines per tile for box tiles, every hinge strip's outline otherwise) over the cut
+    speed.  Expect the real numbers in ``fabrication/bom.csv`` to differ by tens of percent.
+    """
+    if not (math.isfinite(size_mm) and size_mm > 0) or tiles < 1:
+        raise InputError("an estimate needs a positive size in mm and at least one tile")
+    area = size_mm**2
+    side = math.sqrt(area / tiles)
+    tile_volume = area * profile.thickness_mm * profile.infill_fraction  # mm^3
+    hinge_volume = (
+        2 * tiles * profile.hinge_thickness_mm * profile.hinge_width_mm
+        * profile.hinge_pad_length_mm
+    )  # fmt: skip
+    tile_g = tile_volume * 1e-6 * profile.density_kg_m3
+    hinge_g = hinge_volume * 1e-6 * profile.hinge_density_kg_m3
+    string_m = 4.0 * size_mm * 1.2 / 1000.0
+    cost = (
+        tile_g / 1000 * profile.tile_price_per_kg
+        + hinge_g / 1000 * profile.hinge_price_per_kg
+        + string_m * profile.string_price_per_m
+    )
+    seconds = 0.0
+    basis = []
+    if profile.print_rate_mm3_s > 0:
+        printed = tile_volume + (hinge_volume if profile.process == "fdm-dual" else 0.0)
+        seconds += printed / profile.print_rate_mm3_s
+        basis.append("printing")
+    if profile.cut_speed_mm_s > 0:
+        if profile.process == "plywood-cnc":
+            cut = tiles * 6 * 4 * max(side, profile.thickness_mm)
+        else:
+            cut = 2 * tiles * 2 * (profile.hinge_pad_length_mm + profile.hinge_width_mm)
+        seconds += cut / profile.cut_speed_mm_s
+        basis.append("cutting")
+    return RoughEstimate(
+        size_mm=size_mm,
+        tiles=tiles,
+        mass_g=tile_g + hinge_g,
+        cost=cost,
+        hours=seconds / 3600.0,
+        basis=" + ".join(basis) or "no machine time",
+    )

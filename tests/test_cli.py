@@ -79,6 +79,10 @@ def test_targets_and_profiles_listings() -> None:
     done = run_cli("profiles")
     assert done.returncode == 0
     assert "fdm-dual" in done.stdout and "plywood-cnc" in done.stdout
+    for key in ("needs:", "materials:", "makes:", "suits:", "roughly:"):
+        assert done.stdout.count(key) == 3, key
+    done = run_cli("profiles", "--size", "0")
+    assert done.returncode == 2 and "--size" in done.stderr
     done = run_cli("profiles", "--show", "laser-epdm")
     assert done.returncode == 0 and 'process = "laser-epdm"' in done.stdout
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import tomllib
 from pathlib import Path
 
@@ -79,3 +80,30 @@ def test_unknown_profile_name_and_missing_file(tmp_path: Path) -> None:
     broken.write_text("name = ", encoding="utf-8")
     with pytest.raises(InputError, match="not valid TOML"):
         load_profile(broken)
+
+
+def test_size_range_must_hold_the_default_size() -> None:
+    table = shipped_table()
+    table["design"]["size_max_mm"] = 100.0  # below the default 160 mm
+    with pytest.raises(InputError, match="must lie between"):
+        parse_profile(table, "my.toml")
+
+
+@pytest.mark.parametrize("name", SHIPPED_PROFILES)
+def test_rough_estimate_scales_with_area(name: str) -> None:
+    from drawstring.fabrication.profiles import rough_estimate
+
+    profile = load_profile(name)
+    small = rough_estimate(profile, 100.0, 200)
+    large = rough_estimate(profile, 200.0, 200)
+    # Tile mass grows with the area (4x); hinge mass stays (same tile count: 2 hinges each).
+    hinge_g = (
+        2 * 200 * profile.hinge_thickness_mm * profile.hinge_width_mm
+        * profile.hinge_pad_length_mm * 1e-6 * profile.hinge_density_kg_m3
+    )  # fmt: skip
+    assert small.mass_g > hinge_g
+    assert math.isclose(large.mass_g - hinge_g, 4 * (small.mass_g - hinge_g), rel_tol=1e-9)
+    assert large.cost > small.cost > 0
+    assert large.hours >= small.hours > 0
+    with pytest.raises(InputError):
+        rough_estimate(profile, -1.0, 200)
