@@ -20,6 +20,7 @@ from scipy.spatial import ConvexHull
 
 from drawstring.cad.kernel import polyhedron_solid
 from drawstring.geometry.errors import InputError
+from drawstring.geometry.rigid import apply_rigid, rigid_fit
 from drawstring.geometry.tolerances import CAD_MAX_FACE_DEVIATION_MM, CAD_PLANAR_EXACT_MM
 
 log = logging.getLogger(__name__)
@@ -184,20 +185,12 @@ def rigid_transforms(
     """
     src = np.asarray(source, dtype=np.float64)
     dst = np.asarray(target, dtype=np.float64)
-    src_mean = src.mean(axis=1, keepdims=True)
-    dst_mean = dst.mean(axis=1, keepdims=True)
-    covariance = np.einsum("tki,tkj->tij", src - src_mean, dst - dst_mean)
-    u, _, vt = np.linalg.svd(covariance)
-    det = np.linalg.det(np.einsum("tij,tjk->tik", u, vt))
-    fix = np.ones((len(src), 3))
-    fix[:, 2] = np.sign(det)
-    rotation = np.einsum("tji,tj,tkj->tik", vt, fix, u)  # V diag(fix) U^T
-    translation = dst_mean[:, 0] - np.einsum("tij,tj->ti", rotation, src_mean[:, 0])
+    rotation, translation = rigid_fit(src, dst)
     transforms = np.zeros((len(src), 4, 4))
     transforms[:, :3, :3] = rotation
     transforms[:, :3, 3] = translation
     transforms[:, 3, 3] = 1.0
-    moved = np.einsum("tij,tkj->tki", rotation, src) + translation[:, None]
+    moved = apply_rigid(rotation, translation, src)
     residual = np.linalg.norm(moved - dst, axis=2).max(axis=1)
     return transforms, residual
 

@@ -37,6 +37,7 @@ from drawstring.geometry.flatten import Flattening, flatten
 from drawstring.geometry.hinges import HingeLayout, HingeStrategy, layout_hinges
 from drawstring.geometry.lift import LiftPoints, select_lift_points, tile_masses_from_volumes
 from drawstring.geometry.linkage import gap_centroids
+from drawstring.geometry.rigid import apply_rigid, rigid_fit
 from drawstring.geometry.route import Route, plan_route, route_metrics
 from drawstring.geometry.simulate import simulate_stage
 from drawstring.geometry.target import Target, load_target
@@ -305,16 +306,8 @@ def fabricated_tiles(layout: HingeLayout, tiles_3d: NDArray[np.float64]) -> NDAr
 def rigid_copies(source: NDArray[np.float64], placed: NDArray[np.float64]) -> NDArray[np.float64]:
     """(T, 8, 3) each ``source`` tile moved by the rotation and translation (Kabsch, no
     reflection) that best fits it onto the matching ``placed`` tile."""
-    source = np.asarray(source, dtype=np.float64)
-    src_mean = source.mean(axis=1, keepdims=True)
-    dst_mean = placed.mean(axis=1, keepdims=True)
-    covariance = np.einsum("tki,tkj->tij", source - src_mean, placed - dst_mean)
-    u, _, vt = np.linalg.svd(covariance)
-    fix = np.ones((len(source), 3))
-    fix[:, 2] = np.sign(np.linalg.det(np.einsum("tij,tjk->tik", u, vt)))
-    rotation = np.einsum("tji,tj,tkj->tik", vt, fix, u)
-    moved = np.einsum("tij,tkj->tki", rotation, source - src_mean) + dst_mean
-    return np.asarray(moved)
+    rotation, translation = rigid_fit(source, placed)
+    return apply_rigid(rotation, translation, source)
 
 
 def channel_turn_assembled(route: Route, tiles_3d: NDArray[np.float64]) -> float:

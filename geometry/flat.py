@@ -50,6 +50,7 @@ from scipy.spatial import cKDTree
 from drawstring.geometry.constraints import quad_overlap_mtv, signed_angles
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import Linkage
+from drawstring.geometry.rigid import rigid_fit
 from drawstring.geometry.tolerances import (
     FLAT_EDGE_ERROR_TOL_MM,
     FLAT_GAP_ANGLE_TOL_DEG,
@@ -862,20 +863,6 @@ def optimize_flat(
     )
 
 
-def _kabsch(src: FloatArray, dst: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Proper rotations ``(k, 3, 3)`` and translations ``(k, 3)`` with ``R src + t ~ dst``."""
-    cs, cd = src.mean(axis=1), dst.mean(axis=1)
-    h = np.einsum("ksi,ksj->kij", src - cs[:, None], dst - cd[:, None])
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(np.einsum("kij,kjl->kil", u, vt)))
-    d[d == 0] = 1.0
-    fix = np.ones((len(src), 3))
-    fix[:, 2] = d
-    rot = np.einsum("kji,kj,klj->kil", vt, fix, u)  # V diag(1,1,d) U^T
-    trans = cd - np.einsum("kij,kj->ki", rot, cs)
-    return rot, trans
-
-
 def extrude_flat(
     flat: FlatResult | ArrayLike, tiles_3d: ArrayLike, thickness: float | None = None
 ) -> FloatArray:
@@ -906,5 +893,5 @@ def extrude_flat(
     if thickness is None:
         thickness = float(np.mean(np.linalg.norm(tiles[:, :4] - tiles[:, 4:], axis=2)))
     dst = np.concatenate([corners, np.full((len(corners), 4, 1), float(thickness))], axis=2)
-    rot, trans = _kabsch(tiles[:, :4], dst)
+    rot, trans = rigid_fit(tiles[:, :4], dst)
     return np.asarray(np.einsum("kij,kvj->kvi", rot, tiles) + trans[:, None, :])

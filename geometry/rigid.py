@@ -1,0 +1,42 @@
+"""Best rigid motions between corresponding point sets, batched (Kabsch, no reflection)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+
+def rigid_fit(
+    source: ArrayLike, target: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Rotation and translation taking each source set onto its target set (least squares).
+
+    Parameters
+    ----------
+    source, target : (T, k, 3) float, corresponding points (e.g. tiles, k = 8).
+
+    Returns
+    -------
+    rotation : (T, 3, 3) float, proper rotations (det +1).
+    translation : (T, 3) float, so that ``target ~ rotation @ source + translation``.
+    """
+    src = np.asarray(source, dtype=np.float64)
+    dst = np.asarray(target, dtype=np.float64)
+    src_mean = src.mean(axis=1)
+    dst_mean = dst.mean(axis=1)
+    covariance = np.einsum("tki,tkj->tij", src - src_mean[:, None], dst - dst_mean[:, None])
+    u, _, vt = np.linalg.svd(covariance)
+    fix = np.ones((len(src), 3))
+    sign = np.sign(np.linalg.det(np.einsum("tij,tjk->tik", u, vt)))
+    fix[:, 2] = np.where(sign == 0, 1.0, sign)
+    rotation = np.einsum("tji,tj,tkj->tik", vt, fix, u)  # V diag(fix) U^T
+    translation = dst_mean - np.einsum("tij,tj->ti", rotation, src_mean)
+    return rotation, translation
+
+
+def apply_rigid(
+    rotation: NDArray[np.float64], translation: NDArray[np.float64], points: ArrayLike
+) -> NDArray[np.float64]:
+    """(T, k, 3) ``points`` moved by each set's rotation and translation."""
+    pts = np.asarray(points, dtype=np.float64)
+    return np.asarray(np.einsum("tij,tkj->tki", rotation, pts) + translation[:, None])
