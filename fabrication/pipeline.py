@@ -36,10 +36,17 @@ from drawstring.geometry.flat import FlatResult, extrude_flat, optimize_flat
 from drawstring.geometry.flatten import Flattening, flatten
 from drawstring.geometry.hinges import HingeLayout, HingeStrategy, layout_hinges
 from drawstring.geometry.lift import LiftPoints, select_lift_points, tile_masses_from_volumes
-from drawstring.geometry.linkage import gap_centroids
+from drawstring.geometry.linkage import Linkage, gap_centroids
 from drawstring.geometry.rigid import apply_rigid, rigid_fit
+from drawstring.geometry.rigidity import rigidity_report
 from drawstring.geometry.route import Route, plan_route, route_metrics
-from drawstring.geometry.simulate import simulate_stage
+from drawstring.geometry.simulate import (
+    SimulationResult,
+    route_snap_pairs,
+    route_steps,
+    simulate_stage,
+    split_contact_pairs,
+)
 from drawstring.geometry.target import Target, load_target
 from drawstring.geometry.tiling import Tiling, component_flattenings, tile_surface
 from drawstring.geometry.tolerances import (
@@ -64,7 +71,8 @@ log = logging.getLogger(__name__)
 
 #: Stages in order; ``timings_s`` uses these keys.
 STAGES = (
-    "target", "flatten", "tiling", "assembled", "flat", "hinges", "lift", "route", "simulate",
+    "target", "flatten", "tiling", "assembled", "flat", "hinges", "lift", "route", "rigidity",
+    "simulate",
 )  # fmt: skip
 HINGE_STRATEGIES: tuple[HingeStrategy, ...] = ("dual", "top")
 
@@ -248,23 +256,46 @@ def _version() -> str:
 
 
 class Progress:
-    """Stage progress on stderr for stages longer than a second; silent when quiet or piped."""
+    """Stage progress on stderr; silent when quiet or piped.
+
+    Stages may nest (the lift-point sweep routes and simulates each lift set it tries): a
+    stage's time excludes its nested stages', and a stage run several times adds up.
+    """
 
     def __init__(self, quiet: bool = False) -> None:
         self.enabled = not quiet and sys.stderr.isatty()
         self.timings: dict[str, float] = {}
+        self._open: list[list[float]] = []  # per open stage: [nested time]
+        self._line_open = False
 
     @contextmanager
     def stage(self, name: str) -> Iterator[None]:
         start = time.perf_counter()
         if self.enabled:
+            if self._line_open:
+                print(file=sys.stderr)
             print(f"  {name} ...", end="", file=sys.stderr, flush=True)
-        yield
-        elapsed = time.perf_counter() - start
-        self.timings[name] = elapsed
+            self._line_open = True
+        self._open.append([0.0])
+        try:
+            yield
+        finally:
+            nested = self._open.pop()[0]
+            elapsed = time.perf_counter() - start
+            if self._open:
+                self._open[-1][0] += elapsed
+            self.timings[name] = self.timings.get(name, 0.0) + elapsed - nested
         if self.enabled:
+            if not self._line_open:
+                print(f"  {name}", end="", file=sys.stderr)
             print(f" {elapsed:.1f} s", file=sys.stderr, flush=True)
+            self._line_open = False
         log.info("stage %s took %.3f s", name, elapsed)
+
+    def ordered_timings(self) -> dict[str, float]:
+        """Timings with the stages in pipeline order, then any others."""
+        rank = {name: i for i, name in enumerate(STAGES)}
+        return dict(sorted(self.timings.items(), key=lambda kv: rank.get(kv[0], len(rank))))
 
 
 def resolve_options(options: DesignOptions, profile: Profile) -> ResolvedOptions:
@@ -408,58 +439,85 @@ def design(
         hinge_layout = layout_hinges(
             linkage, flat, tiles_2d, assembled.tiles, strategy=resolved.hinges
         )
-    with progress.stage("lift"):
-        masses = tile_masses_from_volumes(
-            assembled.tiles, profile.density_kg_m3 * profile.infill_fraction
+    masses = tile_masses_from_volumes(
+        assembled.tiles, profile.density_kg_m3 * profile.infill_fraction
+    )
+    flat_gap_xy = gap_centroids(linkage, hinge_layout.tiles[:, :4, :2])
+    fabricated = fabricated_tiles(hinge_layout, assembled.tiles)
+    routes: dict[tuple[int, ...], tuple[Route, str | None]] = {}
+    runs: dict[tuple[int, ...], SimulationResult] = {}
+
+    def route_for(lift_gaps: NDArray[np.int64]) -> tuple[Route, str | None]:
+        key = tuple(int(g) for g in lift_gaps)
+        if key not in routes:
+            with progress.stage("route"):
+                routes[key] = plan_lift_route(linkage, flat_gap_xy, lift_gaps)
+        return routes[key]
+
+    def simulated(lift_gaps: NDArray[np.int64]) -> SimulationResult:
+        key = tuple(int(g) for g in lift_gaps)
+        if key not in runs:
+            route_steps = route_for(lift_gaps)[0]
+            with progress.stage("simulate"):
+                runs[key] = simulate_stage(
+                    linkage,
+                    fabricated,
+                    assembled.tiles,
+                    hinge_layout.hinge_vertices,
+                    route_steps,
+                    lift_gaps,
+                    resolved.thickness_mm,
+                )
+        return runs[key]
+
+    deploy_check = None
+    if resolved.simulate:
+        # The lift-point sweep raises its threshold while the simulated deployment fails
+        # (paper sec. 5.2); every lift set is routed and simulated once.
+        deploy_check = NamedCheck(
+            "projective-dynamics deployment simulation",
+            lambda gaps: simulated(gaps).deployed,
         )
+    with progress.stage("lift"):
         lift = select_lift_points(
             linkage,
             assembled.tiles.mean(axis=1),
             masses,
             gap_positions=gap_centroids(linkage, assembled.tiles[:, :4]),
+            deploy_check=deploy_check,
         )
-    with progress.stage("route"):
-        flat_gap_xy = gap_centroids(linkage, hinge_layout.tiles[:, :4, :2])
-        route = plan_route(linkage, flat_gap_xy, lift.lift_gaps)
-        if len(route.lifts_missed):
-            # The paper's rule keeps the string off split gaps except between boundary tiles;
-            # in a narrow part that can leave a lift point unreachable.  Passing a split gap
-            # between two tiles on the same side of the cut does not cross it.
-            relaxed = plan_route(linkage, flat_gap_xy, lift.lift_gaps, split_rule="same-component")
-            if len(relaxed.lifts_missed) < len(route.lifts_missed):
-                notes.append(
-                    "route: reached every lift point by letting the string pass split gaps "
-                    "between tiles on the same side of a cut"
-                )
-                route = relaxed
+    route, route_note = route_for(lift.lift_gaps)
+    if route_note:
+        notes.append(route_note)
     measured, problems, warnings = measure_design(
         resolved, profile, tiling, assembled, flat, hinge_layout, lift, route, masses
     )
     notes.extend(f"flat stage: {p}" for p in flat.problems)
     notes.extend(f"hinge stage: {p}" for p in hinge_layout.problems)
+    with progress.stage("rigidity"):
+        rigidity = design_rigidity(linkage, assembled.tiles, hinge_layout.hinge_vertices, route)
+    measured["rigidity"] = rigidity
+    if not rigidity["isostatic"]:
+        warnings.append(
+            f"the assembled linkage with its string keeps {rigidity['internal_flexes']} internal "
+            "flex(es) (metrics.rigidity); it may wobble when the string is tight"
+        )
     simulation = None
     if resolved.simulate:
-        with progress.stage("simulate"):
-            simulation = simulate_stage(
-                linkage,
-                fabricated_tiles(hinge_layout, assembled.tiles),
-                assembled.tiles,
-                hinge_layout.hinge_vertices,
-                route,
-                lift.lift_gaps,
-                resolved.thickness_mm,
-            )
+        simulation = simulated(lift.lift_gaps)
         block = _jsonable(simulation.to_json())
         # Wall-clock numbers go to timings_s, so everything else in design.json is reproducible.
         block.pop("time_s", None)
         progress.timings["simulate_per_step"] = float(block.pop("per_step_ms", 0.0)) / 1000.0
+        block["runs"] = len(runs)
         measured["simulation"] = block
         if not simulation.deployed:
             warnings.append(
                 "the deployment simulation got stuck ("
                 f"{len(simulation.open_gaps)} route gaps open, tiles up to "
-                f"{simulation.final_max_deviation_mm:.2f} mm from the assembled shape); see "
-                "design.json metrics.simulation"
+                f"{simulation.final_max_deviation_mm:.2f} mm from the assembled shape) with "
+                f"every lift-point set the sweep tried ({len(runs)}); see design.json "
+                "metrics.simulation"
             )
     result = Design(
         options=resolved,
@@ -474,7 +532,7 @@ def design(
         route=route,
         simulation=simulation,
         measured=measured,
-        timings_s=dict(progress.timings),
+        timings_s=progress.ordered_timings(),
         notes=tuple(notes),
         problems=tuple(problems),
         warnings=tuple(warnings),
@@ -513,8 +571,77 @@ def with_cad(result: Design, progress: Progress) -> Design:
         measured={**result.measured, "cad": measured},
         problems=tuple(problems),
         notes=tuple(notes),
-        timings_s=dict(progress.timings),
+        timings_s=progress.ordered_timings(),
     )
+
+
+@dataclass(frozen=True)
+class NamedCheck:
+    """A deployment check ``check(lift_gaps) -> bool`` with the name design.json reports."""
+
+    name: str
+    check: Callable[[NDArray[np.int64]], bool]
+
+    def __call__(self, lift_gaps: NDArray[np.int64]) -> bool:
+        return bool(self.check(lift_gaps))
+
+
+def plan_lift_route(
+    linkage: Linkage, flat_gap_xy: NDArray[np.float64], lift_gaps: NDArray[np.int64]
+) -> tuple[Route, str | None]:
+    """The string route through the boundary and the lift gaps, and a note if it had to
+    relax the split rule to reach them."""
+    route = plan_route(linkage, flat_gap_xy, lift_gaps)
+    if len(route.lifts_missed):
+        # The paper's rule keeps the string off split gaps except between boundary tiles; in a
+        # narrow part that can leave a lift point unreachable.  Passing a split gap between two
+        # tiles on the same side of the cut does not cross it.
+        relaxed = plan_route(linkage, flat_gap_xy, lift_gaps, split_rule="same-component")
+        if len(relaxed.lifts_missed) < len(route.lifts_missed):
+            return relaxed, (
+                "route: reached every lift point by letting the string pass split gaps "
+                "between tiles on the same side of a cut"
+            )
+    return route, None
+
+
+def design_rigidity(
+    linkage: Linkage,
+    tiles_3d: NDArray[np.float64],
+    hinge_vertices: NDArray[np.int64],
+    route: Route,
+) -> dict[str, Any]:
+    """Infinitesimal rigidity of the assembled linkage held by its string (paper Theorem 5.1).
+
+    Joints: the hinges (ball joints).  Contacts: consecutive tiles along the route touch at
+    their shared side faces, and tiles across a split are held by their magnets.  A null space
+    of dimension 6 (rigid-body motions only) means the tight string locks the shape.
+    """
+    string_pairs, _ = route_snap_pairs(route_steps(route))
+    magnet_pairs = split_contact_pairs(linkage)
+    report = rigidity_report(
+        tiles_3d, hinge_vertices, np.vstack([string_pairs, magnet_pairs]), contact="midpoint"
+    )
+    block: dict[str, Any] = {
+        "null_dimension": report.null_dimension,
+        "internal_flexes": report.internal_flexes,
+        "isostatic": report.isostatic,
+        "contacts": {"string": len(string_pairs), "magnets": len(magnet_pairs)},
+        "joints": len(hinge_vertices),
+        "smallest_nonzero_singular_value": _round(
+            float(report.to_json()["smallest_nonzero_singular_value"]),
+            12,
+        ),
+    }
+    if report.internal_flexes:
+        # Per flex, the tiles that move most (twist magnitude), so a person can find them.
+        twists = report.flexes.reshape(len(tiles_3d), 6, -1)
+        motion = np.linalg.norm(twists, axis=1)  # (T, flexes)
+        block["flex_tiles"] = [
+            np.argsort(-motion[:, k], kind="stable")[:5].tolist()
+            for k in range(min(report.internal_flexes, 5))
+        ]
+    return block
 
 
 def measure_design(

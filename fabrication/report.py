@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.errors import InputError
+from drawstring.geometry.tolerances import FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM
 
 log = logging.getLogger(__name__)
 
@@ -330,6 +331,11 @@ def _diag(design: dict[str, Any]) -> float:
     return float(value) if isinstance(value, int | float) and value > 0 else math.nan
 
 
+def _tile_side(design: dict[str, Any]) -> float:
+    value = design.get("metrics", {}).get("tile_side_mean_mm")
+    return float(value) if isinstance(value, int | float) and value > 0 else math.nan
+
+
 def _const(text: str) -> Callable[[dict[str, Any]], str]:
     return lambda _design: text
 
@@ -371,13 +377,13 @@ METRIC_RULES: dict[str, MetricRule] = {
     ),
     "surface_distance_mean_mm": MetricRule(
         "mean distance of the tile corners from the target surface",
-        lambda d: f"≤ 0.5 % of the diagonal ({0.005 * _diag(d):.2f} mm)",
-        lambda v, d: float(v) <= 0.005 * _diag(d),
+        lambda d: f"≤ 2 % of the mean tile side ({0.02 * _tile_side(d):.2f} mm)",
+        lambda v, d: float(v) <= 0.02 * _tile_side(d) + 1e-9,
     ),
     "flat_edge_error_max_mm": MetricRule(
         "largest edge length difference between the flat and the assembled tiles",
-        _const("≤ 0.01 mm"),
-        _at_most(0.01),
+        _const(f"≤ {FLAT_EDGE_ERROR_TOL_MM:g} mm"),
+        _at_most(FLAT_EDGE_ERROR_TOL_MM),
     ),
     "flat_overlap_area_mm2": MetricRule(
         "total area where tiles overlap in the flat layout",
@@ -396,8 +402,8 @@ METRIC_RULES: dict[str, MetricRule] = {
     ),
     "hinge_gap_max_mm": MetricRule(
         "largest distance between the two corners a hinge joins, flat layout",
-        _const("≤ 0.01 mm"),
-        _at_most(0.01),
+        _const(f"≤ {HINGE_GAP_TOL_MM:g} mm"),
+        _at_most(HINGE_GAP_TOL_MM),
     ),
     "lift_points": MetricRule(
         "points where the string leaves the top face to lift the structure",
@@ -436,13 +442,22 @@ METRIC_RULES: dict[str, MetricRule] = {
     "simulation.steps": MetricRule("simulation steps", _const("(count)"), None),
     "simulation.final_max_deviation_mm": MetricRule(
         "after the simulated pull: largest distance of a tile corner from the assembled pose",
-        lambda d: f"≤ 1 % of the diagonal ({0.01 * _diag(d):.2f} mm)",
-        lambda v, d: float(v) <= 0.01 * _diag(d),
+        lambda d: f"≤ 1 % of the mean tile side ({0.01 * _tile_side(d):.2f} mm)",
+        lambda v, d: float(v) <= 0.01 * _tile_side(d) + 1e-9,
     ),
     "simulation.max_penetration_mm": MetricRule(
         "largest overlap between tiles during the simulated pull",
         _const("≤ 0.1 mm"),
         _at_most(0.1),
+    ),
+    "rigidity.null_dimension": MetricRule(
+        "independent small motions of the assembled linkage with the string tight "
+        "(6 = only moving it as a whole)",
+        _const("= 6"),
+        lambda v, _d: int(v) == 6,
+    ),
+    "rigidity.internal_flexes": MetricRule(
+        "ways the assembled shape can wobble with the string tight", _const("= 0"), _at_most(0)
     ),
 }
 

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike, NDArray
 
 from drawstring.geometry.errors import InputError
@@ -37,21 +39,27 @@ __all__ = ["RigidityReport", "rigid_motion_basis", "rigidity_matrix", "rigidity_
 _SIDE_FACES = np.array([[k, (k + 1) % 4, 4 + (k + 1) % 4, 4 + k] for k in range(4)])
 
 
-def _skew_rows(tile: IntArray, arm: FloatArray, n_cols: int, sign: float) -> FloatArray:
-    """Rows ``sign * (u_t + w_t x arm)`` for points ``(k,)`` as a dense ``(3k, n_cols)`` block."""
+def _skew_triplets(
+    tile: IntArray, arm: FloatArray, sign: float
+) -> tuple[IntArray, IntArray, FloatArray]:
+    """Sparse rows ``sign * (u_t + w_t x arm)`` for points ``(k,)``: (row, col, value) triplets.
+
+    Point ``i`` owns rows ``3 i .. 3 i + 2``; ``w x a = -a x w`` gives the rows of ``-[a]_x``.
+    """
     k = len(tile)
-    out = np.zeros((3 * k, n_cols))
-    r = 3 * np.arange(k)
-    base = 6 * tile
-    # w x a = -a x w: rows of -[a]_x
     ax, ay, az = arm[:, 0], arm[:, 1], arm[:, 2]
     zero = np.zeros(k)
-    rows = ((zero, az, -ay), (-az, zero, ax), (ay, -ax, zero))
-    for row, coeffs in enumerate(rows):
-        for col, c in enumerate(coeffs):
-            out[r + row, base + col] += sign * c
-        out[r + row, base + 3 + row] += sign
-    return out
+    # (row offset, column offset within the twist, coefficient)
+    pattern = (
+        (0, 0, zero), (0, 1, az), (0, 2, -ay),
+        (1, 0, -az), (1, 1, zero), (1, 2, ax),
+        (2, 0, ay), (2, 1, -ax), (2, 2, zero),
+        (0, 3, np.ones(k)), (1, 4, np.ones(k)), (2, 5, np.ones(k)),
+    )  # fmt: skip
+    rows = np.concatenate([3 * np.arange(k) + r for r, _, _ in pattern])
+    cols = np.concatenate([6 * tile + c for _, c, _ in pattern])
+    vals = sign * np.concatenate([v for _, _, v in pattern])
+    return rows, cols, vals
 
 
 def rigidity_matrix(
@@ -72,7 +80,7 @@ def rigidity_matrix(
 
     Returns
     -------
-    R : (3 (H + P * m), 6 T) float, ``m = 1`` or ``3``.
+    R : (3 (H + P * m), 6 T) float sparse (CSR), ``m = 1`` or ``3``.
     """
     pts = np.asarray(tiles, dtype=np.float64)
     if pts.ndim != 3 or pts.shape[1:] != (8, 3):
@@ -103,10 +111,13 @@ def rigidity_matrix(
     ta_all = np.concatenate(tile_a)
     tb_all = np.concatenate(tile_b)
     p_all = np.concatenate(where)
-    return np.asarray(
-        _skew_rows(ta_all, p_all - centroid[ta_all], cols, 1.0)
-        + _skew_rows(tb_all, p_all - centroid[tb_all], cols, -1.0)
+    ra, ca, va = _skew_triplets(ta_all, p_all - centroid[ta_all], 1.0)
+    rb, cb, vb = _skew_triplets(tb_all, p_all - centroid[tb_all], -1.0)
+    mat = sp.coo_matrix(
+        (np.concatenate([va, vb]), (np.concatenate([ra, rb]), np.concatenate([ca, cb]))),
+        shape=(3 * len(p_all), cols),
     )
+    return mat.tocsr()
 
 
 def rigid_motion_basis(tiles: ArrayLike) -> FloatArray:
@@ -139,7 +150,8 @@ class RigidityReport:
     internal_flexes : null_dimension - 6 (never negative for a valid matrix).
     flexes : (6 T, internal_flexes) float, orthonormal internal flexes (orthogonal to the rigid
         motions), twist coordinates.
-    singular_values : (6 T,) float, ascending.
+    singular_values : (k,) float, ascending: all ``6 T`` of them for small linkages, the
+        smallest ``k`` (more than the null dimension) above :data:`DENSE_MAX_COLUMNS` columns.
     tolerance : float, threshold used on the singular values.
     rows, cols : shape of the rigidity matrix.
     """
@@ -197,12 +209,14 @@ def rigidity_report(
     pts = (pts - pts.reshape(-1, 3).mean(axis=0)) / scale
     mat = rigidity_matrix(pts, joints, contacts, contact=contact)
     cols = mat.shape[1]
-    full = np.zeros((max(mat.shape[0], cols), cols))
-    full[: mat.shape[0]] = mat  # pad so the SVD returns all right singular vectors
-    _, sing, vt = np.linalg.svd(full)
-    tol = rel_tol * float(sing.max(initial=0.0))
-    null = vt[sing <= tol].T  # (6T, d)
-    order = np.argsort(sing)
+    if cols <= DENSE_MAX_COLUMNS:
+        sing, vecs = _smallest_singular_dense(mat)
+        tol = rel_tol * float(sing.max(initial=0.0))
+    else:
+        s_max = float(np.sqrt(spla.eigsh(mat.T @ mat, k=1, which="LA", v0=_start(cols))[0][0]))
+        tol = rel_tol * s_max
+        sing, vecs = _smallest_singular_sparse(mat, tol)
+    null = vecs[:, sing <= tol]  # (6T, d)
     rigid = rigid_motion_basis(pts)
     # Flexes: the null space with the rigid motions projected out.
     resid = null - rigid @ (rigid.T @ null)
@@ -215,8 +229,54 @@ def rigidity_report(
         null_dimension=int(null.shape[1]),
         internal_flexes=int(flexes.shape[1]),
         flexes=np.asarray(flexes),
-        singular_values=np.asarray(sing[order]),
+        singular_values=np.asarray(sing),
         tolerance=tol,
         rows=int(mat.shape[0]),
         cols=int(cols),
     )
+
+
+#: Up to this many columns (6 per tile) the null space comes from a dense SVD; above it from a
+#: sparse shift-invert eigensolve (10x faster at 200 tiles; a dense SVD at 1600 needs ~1 GB).
+DENSE_MAX_COLUMNS = 600
+
+
+def _start(n: int) -> FloatArray:
+    """A fixed, generic start vector so that ARPACK runs are reproducible."""
+    return np.asarray(1.0 + 0.5 * np.sin(np.arange(n) * 0.7548776662))
+
+
+def _smallest_singular_dense(mat: sp.csr_matrix) -> tuple[FloatArray, FloatArray]:
+    """All singular values of ``mat`` (ascending) and the matching right singular vectors."""
+    dense = mat.toarray()
+    cols = dense.shape[1]
+    full = np.zeros((max(dense.shape[0], cols), cols))
+    full[: dense.shape[0]] = dense  # pad so the SVD returns all right singular vectors
+    _, sing, vt = np.linalg.svd(full)
+    order = np.argsort(sing, kind="stable")
+    return np.asarray(sing[order]), np.asarray(vt[order].T)
+
+
+def _smallest_singular_sparse(mat: sp.csr_matrix, tol: float) -> tuple[FloatArray, FloatArray]:
+    """The smallest singular values of ``mat`` (ascending) and their right singular vectors.
+
+    Shift-invert Lanczos on ``R^T R + shift I`` (positive definite, so it factors) finds the
+    subspace of the ``k`` smallest; a Rayleigh-Ritz step on ``R`` itself (SVD of ``R Q``) then
+    gives singular values accurate to machine precision times ``|R|`` (squaring in ``R^T R``
+    alone would lose half the digits).  ``k`` doubles until the largest value found is above
+    ``tol``, so the null space is complete.
+    """
+    cols = mat.shape[1]
+    gram = (mat.T @ mat).tocsc()
+    shift = max(tol, 1e-12) ** 2
+    k = 24
+    while True:
+        k = min(k, cols - 1)
+        _, vecs = spla.eigsh(gram, k=k, sigma=-shift, which="LM", v0=_start(cols))
+        q, _ = np.linalg.qr(vecs)
+        _, sing, wt = np.linalg.svd(np.asarray(mat @ q), full_matrices=False)
+        order = np.argsort(sing, kind="stable")
+        sing, right = sing[order], q @ wt[order].T
+        if sing[-1] > tol or k == cols - 1:
+            return np.asarray(sing), np.asarray(right)
+        k *= 2

@@ -45,6 +45,17 @@ def test_design_writes_the_output_contract(tmp_path: Path) -> None:
     assert len(faces) == 24
     # No staging folders are left next to the output.
     assert sorted(p.name for p in tmp_path.iterdir()) == ["saddle"]
+    # The lift-point sweep is checked by the simulation, which ran once per lift set tried.
+    lift, simulation = doc["metrics"]["lift_points"], doc["metrics"]["simulation"]
+    assert lift["check"] == "projective-dynamics deployment simulation"
+    assert lift["check_passed"] == simulation["deployed"]
+    assert 1 <= simulation["runs"] <= len(lift["sweep"])
+    # The tight string locks the assembled linkage: only rigid-body motions remain.
+    rigidity = doc["metrics"]["rigidity"]
+    assert rigidity["null_dimension"] == 6 and rigidity["isostatic"]
+    assert rigidity["internal_flexes"] == 0 and "flex_tiles" not in rigidity
+    assert rigidity["contacts"]["string"] >= doc["linkage"]["boundary_tiles"]
+    assert rigidity["joints"] == doc["linkage"]["hinges"]
 
 
 def test_outputs_are_deterministic(tmp_path: Path) -> None:

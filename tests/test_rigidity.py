@@ -65,3 +65,26 @@ def test_exact_cylinder_special_position() -> None:
     assert rigidity_report(s4.tiles_assembled, s4.hinge_vertices, p4).internal_flexes > 0
     face = rigidity_report(s4.tiles_assembled, s4.hinge_vertices, p4, contact="face")
     assert face.null_dimension == 6
+
+
+@pytest.mark.parametrize("with_string", [False, True])
+def test_sparse_eigensolve_agrees_with_the_dense_svd(
+    with_string: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Large linkages take the sparse path; on a small one both paths find the same motions."""
+    from drawstring.geometry import rigidity
+
+    scene = S.cylinder_scene(4, 4)
+    pairs = S.route_snap_pairs(scene.route)[0] if with_string else np.zeros((0, 4), int)
+    tiles = generic(scene, 2)
+    dense = rigidity_report(tiles, scene.hinge_vertices, pairs)
+    monkeypatch.setattr(rigidity, "DENSE_MAX_COLUMNS", 0)
+    sparse = rigidity_report(tiles, scene.hinge_vertices, pairs)
+    assert sparse.null_dimension == dense.null_dimension
+    assert sparse.internal_flexes == dense.internal_flexes
+    k = min(len(sparse.singular_values), len(dense.singular_values))
+    assert np.allclose(sparse.singular_values[:k], dense.singular_values[:k], atol=1e-6)
+    # The flexes span the same space.
+    if dense.internal_flexes:
+        proj = sparse.flexes @ (sparse.flexes.T @ dense.flexes)
+        assert np.allclose(proj, dense.flexes, atol=1e-6)
