@@ -56,7 +56,12 @@ from drawstring.geometry.tolerances import (
     HINGE_LAYOUT_TOUCH_MM,
     HINGE_TRIM_GROW_MM,
 )
-from drawstring.geometry.verify import TILE_FACES, hinge_gaps, polygon_in_convex_polyhedron_area
+from drawstring.geometry.verify import (
+    TILE_FACES,
+    convex_pieces,
+    hinge_gaps,
+    polygon_in_convex_polyhedron_area,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -267,17 +272,6 @@ def top_hinge_trims(linkage: Linkage, tiles_2d: ArrayLike) -> tuple[HingeTrim, .
 # ---------------------------------------------------------------------------------------------
 
 
-def _perp(v: FloatArray) -> FloatArray:
-    """Vectors ``(k, 2)`` turned by +90 degrees."""
-    return np.stack([-v[..., 1], v[..., 0]], axis=-1)
-
-
-def _rotate2(v: FloatArray, angle: FloatArray) -> FloatArray:
-    """Rotate vectors ``(..., 2)`` counter-clockwise by ``angle`` (broadcast)."""
-    c, s = np.cos(angle), np.sin(angle)
-    return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], axis=-1)
-
-
 @dataclass(frozen=True)
 class _Planes:
     """Separating planes of close tile pairs; each plane is attached rigidly to its tile ``a``.
@@ -285,7 +279,8 @@ class _Planes:
     In world coordinates the plane of pair ``p`` is ``w . (x_xy - o_a) + nz * x_z = offset``
     with ``w = R(phi_a) normal[p, :2]``, ``nz = normal[p, 2]`` and ``o_a`` tile ``a``'s
     origin.  Vertex ``v`` of ``b`` must satisfy ``value - offset >= delta_b[p, v]`` and vertex
-    ``u`` of ``a`` ``offset - value >= delta_a[p, u]`` (``inf``: not constrained).
+    ``u`` of ``a`` ``offset - value >= delta_a[p, u]`` (``inf``: not constrained, e.g. not in
+    the convex piece ``piece_a`` / ``piece_b`` of a non-convex tile that the row separates).
     """
 
     a: IntArray
@@ -296,49 +291,53 @@ class _Planes:
     delta_a: FloatArray
     delta_b: FloatArray
     score: FloatArray
+    piece_a: IntArray
+    piece_b: IntArray
 
 
-def _candidate_normals(az_step_deg: float, tilts: FloatArray) -> FloatArray:
-    """Unit normals ``(K, 3)``: every azimuth step combined with every vertical component."""
-    az = np.radians(np.arange(0.0, 360.0, az_step_deg))
-    s = np.asarray(tilts, dtype=np.float64)
-    c = np.sqrt(1.0 - s * s)
-    azg, sg = np.meshgrid(az, s, indexing="ij")
-    cg = np.meshgrid(az, c, indexing="ij")[1]
-    return np.stack([cg * np.cos(azg), cg * np.sin(azg), sg], axis=-1).reshape(-1, 3)
+#: Weight of a violation on the side of the tile that carries a plane (the layout cannot repair
+#: it: the plane moves with that tile) against one on the other side when choosing planes.
+_CARRIER_VIOLATION_WEIGHT = 1e3
 
 
 def _plane_scores(
-    rel_a: FloatArray,
-    rel_b: FloatArray,
-    normals: FloatArray,
+    sa: FloatArray,
+    sb: FloatArray,
     anchor: IntArray,
     delta_a: FloatArray,
     delta_b: FloatArray,
     clearance: float,
 ) -> tuple[FloatArray, FloatArray]:
-    """Score and offset ``(P, K)`` of candidate planes (per-pair candidates ``(P, K, 3)``).
+    """Score and offset ``(P, C)`` of candidate planes from vertex heights ``(P, 8, C)``.
 
+    ``sa``, ``sb``: the vertices of ``a`` and ``b`` projected on each candidate normal.
     ``anchor[p] >= 0``: the plane passes through that vertex of ``a`` (hinged pair); otherwise
     it lies ``clearance`` beyond ``a``'s farthest vertex.  The score is the smallest margin
     beyond the required ones; a violation on ``a``'s side (which the layout cannot repair, the
-    plane moving with ``a``) counts ten times.
+    plane moving with ``a``) counts ``_CARRIER_VIOLATION_WEIGHT`` times.
     """
-    sa = np.einsum("pvi,pki->pvk", rel_a, normals)
-    sb = np.einsum("pvi,pki->pvk", rel_b, normals)
     ka = np.isfinite(delta_a)
-    kb = np.isfinite(delta_b)
-    far = np.max(np.where(ka[:, :, None], sa, -np.inf), axis=1) + clearance
-    hinged = anchor >= 0
     p = np.arange(len(anchor))
-    through = sa[p, np.maximum(anchor, 0)]
-    offset = np.where(hinged[:, None], through, far)
-    da = np.where(ka, delta_a, 0.0)[:, :, None]
-    db = np.where(kb, delta_b, 0.0)[:, :, None]
-    margin_a = np.where(ka[:, :, None], offset[:, None] - sa - da, np.inf).min(axis=1)
-    margin_b = np.where(kb[:, :, None], sb - offset[:, None] - db, np.inf).min(axis=1)
-    margin_a = np.where(margin_a < 0, 10.0 * margin_a, margin_a)
+    far = np.max(np.where(ka[:, :, None], sa, -np.inf), axis=1) + clearance
+    offset = np.where((anchor >= 0)[:, None], sa[p, np.maximum(anchor, 0)], far)
+    # unconstrained vertices get -inf / +inf requirements and so drop out of the minima
+    da = np.where(ka, delta_a, -np.inf)[:, :, None]
+    margin_a = np.min(offset[:, None] - sa - da, axis=1)
+    db = np.where(np.isfinite(delta_b), delta_b, -np.inf)[:, :, None]
+    margin_b = np.min(sb - offset[:, None] - db, axis=1)
+    margin_a = np.where(margin_a < 0, _CARRIER_VIOLATION_WEIGHT * margin_a, margin_a)
     return np.minimum(margin_a, margin_b), offset
+
+
+def _perp(v: FloatArray) -> FloatArray:
+    """Vectors ``(k, 2)`` turned by +90 degrees."""
+    return np.stack([-v[..., 1], v[..., 0]], axis=-1)
+
+
+def _rotate2(v: FloatArray, angle: FloatArray) -> FloatArray:
+    """Rotate vectors ``(..., 2)`` counter-clockwise by ``angle`` (broadcast)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], axis=-1)
 
 
 class _RigidLayout:
@@ -357,6 +356,7 @@ class _RigidLayout:
         self.z = shapes[:, :, 2]
         self.phi = np.zeros(self.n)
         self.trans = np.zeros((self.n, 2))
+        self.pieces = convex_pieces(shapes)  # (T, 2, 8): collision bodies of every tile
 
     def positions(
         self, phi: FloatArray | None = None, trans: FloatArray | None = None
@@ -372,11 +372,39 @@ class _RigidLayout:
 
 
 def _close_pairs(x: FloatArray, reach: float) -> IntArray:
-    """Tile pairs ``(P, 2)`` whose vertex sets (x, y) may come within ``reach`` of each other."""
+    """Tile pairs ``(P, 2)``, ``i < j``, whose vertex sets (x, y) may come within ``reach``."""
     centres = x[:, :, :2].mean(axis=1)
-    radius = float(np.max(np.linalg.norm(x[:, :, :2] - centres[:, None], axis=2), initial=0.0))
+    radius = np.linalg.norm(x[:, :, :2] - centres[:, None], axis=2).max(axis=1)
     tree = cKDTree(centres)
-    return np.asarray(tree.query_pairs(2.0 * radius + reach, output_type="ndarray"), dtype=np.int64)
+    pairs = np.asarray(
+        tree.query_pairs(2.0 * float(radius.max(initial=0.0)) + reach, output_type="ndarray"),
+        dtype=np.int64,
+    ).reshape(-1, 2)
+    dist = np.linalg.norm(centres[pairs[:, 0]] - centres[pairs[:, 1]], axis=1)
+    pairs = pairs[dist <= radius[pairs[:, 0]] + radius[pairs[:, 1]] + reach]
+    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+
+
+def _hinge_of_pairs(linkage: Linkage, n: int, pairs: IntArray) -> tuple[IntArray, ...]:
+    """Pairs oriented as ``(a, b)`` with ``a`` the first tile of their hinge, and the hinge
+    index of every pair (-1: not hinged)."""
+    h = linkage.hinges
+    keys = h[:, 0] * n + h[:, 2]
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+
+    def lookup(k: IntArray) -> IntArray:
+        if not len(sorted_keys):
+            return np.full(len(k), -1, dtype=np.int64)
+        pos = np.minimum(np.searchsorted(sorted_keys, k), len(sorted_keys) - 1)
+        return np.asarray(np.where(sorted_keys[pos] == k, order[pos], -1), dtype=np.int64)
+
+    fwd = lookup(pairs[:, 0] * n + pairs[:, 1])
+    bwd = lookup(pairs[:, 1] * n + pairs[:, 0])
+    swap = (fwd < 0) & (bwd >= 0)
+    a = np.where(swap, pairs[:, 1], pairs[:, 0])
+    b = np.where(swap, pairs[:, 0], pairs[:, 1])
+    return a, b, np.where(fwd >= 0, fwd, bwd)
 
 
 def _select_planes(
@@ -390,38 +418,43 @@ def _select_planes(
     touch: float = HINGE_LAYOUT_TOUCH_MM,
     x: FloatArray | None = None,
     pairs: IntArray | None = None,
+    previous: _Planes | None = None,
 ) -> _Planes:
-    """Best separating plane of every close pair (sampled, then refined).
+    """Best separating plane of every close pair of convex pieces (sampled, then refined).
 
     ``x`` defaults to the current pose's vertices (pass merged vertices to re-check them);
-    ``pairs`` defaults to all pairs within ``reach`` (plus twice the clearance); ``touch`` is
-    the separation required where a hinged pair may touch.  The returned score of each plane
-    is its smallest margin beyond the required ones.
+    ``pairs`` defaults to all tile pairs within ``reach`` (plus twice the clearance); every
+    tile pair gives one row per pair of convex pieces (one piece for a convex tile).  ``touch``
+    is the separation required where a hinged pair may touch.  With ``previous`` planes, a row
+    found there is only searched near its previous plane, unless that leaves it violated.  The
+    returned score of each plane is its smallest margin beyond the required ones.
     """
     x = layout.positions() if x is None else x
     if pairs is None:
         pairs = _close_pairs(x, reach + 2.0 * clearance)
-    h = linkage.hinges
-    key = {(int(a), int(b)): k for k, (a, b) in enumerate(h[:, [0, 2]])}
-    n_p = len(pairs)
-    a = pairs[:, 0].copy()
-    b = pairs[:, 1].copy()
-    hinge = -np.ones(n_p, dtype=np.int64)
-    for p in range(n_p):
-        i, j = int(a[p]), int(b[p])
-        k = key.get((i, j))
-        if k is None:
-            k = key.get((j, i))
-            if k is not None:
-                a[p], b[p] = j, i
-        if k is not None:
-            hinge[p] = k
-    hinged = hinge >= 0
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    a, b, hinge = _hinge_of_pairs(linkage, layout.n, pairs)
+    # one row per pair of convex pieces
+    n_pieces = 1 + layout.pieces[:, 1].any(axis=1).astype(np.int64)
+    na, nb = n_pieces[a], n_pieces[b]
+    count = na * nb
+    row_pair = np.repeat(np.arange(len(a)), count)
+    local = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
+    piece_a = local // nb[row_pair]
+    piece_b = local % nb[row_pair]
+    a, b, hinge = a[row_pair], b[row_pair], hinge[row_pair]
+    mask_a = layout.pieces[a, piece_a]
+    mask_b = layout.pieces[b, piece_b]
+    n_p = len(a)
+    k_all = np.arange(n_p)
     hk = np.maximum(hinge, 0)
     va = hinge_ids[hk, 0] % 8  # a's hinge vertex (tile a is hinges[:, 0])
     vb = hinge_ids[hk, 1] % 8
-    delta_a = np.full((n_p, 8), clearance)
-    delta_b = np.full((n_p, 8), clearance)
+    # a row treats the hinge only if both its pieces hold the hinge vertices
+    hinged = (hinge >= 0) & mask_a[k_all, va] & mask_b[k_all, vb]
+    hinge = np.where(hinged, hinge, -1)
+    delta_a = np.where(mask_a, clearance, np.inf)
+    delta_b = np.where(mask_b, clearance, np.inf)
     rows = np.flatnonzero(hinged)
     if strategy == "top":
         delta_a[rows, 4:] = np.inf
@@ -439,77 +472,127 @@ def _select_planes(
     rel_b = x[b] - o3[a][:, None]
     top_only = hinged & (strategy == "top")
     dual_hinged = hinged & (strategy == "dual")
-    k_all = np.arange(n_p)
     # For a hinged pair the tight vertices are the corners of the other face at the hinge: for a
     # horizontal direction e their margins are linear in the plane's vertical slope t, so the
     # best slope is found exactly (a's margin kept >= 0 since the plane moves with a).
     d_pa = rel_a[k_all, (va + 4) % 8] - rel_a[k_all, va]
     d_pb = rel_b[k_all, (vb + 4) % 8] - rel_a[k_all, va]
 
-    def slopes(az: FloatArray) -> FloatArray:
-        e = np.stack([np.cos(az), np.sin(az)], axis=-1)  # (P, K, 2)
-        al1 = -np.einsum("pki,pi->pk", e, d_pa[:, :2])
-        be1 = -d_pa[:, 2][:, None]
-        al2 = np.einsum("pki,pi->pk", e, d_pb[:, :2])
-        be2 = d_pb[:, 2][:, None]
+    def search(
+        sel: IntArray, az: FloatArray, spread: FloatArray, base: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Best of azimuths ``(p, K)`` x slopes for rows ``sel``: normals ``(p, 3)``, scores
+        and offsets ``(p,)``."""
+        c, s = np.cos(az), np.sin(az)
+        pa_, pb_ = d_pa[sel], d_pb[sel]
+        al1 = -(c * pa_[:, 0:1] + s * pa_[:, 1:2])
+        be1 = -pa_[:, 2:3]
+        al2 = c * pb_[:, 0:1] + s * pb_[:, 1:2]
+        be2 = pb_[:, 2:3]
         den = be2 - be1
         t = np.where(np.abs(den) > 1e-12, (al1 - al2) / np.where(den == 0, 1.0, den), 0.0)
         low = al1 + be1 * t < 0
         t = np.where(low & (np.abs(be1) > 1e-12), -al1 / np.where(be1 == 0, 1.0, be1), t)
-        return np.asarray(np.clip(t, -0.8, 0.8))
-
-    def candidates(az: FloatArray, tilt: FloatArray) -> FloatArray:
-        """Unit normals ``(P, K * S, 3)`` from azimuths ``(P, K)`` and slopes ``(P, K, S)``."""
-        az3 = np.broadcast_to(az[:, :, None], tilt.shape)
-        norm = np.sqrt(1.0 + tilt * tilt)
-        n = np.stack([np.cos(az3) / norm, np.sin(az3) / norm, tilt / norm], axis=-1)
-        return n.reshape(n_p, -1, 3)
-
-    def tilts(az: FloatArray, spread: FloatArray, base: FloatArray) -> FloatArray:
-        t = base[:, None, None] + spread[None, None, :]
-        t = np.broadcast_to(t, (n_p, az.shape[1], len(spread))).copy()
-        exact = slopes(az)[:, :, None] + spread[None, None, :] * 0.1
-        t = np.where(dual_hinged[:, None, None], exact, t)
-        return np.where(top_only[:, None, None], 0.0, t)
-
-    az = np.broadcast_to(np.radians(np.arange(0.0, 360.0, 3.0)), (n_p, 120))
-    spread = np.array([0.0, 0.15, -0.15, 0.35, -0.35])
-    cand = candidates(az, tilts(az, spread, np.zeros(n_p)))
-    best = np.zeros((n_p, 3))
-    chunk = 256
-    for s in range(0, n_p, chunk):
-        sl = slice(s, s + chunk)
-        score, _ = _plane_scores(
-            rel_a[sl], rel_b[sl], cand[sl], anchor[sl], delta_a[sl], delta_b[sl], clearance
+        exact = np.clip(t, -0.8, 0.8)[:, :, None] + 0.1 * spread
+        tilt = np.where(
+            dual_hinged[sel, None, None], exact, base[:, None, None] + spread + 0.0 * c[:, :, None]
         )
-        best[sl] = cand[sl][np.arange(len(score)), np.argmax(score, axis=1)]
-    # Refine: azimuth +-3 deg by 0.25 deg, slope +-0.05.
-    az = np.arctan2(best[:, 1], best[:, 0])[:, None] + np.radians(np.arange(-3.0, 3.01, 0.25))
-    base = best[:, 2] / np.sqrt(np.maximum(1.0 - best[:, 2] ** 2, 1e-12))
-    cand = candidates(az, tilts(az, np.array([0.0, 0.025, -0.025, 0.05, -0.05]), base))
-    score, offset = _plane_scores(rel_a, rel_b, cand, anchor, delta_a, delta_b, clearance)
-    pick = np.argmax(score, axis=1)
-    normal = cand[k_all, pick]
+        tilt = np.where(top_only[sel, None, None], 0.0, tilt)  # (p, K, S)
+        norm = np.sqrt(1.0 + tilt * tilt)
+        ra, rb = rel_a[sel], rel_b[sel]
+
+        def heights(r: FloatArray) -> FloatArray:
+            flat_part = r[:, :, 0:1] * c[:, None] + r[:, :, 1:2] * s[:, None]  # (p, 8, K)
+            h = flat_part[..., None] + r[:, :, 2, None, None] * tilt[:, None]
+            return np.asarray((h / norm[:, None]).reshape(len(sel), 8, -1))
+
+        score, offset = _plane_scores(
+            heights(ra), heights(rb), anchor[sel], delta_a[sel], delta_b[sel], clearance
+        )
+        pick = np.argmax(score, axis=1)
+        kk, ss = np.unravel_index(pick, tilt.shape[1:])
+        q = np.arange(len(sel))
+        t_best = tilt[q, kk, ss]
+        nrm = np.sqrt(1.0 + t_best * t_best)
+        normal = np.stack([c[q, kk] / nrm, s[q, kk] / nrm, t_best / nrm], axis=1)
+        return normal, score[q, pick], offset[q, pick]
+
+    def refine(sel: IntArray, guess: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Azimuth +-3 deg by 0.25 deg, slope +-0.05 around ``guess`` normals ``(p, 3)``."""
+        az = np.arctan2(guess[:, 1], guess[:, 0])[:, None] + np.radians(np.arange(-3.0, 3.01, 0.25))
+        base = guess[:, 2] / np.sqrt(np.maximum(1.0 - guess[:, 2] ** 2, 1e-12))
+        return search(sel, az, np.array([0.0, 0.025, -0.025, 0.05, -0.05]), base)
+
+    normal = np.zeros((n_p, 3))
+    score = np.full(n_p, -np.inf)
+    offset = np.zeros(n_p)
+    chunk = 512
+
+    def run(sel: IntArray, guess: FloatArray | None) -> None:
+        for start in range(0, len(sel), chunk):
+            part = sel[start : start + chunk]
+            if guess is None:
+                az = np.broadcast_to(np.radians(np.arange(0.0, 360.0, 3.0)), (len(part), 120))
+                spread = np.array([0.0, 0.15, -0.15, 0.35, -0.35])
+                g, _, _ = search(part, az, spread, np.zeros(len(part)))
+            else:
+                g = guess[start : start + chunk]
+            n_new, s_new, o_new = refine(part, g)
+            better = s_new > score[part]
+            part = part[better]
+            normal[part], score[part], offset[part] = n_new[better], s_new[better], o_new[better]
+
+    todo = k_all
+    if previous is not None and len(previous.a):
+        # warm start: rows also present before are searched near their previous plane
+        def row_key(pa: IntArray, pb: IntArray, ia: IntArray, ib: IntArray) -> IntArray:
+            return ((pa * layout.n + pb) * 2 + ia) * 2 + ib
+
+        old = row_key(previous.a, previous.b, previous.piece_a, previous.piece_b)
+        order = np.argsort(old, kind="stable")
+        new = row_key(a, b, piece_a, piece_b)
+        pos = np.minimum(np.searchsorted(old[order], new), len(old) - 1)
+        found = old[order][pos] == new
+        src = order[pos[found]]
+        world = np.concatenate(
+            [_rotate2(previous.normal[src, :2], layout.phi[a[found]]), previous.normal[src, 2:]],
+            axis=1,
+        )
+        warm = np.flatnonzero(found)
+        run(warm, world)
+        todo = np.concatenate([np.flatnonzero(~found), warm[score[warm] < 0]])
+    run(np.sort(todo), None)
     body = np.concatenate([_rotate2(normal[:, :2], -layout.phi[a]), normal[:, 2:]], axis=1)
-    return _Planes(a, b, hinge, body, offset[k_all, pick], delta_a, delta_b, score[k_all, pick])
+    return _Planes(a, b, hinge, body, offset, delta_a, delta_b, score, piece_a, piece_b)
 
 
 def _plane_values(
-    layout: _RigidLayout, planes: _Planes, x: FloatArray, phi: FloatArray, trans: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Signed distances ``(P, 8)`` of ``b``'s and ``a``'s vertices beyond their required margins,
-    and the world plane normals ``(P, 2)`` (x, y part)."""
-    origin = layout.centre + trans
+    layout: _RigidLayout,
+    planes: _Planes,
+    x: FloatArray,
+    phi: FloatArray,
+    trans: FloatArray,
+    *,
+    carrier: bool = True,
+) -> tuple[FloatArray, FloatArray | None, FloatArray]:
+    """Signed distances ``(P, 8)`` of ``b``'s and (if ``carrier``) ``a``'s vertices beyond their
+    required margins, and the world plane normals ``(P, 2)`` (x, y part)."""
+    origin = (layout.centre + trans)[planes.a]
     w = _rotate2(planes.normal[:, :2], phi[planes.a])
     nz = planes.normal[:, 2]
 
     def value(t: IntArray) -> FloatArray:
-        d = x[t, :, :2] - origin[planes.a][:, None]
+        xt = x[t]
         return np.asarray(
-            np.einsum("pvi,pi->pv", d, w) + nz[:, None] * x[t, :, 2] - planes.offset[:, None]
+            (xt[:, :, 0] - origin[:, 0:1]) * w[:, 0:1]
+            + (xt[:, :, 1] - origin[:, 1:2]) * w[:, 1:2]
+            + nz[:, None] * xt[:, :, 2]
+            - planes.offset[:, None]
         )
 
     gb = value(planes.b) - np.where(np.isfinite(planes.delta_b), planes.delta_b, -np.inf)
+    if not carrier:
+        return gb, None, w
     ga = -value(planes.a) - np.where(np.isfinite(planes.delta_a), planes.delta_a, -np.inf)
     return gb, ga, w
 
@@ -538,7 +621,7 @@ def _constraint_values(
     the selected ones (plane rows first, then lower and upper angle bounds per face)."""
     x = layout.positions(phi, trans)
     planes = con.planes
-    gb, _, w = _plane_values(layout, planes, x, phi, trans)
+    gb, _, w = _plane_values(layout, planes, x, phi, trans, carrier=False)
     mask = np.isfinite(gb)
     g_planes = gb[mask]
     t0, t1 = con.ends.tiles[:, 0], con.ends.tiles[:, 1]
@@ -589,18 +672,28 @@ def _constraint_values(
 
 
 def _hinge_residuals(
-    layout: _RigidLayout, ids: IntArray, phi: FloatArray, trans: FloatArray, weight: FloatArray
-) -> tuple[FloatArray, sp.csr_matrix]:
-    """Horizontal hinge mismatch ``(2H,)`` (mm, weighted) and its Jacobian ``(2H, 3T)``."""
-    x = layout.positions(phi, trans)
+    layout: _RigidLayout,
+    ids: IntArray,
+    phi: FloatArray,
+    trans: FloatArray,
+    weight: FloatArray,
+    *,
+    jacobian: bool = True,
+) -> tuple[FloatArray, sp.csr_matrix | None]:
+    """Horizontal hinge mismatch ``(2H,)`` (mm, weighted) and (if asked) its Jacobian
+    ``(2H, 3T)``."""
     ta, va = ids[:, 0] // 8, ids[:, 0] % 8
     tb, vb = ids[:, 1] // 8, ids[:, 1] % 8
+    ra = _rotate2(layout.local[ta, va], phi[ta])  # hinge vertices relative to tile origins
+    rb = _rotate2(layout.local[tb, vb], phi[tb])
     origin = layout.centre + trans
-    xa, xb = x[ta, va, :2], x[tb, vb, :2]
+    xa, xb = origin[ta] + ra, origin[tb] + rb
     sw = np.sqrt(weight)
     res = (sw[:, None] * (xa - xb)).ravel()
+    if not jacobian:
+        return res, None
     h = len(ids)
-    pa, pb = _perp(xa - origin[ta]), _perp(xb - origin[tb])
+    pa, pb = _perp(ra), _perp(rb)
     rows = np.repeat(np.arange(2 * h), 4)
     cols = np.stack(
         [
@@ -645,13 +738,14 @@ def _augmented_lagrangian(
     sr = np.sqrt(rho)
 
     def evaluate(phi: FloatArray, trans: FloatArray) -> tuple[float, FloatArray, FloatArray]:
-        rh, _ = _hinge_residuals(layout, ids, phi, trans, weight)
+        rh, _ = _hinge_residuals(layout, ids, phi, trans, weight, jacobian=False)
         g, _ = _constraint_values(layout, con, phi, trans)
         slack = np.maximum(lam / rho - g, 0.0)
         return float(rh @ rh + rho * (slack @ slack)), rh, g
 
     def jacobian(phi: FloatArray, trans: FloatArray, g: FloatArray, rh: FloatArray):
         _, jh = _hinge_residuals(layout, ids, phi, trans, weight)
+        assert jh is not None
         slack = lam / rho - g
         act = np.flatnonzero(slack > 0)
         _, jg = _constraint_values(layout, con, phi, trans, act)
@@ -767,11 +861,15 @@ def rigid_layout(
 
     * every slit end's opening angle in ``[min_gap_angle_deg, 90]`` on the top faces and, for
       ``dual``, on the bottom faces (linear in the rotations);
-    * every close pair of tiles separated by a plane attached to one of them (tiles are convex,
-      so this is exact non-interpenetration): with ``clearance_mm`` to spare, except that a
+    * every close pair of tiles separated by a plane attached to one of them (exact
+      non-interpenetration for convex tiles; a non-convex, dart-shaped tile takes part as its
+      two convex pieces, :func:`~drawstring.geometry.verify.convex_pieces`, each separated on
+      its own, since its hull would fill the notch): with ``clearance_mm`` to spare, except that a
       hinged pair's plane passes through the hinge, which with the corner of the other face at
       the hinge may touch it; for ``top`` hinged pairs only the top faces are separated (their
-      3D overlap is trimmed).  Planes are re-chosen (sampled max-margin) in the first rounds.
+      3D overlap is trimmed).  Planes are re-chosen (sampled max-margin, never accepting a
+      violation on the carrying tile's side when avoidable) in the first rounds, warm-started
+      from the previous planes.
 
     The solver is an augmented Lagrangian whose subproblems are solved by Levenberg-Marquardt.
     Hinge pairs are then merged at their midpoint moved horizontally onto the pair's plane; a
@@ -831,7 +929,9 @@ def rigid_layout(
         viol = float(np.max(-g, initial=0.0))
         for r in range(rounds):
             if 0 < r <= reselect:
-                planes = _select_planes(layout, linkage, ids, strategy, clearance_mm, reach)
+                planes = _select_planes(
+                    layout, linkage, ids, strategy, clearance_mm, reach, previous=planes
+                )
                 n_old = len(lam)
                 con = constraints(planes)
                 g, _ = _constraint_values(layout, con, layout.phi, layout.trans)
@@ -863,13 +963,19 @@ def rigid_layout(
         need_lo = lo_def > -0.25 * HINGE_ANGLE_MARGIN_DEG
         need_hi = hi_def > -0.25 * HINGE_ANGLE_MARGIN_DEG
         bad_ends = (need_lo | need_hi).any(axis=0)
+        logger.debug(
+            "merge angles attempt %d: %d bad ends, deficit %.3g",
+            attempt,
+            int(bad_ends.sum()),
+            float(max(np.max(lo_def, initial=-np.inf), np.max(hi_def, initial=-np.inf))),
+        )
         if not bad_ends.any():
             break
         if attempt == 3:
             is_merged &= ~_hinges_of_ends(ends, bad_ends, ids, faces)
             break
-        lo_deg[need_lo] += np.maximum(lo_def[need_lo], 0.0) + HINGE_ANGLE_MARGIN_DEG
-        hi_deg[need_hi] -= np.maximum(hi_def[need_hi], 0.0) + HINGE_ANGLE_MARGIN_DEG
+        lo_deg[need_lo] += 2.0 * np.maximum(lo_def[need_lo], 0.0) + HINGE_ANGLE_MARGIN_DEG
+        hi_deg[need_hi] -= 2.0 * np.maximum(hi_def[need_hi], 0.0) + HINGE_ANGLE_MARGIN_DEG
         planes, violation = solve(planes, max_rounds, 0)
     x = layout.positions()
     points = _merge_points(layout, planes, ids, x)
@@ -943,6 +1049,7 @@ def _broken_merges(
     plane, or a gap angle out of its bounds (checked on the merged tiles)."""
     tol = 1e-9
     gb, ga, _ = _plane_values(layout, planes, merged, layout.phi, layout.trans)
+    assert ga is not None
     # Separation only (the clearance is a target of the layout, not a validity condition).
     gb = gb + np.where(np.isfinite(planes.delta_b), planes.delta_b, 0.0)
     ga = ga + np.where(np.isfinite(planes.delta_a), planes.delta_a, 0.0)

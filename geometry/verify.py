@@ -7,9 +7,11 @@ optimizer.  Each measurement names the tolerance it is compared to (``geometry.t
 measurement                    what                                   tolerance
 =============================  =====================================  ==========================
 flat_overlap_area_mm2          sum of exact pairwise footprint        FLAT_OVERLAP_TOL_MM2
-                               overlap areas (convex clipping)
+                               overlap areas (convex clipping;
+                               dart-shaped quads as two triangles)
 interpenetration_volume_mm3    sum of exact pairwise 3D intersection  FLAT_INTERPENETRATION_TOL_MM3
-                               volumes of tile hulls (manifold3d)
+                               volumes of tiles (manifold3d; a
+                               non-convex tile as its convex pieces)
 flat_edge_error_max_mm         max |len K2D - len K3D| over sides     FLAT_EDGE_ERROR_TOL_MM
                                and diagonals
 flat_gap_angle_min/max_deg     opening angle at every slit end        [theta_min, 90] +-
@@ -56,6 +58,7 @@ __all__ = [
     "TILE_FACES",
     "FlatMetrics",
     "clip_convex_polygons",
+    "convex_pieces",
     "convex_polygon_overlap",
     "flat_edge_errors",
     "flat_overlap",
@@ -65,6 +68,7 @@ __all__ = [
     "interpenetration",
     "polygon_area",
     "polygon_in_convex_polyhedron_area",
+    "reflex_corners",
 ]
 
 
@@ -74,6 +78,52 @@ def polygon_area(poly: FloatArray) -> float:
         return 0.0
     x, y = poly[:, 0], poly[:, 1]
     return float(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def reflex_corners(quads: ArrayLike) -> IntArray:
+    """Index ``(T,)`` of the reflex corner of every simple quad, or -1 where it is convex.
+
+    Orientation is taken from the quad's signed area, so either winding works; a quad with more
+    than one non-convex corner (self-intersecting) reports its most reflex one.
+    """
+    q = np.asarray(quads, dtype=np.float64)[..., :2]
+    e_in = q - np.roll(q, 1, axis=1)  # edge arriving at each corner
+    e_out = np.roll(q, -1, axis=1) - q
+    turn = e_in[..., 0] * e_out[..., 1] - e_in[..., 1] * e_out[..., 0]  # (T, 4)
+    area2 = np.sum(q[..., 0] * np.roll(q[..., 1], -1, axis=1) - np.roll(q[..., 0], -1, axis=1)
+                   * q[..., 1], axis=1)  # fmt: skip
+    turn = turn * np.where(area2 < 0, -1.0, 1.0)[:, None]
+    worst = np.argmin(turn, axis=1)
+    reflex = np.take_along_axis(turn, worst[:, None], axis=1)[:, 0] < 0
+    return np.asarray(np.where(reflex, worst, -1), dtype=np.int64)
+
+
+def convex_pieces(tiles: ArrayLike) -> NDArray[np.bool_]:
+    """Vertex masks ``(T, 2, 8)`` of the convex pieces of every 8-vertex tile.
+
+    A tile whose top face (x, y) is convex is one piece (second mask all False).  A tile with
+    a reflex top corner ``k`` (a dart-shaped quad, which strongly distorted targets can give)
+    is split along the diagonal plane through corners ``k``, ``k + 2`` and the bottom corners
+    under them into two convex pieces, each holding both diagonal corners.  The tile is the
+    union of its pieces; its convex hull is not (it fills the notch at the reflex corner), so
+    overlap and collision tests must use the pieces.
+    """
+    t = np.asarray(tiles, dtype=np.float64)
+    n = len(t)
+    masks = np.zeros((n, 2, 8), dtype=bool)
+    masks[:, 0] = True
+    k = reflex_corners(t[:, :4, :2])
+    rows = np.flatnonzero(k >= 0)
+    if rows.size:
+        kk = k[rows]
+        keep_1 = np.stack([kk, (kk + 1) % 4, (kk + 2) % 4], axis=1)
+        keep_2 = np.stack([kk, (kk + 2) % 4, (kk + 3) % 4], axis=1)
+        masks[rows, 0] = False
+        for piece, keep in ((0, keep_1), (1, keep_2)):
+            for c in range(3):
+                masks[rows, piece, keep[:, c]] = True
+                masks[rows, piece, keep[:, c] + 4] = True
+    return masks
 
 
 def clip_convex_polygons(subject: FloatArray, clip: FloatArray) -> FloatArray:
@@ -122,7 +172,9 @@ def _candidate_pairs(centres: FloatArray, radius: float) -> IntArray:
 
 
 def flat_overlap(footprints: ArrayLike) -> tuple[float, IntArray, FloatArray]:
-    """Exact pairwise overlap area of convex tile footprints.
+    """Exact pairwise overlap area of tile footprints.
+
+    Quads may be non-convex (dart-shaped): those are measured as their two convex triangles.
 
     Broad phase: pairs whose centres are within twice the largest circumradius (k-d tree);
     separating-axis test (exact for convex polygons) drops separated pairs; the rest are clipped
@@ -131,7 +183,7 @@ def flat_overlap(footprints: ArrayLike) -> tuple[float, IntArray, FloatArray]:
     Parameters
     ----------
     footprints : (T, k, 2) float, mm
-        Convex tile outlines (K2D top faces: k = 4).
+        Tile outlines (K2D top faces: k = 4); other k must be convex.
 
     Returns
     -------
@@ -150,7 +202,24 @@ def flat_overlap(footprints: ArrayLike) -> tuple[float, IntArray, FloatArray]:
     if poly.shape[1] == 4:
         depth, _ = quad_overlap_mtv(poly[cand[:, 0]], poly[cand[:, 1]])
         cand = cand[depth > 0]
-    areas = np.array([convex_polygon_overlap(poly[i], poly[j]) for i, j in cand])
+        reflex = reflex_corners(poly)
+    else:
+        reflex = np.full(len(poly), -1, dtype=np.int64)
+
+    def pieces(i: int) -> list[FloatArray]:
+        k = int(reflex[i])
+        if k < 0:
+            return [poly[i]]
+        return [poly[i][[k, (k + 1) % 4, (k + 2) % 4]], poly[i][[k, (k + 2) % 4, (k + 3) % 4]]]
+
+    # A dart-shaped (non-convex) quad is clipped as its two convex triangles; they do not overlap
+    # each other, so the summed piece overlaps are the exact overlap area.
+    areas = np.array(
+        [
+            sum(convex_polygon_overlap(p, q) for p in pieces(int(i)) for q in pieces(int(j)))
+            for i, j in cand
+        ]
+    )
     hit = areas > 0
     return float(areas.sum()), cand[hit].astype(np.int64), areas[hit]
 
@@ -175,7 +244,10 @@ def interpenetration(
     tiles: ArrayLike,
     trims: Sequence[tuple[int, ArrayLike]] | None = None,
 ) -> tuple[float, IntArray, FloatArray]:
-    """Exact pairwise intersection volume of tile hulls (manifold3d).
+    """Exact pairwise intersection volume of tiles (manifold3d).
+
+    A convex tile is the hull of its 8 vertices; a non-convex one (dart-shaped top face) the
+    union of the hulls of its :func:`convex_pieces`.
 
     Parameters
     ----------
@@ -207,9 +279,13 @@ def interpenetration(
     for tile, points in trims or ():
         removed.setdefault(int(tile), []).append(np.asarray(points, dtype=np.float64))
 
+    pieces = convex_pieces(t)
+
     def hull(i: int) -> m3d.Manifold:
         if i not in hulls:
-            solid = m3d.Manifold.hull_points(t[i])
+            solid = m3d.Manifold.hull_points(t[i][pieces[i, 0]])
+            if pieces[i, 1].any():  # non-convex tile: the union of its two convex pieces
+                solid = solid + m3d.Manifold.hull_points(t[i][pieces[i, 1]])
             for points in removed.get(i, ()):
                 solid = solid - m3d.Manifold.hull_points(points)
             hulls[i] = solid

@@ -180,3 +180,57 @@ def test_hinge_face_angle_measure() -> None:
     moved_bottom = np.abs(gap_opening_angles_deg(linkage, turned, bottom))
     assert np.allclose(gap_opening_angles_deg(linkage, turned[:, :4]), ends_top)
     assert np.isclose(moved_bottom.max(), 5.0)
+
+
+def _dart_and_square(shift: float) -> np.ndarray:
+    """A dart-shaped 3 mm tile (reflex corner 2 at (3, 3), a right-angled notch x, y >= 3)
+    and a 2 mm square in the notch, its corner moved ``shift`` mm (in x and y) past the tip."""
+    dart = np.array([[0.0, 0.0], [8.0, 3.0], [3.0, 3.0], [3.0, 8.0]])
+    s = 3.0 - shift
+    square = np.array([[s, s], [s + 2.0, s], [s + 2.0, s + 2.0], [s, s + 2.0]])
+    return np.array(
+        [np.vstack([np.c_[q, np.full(4, 3.0)], np.c_[q, np.zeros(4)]]) for q in (dart, square)]
+    )
+
+
+def test_dart_tile_is_measured_as_its_convex_pieces() -> None:
+    """Regression (three-shell): a non-convex tile is not its convex hull.  A square resting in
+    the notch of a dart-shaped tile touches it at one point only; the hull would report an
+    overlap.  Pushed ``d`` into the dart, the overlap is an L-shaped band: ``4 d - d^2``."""
+    from drawstring.geometry.verify import convex_pieces, flat_overlap, reflex_corners
+
+    tiles = _dart_and_square(0.0)
+    assert list(reflex_corners(tiles[:, :4])) == [2, -1]
+    pieces = convex_pieces(tiles)
+    assert sorted(np.flatnonzero(pieces[0, 0])) == [0, 2, 3, 4, 6, 7]
+    assert sorted(np.flatnonzero(pieces[0, 1])) == [0, 1, 2, 4, 5, 6]
+    assert pieces[1, 0].all() and not pieces[1, 1].any()
+    assert flat_overlap(tiles[:, :4, :2])[0] == pytest.approx(0.0, abs=1e-12)
+    assert interpenetration(tiles)[0] == pytest.approx(0.0, abs=1e-9)
+    d = 0.5
+    pushed = _dart_and_square(d)
+    assert flat_overlap(pushed[:, :4, :2])[0] == pytest.approx(4 * d - d * d, rel=1e-9)
+    assert interpenetration(pushed)[0] == pytest.approx(3.0 * (4 * d - d * d), rel=1e-6)
+
+
+def test_dual_layout_with_a_dart_tile_is_valid() -> None:
+    """A 2x2 block whose centre is pulled into tile 0 (a dart with its reflex corner at the
+    hinges): the layout separates the dart's convex pieces, and the result has no overlap."""
+    from drawstring.geometry.verify import flat_overlap
+
+    linkage, _ = _grid(2)
+    tiles = []
+    for j in range(2):
+        for i in range(2):
+            x0, y0 = 10.0 * i, 10.0 * j
+            sq = np.array([[x0, y0], [x0 + 10, y0], [x0 + 10, y0 + 10], [x0, y0 + 10]])
+            sq[np.all(sq == 10.0, axis=1)] = (4.0, 4.0)
+            tiles.append(np.vstack([np.c_[sq, np.full(4, 3.0)], np.c_[sq, np.zeros(4)]]))
+    t3 = np.array(tiles)
+    flat = optimize_flat(
+        linkage, t3[:, :4], uv=linkage.vertex_ij * 10.0, min_gap_angle_deg=10.0, tiles_3d=t3
+    )
+    layout = layout_hinges(linkage, flat, extrude_flat(flat, t3), t3, strategy="dual")
+    assert flat_overlap(layout.tiles[:, :4, :2])[0] == 0.0
+    assert interpenetration(layout.tiles)[0] == 0.0
+    assert not any("could not be separated" in p for p in layout.problems)
