@@ -15,6 +15,7 @@ from drawstring.geometry.flatten import (
     _schur_complement,
     flatten,
     flipped_faces,
+    principal_misalignment,
     quasi_conformal_distortion,
 )
 
@@ -370,3 +371,83 @@ def test_bad_corners_and_meshes_raise_input_error() -> None:
         flatten(np.r_[vertices, [[9.0, 9, 9]]], faces)
     with pytest.raises(InputError, match="zero-area"):
         flatten(np.where(np.arange(len(vertices))[:, None] == 8, vertices[7], vertices), faces)
+
+
+# ------------------------------------------------------------- principal curvature alignment
+
+
+def rotated_saddle_disk(angle_deg: float, n: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """Saddle ``z = c (x'^2 - y'^2)`` in axes rotated by ``angle_deg``, over a round footprint.
+
+    The round boundary has no preferred corners, so only the principal directions (along x' and
+    y' at the centre) can orient the rectangle grid.
+    """
+    rings = [np.zeros((1, 2))]
+    for i in range(1, n + 1):
+        phi = 2.0 * np.pi * (np.arange(6 * i) + 0.5 * (i % 2)) / (6 * i)
+        rings.append(50.0 * i / n * np.c_[np.cos(phi), np.sin(phi)])
+    flat = np.vstack(rings)
+    faces = Delaunay(flat).simplices
+    x, y = flat[:, 0], flat[:, 1]
+    a = np.radians(angle_deg)
+    xr = np.cos(a) * x + np.sin(a) * y
+    yr = -np.sin(a) * x + np.cos(a) * y
+    z = 0.008 * (xr * xr - yr * yr)
+    return np.c_[x, y, z], ccw(flat, faces)
+
+
+def test_corner_choice_follows_principal_directions() -> None:
+    # Principal axes at 35 degrees: corners one sample step apart reach them.
+    vertices, faces = rotated_saddle_disk(35.0)
+    aligned = flatten(vertices, faces, mode="rectangle")
+    assert not flipped_faces(faces, aligned.uv).any()
+    centre = np.linalg.norm(vertices[faces].mean(axis=1)[:, :2], axis=1) < 25.0
+    angle, torsion = principal_misalignment(vertices, faces, aligned.uv)
+    assert np.nanmedian(angle[centre]) < 5.0
+    assert np.all(np.isfinite(torsion))
+
+
+@pytest.mark.parametrize("angle_deg", [-25.0, 50.0, 80.0])
+def test_alignment_beats_variance_only_choice(angle_deg: float) -> None:
+    # The variance-only choice puts the corners where the boundary turns most, which on this
+    # saddle is about 45 degrees off the principal axes; alignment must do much better.
+    vertices, faces = rotated_saddle_disk(angle_deg)
+    aligned = flatten(vertices, faces, mode="rectangle")
+    plain = flatten(vertices, faces, mode="rectangle", align_principal=False)
+    assert not flipped_faces(faces, aligned.uv).any()
+    centre = np.linalg.norm(vertices[faces].mean(axis=1)[:, :2], axis=1) < 25.0
+    angle = principal_misalignment(vertices, faces, aligned.uv)[0][centre]
+    angle_plain = principal_misalignment(vertices, faces, plain.uv)[0][centre]
+    assert np.nanmedian(angle_plain) > 40.0
+    assert np.nanmedian(angle) < np.nanmedian(angle_plain) - 20.0
+
+
+def test_alignment_is_deterministic() -> None:
+    vertices, faces = rotated_saddle_disk(50.0)
+    a = flatten(vertices, faces, mode="rectangle")
+    b = flatten(vertices, faces, mode="rectangle")
+    np.testing.assert_array_equal(a.corners, b.corners)
+    np.testing.assert_array_equal(a.uv, b.uv)
+
+
+def test_principal_misalignment_known_angle() -> None:
+    # A uv map that is the xy projection rotated by 30 degrees: the grid is 30 degrees off the
+    # saddle's principal axes (x, y) at the centre, so the misalignment is 30 degrees there.
+    vertices, faces = rotated_saddle_disk(0.0)
+    a = np.radians(30.0)
+    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    uv = vertices[:, :2] @ rot.T
+    angle, _ = principal_misalignment(vertices, faces, uv)
+    centre = np.linalg.norm(vertices[faces].mean(axis=1)[:, :2], axis=1) < 10.0
+    assert np.nanmedian(angle[centre]) == pytest.approx(30.0, abs=2.0)
+
+
+def test_alignment_keeps_umbilic_choice() -> None:
+    # On a plane every direction is principal: the choice must equal the variance-only one.
+    points, faces = grid(12, 8, 120.0, 80.0)
+    vertices = np.c_[points, np.zeros(len(points))]
+    faces = ccw(points, faces)
+    a = flatten(vertices, faces, mode="rectangle")
+    b = flatten(vertices, faces, mode="rectangle", align_principal=False)
+    np.testing.assert_array_equal(a.corners, b.corners)
+    np.testing.assert_allclose(a.uv, b.uv)
