@@ -57,6 +57,8 @@ def run_one(n_i: int, n_j: int, settings: S.SimulationSettings | None = None) ->
         "time_s": round(res.time_s, 3),
         "cpu_s": round(time.process_time() - cpu, 3),
         "per_step_ms": round(res.per_step_ms, 2),
+        "cpu_per_step_ms": round(1e3 * (time.process_time() - cpu) / max(res.steps, 1), 2),
+        "iterations_per_step": round(res.iterations / max(res.steps, 1), 2),
         "iterations": res.iterations,
         "factorizations": res.factorizations,
         "final_max_deviation_mm": round(res.final_max_deviation_mm, 5),

@@ -13,7 +13,7 @@ def rigid_fit(
 
     Parameters
     ----------
-    source, target : (T, k, 3) float, corresponding points (e.g. tiles, k = 8).
+    source, target : (T, k, d) float, corresponding points (e.g. tiles, k = 8, d = 3).
 
     Returns
     -------
@@ -24,12 +24,10 @@ def rigid_fit(
     dst = np.asarray(target, dtype=np.float64)
     src_mean = src.mean(axis=1)
     dst_mean = dst.mean(axis=1)
-    covariance = np.einsum("tki,tkj->tij", src - src_mean[:, None], dst - dst_mean[:, None])
+    covariance = np.matmul((src - src_mean[:, None]).transpose(0, 2, 1), dst - dst_mean[:, None])
     u, _, vt = np.linalg.svd(covariance)
-    fix = np.ones((len(src), 3))
-    sign = np.sign(np.linalg.det(np.einsum("tij,tjk->tik", u, vt)))
-    fix[:, 2] = np.where(sign == 0, 1.0, sign)
-    rotation = np.einsum("tji,tj,tkj->tik", vt, fix, u)  # V diag(fix) U^T
+    u[np.linalg.det(np.matmul(u, vt)) < 0, :, -1] *= -1.0  # no reflections
+    rotation = np.matmul(u, vt).transpose(0, 2, 1)  # V U^T
     translation = dst_mean - np.einsum("tij,tj->ti", rotation, src_mean)
     return rotation, translation
 
@@ -39,4 +37,10 @@ def apply_rigid(
 ) -> NDArray[np.float64]:
     """(T, k, 3) ``points`` moved by each set's rotation and translation."""
     pts = np.asarray(points, dtype=np.float64)
-    return np.asarray(np.einsum("tij,tkj->tki", rotation, pts) + translation[:, None])
+    return np.asarray(np.matmul(pts, rotation.transpose(0, 2, 1)) + translation[:, None])
+
+
+def rigid_copies(rest: ArrayLike, points: ArrayLike) -> NDArray[np.float64]:
+    """(T, k, 3) the rigid copies of each ``rest`` set closest to ``points`` (least squares)."""
+    rotation, translation = rigid_fit(rest, points)
+    return apply_rigid(rotation, translation, rest)

@@ -57,6 +57,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import Linkage, build_linkage, rotating_squares_layout
+from drawstring.geometry.rigid import rigid_copies, rigid_fit
 from drawstring.geometry.solver import (
     ConstraintGroup,
     LocalGlobalSolver,
@@ -179,13 +180,8 @@ def _kabsch(source: FloatArray, target: FloatArray) -> tuple[FloatArray, FloatAr
     ----------
     source, target : (n, d) float
     """
-    cs, ct = source.mean(axis=0), target.mean(axis=0)
-    cov = (source - cs).T @ (target - ct)
-    u, _, vt = np.linalg.svd(cov)
-    d = np.ones(source.shape[1])
-    d[-1] = np.sign(np.linalg.det(u @ vt)) or 1.0
-    rot = (u * d) @ vt
-    return rot.T, ct - rot.T @ cs
+    rot, shift = rigid_fit(source[None], target[None])
+    return rot[0], shift[0]
 
 
 def kabsch_deviation(tiles: FloatArray, reference: FloatArray) -> FloatArray:
@@ -756,28 +752,35 @@ class SimulationSettings:
         tiles find their own place sideways); else the whole assembled position on the table.
     hinge_close_steps : hinges that are open in the flat layout close linearly over this many
         steps.
-    table : keep every tile above the table (the lowest level of the flat pose).
+    table : keep every tile above the table (the lowest level of the flat pose) while the string
+        is reeled in (position-based: vertices clamped, tiles re-rigidified, a few rounds);
+        the settle after the ramp is quasi-static, with neither table nor gravity (the string
+        holds the structure; a table there pins a corner that the lift heights may disagree
+        with, which jammed corner tiles).
     split_contact : side faces that touch across a split (:func:`split_contact_pairs`) do not
         pass through each other once they came within half a tile side (weight ``contact``).
     magnets : weight of the magnets across splits: once a split contact engaged, its two faces
         are pulled together corner by corner (0: no magnets).
     magnet_rate : how fast an engaged magnet reels its faces in, tile sides per step.
+    rigid_projection : after every step each tile is replaced by the closest rigid copy of its
+        rest shape, so the rigid edges hold exactly in every frame (not just up to the soft
+        rigid weight's residual).
     """
 
     time_step_s: float = 0.002
     max_steps: int = 600
     ramp_steps: int = 150
-    lock_levels: tuple[float, ...] = (10.0, 100.0)
+    lock_levels: tuple[float, ...] = (10.0, 100.0, 1000.0)
     lock_every: int = 20
     check_every: int = 10
     stall_checks: int = 10
     iterations: int = 10
-    settle_iterations: int = 10
+    settle_iterations: int = 20
     anderson: int = 5
     damping: float = 0.1
     rigid: float = 3e4
     hinge: float = 3e4
-    contact: float = 1e3
+    contact: float = 3e3
     snap: float = 3e3
     lift: float = 3e3
     snap_mode: SnapMode = "face"
@@ -787,6 +790,7 @@ class SimulationSettings:
     split_contact: bool = True
     magnets: float = 3e3
     magnet_rate: float = 0.1
+    rigid_projection: bool = True
 
 
 #: Slower, better converged settings: twice the local-global iterations per step, one more
@@ -963,6 +967,7 @@ def simulate_deployment(
     split_contact: FaceContact | None = None
     magnet: FaceSnap | None = None
     faces = contact_face_pairs(linkage)
+    contact_pairs = neighbour_tile_pairs(linkage)
     if len(faces) and cfg.contact > 0:
         contact = FaceContact(faces, cfg.contact * w_in)
         groups.append(contact)
@@ -1006,10 +1011,12 @@ def simulate_deployment(
         base["lift"] = cfg.lift
         lift_goal = _apply(placement, lift_t)
         lift_start = x[lift_v].copy()
+    table = float(flat[..., 2].min())
     solver = LocalGlobalSolver(n, groups)
-    contact_pairs = neighbour_tile_pairs(linkage)
+    rest_centred = flat - flat.mean(axis=1, keepdims=True)
 
     goal_len = snap_goal_length(goal, pairs)
+    goal_pen = max_penetration(goal, contact_pairs)
 
     def snap_distances(pos: FloatArray) -> FloatArray:
         """How far every pair is from its assembled midpoint distance, mm."""
@@ -1030,7 +1037,12 @@ def simulate_deployment(
         if dev.max() > tol.deviation_rel * side:
             reasons.append(f"deviation {dev.max():.3g} mm > {tol.deviation_rel * side:.3g} mm")
         if pen > tol.penetration_rel * side:
-            reasons.append(f"penetration {pen:.3g} mm > {tol.penetration_rel * side:.3g} mm")
+            note = (
+                f" (the assembled tiles themselves overlap by {goal_pen:.3g} mm)"
+                if goal_pen > tol.penetration_rel * side
+                else ""
+            )
+            reasons.append(f"penetration {pen:.3g} mm > {tol.penetration_rel * side:.3g} mm{note}")
         return reasons, dist, dev, pen
 
     d0 = d_end = np.zeros(0)
@@ -1044,7 +1056,6 @@ def simulate_deployment(
     max_edge_err = 0.0
     iterations = factorizations = 0
     settle = tol.settle_rel * side
-    table = float(flat[..., 2].min())
     lock_at = {
         cfg.ramp_steps + cfg.lock_every * (i + 1): level for i, level in enumerate(cfg.lock_levels)
     }
@@ -1078,15 +1089,20 @@ def simulate_deployment(
             magnet.radius = np.where(
                 engaged, np.maximum(reeled, (1.0 - smooth) * magnet_start), _FREE
             )
-        y = x + h * v + h * h * g_vec
-        if cfg.table:
-            y = _lift_above(y, table, n_tiles)  # the table holds the inertial targets
+        on_table = cfg.table and step <= cfg.ramp_steps
+        # After the reel-in the string holds the structure: the settle is quasi-static, without
+        # the table (which pins a corner the lift heights may not agree with) and gravity.
+        y = x + h * v + (h * h * g_vec if on_table or not cfg.table else 0.0)
         inertia.set_targets(y)
         n_iter = cfg.iterations if step <= cfg.ramp_steps else cfg.settle_iterations
         res = solver.solve(y, max_iter=n_iter, anderson=cfg.anderson, rel_tol=1e-12)
         iterations += res.iterations
         factorizations += res.factorizations
-        x_new = _lift_above(res.X, table, n_tiles) if cfg.table else res.X
+        x_new = res.X
+        if cfg.rigid_projection:
+            x_new = rigid_copies(rest_centred, x_new.reshape(n_tiles, 8, 3)).reshape(-1, 3)
+        if on_table:
+            x_new = _table_contact(x_new, table, rest_centred, cfg.rigid_projection)
         move = float(np.linalg.norm(x_new - x, axis=1).max())
         v = (1.0 - cfg.damping) * (x_new - x) / h
         x = x_new
@@ -1100,6 +1116,12 @@ def simulate_deployment(
             logger.debug("step %d: %s", step, "; ".join(verdict[0]) or "deployed")
             if not verdict[0]:
                 break
+            if (
+                goal_pen > tol.penetration_rel * side
+                and len(verdict[0]) == 1
+                and verdict[3] <= goal_pen + tol.penetration_rel * side
+            ):
+                break  # at the assembled shape, which overlaps itself: nothing left to gain
             progress.append(float(verdict[2].max()))
             if len(progress) > cfg.stall_checks and min(progress[-cfg.stall_checks :]) > (
                 1.0 - SIM_STALL_PROGRESS
@@ -1287,6 +1309,43 @@ def _lift_above(x: FloatArray, level: float, n_tiles: int) -> FloatArray:
     out = tiles.copy()
     out[:, :, 2] += dip[:, None]
     return out.reshape(-1, 3)
+
+
+def _table_contact(
+    x: FloatArray, level: float, rest: FloatArray, rigid: bool, rounds: int = 4
+) -> FloatArray:
+    """Keep the tiles above the table by alternating projections (position-based contact).
+
+    Vertices below ``level`` are raised to it, then every tile is made rigid again (closest
+    rigid copy of its rest shape); a few rounds let a tile that carries the structure pivot on
+    its lowest corner instead of being shoved up as a whole (which jams the hinges).
+
+    Parameters
+    ----------
+    x : (T * 8, 3) float, mm
+    level : table height, mm.
+    rest : (T, 8, 3) float, centred rest shapes.
+    rigid : re-rigidify after each clamp (else one clamp).
+
+    Returns
+    -------
+    (T * 8, 3) float, mm
+    """
+    if x[:, 2].min() >= level:
+        return x
+    out = x.copy()
+    for _ in range(rounds if rigid else 1):
+        low = out[:, 2] < level
+        if not low.any():
+            break
+        out[low, 2] = level
+        if rigid:
+            tiles = out.reshape(-1, 8, 3)
+            hit = np.flatnonzero(low.reshape(-1, 8).any(axis=1))
+            tiles[hit] = rigid_copies(rest[hit], tiles[hit])
+    if rigid:
+        return _lift_above(out, level, len(rest))  # the last clamp, rigidly
+    return out
 
 
 def snap_goal_length(tiles: FloatArray, pairs: IntArray) -> FloatArray:

@@ -9,6 +9,7 @@ import pytest
 
 from drawstring.geometry import simulate as S
 from drawstring.geometry.errors import InputError
+from drawstring.geometry.rigid import rigid_copies
 
 
 @pytest.fixture(scope="module")
@@ -256,3 +257,41 @@ def test_split_linkage_deploys_with_magnets() -> None:
     pairs = S.split_contact_pairs(scene.linkage)
     assert np.all(S.snap_goal_length(final, pairs) <= 0.01 * side)
     assert res.max_penetration_mm <= 0.01 * side
+
+
+def test_frames_are_exactly_rigid(scene4: S.DeploymentScene) -> None:
+    """Every step ends with each tile replaced by a rigid copy of its rest shape."""
+    res = run(scene4, lift=True)
+    assert res.deployed, res.reasons
+    assert res.max_edge_error_mm < 1e-9
+    rest = S.tile_edge_lengths(scene4.tiles_flat)
+    frames = res.frames.astype(np.float64)
+    assert np.abs(S.tile_edge_lengths(frames) - rest).max() < 1e-4  # float32 storage
+
+
+def test_rigid_fit_is_the_closest_rigid_copy() -> None:
+    scene = S.cylinder_scene(2, 2)
+    rest = scene.tiles_flat - scene.tiles_flat.mean(axis=1, keepdims=True)
+    moved = scene.tiles_assembled + np.random.default_rng(0).normal(0.0, 0.05, (4, 8, 3))
+    fit = rigid_copies(rest, moved)
+    assert np.allclose(S.tile_edge_lengths(fit), S.tile_edge_lengths(scene.tiles_flat))
+    # exact input shapes are returned unchanged
+    assert np.allclose(rigid_copies(rest, scene.tiles_assembled), scene.tiles_assembled)
+
+
+def test_table_contact_pivots_a_tile_instead_of_shoving_it() -> None:
+    """A tilted tile dipping below the table is raised about its low corner, rigidly."""
+    scene = S.cylinder_scene(2, 2)
+    tile = scene.tiles_flat[:1].copy()
+    rest = tile - tile.mean(axis=1, keepdims=True)
+    angle = 0.2
+    rot = np.array(
+        [[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]]
+    )
+    tilted = (tile[0] - tile[0].mean(axis=0)) @ rot.T + tile[0].mean(axis=0)
+    level = tilted[:, 2].min() + 1.0  # one vertex 1 mm below the table
+    out = S._table_contact(tilted, level, rest, rigid=True).reshape(1, 8, 3)
+    assert out[..., 2].min() >= level - 1e-12
+    assert np.allclose(S.tile_edge_lengths(out), S.tile_edge_lengths(tile))
+    top = np.argmax(tilted[:, 2])
+    assert out[0, top, 2] - tilted[top, 2] < 1.0  # pivoted: the high corner rose less
