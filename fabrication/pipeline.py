@@ -680,6 +680,10 @@ def measure_design(
         )
         if key in a
     }
+    clash = verify.assembled_overlap(assembled.tiles, linkage)
+    metrics.update(
+        {k: _round(v, 9) if isinstance(v, float) else v for k, v in clash.to_json().items()}
+    )
     tiles_2d = hinge_layout.tiles
     top_2d = tiles_2d[:, :4, :2]
     overlap_area, _, _ = verify.flat_overlap(top_2d)
@@ -719,6 +723,14 @@ def measure_design(
     )
     problems: list[str] = []
     warnings: list[str] = []
+    folded = len(clash.nonconvex_top) + len(clash.nonconvex_bottom)
+    if folded:
+        problems.append(f"{folded} assembled tile faces are folded (non-convex)")
+    if clash.depth_max_mm > verify.ASSEMBLED_OVERLAP_DEPTH_TOL_MM:
+        problems.append(
+            f"assembled tiles interpenetrate up to {clash.depth_max_mm:.3g} mm "
+            f"({len(clash.pairs)} pairs)"
+        )
     if overlap_area > FLAT_OVERLAP_TOL_MM2:
         problems.append(f"flat tiles overlap by {overlap_area:.3g} mm^2")
     if volume > FLAT_INTERPENETRATION_TOL_MM3:

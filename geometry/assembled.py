@@ -36,12 +36,14 @@ from dataclasses import dataclass, field
 
 import igl
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 
 from drawstring.geometry.errors import DesignError, InputError
 from drawstring.geometry.solver import (
     ClosenessToPoints,
     ClosenessToSurface,
+    ConstraintGroup,
     EdgeLength,
     LocalGlobalSolver,
     PlanarizeResult,
@@ -49,6 +51,8 @@ from drawstring.geometry.solver import (
     SimilarityToSquare,
     Slab,
     SolverResult,
+    centering_matrix,
+    cross3,
     planarize_quads,
     plane_fit,
 )
@@ -73,6 +77,16 @@ CLOSE_FIT_WEIGHTS: tuple[float, float, float] = (1e4, 1.0, 100.0)
 
 #: Default weights: the paper's.
 DEFAULT_WEIGHTS: tuple[float, float, float] = PAPER_WEIGHTS
+
+#: Convexity margin of every quad corner (:class:`ConvexCorners`): the corner must stand at least
+#: this fraction of the diagonal joining its two neighbours outside that diagonal (0.5 for a
+#: square's corner, 0 for a straight angle); 0.2 keeps every corner angle below about 136 deg and
+#: every side at least about a fifth of the other sides (a dart or a collapsing side violates it).
+CONVEX_MARGIN: float = 0.2
+
+#: Weight of :class:`ConvexCorners` relative to ``w_planar``: a hard constraint (it is zero on
+#: every quad that is convex with the margin, so it does not change the paper's energy there).
+CONVEX_WEIGHT_REL: float = 1.0
 
 #: The six faces of a tile (indices into its 8 vertices), counter-clockwise seen from outside.
 TILE_FACES: IntArray = np.array(
@@ -137,14 +151,18 @@ class AssembledResult:
         :func:`measure_assembled` of the result plus ``planarity_max_before_mm`` (the input quads
         extruded along normals, before any optimization), ``bbox_diagonal_mm`` (of the input
         quad mesh), ``polish_move_max_mm`` (largest vertex move of the exact planarity polishes)
-        and the stage timings ``time_top_s``, ``time_extrusion_s``.
+        and the stage timings ``time_top_s``, ``time_extrusion_s``; ``corner_margin_min`` (of
+        K3D, :func:`corner_margins`; negative means a folded quad), the same before the
+        convexity re-solve (``corner_margin_min_unconstrained``) and ``convex_resolve``.
     top_solve, extrusion_solve : SolverResult
         Local-global solves of the K3D stage (last round) and of the extrusion.
     top_polish, extrusion_polish : PlanarizeResult
         Exact planarity polishes after each stage.
     time_s : float
     top_solves : tuple of SolverResult
-        Every K3D round's solve (``square_rounds`` of them).
+        Every K3D round's solve: ``square_rounds`` of them, then as many again when the plain
+        solve left a corner below ``convex_margin`` and K3D was solved again with
+        :class:`ConvexCorners` (``metrics["convex_resolve"]`` is then 1).
     """
 
     top: FloatArray
@@ -335,6 +353,114 @@ def side_quads(quads: IntArray, edges: QuadMeshEdges, n_vertices: int) -> IntArr
     return np.stack([i, i + n_vertices, j + n_vertices, j], axis=1)
 
 
+def corner_margins(
+    vertices: FloatArray, quads: IntArray, reference_normals: FloatArray
+) -> FloatArray:
+    """Smallest corner margin of every quad (the measure :class:`ConvexCorners` bounds).
+
+    A corner's margin is its height over the diagonal joining its two neighbours, towards the
+    outside of the quad (in the plane normal to the quad's diagonal cross product, oriented by
+    ``reference_normals``), divided by that diagonal's length: 0.5 at a square's corners, 0 at a
+    straight angle, negative at a reflex corner (a dart) or for a quad turned over.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float, mm
+    quads : (m, 4) int
+    reference_normals : (m, 3) float
+
+    Returns
+    -------
+    (m,) float
+    """
+    p = vertices[quads]
+    normal = quad_vector_areas(vertices, quads)
+    normal *= np.where(np.einsum("ki,ki->k", normal, reference_normals) < 0, -1.0, 1.0)[:, None]
+    a, b, c = np.roll(p, 1, axis=1), p, np.roll(p, -1, axis=1)
+    diagonal = c - a
+    out = np.cross(diagonal, normal[:, None, :])
+    out /= np.maximum(np.linalg.norm(out, axis=2, keepdims=True), 1e-300)
+    height = np.einsum("kci,kci->kc", b - a, out)
+    length = np.maximum(np.linalg.norm(diagonal, axis=2), 1e-300)
+    return np.asarray((height / length).min(axis=1))
+
+
+class ConvexCorners(ConstraintGroup):
+    """Keep every quad convex: each corner stays outside the diagonal joining its neighbours.
+
+    One element per quad corner ``k``: the triple ``(v[k-1], v[k], v[k+1])``. Its height ``h``
+    over the line ``v[k-1] v[k+1]``, measured in the quad's tangent plane towards the outside of
+    the quad (positive for a convex corner), must be at least ``margin * |v[k+1] - v[k-1]|``.
+    Satisfied triples project onto themselves (zero energy); a violating one projects onto the
+    triple with the two diagonal ends moved by ``-d/3`` and the corner by ``+2d/3`` along that
+    outward direction, ``d`` the deficit, which keeps the diagonal and the centroid and meets the
+    bound exactly. With all four corners above their diagonals both diagonals cross, so the quad
+    is convex, and no corner angle approaches 180 deg (a dart, or a quad folding over).
+
+    Parameters
+    ----------
+    quads : (m, 4) int
+        Counter-clockwise about ``reference_normals``.
+    reference_normals : (m, 3) float
+        Outward direction of each quad; the current normal (from its diagonals) is flipped to
+        agree with it, so a quad that turned over still has a well-defined outside.
+    margin : float
+        See :data:`CONVEX_MARGIN`.
+    """
+
+    def __init__(
+        self,
+        quads: ArrayLike,
+        reference_normals: ArrayLike,
+        weight: float = 1.0,
+        name: str = "convex",
+        margin: float = CONVEX_MARGIN,
+    ) -> None:
+        super().__init__(name, weight)
+        arr = np.asarray(quads, dtype=np.int64)
+        if arr.ndim != 2 or arr.shape[1] != 4:
+            raise InputError("ConvexCorners needs quads of shape (m, 4)")
+        ref = np.asarray(reference_normals, dtype=np.float64)
+        if ref.shape != (len(arr), 3):
+            raise InputError("reference_normals must have shape (m, 3), one per quad")
+        if not 0.0 <= margin < 0.5:
+            raise InputError(f"convexity margin is {margin}; use a value in [0, 0.5)")
+        self.quads = arr
+        self.reference_normals = ref
+        self.margin = float(margin)
+        #: (4m, 3) corner triples, quad-major.
+        self.triples = np.stack(
+            [np.roll(arr, 1, axis=1), arr, np.roll(arr, -1, axis=1)], axis=2
+        ).reshape(-1, 3)
+
+    def matrix(self, n_vertices: int) -> sp.csr_matrix:
+        return centering_matrix(self.triples, n_vertices)
+
+    def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
+        pts = ax.reshape(-1, 3, 3)
+        normal = quad_vector_areas(x, self.quads)
+        normal *= np.where(np.einsum("ki,ki->k", normal, self.reference_normals) < 0, -1.0, 1.0)[
+            :, None
+        ]
+        bad = np.linalg.norm(normal, axis=1) <= 0
+        normal[bad] = self.reference_normals[bad]
+        normal = np.repeat(normal, 4, axis=0)
+        diagonal = pts[:, 2] - pts[:, 0]
+        length = np.linalg.norm(diagonal, axis=1)
+        out = cross3(diagonal, normal)
+        out_len = np.linalg.norm(out, axis=1)
+        ok = out_len > 1e-300
+        out[ok] /= out_len[ok, None]
+        height = np.einsum("ki,ki->k", pts[:, 1] - pts[:, 0], out)
+        deficit = np.where(ok, np.maximum(self.margin * length - height, 0.0), 0.0)
+        move = (deficit[:, None] / 3.0) * out
+        target = pts.copy()
+        target[:, 0] -= move
+        target[:, 1] += 2.0 * move
+        target[:, 2] -= move
+        return np.asarray(target.reshape(ax.shape))
+
+
 # --------------------------------------------------------------------------------------------
 # Metrics
 # --------------------------------------------------------------------------------------------
@@ -508,6 +634,8 @@ def optimize_top(
     rel_tol: float,
     max_iter: int,
     anderson: int,
+    w_convex: float = 0.0,
+    convex_margin: float = CONVEX_MARGIN,
 ) -> tuple[SolverResult, FloatArray]:
     """One K3D solve of paper eq. 1 with edge targets from ``vertices``.
 
@@ -519,6 +647,10 @@ def optimize_top(
     target_faces : (f, 3) int
     w_planar, w_square, w_surface : float
     rel_tol, max_iter, anderson : solver options
+    w_convex : float
+        Weight of :class:`ConvexCorners` (0: not used).
+    convex_margin : float
+        Its margin.
 
     Returns
     -------
@@ -529,19 +661,21 @@ def optimize_top(
     edges = quad_mesh_edges(quads)
     targets = square_edge_targets(vertices, quads, edges)
     reference_normals = quad_vector_areas(vertices, quads)
-    solver = LocalGlobalSolver(
-        len(vertices),
-        [
-            Plane(quads, w_planar, name="planar"),
-            EdgeLength(edges.edges, targets, w_square, name="square_length"),
-            SimilarityToSquare(
-                quads, w_square, name="square_shape", reference_normals=reference_normals
-            ),
-            ClosenessToSurface(
-                np.arange(len(vertices)), target_vertices, target_faces, w_surface, name="surface"
-            ),
-        ],
-    )
+    groups: list[ConstraintGroup] = [
+        Plane(quads, w_planar, name="planar"),
+        EdgeLength(edges.edges, targets, w_square, name="square_length"),
+        SimilarityToSquare(
+            quads, w_square, name="square_shape", reference_normals=reference_normals
+        ),
+        ClosenessToSurface(
+            np.arange(len(vertices)), target_vertices, target_faces, w_surface, name="surface"
+        ),
+    ]
+    if w_convex > 0:
+        groups.append(
+            ConvexCorners(quads, reference_normals, w_convex, name="convex", margin=convex_margin)
+        )
+    solver = LocalGlobalSolver(len(vertices), groups)
     result = solver.solve(vertices, rel_tol=rel_tol, max_iter=max_iter, anderson=anderson)
     return result, targets
 
@@ -608,6 +742,8 @@ def optimize_assembled(
     w_planar: float = DEFAULT_WEIGHTS[0],
     w_square: float = DEFAULT_WEIGHTS[1],
     w_surface: float = DEFAULT_WEIGHTS[2],
+    w_convex: float = DEFAULT_WEIGHTS[0] * CONVEX_WEIGHT_REL,
+    convex_margin: float = CONVEX_MARGIN,
     square_rounds: int = 1,
     rel_tol: float = ASSEMBLED_SOLVER_REL_TOL,
     max_iter: int = 1000,
@@ -630,6 +766,13 @@ def optimize_assembled(
         Weights of paper eq. 1; defaults are the paper's (1e4, 10, 0.1). With them squareness
         outweighs the surface and the converged mesh drifts off the target (0.5-6 mm mean at
         ~200 tiles on the built-ins); :data:`CLOSE_FIT_WEIGHTS` trade squareness for closeness.
+    w_convex : float
+        Weight of :class:`ConvexCorners` (0 disables it). The plain solve runs first; only if
+        it leaves a quad corner below ``convex_margin`` (e.g. darts on the three-shell at ~210
+        tiles) is K3D solved again from the lifted mesh with the group, which keeps the solve
+        out of folded local minima without changing the energy of convex configurations.
+    convex_margin : float
+        See :data:`CONVEX_MARGIN`.
     square_rounds : int
         Outer rounds; each recomputes the edge-length targets from the current mesh.
     rel_tol, max_iter, anderson : local-global solver options (each solve).
@@ -664,24 +807,47 @@ def optimize_assembled(
     polish_tol = ASSEMBLED_PLANARITY_REL * bbox_diag
 
     t0 = time.perf_counter()
-    top = verts
-    solves: list[SolverResult] = []
-    targets = np.zeros(len(edges.edges))
-    for _ in range(square_rounds):
-        result, targets = optimize_top(
-            top,
-            faces,
-            t_verts,
-            t_faces,
-            w_planar=w_planar,
-            w_square=w_square,
-            w_surface=w_surface,
-            rel_tol=rel_tol,
-            max_iter=max_iter,
-            anderson=anderson,
+
+    def solve_rounds(weight_convex: float) -> tuple[FloatArray, list[SolverResult], FloatArray]:
+        x = verts
+        done: list[SolverResult] = []
+        used = np.zeros(len(edges.edges))
+        for _ in range(square_rounds):
+            result, used = optimize_top(
+                x,
+                faces,
+                t_verts,
+                t_faces,
+                w_planar=w_planar,
+                w_square=w_square,
+                w_surface=w_surface,
+                rel_tol=rel_tol,
+                max_iter=max_iter,
+                anderson=anderson,
+                w_convex=weight_convex,
+                convex_margin=convex_margin,
+            )
+            done.append(result)
+            x = result.X
+        return x, done, used
+
+    # The convexity group is stiff even where it is inactive (it adds w_convex A^T A to the
+    # global matrix), so it is only brought in when the plain solve leaves a corner below the
+    # margin; a plain solution that meets it is already a stationary point of the constrained
+    # problem.
+    reference = quad_vector_areas(verts, faces)
+    top, solves, targets = solve_rounds(0.0)
+    margin_plain = float(corner_margins(top, faces, reference).min())
+    convex_resolve = w_convex > 0 and margin_plain < convex_margin
+    if convex_resolve:
+        logger.info(
+            "assembled: a quad corner reached %.3g of its diagonal (< %.3g); solving again with "
+            "the convexity constraint",
+            margin_plain,
+            convex_margin,
         )
-        solves.append(result)
-        top = result.X
+        top, more, targets = solve_rounds(w_convex)
+        solves += more
     top_polish = planarize_quads(top, faces, tol_mm=0.1 * polish_tol)
     top = top_polish.X
     t1 = time.perf_counter()
@@ -705,6 +871,9 @@ def optimize_assembled(
         )
     metrics = measure_assembled(tiles, faces, t_verts, t_faces)
     metrics["planarity_max_before_mm"] = before["planarity_max_mm"]
+    metrics["corner_margin_min"] = float(corner_margins(top, faces, reference).min())
+    metrics["corner_margin_min_unconstrained"] = margin_plain
+    metrics["convex_resolve"] = float(convex_resolve)
     metrics["bbox_diagonal_mm"] = bbox_diag
     metrics["polish_move_max_mm"] = max(top_polish.max_move_mm, ext_polish.max_move_mm)
     metrics["time_top_s"] = t1 - t0

@@ -17,6 +17,13 @@ flat_edge_error_max_mm         max |len K2D - len K3D| over sides     FLAT_EDGE_
 flat_gap_angle_min/max_deg     opening angle at every slit end        [theta_min, 90] +-
                                                                       FLAT_GAP_ANGLE_TOL_DEG
 hinge_gap_max_mm               max distance of paired hinge vertices  HINGE_GAP_TOL_MM
+assembled_overlap_volume_mm3   sum of exact pairwise 3D intersection  (pairs deeper than the
+                               volumes of assembled tiles T3D         depth tolerance)
+                               (neighbours and nearby tiles)
+assembled_overlap_depth_max    largest penetration depth of those     ASSEMBLED_OVERLAP_DEPTH_
+_mm                            pairs (separating-axis test)           TOL_MM (here)
+assembled_nonconvex_top/       tiles whose top / bottom face is not   0
+bottom_faces                   convex in its own plane
 =============================  =====================================  ==========================
 """
 
@@ -27,9 +34,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import cKDTree
+from scipy.spatial import ConvexHull, cKDTree
 
 from drawstring.geometry.constraints import quad_overlap_mtv
+from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import Linkage, slit_ends
 
 FloatArray = NDArray[np.float64]
@@ -56,8 +64,11 @@ RIGID_EDGES: IntArray = np.array(
 __all__ = [
     "RIGID_EDGES",
     "TILE_FACES",
+    "AssembledOverlap",
     "FlatMetrics",
+    "assembled_overlap",
     "clip_convex_polygons",
+    "convex_penetration_depth",
     "convex_pieces",
     "convex_polygon_overlap",
     "flat_edge_errors",
@@ -80,13 +91,31 @@ def polygon_area(poly: FloatArray) -> float:
     return float(0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 
 
-def reflex_corners(quads: ArrayLike) -> IntArray:
+def reflex_corners(quads: ArrayLike, *, in_plane: bool = False) -> IntArray:
     """Index ``(T,)`` of the reflex corner of every simple quad, or -1 where it is convex.
 
     Orientation is taken from the quad's signed area, so either winding works; a quad with more
     than one non-convex corner (self-intersecting) reports its most reflex one.
+
+    Parameters
+    ----------
+    quads : (T, 4, 2+) float
+    in_plane : bool
+        False: the corners' (x, y) are used (flat tiles).  True: (T, 4, 3) corners in any
+        orientation; each corner's turn is measured about the quad's own normal (the cross
+        product of its diagonals), which for quads in the (x, y) plane gives the same answer.
     """
-    q = np.asarray(quads, dtype=np.float64)[..., :2]
+    q = np.asarray(quads, dtype=np.float64)
+    if in_plane:
+        p = q[..., :3]
+        normal = np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1])
+        e_in3 = p - np.roll(p, 1, axis=1)
+        e_out3 = np.roll(p, -1, axis=1) - p
+        turn3 = np.einsum("kci,ki->kc", np.cross(e_in3, e_out3), normal)
+        worst3 = np.argmin(turn3, axis=1)
+        reflex3 = np.take_along_axis(turn3, worst3[:, None], axis=1)[:, 0] < 0
+        return np.asarray(np.where(reflex3, worst3, -1), dtype=np.int64)
+    q = q[..., :2]
     e_in = q - np.roll(q, 1, axis=1)  # edge arriving at each corner
     e_out = np.roll(q, -1, axis=1) - q
     turn = e_in[..., 0] * e_out[..., 1] - e_in[..., 1] * e_out[..., 0]  # (T, 4)
@@ -98,7 +127,7 @@ def reflex_corners(quads: ArrayLike) -> IntArray:
     return np.asarray(np.where(reflex, worst, -1), dtype=np.int64)
 
 
-def convex_pieces(tiles: ArrayLike) -> NDArray[np.bool_]:
+def convex_pieces(tiles: ArrayLike, *, in_plane: bool = False) -> NDArray[np.bool_]:
     """Vertex masks ``(T, 2, 8)`` of the convex pieces of every 8-vertex tile.
 
     A tile whose top face (x, y) is convex is one piece (second mask all False).  A tile with
@@ -106,13 +135,14 @@ def convex_pieces(tiles: ArrayLike) -> NDArray[np.bool_]:
     is split along the diagonal plane through corners ``k``, ``k + 2`` and the bottom corners
     under them into two convex pieces, each holding both diagonal corners.  The tile is the
     union of its pieces; its convex hull is not (it fills the notch at the reflex corner), so
-    overlap and collision tests must use the pieces.
+    overlap and collision tests must use the pieces.  ``in_plane``: find the reflex corner in the
+    top face's own plane (assembled tiles in any orientation, see :func:`reflex_corners`).
     """
     t = np.asarray(tiles, dtype=np.float64)
     n = len(t)
     masks = np.zeros((n, 2, 8), dtype=bool)
     masks[:, 0] = True
-    k = reflex_corners(t[:, :4, :2])
+    k = reflex_corners(t[:, :4], in_plane=in_plane)
     rows = np.flatnonzero(k >= 0)
     if rows.size:
         kk = k[rows]
@@ -243,6 +273,8 @@ def _hull_separated(tiles: FloatArray, pairs: IntArray) -> NDArray[np.bool_]:
 def interpenetration(
     tiles: ArrayLike,
     trims: Sequence[tuple[int, ArrayLike]] | None = None,
+    *,
+    in_plane: bool = False,
 ) -> tuple[float, IntArray, FloatArray]:
     """Exact pairwise intersection volume of tiles (manifold3d).
 
@@ -256,6 +288,9 @@ def interpenetration(
         Convex polyhedra (vertex sets, mm) removed from a tile before measuring (``top`` hinge
         strategy: the overlap with a hinged neighbour that CAD subtracts); a tile may be listed
         several times.
+    in_plane : bool
+        Find non-convex tiles in their top face's own plane (assembled tiles) instead of in
+        (x, y) (flat tiles); see :func:`convex_pieces`.
 
     Returns
     -------
@@ -279,7 +314,7 @@ def interpenetration(
     for tile, points in trims or ():
         removed.setdefault(int(tile), []).append(np.asarray(points, dtype=np.float64))
 
-    pieces = convex_pieces(t)
+    pieces = convex_pieces(t, in_plane=in_plane)
 
     def hull(i: int) -> m3d.Manifold:
         if i not in hulls:
@@ -497,3 +532,172 @@ def heightfield_tiles(
     bottom = pts - thickness * nrm
     q = np.asarray(quads, dtype=np.int64)
     return pts[q], np.concatenate([pts[q], bottom[q]], axis=1)
+
+
+# --------------------------------------------------------------------------------------------
+# Assembled state (T3D): interpenetration of tiles and non-convex faces
+# --------------------------------------------------------------------------------------------
+
+
+def convex_penetration_depth(a: ArrayLike, b: ArrayLike) -> float:
+    """Penetration depth of two convex polyhedra given as vertex sets (separating-axis test).
+
+    The depth is the shortest translation that separates them: the smallest overlap of their
+    projections over all directions, which for convex polyhedra is attained on a face normal of
+    either hull or on the cross product of an edge of each (all are tried).
+
+    Parameters
+    ----------
+    a, b : (p, 3), (q, 3) float, mm
+        Vertices; each set must span 3D.
+
+    Returns
+    -------
+    float, mm
+        0 when they are separated or only touch.
+    """
+    pa = np.asarray(a, dtype=np.float64)
+    pb = np.asarray(b, dtype=np.float64)
+    axes: list[FloatArray] = []
+    edge_dirs: list[FloatArray] = []
+    for pts in (pa, pb):
+        hull = ConvexHull(pts)
+        axes.append(hull.equations[:, :3])
+        tri = hull.simplices
+        e = np.unique(np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]),
+                                axis=1), axis=0)  # fmt: skip
+        d = pts[e[:, 1]] - pts[e[:, 0]]
+        edge_dirs.append(d / np.linalg.norm(d, axis=1, keepdims=True))
+    cross = np.cross(edge_dirs[0][:, None, :], edge_dirs[1][None, :, :]).reshape(-1, 3)
+    norm = np.linalg.norm(cross, axis=1)
+    axes.append(cross[norm > 1e-9] / norm[norm > 1e-9, None])
+    ax = np.concatenate(axes)
+    proj_a = pa @ ax.T
+    proj_b = pb @ ax.T
+    overlap = np.minimum(proj_a.max(axis=0) - proj_b.min(axis=0),
+                         proj_b.max(axis=0) - proj_a.min(axis=0))  # fmt: skip
+    return float(max(overlap.min(), 0.0))
+
+
+#: Assembled tiles: penetration depth (mm) at or below which two tiles count as touching.
+ASSEMBLED_OVERLAP_DEPTH_TOL_MM = 1e-3
+
+
+@dataclass(frozen=True)
+class AssembledOverlap:
+    """Interpenetration and convexity of assembled tiles (T3D), measured on the tiles alone.
+
+    Attributes
+    ----------
+    volume_mm3 : float
+        Sum of the exact intersection volumes of the listed pairs (manifold3d, as
+        :func:`interpenetration`; a non-convex tile is the union of its convex pieces, not its
+        hull).  Neighbours that only share a contact face give 0.
+    depth_max_mm : float
+        Largest penetration depth (shortest separating translation of two tiles' convex
+        pieces, :func:`convex_penetration_depth`; max over piece pairs).  0 is right.
+    pairs : (P, 2) int
+        Tile pairs whose depth exceeds ``depth_tol_mm``.
+    volumes, depths : (P,) float, mm^3 and mm
+    neighbours : (P,) bool
+        The pair shares a tile corner in ``linkage`` (all False when no linkage was given).
+    nonconvex_top, nonconvex_bottom : (k,) int
+        Tiles whose top (bottom) face is not convex in its own plane (a dart or folded quad).
+    """
+
+    volume_mm3: float
+    depth_max_mm: float
+    pairs: IntArray
+    volumes: FloatArray
+    depths: FloatArray
+    neighbours: NDArray[np.bool_]
+    nonconvex_top: IntArray
+    nonconvex_bottom: IntArray
+
+    @property
+    def nonconvex_faces(self) -> int:
+        """Number of non-convex top plus bottom faces (0 is right)."""
+        return int(len(self.nonconvex_top) + len(self.nonconvex_bottom))
+
+    def to_json(self) -> dict[str, float | int]:
+        """``assembled_overlap_volume_mm3``, ``assembled_overlap_depth_max_mm``,
+        ``assembled_overlap_pairs``, ``assembled_nonconvex_top_faces``,
+        ``assembled_nonconvex_bottom_faces``."""
+        return {
+            "assembled_overlap_volume_mm3": float(self.volume_mm3),
+            "assembled_overlap_depth_max_mm": float(self.depth_max_mm),
+            "assembled_overlap_pairs": int(len(self.pairs)),
+            "assembled_nonconvex_top_faces": int(len(self.nonconvex_top)),
+            "assembled_nonconvex_bottom_faces": int(len(self.nonconvex_bottom)),
+        }
+
+
+def assembled_overlap(
+    tiles: ArrayLike,
+    linkage: Linkage | None = None,
+    *,
+    depth_tol_mm: float = ASSEMBLED_OVERLAP_DEPTH_TOL_MM,
+) -> AssembledOverlap:
+    """Interpenetration between assembled tiles (neighbours and any other nearby tile).
+
+    Independent of the optimizer: every pair of tiles closer than twice the largest tile
+    circumradius is tested (k-d tree, then a separating-axis cull, then an exact manifold3d
+    intersection), whether or not the tiles are neighbours in the linkage.  In the assembled
+    state neighbours share whole contact faces, so any positive volume is a physical clash.
+
+    Parameters
+    ----------
+    tiles : (T, 8, 3) float, mm
+        T3D tiles: top corners 0..3, bottom corners 4..7 under them (faces planar).
+    linkage : Linkage, optional
+        Only used to flag which overlapping pairs are neighbours (share a tile corner).
+    depth_tol_mm : float
+        Pairs whose penetration depth is at or below this are not listed (touching neighbours
+        whose shared faces are planar only to ~1e-6 mm give volumes of ~1e-3 mm^3 at depths of
+        ~1e-5 mm).
+
+    Returns
+    -------
+    AssembledOverlap
+    """
+    t = np.asarray(tiles, dtype=np.float64)
+    if t.ndim != 3 or t.shape[1:] != (8, 3):
+        raise InputError(f"assembled tiles must have shape (T, 8, 3), got {t.shape}")
+    nonconvex_top = np.flatnonzero(reflex_corners(t[:, :4], in_plane=True) >= 0)
+    nonconvex_bottom = np.flatnonzero(reflex_corners(t[:, 4:], in_plane=True) >= 0)
+    _, cand, vols = interpenetration(t, in_plane=True)  # pairs with a positive volume only
+    pieces = convex_pieces(t, in_plane=True)
+
+    def piece_sets(i: int) -> list[FloatArray]:
+        return [t[i][pieces[i, p]] for p in range(2) if pieces[i, p].any()]
+
+    depths = np.array(
+        [
+            max(
+                convex_penetration_depth(a, b)
+                for a in piece_sets(int(i))
+                for b in piece_sets(int(j))
+            )
+            for i, j in cand
+        ]
+    ).reshape(-1)
+    keep = depths > depth_tol_mm
+    pairs = cand[keep].astype(np.int64).reshape(-1, 2)
+    volumes, depths = vols[keep], depths[keep]
+    if linkage is not None and len(pairs):
+        corners = np.asarray(linkage.tile_corners)
+        neighbours = np.array(
+            [bool(np.intersect1d(corners[i], corners[j]).size) for i, j in pairs], dtype=bool
+        )
+    else:
+        neighbours = np.zeros(len(pairs), dtype=bool)
+    return AssembledOverlap(
+        volume_mm3=float(volumes.sum()),
+        depth_max_mm=float(depths.max(initial=0.0)),
+        pairs=pairs,
+        volumes=volumes,
+        depths=depths.reshape(-1),
+        neighbours=neighbours,
+        nonconvex_top=nonconvex_top.astype(np.int64),
+        nonconvex_bottom=nonconvex_bottom.astype(np.int64),
+    )

@@ -255,3 +255,48 @@ def test_bad_inputs_raise() -> None:
         optimize_assembled(vertices, inconsistent, target, tris, thickness=2.0)
     with pytest.raises(InputError):
         optimize_assembled(vertices, quads, target, tris, thickness=2.0, w_square=-1.0)
+
+
+def test_convex_corners_unfold_a_dart_and_leave_convex_quads_alone() -> None:
+    """Regression (three-shell, ~210 tiles): the K3D solve folded quads into darts. The convexity
+    group pushes a reflex corner back out past the margin and is inert on convex quads."""
+    from drawstring.geometry.assembled import CONVEX_MARGIN, ConvexCorners, corner_margins
+    from drawstring.geometry.solver import ClosenessToPoints, LocalGlobalSolver, Plane
+
+    square = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+    dart = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 4.0, 0.0]])
+    quads = np.array([[0, 1, 2, 3]])
+    up = np.array([[0.0, 0.0, 1.0]])
+    assert corner_margins(square, quads, up) == pytest.approx([0.5])
+    assert corner_margins(dart, quads, up)[0] < 0
+    assert corner_margins(square[::-1].copy(), quads, up) == pytest.approx([-0.5])  # turned over
+
+    group = ConvexCorners(quads, up)
+    a = group.matrix(4)
+    assert np.allclose(group.project(a @ square, square), a @ square)
+
+    solver = LocalGlobalSolver(
+        4,
+        [
+            Plane(quads, 1e4, name="planar"),
+            ClosenessToPoints(np.arange(4), dart, 1.0, name="keep"),
+            ConvexCorners(quads, up, 1e4, name="convex"),
+        ],
+    )
+    result = solver.solve(dart, max_iter=500)
+    assert corner_margins(result.X, quads, up)[0] >= CONVEX_MARGIN - 1e-3
+    assert np.all(np.diff(result.energy_history) <= 1e-9 * result.energy_history[0])
+
+
+def test_assembled_tiles_stay_convex_on_a_strongly_curved_cap() -> None:
+    """A deep cap at the paper's weights: every top face of T3D is convex and no tiles clash."""
+    from drawstring.geometry.verify import assembled_overlap
+
+    vertices, quads, target, target_faces = height_field_case(
+        lambda x, y: np.sqrt(np.maximum(80.0**2 - x**2 - y**2, 0.0)), n=8, size=100.0
+    )
+    result = optimize_assembled(vertices, quads, target, target_faces, thickness=4.0)
+    overlap = assembled_overlap(result.tiles)
+    assert overlap.nonconvex_faces == 0
+    assert overlap.depth_max_mm <= 1e-3
+    assert result.metrics["corner_margin_min"] > 0

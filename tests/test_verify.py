@@ -1,0 +1,77 @@
+"""Independent measurements of assembled tiles (geometry.verify.assembled_overlap)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drawstring.geometry.verify import (
+    assembled_overlap,
+    convex_penetration_depth,
+    reflex_corners,
+)
+
+
+def box(x0: float, y0: float, z0: float, dx: float, dy: float, dz: float) -> np.ndarray:
+    """An axis-aligned box as an 8-vertex tile: top corners counter-clockwise, bottom under."""
+    top = np.array([[x0, y0], [x0 + dx, y0], [x0 + dx, y0 + dy], [x0, y0 + dy]])
+    return np.vstack([np.c_[top, np.full(4, z0 + dz)], np.c_[top, np.full(4, z0)]])
+
+
+def rotate(tiles: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rotate tiles rigidly (Rodrigues) so that nothing lies in the (x, y) plane."""
+    k = axis / np.linalg.norm(axis)
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    r = np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * kx @ kx
+    return np.asarray(tiles @ r.T)
+
+
+def test_overlapping_boxes_known_volume_and_depth() -> None:
+    a = box(0.0, 0.0, 0.0, 10.0, 10.0, 4.0)
+    b = box(8.5, 2.0, 1.0, 10.0, 10.0, 4.0)  # overlap 1.5 x 8 x 3
+    tiles = rotate(np.stack([a, b]), np.array([1.0, 2.0, 0.5]), 0.7)
+    result = assembled_overlap(tiles)
+    assert result.volume_mm3 == pytest.approx(1.5 * 8.0 * 3.0, rel=1e-9)
+    assert result.depth_max_mm == pytest.approx(1.5, rel=1e-9)
+    assert result.pairs.tolist() == [[0, 1]]
+    assert result.nonconvex_faces == 0
+    assert convex_penetration_depth(a, b) == pytest.approx(1.5, rel=1e-12)
+
+
+def test_neighbours_sharing_a_face_do_not_count() -> None:
+    tiles = np.stack(
+        [box(10.0 * i, 10.0 * j, 0.0, 10.0, 10.0, 3.0) for i in range(3) for j in range(3)]
+    )
+    tiles = rotate(tiles, np.array([0.3, -1.0, 0.2]), 1.1)
+    result = assembled_overlap(tiles)
+    assert result.volume_mm3 == 0.0
+    assert result.depth_max_mm == 0.0
+    assert len(result.pairs) == 0
+    assert result.to_json()["assembled_overlap_pairs"] == 0
+
+
+def test_dart_tile_is_counted_and_measured_as_its_pieces() -> None:
+    """A dart-shaped (folded) top face is reported; a box resting in its notch touches it only,
+    although the two convex hulls overlap."""
+    dart_top = np.array([[0.0, 0.0], [4.0, 0.0], [2.0, 1.0], [0.0, 4.0]])  # corner 2 reflex
+    dart = np.vstack([np.c_[dart_top, np.full(4, 2.0)], np.c_[dart_top, np.zeros(4)]])
+    notch = np.vstack(
+        [
+            np.c_[np.array([[2.0, 1.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0]]), np.full(4, 2.0)],
+            np.c_[np.array([[2.0, 1.0], [4.0, 0.0], [4.0, 4.0], [0.0, 4.0]]), np.zeros(4)],
+        ]
+    )
+    tiles = rotate(np.stack([dart, notch]), np.array([1.0, 1.0, 1.0]), 0.9)
+    assert list(reflex_corners(tiles[:, :4], in_plane=True)) == [2, -1]
+    result = assembled_overlap(tiles)
+    assert result.nonconvex_top.tolist() == [0]
+    assert result.nonconvex_bottom.tolist() == [0]
+    assert result.volume_mm3 == pytest.approx(0.0, abs=1e-9)
+    assert len(result.pairs) == 0
+    # The neighbour pushed 0.5 mm towards the dart's reflex corner now cuts into the dart.
+    pushed = tiles.copy()
+    shift = rotate(np.array([[[0.0, -0.5, 0.0]]]), np.array([1.0, 1.0, 1.0]), 0.9)[0, 0]
+    pushed[1] += shift
+    moved = assembled_overlap(pushed)
+    assert moved.volume_mm3 > 0.1
+    assert moved.depth_max_mm > 0.1
