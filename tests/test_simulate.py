@@ -295,3 +295,22 @@ def test_table_contact_pivots_a_tile_instead_of_shoving_it() -> None:
     assert np.allclose(S.tile_edge_lengths(out), S.tile_edge_lengths(tile))
     top = np.argmax(tilted[:, 2])
     assert out[0, top, 2] - tilted[top, 2] < 1.0  # pivoted: the high corner rose less
+
+
+def test_best_rotations_match_the_svd_kabsch() -> None:
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    rest = rng.normal(size=(40, 8, 3)) * np.array([5.0, 5.0, 1.5])
+    rest -= rest.mean(axis=1, keepdims=True)
+    turn = Rotation.random(40, random_state=4).as_matrix()
+    cur = rest @ turn.transpose(0, 2, 1) + 0.05 * rng.normal(size=rest.shape)
+    cov = rest.transpose(0, 2, 1) @ cur
+    cov[0] = np.diag([1.0, 1.0, -1.0])  # a reflection: only the SVD fallback handles it
+    exact = S._svd_rotations(cov)
+    nudge = Rotation.from_rotvec(0.02 * rng.normal(size=(40, 3))).as_matrix()
+    # far guesses (identities) and near ones (the answer nudged) both land on the SVD answer
+    for guess in (np.tile(np.eye(3), (40, 1, 1)), exact @ nudge):
+        got = S.best_rotations(cov, guess)
+        np.testing.assert_allclose(got, exact, atol=1e-10)
+        np.testing.assert_allclose(np.linalg.det(got), 1.0, atol=1e-12)
