@@ -72,8 +72,11 @@ def pipeline_rows(names: list[str], tiles: int) -> list[dict[str, Any]]:
 
     rows: list[dict[str, Any]] = []
     for name in names:
+        cpu = time.process_time()
         result = design(name, DesignOptions(tiles=tiles, size_mm=200.0, cad=False))
+        cpu = time.process_time() - cpu
         m = result.metrics()
+        sim = m.get("simulation", {})
         rows.append(
             {
                 "case": name,
@@ -84,7 +87,16 @@ def pipeline_rows(names: list[str], tiles: int) -> list[dict[str, Any]]:
                 "gap_deg": f"{m.get('flat_gap_angle_min_deg', 0):.1f}-"
                 f"{m.get('flat_gap_angle_max_deg', 0):.1f}",
                 "hinge_gap_mm": m.get("hinge_gap_max_mm"),
+                "flat_edge_error_mm": m.get("flat_edge_error_max_mm"),
+                "surface_mean_pct": round(
+                    100 * m["surface_distance_mean_mm"] / m["tile_side_mean_mm"], 2
+                ),
                 "lift": m["lift_points"]["count"],
+                "deployed": sim.get("deployed"),
+                "sim_steps": sim.get("steps"),
+                "sim_runs": sim.get("runs"),
+                "rigidity_null_dim": m["rigidity"]["null_dimension"],
+                "cpu_s": round(cpu, 2),
                 "problems": len(result.problems),
             }
         )
