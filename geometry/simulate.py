@@ -25,6 +25,16 @@ factor is reused), and these groups, each with its own module-level class below:
   assembled distance;
 * ``lift`` -- the string's exits: the top corners around every lift gap are pulled up to their
   assembled height (the assembled tiles placed on the table under the flat layout);
+* ``stick`` -- static friction in the settle: once the string is reeled in, a hinged neighbour
+  pair whose contact faces lie face on face (every corner within ``stick_rel``, 3 % of a tile
+  side, of its assembled partner corner; :func:`face_on_face`) sticks: its corners are held
+  together from then on, as in the assembled state.  Faces pressed together by the taut
+  string neither slide nor separate under static friction.  Without this the unilateral
+  contacts alone fix the interior: after the boundary loop closes, the linkage is isostatic
+  but its softest flex is nearly free (smallest nonzero singular value of the rigidity matrix
+  ~6e-6 relative), and the settle of a 40 x 40 linkage crept for hundreds of steps.  Pairs
+  only stick once close to face on face, so nothing sticks in the flat pose or without the
+  string; the group is rebuilt (one factorization) when more pairs stick;
 * the table -- tiles never dip below the lowest level of the flat pose (rigid push up).
 
 String actuation: the string is *reeled in*.  Each snap row may be at most ``r(t)`` long and
@@ -96,6 +106,7 @@ __all__ = [
     "lift_targets_for_gaps",
     "max_penetration",
     "contact_face_pairs",
+    "face_on_face",
     "split_contact_pairs",
     "route_snap_pairs",
     "route_steps",
@@ -861,6 +872,12 @@ class SimulationSettings:
     rigid_projection : after every step each tile is replaced by the closest rigid copy of its
         rest shape, so the rigid edges hold exactly in every frame (not just up to the soft
         rigid weight's residual).
+    stick : weight of static friction in the settle: a hinged neighbour pair whose contact
+        faces came within ``stick_rel`` tile sides of lying face on face (every corner next to
+        its assembled partner corner) sticks -- its corners are held together from then on
+        (0: no sticking).
+    stick_rel : how close (tile sides, largest corner distance) two contact faces must come
+        before they stick.
     """
 
     time_step_s: float = 0.002
@@ -887,6 +904,8 @@ class SimulationSettings:
     magnets: float = 3e3
     magnet_rate: float = 0.1
     rigid_projection: bool = True
+    stick: float = 3e4
+    stick_rel: float = 0.03
 
 
 #: Slower, better converged settings: twice the local-global iterations per step, one more
@@ -1093,6 +1112,12 @@ def simulate_deployment(
             magnet_rows = magnet.matrix(n)
             magnet.radius = np.full(len(magnet.row_pair), _FREE)
             magnet_start = np.linalg.norm(magnet_rows @ x, axis=1)
+    # Static friction (the settle only): contact faces pressed together stick.  The ``stick``
+    # group holds the pairs that have stuck (rebuilt, one factorization, when more stick).
+    use_stick = bool(len(faces)) and cfg.stick > 0
+    face_partner = _face_partners(goal, faces)
+    stuck = np.zeros(len(faces), dtype=bool)
+    level = 1.0
     snap: FaceSnap | None = None
     if len(pairs):
         partner = _face_partners(goal, pairs)
@@ -1171,6 +1196,7 @@ def simulate_deployment(
         if lift is not None:
             lift.targets = lift_start + smooth * (lift_goal - lift_start)
         if step in lock_at:
+            level = lock_at[step]
             for name, weight in base.items():
                 if weight > 0:
                     solver.set_weight(name, weight * lock_at[step] * w_in)
@@ -1186,6 +1212,23 @@ def simulate_deployment(
             magnet.radius = np.where(
                 engaged, np.maximum(reeled, (1.0 - smooth) * magnet_start), _FREE
             )
+        if use_stick and step > cfg.ramp_steps:
+            tiles_now = x.reshape(n_tiles, 8, 3)
+            newly = ~stuck & face_on_face(tiles_now, faces, face_partner, cfg.stick_rel * side)
+            if newly.any():
+                stuck |= newly
+                stick = FaceSnap(
+                    faces[stuck],
+                    cfg.stick * level * w_in,
+                    mode="face",
+                    partner=face_partner[stuck],
+                    name="stick",
+                )
+                if "stick" in base:
+                    solver.replace_group(stick)
+                else:
+                    solver.add_group(stick)
+                    base["stick"] = cfg.stick
         on_table = cfg.table and step <= cfg.ramp_steps
         # After the reel-in the string holds the structure: the settle is quasi-static, without
         # the table (which pins a corner the lift heights may not agree with) and gravity.
@@ -1474,6 +1517,30 @@ def _face_partners(goal: FloatArray, pairs: IntArray) -> IntArray:
     fb = goal[pairs[:, 2, None], SIDE_FACES[pairs[:, 3]]]
     dist = np.linalg.norm(fa[:, :, None] - fb[:, None, :], axis=3)
     return np.asarray(np.argmin(dist, axis=2), dtype=np.int64)
+
+
+def face_on_face(
+    tiles: FloatArray, pairs: IntArray, partner: IntArray, limit: float
+) -> NDArray[np.bool_]:
+    """Which face pairs lie face on face: every corner within ``limit`` of its partner corner.
+
+    Parameters
+    ----------
+    tiles : (T, 8, 3) float, mm
+    pairs : (k, 4) int, ``(tile_a, side_a, tile_b, side_b)``.
+    partner : (k, 4) int, partner corner in face b of every corner of face a
+        (:func:`_face_partners` of the assembled tiles).
+    limit : float, mm.
+
+    Returns
+    -------
+    (k,) bool
+    """
+    fa = tiles[pairs[:, 0, None], SIDE_FACES[pairs[:, 1]]]  # (k, 4, 3)
+    fb = np.take_along_axis(
+        tiles[pairs[:, 2, None], SIDE_FACES[pairs[:, 3]]], partner[..., None], 1
+    )
+    return np.asarray(np.linalg.norm(fa - fb, axis=2).max(axis=1) < limit, dtype=bool)
 
 
 def _tile_volumes(tiles: FloatArray) -> FloatArray:

@@ -314,3 +314,20 @@ def test_best_rotations_match_the_svd_kabsch() -> None:
         got = S.best_rotations(cov, guess)
         np.testing.assert_allclose(got, exact, atol=1e-10)
         np.testing.assert_allclose(np.linalg.det(got), 1.0, atol=1e-12)
+
+
+def test_faces_stick_only_face_on_face(scene4: S.DeploymentScene) -> None:
+    """Static friction engages for contact faces that lie face on face (assembled), never in
+    the flat pose, where hinged neighbours are rotated apart."""
+    faces = S.contact_face_pairs(scene4.linkage)
+    partner = S._face_partners(scene4.tiles_assembled, faces)
+    limit = S.SimulationSettings().stick_rel * S.mean_tile_side(scene4.tiles_assembled)
+    assert S.face_on_face(scene4.tiles_assembled, faces, partner, limit).all()
+    assert not S.face_on_face(scene4.tiles_flat, faces, partner, limit).any()
+    # A pair moved apart by twice the limit along the face normal no longer sticks.
+    moved = scene4.tiles_assembled.copy()
+    a = faces[0, 0]
+    normal = S._side_normals(moved, faces[:1, 0], faces[:1, 1])[0]
+    moved[a] += 2.0 * limit * normal
+    stick = S.face_on_face(moved, faces, partner, limit)
+    assert not stick[0] and stick[np.all(faces[:, [0, 2]] != a, axis=1)].all()
