@@ -964,7 +964,16 @@ class SimulationResult:
             "open_gaps": list(self.open_gaps),
             "max_edge_error_mm": self.max_edge_error_mm,
             "per_step_ms": self.per_step_ms,
+            "reasons": list(self.reasons),
+            "worst_tiles": self.worst_tiles(),
         }
+
+    def worst_tiles(self, count: int = 5) -> list[dict[str, float | int]]:
+        """Where the run ended farthest from the assembled shape: the ``count`` tiles with the
+        largest deviation (tile id, mm), largest first."""
+        dev = np.asarray(self.tile_deviation_mm, dtype=np.float64)
+        order = np.argsort(-dev, kind="stable")[:count]
+        return [{"tile": int(t), "deviation_mm": float(dev[t])} for t in order]
 
 
 def _check_inputs(
@@ -1358,7 +1367,8 @@ def simulate_stage(
     hinge_vertices : (H, 2) int, ``tile * 8 + vertex`` of both tiles of every hinge.
     route : the closed string route (:class:`~drawstring.geometry.route.Route` or ``(r, 4)``
         steps).
-    lift_gaps : (L,) int, gap ids of the lift points.
+    lift_gaps : (L,) int, gap ids of the lift points; those the route does not pass are not
+        pulled (the string leaves the structure only on its route).
     thickness : float, mm, optional consistency check of the flat pose.
     gravity, settings, tolerances, frame_every : see :func:`simulate_deployment`.
     retry : when ``settings`` is not given and the default run gets stuck, run again with these
@@ -1370,9 +1380,19 @@ def simulate_stage(
     -------
     SimulationResult
     """
-    pairs, pair_gaps = route_snap_pairs(route_steps(route))
+    steps = route_steps(route)
+    pairs, pair_gaps = route_snap_pairs(steps)
     goal = np.asarray(tiles_assembled, dtype=np.float64)
-    verts, targets = lift_targets_for_gaps(linkage, goal, lift_gaps)
+    # The string can only pull where it leaves the structure: a lift gap the route does not
+    # pass (metrics.route.lift_gaps_missed) is not pulled.
+    wanted = np.asarray(lift_gaps, dtype=np.int64).reshape(-1)
+    reached = wanted[np.isin(wanted, steps[:, 0])]
+    if len(reached) < len(wanted):
+        logger.info(
+            "simulation: lift gaps %s are not on the route and are not pulled",
+            sorted(set(wanted.tolist()) - set(reached.tolist())),
+        )
+    verts, targets = lift_targets_for_gaps(linkage, goal, reached)
 
     def run(cfg: SimulationSettings | None) -> SimulationResult:
         return simulate_deployment(

@@ -331,3 +331,22 @@ def test_faces_stick_only_face_on_face(scene4: S.DeploymentScene) -> None:
     moved[a] += 2.0 * limit * normal
     stick = S.face_on_face(moved, faces, partner, limit)
     assert not stick[0] and stick[np.all(faces[:, [0, 2]] != a, axis=1)].all()
+
+
+def test_a_lift_gap_off_the_route_is_not_pulled(scene4: S.DeploymentScene) -> None:
+    """The string leaves the structure only where the route passes: a lift gap the route does
+    not reach changes nothing; a stuck run says why and where."""
+    steps = np.array(scene4.route)
+    centre = centre_gap(scene4)
+    assert centre not in steps[:, 0]  # the boundary loop does not pass the centre gap
+    args = (scene4.linkage, scene4.tiles_flat, scene4.tiles_assembled, scene4.hinge_vertices)
+    short = S.SimulationSettings(max_steps=40, ramp_steps=30)
+    with_lift = S.simulate_stage(*args, steps, [centre], scene4.thickness, settings=short)
+    without = S.simulate_stage(*args, steps, [], scene4.thickness, settings=short)
+    assert np.array_equal(with_lift.frames, without.frames)
+    verts, targets = S.lift_targets_for_gaps(scene4.linkage, scene4.tiles_assembled, [centre])
+    assert len(verts) > 0  # the gap itself has tiles to pull
+    block = without.to_json()
+    worst = block["worst_tiles"]
+    assert len(worst) == 5 and worst[0]["deviation_mm"] == without.final_max_deviation_mm
+    assert block["reasons"] == list(without.reasons)
