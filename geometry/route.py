@@ -1306,7 +1306,8 @@ def route_to_json(
             }
         )
     return {
-        "closed": True,
+        # Measured: the wrap from the last step back to the first is a contact-partner crossing.
+        "closed": bool(r > 2 and 0 not in channel_partner_faults(route, linkage)),
         "method": route.method,
         "turn_angle_total_rad": route.turn_angle_total_rad,
         "lower_bound_rad": route.lower_bound_rad,

@@ -277,6 +277,10 @@ def test_metrics_json_and_the_partner_check() -> None:
     assert len(doc["steps"]) == len(route.gaps)
     assert all(0 <= s["enter_side"] <= 3 and 0 <= s["leave_side"] <= 3 for s in doc["steps"])
     assert doc["lift_points"][0]["gap"] == lift and doc["lift_points"][0]["on_route"]
+    assert doc["closed"] is True
+    # the wrap from the last step to the first is measured: break it and the route is open
+    broken = dataclasses.replace(route, tiles=np.roll(route.tiles, 1))
+    assert route_to_json(broken, linkage, pos, asm, [lift])["closed"] is False
     labels = gap_graph(linkage, pos).nodes(data="label")
     assert {lab for _, lab in labels} <= {0, 1, NODE_ENTRANCE, NODE_SPLIT}
     # the check measures: a route whose tile sequence skips a partner fails it
