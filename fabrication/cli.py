@@ -82,6 +82,14 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
         default=(1e4, 10.0, 0.1),
         help="assembled-shape weights (paper: 10000 10 0.1; 10000 1 100 hugs the target)",
     )
+    p.add_argument(
+        "--up",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        default=(0.0, 0.0, 1.0),
+        help="the assembled shape's resting up axis, for the lift points (default 0 0 1)",
+    )
     p.add_argument("--no-simulate", action="store_true", help="skip the deployment simulation")
     p.add_argument("--no-cad", action="store_true", help="skip solids and fabrication files")
     p.add_argument("--seed", type=int, default=0, help="seed for any randomized step")
@@ -126,6 +134,7 @@ def _run_design(args: argparse.Namespace) -> int:
         corners=tuple(args.corners) if args.corners else None,
         hinges=args.hinges,
         weights=tuple(args.weights),
+        up=tuple(args.up),
         simulate=not args.no_simulate,
         cad=not args.no_cad,
         seed=args.seed,

@@ -92,6 +92,7 @@ class DesignOptions:
     corners: tuple[int, int, int, int] | None = None
     hinges: HingeStrategy = "dual"
     weights: tuple[float, float, float] = (1e4, 10.0, 0.1)
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
     simulate: bool = True
     cad: bool = True
     seed: int = 0
@@ -131,6 +132,14 @@ class DesignOptions:
             )
         if self.hinges not in HINGE_STRATEGIES:
             raise InputError(f"--hinges must be dual or top (got {self.hinges!r})")
+        if (
+            len(self.up) != 3
+            or not all(math.isfinite(c) for c in self.up)
+            or math.hypot(*self.up) < 1e-9
+        ):
+            raise InputError(
+                f"--up needs three finite numbers, not all zero, e.g. 0 0 1 (got {self.up})"
+            )
         if not (math.isfinite(self.max_scale_factor) and 1 < self.max_scale_factor <= 2):
             raise InputError(
                 f"--max-scale-factor must be in (1, 2] (got {self.max_scale_factor}); "
@@ -153,6 +162,7 @@ class ResolvedOptions:
     corners: tuple[int, int, int, int] | None
     hinges: HingeStrategy
     weights: tuple[float, float, float]
+    up: tuple[float, float, float]
     simulate: bool
     cad: bool
     seed: int
@@ -320,6 +330,7 @@ def resolve_options(options: DesignOptions, profile: Profile) -> ResolvedOptions
         corners=options.corners,
         hinges=options.hinges,
         weights=tuple(options.weights),  # type: ignore[arg-type]
+        up=tuple(float(c) / math.hypot(*options.up) for c in options.up),  # type: ignore[arg-type]
         simulate=options.simulate,
         cad=options.cad,
         seed=options.seed,
@@ -483,6 +494,7 @@ def design(
             linkage,
             assembled.tiles.mean(axis=1),
             masses,
+            up=resolved.up,
             gap_positions=gap_centroids(linkage, assembled.tiles[:, :4]),
             deploy_check=deploy_check,
         )

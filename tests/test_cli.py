@@ -172,6 +172,8 @@ def test_bad_meshes_exit_2_with_one_line_and_no_folder(case: str, tmp_path: Path
         (["saddle", "--hinges", "middle"], "invalid choice"),
         (["saddle", "--grid", "0", "5"], "--grid"),
         (["saddle", "--thickness", "0"], "--thickness"),
+        (["saddle", "--up", "0", "0", "0"], "--up"),
+        (["saddle", "--up", "0", "nan", "1"], "--up"),
     ],
 )
 def test_bad_options_exit_2(args: list[str], words: str, tmp_path: Path) -> None:

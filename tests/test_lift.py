@@ -52,6 +52,24 @@ def test_dome_has_one_lift_point_at_its_apex() -> None:
     assert lift.sweep[0][0] == pytest.approx(0.8)
 
 
+def test_up_axis_option_follows_the_resting_pose() -> None:
+    """The dome turned on its side (apex along +x) with ``up = +x`` lifts at the same apex and
+    pulls along +x; with the default +z it does not."""
+
+    def cap(x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.sqrt(150.0**2 - (x - 60.0) ** 2 - (y - 60.0) ** 2)
+
+    linkage, cent = _height_field(12, 12, cap)
+    turned = cent[:, [2, 1, 0]]  # x <-> z: the apex now points along +x
+    masses = np.full(linkage.n_tiles, 0.01)
+    upright = select_lift_points(linkage, cent, masses)
+    lift = select_lift_points(linkage, turned, masses, up=(1.0, 0.0, 0.0))
+    assert lift.lift_gaps.tolist() == upright.lift_gaps.tolist()
+    np.testing.assert_allclose(lift.pull_directions, [[1.0, 0.0, 0.0]])
+    wrong = select_lift_points(linkage, turned, masses)
+    assert wrong.lift_gaps.tolist() != upright.lift_gaps.tolist()
+
+
 def test_two_far_bumps_with_a_deep_valley_need_two_lift_points() -> None:
     def bumps(x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
         a = np.exp(-((x - 35.0) ** 2 + (y - 55.0) ** 2) / 20.0**2)
