@@ -35,8 +35,9 @@ safeguard evaluates ``E`` at the accelerated iterate (its projections are then r
 global step); when it is not lower than the energy of the last accepted iterate, the iterate is
 discarded, the plain local-global step is taken instead and the history is reset. The accepted
 energies therefore decrease monotonically exactly as without acceleration. After a rejection
-the next attempt waits 1, 2, 4, ... plain steps (up to ``ANDERSON_MAX_BACKOFF``), so that stiff
-problems where acceleration keeps failing do not pay for a wasted projection every iteration.
+the next attempt waits 1, 2, 4, ... plain steps (up to ``max_backoff``, by default
+``ANDERSON_MAX_BACKOFF``), so that stiff problems where acceleration keeps failing do not pay
+for a wasted projection every iteration.
 
 Exact planarity
 ---------------
@@ -51,7 +52,10 @@ Subclass :class:`ConstraintGroup`: give ``matrix(n_vertices)`` (the constant ``A
 a rigid tile is :class:`EdgeLength` over its 18 edges; a hinge connection is a difference row
 ``v_a - v_b`` projected to zero; a lift is :class:`ClosenessToPoints` whose targets are moved with
 :meth:`ClosenessToPoints.set_targets` (no refactor); an inequality (collision, gap angle) returns
-the current value of ``A X`` where it is satisfied so its matrix stays constant.
+the current value of ``A X`` where it is satisfied so its matrix stays constant. A group whose
+projection is expensive may override :meth:`ConstraintGroup.project_warm` with a cheaper
+approximate one that is never worse than the last accepted target (see
+:class:`ClosenessToSurface`).
 """
 
 from __future__ import annotations
@@ -59,7 +63,7 @@ from __future__ import annotations
 import logging
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import igl
@@ -234,6 +238,49 @@ def smallest_eigenvectors(matrices: FloatArray) -> FloatArray:
     return out
 
 
+class _NormalMemo:
+    """The last batch of centred point sets given to :func:`centred_normals` and its result.
+
+    In one local step of the K3D solve, :class:`Plane` and the oriented
+    :class:`SimilarityToSquare` receive bitwise identical rows (both groups centre the same
+    quads), so the second one reuses the first one's eigenvectors instead of recomputing them.
+    """
+
+    points: FloatArray | None = None
+    normals: FloatArray | None = None
+    hits = 0
+
+
+def centred_normals(points: FloatArray) -> FloatArray:
+    """Least-variance unit directions of many centred point sets (sign arbitrary).
+
+    The same as ``smallest_eigenvectors(covariances(points))``; a repeated call with an equal
+    array returns the previous result (read-only) without recomputing it.
+
+    Parameters
+    ----------
+    points : (k, s, dim) float, each set centred on its centroid
+
+    Returns
+    -------
+    normals : (k, dim) float, read-only
+    """
+    memo_points = _NormalMemo.points
+    if (
+        memo_points is not None
+        and _NormalMemo.normals is not None
+        and memo_points.shape == points.shape
+        and np.array_equal(memo_points, points)
+    ):
+        _NormalMemo.hits += 1
+        return _NormalMemo.normals
+    normals = smallest_eigenvectors(covariances(points))
+    normals.flags.writeable = False
+    _NormalMemo.points = np.array(points, dtype=np.float64)
+    _NormalMemo.normals = normals
+    return normals
+
+
 def plane_fit(points: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Least-squares planes (hyperplanes in 2D: lines) of many point sets at once.
 
@@ -298,6 +345,20 @@ class ConstraintGroup(ABC):
         targets : (rows, dim) float
         """
 
+    def project_warm(self, ax: FloatArray, x: FloatArray, previous: FloatArray) -> FloatArray:
+        """Targets for ``ax`` inside a solve, given this group's targets at the last accepted
+        iterate (``previous``, same shape as ``ax``).
+
+        The default is the exact :meth:`project`. A group whose projection is cheaper when
+        approximate (e.g. :class:`ClosenessToSurface` with ``requery_rel > 0``) overrides this
+        and must return targets, each a point of its constraint set, no farther from ``ax`` than
+        ``previous`` is: then the local step never raises the energy and the solver's
+        monotonicity (and Anderson's safeguard) still hold, for the energy evaluated with the
+        targets actually used. Called only by :meth:`LocalGlobalSolver.solve` after its first
+        local step; :meth:`LocalGlobalSolver.energies` and the first step use :meth:`project`.
+        """
+        return self.project(ax, x)
+
 
 class ClosenessToPoints(ConstraintGroup):
     """Keep vertices near target points (anchors, lift targets).
@@ -348,11 +409,25 @@ class ClosenessToSurface(ConstraintGroup):
 
     The AABB tree of the surface is built once here.
 
+    A query is several times slower for a point several triangle sizes off the surface than for
+    one on it, and the points of a converging solve move little per iteration. With
+    ``requery_rel > 0`` the solver's iterations (:meth:`project_warm`) query the tree only for
+    points that moved more than ``requery_rel`` times their distance to the surface since their
+    last query, or whose foot on the triangle found then has left that triangle; every other
+    point is projected onto that triangle's plane (inside the triangle: the closest point of the
+    triangle). That target is exact for the triangle, and off the true closest point of the mesh
+    by at most ``2 requery_rel / (1 - requery_rel)`` of the point's distance (it is the true
+    closest point unless another part of the mesh came closer by moving less than that), and it
+    is never farther from the point than the previous target, which keeps the solve monotone.
+    The first step of a solve and :meth:`LocalGlobalSolver.energies` always query every point.
+
     Parameters
     ----------
     indices : (k,) int
     surface_vertices : (p, 3) float, mm
     surface_faces : (f, 3) int
+    requery_rel : float
+        In ``[0, 0.5)``; 0 (default) queries every point in every iteration.
     """
 
     def __init__(
@@ -362,6 +437,7 @@ class ClosenessToSurface(ConstraintGroup):
         surface_faces: ArrayLike,
         weight: float = 1.0,
         name: str = "surface",
+        requery_rel: float = 0.0,
     ) -> None:
         super().__init__(name, weight)
         self.indices = np.asarray(indices, dtype=np.int64).reshape(-1)
@@ -371,8 +447,29 @@ class ClosenessToSurface(ConstraintGroup):
             raise InputError("surface vertices must have shape (p, 3); pass a 3D triangle mesh")
         if self.surface_faces.ndim != 2 or self.surface_faces.shape[1] != 3:
             raise InputError("surface faces must have shape (f, 3); triangulate the target mesh")
+        if not 0.0 <= requery_rel < 0.5:
+            raise InputError(f"requery_rel is {requery_rel}; use a value in [0, 0.5)")
+        self.requery_rel = float(requery_rel)
         self.tree = igl.AABB()
         self.tree.init(self.surface_vertices, self.surface_faces)
+        #: Points queried through the tree so far (a statistic of the lazy re-query).
+        self.points_queried = 0
+        # lazy re-query state, per row: position at the last query, its closest triangle and
+        # the distance it may move before the next query
+        self._anchor = np.zeros((0, 3))
+        self._face = np.zeros(0, dtype=np.int64)
+        self._reach2 = np.zeros(0)
+
+    def _query(self, points: FloatArray) -> tuple[FloatArray, IntArray, FloatArray]:
+        sqd, face, closest = self.tree.squared_distance(
+            self.surface_vertices, self.surface_faces, np.ascontiguousarray(points)
+        )
+        self.points_queried += len(points)
+        return (
+            np.asarray(sqd, dtype=np.float64),
+            np.asarray(face, dtype=np.int64),
+            np.asarray(closest, dtype=np.float64),
+        )
 
     def closest_points(self, points: FloatArray) -> FloatArray:
         """Closest points on the surface.
@@ -385,16 +482,55 @@ class ClosenessToSurface(ConstraintGroup):
         -------
         closest : (k, 3) float, mm
         """
-        _, _, closest = self.tree.squared_distance(
-            self.surface_vertices, self.surface_faces, np.ascontiguousarray(points)
-        )
-        return np.asarray(closest, dtype=np.float64)
+        return self._query(points)[2]
 
     def matrix(self, n_vertices: int) -> sp.csr_matrix:
         return selection_matrix(self.indices, n_vertices)
 
     def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
-        return self.closest_points(ax)
+        sqd, face, closest = self._query(ax)
+        if self.requery_rel > 0:
+            self._anchor = np.array(ax, dtype=np.float64)
+            self._face = face
+            self._reach2 = self.requery_rel**2 * sqd
+        return closest
+
+    def project_warm(self, ax: FloatArray, x: FloatArray, previous: FloatArray) -> FloatArray:
+        if self.requery_rel <= 0 or self._anchor.shape != ax.shape:
+            return self.project(ax, x)
+        moved2 = np.einsum("ki,ki->k", ax - self._anchor, ax - self._anchor)
+        near = np.flatnonzero(moved2 <= self._reach2)
+        out = np.empty_like(ax)
+        keep = np.zeros(len(ax), dtype=bool)
+        if near.size:
+            tri = self.surface_vertices[self.surface_faces[self._face[near]]]
+            a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+            normal = cross3(b - a, c - a)
+            nn = np.einsum("ki,ki->k", normal, normal)
+            safe = np.where(nn > 0, nn, 1.0)
+            p = ax[near]
+            foot = p - (np.einsum("ki,ki->k", p - a, normal) / safe)[:, None] * normal
+            w_a = np.einsum("ki,ki->k", cross3(c - b, foot - b), normal)
+            w_b = np.einsum("ki,ki->k", cross3(a - c, foot - c), normal)
+            inside = (nn > 0) & (w_a >= 0) & (w_b >= 0) & (w_a + w_b <= nn)
+            kept = near[inside]
+            out[kept] = foot[inside]
+            keep[kept] = True
+        fresh = np.flatnonzero(~keep)
+        if fresh.size:
+            sqd, face, closest = self._query(ax[fresh])
+            out[fresh] = closest
+            self._anchor[fresh] = ax[fresh]
+            self._face[fresh] = face
+            self._reach2[fresh] = self.requery_rel**2 * sqd
+        # the kept targets are exact for their triangle; never let one be worse than the last
+        kept_rows = np.flatnonzero(keep)
+        if kept_rows.size:
+            to_new = ax[kept_rows] - out[kept_rows]
+            to_old = ax[kept_rows] - previous[kept_rows]
+            worse = np.einsum("ki,ki->k", to_new, to_new) > np.einsum("ki,ki->k", to_old, to_old)
+            out[kept_rows[worse]] = previous[kept_rows[worse]]
+        return out
 
 
 class EdgeLength(ConstraintGroup):
@@ -474,7 +610,7 @@ class Plane(ConstraintGroup):
     def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
         k, s = self.faces.shape
         pts = ax.reshape(k, s, -1)
-        normal = smallest_eigenvectors(covariances(pts))
+        normal = centred_normals(pts)
         height = np.einsum("ksi,ki->ks", pts, normal)
         return (pts - height[:, :, None] * normal[:, None, :]).reshape(ax.shape)
 
@@ -637,8 +773,8 @@ def _closest_oriented_squares(pts: FloatArray, reference: FloatArray) -> FloatAr
     -------
     squares : (k, 4, 3) float
     """
-    normal = smallest_eigenvectors(covariances(pts))
-    normal *= np.where(np.einsum("ki,ki->k", normal, reference) < 0, -1.0, 1.0)[:, None]
+    normal = centred_normals(pts)
+    normal = normal * np.where(np.einsum("ki,ki->k", normal, reference) < 0, -1.0, 1.0)[:, None]
     # in-plane frame (e1, e2, normal), right-handed
     seed = pts[:, 1] + pts[:, 2] - pts[:, 0] - pts[:, 3]
     seed -= np.einsum("ki,ki->k", seed, normal)[:, None] * normal
@@ -789,6 +925,8 @@ class SolverResult:
         Anderson iterates kept / discarded by the energy safeguard.
     factorizations : int
         Sparse factorizations performed during this solve (0 when a cached factor was reused).
+    stopped : bool
+        Stopped early by the ``callback`` of :meth:`LocalGlobalSolver.solve`.
     """
 
     X: FloatArray
@@ -801,6 +939,7 @@ class SolverResult:
     accelerated_accepted: int
     accelerated_rejected: int
     factorizations: int
+    stopped: bool = False
 
     @property
     def energy_total_before(self) -> float:
@@ -944,11 +1083,24 @@ class LocalGlobalSolver:
 
     # ---- steps --------------------------------------------------------------------------
 
-    def _local(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Projections of every active group, stacked, and each group's weighted energy."""
+    def _local(
+        self, x: FloatArray, previous: FloatArray | None = None
+    ) -> tuple[FloatArray, FloatArray]:
+        """Projections of every active group, stacked, and each group's weighted energy.
+
+        ``previous``: the stacked projections of the last accepted iterate, passed to
+        :meth:`ConstraintGroup.project_warm` (``None``: exact :meth:`ConstraintGroup.project`).
+        """
         ax = self._stack @ x
         parts = np.split(ax, self._splits)
-        proj = [g.project(part, x) for g, part in zip(self._active_groups, parts, strict=True)]
+        if previous is None:
+            proj = [g.project(part, x) for g, part in zip(self._active_groups, parts, strict=True)]
+        else:
+            prev = np.split(previous, self._splits)
+            proj = [
+                g.project_warm(part, x, before)
+                for g, part, before in zip(self._active_groups, parts, prev, strict=True)
+            ]
         stacked = np.concatenate(proj, axis=0)
         resid = (ax - stacked) ** 2
         per_row = resid.sum(axis=1) * self._row_weights
@@ -990,6 +1142,8 @@ class LocalGlobalSolver:
         abs_tol: float = 0.0,
         max_iter: int = 1000,
         anderson: int = 5,
+        callback: Callable[[int, FloatArray], bool] | None = None,
+        max_backoff: int = ANDERSON_MAX_BACKOFF,
     ) -> SolverResult:
         """Run local-global iterations from ``x0``.
 
@@ -1006,6 +1160,13 @@ class LocalGlobalSolver:
             Maximum number of iterations (global solves).
         anderson : int
             Anderson history length ``m``; 0 switches acceleration off.
+        callback : callable, optional
+            ``callback(iteration, x) -> bool`` after every iteration with the accepted
+            positions (do not modify them); returning ``True`` stops the solve there
+            (``SolverResult.stopped``, not ``converged``). Not called when converged.
+        max_backoff : int
+            Most plain steps taken before the next Anderson attempt after consecutive
+            rejections (see the module docstring; default :data:`ANDERSON_MAX_BACKOFF`).
 
         Returns
         -------
@@ -1017,8 +1178,8 @@ class LocalGlobalSolver:
             raise InputError(
                 f"start positions must be a finite ({self.n_vertices}, dim) array, got {x.shape}"
             )
-        if max_iter < 0 or anderson < 0:
-            raise InputError("max_iter and anderson must be >= 0")
+        if max_iter < 0 or anderson < 0 or max_backoff < 0:
+            raise InputError("max_iter, anderson and max_backoff must be >= 0")
         factorizations = self._assemble()
         if self.fixed.size:
             rhs_fixed = np.asarray(self._m_fc @ x[self.fixed])
@@ -1038,7 +1199,8 @@ class LocalGlobalSolver:
         prev_g: FloatArray | None = None
         skip = backoff = 0
         iterations = 0
-        while not converged and iterations < max_iter:
+        stopped = False
+        while not converged and not stopped and iterations < max_iter:
             iterations += 1
             plain = self._global(proj, x, rhs_fixed)
             if anderson > 0:
@@ -1057,7 +1219,7 @@ class LocalGlobalSolver:
                     mixed = g_vec - np.stack(diff_g, axis=1) @ theta
                     candidate = x.copy()
                     candidate[self.free] = mixed.reshape(-1, dim)
-                    cand_proj, cand_energies = self._local(candidate)
+                    cand_proj, cand_energies = self._local(candidate, proj)
                     cand_energy = float(cand_energies.sum())
                     if np.isfinite(cand_energy) and cand_energy < energy:
                         accepted += 1
@@ -1065,19 +1227,19 @@ class LocalGlobalSolver:
                         x, proj, energies = candidate, cand_proj, cand_energies
                     else:
                         rejected += 1
-                        backoff = min(2 * backoff if backoff else 1, ANDERSON_MAX_BACKOFF)
+                        backoff = min(2 * backoff if backoff else 1, max_backoff)
                         skip = backoff
                         diff_f.clear()
                         diff_g.clear()
                         x = plain
-                        proj, energies = self._local(x)
+                        proj, energies = self._local(x, proj)
                 else:
                     skip = max(skip - 1, 0)
                     x = plain
-                    proj, energies = self._local(x)
+                    proj, energies = self._local(x, proj)
             else:
                 x = plain
-                proj, energies = self._local(x)
+                proj, energies = self._local(x, proj)
             new_energy = float(energies.sum())
             history.append(new_energy)
             # relative decrease per iteration, averaged over a window so that one unlucky
@@ -1088,6 +1250,8 @@ class LocalGlobalSolver:
             ):
                 converged = True
             energy = new_energy
+            if callback is not None and not converged and callback(iterations, x):
+                stopped = True
 
         elapsed = time.perf_counter() - start
         logger.debug(
@@ -1110,6 +1274,7 @@ class LocalGlobalSolver:
             accelerated_accepted=accepted,
             accelerated_rejected=rejected,
             factorizations=factorizations,
+            stopped=stopped,
         )
 
 
