@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import igl
@@ -83,6 +84,13 @@ DEFAULT_WEIGHTS: tuple[float, float, float] = PAPER_WEIGHTS
 #: square's corner, 0 for a straight angle); 0.2 keeps every corner angle below about 136 deg and
 #: every side at least about a fifth of the other sides (a dart or a collapsing side violates it).
 CONVEX_MARGIN: float = 0.2
+
+#: Iterations between checks of the plain K3D solve for corners folded over.
+FOLD_CHECK_EVERY: int = 25
+
+#: Lazy closest-point re-query of the surface term (:class:`ClosenessToSurface`): a vertex is
+#: queried again once it moved more than this fraction of its distance to the target.
+SURFACE_REQUERY_REL: float = 0.1
 
 #: Weight of :class:`ConvexCorners` relative to ``w_planar``: a hard constraint (it is zero on
 #: every quad that is convex with the margin, so it does not change the paper's energy there).
@@ -636,6 +644,8 @@ def optimize_top(
     anderson: int,
     w_convex: float = 0.0,
     convex_margin: float = CONVEX_MARGIN,
+    requery_rel: float = SURFACE_REQUERY_REL,
+    callback: Callable[[int, FloatArray], bool] | None = None,
 ) -> tuple[SolverResult, FloatArray]:
     """One K3D solve of paper eq. 1 with edge targets from ``vertices``.
 
@@ -651,6 +661,11 @@ def optimize_top(
         Weight of :class:`ConvexCorners` (0: not used).
     convex_margin : float
         Its margin.
+    requery_rel : float
+        :class:`~drawstring.geometry.solver.ClosenessToSurface` lazy re-query threshold (0:
+        query every vertex in every iteration).
+    callback : callable, optional
+        Passed to :meth:`~drawstring.geometry.solver.LocalGlobalSolver.solve` (may stop it).
 
     Returns
     -------
@@ -668,7 +683,12 @@ def optimize_top(
             quads, w_square, name="square_shape", reference_normals=reference_normals
         ),
         ClosenessToSurface(
-            np.arange(len(vertices)), target_vertices, target_faces, w_surface, name="surface"
+            np.arange(len(vertices)),
+            target_vertices,
+            target_faces,
+            w_surface,
+            name="surface",
+            requery_rel=requery_rel,
         ),
     ]
     if w_convex > 0:
@@ -676,7 +696,9 @@ def optimize_top(
             ConvexCorners(quads, reference_normals, w_convex, name="convex", margin=convex_margin)
         )
     solver = LocalGlobalSolver(len(vertices), groups)
-    result = solver.solve(vertices, rel_tol=rel_tol, max_iter=max_iter, anderson=anderson)
+    result = solver.solve(
+        vertices, rel_tol=rel_tol, max_iter=max_iter, anderson=anderson, callback=callback
+    )
     return result, targets
 
 
@@ -748,6 +770,7 @@ def optimize_assembled(
     rel_tol: float = ASSEMBLED_SOLVER_REL_TOL,
     max_iter: int = 1000,
     anderson: int = 5,
+    requery_rel: float = SURFACE_REQUERY_REL,
 ) -> AssembledResult:
     """Optimize the lifted quad mesh into K3D and extrude it into frustum tiles T3D.
 
@@ -776,6 +799,10 @@ def optimize_assembled(
     square_rounds : int
         Outer rounds; each recomputes the edge-length targets from the current mesh.
     rel_tol, max_iter, anderson : local-global solver options (each solve).
+    requery_rel : float
+        Lazy closest-point re-query of the K3D surface term (see
+        :class:`~drawstring.geometry.solver.ClosenessToSurface`; 0 queries every vertex in
+        every iteration).
 
     Returns
     -------
@@ -808,10 +835,29 @@ def optimize_assembled(
 
     t0 = time.perf_counter()
 
-    def solve_rounds(weight_convex: float) -> tuple[FloatArray, list[SolverResult], FloatArray]:
+    reference = quad_vector_areas(verts, faces)
+
+    def folding(iteration: int, x: FloatArray) -> bool:
+        """Stop the plain solve once a corner has stayed folded over (margin < 0) for at
+        least ``FOLD_CHECK_EVERY`` iterations: it then ends below the margin (a dart), as on
+        the three-shell at ~210 tiles, and the convexity re-solve follows anyway. Corners that
+        only dip below the margin in the first iterations (seashell, peanut) recover."""
+        if iteration % FOLD_CHECK_EVERY:
+            return False
+        folded = float(corner_margins(x, faces, reference).min()) < 0.0
+        stop = folded and fold_seen[0]
+        fold_seen[0] = folded
+        return stop
+
+    fold_seen = [False]
+
+    def solve_rounds(
+        weight_convex: float,
+    ) -> tuple[FloatArray, list[SolverResult], FloatArray, bool]:
         x = verts
         done: list[SolverResult] = []
         used = np.zeros(len(edges.edges))
+        watch = folding if weight_convex == 0.0 and w_convex > 0 else None
         for _ in range(square_rounds):
             result, used = optimize_top(
                 x,
@@ -826,19 +872,22 @@ def optimize_assembled(
                 anderson=anderson,
                 w_convex=weight_convex,
                 convex_margin=convex_margin,
+                requery_rel=requery_rel,
+                callback=watch,
             )
             done.append(result)
             x = result.X
-        return x, done, used
+            if result.stopped:
+                return x, done, used, True
+        return x, done, used, False
 
     # The convexity group is stiff even where it is inactive (it adds w_convex A^T A to the
     # global matrix), so it is only brought in when the plain solve leaves a corner below the
     # margin; a plain solution that meets it is already a stationary point of the constrained
-    # problem.
-    reference = quad_vector_areas(verts, faces)
-    top, solves, targets = solve_rounds(0.0)
+    # problem. A plain solve in which a corner stays folded over is stopped early (`folding`).
+    top, solves, targets, folded = solve_rounds(0.0)
     margin_plain = float(corner_margins(top, faces, reference).min())
-    convex_resolve = w_convex > 0 and margin_plain < convex_margin
+    convex_resolve = w_convex > 0 and (folded or margin_plain < convex_margin)
     if convex_resolve:
         logger.info(
             "assembled: a quad corner reached %.3g of its diagonal (< %.3g); solving again with "
@@ -846,7 +895,7 @@ def optimize_assembled(
             margin_plain,
             convex_margin,
         )
-        top, more, targets = solve_rounds(w_convex)
+        top, more, targets, _ = solve_rounds(w_convex)
         solves += more
     top_polish = planarize_quads(top, faces, tol_mm=0.1 * polish_tol)
     top = top_polish.X
