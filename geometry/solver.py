@@ -810,8 +810,12 @@ def _unit_normal_with_offset(matrix: FloatArray, linear: FloatArray) -> FloatArr
     gnorm = np.linalg.norm(gam, axis=1)
     hard = np.abs(gam[:, 0]) <= 1e-12 * np.maximum(gnorm, 1e-300)
     # shift t = mu_0 - lam > 0; Newton on phi(t) = 1/|p(t)| - 1 with p_i = gam_i / (mu_i - mu_0 + t)
-    t = np.where(hard, 1.0, np.abs(gam[:, 0]))
+    # from the left of the root: |p(t)| >= |gam_i| / (gap_i + t) = 1 at t = |gam_i| - gap_i, so
+    # the largest of those (and |gam_0|) is a lower bound; for a slab the offset runs along the
+    # largest eigenvector and that bound is within a few Newton steps of the root
     gap = mu - mu[:, :1]
+    t = np.where(hard, 1.0, np.maximum(np.abs(gam[:, 0]), np.max(np.abs(gam) - gap, axis=1)))
+    round_off = 4.0 * np.finfo(np.float64).eps
     for _ in range(60):
         denom = gap + t[:, None]
         p = gam / denom
@@ -821,7 +825,9 @@ def _unit_normal_with_offset(matrix: FloatArray, linear: FloatArray) -> FloatArr
         dphi = -dpn / pn**2
         step = phi / dphi
         t_new = np.maximum(t - step, 0.5 * t)
-        done = np.abs(t_new - t) <= 1e-15 * np.maximum(t, 1e-300)
+        # converged: no more progress from the left, or |p| = 1 to round-off (where the step
+        # would only flip by an ulp)
+        done = (t_new - t <= 1e-15 * np.maximum(t, 1e-300)) | (np.abs(phi) <= round_off)
         t = t_new
         if np.all(done | hard):
             break
