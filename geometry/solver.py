@@ -1159,7 +1159,9 @@ class LocalGlobalSolver:
             Start positions; ``fixed`` vertices keep these values.
         rel_tol : float
             Stop when the total energy falls by less than ``rel_tol`` times itself per iteration,
-            on average over the last ``STOP_WINDOW`` iterations (fewer at the start).
+            on average over the last ``STOP_WINDOW`` iterations (fewer at the start). A negative
+            value switches this test off (e.g. to run ``max_iter`` iterations from a zero-energy
+            start, where any ``rel_tol >= 0`` stops after the first iteration).
         abs_tol : float
             Stop when the total energy is at most this (mm^2, weighted).
         max_iter : int
@@ -1251,8 +1253,8 @@ class LocalGlobalSolver:
             # relative decrease per iteration, averaged over a window so that one unlucky
             # iteration (e.g. right after an Anderson reset) does not stop a slow descent
             span = min(STOP_WINDOW, iterations)
-            if new_energy <= abs_tol or history[-1 - span] - new_energy <= (
-                span * rel_tol * new_energy
+            if new_energy <= abs_tol or (
+                rel_tol >= 0 and history[-1 - span] - new_energy <= span * rel_tol * new_energy
             ):
                 converged = True
             energy = new_energy
