@@ -300,3 +300,52 @@ def test_assembled_tiles_stay_convex_on_a_strongly_curved_cap() -> None:
     assert overlap.nonconvex_faces == 0
     assert overlap.depth_max_mm <= 1e-3
     assert result.metrics["corner_margin_min"] > 0
+
+
+@pytest.fixture(scope="module")
+def three_shell_front() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """The real pipeline front of the three-shell at ~200 tiles (as benchmarks/bench_solver.py):
+    default profile size and resolution, rectangle flattening, tiling with splits."""
+    from drawstring.fabrication.pipeline import DesignOptions, resolve_options, split_bound
+    from drawstring.fabrication.profiles import load_profile
+    from drawstring.geometry.flatten import flatten
+    from drawstring.geometry.target import load_target
+    from drawstring.geometry.tiling import tile_surface
+
+    options = DesignOptions(tiles=200)
+    resolved = resolve_options(options, load_profile(options.profile))
+    loaded = load_target("three-shell", size_mm=resolved.size_mm, resolution=resolved.resolution)
+    flat = flatten(loaded.vertices, loaded.faces, mode="rectangle", corners=resolved.corners)
+    tiling = tile_surface(
+        loaded.vertices,
+        loaded.faces,
+        flat.uv,
+        tiles=200,
+        grid=resolved.grid,
+        max_scale_factor=split_bound(resolved),
+    )
+    return tiling.vertices, tiling.quads, loaded.vertices, loaded.faces, resolved.thickness_mm
+
+
+@pytest.mark.parametrize("anderson", [0, 5])
+def test_energy_never_rises_on_a_builtin_target(
+    three_shell_front: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float], anderson: int
+) -> None:
+    """Every local-global solve of the assembled stage on a real target, the discarded plain
+    K3D solve included: the three-shell at ~210 tiles folds a corner in the plain solve, which
+    is stopped and followed by the convexity re-solve."""
+    vertices, quads, target, target_faces, thickness = three_shell_front
+    result = optimize_assembled(
+        vertices, quads, target, target_faces, thickness=thickness, anderson=anderson
+    )
+    assert 150 <= len(quads) <= 250
+    assert result.metrics["convex_resolve"] == 1.0, "the three-shell no longer folds: pick another"
+    assert len(result.top_solves) == 2
+    assert result.top_solves[0].stopped  # the plain solve, discarded
+    for solve in (*result.top_solves, result.extrusion_solve):
+        assert solve.iterations > 0
+        history = solve.energy_history
+        assert np.all(np.diff(history) <= 1e-12 * history[:-1] + 1e-15 * history[0])
+    if anderson:  # without Anderson 1000 iterations leave a corner at about -0.001
+        assert sum(s.accelerated_accepted for s in result.top_solves) > 0
+        assert result.metrics["corner_margin_min"] > 0
