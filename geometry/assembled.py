@@ -8,8 +8,12 @@ Paper section 4.2, equations 1-4. Two optimizations run through the shared local
    quads' mean side lengths (one quad's on the boundary), computed from the current mesh at the
    start of each of ``square_rounds`` outer rounds (default 1: targets from the input mesh,
    fixed during the solve, so each solve is a fixed-energy problem that converges
-   monotonically). Then :func:`~drawstring.geometry.solver.planarize_quads` moves the vertices
-   by the least amount that makes every quad exactly planar.
+   monotonically). The closest points of E_surface are re-queried lazily (only for vertices
+   that moved more than ``SURFACE_REQUERY_REL`` of their distance to the target, see
+   :class:`~drawstring.geometry.solver.ClosenessToSurface`). A plain solve that folds a quad is
+   replaced by one with :class:`ConvexCorners` (see :func:`optimize_assembled`). Then
+   :func:`~drawstring.geometry.solver.planarize_quads` moves the vertices by the least amount
+   that makes every quad exactly planar.
 2. **T3D** (extrusion): bottom vertices start at the top offset along area-weighted vertex
    normals (inwards, by ``thickness / mean cos`` to the adjacent face normals). Then top and
    bottom vertices are optimized together: every top, bottom and side (contact) face planar,
@@ -170,7 +174,9 @@ class AssembledResult:
     top_solves : tuple of SolverResult
         Every K3D round's solve: ``square_rounds`` of them, then as many again when the plain
         solve left a corner below ``convex_margin`` and K3D was solved again with
-        :class:`ConvexCorners` (``metrics["convex_resolve"]`` is then 1).
+        :class:`ConvexCorners` (``metrics["convex_resolve"]`` is then 1). A plain solve stopped
+        early because a corner stayed folded (``SolverResult.stopped``) ends its rounds; it is
+        listed too, and its margin is ``corner_margin_min_unconstrained``.
     """
 
     top: FloatArray
@@ -793,7 +799,9 @@ def optimize_assembled(
         Weight of :class:`ConvexCorners` (0 disables it). The plain solve runs first; only if
         it leaves a quad corner below ``convex_margin`` (e.g. darts on the three-shell at ~210
         tiles) is K3D solved again from the lifted mesh with the group, which keeps the solve
-        out of folded local minima without changing the energy of convex configurations.
+        out of folded local minima without changing the energy of convex configurations. A
+        plain solve in which a corner stays folded over (negative margin at two checks
+        ``FOLD_CHECK_EVERY`` iterations apart) is stopped there and re-solved at once.
     convex_margin : float
         See :data:`CONVEX_MARGIN`.
     square_rounds : int
