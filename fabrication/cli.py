@@ -218,7 +218,10 @@ def _run_simulate(args: argparse.Namespace) -> int:
 
     folder = simulate_folder(args.folder, quiet=args.quiet)
     block = json.loads((folder / "design.json").read_text())["metrics"]["simulation"]
-    verdict = "deployed" if block["deployed"] else f"stuck ({len(block['open_gaps'])} gaps open)"
+    verdict = "deployed"
+    if not block["deployed"]:
+        worst = ", ".join(str(w["tile"]) for w in block.get("worst_tiles", [])[:3])
+        verdict = f"stuck ({len(block['open_gaps'])} gaps open; farthest tiles {worst})"
     if not args.quiet:
         print(
             f"{verdict} after {block['steps']} steps; tiles within "

@@ -527,7 +527,8 @@ def design(
             warnings.append(
                 "the deployment simulation got stuck ("
                 f"{len(simulation.open_gaps)} route gaps open, tiles up to "
-                f"{simulation.final_max_deviation_mm:.2f} mm from the assembled shape) with "
+                f"{simulation.final_max_deviation_mm:.2f} mm from the assembled shape, worst "
+                f"tiles {', '.join(str(w['tile']) for w in simulation.worst_tiles(3))}) with "
                 f"every lift-point set the sweep tried ({len(runs)}); see design.json "
                 "metrics.simulation"
             )
