@@ -452,27 +452,30 @@ class ConvexCorners(ConstraintGroup):
 
     def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
         pts = ax.reshape(-1, 3, 3)
-        normal = quad_vector_areas(x, self.quads)
+        corners = x[self.quads]
+        normal = cross3(corners[:, 2] - corners[:, 0], corners[:, 3] - corners[:, 1])
         normal *= np.where(np.einsum("ki,ki->k", normal, self.reference_normals) < 0, -1.0, 1.0)[
             :, None
         ]
-        bad = np.linalg.norm(normal, axis=1) <= 0
+        bad = ~np.any(normal != 0.0, axis=1)
         normal[bad] = self.reference_normals[bad]
-        normal = np.repeat(normal, 4, axis=0)
         diagonal = pts[:, 2] - pts[:, 0]
-        length = np.linalg.norm(diagonal, axis=1)
-        out = cross3(diagonal, normal)
-        out_len = np.linalg.norm(out, axis=1)
-        ok = out_len > 1e-300
-        out[ok] /= out_len[ok, None]
-        height = np.einsum("ki,ki->k", pts[:, 1] - pts[:, 0], out)
-        deficit = np.where(ok, np.maximum(self.margin * length - height, 0.0), 0.0)
-        move = (deficit[:, None] / 3.0) * out
-        target = pts.copy()
-        target[:, 0] -= move
-        target[:, 1] += 2.0 * move
-        target[:, 2] -= move
-        return np.asarray(target.reshape(ax.shape))
+        out = cross3(diagonal, np.repeat(normal, 4, axis=0))
+        out_len = np.sqrt(np.einsum("ki,ki->k", out, out))
+        length = np.sqrt(np.einsum("ki,ki->k", diagonal, diagonal))
+        # height * |out| of each corner over its diagonal; only violating corners move
+        scaled = np.einsum("ki,ki->k", pts[:, 1] - pts[:, 0], out)
+        low = np.flatnonzero((out_len > 1e-300) & (scaled < self.margin * length * out_len))
+        target = ax.copy()
+        if low.size:
+            direction = out[low] / out_len[low, None]
+            deficit = self.margin * length[low] - scaled[low] / out_len[low]
+            move = (deficit[:, None] / 3.0) * direction
+            rows = 3 * low
+            target[rows] -= move
+            target[rows + 1] += 2.0 * move
+            target[rows + 2] -= move
+        return np.asarray(target)
 
 
 # --------------------------------------------------------------------------------------------
@@ -703,7 +706,12 @@ def optimize_top(
         )
     solver = LocalGlobalSolver(len(vertices), groups)
     result = solver.solve(
-        vertices, rel_tol=rel_tol, max_iter=max_iter, anderson=anderson, callback=callback
+        vertices,
+        rel_tol=rel_tol,
+        max_iter=max_iter,
+        anderson=anderson,
+        callback=callback,
+        anderson_gram=True,
     )
     return result, targets
 
@@ -755,7 +763,11 @@ def extrude_tiles(
     ]
     solver = LocalGlobalSolver(2 * n, groups)
     result = solver.solve(
-        np.vstack([top, bottom0]), rel_tol=rel_tol, max_iter=max_iter, anderson=anderson
+        np.vstack([top, bottom0]),
+        rel_tol=rel_tol,
+        max_iter=max_iter,
+        anderson=anderson,
+        anderson_gram=True,
     )
     return result, result.X[:n], result.X[n:]
 
