@@ -825,6 +825,13 @@ class SimilarityToSquare(ConstraintGroup):
 def _closest_oriented_squares(pts: FloatArray, reference: FloatArray) -> FloatArray:
     """Closest counter-clockwise squares in each quad's best-fit plane, oriented by ``reference``.
 
+    In an in-plane frame ``(e1, e2, n)`` the 2D Umeyama fit (see
+    :func:`_closest_squares_planar_template`) puts the square's first axis along ``(a, b)``
+    with ``a = c1.e1 + c2.e2`` and ``b = c1.e2 - c2.e1`` (``c1, c2`` the template-weighted sums
+    of the corners) and scales it by ``|(a, b)| / 8``; that axis is the in-plane vector
+    ``q = c1 - (c1.n) n - n x c2``, so the square is ``tx q / 8 + ty (n x q) / 8`` without any
+    frame.
+
     Parameters
     ----------
     pts : (k, 4, 3) float, centred quads
@@ -835,19 +842,17 @@ def _closest_oriented_squares(pts: FloatArray, reference: FloatArray) -> FloatAr
     squares : (k, 4, 3) float
     """
     normal = centred_normals(pts)
-    normal = normal * np.where(np.einsum("ki,ki->k", normal, reference) < 0, -1.0, 1.0)[:, None]
-    # in-plane frame (e1, e2, normal), right-handed
-    seed = pts[:, 1] + pts[:, 2] - pts[:, 0] - pts[:, 3]
-    seed -= np.einsum("ki,ki->k", seed, normal)[:, None] * normal
-    fallback = cross3(normal, np.eye(3)[np.argmin(np.abs(normal), axis=1)])
-    length = np.linalg.norm(seed, axis=1, keepdims=True)
-    small = length[:, 0] <= 1e-12 * np.maximum(np.abs(pts).max(axis=(1, 2)), 1e-300)
-    seed[small] = fallback[small]
-    e1 = seed / np.linalg.norm(seed, axis=1, keepdims=True)
-    e2 = cross3(normal, e1)
-    flat = np.stack([np.einsum("ksi,ki->ks", pts, e1), np.einsum("ksi,ki->ks", pts, e2)], axis=2)
-    square = _closest_squares_planar_template(flat)
-    return np.asarray(square[:, :, :1] * e1[:, None, :] + square[:, :, 1:] * e2[:, None, :])
+    n = normal * np.where(np.einsum("ki,ki->k", normal, reference) < 0, -1.0, 1.0)[:, None]
+    c1 = pts[:, 1] + pts[:, 2] - pts[:, 0] - pts[:, 3]  # template x: -1, 1, 1, -1
+    c2 = pts[:, 2] + pts[:, 3] - pts[:, 0] - pts[:, 1]  # template y: -1, -1, 1, 1
+    u1 = 0.125 * (c1 - np.einsum("ki,ki->k", c1, n)[:, None] * n - cross3(n, c2))
+    u2 = cross3(n, u1)
+    out = np.empty_like(pts)
+    out[:, 0] = -u1 - u2
+    out[:, 1] = u1 - u2
+    out[:, 2] = u1 + u2
+    out[:, 3] = u2 - u1
+    return out
 
 
 def _unit_normal_with_offset(matrix: FloatArray, linear: FloatArray) -> FloatArray:

@@ -220,6 +220,28 @@ def test_similarity_turns_rhombus_into_square(dim: int) -> None:
     assert np.dot(x[0] - x.mean(axis=0), rhombus[0] - rhombus.mean(axis=0)) > 0
 
 
+def test_oriented_square_matches_the_planar_fit_in_a_tilted_plane() -> None:
+    """With reference normals, a planar quad in a tilted plane projects onto the 2D Umeyama
+    square of its in-plane coordinates; the same quad seen from the other side (reference
+    flipped, i.e. it turned over) does not count as a square."""
+    quad2d = np.array([[0.0, 0.0], [7.0, 1.0], [8.0, 6.0], [-1.0, 5.0]])
+    quad2d -= quad2d.mean(axis=0)
+    angle = np.radians(40.0)
+    rot = np.array(
+        [[1.0, 0.0, 0.0], [0.0, np.cos(angle), -np.sin(angle)], [0.0, np.sin(angle), np.cos(angle)]]
+    )
+    quad3d = np.c_[quad2d, np.zeros(4)] @ rot.T + [1.0, 2.0, 3.0]
+    up = rot @ [0.0, 0.0, 1.0]
+    group = SimilarityToSquare([[0, 1, 2, 3]], reference_normals=up[None])
+    a = group.matrix(4)
+    square3d = group.project(a @ quad3d, quad3d)
+    expected = SimilarityToSquare([[0, 1, 2, 3]]).project(quad2d, quad2d)
+    assert np.allclose(square3d @ rot, np.c_[expected, np.zeros(4)], atol=1e-12)
+    flipped = SimilarityToSquare([[0, 1, 2, 3]], reference_normals=-up[None])
+    residual = np.linalg.norm(flipped.project(a @ quad3d, quad3d) - a @ quad3d)
+    assert residual > np.linalg.norm(square3d - a @ quad3d) + 1.0
+
+
 def test_two_dimensional_problem() -> None:
     """dim = 2: a square-ish 2D quad mesh under edge lengths, squareness and an anchor."""
     vertices, quads = grid(3, 3, step=2.0)
