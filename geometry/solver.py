@@ -211,8 +211,31 @@ def smallest_eigenvectors(matrices: FloatArray) -> FloatArray:
     k, d, _ = matrices.shape
     if d != 3 or k == 0:
         return np.asarray(np.linalg.eigh(matrices)[1][:, :, 0])
-    a00, a11, a22 = matrices[:, 0, 0], matrices[:, 1, 1], matrices[:, 2, 2]
-    a01, a02, a12 = matrices[:, 0, 1], matrices[:, 0, 2], matrices[:, 1, 2]
+    return _smallest_eigenvectors_3(
+        matrices[:, 0, 0],
+        matrices[:, 1, 1],
+        matrices[:, 2, 2],
+        matrices[:, 0, 1],
+        matrices[:, 0, 2],
+        matrices[:, 1, 2],
+        lambda bad: matrices[bad],
+    )
+
+
+def _smallest_eigenvectors_3(
+    a00: FloatArray,
+    a11: FloatArray,
+    a22: FloatArray,
+    a01: FloatArray,
+    a02: FloatArray,
+    a12: FloatArray,
+    matrices_of: Callable[[NDArray[np.bool_]], FloatArray],
+) -> FloatArray:
+    """:func:`smallest_eigenvectors` of 3x3 symmetric matrices given by their six entries.
+
+    ``matrices_of(mask)`` returns the full ``(j, 3, 3)`` matrices of the rows in ``mask`` (for
+    the ``eigh`` fallback of ill-conditioned rows).
+    """
     mean = (a00 + a11 + a22) / 3.0
     b00, b11, b22 = a00 - mean, a11 - mean, a22 - mean
     spread = np.sqrt((b00**2 + b11**2 + b22**2 + 2.0 * (a01**2 + a02**2 + a12**2)) / 6.0)
@@ -224,18 +247,22 @@ def smallest_eigenvectors(matrices: FloatArray) -> FloatArray:
     ) / safe**3
     angle = np.arccos(np.clip(0.5 * det, -1.0, 1.0)) / 3.0
     lam = mean + 2.0 * spread * np.cos(angle + 2.0 * np.pi / 3.0)
-    shifted = matrices - lam[:, None, None] * np.eye(3)
-    crosses = cross3(shifted[:, [0, 0, 1]], shifted[:, [1, 2, 2]])
-    norms2 = np.einsum("kij,kij->ki", crosses, crosses)
-    best = np.argmax(norms2, axis=1)
-    rows = np.arange(k)
-    best_norm2 = norms2[rows, best]
-    out = crosses[rows, best] / np.sqrt(np.where(best_norm2 > 0, best_norm2, 1.0))[:, None]
+    s00, s11, s22 = a00 - lam, a11 - lam, a22 - lam
+    # cross products of the rows (0, 1), (0, 2), (1, 2) of M - lam I
+    crosses = np.empty((3, 3, len(lam)))
+    crosses[0] = (a01 * a12 - a02 * s11, a02 * a01 - s00 * a12, s00 * s11 - a01 * a01)
+    crosses[1] = (a01 * s22 - a02 * a12, a02 * a02 - s00 * s22, s00 * a12 - a01 * a02)
+    crosses[2] = (s11 * s22 - a12 * a12, a12 * a02 - a01 * s22, a01 * a12 - s11 * a02)
+    norms2 = np.einsum("cik,cik->ck", crosses, crosses)
+    best = np.argmax(norms2, axis=0)
+    rows = np.arange(len(lam))
+    best_norm2 = norms2[best, rows]
+    out = crosses[best, :, rows] / np.sqrt(np.where(best_norm2 > 0, best_norm2, 1.0))[:, None]
     # well conditioned when |cross| ~ (gap between the two larger eigenvalues and lam)^2 is large
     bad = best_norm2 <= (1e-6 * spread**2) ** 2
     if np.any(bad):
-        out[bad] = np.linalg.eigh(matrices[bad])[1][:, :, 0]
-    return out
+        out[bad] = np.linalg.eigh(matrices_of(bad))[1][:, :, 0]
+    return np.asarray(out)
 
 
 class _NormalMemo:
@@ -274,7 +301,19 @@ def centred_normals(points: FloatArray) -> FloatArray:
     ):
         _NormalMemo.hits += 1
         return _NormalMemo.normals
-    normals = smallest_eigenvectors(covariances(points))
+    if points.ndim == 3 and points.shape[2] == 3 and len(points):
+        x, y, z = points[:, :, 0], points[:, :, 1], points[:, :, 2]
+        normals = _smallest_eigenvectors_3(
+            np.einsum("ks,ks->k", x, x),
+            np.einsum("ks,ks->k", y, y),
+            np.einsum("ks,ks->k", z, z),
+            np.einsum("ks,ks->k", x, y),
+            np.einsum("ks,ks->k", x, z),
+            np.einsum("ks,ks->k", y, z),
+            lambda bad: covariances(points[bad]),
+        )
+    else:
+        normals = smallest_eigenvectors(covariances(points))
     normals.flags.writeable = False
     _NormalMemo.points = np.array(points, dtype=np.float64)
     _NormalMemo.normals = normals
