@@ -63,16 +63,13 @@ class LiftPoints:
     gap_energy : (G,) float, J, gravitational potential energy of each gap.
     coupling : (p, p) float, ``coupling[i, j] = barrier(i, j) / g_j`` when peak i is higher
         than peak j, else 0.
-    clusters : (p,) int, cluster id of each peak; cluster ``c`` is lifted at ``lift_gaps[c]``;
-        lift points after the clusters' (``parts_lifted``) lift split parts no cluster reaches.
+    clusters : (p,) int, cluster id of each peak; cluster ``c`` is lifted at ``lift_gaps[c]``.
     tau : float, the coupling threshold used (``inf`` when every peak is its own lift point).
     positions : (k, 3) float, mm, position of each lift point.
     pull_directions : (k, 3) float, unit pull direction at each lift point.
     check_name : str, which deployment check accepted (or last rejected) the selection.
     check_passed : bool, whether the check passed at ``tau``.
-    sweep : list of ``(tau, n_lift, passed, parts_lifted)`` for every selection tried.
-    parts_lifted : bool, the selection adds a lift point to every split part that none of the
-        clusters' lift points is in (see :func:`select_lift_points`).
+    sweep : list of ``(tau, n_lift, passed)`` for every threshold tried.
     """
 
     lift_gaps: NDArray[np.int64]
@@ -86,8 +83,7 @@ class LiftPoints:
     pull_directions: NDArray[np.float64]
     check_name: str
     check_passed: bool
-    sweep: tuple[tuple[float, int, bool, bool], ...]
-    parts_lifted: bool = False
+    sweep: tuple[tuple[float, int, bool], ...]
 
     def to_json(self) -> dict[str, Any]:
         """Plain-JSON summary: per lift point its gap, position (mm) and pull direction."""
@@ -97,15 +93,9 @@ class LiftPoints:
             "check": self.check_name,
             "check_passed": bool(self.check_passed),
             "peaks": [int(p) for p in self.peaks],
-            "parts_lifted": bool(self.parts_lifted),
             "sweep": [
-                {
-                    "tau": None if not np.isfinite(t) else float(t),
-                    "lift_points": n,
-                    "passed": ok,
-                    "parts_lifted": parts,
-                }
-                for t, n, ok, parts in self.sweep
+                {"tau": None if not np.isfinite(t) else float(t), "lift_points": n, "passed": ok}
+                for t, n, ok in self.sweep
             ],
             "points": [
                 {
@@ -486,9 +476,8 @@ def select_lift_points(
     tile_masses : (T,) float, kg.
     up : (3,) resting up axis of the assembled shape.
     tau0, tau_step : threshold sweep: ``tau0, tau0 + tau_step, ...`` up to 1.0 inclusive; if
-        the check still fails and the linkage has split parts, every part without a lift point
-        gets one (:func:`part_lift_gaps`, ``parts_lifted``); then every peak becomes its own
-        lift point (``tau = inf``) and the result reports whether that passed.
+        the check still fails every peak becomes its own lift point (``tau = inf``) and the
+        result reports whether that passed.
     deploy_check : ``check(lift_gaps) -> bool``; default ``geometric_deploy_check`` (a stand-in).
     gap_positions : (G, 3) float, mm, optional lift-point positions (e.g. mean of the tiles'
         top-face centroids); default: mean of the surrounding tiles' centroids.
@@ -517,33 +506,13 @@ def select_lift_points(
         t += tau_step
     taus.append(float("inf"))
 
-    # The paper's sweep, with one step of ours before its last resort: split parts share no
-    # hinge, so a part that none of the lift points is in is raised only through the magnets
-    # and the string at its outer edge; once the thresholds fail, every such part also gets a
-    # lift point at its highest interior gap.
-    plan: list[tuple[float, bool]] = [(tau, False) for tau in taus if np.isfinite(tau)]
-    if linkage.n_components > 1:
-        plan.append((plan[-1][0] if plan else float(tau0), True))
-    plan.append((float("inf"), False))
-    sweep: list[tuple[float, int, bool, bool]] = []
-    tried: set[tuple[int, ...]] = set()
-    for tau, parts in plan:
+    sweep: list[tuple[float, int, bool]] = []
+    for tau in taus:
         clusters, roots = cluster_peaks(coupling, tau)
         lift_gaps = interior_lift_gaps(linkage, energy, edges, peaks[roots])
-        if parts:
-            lift_gaps = part_lift_gaps(linkage, energy, lift_gaps)
-            if tuple(lift_gaps.tolist()) in tried:
-                continue  # every part already has a lift point
-        tried.add(tuple(lift_gaps.tolist()))
         passed = bool(check(lift_gaps))
-        sweep.append((tau, int(len(lift_gaps)), passed, parts))
-        log.info(
-            "lift points: tau=%s%s -> %d lift points, check passed=%s",
-            tau,
-            " and every split part" if parts else "",
-            len(lift_gaps),
-            passed,
-        )
+        sweep.append((tau, int(len(lift_gaps)), passed))
+        log.info("lift points: tau=%s -> %d lift points, check passed=%s", tau, len(roots), passed)
         if passed:
             break
     if not passed:
@@ -575,7 +544,6 @@ def select_lift_points(
         check_name=name,
         check_passed=passed,
         sweep=tuple(sweep),
-        parts_lifted=bool(sweep[-1][3]),
     )
 
 
@@ -606,34 +574,6 @@ def interior_lift_gaps(
         if gap not in moved:
             moved.append(gap)
     return np.array(moved, dtype=np.int64)
-
-
-def part_lift_gaps(
-    linkage: Linkage, energy: NDArray[np.float64], lift_gaps: NDArray[np.int64]
-) -> NDArray[np.int64]:
-    """``lift_gaps`` plus, for every split part none of them is in, its highest interior gap.
-
-    A gap is in a part when all its tiles are; a horizontal or vertical gap of the part with the
-    most energy (ties: the smaller id) lifts a part that has none.  Order: ``lift_gaps`` first,
-    then the added gaps by part id.
-    """
-    tiles = linkage.gap_sides[:, :, 0]
-    comp = linkage.tile_component[np.maximum(tiles, 0)]
-    comp = np.where(tiles >= 0, comp, -1)
-    first = comp.max(axis=1)
-    single = np.all((comp == first[:, None]) | (comp < 0), axis=1)
-    gap_part = np.where(single, first, -1)
-    interior = np.array([k in ("horizontal", "vertical") for k in linkage.gap_kind], dtype=bool)
-    covered = {int(c) for g in lift_gaps.tolist() for c in comp[g] if c >= 0}
-    added: list[int] = []
-    for part in range(linkage.n_components):
-        if part in covered:
-            continue
-        options = np.nonzero(interior & (gap_part == part))[0]
-        if len(options):
-            best = options[np.lexsort((options, -energy[options]))[0]]
-            added.append(int(best))
-    return np.array([*lift_gaps.tolist(), *added], dtype=np.int64)
 
 
 # --------------------------------------------------------------------------------------------

@@ -159,7 +159,7 @@ def test_sweep_raises_tau_until_the_check_passes() -> None:
 
     lift = select_lift_points(linkage, cent, np.full(linkage.n_tiles, 0.01), deploy_check=needs_two)
     assert lift.check_name == "needs_two"
-    assert [n for _, n, _, _ in lift.sweep][0] == 1
+    assert [n for _, n, _ in lift.sweep][0] == 1
     assert lift.check_passed and len(lift.lift_gaps) == 2
     assert lift.sweep[-1][2] is True
     # The stand-in check is named and accepts one lift point on the ridge.
@@ -210,44 +210,3 @@ def test_peak_on_a_split_is_lifted_at_the_next_interior_gap() -> None:
     # It is next to the apex: its grid vertex is one step from (4, 4).
     i, j = link.vertex_ij[link.gap_vertex[gap]]
     assert abs(int(i) - 4) + abs(int(j) - 4) == 1
-
-
-def test_split_parts_get_their_own_lift_point_when_the_thresholds_fail() -> None:
-    """A dome split off-centre: the coupling merges both halves' tops into one lift point (the
-    paper's sweep), which lifts only one part.  When the check fails for every threshold, the
-    part without a lift point gets one at its highest interior gap before every peak is lifted
-    on its own."""
-    from drawstring.geometry.linkage import Split, build_linkage
-
-    link = build_linkage(np.ones((10, 10), dtype=bool), (Split("x", 4, 0, 10),))
-    assert link.n_components == 2
-    centres = (link.tile_cells + 0.5).astype(float)
-    z = 30.0 - ((centres - 5.0) ** 2).sum(axis=1)
-    tiles = np.c_[centres * 10.0, z]
-    masses = np.ones(link.n_tiles)
-
-    def part_of(gap: int) -> set[int]:
-        return {int(link.tile_component[t]) for t in link.gap_tiles(gap)}
-
-    def both_parts(lift_gaps: NDArray[np.int64]) -> bool:
-        return set().union(*(part_of(int(g)) for g in lift_gaps)) == {0, 1}
-
-    plain = select_lift_points(link, tiles, masses)
-    assert len(plain.lift_gaps) == 1 and not plain.parts_lifted
-    lift = select_lift_points(link, tiles, masses, deploy_check=both_parts)
-    assert lift.check_passed and lift.parts_lifted
-    assert [parts for *_, parts in lift.sweep] == [False, False, False, True]
-    assert lift.lift_gaps[0] == plain.lift_gaps[0] and len(lift.lift_gaps) == 2
-    added = int(lift.lift_gaps[1])
-    assert link.gap_kind[added] in ("horizontal", "vertical")
-    (part,) = part_of(added)
-    assert part not in part_of(int(plain.lift_gaps[0]))
-    # the highest interior gap of that part
-    energy = lift.gap_energy
-    same = [
-        g
-        for g in range(len(link.gap_kind))
-        if link.gap_kind[g] in ("horizontal", "vertical") and part_of(g) == {part}
-    ]
-    assert energy[added] == max(energy[g] for g in same)
-    assert lift.to_json()["sweep"][-1]["parts_lifted"] is True
