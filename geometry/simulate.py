@@ -414,6 +414,9 @@ class Inertia(ConstraintGroup):
         super().__init__(name, weight)
         self.sqrt_m = np.sqrt(np.asarray(masses, dtype=np.float64))
         self.targets = np.zeros((len(self.sqrt_m), 3))
+        # the projection sqrt(m) * y, computed once per targets array (not every iteration)
+        self._rows: FloatArray | None = None
+        self._rows_of: FloatArray | None = None
 
     def set_targets(self, targets: FloatArray) -> None:
         self.targets = np.asarray(targets, dtype=np.float64)
@@ -423,7 +426,10 @@ class Inertia(ConstraintGroup):
         return sp.csr_matrix((self.sqrt_m, (np.arange(n), np.arange(n))), shape=(n, n_vertices))
 
     def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
-        return np.asarray(self.sqrt_m[:, None] * self.targets)
+        if self._rows is None or self._rows_of is not self.targets:
+            self._rows = np.asarray(self.sqrt_m[:, None] * self.targets)
+            self._rows_of = self.targets
+        return self._rows
 
 
 class PointCoincidence(ConstraintGroup):
@@ -758,6 +764,9 @@ class FaceContact(ConstraintGroup):
         #: pairs whose rows act; all of them unless ``engage_distance`` gates them
         self.engage_distance = engage_distance
         self.active = np.full(len(self.pairs), engage_distance is None)
+        # (2, k, 3) axes of the two row blocks (n, -n), built once per set of axes
+        self._signed: FloatArray | None = None
+        self._signed_of: FloatArray | None = None
 
     def matrix(self, n_vertices: int) -> sp.csr_matrix:
         p = self.pairs
@@ -798,9 +807,13 @@ class FaceContact(ConstraintGroup):
             return ax
         k = len(self.pairs)
         r = ax.reshape(2, k, 4, 3)
-        axis = np.stack([self.axes, -self.axes])  # (2, k, 3)
+        if self._signed is None or self._signed_of is not self.axes:
+            self._signed = np.stack([self.axes, -self.axes])  # (2, k, 3)
+            self._signed_of = self.axes
+        axis = self._signed
         push = np.minimum(np.einsum("pkcd,pkd->pkc", r, axis), 0.0)
-        push *= self.active[None, :, None]
+        if not self.active.all():
+            push *= self.active[None, :, None]
         return np.asarray((r - push[..., None] * axis[:, :, None, :]).reshape(ax.shape))
 
 
@@ -1143,7 +1156,7 @@ def simulate_deployment(
         lift_goal = _apply(placement, lift_t)
         lift_start = x[lift_v].copy()
     table = float(flat[..., 2].min())
-    solver = LocalGlobalSolver(n, groups)
+    solver = LocalGlobalSolver(n, groups, lean=True)
     rest_centred = flat - flat.mean(axis=1, keepdims=True)
 
     goal_len = snap_goal_length(goal, pairs)
