@@ -350,3 +350,47 @@ def test_a_lift_gap_off_the_route_is_not_pulled(scene4: S.DeploymentScene) -> No
     worst = block["worst_tiles"]
     assert len(worst) == 5 and worst[0]["deviation_mm"] == without.final_max_deviation_mm
     assert block["reasons"] == list(without.reasons)
+
+
+def test_lean_solver_steps_are_bitwise_the_plain_ones(scene4: S.DeploymentScene) -> None:
+    """The simulation's groups on the lean solver (column-summed energies, whole-array global
+    and Anderson steps) give bitwise the iterates of the plain solver; the cached inertia
+    rows and contact axes follow new targets and axes."""
+    from drawstring.geometry.solver import LocalGlobalSolver
+
+    flat = scene4.tiles_flat
+    n = flat.size // 3
+    faces = S.contact_face_pairs(scene4.linkage)
+    rng = np.random.default_rng(5)
+    start = flat.reshape(-1, 3) + 0.3 * rng.normal(size=(n, 3))
+    results = []
+    for lean in (False, True):
+        inertia = S.Inertia(np.ones(n), 1.0)
+        contact = S.FaceContact(faces, 30.0)
+        groups = [
+            inertia,
+            S.RigidShape(flat, 300.0),
+            S.PointCoincidence(scene4.hinge_vertices, 300.0),
+            contact,
+        ]
+        solver = LocalGlobalSolver(n, groups, lean=lean)
+        x = start
+        for step in range(3):
+            contact.set_axes(x)
+            inertia.set_targets(x + 0.1 * step)
+            res = solver.solve(x, max_iter=15, anderson=5, rel_tol=1e-12)
+            x = res.X
+        results.append((x, res.energy_after, res.iterations))
+    assert np.array_equal(results[0][0], results[1][0])
+    assert results[0][1] == results[1][1] and results[0][2] == results[1][2]
+    # the cached inertia rows and signed contact axes are rebuilt for new targets and axes
+    y = start + 1.0
+    inertia.set_targets(y)
+    assert np.array_equal(inertia.project(start, start), y)
+    contact.set_axes(start)
+    ax = contact.matrix(n) @ start
+    axis = np.stack([contact.axes, -contact.axes])
+    r = ax.reshape(2, len(faces), 4, 3)
+    push = np.minimum(np.einsum("pkcd,pkd->pkc", r, axis), 0.0)
+    expected = (r - push[..., None] * axis[:, :, None, :]).reshape(ax.shape)
+    assert np.array_equal(contact.project(ax, start), expected)
