@@ -811,10 +811,17 @@ class FaceContact(ConstraintGroup):
             self._signed = np.stack([self.axes, -self.axes])  # (2, k, 3)
             self._signed_of = self.axes
         axis = self._signed
-        push = np.minimum(np.einsum("pkcd,pkd->pkc", r, axis), 0.0)
+        push = np.einsum("pkcd,pkd->pkc", r, axis)
+        np.minimum(push, 0.0, out=push)
         if not self.active.all():
             push *= self.active[None, :, None]
-        return np.asarray((r - push[..., None] * axis[:, :, None, :]).reshape(ax.shape))
+        if not push.any():
+            # Every row satisfied: the rows themselves (subtracting zeros would change no bit;
+            # rows of a sparse product are never -0.0).
+            return ax
+        out = push[..., None] * axis[:, :, None, :]
+        np.subtract(r, out, out=out)
+        return np.asarray(out.reshape(ax.shape))
 
 
 # --------------------------------------------------------------------------------------------
