@@ -1247,8 +1247,10 @@ class LocalGlobalSolver:
     def _global(self, proj: FloatArray, x: FloatArray, rhs_fixed: FloatArray) -> FloatArray:
         assert self._factor is not None
         if self.lean and not self.fixed.size:  # all free: rhs_fixed is zero
-            rhs = self._weighted_t @ proj + self._eps * x
-            return np.ascontiguousarray(self._factor.solve(np.asfortranarray(rhs)))
+            rhs = np.asarray(self._weighted_t @ proj)
+            rhs += self._eps * x
+            # SuperLU copies the right-hand side to Fortran order itself
+            return np.ascontiguousarray(self._factor.solve(rhs))
         rhs = (self._weighted_t @ proj)[self.free] - rhs_fixed + self._eps * x[self.free]
         out = x.copy()
         out[self.free] = self._factor.solve(np.asfortranarray(rhs))
