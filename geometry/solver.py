@@ -1080,10 +1080,12 @@ class LocalGlobalSolver:
     lean : bool
         Bitwise the same iterates with fewer temporaries: the per-row energies are summed
         column by column (``sum(axis=1)`` over the ``dim`` columns of a tall ``(rows, dim)``
-        array is about 8x slower than adding the columns, which gives the same sums), and when
-        no vertex is fixed the global and Anderson steps work on the whole position arrays
-        instead of gathering and scattering the free rows. Off by default (the former code
-        paths).
+        array is about 8x slower than adding the columns, which gives the same sums), the
+        residuals are squared in place, the groups' rows are cut by precomputed row ranges
+        (the views ``np.split`` gives, without its overhead), and when no vertex is fixed the
+        global and Anderson steps work on the whole position arrays instead of gathering and
+        scattering the free rows (and hand SuperLU the right-hand side without a Fortran
+        copy: it makes its own). Off by default (the former code paths).
     """
 
     def __init__(
