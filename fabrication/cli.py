@@ -24,6 +24,9 @@ from drawstring.geometry.errors import DesignError, InputError  # noqa: E402
 
 EXIT_INPUT = 2
 EXIT_DESIGN = 3
+#: ``--strict`` only: the design was written and has no problems, but it lists warnings (an
+#: accuracy target missed, a stuck simulation, an unreachable lift point, a loose linkage).
+EXIT_WARNINGS = 4
 
 
 class _Parser(argparse.ArgumentParser):
@@ -94,6 +97,11 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-cad", action="store_true", help="skip solids and fabrication files")
     p.add_argument("--seed", type=int, default=0, help="seed for any randomized step")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="exit with status 4 when the design lists warnings (e.g. an accuracy target missed)",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -159,6 +167,14 @@ def _run_design(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_DESIGN
+    if args.strict and result.warnings:
+        listed = "; ".join(result.warnings)
+        print(
+            f"drawstring: design warnings (--strict): {listed} (the design was written to "
+            f"{folder}; see design.json 'warnings')",
+            file=sys.stderr,
+        )
+        return EXIT_WARNINGS
     return 0
 
 

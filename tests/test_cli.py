@@ -235,3 +235,31 @@ def test_simulate_refuses_a_folder_that_is_not_a_design(tmp_path: Path) -> None:
     done = run_cli("simulate", str(tmp_path))
     assert done.returncode == 2
     assert "not a drawstring design folder" in done.stderr
+
+
+def test_strict_exits_4_on_warnings_and_still_writes_the_design(tmp_path: Path) -> None:
+    # The small saddle misses the flat edge-error target (a warning): exit 0 normally, 4 with
+    # --strict, with one line on stderr naming the warning; the folder is written either way.
+    out = tmp_path / "strict"
+    done = run_cli("design", "saddle", *SMALL, "--no-simulate", "--strict", "--out", str(out))
+    assert done.returncode == 4, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--strict" in lines[0] and "flat edge error" in lines[0]
+    doc = json.loads((out / "design.json").read_text())
+    assert doc["warnings"] and not doc["problems"]
+
+
+def test_strict_exits_0_without_warnings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import dataclasses
+
+    from drawstring.fabrication import pipeline
+
+    real = pipeline.design
+
+    def clean(*args: object, **kwargs: object) -> pipeline.Design:
+        return dataclasses.replace(real(*args, **kwargs), warnings=())  # type: ignore[arg-type]
+
+    monkeypatch.setattr(pipeline, "design", clean)
+    out = tmp_path / "clean"
+    assert main(["design", "saddle", *SMALL, "--no-simulate", "--strict", "--out", str(out)]) == 0
+    assert json.loads((out / "design.json").read_text())["warnings"] == []
