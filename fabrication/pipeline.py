@@ -750,7 +750,10 @@ def measure_design(
         problems.append(f"flat tiles interpenetrate by {volume:.3g} mm^3")
     if edge_error > FLAT_EDGE_ERROR_TOL_MM:
         warnings.append(
-            f"flat edge error {edge_error:.2g} mm exceeds {FLAT_EDGE_ERROR_TOL_MM:g} mm"
+            f"flat edge error {edge_error:.2g} mm exceeds {FLAT_EDGE_ERROR_TOL_MM:g} mm: a "
+            "curved target's tiles cannot all keep their assembled shape with every hinge "
+            "meeting in the plane; the printed tiles are exact copies of the assembled ones, "
+            "and more tiles shrink the error"
         )
     low = options.min_gap_angle_deg - FLAT_GAP_ANGLE_TOL_DEG
     if angles.size and (angles.min() < low or angles.max() > 90 + FLAT_GAP_ANGLE_TOL_DEG):
@@ -767,7 +770,10 @@ def measure_design(
             "(--weights 1e4 1 100 fits closely) or use more tiles"
         )
     if hinge_gap > HINGE_GAP_TOL_MM:
-        warnings.append(f"hinge gap {hinge_gap:.2g} mm exceeds {HINGE_GAP_TOL_MM:g} mm")
+        warnings.append(
+            f"hinge gap {hinge_gap:.2g} mm exceeds {HINGE_GAP_TOL_MM:g} mm: the hinge parts "
+            "bridge it, and more tiles shrink it"
+        )
     if tiling.scale_factor_max > split_bound(options):
         problems.append(
             f"scale factor {tiling.scale_factor_max:.2f} exceeds {split_bound(options):.3g}"
