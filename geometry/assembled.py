@@ -35,6 +35,7 @@ tile: top ``(0, 1, 2, 3)``, bottom ``(4, 7, 6, 5)``, side ``k`` (under top edge 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -627,6 +628,35 @@ def _check_inputs(
     return verts, faces.astype(np.int64), t_verts, t_faces.astype(np.int64)
 
 
+#: :func:`thickness_advice` keeps every bottom face at least this fraction of its top's area.
+THICKNESS_ADVICE_AREA = 0.25
+
+
+def thickness_advice(top: FloatArray, quads: IntArray) -> float:
+    """The largest thickness (mm) whose starting extrusion keeps every bottom face facing the
+    same way as its top with at least ``THICKNESS_ADVICE_AREA`` of its area.
+
+    The start bottom (:func:`_initial_bottom`) is linear in the thickness, so each face's area
+    is a quadratic in it; bisection finds the bound.  The optimized extrusion stays close to the
+    start, so this is the thickness to suggest when a thicker one turns tiles inside out.
+    """
+    top_area = quad_vector_areas(top, quads)
+    direction = top - _initial_bottom(top, quads, 1.0)  # bottom = top - t * direction
+
+    def worst(t: float) -> float:
+        area = quad_vector_areas(top - t * direction, quads)
+        ratio = np.einsum("ki,ki->k", top_area, area) / np.einsum("ki,ki->k", top_area, top_area)
+        return float(ratio.min(initial=1.0))
+
+    lo, hi = 0.0, 1.0
+    while worst(hi) >= THICKNESS_ADVICE_AREA and hi < 1e6:
+        lo, hi = hi, 2.0 * hi
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if worst(mid) >= THICKNESS_ADVICE_AREA else (lo, mid)
+    return lo
+
+
 def _initial_bottom(top: FloatArray, quads: IntArray, thickness: float) -> FloatArray:
     """Bottom vertices: top offset inwards along vertex normals so face planes sit ~thickness apart.
 
@@ -940,10 +970,17 @@ def optimize_assembled(
     tiles = tile_vertices(top, bottom, faces)
     top_area = quad_vector_areas(top, faces)
     bottom_area = quad_vector_areas(bottom, faces)
-    if np.any(np.einsum("ki,ki->k", top_area, bottom_area) <= 0):
+    inverted = int(np.count_nonzero(np.einsum("ki,ki->k", top_area, bottom_area) <= 0))
+    if inverted:
+        advice = thickness_advice(top, faces)
+        # two significant digits, rounded down so that the value quoted is within the bound
+        step = 10.0 ** (math.floor(math.log10(advice)) - 1) if advice > 0 else 1.0
+        quoted = math.floor(advice / step) * step
+        thinner = f"{quoted:g} or less" if 0 < quoted < thickness else "a smaller value"
         raise DesignError(
-            f"thickness {thickness} mm inverts tiles at this curvature; "
-            "use thinner or smaller tiles"
+            f"thickness {thickness:g} mm turns {inverted} tile(s) inside out where the target "
+            f"curves tighter than that; use --thickness {thinner}, or fewer tiles (larger "
+            "tiles smooth tight spots over)"
         )
     metrics = measure_assembled(tiles, faces, t_verts, t_faces)
     metrics["planarity_max_before_mm"] = before["planarity_max_mm"]

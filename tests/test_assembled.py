@@ -14,8 +14,9 @@ from drawstring.geometry.assembled import (
     optimize_assembled,
     quad_mesh_edges,
     square_edge_targets,
+    thickness_advice,
 )
-from drawstring.geometry.errors import InputError
+from drawstring.geometry.errors import DesignError, InputError
 
 
 def grid_mesh(nx: int, ny: int, x0: float, y0: float, step: float) -> tuple[np.ndarray, np.ndarray]:
@@ -349,3 +350,17 @@ def test_energy_never_rises_on_a_builtin_target(
     if anderson:  # without Anderson 1000 iterations leave a corner at about -0.001
         assert sum(s.accelerated_accepted for s in result.top_solves) > 0
         assert result.metrics["corner_margin_min"] > 0
+
+
+def test_too_thick_tiles_are_refused_with_a_thickness_that_works() -> None:
+    # On a 4 mm cylinder the flat face planes sit 3.97 mm from the axis: 6 mm turns tiles inside
+    # out. The advice keeps every bottom face at least a quarter of its top (for a cylinder the
+    # area shrinks in one direction only: t <= 0.75 * 3.97 mm), and that thickness extrudes.
+    vertices, quads, target, tris, _ = cylinder_case(4.0, np.radians(15.0), 6, 4)
+    plane_radius = 4.0 * np.cos(np.radians(7.5))
+    advice = thickness_advice(vertices, quads)
+    assert advice == pytest.approx(0.75 * plane_radius, rel=1e-6)
+    with pytest.raises(DesignError, match=r"inside out.*--thickness 2\.9 or less"):
+        optimize_assembled(vertices, quads, target, tris, thickness=6.0)
+    result = optimize_assembled(vertices, quads, target, tris, thickness=2.9)
+    assert result.metrics["thickness_min_mm"] == pytest.approx(2.9, abs=1e-6)
