@@ -778,16 +778,34 @@ def measure_design(
         problems.append(
             f"scale factor {tiling.scale_factor_max:.2f} exceeds {split_bound(options):.3g}"
         )
-    if route.crossings:
-        problems.append(f"the string route crosses itself {route.crossings} time(s)")
-    if not route.boundary_tiles_covered:
-        problems.append("the string route misses some boundary tiles")
+    problems.extend(route_problems(route, linkage))
     if len(route.lifts_missed):
         warnings.append(
             f"the string route cannot reach lift gap(s) {route.lifts_missed.tolist()} under the "
             "routing rules; pull at the other lift points"
         )
     return metrics, problems, warnings
+
+
+def route_problems(route: Route, linkage: Linkage) -> list[str]:
+    """Hard faults of a string route, measured on the route itself: it crosses itself, misses
+    boundary tiles, or leaves a split part unvisited (that part would never be pulled)."""
+    problems = []
+    if route.crossings:
+        problems.append(f"the string route crosses itself {route.crossings} time(s)")
+    if not route.boundary_tiles_covered:
+        problems.append("the string route misses some boundary tiles")
+    visited = np.unique(linkage.tile_component[route.tiles])
+    missed = np.setdiff1d(np.arange(linkage.n_components), visited)
+    if missed.size:
+        first = [int(np.flatnonzero(linkage.tile_component == c)[0]) for c in missed]
+        problems.append(
+            f"the string route reaches {visited.size} of {linkage.n_components} split parts; "
+            f"the {missed.size} part(s) holding tiles {first} would not be pulled into shape "
+            "(the string reaches only parts that touch the outer boundary; other --corners "
+            "or --tiles give other splits)"
+        )
+    return problems
 
 
 def default_out_dir(target: str | os.PathLike[str]) -> Path:

@@ -304,3 +304,25 @@ def test_a_lift_in_a_narrow_split_strip_needs_the_same_component_rule() -> None:
     assert relaxed.lifts_missed.size == 0 and lift in relaxed.gaps.tolist()
     assert relaxed.channel_partners_ok and relaxed.tiles_passed_once and relaxed.crossings == 0
     assert relaxed.boundary_tiles_covered
+
+
+def test_a_split_part_the_route_cannot_reach_is_a_design_problem() -> None:
+    # Four cuts box in a middle part that touches no outer boundary: the boundary route never
+    # gets there, and the design check must say so (that part would not be pulled).
+    from drawstring.fabrication.pipeline import route_problems
+
+    cells = np.ones((12, 12), dtype=bool)
+    splits = (Split("y", 4, 0, 12), Split("y", 8, 0, 12), Split("x", 4, 4, 8), Split("x", 8, 4, 8))
+    linkage = build_linkage(cells, splits)
+    assert linkage.n_components == 5
+    pos = _centroids(linkage)
+    route = plan_route(linkage, pos, [], exact_limit=0)
+    _check_valid(linkage, pos, route)
+    middle = np.flatnonzero((linkage.tile_cells == [5, 5]).all(axis=1))[0]
+    inner = int(linkage.tile_component[middle])
+    assert inner not in set(linkage.tile_component[route.tiles].tolist())
+    problems = route_problems(route, linkage)
+    assert len(problems) == 1 and "reaches 4 of 5 split parts" in problems[0]
+    # a route through every part has no such problem
+    full = build_linkage(cells, splits[:2])
+    assert route_problems(plan_route(full, _centroids(full), [], exact_limit=0), full) == []
