@@ -95,6 +95,11 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--no-simulate", action="store_true", help="skip the deployment simulation")
     p.add_argument("--no-cad", action="store_true", help="skip solids and fabrication files")
+    p.add_argument(
+        "--no-co-optimize",
+        action="store_true",
+        help="keep the assembled shape as eq. 1 gives it (do not move it with the flat layout)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed for any randomized step")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument(
@@ -145,6 +150,7 @@ def _run_design(args: argparse.Namespace) -> int:
         up=tuple(args.up),
         simulate=not args.no_simulate,
         cad=not args.no_cad,
+        co_optimize=not args.no_co_optimize,
         seed=args.seed,
     )
     options.validate()

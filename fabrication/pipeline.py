@@ -30,9 +30,20 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.geometry import verify
-from drawstring.geometry.assembled import AssembledResult, optimize_assembled
+from drawstring.geometry.assembled import (
+    AssembledResult,
+    optimize_assembled,
+    reextrude,
+    tile_vertices,
+)
 from drawstring.geometry.errors import InputError
-from drawstring.geometry.flat import FlatResult, extrude_flat, optimize_flat
+from drawstring.geometry.flat import (
+    CO_STAGES,
+    FlatResult,
+    co_optimize_top,
+    extrude_flat,
+    optimize_flat,
+)
 from drawstring.geometry.flatten import Flattening, flatten
 from drawstring.geometry.hinges import HingeLayout, HingeStrategy, layout_hinges
 from drawstring.geometry.lift import LiftPoints, select_lift_points, tile_masses_from_volumes
@@ -95,6 +106,7 @@ class DesignOptions:
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
     simulate: bool = True
     cad: bool = True
+    co_optimize: bool = True
     seed: int = 0
 
     def validate(self) -> None:
@@ -165,6 +177,7 @@ class ResolvedOptions:
     up: tuple[float, float, float]
     simulate: bool
     cad: bool
+    co_optimize: bool
     seed: int
 
 
@@ -333,6 +346,7 @@ def resolve_options(options: DesignOptions, profile: Profile) -> ResolvedOptions
         up=tuple(float(c) / math.hypot(*options.up) for c in options.up),  # type: ignore[arg-type]
         simulate=options.simulate,
         cad=options.cad,
+        co_optimize=options.co_optimize,
         seed=options.seed,
     )
 
@@ -445,7 +459,16 @@ def design(
             min_gap_angle_deg=resolved.min_gap_angle_deg,
             tiles_3d=assembled.tiles,
         )
-        tiles_2d = extrude_flat(flat, assembled.tiles, resolved.thickness_mm)
+    if resolved.co_optimize:
+        with progress.stage("co-optimize"):
+            assembled, flat, co_block = co_optimized(
+                linkage, tiling, assembled, flat, loaded, resolved
+            )
+        if not co_block["accepted"]:
+            notes.append(f"co-optimization not used: {co_block['reason']}")
+    else:
+        co_block = {"accepted": False, "reason": "off (--no-co-optimize)"}
+    tiles_2d = extrude_flat(flat, assembled.tiles, resolved.thickness_mm)
     with progress.stage("hinges"):
         hinge_layout = layout_hinges(
             linkage, flat, tiles_2d, assembled.tiles, strategy=resolved.hinges
@@ -504,6 +527,7 @@ def design(
     measured, problems, warnings = measure_design(
         resolved, profile, tiling, assembled, flat, hinge_layout, lift, route, masses
     )
+    measured["co_optimization"] = co_block
     notes.extend(f"flat stage: {p}" for p in flat.problems)
     notes.extend(f"hinge stage: {p}" for p in hinge_layout.problems)
     with progress.stage("rigidity"):
@@ -785,6 +809,88 @@ def measure_design(
             "routing rules; pull at the other lift points"
         )
     return metrics, problems, warnings
+
+
+def co_optimized(
+    linkage: Linkage,
+    tiling: Tiling,
+    assembled: AssembledResult,
+    flat: FlatResult,
+    target: Target,
+    options: ResolvedOptions,
+) -> tuple[AssembledResult, FlatResult, dict[str, Any]]:
+    """K3D and K2D moved together so the flat tiles are congruent to the assembled ones
+    (:func:`~drawstring.geometry.flat.co_optimize_top`), T3D extruded again under the new K3D and
+    the flat layout solved again from the joint one.  The new design is used only when its flat
+    edge error is lower and the flat layout keeps every hard bound; otherwise the inputs come
+    back unchanged with the reason."""
+    # Round 1 runs the whole continuation. The bottom faces decide the bottom-face angle bounds,
+    # so round 2 repeats the last stage with T3D moved along with the new top (a translation of
+    # each bottom vertex with its top vertex is close enough for those bounds); then T3D is
+    # extruded under the final top.
+    block: dict[str, Any] = {"accepted": False, "reason": "", "steps": 0}
+    current, nodes = assembled, None
+    for stages in (CO_STAGES, CO_STAGES[-1:]):
+        co = co_optimize_top(
+            linkage,
+            flat,
+            current.top,
+            current.quads,
+            target.vertices,
+            target.faces,
+            tiles_3d=current.tiles,
+            w_surface=options.weights[2],
+            stages=stages,
+            start_nodes=nodes,
+        )
+        block["steps"] += co.steps
+        bottom = current.bottom + (co.top - current.top)
+        current = replace(
+            current, top=co.top, bottom=bottom, tiles=tile_vertices(co.top, bottom, current.quads)
+        )
+        nodes = co.nodes
+    extruded = reextrude(assembled, current.top, target.vertices, target.faces)
+    if extruded is None:
+        block["reason"] = "the new assembled shape would turn a tile inside out"
+        return assembled, flat, block
+    current = extruded
+    new_assembled = current
+    block.update(
+        {
+            "move_max_mm": _round(
+                float(np.linalg.norm(new_assembled.top - assembled.top, axis=1).max()), 6
+            ),
+            "flat_edge_error_before_mm": _round(flat.edge_error_max_mm, 9),
+            "flat_edge_error_joint_mm": _round(co.edge_error_max_mm, 9),
+        }
+    )
+    if new_assembled.metrics.get("corner_margin_min", 1.0) <= 0 or new_assembled.metrics.get(
+        "flipped_tiles", 0
+    ):
+        block["reason"] = "the new assembled shape would fold or flip a tile"
+        return assembled, flat, block
+    new_flat = optimize_flat(
+        linkage,
+        new_assembled.tiles[:, :4],
+        uv=component_flattenings(linkage, new_assembled.top, tiling.uv)[0],
+        min_gap_angle_deg=options.min_gap_angle_deg,
+        tiles_3d=new_assembled.tiles,
+        initial_nodes=nodes,
+    )
+    block["flat_edge_error_after_mm"] = _round(new_flat.edge_error_max_mm, 9)
+    hard = [p for p in new_flat.problems if "edge error" not in p]
+    old_hard = [p for p in flat.problems if "edge error" not in p]
+    if len(hard) > len(old_hard):
+        block["reason"] = f"the new flat layout breaks a bound ({hard[0]})"
+        return assembled, flat, block
+    if not new_flat.edge_error_max_mm < flat.edge_error_max_mm:
+        block["reason"] = (
+            f"the flat edge error did not drop ({flat.edge_error_max_mm:.3g} -> "
+            f"{new_flat.edge_error_max_mm:.3g} mm)"
+        )
+        return assembled, flat, block
+    block["accepted"] = True
+    return new_assembled, new_flat, block
 
 
 def route_problems(route: Route, linkage: Linkage) -> list[str]:

@@ -34,6 +34,7 @@ tile: top ``(0, 1, 2, 3)``, bottom ``(4, 7, 6, 5)``, side ``k`` (under top edge 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -1014,4 +1015,76 @@ def optimize_assembled(
         extrusion_polish=ext_polish,
         time_s=elapsed,
         top_solves=tuple(solves),
+    )
+
+
+#: Closeness weight that holds the top in place while :func:`reextrude` extrudes it.
+REEXTRUDE_KEEP_TOP = 1e6
+
+
+def reextrude(
+    result: AssembledResult,
+    top: ArrayLike,
+    target_vertices: ArrayLike,
+    target_faces: ArrayLike,
+    *,
+    rel_tol: float = ASSEMBLED_SOLVER_REL_TOL,
+    max_iter: int = 1000,
+    anderson: int = ANDERSON_HISTORY,
+) -> AssembledResult | None:
+    """T3D extruded again under a new K3D that must not move (its quads already planar).
+
+    Used after the flat layout moved K3D (:func:`~drawstring.geometry.flat.co_optimize_top`):
+    the extrusion holds the top in place (``REEXTRUDE_KEEP_TOP``) and the exact planarity polish
+    moves only bottom vertices, so the flat tiles stay congruent to the new top faces.
+
+    Returns
+    -------
+    AssembledResult, or None when the new top would turn a tile inside out.
+    """
+    new_top = np.array(top, dtype=np.float64)
+    faces = result.quads
+    n = len(new_top)
+    edges = quad_mesh_edges(faces)
+    bbox_diag = float(result.metrics.get("bbox_diagonal_mm", 1.0))
+    polish_tol = ASSEMBLED_PLANARITY_REL * bbox_diag
+    top_polish = planarize_quads(new_top, faces, tol_mm=0.1 * polish_tol)
+    new_top = top_polish.X
+    ext, _, bottom = extrude_tiles(
+        new_top, faces, result.thickness, w_keep_top=REEXTRUDE_KEEP_TOP, rel_tol=rel_tol,
+        max_iter=max_iter, anderson=anderson,
+    )  # fmt: skip
+    all_faces = np.vstack([faces, faces + n, side_quads(faces, edges, n)])
+    polish = planarize_quads(
+        np.vstack([new_top, bottom]), all_faces, fixed=np.arange(n), tol_mm=0.1 * polish_tol
+    )
+    bottom = polish.X[n:]
+    top_area = quad_vector_areas(new_top, faces)
+    if np.any(np.einsum("ki,ki->k", top_area, quad_vector_areas(bottom, faces)) <= 0):
+        return None
+    tiles = tile_vertices(new_top, bottom, faces)
+    metrics = dict(result.metrics)
+    metrics.update(
+        measure_assembled(
+            tiles,
+            faces,
+            np.asarray(target_vertices, dtype=np.float64),
+            np.asarray(target_faces, dtype=np.int64),
+        )
+    )
+    metrics["corner_margin_min"] = float(
+        corner_margins(new_top, faces, quad_vector_areas(result.top, faces)).min()
+    )
+    metrics["polish_move_max_mm"] = max(
+        metrics.get("polish_move_max_mm", 0.0), top_polish.max_move_mm, polish.max_move_mm
+    )
+    return dataclasses.replace(
+        result,
+        top=new_top,
+        bottom=bottom,
+        tiles=tiles,
+        metrics=metrics,
+        extrusion_solve=ext,
+        top_polish=top_polish,
+        extrusion_polish=polish,
     )

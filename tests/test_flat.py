@@ -150,3 +150,72 @@ def test_bottom_face_bounds_follow_twisted_side_faces() -> None:
     plain = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=12.0)
     bottom_plain = gap_opening_angles_deg(linkage, extrude_flat(plain, tiles), bottom)
     assert bottom_plain.min() < 12.0 - 1.0  # without tiles_3d the bottom faces close further
+
+
+def _saddle_design(n: int = 8, cell: float = 12.0, radius: float = 60.0):
+    """K3D/T3D (paper eq. 1) and K2D of an n x n grid on a saddle z = (x^2 - y^2) / (2 R)."""
+    from drawstring.geometry.assembled import optimize_assembled
+
+    linkage = build_linkage(np.ones((n, n), dtype=bool))
+    uv = linkage.vertex_ij * cell - 0.5 * n * cell
+
+    def lift(p: np.ndarray) -> np.ndarray:
+        return np.c_[p, (p[:, 0] ** 2 - p[:, 1] ** 2) / (2 * radius)]
+
+    fine = np.stack(np.meshgrid(*[np.linspace(-0.6, 0.6, 49) * n * cell] * 2), -1).reshape(-1, 2)
+    k = np.arange(48 * 48) + np.arange(48 * 48) // 48
+    tris = np.r_[np.c_[k, k + 1, k + 50], np.c_[k, k + 50, k + 49]]
+    target = (lift(fine), tris)
+    assembled = optimize_assembled(lift(uv), linkage.tile_corners, *target, thickness=3.0)
+    flat = optimize_flat(
+        linkage, assembled.tiles[:, :4], uv=uv, min_gap_angle_deg=12.0, tiles_3d=assembled.tiles
+    )
+    return linkage, assembled, flat, target
+
+
+def test_co_optimization_makes_curved_tiles_flat_foldable() -> None:
+    from drawstring.geometry.flat import co_optimize_top
+
+    linkage, assembled, flat, target = _saddle_design()
+    # With K3D fixed the flat layout stops at its least-squares optimum.
+    assert flat.edge_error_max_mm > 1e-2
+    co = co_optimize_top(
+        linkage, flat, assembled.top, assembled.quads, *target, tiles_3d=assembled.tiles
+    )
+    corners = co.nodes[linkage.corner_node]
+    top = co.top[assembled.quads]
+    # Measured independently: every tile side and diagonal equal in both poses ...
+    assert flat_edge_errors(corners, top).max() < 1e-5
+    assert co.edge_error_max_mm == pytest.approx(flat_edge_errors(corners, top).max(), rel=1e-6)
+    # ... the assembled quads still planar, every gap angle in bounds, no overlap ...
+    centred = top - top.mean(axis=1, keepdims=True)
+    normal = np.linalg.svd(centred)[2][:, -1]
+    assert np.abs(np.einsum("tki,ti->tk", centred, normal)).max() < 1e-5
+    angles = gap_opening_angles_deg(linkage, corners)
+    assert angles.min() >= 12.0 - 1e-3 and angles.max() <= 90.0 + 1e-3
+    assert flat_overlap(corners)[0] == 0.0
+    # ... and the assembled shape moved by a fraction of a tile side.
+    assert 0 < co.move_max_mm < 1.0
+
+
+def test_co_optimization_leaves_a_developable_layout_alone() -> None:
+    # A cylinder's tiles lie flat exactly: nothing to fix, so nothing moves beyond what opening
+    # the gaps by the joint solve's 0.1 deg margin above the 8 deg bound takes.
+    from drawstring.geometry.flat import co_optimize_top
+
+    linkage, uv = _grid(6)
+    top, tiles = heightfield_tiles(uv, linkage.tile_corners, "cylinder", 4.0, 60.0)
+    flat = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=8.0)
+    vertices = np.zeros((int(linkage.tile_corners.max()) + 1, 3))
+    vertices[linkage.tile_corners] = top
+    x = np.linspace(-80, 80, 41)
+    grid = np.stack(np.meshgrid(x, x), -1).reshape(-1, 2)
+    k = np.arange(40 * 40) + np.arange(40 * 40) // 40
+    tris = np.r_[np.c_[k, k + 1, k + 42], np.c_[k, k + 42, k + 41]]
+    surface = np.c_[grid[:, 0], grid[:, 1], np.zeros(len(grid))]
+    surface[:, 2] = np.sqrt(60.0**2 - np.minimum(grid[:, 0] ** 2, 59.9**2)) - 60.0
+    co = co_optimize_top(
+        linkage, flat, vertices, linkage.tile_corners, surface, tris, w_surface=0.0
+    )
+    assert co.edge_error_max_mm < 1e-6
+    assert co.move_max_mm < 1e-3
