@@ -69,14 +69,23 @@ def foundation_rows(tile_counts: tuple[int, ...], names: list[str]) -> list[dict
     return rows
 
 
-def pipeline_rows(names: list[str], tiles: int) -> list[dict[str, Any]]:
+def pipeline_rows(
+    names: list[str], tiles: int, hinges: str = "dual", simulate: bool = True
+) -> list[dict[str, Any]]:
     """Every stage of ``design`` on each built-in at about ``tiles`` tiles, with its quality."""
     from drawstring.fabrication.pipeline import DesignOptions, design
 
     rows: list[dict[str, Any]] = []
     for name in names:
         cpu = time.process_time()
-        result = design(name, DesignOptions(tiles=tiles, size_mm=200.0, cad=False))
+        options = DesignOptions(
+            tiles=tiles,
+            size_mm=200.0,
+            cad=False,
+            hinges=hinges,
+            simulate=simulate,  # type: ignore[arg-type]
+        )
+        result = design(name, options)
         cpu = time.process_time() - cpu
         m = result.metrics()
         sim = m.get("simulation", {})
@@ -84,6 +93,7 @@ def pipeline_rows(names: list[str], tiles: int) -> list[dict[str, Any]]:
             {
                 "case": name,
                 "tiles": result.tiling.linkage.n_tiles,
+                "hinges": hinges,
                 **{f"{k}_s": round(v, 3) for k, v in result.timings_s.items()},
                 "planarity_mm": m.get("planarity_max_mm"),
                 "overlap_mm2": m.get("flat_overlap_area_mm2"),
@@ -91,6 +101,7 @@ def pipeline_rows(names: list[str], tiles: int) -> list[dict[str, Any]]:
                 f"{m.get('flat_gap_angle_max_deg', 0):.1f}",
                 "hinge_gap_mm": m.get("hinge_gap_max_mm"),
                 "flat_edge_error_mm": m.get("flat_edge_error_max_mm"),
+                "co_optimized": m.get("co_optimization", {}).get("accepted"),
                 "surface_mean_pct": round(
                     100 * m["surface_distance_mean_mm"] / m["tile_side_mean_mm"], 2
                 ),
@@ -147,6 +158,9 @@ def main() -> None:
     stages = pipeline_rows(names, 200)
     print("\npipeline at about 200 tiles, 200 mm")
     print_table(stages)
+    top_rows = pipeline_rows(names, 200, hinges="top", simulate=False)
+    print("\npipeline at about 200 tiles, 200 mm, --hinges top (no simulation)")
+    print_table(top_rows)
     fine = pipeline_rows(list(FINE_CASES), 1600) if args.fine else []
     if fine:
         print("\npipeline at about 1600 tiles, 200 mm")
@@ -155,19 +169,25 @@ def main() -> None:
     for name, stage_rows in extras.items():
         print(f"\n{name}")
         print_table(stage_rows)
-    results = {
-        "machine": {
-            "cores": os.cpu_count(),
-            "python": platform.python_version(),
-            "platform": platform.platform(),
-        },
-        "targets_s": TARGETS_S,
-        "foundation": rows,
-        "pipeline_200": stages,
-        **({"pipeline_1600": fine} if fine else {}),
-        **extras,
-    }
-    (HERE / "results.json").write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
+    # Rows this run did not compute (e.g. --fine or --stages left out) are kept from the last run.
+    path = HERE / "results.json"
+    results: dict[str, Any] = json.loads(path.read_text()) if path.exists() else {}
+    results.update(
+        {
+            "machine": {
+                "cores": os.cpu_count(),
+                "python": platform.python_version(),
+                "platform": platform.platform(),
+            },
+            "targets_s": TARGETS_S,
+            "foundation": rows,
+            "pipeline_200": stages,
+            "pipeline_200_top": top_rows,
+            **({"pipeline_1600": fine} if fine else {}),
+            **extras,
+        }
+    )
+    path.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
 
 
 if __name__ == "__main__":
