@@ -20,6 +20,15 @@ Levenberg-Marquardt (one sparse factorization per Gauss-Newton step).  The edge 
 the constrained least-squares optimum: a quad linkage with non-congruent tiles is
 over-constrained in the plane.
 
+Co-optimization
+---------------
+:func:`co_optimize_top` then moves K3D and K2D together (every tile side and diagonal equal in
+both poses, K3D quads planar, K3D pulled to its start and to the target, the same hard rows),
+which removes that residual: the assembled shape has freedom to spare that the flat layout
+alone has not.  The pipeline extrudes T3D again under the new K3D
+(:func:`~drawstring.geometry.assembled.reextrude`) and re-solves the flat layout from the joint
+one (``initial_nodes``).
+
 Initial layout
 --------------
 A uniform rotating-squares linkage of side ``L`` opened by ``theta`` has tile pitch
