@@ -811,6 +811,11 @@ def measure_design(
     return metrics, problems, warnings
 
 
+#: Extra rounds of :func:`co_optimized` on the extruded T3D when re-solving the flat layout
+#: with its true bounds loses most of what the joint solve gained.
+CO_REFINEMENTS = 2
+
+
 def co_optimized(
     linkage: Linkage,
     tiling: Tiling,
@@ -826,34 +831,54 @@ def co_optimized(
     back unchanged with the reason."""
     # Round 1 runs the whole continuation. The bottom faces decide the bottom-face angle bounds,
     # so round 2 repeats the last stage with T3D moved along with the new top (a translation of
-    # each bottom vertex with its top vertex is close enough for those bounds); then T3D is
-    # extruded under the final top.
+    # each bottom vertex with its top vertex is usually close enough for those bounds). T3D is
+    # then extruded under the new top and the flat layout re-solved with the true bounds; when
+    # that costs much of what the joint solve gained, the last stage runs once more on the
+    # extruded T3D.
     block: dict[str, Any] = {"accepted": False, "reason": "", "steps": 0}
     current, nodes = assembled, None
-    for stages in (CO_STAGES, CO_STAGES[-1:]):
-        co = co_optimize_top(
+    rounds: list[tuple[tuple[float, float], ...]] = [CO_STAGES, CO_STAGES[-1:]]
+    for _ in range(CO_REFINEMENTS + 1):
+        for stages in rounds:
+            co = co_optimize_top(
+                linkage,
+                flat,
+                current.top,
+                current.quads,
+                target.vertices,
+                target.faces,
+                tiles_3d=current.tiles,
+                w_surface=options.weights[2],
+                stages=stages,
+                start_nodes=nodes,
+            )
+            block["steps"] += co.steps
+            bottom = current.bottom + (co.top - current.top)
+            current = replace(
+                current,
+                top=co.top,
+                bottom=bottom,
+                tiles=tile_vertices(co.top, bottom, current.quads),
+            )
+            nodes = co.nodes
+        extruded = reextrude(assembled, current.top, target.vertices, target.faces)
+        if extruded is None:
+            block["reason"] = "the new assembled shape would turn a tile inside out"
+            return assembled, flat, block
+        current = extruded
+        new_flat = optimize_flat(
             linkage,
-            flat,
-            current.top,
-            current.quads,
-            target.vertices,
-            target.faces,
+            current.tiles[:, :4],
+            uv=component_flattenings(linkage, current.top, tiling.uv)[0],
+            min_gap_angle_deg=options.min_gap_angle_deg,
             tiles_3d=current.tiles,
-            w_surface=options.weights[2],
-            stages=stages,
-            start_nodes=nodes,
+            initial_nodes=nodes,
         )
-        block["steps"] += co.steps
-        bottom = current.bottom + (co.top - current.top)
-        current = replace(
-            current, top=co.top, bottom=bottom, tiles=tile_vertices(co.top, bottom, current.quads)
-        )
-        nodes = co.nodes
-    extruded = reextrude(assembled, current.top, target.vertices, target.faces)
-    if extruded is None:
-        block["reason"] = "the new assembled shape would turn a tile inside out"
-        return assembled, flat, block
-    current = extruded
+        if new_flat.edge_error_max_mm <= max(
+            0.1 * FLAT_EDGE_ERROR_TOL_MM, 10 * co.edge_error_max_mm
+        ):
+            break
+        rounds = [CO_STAGES[-1:]]
     new_assembled = current
     block.update(
         {
@@ -869,14 +894,6 @@ def co_optimized(
     ):
         block["reason"] = "the new assembled shape would fold or flip a tile"
         return assembled, flat, block
-    new_flat = optimize_flat(
-        linkage,
-        new_assembled.tiles[:, :4],
-        uv=component_flattenings(linkage, new_assembled.top, tiling.uv)[0],
-        min_gap_angle_deg=options.min_gap_angle_deg,
-        tiles_3d=new_assembled.tiles,
-        initial_nodes=nodes,
-    )
     block["flat_edge_error_after_mm"] = _round(new_flat.edge_error_max_mm, 9)
     hard = [p for p in new_flat.problems if "edge error" not in p]
     old_hard = [p for p in flat.problems if "edge error" not in p]
