@@ -168,13 +168,15 @@ def save_flat(result: Design, path: Path) -> None:
     draw_flat(ax, linkage, result.hinge_layout, result.flat)
     centres = gap_centroids(linkage, result.tiles_flat[:, :4, :2])
     draw_route(ax, result.route, centres, result.lift)
+    ax.legend(loc="upper right", fontsize=7)  # again, so the route's entries are listed too
     ax.set_aspect("equal")
     ax.autoscale_view()
     m = result.metrics()
     ax.set_title(
         f"flat layout: {linkage.n_tiles} tiles, gaps {m['flat_gap_angle_min_deg']:.1f}"
-        f"..{m['flat_gap_angle_max_deg']:.1f} deg, overlap {m['flat_overlap_area_mm2']:.2g} mm²; "
-        f"hinges: dot top, ring bottom; string route, lift points starred",
+        f"..{m['flat_gap_angle_max_deg']:.1f} deg, overlap {m['flat_overlap_area_mm2']:.2g} mm²\n"
+        "hinges: dot top, red ring bottom; string route, black rings its boundary entrances; "
+        "lift points starred",
         fontsize=9,
     )
     fig.tight_layout()
