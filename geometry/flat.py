@@ -22,12 +22,12 @@ over-constrained in the plane.
 
 Co-optimization
 ---------------
-:func:`co_optimize_top` then moves K3D and K2D together (every tile side and diagonal equal in
-both poses, K3D quads planar, K3D pulled to its start and to the target, the same hard rows),
-which removes that residual: the assembled shape has freedom to spare that the flat layout
-alone has not.  The pipeline extrudes T3D again under the new K3D
-(:func:`~drawstring.geometry.assembled.reextrude`) and re-solves the flat layout from the joint
-one (``initial_nodes``).
+:func:`drawstring.geometry.coflat.co_optimize_top` then moves K3D and K2D together (every
+tile side and diagonal equal in both poses, K3D quads planar, K3D pulled to its start and to
+the target, the same hard rows), which removes that residual: the assembled shape has freedom
+to spare that the flat layout alone has not.  The pipeline extrudes T3D again under the new
+K3D (:func:`~drawstring.geometry.assembled.reextrude`) and re-solves the flat layout from the
+joint one (``initial_nodes``).
 
 Initial layout
 --------------
@@ -49,8 +49,8 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
+from typing import Protocol
 
-import igl
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -85,8 +85,6 @@ __all__ = [
     "extrude_flat",
     "gap_junctions",
     "initial_flat_layout",
-    "CoOptimizedTop",
-    "co_optimize_top",
     "optimize_flat",
     "tile_plane_coordinates",
 ]
@@ -466,6 +464,15 @@ def _separation_rows(
     return _SeparationRows(na[keep], nb[keep], nrm[keep], np.full(int(keep.sum()), margin))
 
 
+class LeastSquares(Protocol):
+    """A least-squares objective for :func:`_constrained_edges`: residuals and their sparse
+    Jacobian over the flattened ``(rows, 2)`` position array."""
+
+    def residual(self, x: FloatArray) -> FloatArray: ...
+
+    def residual_jacobian(self, x: FloatArray) -> tuple[FloatArray, sp.csr_matrix]: ...
+
+
 @dataclass
 class _EdgeLeastSquares:
     """``sum w (|x_j - x_i| - L)^2`` with its Gauss-Newton Jacobian."""
@@ -492,7 +499,7 @@ class _EdgeLeastSquares:
 
 def _constrained_edges(
     x0: FloatArray,
-    objective: _EdgeLeastSquares | _JointTopLeastSquares,
+    objective: LeastSquares,
     constraints: list[_AngleRows | _SeparationRows],
     *,
     max_steps: int,
@@ -935,300 +942,3 @@ def extrude_flat(
     dst = np.concatenate([corners, np.full((len(corners), 4, 1), float(thickness))], axis=2)
     rot, trans = rigid_fit(tiles[:, :4], dst)
     return np.asarray(np.einsum("kij,kvj->kvi", rot, tiles) + trans[:, None, :])
-
-
-# --------------------------------------------------------------------------------------------
-# Co-optimization of K3D and K2D
-# --------------------------------------------------------------------------------------------
-
-#: Continuation of :func:`co_optimize_top`: (planarity weight, edge weight) per stage, both
-#: relative to the pull towards the starting K3D (weight 1 per mm^2).
-CO_STAGES: tuple[tuple[float, float], ...] = ((100.0, 100.0), (1e5, 1e5))
-#: Gauss-Newton steps per stage.
-CO_STEPS = 15
-#: Pull of every K3D vertex towards its start (weight per mm^2; the other weights are relative
-#: to it), which keeps the squareness eq. 1 gave while the tiles become flat-foldable.
-CO_KEEP = 1.0
-#: The joint solve's few steps leave the angle bounds met to a few hundredths of a degree, so it
-#: keeps this much inside them; :func:`optimize_flat` afterwards holds them exactly.
-CO_ANGLE_MARGIN_DEG = 0.1
-
-
-@dataclass(frozen=True)
-class CoOptimizedTop:
-    """Result of :func:`co_optimize_top`.
-
-    Attributes
-    ----------
-    top : (n, 3) float, mm
-        K3D vertices, quads planar and congruent (sides and diagonals) to the K2D tiles.
-    nodes : (n_nodes, 2) float, mm
-        K2D, a start for :func:`optimize_flat` on the new K3D.
-    edge_error_max_mm : float
-        Largest side or diagonal mismatch between K2D and the new K3D.
-    move_max_mm : float
-        Largest K3D vertex move.
-    steps : int
-    time_s : float
-    """
-
-    top: FloatArray
-    nodes: FloatArray
-    edge_error_max_mm: float
-    move_max_mm: float
-    steps: int
-    time_s: float
-
-
-class _JointTopLeastSquares:
-    """Least squares over K2D nodes and K3D vertices together (:func:`co_optimize_top`).
-
-    The variables travel as one ``(rows, 2)`` array for :func:`_constrained_edges`: rows
-    ``0 .. n_nodes - 1`` are the K2D nodes, the rest hold the K3D coordinates ``x0 y0 z0 x1 ...``
-    two per row (padded with one zero when their count is odd).  Residuals: every tile side and
-    diagonal equal in K2D and K3D (``w_edge``), every K3D quad planar (distance to its best-fit
-    plane, ``w_planar``), K3D close to the target along the closest face's normal
-    (``w_surface``) and to its start (``CO_KEEP``).
-    """
-
-    def __init__(
-        self,
-        linkage: Linkage,
-        quads: IntArray,
-        top0: FloatArray,
-        target_vertices: FloatArray,
-        target_faces: IntArray,
-        w_surface: float,
-    ) -> None:
-        self.corner_node = linkage.corner_node
-        self.n_nodes = linkage.n_nodes
-        self.quads = quads
-        self.top0 = top0
-        self.n = len(top0)
-        self.pad = (3 * self.n) % 2
-        self.rows = self.n_nodes + (3 * self.n + self.pad) // 2
-        self.target = (
-            np.ascontiguousarray(target_vertices, dtype=np.float64),
-            np.ascontiguousarray(target_faces, dtype=np.int64),
-        )
-        tri = self.target[0][self.target[1]]
-        normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        self.target_normals = normals / np.maximum(
-            np.linalg.norm(normals, axis=1, keepdims=True), 1e-300
-        )
-        self.sqrt_surface = float(np.sqrt(max(w_surface, 0.0)))
-        self.sqrt_edge = 1.0
-        self.sqrt_planar = 1.0
-        self.node_i = self.corner_node[:, TILE_EDGES[:, 0]].ravel()
-        self.node_j = self.corner_node[:, TILE_EDGES[:, 1]].ravel()
-        self.vert_i = quads[:, TILE_EDGES[:, 0]].ravel()
-        self.vert_j = quads[:, TILE_EDGES[:, 1]].ravel()
-
-    def pack(self, nodes: FloatArray, top: FloatArray) -> FloatArray:
-        z = np.zeros((self.rows, 2))
-        z[: self.n_nodes] = nodes
-        z[self.n_nodes :] = np.concatenate([top.ravel(), np.zeros(self.pad)]).reshape(-1, 2)
-        return z
-
-    def unpack(self, z: FloatArray) -> tuple[FloatArray, FloatArray]:
-        return z[: self.n_nodes], z[self.n_nodes :].ravel()[: 3 * self.n].reshape(self.n, 3)
-
-    def edge_errors(self, z: FloatArray) -> FloatArray:
-        nodes, top = self.unpack(z)
-        l2 = np.linalg.norm(nodes[self.node_j] - nodes[self.node_i], axis=1)
-        l3 = np.linalg.norm(top[self.vert_j] - top[self.vert_i], axis=1)
-        return np.asarray(l2 - l3)
-
-    def residual_jacobian(self, z: FloatArray) -> tuple[FloatArray, sp.csr_matrix]:
-        res, jac = self._evaluate(z, True)
-        assert jac is not None
-        return res, jac
-
-    def residual(self, z: FloatArray) -> FloatArray:
-        return self._evaluate(z, False)[0]
-
-    def _evaluate(
-        self, z: FloatArray, with_jacobian: bool
-    ) -> tuple[FloatArray, sp.csr_matrix | None]:
-        nodes, top = self.unpack(z)
-        base = 2 * self.n_nodes  # column of the first K3D coordinate
-        res: list[FloatArray] = []
-        rows: list[IntArray] = []
-        cols: list[IntArray] = []
-        vals: list[FloatArray] = []
-        row0 = 0
-
-        # sides and diagonals: K2D length minus K3D length
-        w = self.sqrt_edge
-        ni, nj, vi, vj = self.node_i, self.node_j, self.vert_i, self.vert_j
-        d2 = nodes[nj] - nodes[ni]
-        l2 = np.linalg.norm(d2, axis=1)
-        d3 = top[vj] - top[vi]
-        l3 = np.linalg.norm(d3, axis=1)
-        res.append(w * (l2 - l3))
-        if with_jacobian:
-            u2 = d2 / np.maximum(l2, 1e-300)[:, None]
-            u3 = d3 / np.maximum(l3, 1e-300)[:, None]
-            r = row0 + np.arange(len(ni))
-            for c in range(2):
-                rows += [r, r]
-                cols += [2 * ni + c, 2 * nj + c]
-                vals += [-w * u2[:, c], w * u2[:, c]]
-            for c in range(3):
-                rows += [r, r]
-                cols += [base + 3 * vi + c, base + 3 * vj + c]
-                vals += [w * u3[:, c], -w * u3[:, c]]
-        row0 += len(ni)
-
-        # planarity: distances to the best-fit plane (Jacobian by the envelope theorem)
-        w = self.sqrt_planar
-        pts = top[self.quads]
-        centred = pts - pts.mean(axis=1, keepdims=True)
-        normal = np.linalg.svd(centred)[2][:, -1]
-        dist = np.einsum("qki,qi->qk", centred, normal)
-        res.append(w * dist.ravel())
-        if with_jacobian:
-            r = (row0 + np.arange(dist.size)).reshape(dist.shape)
-            coef = np.eye(4) - 0.25  # d dist_k / d p_m = normal (delta_km - 1/4)
-            for m in range(4):
-                for c in range(3):
-                    rows.append(r.ravel())
-                    cols.append(np.repeat(base + 3 * self.quads[:, m] + c, 4))
-                    vals.append((w * coef[None, :, m] * normal[:, None, c]).ravel())
-        row0 += dist.size
-
-        # closeness to the target along the closest face's normal
-        if self.sqrt_surface > 0:
-            w = self.sqrt_surface
-            _, face, closest = igl.point_mesh_squared_distance(
-                np.ascontiguousarray(top), *self.target
-            )
-            fn = self.target_normals[face]
-            res.append(w * np.einsum("vi,vi->v", top - closest, fn))
-            if with_jacobian:
-                r = row0 + np.arange(self.n)
-                for c in range(3):
-                    rows.append(r)
-                    cols.append(base + 3 * np.arange(self.n) + c)
-                    vals.append(w * fn[:, c])
-            row0 += self.n
-
-        # pull towards the starting K3D
-        w = float(np.sqrt(CO_KEEP))
-        res.append(w * (top - self.top0).ravel())
-        if with_jacobian:
-            idx = np.arange(3 * self.n)
-            rows.append(row0 + idx)
-            cols.append(base + idx)
-            vals.append(np.full(3 * self.n, w))
-        row0 += 3 * self.n
-
-        out = np.concatenate(res)
-        if not with_jacobian:
-            return out, None
-        jac = sp.csr_matrix(
-            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-            shape=(row0, 2 * self.rows),
-        )
-        return out, jac
-
-
-def co_optimize_top(
-    linkage: Linkage,
-    flat: FlatResult,
-    top: ArrayLike,
-    quads: ArrayLike,
-    target_vertices: ArrayLike,
-    target_faces: ArrayLike,
-    *,
-    tiles_3d: ArrayLike | None = None,
-    w_surface: float = 0.1,
-    stages: tuple[tuple[float, float], ...] | None = None,
-    steps_per_stage: int | None = None,
-    start_nodes: ArrayLike | None = None,
-) -> CoOptimizedTop:
-    """Move K3D and K2D together until every flat tile is congruent to its assembled top face.
-
-    A quad linkage of rigid tiles is over-determined in the plane (about four hinge equations
-    per tile against three degrees of freedom), so with K3D fixed :func:`optimize_flat` stops at
-    a least-squares optimum with edge errors of 0.05-0.5 mm.  K3D has freedom to spare: here
-    its vertices move too, pulled towards their start, while the K2D sides and diagonals are
-    made equal to K3D's and every K3D quad planar, with weights raised stage by stage
-    (``stages``); the same hard rows as in :func:`optimize_flat` (gap-angle bounds, gap
-    orientation) hold throughout.  Overlaps are not modelled here; :func:`optimize_flat`, run
-    again on the new K3D from these nodes, checks and separates them.
-
-    Parameters
-    ----------
-    linkage : Linkage
-    flat : FlatResult
-        The layout to start from (:func:`optimize_flat` on the same K3D).
-    top : (n, 3) float, mm
-        K3D vertices; quads ``quads`` (tile order of the linkage).
-    quads : (T, 4) int
-    target_vertices, target_faces : the target surface.
-    tiles_3d : (T, 8, 3) float, mm, optional
-        T3D, for the bottom-face angle bounds.
-    w_surface : float
-        Closeness to the target (paper eq. 1's ``w_3``), relative to the pull of ``CO_KEEP``.
-    stages, steps_per_stage : continuation schedule (default ``CO_STAGES``, ``CO_STEPS``).
-    start_nodes : (n_nodes, 2) float, mm, optional
-        K2D to start from instead of ``flat.nodes`` (a previous round's nodes).
-
-    Returns
-    -------
-    CoOptimizedTop
-    """
-    start = time.perf_counter()
-    top0 = np.asarray(top, dtype=np.float64)
-    q = np.asarray(quads, dtype=np.int64)
-    if q.shape != (linkage.n_tiles, 4) or top0.ndim != 2 or top0.shape[1] != 3:
-        raise InputError("co_optimize_top needs (n, 3) K3D vertices and (T, 4) quads")
-    corners = top0[q]
-    plane = tile_plane_coordinates(corners)
-    theta_min = np.radians(flat.min_gap_angle_deg + CO_ANGLE_MARGIN_DEG)
-    side = float(np.mean(flat.edge_targets[:, :4]))
-    junctions = gap_junctions(linkage)
-    constraints = _flat_constraints(
-        linkage,
-        junctions,
-        plane,
-        tiles_3d,
-        theta_min,
-        side,
-        True,
-        True,
-        theta_max=np.radians(90.0 - CO_ANGLE_MARGIN_DEG),
-    )
-    problem = _JointTopLeastSquares(
-        linkage, q, top0, np.asarray(target_vertices), np.asarray(target_faces), w_surface
-    )
-    nodes0 = flat.nodes if start_nodes is None else np.asarray(start_nodes, dtype=np.float64)
-    z = problem.pack(nodes0, top0)
-    angle_tol = np.radians(FLAT_SOLVER_ANGLE_TOL_DEG)
-    steps = 0
-    per_stage = CO_STEPS if steps_per_stage is None else steps_per_stage
-    for w_planar, w_edge in CO_STAGES if stages is None else stages:
-        problem.sqrt_planar = float(np.sqrt(w_planar))
-        problem.sqrt_edge = float(np.sqrt(w_edge))
-        z, used, _ = _constrained_edges(
-            z, problem, constraints, max_steps=per_stage, angle_tol=angle_tol,
-            length_tol=angle_tol * side,
-        )  # fmt: skip
-        steps += used
-    nodes, new_top = problem.unpack(z)
-    error = float(np.abs(problem.edge_errors(z)).max(initial=0.0))
-    move = float(np.linalg.norm(new_top - top0, axis=1).max(initial=0.0))
-    elapsed = time.perf_counter() - start
-    logger.info(
-        "co-optimization: %d steps, %.2f s, edge error %.3g -> %.3g mm, K3D moved <= %.3g mm",
-        steps, elapsed, flat.edge_error_max_mm, error, move,
-    )  # fmt: skip
-    return CoOptimizedTop(
-        top=np.array(new_top),
-        nodes=np.array(nodes),
-        edge_error_max_mm=error,
-        move_max_mm=move,
-        steps=steps,
-        time_s=elapsed,
-    )

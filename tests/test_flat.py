@@ -174,7 +174,7 @@ def _saddle_design(n: int = 8, cell: float = 12.0, radius: float = 60.0):
 
 
 def test_co_optimization_makes_curved_tiles_flat_foldable() -> None:
-    from drawstring.geometry.flat import co_optimize_top
+    from drawstring.geometry.coflat import co_optimize_top
 
     linkage, assembled, flat, target = _saddle_design()
     # With K3D fixed the flat layout stops at its least-squares optimum.
@@ -201,7 +201,7 @@ def test_co_optimization_makes_curved_tiles_flat_foldable() -> None:
 def test_co_optimization_leaves_a_developable_layout_alone() -> None:
     # A cylinder's tiles lie flat exactly: nothing to fix, so nothing moves beyond what opening
     # the gaps by the joint solve's 0.1 deg margin above the 8 deg bound takes.
-    from drawstring.geometry.flat import co_optimize_top
+    from drawstring.geometry.coflat import co_optimize_top
 
     linkage, uv = _grid(6)
     top, tiles = heightfield_tiles(uv, linkage.tile_corners, "cylinder", 4.0, 60.0)
