@@ -102,6 +102,13 @@ def pipeline_rows(
                 "hinge_gap_mm": m.get("hinge_gap_max_mm"),
                 "flat_edge_error_mm": m.get("flat_edge_error_max_mm"),
                 "co_optimized": m.get("co_optimization", {}).get("accepted"),
+                "co_steps": m.get("co_optimization", {}).get("steps"),
+                "co_per_step_ms": round(
+                    1e3
+                    * result.timings_s.get("co-optimize", 0.0)
+                    / max(m.get("co_optimization", {}).get("steps", 0) or 1, 1),
+                    2,
+                ),
                 "surface_mean_pct": round(
                     100 * m["surface_distance_mean_mm"] / m["tile_side_mean_mm"], 2
                 ),
