@@ -168,7 +168,8 @@ def save_flat(result: Design, path: Path) -> None:
     draw_flat(ax, linkage, result.hinge_layout, result.flat)
     centres = gap_centroids(linkage, result.tiles_flat[:, :4, :2])
     draw_route(ax, result.route, centres, result.lift)
-    ax.legend(loc="upper right", fontsize=7)  # again, so the route's entries are listed too
+    # again, so the route's entries are listed too; below the plot, clear of the tiles
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.06), ncol=5, fontsize=7)
     ax.set_aspect("equal")
     ax.autoscale_view()
     m = result.metrics()
