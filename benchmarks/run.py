@@ -100,6 +100,7 @@ def pipeline_rows(
                 "gap_deg": f"{m.get('flat_gap_angle_min_deg', 0):.1f}-"
                 f"{m.get('flat_gap_angle_max_deg', 0):.1f}",
                 "hinge_gap_mm": m.get("hinge_gap_max_mm"),
+                "hinge_gap_in_plane_mm": m.get("hinge_gap_in_plane_max_mm"),
                 "flat_edge_error_mm": m.get("flat_edge_error_max_mm"),
                 "co_optimized": m.get("co_optimization", {}).get("accepted"),
                 "co_steps": m.get("co_optimization", {}).get("steps"),

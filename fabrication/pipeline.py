@@ -39,8 +39,14 @@ from drawstring.geometry.assembled import (
 from drawstring.geometry.coflat import CO_STAGES, co_optimize_top
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.flat import FlatResult, extrude_flat, optimize_flat
+from drawstring.geometry.flatpose import HingeFaces, hinge_faces
 from drawstring.geometry.flatten import Flattening, flatten
-from drawstring.geometry.hinges import HingeLayout, HingeStrategy, layout_hinges
+from drawstring.geometry.hinges import (
+    HingeLayout,
+    HingeStrategy,
+    hinge_sides,
+    layout_hinges,
+)
 from drawstring.geometry.lift import LiftPoints, select_lift_points, tile_masses_from_volumes
 from drawstring.geometry.linkage import Linkage, gap_centroids
 from drawstring.geometry.rigid import apply_rigid, rigid_fit
@@ -60,6 +66,7 @@ from drawstring.geometry.tolerances import (
     FLAT_GAP_ANGLE_TOL_DEG,
     FLAT_INTERPENETRATION_TOL_MM3,
     FLAT_OVERLAP_TOL_MM2,
+    HINGE_ANGLE_MARGIN_DEG,
     HINGE_GAP_TOL_MM,
     MAX_SCALE_FACTOR,
 )
@@ -446,12 +453,20 @@ def design(
             w_square=resolved.weights[1],
             w_surface=resolved.weights[2],
         )
+    # Hinge sides are decided once, on the eq.-1 tiles; the flat layout makes the hinged
+    # corners meet on the face that carries each hinge.
+    bottom = (
+        hinge_sides(linkage, assembled.tiles, resolved.min_gap_angle_deg)
+        if resolved.hinges == "dual"
+        else np.zeros(linkage.n_hinges, dtype=bool)
+    )
+    faces = hinge_faces(linkage, assembled.tiles, bottom) if resolved.hinges == "dual" else None
     with progress.stage("flat"):
-        flat = flat_layout(linkage, tiling, assembled, resolved)
+        flat = flat_layout(linkage, tiling, assembled, resolved, faces)
     if resolved.co_optimize:
         with progress.stage("co-optimize"):
             assembled, flat, co_block = co_optimized(
-                linkage, tiling, assembled, flat, loaded, resolved
+                linkage, tiling, assembled, flat, loaded, resolved, faces
             )
         if not co_block["accepted"]:
             notes.append(f"co-optimization not used: {co_block['reason']}")
@@ -460,7 +475,7 @@ def design(
     tiles_2d = extrude_flat(flat, assembled.tiles, resolved.thickness_mm)
     with progress.stage("hinges"):
         hinge_layout = layout_hinges(
-            linkage, flat, tiles_2d, assembled.tiles, strategy=resolved.hinges
+            linkage, flat, tiles_2d, assembled.tiles, strategy=resolved.hinges, bottom=bottom
         )
     masses = tile_masses_from_volumes(
         assembled.tiles, profile.density_kg_m3 * profile.infill_fraction
@@ -703,6 +718,8 @@ def measure_design(
             "surface_distance_mean_mm",
             "tile_side_mean_mm",
             "tile_side_spread",
+            "thickness_min_mm",
+            "thickness_max_mm",
         )
         if key in a
     }
@@ -722,6 +739,7 @@ def measure_design(
     fabricated = fabricated_tiles(hinge_layout, assembled.tiles)
     gaps = verify.hinge_gaps(fabricated, hinge_layout.hinge_vertices)
     hinge_gap = float(gaps.max(initial=0.0))
+    in_plane = verify.hinge_gaps(fabricated, hinge_layout.hinge_vertices, in_plane=True)
     metrics.update(
         {
             "flat_overlap_area_mm2": _round(overlap_area, 9),
@@ -730,6 +748,7 @@ def measure_design(
             "flat_gap_angle_min_deg": _round(float(angles.min(initial=90.0)), 6),
             "flat_gap_angle_max_deg": _round(float(angles.max(initial=0.0)), 6),
             "hinge_gap_max_mm": _round(hinge_gap, 9),
+            "hinge_gap_in_plane_max_mm": _round(float(in_plane.max(initial=0.0)), 9),
             "hinges_bottom": int(np.count_nonzero(hinge_layout.bottom)),
             "mass_g": _round(float(masses.sum()) * 1000.0, 3),
         }
@@ -810,10 +829,12 @@ def flat_layout(
     tiling: Tiling,
     assembled: AssembledResult,
     options: ResolvedOptions,
+    faces: HingeFaces | None,
     initial_nodes: NDArray[np.float64] | None = None,
 ) -> FlatResult:
     """The flat layout K2D of ``assembled`` (each component from its own flattening), its
-    gap-angle bounds held on the top faces and on the T3D bottom faces."""
+    gap-angle bounds held on the top and bottom faces; with ``faces`` (dual hinges) its nodes
+    are the hinge points and each opening stays where the hinged tiles clear each other."""
     return optimize_flat(
         linkage,
         assembled.tiles[:, :4],
@@ -821,6 +842,8 @@ def flat_layout(
         min_gap_angle_deg=options.min_gap_angle_deg,
         tiles_3d=assembled.tiles,
         initial_nodes=initial_nodes,
+        hinges=faces,
+        angle_margin_deg=2.0 * HINGE_ANGLE_MARGIN_DEG,
     )
 
 
@@ -831,6 +854,7 @@ def co_optimized(
     flat: FlatResult,
     target: Target,
     options: ResolvedOptions,
+    faces: HingeFaces | None,
 ) -> tuple[AssembledResult, FlatResult, dict[str, Any]]:
     """K3D and K2D moved together so the flat tiles are congruent to the assembled ones
     (:func:`~drawstring.geometry.flat.co_optimize_top`), T3D extruded again under the new K3D and
@@ -846,6 +870,7 @@ def co_optimized(
     block: dict[str, Any] = {"accepted": False, "reason": "", "steps": 0}
     current, nodes = assembled, None
     rounds: list[tuple[tuple[float, float], ...]] = [CO_STAGES, CO_STAGES[-1:]]
+    best: tuple[AssembledResult, FlatResult] | None = None
     for _ in range(CO_REFINEMENTS + 1):
         for stages in rounds:
             co = co_optimize_top(
@@ -859,14 +884,15 @@ def co_optimized(
                 w_surface=options.weights[2],
                 stages=stages,
                 start_nodes=nodes,
+                hinges=faces,
             )
             block["steps"] += co.steps
-            bottom = current.bottom + (co.top - current.top)
+            moved_bottom = current.bottom + (co.top - current.top)
             current = replace(
                 current,
                 top=co.top,
-                bottom=bottom,
-                tiles=tile_vertices(co.top, bottom, current.quads),
+                bottom=moved_bottom,
+                tiles=tile_vertices(co.top, moved_bottom, current.quads),
             )
             nodes = co.nodes
         extruded = reextrude(assembled, current.top, target.vertices, target.faces)
@@ -874,13 +900,17 @@ def co_optimized(
             block["reason"] = "the new assembled shape would turn a tile inside out"
             return assembled, flat, block
         current = extruded
-        new_flat = flat_layout(linkage, tiling, current, options, initial_nodes=nodes)
+        new_flat = flat_layout(linkage, tiling, current, options, faces, initial_nodes=nodes)
+        if best is None or new_flat.edge_error_max_mm < best[1].edge_error_max_mm:
+            best = (current, new_flat)
         if new_flat.edge_error_max_mm <= max(
             0.1 * FLAT_EDGE_ERROR_TOL_MM, 10 * co.edge_error_max_mm
         ):
             break
         rounds = [CO_STAGES[-1:]]
-    new_assembled = current
+    # a refinement round can lose (its re-solve may settle elsewhere): keep the best round
+    assert best is not None
+    new_assembled, new_flat = best
     block["move_max_mm"] = _round(
         float(np.linalg.norm(new_assembled.top - assembled.top, axis=1).max()), 6
     )

@@ -405,6 +405,17 @@ METRIC_RULES: dict[str, MetricRule] = {
         _const(f"≤ {HINGE_GAP_TOL_MM:g} mm"),
         _at_most(HINGE_GAP_TOL_MM),
     ),
+    "hinge_gap_in_plane_max_mm": MetricRule(
+        "the same, seen from above (the rest is the thickness difference of the two tiles)",
+        _const(f"≤ {HINGE_GAP_TOL_MM:g} mm"),
+        _at_most(HINGE_GAP_TOL_MM),
+    ),
+    "thickness_min_mm": MetricRule(
+        "thinnest tile (bottom corners to the top face's plane)", _const("(mm)"), None
+    ),
+    "thickness_max_mm": MetricRule(
+        "thickest tile (tiles differ where the quad mesh is not conical)", _const("(mm)"), None
+    ),
     "lift_points": MetricRule(
         "points where the string leaves the top face to lift the structure",
         _const("(count)"),

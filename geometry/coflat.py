@@ -27,6 +27,7 @@ from drawstring.geometry.flat import (
     gap_junctions,
     tile_plane_coordinates,
 )
+from drawstring.geometry.flatpose import HingeFaces, hinge_points
 from drawstring.geometry.linkage import Linkage
 from drawstring.geometry.solver import plane_fit
 from drawstring.geometry.tolerances import FLAT_SOLVER_ANGLE_TOL_DEG
@@ -96,6 +97,7 @@ class _JointTopLeastSquares:
         target_vertices: FloatArray,
         target_faces: IntArray,
         w_surface: float,
+        corner_shift: FloatArray | None = None,
     ) -> None:
         self.corner_node = linkage.corner_node
         self.n_nodes = linkage.n_nodes
@@ -120,6 +122,12 @@ class _JointTopLeastSquares:
         self.node_j = self.corner_node[:, TILE_EDGES[:, 1]].ravel()
         self.vert_i = quads[:, TILE_EDGES[:, 0]].ravel()
         self.vert_j = quads[:, TILE_EDGES[:, 1]].ravel()
+        # constant offset of each side / diagonal in K3D (hinge points below the top corners)
+        if corner_shift is None:
+            self.edge_shift = np.zeros((len(self.vert_i), 3))
+        else:
+            sh = np.asarray(corner_shift, dtype=np.float64)
+            self.edge_shift = (sh[:, TILE_EDGES[:, 1]] - sh[:, TILE_EDGES[:, 0]]).reshape(-1, 3)
 
     def pack(self, nodes: FloatArray, top: FloatArray) -> FloatArray:
         z = np.zeros((self.rows, 2))
@@ -133,7 +141,7 @@ class _JointTopLeastSquares:
     def edge_errors(self, z: FloatArray) -> FloatArray:
         nodes, top = self.unpack(z)
         l2 = np.linalg.norm(nodes[self.node_j] - nodes[self.node_i], axis=1)
-        l3 = np.linalg.norm(top[self.vert_j] - top[self.vert_i], axis=1)
+        l3 = np.linalg.norm(top[self.vert_j] - top[self.vert_i] + self.edge_shift, axis=1)
         return np.asarray(l2 - l3)
 
     def residual_jacobian(self, z: FloatArray) -> tuple[FloatArray, sp.csr_matrix]:
@@ -160,7 +168,7 @@ class _JointTopLeastSquares:
         ni, nj, vi, vj = self.node_i, self.node_j, self.vert_i, self.vert_j
         d2 = nodes[nj] - nodes[ni]
         l2 = np.linalg.norm(d2, axis=1)
-        d3 = top[vj] - top[vi]
+        d3 = top[vj] - top[vi] + self.edge_shift
         l3 = np.linalg.norm(d3, axis=1)
         res.append(w * (l2 - l3))
         if with_jacobian:
@@ -242,6 +250,7 @@ def co_optimize_top(
     stages: tuple[tuple[float, float], ...] | None = None,
     steps_per_stage: int | None = None,
     start_nodes: ArrayLike | None = None,
+    hinges: HingeFaces | None = None,
 ) -> CoOptimizedTop:
     """Move K3D and K2D together until every flat tile is congruent to its assembled top face.
 
@@ -270,6 +279,10 @@ def co_optimize_top(
     stages, steps_per_stage : continuation schedule (default ``CO_STAGES``, ``CO_STEPS``).
     start_nodes : (n_nodes, 2) float, mm, optional
         K2D to start from instead of ``flat.nodes`` (a previous round's nodes).
+    hinges : HingeFaces, optional
+        Hinge faces of a ``dual`` layout (needs ``tiles_3d``): the K2D nodes are then the hinge
+        points, each offset from its K3D top corner by the tile's bottom corner offset in
+        ``tiles_3d`` (held during the solve), with ``optimize_flat``'s clearance bounds.
 
     Returns
     -------
@@ -280,7 +293,13 @@ def co_optimize_top(
     q = np.asarray(quads, dtype=np.int64)
     if q.shape != (linkage.n_tiles, 4) or top0.ndim != 2 or top0.shape[1] != 3:
         raise InputError("co_optimize_top needs (n, 3) K3D vertices and (T, 4) quads")
-    corners = top0[q]
+    shift = None
+    if hinges is not None:
+        if tiles_3d is None or hinges.bottom.shape != (linkage.n_hinges,):
+            raise InputError("hinges needs one face per hinge and the T3D tiles_3d")
+        t3 = np.asarray(tiles_3d, dtype=np.float64)
+        shift = hinge_points(linkage, t3, hinges.bottom) - t3[:, :4]
+    corners = top0[q] if shift is None else top0[q] + shift
     plane = tile_plane_coordinates(corners)
     theta_min = np.radians(flat.min_gap_angle_deg + CO_ANGLE_MARGIN_DEG)
     side = float(np.mean(flat.edge_targets[:, :4]))
@@ -295,9 +314,16 @@ def co_optimize_top(
         True,
         True,
         theta_max=np.radians(90.0 - CO_ANGLE_MARGIN_DEG),
+        hinges=hinges,
     )
     problem = _JointTopLeastSquares(
-        linkage, q, top0, np.asarray(target_vertices), np.asarray(target_faces), w_surface
+        linkage,
+        q,
+        top0,
+        np.asarray(target_vertices),
+        np.asarray(target_faces),
+        w_surface,
+        shift,
     )
     nodes0 = flat.nodes if start_nodes is None else np.asarray(start_nodes, dtype=np.float64)
     z = problem.pack(nodes0, top0)

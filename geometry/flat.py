@@ -59,13 +59,15 @@ from scipy.spatial import cKDTree
 
 from drawstring.geometry.constraints import quad_overlap_mtv, signed_angles
 from drawstring.geometry.errors import InputError
-from drawstring.geometry.linkage import Linkage
+from drawstring.geometry.flatpose import HingeFaces, hinge_points
+from drawstring.geometry.linkage import Linkage, slit_ends
 from drawstring.geometry.rigid import rigid_fit
 from drawstring.geometry.tolerances import (
     FLAT_EDGE_ERROR_TOL_MM,
+    FLAT_FREE_MARGIN_DEG,
     FLAT_GAP_ANGLE_TOL_DEG,
     FLAT_ORIENTATION_MIN_RAD,
-    FLAT_OVERLAP_TOL_MM2,
+    FLAT_OVERLAP_DEPTH_MM,
     FLAT_SEPARATION_MARGIN_REL,
     FLAT_SOLVER_ANGLE_TOL_DEG,
 )
@@ -192,6 +194,9 @@ class FlatResult:
     time_s : float
     problems : tuple of str
         Targets this layout does not meet, one sentence each (empty when all are met).
+    anchor_3d : (T, 4, 3) float, mm, or None
+        The K3D points the corners stand for (the tiles' hinge points in the top planes,
+        :func:`hinge_points`); None: the top-face corners.
     """
 
     nodes: FloatArray
@@ -207,6 +212,7 @@ class FlatResult:
     iterations: int
     time_s: float
     problems: tuple[str, ...]
+    anchor_3d: FloatArray | None = None
 
 
 def tile_plane_coordinates(tile_top_3d: FloatArray) -> FloatArray:
@@ -686,26 +692,58 @@ def _separate_components(
     return out, offsets
 
 
-def _bottom_offsets(
-    plane_tiles: FloatArray, tiles_3d: FloatArray, junctions: GapJunctions
+def _face_offsets(
+    plane_tiles: FloatArray,
+    tiles_3d: FloatArray,
+    junctions: GapJunctions,
+    anchor_3d: FloatArray | None = None,
 ) -> FloatArray:
-    """Bottom-face minus top-face opening angle ``(E,)`` in rad at every slit end.
+    """Top- and bottom-face minus node opening angle ``(2, E)`` in rad at every slit end.
 
-    A rigid tile turns its top and bottom sides together, so the opening measured on the
-    bottom faces differs from the top one by a constant per slit end: the turn from each arm's
-    top side to its bottom side (tiles posed as in :func:`extrude_flat`).
+    The nodes carry each tile's anchor polygon (its top face, or with ``anchor_3d`` its hinge
+    points): a rigid tile turns its anchor, top and bottom sides together, so the opening
+    measured on a face differs from the one measured on the nodes by a constant per slit end,
+    the turn from each arm's anchor side to its face side (tiles posed rigidly on their flat
+    anchor polygons ``plane_tiles``).
     """
-    posed = extrude_flat(plane_tiles, tiles_3d)[..., :2]
+    anchor = tiles_3d[:, :4] if anchor_3d is None else anchor_3d
+    dst = np.concatenate([plane_tiles, np.zeros((len(plane_tiles), 4, 1))], axis=2)
+    rot, trans = rigid_fit(anchor, dst)
+    posed = (np.einsum("kij,kvj->kvi", rot, tiles_3d) + trans[:, None, :])[..., :2]
     t = junctions.tiles[junctions.is_end]
     s = junctions.sides[junctions.is_end]
     t0, t1, s0, s1 = t[:, 0], t[:, 1], s[:, 0], s[:, 1]
 
-    def arm(tile: IntArray, a: IntArray, b: IntArray, face: int) -> FloatArray:
-        return np.asarray(posed[tile, face + a] - posed[tile, face + b])
+    def arm(pts: FloatArray, tile: IntArray, a: IntArray, b: IntArray) -> FloatArray:
+        return np.asarray(pts[tile, a] - pts[tile, b])
 
-    u_top, u_bot = arm(t1, s1, (s1 + 1) % 4, 0), arm(t1, s1, (s1 + 1) % 4, 4)
-    v_top, v_bot = arm(t0, (s0 + 1) % 4, s0, 0), arm(t0, (s0 + 1) % 4, s0, 4)
-    return np.asarray(signed_angles(v_top, v_bot) - signed_angles(u_top, u_bot))
+    u_node = arm(plane_tiles, t1, s1, (s1 + 1) % 4)
+    v_node = arm(plane_tiles, t0, (s0 + 1) % 4, s0)
+    out = []
+    for face in (0, 4):
+        u = arm(posed, t1, face + s1, face + (s1 + 1) % 4)
+        v = arm(posed, t0, face + (s0 + 1) % 4, face + s0)
+        out.append(signed_angles(v_node, v) - signed_angles(u_node, u))
+    return np.asarray(out)
+
+
+def _clear_bounds(hinges: HingeFaces, ends_hinge: IntArray, lo: FloatArray, hi: FloatArray) -> None:
+    """Narrow the opening bounds ``lo``, ``hi`` ``(2, E)`` (top, bottom face rows; rad) in place
+    to the openings at which each slit end's tiles clear each other on its hinge face."""
+    margin = np.radians(FLAT_FREE_MARGIN_DEG)
+    face = hinges.bottom[ends_hinge].astype(np.int64)
+    k = np.arange(len(face))
+    new_lo = np.maximum(lo[face, k], hinges.clear_lo + margin)
+    new_hi = np.minimum(hi[face, k], hinges.clear_hi - margin)
+    # where clearing needs openings outside the gap-angle bounds, the bounds stay as they are
+    fits = new_lo <= new_hi
+    lo[face[fits], k[fits]] = new_lo[fits]
+    hi[face[fits], k[fits]] = new_hi[fits]
+    if not fits.all():
+        logger.info(
+            "flat: %d slit ends cannot clear on their hinge face within the gap-angle bounds",
+            int((~fits).sum()),
+        )
 
 
 def _flat_constraints(
@@ -718,28 +756,41 @@ def _flat_constraints(
     bounds: bool,
     collision: bool,
     theta_max: float = 0.5 * np.pi,
+    hinges: HingeFaces | None = None,
 ) -> list[_AngleRows | _SeparationRows]:
     """The hard rows of the flat layout: gap-angle bounds on the top faces (and, with T3D, on
-    the bottom faces where the side faces twist) and the orientation of every gap junction."""
+    the bottom faces where they differ) and the orientation of every gap junction.
+
+    With ``hinges`` (a dual layout's hinge faces, needs T3D) the nodes carry the hinge points
+    (:func:`~drawstring.geometry.flatpose.hinge_points`), both faces' angles are bounded through
+    their offsets from the nodes' angles, and each slit end's opening on its hinge face is kept
+    where its two tiles clear each other (:func:`~drawstring.geometry.flatpose.free_openings`,
+    ``FLAT_FREE_MARGIN_DEG`` inside)."""
     constraints: list[_AngleRows | _SeparationRows] = []
     ends = junctions.ends
     if len(ends) and bounds:
-        hi = theta_max
-        constraints.append(
-            _AngleRows(ends, np.zeros(len(ends)), np.full(len(ends), theta_min),
-                       np.full(len(ends), hi), np.full(len(ends), side))
-        )  # fmt: skip
+        n_ends = len(ends)
+        lo = np.full((2, n_ends), theta_min)
+        hi = np.full((2, n_ends), theta_max)
+        off = np.zeros((2, n_ends))
         if tiles_3d is not None:
             t3 = np.asarray(tiles_3d, dtype=np.float64)
             if t3.shape != (linkage.n_tiles, 8, 3):
                 raise InputError(f"tiles_3d has shape {t3.shape}; pass (T, 8, 3) T3D tiles")
-            off = _bottom_offsets(plane, t3, junctions)
-            twisted = np.abs(off) > np.radians(FLAT_GAP_ANGLE_TOL_DEG)
-            if twisted.any():
-                k = int(twisted.sum())
+            anchor = None if hinges is None else hinge_points(linkage, t3, hinges.bottom)
+            off = _face_offsets(plane, t3, junctions, anchor)
+            if hinges is not None:
+                _clear_bounds(hinges, slit_ends(linkage).hinge, lo, hi)
+        for face in (0, 1):
+            rows = np.arange(n_ends)
+            if face == 1:
+                # bottom rows only where they differ from the top ones
+                differ = np.abs(off[1] - off[0]) > np.radians(FLAT_GAP_ANGLE_TOL_DEG)
+                rows = np.flatnonzero(differ | (lo[1] != lo[0]) | (hi[1] != hi[0]))
+            if len(rows):
                 constraints.append(
-                    _AngleRows(ends[twisted], off[twisted], np.full(k, theta_min),
-                               np.full(k, hi), np.full(k, side))
+                    _AngleRows(ends[rows], off[face, rows], lo[face, rows], hi[face, rows],
+                               np.full(len(rows), side))
                 )  # fmt: skip
     if len(junctions.elements) and collision:
         k = len(junctions.elements)
@@ -763,6 +814,8 @@ def optimize_flat(
     max_iter: int = 400,
     separate_components: bool = True,
     initial_nodes: ArrayLike | None = None,
+    hinges: HingeFaces | None = None,
+    angle_margin_deg: float = 0.0,
 ) -> FlatResult:
     """Optimize the flat configuration K2D (paper eq. 5, bounds enforced exactly).
 
@@ -794,6 +847,14 @@ def optimize_flat(
     initial_nodes : (n_nodes, 2) float, mm, optional
         Start layout instead of the rotating-squares start (e.g. from
         :func:`co_optimize_top`); it should already keep the bounds.
+    hinges : HingeFaces, optional
+        Hinge faces of a ``dual`` layout (needs ``tiles_3d``).  The nodes then stand for the
+        hinge points (:func:`~drawstring.geometry.flatpose.hinge_points`) instead of the top
+        corners, so that hinges on the bottom faces meet; both faces' gap angles are bounded,
+        and every slit end's opening is kept where its two tiles clear each other.
+    angle_margin_deg : float, deg
+        Keep the gap angles this far inside ``[min_gap_angle_deg, 90]`` (the rigid hinge layout
+        that follows keeps ``HINGE_ANGLE_MARGIN_DEG`` inside them).
 
     Returns
     -------
@@ -818,6 +879,13 @@ def optimize_flat(
     if min(w_edge, w_collision, w_fab) < 0 or w_edge == 0:
         raise InputError("flat weights must be >= 0 and w_edge > 0")
     theta_min = np.radians(min_gap_angle_deg)
+    margin = np.radians(angle_margin_deg)
+    anchor = None
+    if hinges is not None:
+        if hinges.bottom.shape != (linkage.n_hinges,) or tiles_3d is None:
+            raise InputError("hinges needs one face per hinge and the T3D tiles_3d")
+        anchor = hinge_points(linkage, np.asarray(tiles_3d, dtype=np.float64), hinges.bottom)
+        top = anchor
     plane = tile_plane_coordinates(top)
     nodes0, tile_scale, layout_scale, problems = initial_flat_layout(
         linkage, plane, uv_arr, theta_min
@@ -829,8 +897,9 @@ def optimize_flat(
     side = float(np.mean(targets[:, :4]))
     objective = _EdgeLeastSquares(edges, targets.ravel(), np.full(len(edges), np.sqrt(w_edge)))
     constraints = _flat_constraints(
-        linkage, junctions, plane, tiles_3d, theta_min, side, w_fab > 0, w_collision > 0
-    )
+        linkage, junctions, plane, tiles_3d, theta_min + margin, side, w_fab > 0,
+        w_collision > 0, theta_max=0.5 * np.pi - margin, hinges=hinges,
+    )  # fmt: skip
     if initial_nodes is not None:
         nodes0 = np.array(initial_nodes, dtype=np.float64)
         if nodes0.shape != (linkage.n_nodes, 2):
@@ -844,7 +913,7 @@ def optimize_flat(
     for round_ in range(4):
         if w_collision <= 0:
             break
-        pairs, _ = _overlapping_pairs(linkage, nodes[cn], FLAT_OVERLAP_TOL_MM2)
+        pairs, _ = _overlapping_pairs(linkage, nodes[cn], FLAT_OVERLAP_DEPTH_MM)
         if len(pairs) == 0:
             break
         logger.info(
@@ -866,9 +935,10 @@ def optimize_flat(
     corners = nodes[cn]
     lengths = np.linalg.norm(corners[:, TILE_EDGES[:, 1]] - corners[:, TILE_EDGES[:, 0]], axis=2)
     edge_error = float(np.max(np.abs(lengths - targets), initial=0.0))
-    fab = _AngleRows(
-        ends, np.zeros(len(ends)), np.zeros(len(ends)), np.zeros(len(ends)), np.ones(len(ends))
-    )
+    top_offset = np.zeros(len(ends))
+    if anchor is not None and len(ends):
+        top_offset = _face_offsets(plane, np.asarray(tiles_3d), junctions, anchor)[0]
+    fab = _AngleRows(ends, top_offset, np.zeros(len(ends)), np.zeros(len(ends)), np.ones(len(ends)))
     opening = np.degrees(fab.angles(nodes)) if len(ends) else np.zeros(0)
     if edge_error > FLAT_EDGE_ERROR_TOL_MM:
         problems.append(
@@ -885,7 +955,7 @@ def optimize_flat(
                 f"gap opening angles span [{lo:.2f}, {hi_deg:.2f}] deg, outside the bounds "
                 f"[{min_gap_angle_deg:g}, 90] deg"
             )
-    remaining, _ = _overlapping_pairs(linkage, corners, FLAT_OVERLAP_TOL_MM2, False)
+    remaining, _ = _overlapping_pairs(linkage, corners, FLAT_OVERLAP_DEPTH_MM, False)
     if len(remaining):
         problems.append(f"{len(remaining)} pairs of flat tiles still overlap")
     elapsed = time.perf_counter() - start
@@ -907,6 +977,7 @@ def optimize_flat(
         iterations=iterations,
         time_s=elapsed,
         problems=tuple(problems),
+        anchor_3d=anchor,
     )
 
 
@@ -933,6 +1004,7 @@ def extrude_flat(
     """
     corners = flat.corners if isinstance(flat, FlatResult) else np.asarray(flat, dtype=np.float64)
     tiles = np.asarray(tiles_3d, dtype=np.float64)
+    anchor = flat.anchor_3d if isinstance(flat, FlatResult) else None
     if tiles.ndim != 3 or tiles.shape[1:] != (8, 3) or len(tiles) != len(corners):
         raise InputError(
             f"tiles_3d has shape {tiles.shape}; pass (T, 8, 3) matching the flat tiles"
@@ -940,5 +1012,5 @@ def extrude_flat(
     if thickness is None:
         thickness = float(np.mean(np.linalg.norm(tiles[:, :4] - tiles[:, 4:], axis=2)))
     dst = np.concatenate([corners, np.full((len(corners), 4, 1), float(thickness))], axis=2)
-    rot, trans = rigid_fit(tiles[:, :4], dst)
+    rot, trans = rigid_fit(tiles[:, :4] if anchor is None else anchor, dst)
     return np.asarray(np.einsum("kij,kvj->kvi", rot, tiles) + trans[:, None, :])

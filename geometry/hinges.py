@@ -4,31 +4,37 @@ Hinge side
 ----------
 Every tile corner has a top vertex ``P`` and the bottom vertex ``Q`` under it; in T3D the four
 tiles around a grid vertex share ``P`` and ``Q`` (contact faces are shared).  Flattening keeps
-each tile rigid, so near a hinge each tile occupies, below its top corner, whatever its side
-faces reach.  For tile ``a`` at hinge corner ``c`` let ``d = Q - P`` projected on ``a``'s top
-plane and ``m1, m2`` the inward unit normals (in that plane) of ``a``'s two top sides at ``c``.
-The *bottom overhang* of ``a`` at the hinge is ``max(0, -min(d.m1, d.m2))``: how far the bottom
-corner pokes out of the top face's corner wedge.  The *top overhang* is the same with roles
-swapped (``P - Q`` against the bottom face's sides).  With a top hinge the two tiles touch at
-``P``; overhanging bottoms of both tiles then overlap near the hinge, and vice versa.  We place
-the hinge at the **bottom when the summed bottom overhang of both tiles exceeds their summed top
-overhang** (by more than ``HINGE_SIDE_TOL_REL`` times the thickness), otherwise at the top.
+each tile rigid, and a hinge lets its two tiles turn about the vertical axis through the hinged
+corner only, so whether they collide in the flat pose depends on the opening at the hinge alone.
+For each hinge and each face we compute the openings at which the two flat tiles clear each
+other (:func:`~drawstring.geometry.flatpose.free_openings`, exact separating planes through the
+hinge) and place the hinge on the face where they clear within the gap-angle bounds, at the
+smaller opening.  A tie (both clear from the smallest openings, e.g. a flat target) is broken by
+the overhang across the pair's shared side: for tile ``a`` at hinge corner ``c`` let
+``d = Q - P`` projected on ``a``'s top plane and ``m`` the inward unit normal (in that plane) of
+``a``'s top side facing its partner; the *bottom overhang* is ``max(0, -d.m)``, how far the
+bottom corner pokes across that side, and the *top overhang* the same with roles swapped.  The
+hinge goes to the bottom when the summed bottom overhang of both tiles exceeds the summed top
+overhang (by more than ``HINGE_SIDE_TOL_REL`` times the thickness), otherwise to the top.
 
-This is the paper's criterion made measurable: the bottom overhangs when the side faces at the
-corner lean outward, i.e. the dihedral angle between the top face and the contact face exceeds
-90 deg, which happens exactly where the target's normal curvature across that face is negative
-(concave seen from the top).  Outside of a cylinder: no overhang below, all top; inside of a
-cylinder: bottoms overhang along the curved direction at every corner, all bottom.
+This is the paper's criterion made measurable: across the shared contact face the bottoms
+overhang where the target's normal curvature in that direction is negative (concave seen from
+the top), and overhanging bottoms of a top-hinged pair would collide.  Outside of a cylinder:
+all top; inside of a cylinder: bottoms overhang along the curved direction, bottom hinges there.
+On doubly curved targets a corner can overhang one way across the shared side and the other way
+into the void beside it; the clearance test decides those correctly where a per-corner overhang
+sum would not.
 
 Strategies
 ----------
 ``top``: all hinges at the top.  The region where two hinged tiles overlap in the flat pose is
 computed exactly (convex hulls intersected with manifold3d); it is to be removed from the tile
 with the larger id, and the side-face (contact) area it takes away is reported.
-``dual``: sides as above, then the rigid-tile layout ``w_rigid E_rigid + w_collision E_collision
-+ w_conn E_conn`` (18 edges per tile; conservative non-interpenetration: every vertex of a
-hinged pair stays on its side of a vertical plane through the hinge along the gap's bisector;
-paired hinge vertices to their midpoint), then every hinge pair is merged into one vertex.
+``dual``: sides as above (decided once, on the eq.-1 tiles, and passed through the flat layout,
+which makes the hinge points meet), then the rigid-tile layout ``w_rigid E_rigid +
+w_collision E_collision + w_conn E_conn`` (tiles exactly rigid; separating planes between close
+pairs, through the hinge for hinged ones; paired hinge vertices to their midpoint), then every
+hinge pair is merged into one vertex.
 """
 
 from __future__ import annotations
@@ -48,12 +54,14 @@ from scipy.spatial import cKDTree
 
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.flat import FlatResult
+from drawstring.geometry.flatpose import free_openings, lay_flat
 from drawstring.geometry.linkage import Linkage, SlitEnds, slit_ends
 from drawstring.geometry.tolerances import (
+    FLAT_FREE_MARGIN_DEG,
     HINGE_ANGLE_MARGIN_DEG,
+    HINGE_CORNER_CROSS_MM,
     HINGE_LAYOUT_CLEARANCE_MM,
     HINGE_LAYOUT_FEASIBLE_MM,
-    HINGE_LAYOUT_TOUCH_MM,
     HINGE_TRIM_GROW_MM,
 )
 from drawstring.geometry.verify import (
@@ -70,8 +78,10 @@ IntArray = NDArray[np.int64]
 HingeStrategy = Literal["dual", "top"]
 HingeSide = Literal["top", "bottom"]
 
-#: A hinge goes to the bottom only when the bottom overhang exceeds the top overhang by more
-#: than this fraction of the tile thickness (ties, e.g. flat targets, stay on top).
+#: Where both faces clear at openings within this of each other, the overhangs decide.
+HINGE_SIDE_TOL_DEG = 0.05
+#: A hinge goes to the bottom by overhang only when the bottom overhang exceeds the top overhang
+#: by more than this fraction of the tile thickness (ties, e.g. flat targets, stay on top).
 HINGE_SIDE_TOL_REL = 1e-9
 
 __all__ = [
@@ -91,48 +101,75 @@ __all__ = [
 ]
 
 
-def _corner_overhang(tiles: FloatArray, tile: IntArray, corner: IntArray) -> tuple[FloatArray, ...]:
-    """Bottom and top overhang ``(k,)`` of tile corners (see module docstring)."""
+def _corner_overhang(
+    tiles: FloatArray, tile: IntArray, corner: IntArray, side: IntArray
+) -> tuple[FloatArray, ...]:
+    """Bottom and top overhang ``(k,)`` of tile corners across one of their sides ``side``
+    (side ``s`` joins corners ``s`` and ``s + 1``; see the module docstring)."""
     t = tiles[tile]  # (k, 8, 3)
     top, bottom = t[:, :4], t[:, 4:]
     normal = np.cross(top[:, 2] - top[:, 0], top[:, 3] - top[:, 1])
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
     k = np.arange(len(tile))
-    nxt, prv = (corner + 1) % 4, (corner + 3) % 4
 
     def overhang(face: FloatArray, other: FloatArray) -> FloatArray:
         p = face[k, corner]
         d = other[k, corner] - p
         d -= np.einsum("ki,ki->k", d, normal)[:, None] * normal
-        e1 = face[k, nxt] - p  # side leaving the corner
-        e2 = p - face[k, prv]  # side arriving at the corner
-        m1 = np.cross(normal, e1)
-        m2 = np.cross(normal, e2)
-        m1 /= np.maximum(np.linalg.norm(m1, axis=1, keepdims=True), 1e-300)
-        m2 /= np.maximum(np.linalg.norm(m2, axis=1, keepdims=True), 1e-300)
-        inside = np.minimum(np.einsum("ki,ki->k", d, m1), np.einsum("ki,ki->k", d, m2))
-        return np.asarray(np.maximum(0.0, -inside))
+        edge = face[k, (side + 1) % 4] - face[k, side]
+        inward = np.cross(normal, edge)
+        inward /= np.maximum(np.linalg.norm(inward, axis=1, keepdims=True), 1e-300)
+        return np.asarray(np.maximum(0.0, -np.einsum("ki,ki->k", d, inward)))
 
     return overhang(top, bottom), overhang(bottom, top)
 
 
+def _shared_sides(linkage: Linkage) -> IntArray:
+    """Side ``(H, 2)`` of each hinged tile that faces its partner across the hinge's slit (in
+    T3D the two tiles' contact faces on these sides coincide)."""
+    ends = slit_ends(linkage)
+    h = linkage.hinges
+    out = np.zeros((linkage.n_hinges, 2), dtype=np.int64)
+    # without a slit end (not expected) fall back to the side leaving the corner
+    out[:, 0], out[:, 1] = h[:, 1], h[:, 3]
+    for col in range(2):
+        tile = ends.tiles[:, col]
+        first = h[ends.hinge, 0] == tile
+        out[ends.hinge[first], 0] = ends.sides[first, col]
+        out[ends.hinge[~first], 1] = ends.sides[~first, col]
+    return out
+
+
 def hinge_overhangs(linkage: Linkage, tiles_3d: ArrayLike) -> tuple[FloatArray, FloatArray]:
-    """Summed bottom and top overhang ``(H,)`` of both tiles of every hinge, mm (T3D)."""
+    """Summed bottom and top overhang ``(H,)`` of both tiles of every hinge across their shared
+    side, mm (T3D)."""
     tiles = np.asarray(tiles_3d, dtype=np.float64)
     h = linkage.hinges
-    bot_a, top_a = _corner_overhang(tiles, h[:, 0], h[:, 1])
-    bot_b, top_b = _corner_overhang(tiles, h[:, 2], h[:, 3])
+    shared = _shared_sides(linkage)
+    bot_a, top_a = _corner_overhang(tiles, h[:, 0], h[:, 1], shared[:, 0])
+    bot_b, top_b = _corner_overhang(tiles, h[:, 2], h[:, 3], shared[:, 1])
     return bot_a + bot_b, top_a + top_b
 
 
-def hinge_sides(linkage: Linkage, tiles_3d: ArrayLike) -> NDArray[np.bool_]:
+def hinge_sides(
+    linkage: Linkage, tiles_3d: ArrayLike, min_gap_angle_deg: float = 0.0
+) -> NDArray[np.bool_]:
     """Whether each hinge goes to the bottom (criterion in the module docstring).
+
+    Every pair is laid flat and tested on both faces: the openings at which the two tiles
+    clear each other (:func:`~drawstring.geometry.flatpose.free_openings`), within the gap-angle
+    bounds ``[min_gap_angle_deg, 90]``.  The hinge goes to the face where they clear at all,
+    and where both do, to the one where they clear at the smaller opening; where those differ by
+    less than ``HINGE_SIDE_TOL_DEG``, the summed overhang across the pair's shared side decides.
+    Where neither face clears, the face that misses by less.
 
     Parameters
     ----------
     linkage : Linkage
     tiles_3d : (T, 8, 3) float, mm
         T3D tiles.
+    min_gap_angle_deg : float, deg
+        ``theta_min`` of the flat layout.
 
     Returns
     -------
@@ -144,7 +181,26 @@ def hinge_sides(linkage: Linkage, tiles_3d: ArrayLike) -> NDArray[np.bool_]:
         raise InputError(f"tiles_3d has shape {tiles.shape}; pass (T, 8, 3) T3D tiles")
     bottom, top = hinge_overhangs(linkage, tiles)
     thickness = float(np.mean(np.linalg.norm(tiles[:, :4] - tiles[:, 4:], axis=2)))
-    return np.asarray(bottom - top > HINGE_SIDE_TOL_REL * max(thickness, 1e-300))
+    by_overhang = bottom - top > HINGE_SIDE_TOL_REL * max(thickness, 1e-300)
+    posed = lay_flat(tiles)
+    ends = slit_ends(linkage)
+    theta = np.radians(min_gap_angle_deg)
+    margin = np.radians(FLAT_FREE_MARGIN_DEG)
+    start = np.full((2, linkage.n_hinges), theta)  # least clear opening within the bounds
+    miss = np.zeros((2, linkage.n_hinges))  # how far the clear openings miss the bounds
+    for k, face_bottom in enumerate((False, True)):
+        lo, hi = free_openings(
+            linkage, posed, np.full(linkage.n_hinges, face_bottom),
+            clearance=HINGE_LAYOUT_CLEARANCE_MM, touch=HINGE_CORNER_CROSS_MM,
+        )  # fmt: skip
+        # with the margin the flat layout keeps inside the clear openings
+        first = np.maximum(lo + margin, theta)
+        last = np.minimum(hi - margin, 0.5 * np.pi)
+        np.maximum.at(start[k], ends.hinge, first)
+        np.maximum.at(miss[k], ends.hinge, np.maximum(first - last, 0.0))
+    tol = np.radians(HINGE_SIDE_TOL_DEG)
+    by_clearance = np.where(np.abs(start[1] - start[0]) <= tol, by_overhang, start[1] < start[0])
+    return np.asarray(np.where(np.abs(miss[1] - miss[0]) <= tol, by_clearance, miss[1] < miss[0]))
 
 
 @dataclass(frozen=True)
@@ -415,7 +471,7 @@ def _select_planes(
     clearance: float,
     reach: float,
     *,
-    touch: float = HINGE_LAYOUT_TOUCH_MM,
+    touch: float = -HINGE_CORNER_CROSS_MM,
     x: FloatArray | None = None,
     pairs: IntArray | None = None,
     previous: _Planes | None = None,
@@ -425,9 +481,10 @@ def _select_planes(
     ``x`` defaults to the current pose's vertices (pass merged vertices to re-check them);
     ``pairs`` defaults to all tile pairs within ``reach`` (plus twice the clearance); every
     tile pair gives one row per pair of convex pieces (one piece for a convex tile).  ``touch``
-    is the separation required where a hinged pair may touch.  With ``previous`` planes, a row
-    found there is only searched near its previous plane, unless that leaves it violated.  The
-    returned score of each plane is its smallest margin beyond the required ones.
+    is the separation required where a hinged pair may touch (negative: it may cross).  With
+    ``previous`` planes, a row found there is only searched near its previous plane, unless
+    that leaves it violated.  The returned score of each plane is its smallest margin beyond
+    the required ones.
     """
     x = layout.positions() if x is None else x
     if pairs is None:
@@ -460,7 +517,7 @@ def _select_planes(
         delta_a[rows, 4:] = np.inf
         delta_b[rows, 4:] = np.inf
     else:
-        # the other face's corner under/over the hinge may touch the plane
+        # the other face's corner under/over the hinge may touch (``touch`` <= 0: cross) it
         delta_a[rows, (va[rows] + 4) % 8] = touch
         delta_b[rows, (vb[rows] + 4) % 8] = touch
     delta_a[rows, va[rows]] = np.inf  # the plane passes through it
@@ -1008,8 +1065,19 @@ def rigid_layout(
 def _merged_tiles(
     x: FloatArray, ids: IntArray, points: FloatArray, is_merged: NDArray[np.bool_]
 ) -> FloatArray:
-    """Tiles ``(T, 8, 3)`` with both vertices of every merged hinge moved to its point."""
+    """Tiles ``(T, 8, 3)`` with both vertices of every merged hinge moved to its point.
+
+    The two corners of the other face at a merged hinge (shared in T3D) are merged too, at
+    their midpoint, where they lie within ``2 * HINGE_CORNER_CROSS_MM`` of each other: the
+    layout lets them cross a little (a touch), which would leave a sliver of overlap.
+    """
     flat = x.reshape(-1, 3).copy()
+    other = ids ^ 4  # 8 * tile + v: the vertex of the other face under/over v
+    near = np.linalg.norm(flat[other[:, 0]] - flat[other[:, 1]], axis=1)
+    pair = np.flatnonzero(is_merged & (near <= 2.0 * HINGE_CORNER_CROSS_MM))
+    mid = 0.5 * (flat[other[pair, 0]] + flat[other[pair, 1]])
+    flat[other[pair, 0]] = mid
+    flat[other[pair, 1]] = mid
     flat[ids[is_merged, 0]] = points[is_merged]
     flat[ids[is_merged, 1]] = points[is_merged]
     return flat.reshape(x.shape)
@@ -1057,9 +1125,7 @@ def _broken_merges(
     undo = np.zeros(len(ids), dtype=bool)
     if suspect.size:
         pairs = np.stack([planes.a[suspect], planes.b[suspect]], axis=1)
-        again = _select_planes(
-            layout, linkage, ids, strategy, 0.0, 0.0, touch=0.0, x=merged, pairs=pairs
-        )
+        again = _select_planes(layout, linkage, ids, strategy, 0.0, 0.0, x=merged, pairs=pairs)
         broken = again.score < -tol
         tiles = np.concatenate([again.a[broken], again.b[broken]])
         undo |= is_merged & (np.isin(ids[:, 0] // 8, tiles) | np.isin(ids[:, 1] // 8, tiles))
@@ -1095,6 +1161,7 @@ def layout_hinges(
     min_gap_angle_deg: float | None = None,
     clearance_mm: float = HINGE_LAYOUT_CLEARANCE_MM,
     max_rounds: int = 40,
+    bottom: ArrayLike | None = None,
 ) -> HingeLayout:
     """Place hinges and lay the rigid tiles out so paired hinge vertices meet.
 
@@ -1121,6 +1188,9 @@ def layout_hinges(
         Least distance between tiles away from their shared hinge point.
     max_rounds : int
         Augmented Lagrangian rounds.
+    bottom : (H,) bool, optional
+        ``dual`` hinge sides decided earlier (the ones the flat layout was made for); default
+        :func:`hinge_sides` of ``tiles_3d``.
 
     Returns
     -------
@@ -1136,10 +1206,14 @@ def layout_hinges(
     theta = flat.min_gap_angle_deg if min_gap_angle_deg is None else float(min_gap_angle_deg)
     problems: list[str] = []
     if strategy == "top":
-        bottom = np.zeros(linkage.n_hinges, dtype=bool)
+        sides = np.zeros(linkage.n_hinges, dtype=bool)
+    elif bottom is None:
+        sides = hinge_sides(linkage, t3)
     else:
-        bottom = hinge_sides(linkage, t3)
-    ids = _hinge_vertex_ids(linkage, bottom)
+        sides = np.asarray(bottom, dtype=bool)
+        if sides.shape != (linkage.n_hinges,):
+            raise InputError(f"bottom has shape {sides.shape}; pass one flag per hinge")
+    ids = _hinge_vertex_ids(linkage, sides)
     result = rigid_layout(
         linkage, t2, ids, strategy=strategy, min_gap_angle_deg=theta,
         clearance_mm=clearance_mm, max_rounds=max_rounds,
@@ -1168,7 +1242,7 @@ def layout_hinges(
                 f"{sum(tr.volume_mm3 for tr in trims):.3g} mm^3, losing {lost:.3g} mm^2 of contact"
             )
     return HingeLayout(
-        strategy, result.merged, bottom, ids, result.points, gap_max, trims, lost,
+        strategy, result.merged, sides, ids, result.points, gap_max, trims, lost,
         result.iterations, time.perf_counter() - start, tuple(problems), result.tiles,
     )  # fmt: skip
 

@@ -400,7 +400,7 @@ def gap_opening_angles_deg(
     return np.asarray(np.degrees(ends.angles(c, face)))
 
 
-def hinge_gaps(tiles: ArrayLike, hinge_vertices: ArrayLike) -> FloatArray:
+def hinge_gaps(tiles: ArrayLike, hinge_vertices: ArrayLike, in_plane: bool = False) -> FloatArray:
     """Distance between the two vertices of every hinge.
 
     Parameters
@@ -408,6 +408,10 @@ def hinge_gaps(tiles: ArrayLike, hinge_vertices: ArrayLike) -> FloatArray:
     tiles : (T, 8, 3) float, mm
     hinge_vertices : (H, 2) int
         Flat vertex ids ``8 * tile + vertex`` of both sides of each hinge.
+    in_plane : bool
+        Measure the horizontal (x, y) part only: in a flat layout whose tiles differ in
+        thickness, the vertical part at a hinge on the face that does not rest at a common
+        height is the two tiles' thickness difference, which no layout in the plane changes.
 
     Returns
     -------
@@ -416,7 +420,8 @@ def hinge_gaps(tiles: ArrayLike, hinge_vertices: ArrayLike) -> FloatArray:
     """
     flat = np.asarray(tiles, dtype=np.float64).reshape(-1, 3)
     hv = np.asarray(hinge_vertices, dtype=np.int64).reshape(-1, 2)
-    return np.asarray(np.linalg.norm(flat[hv[:, 0]] - flat[hv[:, 1]], axis=1))
+    d = flat[hv[:, 0]] - flat[hv[:, 1]]
+    return np.asarray(np.linalg.norm(d[:, :2] if in_plane else d, axis=1))
 
 
 def polygon_in_convex_polyhedron_area(

@@ -238,15 +238,16 @@ def test_simulate_refuses_a_folder_that_is_not_a_design(tmp_path: Path) -> None:
 
 
 def test_strict_exits_4_on_warnings_and_still_writes_the_design(tmp_path: Path) -> None:
-    # The small saddle misses the flat edge-error target (a warning): exit 0 normally, 4 with
-    # --strict, with one line on stderr naming the warning; the folder is written either way.
+    # The small saddle misses a quality target (a warning, e.g. the surface distance): exit 0
+    # normally, 4 with --strict, with one line on stderr naming the first warning; the folder is
+    # written either way.
     out = tmp_path / "strict"
     done = run_cli("design", "saddle", *SMALL, "--no-simulate", "--strict", "--out", str(out))
     assert done.returncode == 4, done.stderr
     lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and "--strict" in lines[0] and "flat edge error" in lines[0]
     doc = json.loads((out / "design.json").read_text())
     assert doc["warnings"] and not doc["problems"]
+    assert len(lines) == 1 and "--strict" in lines[0] and doc["warnings"][0][:40] in lines[0]
 
 
 def test_strict_exits_0_without_warnings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -284,3 +285,23 @@ def test_co_optimization_is_reported_and_can_be_turned_off(tmp_path: Path) -> No
     assert set(block) == {"accepted", "reason", "steps", "move_max_mm"}
     assert 0 < block["move_max_mm"] < 2.0
     assert m_on["metrics"]["planarity_max_mm"] < 1e-5 and not m_on["problems"]
+
+
+def test_dual_hinges_meet_on_their_own_faces(tmp_path: Path) -> None:
+    # Default (dual) hinges: the flat layout and the co-optimization make every hinge's points
+    # meet on the face that carries it, bottom hinges included.  Seen from above the hinge gap
+    # falls from the fixed-shape optimum (> 1e-2 mm) below the 1e-3 mm target; what remains in
+    # 3D is vertical, at most the tiles' thickness difference.
+    on, off = tmp_path / "on", tmp_path / "off"
+    args = ["design", "saddle", *SMALL, "--no-simulate"]
+    assert main([*args, "--out", str(on)]) == 0
+    assert main([*args, "--no-co-optimize", "--out", str(off)]) == 0
+    m_on = json.loads((on / "design.json").read_text())["metrics"]
+    m_off = json.loads((off / "design.json").read_text())["metrics"]
+    assert m_on["hinges_bottom"] > 0 and m_on["hinges_bottom"] == m_off["hinges_bottom"]
+    assert m_off["hinge_gap_in_plane_max_mm"] > 1e-2
+    assert m_on["hinge_gap_in_plane_max_mm"] < 1e-3
+    assert m_on["flat_edge_error_max_mm"] < 1e-3
+    step = m_on["thickness_max_mm"] - m_on["thickness_min_mm"]
+    assert m_on["hinge_gap_max_mm"] <= np.hypot(m_on["hinge_gap_in_plane_max_mm"], step) + 1e-9
+    assert m_on["flat_interpenetration_mm3"] <= 1e-4 and m_on["flat_overlap_area_mm2"] <= 1e-4
