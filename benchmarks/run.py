@@ -19,6 +19,11 @@ import time
 from pathlib import Path
 from typing import Any
 
+# Single-threaded BLAS, as ``drawstring design`` runs: threading changes the order of floating
+# point sums, and with it a near tie (a hinge side, say), so rows would not match the CLI's.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
