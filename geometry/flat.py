@@ -63,7 +63,6 @@ from drawstring.geometry.flatpose import HingeFaces, hinge_points
 from drawstring.geometry.linkage import Linkage, slit_ends
 from drawstring.geometry.rigid import rigid_fit
 from drawstring.geometry.tolerances import (
-    FLAT_CLEAR_SNAP_DEG,
     FLAT_EDGE_ERROR_TOL_MM,
     FLAT_FREE_MARGIN_DEG,
     FLAT_GAP_ANGLE_TOL_DEG,
@@ -734,22 +733,14 @@ def _clear_bounds(hinges: HingeFaces, ends_hinge: IntArray, lo: FloatArray, hi: 
     margin = np.radians(FLAT_FREE_MARGIN_DEG)
     face = hinges.bottom[ends_hinge].astype(np.int64)
     k = np.arange(len(face))
-    old_lo, old_hi = lo[face, k], hi[face, k]
-    want_lo, want_hi = hinges.clear_lo + margin, hinges.clear_hi - margin
-    new_lo = np.maximum(old_lo, want_lo)
-    new_hi = np.minimum(old_hi, want_hi)
+    new_lo = np.maximum(lo[face, k], hinges.clear_lo + margin)
+    new_hi = np.minimum(hi[face, k], hinges.clear_hi - margin)
+    # where clearing needs openings outside the gap-angle bounds, the bounds stay as they are
+    # (holding such a pair at the nearest bound instead made the joint solve jump where the
+    # interval shifted between rounds)
     fits = new_lo <= new_hi
-    # Where the tiles collide at every opening within the gap-angle bounds, the opening goes to
-    # the bound nearest to where they would clear (the collision is smallest there); a pair that
-    # does not clear anywhere keeps its bounds.
-    width = np.radians(FLAT_CLEAR_SNAP_DEG)
-    low = ~fits & (want_hi < old_lo) & (want_lo <= want_hi)
-    high = ~fits & (want_lo > old_hi) & (want_lo <= want_hi)
-    new_lo = np.where(low, old_lo, np.where(high, np.maximum(old_hi - width, old_lo), new_lo))
-    new_hi = np.where(low, np.minimum(old_lo + width, old_hi), np.where(high, old_hi, new_hi))
-    use = fits | low | high
-    lo[face[use], k[use]] = new_lo[use]
-    hi[face[use], k[use]] = new_hi[use]
+    lo[face[fits], k[fits]] = new_lo[fits]
+    hi[face[fits], k[fits]] = new_hi[fits]
     if not fits.all():
         logger.info(
             "flat: %d slit ends cannot clear on their hinge face within the gap-angle bounds",

@@ -151,7 +151,3 @@ CAD_INTERFERENCE_ANGLE_RAD = 0.5
 #: tiles clear each other (``flatpose.free_openings``), so the rigid hinge layout, which asks
 #: ``HINGE_LAYOUT_CLEARANCE_MM`` along its tilted separating planes, finds them apart already.
 FLAT_FREE_MARGIN_DEG = 0.3
-
-#: Where a hinged pair collides at every opening within the gap-angle bounds, the flat layout
-#: holds its opening within this much (deg) of the bound nearest to where it would clear.
-FLAT_CLEAR_SNAP_DEG = 0.05
