@@ -67,7 +67,7 @@ from drawstring.geometry.tolerances import (
     FLAT_FREE_MARGIN_DEG,
     FLAT_GAP_ANGLE_TOL_DEG,
     FLAT_ORIENTATION_MIN_RAD,
-    FLAT_OVERLAP_DEPTH_MM,
+    FLAT_OVERLAP_TOL_MM2,
     FLAT_SEPARATION_MARGIN_REL,
     FLAT_SOLVER_ANGLE_TOL_DEG,
 )
@@ -915,7 +915,7 @@ def optimize_flat(
     for round_ in range(4):
         if w_collision <= 0:
             break
-        pairs, _ = _overlapping_pairs(linkage, nodes[cn], FLAT_OVERLAP_DEPTH_MM)
+        pairs, _ = _overlapping_pairs(linkage, nodes[cn], FLAT_OVERLAP_TOL_MM2)
         if len(pairs) == 0:
             break
         logger.info(
@@ -957,7 +957,7 @@ def optimize_flat(
                 f"gap opening angles span [{lo:.2f}, {hi_deg:.2f}] deg, outside the bounds "
                 f"[{min_gap_angle_deg:g}, 90] deg"
             )
-    remaining, _ = _overlapping_pairs(linkage, corners, FLAT_OVERLAP_DEPTH_MM, False)
+    remaining, _ = _overlapping_pairs(linkage, corners, FLAT_OVERLAP_TOL_MM2, False)
     if len(remaining):
         problems.append(f"{len(remaining)} pairs of flat tiles still overlap")
     elapsed = time.perf_counter() - start

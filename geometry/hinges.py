@@ -1059,28 +1059,52 @@ def rigid_layout(
         points,
         0.5 * (x.reshape(-1, 3)[ids[:, 0]] + x.reshape(-1, 3)[ids[:, 1]]),
     )
+    merged = _touching_corners(layout, planes, ids, merged, is_merged)
     return RigidLayoutResult(x, merged, points, is_merged, gap, violation, total_steps)
 
 
 def _merged_tiles(
     x: FloatArray, ids: IntArray, points: FloatArray, is_merged: NDArray[np.bool_]
 ) -> FloatArray:
-    """Tiles ``(T, 8, 3)`` with both vertices of every merged hinge moved to its point.
-
-    The two corners of the other face at a merged hinge (shared in T3D) are merged too, at
-    their midpoint, where they lie within ``2 * HINGE_CORNER_CROSS_MM`` of each other: the
-    layout lets them cross a little (a touch), which would leave a sliver of overlap.
-    """
+    """Tiles ``(T, 8, 3)`` with both vertices of every merged hinge moved to its point."""
     flat = x.reshape(-1, 3).copy()
-    other = ids ^ 4  # 8 * tile + v: the vertex of the other face under/over v
-    near = np.linalg.norm(flat[other[:, 0]] - flat[other[:, 1]], axis=1)
-    pair = np.flatnonzero(is_merged & (near <= 2.0 * HINGE_CORNER_CROSS_MM))
-    mid = 0.5 * (flat[other[pair, 0]] + flat[other[pair, 1]])
-    flat[other[pair, 0]] = mid
-    flat[other[pair, 1]] = mid
     flat[ids[is_merged, 0]] = points[is_merged]
     flat[ids[is_merged, 1]] = points[is_merged]
     return flat.reshape(x.shape)
+
+
+def _touching_corners(
+    layout: _RigidLayout,
+    planes: _Planes,
+    ids: IntArray,
+    merged: FloatArray,
+    is_merged: NDArray[np.bool_],
+) -> FloatArray:
+    """``merged`` with the corners of the other face at every merged hinge that crossed the
+    pair's separating plane (by at most ``HINGE_CORNER_CROSS_MM``, which the layout allows)
+    moved horizontally onto it: the two tiles then touch there instead of overlapping in a
+    sliver."""
+    out = merged.reshape(-1, 3).copy()
+    rows = np.flatnonzero(planes.hinge >= 0)
+    rows = rows[is_merged[planes.hinge[rows]]]
+    if not len(rows):
+        return merged
+    h = planes.hinge[rows]
+    a = planes.a[rows]
+    first = ids[h, 0] // 8 == a  # is the hinge's first vertex on tile a?
+    corner_a = np.where(first, ids[h, 0], ids[h, 1]) ^ 4
+    corner_b = np.where(first, ids[h, 1], ids[h, 0]) ^ 4
+    w = _rotate2(planes.normal[rows, :2], layout.phi[a])
+    nz = planes.normal[rows, 2]
+    origin = layout.origin()[a]
+    ww = np.maximum(np.einsum("ki,ki->k", w, w), 1e-300)
+    for corner, sign in ((corner_a, -1.0), (corner_b, 1.0)):
+        p = out[corner]
+        value = np.einsum("ki,ki->k", p[:, :2] - origin, w) + nz * p[:, 2] - planes.offset[rows]
+        crossed = sign * value < 0.0  # a's side is value <= 0, b's value >= 0
+        move = np.where(crossed, value / ww, 0.0)
+        out[corner, :2] -= move[:, None] * w
+    return out.reshape(merged.shape)
 
 
 def _hinges_of_ends(

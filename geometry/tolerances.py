@@ -31,15 +31,9 @@ LIFT_SUPPORT_MIN = 0.5
 #: Flat layout: max |edge length K2D - K3D| over tile sides and diagonals that meets the target.
 FLAT_EDGE_ERROR_TOL_MM = 1e-3
 
-#: Flat layout: total footprint overlap area (mm^2) counted as zero: a 10 um square, far below
-#: any print or cut resolution.  Hinged tiles touch at the corner edge of a hinge; where that
-#: edge leans a few micrometres differently in the two tiles (HINGE_CORNER_CROSS_MM), they
-#: overlap in slivers of 1e-6 - 1e-5 mm^2 there.
-FLAT_OVERLAP_TOL_MM2 = 1e-4
-
-#: Flat layout: separating-axis depth (mm) above which two tiles count as overlapping while
-#: optimizing.
-FLAT_OVERLAP_DEPTH_MM = 1e-6
+#: Flat layout: total footprint overlap area (mm^2) counted as zero; also the separating-axis
+#: depth (mm) above which two tiles count as overlapping while optimizing.
+FLAT_OVERLAP_TOL_MM2 = 1e-6
 
 #: Flat layout: gap opening angles may exceed their bounds by at most this (deg).
 FLAT_GAP_ANGLE_TOL_DEG = 0.01
@@ -47,9 +41,8 @@ FLAT_GAP_ANGLE_TOL_DEG = 0.01
 #: Hinges: max distance between paired hinge vertices (before merging) that meets the target.
 HINGE_GAP_TOL_MM = 1e-3
 
-#: Flat tiles: 3D interpenetration volume (mm^3) counted as zero (a 46 um cube; the hinge
-#: corner slivers of FLAT_OVERLAP_TOL_MM2 are 1e-6 - 1e-5 mm^3).
-FLAT_INTERPENETRATION_TOL_MM3 = 1e-4
+#: Flat tiles: 3D interpenetration volume (mm^3) counted as zero.
+FLAT_INTERPENETRATION_TOL_MM3 = 1e-6
 
 #: Target loading: vertices closer than this fraction of the bounding-box diagonal are merged
 #: (STL stores every triangle corner separately; other exports may split seams).
@@ -111,6 +104,7 @@ HINGE_LAYOUT_FEASIBLE_MM = 1e-6
 #: where the contact face at the hinge is nearly vertical, the two copies land micrometres
 #: apart on either side of any plane through the hinge once the tiles lie flat, a touch (the
 #: overlap is a sliver of micrometres) that demanding a separation would turn into a hinge gap.
+#: After the layout such corners are moved onto the plane, so the tiles touch there.
 HINGE_CORNER_CROSS_MM = 2e-3
 
 #: Hinge layout: gap angle bounds are aimed at this much (deg) inside [theta_min, 90] so that

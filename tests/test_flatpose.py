@@ -126,3 +126,29 @@ def test_free_openings_agree_with_exact_interpenetration(surface: str, parameter
     for e in empty[:5]:
         posed = _pose_pair(linkage, flat, other, e, np.radians(20.0))
         assert interpenetration(posed)[0] > 1e-6
+
+
+def test_hinge_sides_pick_a_face_that_clears_within_the_bounds() -> None:
+    # On a saddle some corners overhang one way across the shared side and the other way into
+    # the void beside it; the chosen face must be one on which the pair clears within
+    # [theta_min, 90] wherever either face does.
+    linkage, uv = _grid(8, 120.0)
+    _, t3 = heightfield_tiles(uv, linkage.tile_corners, "saddle", 6.0, 0.006)
+    theta = np.radians(12.0)
+    bottom = hinge_sides(linkage, t3, 12.0)
+    flat = lay_flat(t3)
+    ends = slit_ends(linkage)
+
+    def clears(faces_bottom: np.ndarray) -> np.ndarray:
+        lo, hi = free_openings(linkage, flat, faces_bottom, clearance=CLEARANCE, touch=CROSS)
+        return np.maximum(lo, theta) <= np.minimum(hi, 0.5 * np.pi)
+
+    on_top = clears(np.zeros(linkage.n_hinges, bool))
+    on_bottom = clears(np.ones(linkage.n_hinges, bool))
+    chosen = clears(bottom)
+    either = on_top | on_bottom
+    assert either.all() and chosen[either].all()
+    # both faces occur, and the top one is not always the answer
+    assert 0 < bottom.sum() < linkage.n_hinges
+    assert (~on_top).any() or (~on_bottom).any()
+    assert len(ends.hinge) == linkage.n_hinges
