@@ -866,8 +866,10 @@ def co_optimized(
     faces: HingeFaces | None,
 ) -> tuple[AssembledResult, FlatResult, dict[str, Any]]:
     """K3D and K2D moved together so the flat tiles are congruent to the assembled ones
-    (:func:`~drawstring.geometry.flat.co_optimize_top`), T3D extruded again under the new K3D and
-    the flat layout solved again from the joint one.  The new design is used only when its flat
+    (:func:`~drawstring.geometry.coflat.co_optimize_top`; with ``faces``, at their hinge points
+    and with the clear openings of the current tiles), T3D extruded again under the new K3D and
+    the flat layout solved again from the joint one.  The round whose re-solved layout has the
+    smallest edge error is the one kept.  The new design is used only when its flat
     edge error is lower and the flat layout keeps every hard bound; otherwise the inputs come
     back unchanged with the reason."""
     # Round 1 runs the whole continuation. The bottom faces decide the bottom-face angle bounds,
@@ -893,7 +895,11 @@ def co_optimized(
                 w_surface=options.weights[2],
                 stages=stages,
                 start_nodes=nodes,
-                hinges=None if faces is None else hinge_faces(linkage, current.tiles, faces.bottom),
+                hinges=(
+                    faces
+                    if faces is None or current is assembled
+                    else hinge_faces(linkage, current.tiles, faces.bottom)
+                ),
             )
             block["steps"] += co.steps
             moved_bottom = current.bottom + (co.top - current.top)

@@ -252,7 +252,8 @@ def co_optimize_top(
     start_nodes: ArrayLike | None = None,
     hinges: HingeFaces | None = None,
 ) -> CoOptimizedTop:
-    """Move K3D and K2D together until every flat tile is congruent to its assembled top face.
+    """Move K3D and K2D together until every flat tile is congruent to its assembled top face
+    (with ``hinges``: to its hinge points).
 
     A quad linkage of rigid tiles is over-determined in the plane (about four hinge equations
     per tile against three degrees of freedom), so with K3D fixed ``optimize_flat`` stops

@@ -174,9 +174,11 @@ class FlatResult:
     nodes : (n_nodes, 2) float, mm
         Node positions; tile corners are ``nodes[linkage.corner_node]``.
     corners : (T, 4, 2) float, mm
-        Tile corners BL, BR, TR, TL.
+        Tile corners BL, BR, TR, TL (top corners, or hinge points with ``anchor_3d``; use
+        :func:`extrude_flat` for the tiles themselves).
     edge_targets : (T, 6) float, mm
-        K3D lengths of the sides and diagonals (order of :data:`TILE_EDGES`).
+        K3D lengths of the sides and diagonals (order of :data:`TILE_EDGES`) of the polygons the
+        corners stand for (top faces, or the hinge points ``anchor_3d``).
     junctions : GapJunctions
     opening_deg : (E,) float
         Opening angle at every slit end (order of ``junctions.ends``).

@@ -19,8 +19,8 @@ along a horizontal unit direction ``n`` when
 * every hinge-face vertex of tile ``b`` lies at least ``clearance`` beyond ``H`` along ``n``
   and every one of tile ``a`` at least ``clearance`` behind it (``H`` itself excepted), and
 * along ``n`` the other face of ``b`` starts at least ``2 * clearance`` beyond the end of
-  ``a``'s other face (the corners above or below ``H`` may even cross the plane by ``touch``:
-  where the side faces at the hinge are vertical they sit on it).
+  ``a``'s other face (the corners above or below ``H``, shared in T3D, may come within
+  ``touch`` of crossing it: where the side faces at the hinge are vertical they sit on it).
 
 :func:`free_openings` finds, per slit end, the first interval of hinge-face openings at which
 some ``n`` passes both tests: openings on a grid, then each end of the interval bisected, with
@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from drawstring.geometry.linkage import Linkage, slit_ends
 from drawstring.geometry.rigid import apply_rigid, rigid_fit
-from drawstring.geometry.tolerances import HINGE_CORNER_CROSS_MM, HINGE_LAYOUT_CLEARANCE_MM
+from drawstring.geometry.tolerances import HINGE_LAYOUT_CLEARANCE_MM, HINGE_LAYOUT_TOUCH_MM
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -101,7 +101,7 @@ def hinge_faces(linkage: Linkage, tiles_3d: ArrayLike, bottom: ArrayLike) -> Hin
     side = np.asarray(bottom, dtype=bool)
     lo, hi = free_openings(
         linkage, lay_flat(tiles_3d), side,
-        clearance=HINGE_LAYOUT_CLEARANCE_MM, touch=HINGE_CORNER_CROSS_MM,
+        clearance=HINGE_LAYOUT_CLEARANCE_MM, touch=HINGE_LAYOUT_TOUCH_MM,
     )  # fmt: skip
     return HingeFaces(side, lo, hi)
 

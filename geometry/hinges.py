@@ -59,9 +59,9 @@ from drawstring.geometry.linkage import Linkage, SlitEnds, slit_ends
 from drawstring.geometry.tolerances import (
     FLAT_FREE_MARGIN_DEG,
     HINGE_ANGLE_MARGIN_DEG,
-    HINGE_CORNER_CROSS_MM,
     HINGE_LAYOUT_CLEARANCE_MM,
     HINGE_LAYOUT_FEASIBLE_MM,
+    HINGE_LAYOUT_TOUCH_MM,
     HINGE_TRIM_GROW_MM,
 )
 from drawstring.geometry.verify import (
@@ -191,7 +191,7 @@ def hinge_sides(
     for k, face_bottom in enumerate((False, True)):
         lo, hi = free_openings(
             linkage, posed, np.full(linkage.n_hinges, face_bottom),
-            clearance=HINGE_LAYOUT_CLEARANCE_MM, touch=HINGE_CORNER_CROSS_MM,
+            clearance=HINGE_LAYOUT_CLEARANCE_MM, touch=HINGE_LAYOUT_TOUCH_MM,
         )  # fmt: skip
         # with the margin the flat layout keeps inside the clear openings
         first = np.maximum(lo + margin, theta)
@@ -471,7 +471,7 @@ def _select_planes(
     clearance: float,
     reach: float,
     *,
-    touch: float = -HINGE_CORNER_CROSS_MM,
+    touch: float = HINGE_LAYOUT_TOUCH_MM,
     x: FloatArray | None = None,
     pairs: IntArray | None = None,
     previous: _Planes | None = None,
@@ -481,7 +481,7 @@ def _select_planes(
     ``x`` defaults to the current pose's vertices (pass merged vertices to re-check them);
     ``pairs`` defaults to all tile pairs within ``reach`` (plus twice the clearance); every
     tile pair gives one row per pair of convex pieces (one piece for a convex tile).  ``touch``
-    is the separation required where a hinged pair may touch (negative: it may cross).  With
+    is the separation required where a hinged pair may touch.  With
     ``previous`` planes, a row found there is only searched near its previous plane, unless
     that leaves it violated.  The returned score of each plane is its smallest margin beyond
     the required ones.
@@ -517,7 +517,7 @@ def _select_planes(
         delta_a[rows, 4:] = np.inf
         delta_b[rows, 4:] = np.inf
     else:
-        # the other face's corner under/over the hinge may touch (``touch`` <= 0: cross) it
+        # the other face's corner under/over the hinge may touch the plane
         delta_a[rows, (va[rows] + 4) % 8] = touch
         delta_b[rows, (vb[rows] + 4) % 8] = touch
     delta_a[rows, va[rows]] = np.inf  # the plane passes through it
@@ -1059,7 +1059,6 @@ def rigid_layout(
         points,
         0.5 * (x.reshape(-1, 3)[ids[:, 0]] + x.reshape(-1, 3)[ids[:, 1]]),
     )
-    merged = _touching_corners(layout, planes, ids, merged, is_merged)
     return RigidLayoutResult(x, merged, points, is_merged, gap, violation, total_steps)
 
 
@@ -1071,40 +1070,6 @@ def _merged_tiles(
     flat[ids[is_merged, 0]] = points[is_merged]
     flat[ids[is_merged, 1]] = points[is_merged]
     return flat.reshape(x.shape)
-
-
-def _touching_corners(
-    layout: _RigidLayout,
-    planes: _Planes,
-    ids: IntArray,
-    merged: FloatArray,
-    is_merged: NDArray[np.bool_],
-) -> FloatArray:
-    """``merged`` with the corners of the other face at every merged hinge that crossed the
-    pair's separating plane (by at most ``HINGE_CORNER_CROSS_MM``, which the layout allows)
-    moved horizontally onto it: the two tiles then touch there instead of overlapping in a
-    sliver."""
-    out = merged.reshape(-1, 3).copy()
-    rows = np.flatnonzero(planes.hinge >= 0)
-    rows = rows[is_merged[planes.hinge[rows]]]
-    if not len(rows):
-        return merged
-    h = planes.hinge[rows]
-    a = planes.a[rows]
-    first = ids[h, 0] // 8 == a  # is the hinge's first vertex on tile a?
-    corner_a = np.where(first, ids[h, 0], ids[h, 1]) ^ 4
-    corner_b = np.where(first, ids[h, 1], ids[h, 0]) ^ 4
-    w = _rotate2(planes.normal[rows, :2], layout.phi[a])
-    nz = planes.normal[rows, 2]
-    origin = layout.origin()[a]
-    ww = np.maximum(np.einsum("ki,ki->k", w, w), 1e-300)
-    for corner, sign in ((corner_a, -1.0), (corner_b, 1.0)):
-        p = out[corner]
-        value = np.einsum("ki,ki->k", p[:, :2] - origin, w) + nz * p[:, 2] - planes.offset[rows]
-        crossed = sign * value < 0.0  # a's side is value <= 0, b's value >= 0
-        move = np.where(crossed, value / ww, 0.0)
-        out[corner, :2] -= move[:, None] * w
-    return out.reshape(merged.shape)
 
 
 def _hinges_of_ends(

@@ -11,7 +11,7 @@ from drawstring.geometry.linkage import build_linkage, slit_ends
 from drawstring.geometry.verify import heightfield_tiles, interpenetration
 
 CLEARANCE = 0.1
-CROSS = 2e-3
+TOUCH = 1e-5
 
 
 def _grid(n: int, size: float):
@@ -59,7 +59,7 @@ def test_boxes_clear_once_the_arms_are_a_clearance_apart() -> None:
     expected = np.degrees(2.0 * np.arcsin(CLEARANCE / 10.0))
     for face_bottom in (False, True):
         bottom = np.full(linkage.n_hinges, face_bottom)
-        lo, hi = free_openings(linkage, tiles, bottom, clearance=CLEARANCE, touch=CROSS)
+        lo, hi = free_openings(linkage, tiles, bottom, clearance=CLEARANCE, touch=TOUCH)
         assert len(lo) == linkage.n_hinges
         assert np.degrees(lo) == pytest.approx(np.full(len(lo), expected), abs=0.01)
         assert np.degrees(hi) == pytest.approx(np.full(len(hi), 90.0))
@@ -71,11 +71,11 @@ def test_overhanging_faces_never_clear_and_decide_the_hinge_side() -> None:
     linkage, _ = _grid(2, 20.0)
     flared = _block(1.0)
     top_lo, top_hi = free_openings(
-        linkage, flared, np.zeros(linkage.n_hinges, bool), clearance=CLEARANCE, touch=CROSS
+        linkage, flared, np.zeros(linkage.n_hinges, bool), clearance=CLEARANCE, touch=TOUCH
     )
     assert (top_lo > top_hi).all()
     bot_lo, bot_hi = free_openings(
-        linkage, flared, np.ones(linkage.n_hinges, bool), clearance=CLEARANCE, touch=CROSS
+        linkage, flared, np.ones(linkage.n_hinges, bool), clearance=CLEARANCE, touch=TOUCH
     )
     assert (bot_lo < np.radians(2.0)).all() and (bot_hi == pytest.approx(0.5 * np.pi))
     assert hinge_sides(linkage, flared, 12.0).all()
@@ -140,7 +140,7 @@ def test_hinge_sides_pick_a_face_that_clears_within_the_bounds() -> None:
     ends = slit_ends(linkage)
 
     def clears(faces_bottom: np.ndarray) -> np.ndarray:
-        lo, hi = free_openings(linkage, flat, faces_bottom, clearance=CLEARANCE, touch=CROSS)
+        lo, hi = free_openings(linkage, flat, faces_bottom, clearance=CLEARANCE, touch=TOUCH)
         return np.maximum(lo, theta) <= np.minimum(hi, 0.5 * np.pi)
 
     on_top = clears(np.zeros(linkage.n_hinges, bool))
