@@ -781,7 +781,10 @@ def _tpu_pad(
                 tools[index].append(
                     _cylinder_between(point, frame.normal, radius, -TOOL_OVERSHOOT_MM, stop)
                 )
-                keys.append(_cylinder_between(point, frame.normal, radius, 0.5 * thickness, depth))
+                # The pin starts at the strip's underside: starting it inside the strip (which
+                # the union makes no different where the strip covers it) left OCCT's fuse
+                # non-manifold on some hinges.
+                keys.append(_cylinder_between(point, frame.normal, radius, thickness, depth))
         else:
             # Dovetail: a key 1.8 x wider than the strip just above it, held by the narrow neck.
             key_width = 1.8 * width
