@@ -778,9 +778,9 @@ def _tpu_pad(
                 if not through:
                     depth -= radius * 2.0  # tilted opposite face: keep the hole blind
                 stop = depth + (TOOL_OVERSHOOT_MM if through else 0.0)
-                tools[index].append(
-                    _cylinder_between(point, frame.normal, radius, -TOOL_OVERSHOOT_MM, stop)
-                )
+                # the hole starts at the recess floor, like the pin: cutting it from above the
+                # surface through the recess left it uncut on some hinges (OCCT)
+                tools[index].append(_cylinder_between(point, frame.normal, radius, thickness, stop))
                 # The pin starts at the strip's underside: starting it inside the strip (which
                 # the union makes no different where the strip covers it) left OCCT's fuse
                 # non-manifold on some hinges.

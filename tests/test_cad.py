@@ -233,7 +233,10 @@ def test_no_interference_in_the_flat_pose(built: CadResult) -> None:
     assert tiles.max_volume < 1e-6
     pads = checks.interference(built.tiles, built.pads)
     assert len(pads.pairs) >= 2 * len(built.pads)
-    assert pads.max_volume < 1e-3  # tessellations of shared curved walls differ slightly
+    # Pins and their holes share curved walls, tessellated separately (deflection
+    # CAD_INTERFERENCE_DEFLECTION_MM): they differ slightly.  The benchmark's cylinder designs
+    # measure 1.3e-3 - 2.5e-3 mm^3; a pad reaching into a tile would be orders larger.
+    assert pads.max_volume < 3e-3
     assert checks.interference(built.pads).max_volume < 1e-6
 
 
