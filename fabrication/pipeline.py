@@ -44,7 +44,7 @@ from drawstring.geometry.flatten import Flattening, flatten
 from drawstring.geometry.hinges import (
     HingeLayout,
     HingeStrategy,
-    hinge_sides,
+    dual_hinge_faces,
     layout_hinges,
 )
 from drawstring.geometry.lift import LiftPoints, select_lift_points, tile_masses_from_volumes
@@ -455,12 +455,12 @@ def design(
         )
     # Hinge sides are decided once, on the eq.-1 tiles; the flat layout makes the hinged
     # corners meet on the face that carries each hinge.
-    bottom = (
-        hinge_sides(linkage, assembled.tiles, resolved.min_gap_angle_deg)
+    faces = (
+        dual_hinge_faces(linkage, assembled.tiles, resolved.min_gap_angle_deg)
         if resolved.hinges == "dual"
-        else np.zeros(linkage.n_hinges, dtype=bool)
+        else None
     )
-    faces = hinge_faces(linkage, assembled.tiles, bottom) if resolved.hinges == "dual" else None
+    bottom = np.zeros(linkage.n_hinges, dtype=bool) if faces is None else faces.bottom
     with progress.stage("flat"):
         flat = flat_layout(linkage, tiling, assembled, resolved, faces)
     if resolved.co_optimize:

@@ -54,7 +54,7 @@ from scipy.spatial import cKDTree
 
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.flat import FlatResult
-from drawstring.geometry.flatpose import free_openings, lay_flat
+from drawstring.geometry.flatpose import HingeFaces, free_openings, lay_flat
 from drawstring.geometry.linkage import Linkage, SlitEnds, slit_ends
 from drawstring.geometry.tolerances import (
     FLAT_FREE_MARGIN_DEG,
@@ -87,6 +87,7 @@ HINGE_SIDE_TOL_REL = 1e-9
 __all__ = [
     "HingeLayout",
     "HingeTrim",
+    "dual_hinge_faces",
     "draw_flat",
     "hinge_overhangs",
     "hinge_sides",
@@ -154,14 +155,7 @@ def hinge_overhangs(linkage: Linkage, tiles_3d: ArrayLike) -> tuple[FloatArray, 
 def hinge_sides(
     linkage: Linkage, tiles_3d: ArrayLike, min_gap_angle_deg: float = 0.0
 ) -> NDArray[np.bool_]:
-    """Whether each hinge goes to the bottom (criterion in the module docstring).
-
-    Every pair is laid flat and tested on both faces: the openings at which the two tiles
-    clear each other (:func:`~drawstring.geometry.flatpose.free_openings`), within the gap-angle
-    bounds ``[min_gap_angle_deg, 90]``.  The hinge goes to the face where they clear at all,
-    and where both do, to the one where they clear at the smaller opening; where those differ by
-    less than ``HINGE_SIDE_TOL_DEG``, the summed overhang across the pair's shared side decides.
-    Where neither face clears, the face that misses by less.
+    """Whether each hinge goes to the bottom: ``dual_hinge_faces(...).bottom``.
 
     Parameters
     ----------
@@ -176,6 +170,22 @@ def hinge_sides(
     (H,) bool
         True: bottom hinge; False: top hinge.
     """
+    return dual_hinge_faces(linkage, tiles_3d, min_gap_angle_deg).bottom
+
+
+def dual_hinge_faces(
+    linkage: Linkage, tiles_3d: ArrayLike, min_gap_angle_deg: float = 0.0
+) -> HingeFaces:
+    """Each hinge's face (criterion in the module docstring) and its pair's clear openings.
+
+    Every pair is laid flat and tested on both faces: the openings at which the two tiles
+    clear each other (:func:`~drawstring.geometry.flatpose.free_openings`), within the gap-angle
+    bounds ``[min_gap_angle_deg, 90]``.  The hinge goes to the face where they clear at all,
+    and where both do, to the one where they clear at the smaller opening; where those differ by
+    less than ``HINGE_SIDE_TOL_DEG``, the summed overhang across the pair's shared side decides.
+    Where neither face clears, the face that misses by less.  The clear openings of the chosen
+    faces come back with the sides (the same as ``flatpose.hinge_faces`` of these tiles).
+    """
     tiles = np.asarray(tiles_3d, dtype=np.float64)
     if tiles.ndim != 3 or tiles.shape[1:] != (8, 3) or len(tiles) != linkage.n_tiles:
         raise InputError(f"tiles_3d has shape {tiles.shape}; pass (T, 8, 3) T3D tiles")
@@ -188,11 +198,13 @@ def hinge_sides(
     margin = np.radians(FLAT_FREE_MARGIN_DEG)
     start = np.full((2, linkage.n_hinges), theta)  # least clear opening within the bounds
     miss = np.zeros((2, linkage.n_hinges))  # how far the clear openings miss the bounds
+    clear = []
     for k, face_bottom in enumerate((False, True)):
         lo, hi = free_openings(
             linkage, posed, np.full(linkage.n_hinges, face_bottom),
             clearance=HINGE_LAYOUT_CLEARANCE_MM, touch=HINGE_LAYOUT_TOUCH_MM,
         )  # fmt: skip
+        clear.append((lo, hi))
         # with the margin the flat layout keeps inside the clear openings
         first = np.maximum(lo + margin, theta)
         last = np.minimum(hi - margin, 0.5 * np.pi)
@@ -200,7 +212,13 @@ def hinge_sides(
         np.maximum.at(miss[k], ends.hinge, np.maximum(first - last, 0.0))
     tol = np.radians(HINGE_SIDE_TOL_DEG)
     by_clearance = np.where(np.abs(start[1] - start[0]) <= tol, by_overhang, start[1] < start[0])
-    return np.asarray(np.where(np.abs(miss[1] - miss[0]) <= tol, by_clearance, miss[1] < miss[0]))
+    sides = np.asarray(np.where(np.abs(miss[1] - miss[0]) <= tol, by_clearance, miss[1] < miss[0]))
+    on_bottom = sides[ends.hinge]
+    return HingeFaces(
+        sides,
+        np.where(on_bottom, clear[1][0], clear[0][0]),
+        np.where(on_bottom, clear[1][1], clear[0][1]),
+    )
 
 
 @dataclass(frozen=True)
