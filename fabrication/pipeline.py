@@ -79,6 +79,10 @@ SURFACE_MEAN_REL = 0.02
 
 #: Largest distance (mm) between a channel's exit and the next tile's entry, assembled pose.
 CHANNEL_MATCH_TOL_MM = 0.05
+#: Largest volume (mm^3) a hinge part may share with a tile in the print pose: tessellating the
+#: curved pin walls they share gives up to about 0.007 mm^3 (200-tile saddle; 0.001-0.003 on
+#: the benchmark's cylinders), an uncut pin hole about 5 mm^3.
+CAD_PAD_INTERFERENCE_TOL_MM3 = 0.05
 
 log = logging.getLogger(__name__)
 
@@ -591,19 +595,7 @@ def with_cad(result: Design, progress: Progress) -> Design:
     with progress.stage("cad"):
         cad_flat, cad_assembled = build_cad(result)
         measured = measure_cad(result, cad_flat)
-    problems = list(result.problems)
-    if not measured["solids_valid"]:
-        problems.append("some tile or hinge solids are not valid B-rep solids")
-    overlap = measured["interference_tiles_max_mm3"]
-    if overlap > FLAT_INTERPENETRATION_TOL_MM3:
-        problems.append(f"tile solids interfere in the print pose ({overlap} mm^3)")
-    apart = measured["channel_opening_distance_max_mm"]
-    missing = measured["channel_openings_missing"]
-    if missing or apart > CHANNEL_MATCH_TOL_MM:
-        problems.append(
-            "string channels do not line up between consecutive tiles in the assembled pose "
-            f"({apart} mm apart, {missing} openings missing)"
-        )
+    problems = [*result.problems, *cad_problems(measured)]
     notes = [*result.notes, *(f"cad: {n}" for n in cad_flat.notes)]
     return replace(
         result,
@@ -614,6 +606,30 @@ def with_cad(result: Design, progress: Progress) -> Design:
         notes=tuple(notes),
         timings_s=progress.ordered_timings(),
     )
+
+
+def cad_problems(measured: dict[str, Any]) -> list[str]:
+    """Hard faults of the solids, from their measures (:func:`~.cad_stage.measure_cad`)."""
+    problems = []
+    if not measured["solids_valid"]:
+        problems.append("some tile or hinge solids are not valid B-rep solids")
+    overlap = measured["interference_tiles_max_mm3"]
+    if overlap > FLAT_INTERPENETRATION_TOL_MM3:
+        problems.append(f"tile solids interfere in the print pose ({overlap} mm^3)")
+    sunk = measured["interference_tiles_pads_max_mm3"]
+    if sunk > CAD_PAD_INTERFERENCE_TOL_MM3:
+        problems.append(
+            f"a hinge part sinks {sunk} mm^3 into a tile in the print pose (a recess or pin hole "
+            "was not cut)"
+        )
+    apart = measured["channel_opening_distance_max_mm"]
+    missing = measured["channel_openings_missing"]
+    if missing or apart > CHANNEL_MATCH_TOL_MM:
+        problems.append(
+            "string channels do not line up between consecutive tiles in the assembled pose "
+            f"({apart} mm apart, {missing} openings missing)"
+        )
+    return problems
 
 
 @dataclass(frozen=True)
@@ -729,7 +745,16 @@ def measure_design(
     )
     tiles_2d = hinge_layout.tiles
     top_2d = tiles_2d[:, :4, :2]
-    overlap_area, _, _ = verify.flat_overlap(top_2d)
+    _, overlapping, areas = verify.flat_overlap(top_2d)
+    # A trimmed pair's top faces overlap only inside its trim (the tops are coplanar in the
+    # flat pose and the trim is the pair's whole 3D overlap); the interpenetration after the
+    # trims below checks that independently.
+    trimmed_pairs = {
+        tuple(sorted(int(t) for t in linkage.hinges[trim.hinge, [0, 2]]))
+        for trim in hinge_layout.trims
+    }
+    kept = [k for k, (a, b) in enumerate(overlapping.tolist()) if (a, b) not in trimmed_pairs]
+    overlap_area = float(areas[kept].sum())
     trims = [(trim.tile, trim.vertices) for trim in hinge_layout.trims]
     volume, _, _ = verify.interpenetration(tiles_2d, trims=trims)
     edge_error = float(verify.flat_edge_errors(top_2d, assembled.tiles[:, :4]).max(initial=0.0))
@@ -753,8 +778,8 @@ def measure_design(
             "mass_g": _round(float(masses.sum()) * 1000.0, 3),
         }
     )
-    if options.hinges == "top":
-        metrics["contact_area_lost_mm2"] = _round(hinge_layout.contact_area_lost_mm2, 6)
+    # top hinges trim every overlapping pair; dual ones only pairs that clear on neither face
+    metrics["contact_area_lost_mm2"] = _round(hinge_layout.contact_area_lost_mm2, 6)
     metrics["lift_points"] = lift.to_json()
     assembled_gaps = gap_centroids(linkage, assembled.tiles[:, :4])
     flat_gaps = gap_centroids(linkage, top_2d)

@@ -47,6 +47,9 @@ CO_STEPS = 15
 #: Pull of every K3D vertex towards its start (weight per mm^2; the other weights are relative
 #: to it), which keeps the squareness eq. 1 gave while the tiles become flat-foldable.
 CO_KEEP = 1.0
+#: Starting penalty of the joint solve's hard rows relative to its edge weight (``optimize_flat``
+#: starts at 10 with edge weight 1).
+CO_RHO_REL = 10.0
 #: The joint solve's few steps leave the angle bounds met to a few hundredths of a degree, so
 #: it keeps this much inside them; ``optimize_flat`` afterwards holds them exactly.
 CO_ANGLE_MARGIN_DEG = 0.1
@@ -336,7 +339,7 @@ def co_optimize_top(
         problem.sqrt_edge = float(np.sqrt(w_edge))
         z, used, _ = _constrained_edges(
             z, problem, constraints, max_steps=per_stage, angle_tol=angle_tol,
-            length_tol=angle_tol * side,
+            length_tol=angle_tol * side, rho0=CO_RHO_REL * w_edge,
         )  # fmt: skip
         steps += used
     nodes, new_top = problem.unpack(z)

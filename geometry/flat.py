@@ -64,7 +64,6 @@ from drawstring.geometry.linkage import Linkage, slit_ends
 from drawstring.geometry.rigid import rigid_fit
 from drawstring.geometry.tolerances import (
     FLAT_EDGE_ERROR_TOL_MM,
-    FLAT_FREE_MARGIN_DEG,
     FLAT_GAP_ANGLE_TOL_DEG,
     FLAT_ORIENTATION_MIN_RAD,
     FLAT_OVERLAP_TOL_MM2,
@@ -513,6 +512,7 @@ def _constrained_edges(
     max_steps: int,
     angle_tol: float,
     length_tol: float,
+    rho0: float = 10.0,
 ) -> tuple[FloatArray, int, float]:
     """Minimize the edge energy subject to ``values >= 0`` of every constraint block.
 
@@ -571,7 +571,7 @@ def _constrained_edges(
         return float(r @ r + pen @ pen)
 
     lam = np.zeros(m)
-    rho = 10.0
+    rho = rho0
     steps = 0
     prev_viol = np.inf
     mu = 1e-4
@@ -631,7 +631,7 @@ def _constrained_edges(
         if violation <= 1.0 and moved < 1e-7:
             break
         if violation > 0.25 * prev_viol:
-            rho = min(rho * 10.0, 1e9)
+            rho = min(rho * 10.0, 1e8 * rho0)
         prev_viol = violation
     return x, steps, violation
 
@@ -732,15 +732,12 @@ def _face_offsets(
 def _clear_bounds(hinges: HingeFaces, ends_hinge: IntArray, lo: FloatArray, hi: FloatArray) -> None:
     """Narrow the opening bounds ``lo``, ``hi`` ``(2, E)`` (top, bottom face rows; rad) in place
     to the openings at which each slit end's tiles clear each other on its hinge face."""
-    margin = np.radians(FLAT_FREE_MARGIN_DEG)
     face = hinges.bottom[ends_hinge].astype(np.int64)
     k = np.arange(len(face))
-    new_lo = np.maximum(lo[face, k], hinges.clear_lo + margin)
-    new_hi = np.minimum(hi[face, k], hinges.clear_hi - margin)
+    new_lo, new_hi, fits = hinges.window(lo[face, k], hi[face, k])
     # where clearing needs openings outside the gap-angle bounds, the bounds stay as they are
     # (holding such a pair at the nearest bound instead made the joint solve jump where the
-    # interval shifted between rounds)
-    fits = new_lo <= new_hi
+    # interval shifted between rounds); the hinge stage trims such pairs' overlap
     lo[face[fits], k[fits]] = new_lo[fits]
     hi[face[fits], k[fits]] = new_hi[fits]
     if not fits.all():

@@ -38,7 +38,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from drawstring.geometry.linkage import Linkage, slit_ends
 from drawstring.geometry.rigid import apply_rigid, rigid_fit
-from drawstring.geometry.tolerances import HINGE_LAYOUT_CLEARANCE_MM, HINGE_LAYOUT_TOUCH_MM
+from drawstring.geometry.tolerances import (
+    FLAT_FREE_MARGIN_DEG,
+    HINGE_LAYOUT_CLEARANCE_MM,
+    HINGE_LAYOUT_TOUCH_MM,
+)
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -70,6 +74,17 @@ class HingeFaces:
     bottom: NDArray[np.bool_]
     clear_lo: FloatArray
     clear_hi: FloatArray
+
+    def window(
+        self, lo: ArrayLike, hi: ArrayLike
+    ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+        """The openings within the bounds ``lo``, ``hi`` (rad, per slit end or one for all) at
+        which each slit end's tiles clear each other, ``FLAT_FREE_MARGIN_DEG`` inside the clear
+        interval: ``(E,)`` lower and upper ends, and whether that window is not empty."""
+        margin = np.radians(FLAT_FREE_MARGIN_DEG)
+        new_lo = np.maximum(lo, self.clear_lo + margin)
+        new_hi = np.minimum(hi, self.clear_hi - margin)
+        return new_lo, new_hi, np.asarray(new_lo <= new_hi)
 
 
 def lay_flat(tiles_3d: ArrayLike) -> FloatArray:

@@ -9,13 +9,15 @@ corner only, so whether they collide in the flat pose depends on the opening at 
 For each hinge and each face we compute the openings at which the two flat tiles clear each
 other (:func:`~drawstring.geometry.flatpose.free_openings`, exact separating planes through the
 hinge) and place the hinge on the face where they clear within the gap-angle bounds, at the
-smaller opening.  A tie (both clear from the smallest openings, e.g. a flat target) is broken by
-the overhang across the pair's shared side: for tile ``a`` at hinge corner ``c`` let
-``d = Q - P`` projected on ``a``'s top plane and ``m`` the inward unit normal (in that plane) of
-``a``'s top side facing its partner; the *bottom overhang* is ``max(0, -d.m)``, how far the
-bottom corner pokes across that side, and the *top overhang* the same with roles swapped.  The
-hinge goes to the bottom when the summed bottom overhang of both tiles exceeds the summed top
-overhang (by more than ``HINGE_SIDE_TOL_REL`` times the thickness), otherwise to the top.
+smaller opening; where they clear on neither face, on the top, and the overlap of that pair is
+trimmed as in the ``top`` strategy.  A tie (both clear from the smallest openings, e.g. a flat
+target) is broken by the overhang across the pair's shared side: for tile ``a`` at hinge
+corner ``c`` let ``d = Q - P`` projected on ``a``'s top plane and ``m`` the inward unit normal
+(in that plane) of ``a``'s top side facing its partner; the *bottom overhang* is
+``max(0, -d.m)``, how far the bottom corner pokes across that side, and the *top overhang* the
+same with roles swapped.  The hinge goes to the bottom when the summed bottom overhang of both
+tiles exceeds the summed top overhang (by more than ``HINGE_SIDE_TOL_REL`` times the
+thickness), otherwise to the top.
 
 This is the paper's criterion made measurable: across the shared contact face the bottoms
 overhang where the target's normal curvature in that direction is negative (concave seen from
@@ -34,7 +36,10 @@ with the larger id, and the side-face (contact) area it takes away is reported.
 which makes the hinge points meet), then the rigid-tile layout ``w_rigid E_rigid +
 w_collision E_collision + w_conn E_conn`` (tiles exactly rigid; separating planes between close
 pairs, through the hinge for hinged ones; paired hinge vertices to their midpoint), then every
-hinge pair is merged into one vertex.
+hinge pair is merged into one vertex.  A pair that, on the final tiles, collides on its hinge
+face at every opening within the gap-angle bounds is laid out as a ``top`` pair is (separated on
+the hinge face only) and its overlap trimmed; without that, the layout would have to hold it
+apart and its hinge would not meet.
 """
 
 from __future__ import annotations
@@ -54,7 +59,7 @@ from scipy.spatial import cKDTree
 
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.flat import FlatResult
-from drawstring.geometry.flatpose import HingeFaces, free_openings, lay_flat
+from drawstring.geometry.flatpose import HingeFaces, free_openings, hinge_faces, lay_flat
 from drawstring.geometry.linkage import Linkage, SlitEnds, slit_ends
 from drawstring.geometry.tolerances import (
     FLAT_FREE_MARGIN_DEG,
@@ -97,7 +102,7 @@ __all__ = [
     "RigidLayoutResult",
     "SlitEnds",
     "slit_ends",
-    "top_hinge_trims",
+    "hinge_trims",
     "write_flat_obj",
 ]
 
@@ -183,8 +188,9 @@ def dual_hinge_faces(
     bounds ``[min_gap_angle_deg, 90]``.  The hinge goes to the face where they clear at all,
     and where both do, to the one where they clear at the smaller opening; where those differ by
     less than ``HINGE_SIDE_TOL_DEG``, the summed overhang across the pair's shared side decides.
-    Where neither face clears, the face that misses by less.  The clear openings of the chosen
-    faces come back with the sides (the same as ``flatpose.hinge_faces`` of these tiles).
+    Where neither face clears, the top: the hinge stage trims that pair's overlap.  The clear
+    openings of the chosen faces come back with the sides (the same as ``flatpose.hinge_faces``
+    of these tiles).
     """
     tiles = np.asarray(tiles_3d, dtype=np.float64)
     if tiles.ndim != 3 or tiles.shape[1:] != (8, 3) or len(tiles) != linkage.n_tiles:
@@ -212,7 +218,9 @@ def dual_hinge_faces(
         np.maximum.at(miss[k], ends.hinge, np.maximum(first - last, 0.0))
     tol = np.radians(HINGE_SIDE_TOL_DEG)
     by_clearance = np.where(np.abs(start[1] - start[0]) <= tol, by_overhang, start[1] < start[0])
-    sides = np.asarray(np.where(np.abs(miss[1] - miss[0]) <= tol, by_clearance, miss[1] < miss[0]))
+    # a pair that collides on both faces at every opening within the bounds goes on top and
+    # has its overlap trimmed (the top strategy for that pair): its top faces stay apart
+    sides = np.asarray((miss[1] <= 0) & ((miss[0] > 0) | by_clearance))
     on_bottom = sides[ends.hinge]
     return HingeFaces(
         sides,
@@ -223,7 +231,7 @@ def dual_hinge_faces(
 
 @dataclass(frozen=True)
 class HingeTrim:
-    """Overlap of two top-hinged tiles in the flat pose, removed from ``tile``.
+    """Overlap of two hinged tiles in the flat pose, removed from ``tile``.
 
     Attributes
     ----------
@@ -231,8 +239,9 @@ class HingeTrim:
     tile : int
         The tile trimmed (the larger id of the pair).
     vertices : (p, 3) float, mm
-        Vertices of the convex overlap polyhedron, each moved ``HINGE_TRIM_GROW_MM`` away from
-        their centroid (CAD subtracts their hull; the growth leaves no numerical sliver).
+        Points whose hull is the convex overlap polyhedron grown by a cube of half-side
+        ``HINGE_TRIM_GROW_MM`` (CAD subtracts their hull; the growth leaves no numerical sliver
+        and gives needle-thin overlaps a thickness a B-rep cut can take).
     volume_mm3 : float
     contact_area_lost_mm2 : float
         Area of the trimmed tile's side faces inside the overlap.
@@ -298,13 +307,23 @@ def _hinge_vertex_ids(linkage: Linkage, bottom: NDArray[np.bool_]) -> IntArray:
     return np.stack([8 * h[:, 0] + h[:, 1] + off, 8 * h[:, 2] + h[:, 3] + off], axis=1)
 
 
-def top_hinge_trims(linkage: Linkage, tiles_2d: ArrayLike) -> tuple[HingeTrim, ...]:
-    """Exact overlap of every top-hinged tile pair in the flat pose.
+#: Corners of the cube a trim is grown by.
+_TRIM_GROWTH = HINGE_TRIM_GROW_MM * np.array(
+    [[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)]
+)
+
+
+def hinge_trims(
+    linkage: Linkage, tiles_2d: ArrayLike, hinges: ArrayLike | None = None
+) -> tuple[HingeTrim, ...]:
+    """Exact overlap of hinged tile pairs in the flat pose.
 
     Parameters
     ----------
     linkage : Linkage
     tiles_2d : (T, 8, 3) float, mm
+    hinges : (k,) int, optional
+        The hinges to check (default all).
 
     Returns
     -------
@@ -315,8 +334,9 @@ def top_hinge_trims(linkage: Linkage, tiles_2d: ArrayLike) -> tuple[HingeTrim, .
 
     tiles = np.asarray(tiles_2d, dtype=np.float64)
     trims: list[HingeTrim] = []
-    for index, (ta, _, tb, _) in enumerate(linkage.hinges):
-        a, b = int(ta), int(tb)
+    which = np.arange(linkage.n_hinges) if hinges is None else np.asarray(hinges, dtype=np.int64)
+    for index in which.tolist():
+        a, b = int(linkage.hinges[index, 0]), int(linkage.hinges[index, 2])
         overlap = m3d.Manifold.hull_points(tiles[a]) ^ m3d.Manifold.hull_points(tiles[b])
         volume = float(overlap.volume())
         if volume <= 0:
@@ -333,10 +353,9 @@ def top_hinge_trims(linkage: Linkage, tiles_2d: ArrayLike) -> tuple[HingeTrim, .
             polygon_in_convex_polyhedron_area(tiles[trimmed][face], p0[keep], normals)
             for face in TILE_FACES[2:]
         )
-        # Record the trim grown by a hair so that subtracting it leaves no numerical sliver.
-        away = verts - verts.mean(axis=0)
-        away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-300)
-        grown = verts + HINGE_TRIM_GROW_MM * away
+        # Record the trim grown by a small cube (Minkowski sum) so that subtracting it leaves no
+        # numerical sliver, and so that a needle-thin overlap becomes a tool a B-rep cut can take.
+        grown = (verts[:, None, :] + _TRIM_GROWTH[None]).reshape(-1, 3)
         trims.append(HingeTrim(index, trimmed, grown, volume, float(lost)))
     return tuple(trims)
 
@@ -485,7 +504,7 @@ def _select_planes(
     layout: _RigidLayout,
     linkage: Linkage,
     hinge_ids: IntArray,
-    strategy: HingeStrategy,
+    trim: NDArray[np.bool_],
     clearance: float,
     reach: float,
     *,
@@ -498,7 +517,9 @@ def _select_planes(
 
     ``x`` defaults to the current pose's vertices (pass merged vertices to re-check them);
     ``pairs`` defaults to all tile pairs within ``reach`` (plus twice the clearance); every
-    tile pair gives one row per pair of convex pieces (one piece for a convex tile).  ``touch``
+    tile pair gives one row per pair of convex pieces (one piece for a convex tile).  ``trim``
+    ``(H,)`` marks hinges whose pair is separated on the hinge face only (its overlap in the
+    other face's half is trimmed away).  ``touch``
     is the separation required where a hinged pair may touch.  With
     ``previous`` planes, a row found there is only searched near its previous plane, unless
     that leaves it violated.  The returned score of each plane is its smallest margin beyond
@@ -531,13 +552,16 @@ def _select_planes(
     delta_a = np.where(mask_a, clearance, np.inf)
     delta_b = np.where(mask_b, clearance, np.inf)
     rows = np.flatnonzero(hinged)
-    if strategy == "top":
-        delta_a[rows, 4:] = np.inf
-        delta_b[rows, 4:] = np.inf
-    else:
-        # the other face's corner under/over the hinge may touch the plane
-        delta_a[rows, (va[rows] + 4) % 8] = touch
-        delta_b[rows, (vb[rows] + 4) % 8] = touch
+    face_only = hinged & trim[hk]  # separated on the hinge face only
+    dual_hinged = hinged & ~trim[hk]
+    cut = np.flatnonzero(face_only)
+    other = np.arange(4)
+    delta_a[cut[:, None], 4 * (1 - va[cut, None] // 4) + other] = np.inf
+    delta_b[cut[:, None], 4 * (1 - vb[cut, None] // 4) + other] = np.inf
+    # elsewhere the other face's corner under/over the hinge may touch the plane
+    both = np.flatnonzero(dual_hinged)
+    delta_a[both, (va[both] + 4) % 8] = touch
+    delta_b[both, (vb[both] + 4) % 8] = touch
     delta_a[rows, va[rows]] = np.inf  # the plane passes through it
     delta_b[rows, vb[rows]] = 0.0  # b's hinge vertex meets the plane when merged
     anchor = np.where(hinged, va, -1)
@@ -545,8 +569,6 @@ def _select_planes(
     o3 = np.concatenate([origin, np.zeros((layout.n, 1))], axis=1)
     rel_a = x[a] - o3[a][:, None]
     rel_b = x[b] - o3[a][:, None]
-    top_only = hinged & (strategy == "top")
-    dual_hinged = hinged & (strategy == "dual")
     # For a hinged pair the tight vertices are the corners of the other face at the hinge: for a
     # horizontal direction e their margins are linear in the plane's vertical slope t, so the
     # best slope is found exactly (a's margin kept >= 0 since the plane moves with a).
@@ -572,7 +594,7 @@ def _select_planes(
         tilt = np.where(
             dual_hinged[sel, None, None], exact, base[:, None, None] + spread + 0.0 * c[:, :, None]
         )
-        tilt = np.where(top_only[sel, None, None], 0.0, tilt)  # (p, K, S)
+        tilt = np.where(face_only[sel, None, None], 0.0, tilt)  # (p, K, S)
         norm = np.sqrt(1.0 + tilt * tilt)
         ra, rb = rel_a[sel], rel_b[sel]
 
@@ -927,6 +949,7 @@ def rigid_layout(
     clearance_mm: float = HINGE_LAYOUT_CLEARANCE_MM,
     max_rounds: int = 40,
     inner_steps: int = 60,
+    trim: ArrayLike | None = None,
 ) -> RigidLayoutResult:
     """Lay rigid flat tiles out so paired hinge vertices meet as closely as possible.
 
@@ -941,10 +964,10 @@ def rigid_layout(
       two convex pieces, :func:`~drawstring.geometry.verify.convex_pieces`, each separated on
       its own, since its hull would fill the notch): with ``clearance_mm`` to spare, except that a
       hinged pair's plane passes through the hinge, which with the corner of the other face at
-      the hinge may touch it; for ``top`` hinged pairs only the top faces are separated (their
-      3D overlap is trimmed).  Planes are re-chosen (sampled max-margin, never accepting a
-      violation on the carrying tile's side when avoidable) in the first rounds, warm-started
-      from the previous planes.
+      the hinge may touch it; for ``top`` hinged pairs, and ``trim`` ones, only the hinge faces
+      are separated (their 3D overlap is trimmed).  Planes are re-chosen (sampled max-margin,
+      never accepting a violation on the carrying tile's side when avoidable) in the first
+      rounds, warm-started from the previous planes.
 
     The solver is an augmented Lagrangian whose subproblems are solved by Levenberg-Marquardt.
     Hinge pairs are then merged at their midpoint moved horizontally onto the pair's plane; a
@@ -962,6 +985,9 @@ def rigid_layout(
     min_gap_angle_deg : float, deg
     clearance_mm : float, mm
     max_rounds, inner_steps : solver limits (augmented Lagrangian rounds, LM steps per round).
+    trim : (H,) bool, optional
+        ``dual`` hinges whose pairs are separated on the hinge face only (default none; every
+        hinge for ``top``).
 
     Returns
     -------
@@ -969,6 +995,9 @@ def rigid_layout(
     """
     t2 = np.asarray(shapes, dtype=np.float64)
     ids = np.asarray(hinge_ids, dtype=np.int64).reshape(-1, 2)
+    cut = np.full(len(ids), strategy == "top") if trim is None else np.asarray(trim, dtype=bool)
+    if cut.shape != (len(ids),):
+        raise InputError(f"trim has shape {cut.shape}; pass one flag per hinge")
     layout = _RigidLayout(t2)
     ends = slit_ends(linkage)
     faces = np.array([0, 4] if strategy == "dual" else [0], dtype=np.int64)
@@ -1005,7 +1034,7 @@ def rigid_layout(
         for r in range(rounds):
             if 0 < r <= reselect:
                 planes = _select_planes(
-                    layout, linkage, ids, strategy, clearance_mm, reach, previous=planes
+                    layout, linkage, ids, cut, clearance_mm, reach, previous=planes
                 )
                 n_old = len(lam)
                 con = constraints(planes)
@@ -1025,7 +1054,7 @@ def rigid_layout(
         state["lam"] = lam
         return planes, viol
 
-    planes = _select_planes(layout, linkage, ids, strategy, clearance_mm, reach)
+    planes = _select_planes(layout, linkage, ids, cut, clearance_mm, reach)
     planes, violation = solve(planes, max_rounds, 2)
     is_merged = np.ones(len(ids), dtype=bool)
     for attempt in range(4):
@@ -1060,7 +1089,7 @@ def rigid_layout(
         undo = _broken_merges(
             layout,
             linkage,
-            strategy,
+            cut,
             planes,
             ends,
             faces,
@@ -1111,7 +1140,7 @@ def _hinges_of_ends(
 def _broken_merges(
     layout: _RigidLayout,
     linkage: Linkage,
-    strategy: HingeStrategy,
+    trim: NDArray[np.bool_],
     planes: _Planes,
     ends: SlitEnds,
     faces: IntArray,
@@ -1132,7 +1161,7 @@ def _broken_merges(
     undo = np.zeros(len(ids), dtype=bool)
     if suspect.size:
         pairs = np.stack([planes.a[suspect], planes.b[suspect]], axis=1)
-        again = _select_planes(layout, linkage, ids, strategy, 0.0, 0.0, x=merged, pairs=pairs)
+        again = _select_planes(layout, linkage, ids, trim, 0.0, 0.0, x=merged, pairs=pairs)
         broken = again.score < -tol
         tiles = np.concatenate([again.a[broken], again.b[broken]])
         undo |= is_merged & (np.isin(ids[:, 0] // 8, tiles) | np.isin(ids[:, 1] // 8, tiles))
@@ -1221,9 +1250,19 @@ def layout_hinges(
         if sides.shape != (linkage.n_hinges,):
             raise InputError(f"bottom has shape {sides.shape}; pass one flag per hinge")
     ids = _hinge_vertex_ids(linkage, sides)
+    if strategy == "top":
+        trim = np.ones(linkage.n_hinges, dtype=bool)
+    else:
+        # pairs that collide on their hinge face at every opening within the gap-angle bounds
+        # are laid out like top hinges: separated on the hinge face, their overlap trimmed
+        ends = slit_ends(linkage)
+        bounds = np.radians([theta + HINGE_ANGLE_MARGIN_DEG, 90.0 - HINGE_ANGLE_MARGIN_DEG])
+        _, _, fits = hinge_faces(linkage, t3, sides).window(*bounds)
+        trim = np.zeros(linkage.n_hinges, dtype=bool)
+        trim[ends.hinge[~fits]] = True
     result = rigid_layout(
         linkage, t2, ids, strategy=strategy, min_gap_angle_deg=theta,
-        clearance_mm=clearance_mm, max_rounds=max_rounds,
+        clearance_mm=clearance_mm, max_rounds=max_rounds, trim=trim,
     )  # fmt: skip
     gap_max = float(result.gap_mm.max(initial=0.0))
     if result.violation_mm > HINGE_LAYOUT_FEASIBLE_MM:
@@ -1238,16 +1277,19 @@ def layout_hinges(
             f"{float(result.gap_mm[~result.is_merged].max()):.3g} mm apart): merging them would "
             "overlap tiles or break a gap-angle bound"
         )
-    trims: tuple[HingeTrim, ...] = ()
-    lost = 0.0
-    if strategy == "top":
-        trims = top_hinge_trims(linkage, result.merged)
-        lost = float(sum(tr.contact_area_lost_mm2 for tr in trims))
-        if trims:
-            problems.append(
-                f"top hinges: {len(trims)} hinged pairs overlap in the flat pose; trimmed "
-                f"{sum(tr.volume_mm3 for tr in trims):.3g} mm^3, losing {lost:.3g} mm^2 of contact"
-            )
+    trims = hinge_trims(linkage, result.merged, np.flatnonzero(trim))
+    lost = float(sum(tr.contact_area_lost_mm2 for tr in trims))
+    if trims:
+        which = (
+            "top hinges: "
+            if strategy == "top"
+            else f"dual hinges: {int(trim.sum())} pairs collide on their hinge face at every "
+            f"opening in [{theta:g}, 90] deg; "
+        )
+        problems.append(
+            f"{which}{len(trims)} hinged pairs overlap in the flat pose; trimmed "
+            f"{sum(tr.volume_mm3 for tr in trims):.3g} mm^3, losing {lost:.3g} mm^2 of contact"
+        )
     return HingeLayout(
         strategy, result.merged, sides, ids, result.points, gap_max, trims, lost,
         result.iterations, time.perf_counter() - start, tuple(problems), result.tiles,

@@ -109,9 +109,11 @@ HINGE_LAYOUT_TOUCH_MM = 1e-5
 #: merging hinge pairs (which turns tile sides slightly) keeps them within bounds.
 HINGE_ANGLE_MARGIN_DEG = 0.02
 
-#: Top-hinge trims: the recorded overlap polyhedron is grown by this much (mm) so that
-#: subtracting it leaves no numerical sliver of interpenetration.
-HINGE_TRIM_GROW_MM = 1e-3
+#: Hinge trims: the recorded overlap polyhedron is grown by a cube of this half-side (mm) so
+#: that subtracting it leaves no numerical sliver of interpenetration.  The overlap of a pair
+#: that touches along a vertical edge can be a needle 0.008 x 0.05 x 6 mm (saddle, 200 tiles):
+#: grown by 1 um, its cut at a hinge-pad corner failed silently in OCCT; grown by 10 um it cuts.
+HINGE_TRIM_GROW_MM = 0.01
 
 #: Simulation: after locking, the run stops as stuck once no vertex moved more than this
 #: fraction of the mean tile side in five consecutive steps (a slow creep towards the assembled

@@ -11,9 +11,9 @@ import pytest
 from drawstring.geometry.flat import extrude_flat, optimize_flat
 from drawstring.geometry.hinges import (
     hinge_sides,
+    hinge_trims,
     hinge_vertex_json,
     layout_hinges,
-    top_hinge_trims,
     write_flat_obj,
 )
 from drawstring.geometry.linkage import build_linkage
@@ -61,7 +61,7 @@ def test_hand_built_block_sides_and_trim() -> None:
     # 10 + 2u long, so its volume is h * int_0^1 2u (10 + 2u) du = h (10 + 4/3).  The trimmed tile
     # loses its whole contact face toward the other (a trapezoid, 11 L with L = sqrt(h^2 + 1)) and
     # a triangle of area L on each of the two faces beside it: 13 L.
-    trims = top_hinge_trims(linkage, flared)
+    trims = hinge_trims(linkage, flared)
     assert len(trims) == linkage.n_hinges == 4
     slant = np.sqrt(h * h + 1.0)
     for trim in trims:
@@ -84,6 +84,39 @@ def test_dual_layout_inside_cylinder_meets_hinges() -> None:
     assert interpenetration(layout.tiles)[0] < 1e-9
     top_layout = layout_hinges(linkage, flat, t2, t3, strategy="top")
     assert top_layout.contact_area_lost_mm2 > 0 and top_layout.problems
+
+
+def test_dual_pairs_that_never_clear_are_trimmed_not_held_apart() -> None:
+    """Top hinges inside a cylinder: the bottoms overhang, so the pairs collide on their hinge
+    face at every opening.  A dual layout handed these sides lays such pairs out like top
+    hinges (tops apart, overlap trimmed) and their hinges meet; held apart as rigid pairs
+    instead, they could not meet."""
+    from drawstring.geometry.flatpose import hinge_faces
+    from drawstring.geometry.hinges import _hinge_vertex_ids, rigid_layout
+    from drawstring.geometry.linkage import slit_ends
+    from drawstring.geometry.tolerances import FLAT_INTERPENETRATION_TOL_MM3
+    from drawstring.geometry.verify import flat_overlap
+
+    linkage, uv = _grid(6)
+    top, t3 = heightfield_tiles(uv, linkage.tile_corners, "cylinder_inside", 4.0, 40.0)
+    flat = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=10.0)
+    t2 = extrude_flat(flat, t3)
+    on_top = np.zeros(linkage.n_hinges, dtype=bool)
+    _, _, fits = hinge_faces(linkage, t3, on_top).window(np.radians(10.0), 0.5 * np.pi)
+    never = np.zeros(linkage.n_hinges, dtype=bool)
+    never[slit_ends(linkage).hinge[~fits]] = True
+    assert never.any()
+    layout = layout_hinges(linkage, flat, t2, t3, strategy="dual", bottom=on_top)
+    assert {tr.hinge for tr in layout.trims} <= set(np.flatnonzero(never).tolist())
+    assert layout.trims and layout.contact_area_lost_mm2 > 0
+    assert any(p.startswith("dual hinges:") for p in layout.problems)
+    assert layout.hinge_gap_max_mm < 1e-3
+    assert flat_overlap(layout.tiles[:, :4, :2])[0] == 0.0
+    trims = [(tr.tile, tr.vertices) for tr in layout.trims]
+    assert interpenetration(layout.tiles, trims=trims)[0] <= FLAT_INTERPENETRATION_TOL_MM3
+    ids = _hinge_vertex_ids(linkage, on_top)
+    held = rigid_layout(linkage, t2, ids, min_gap_angle_deg=10.0, trim=np.zeros_like(never))
+    assert held.gap_mm[never].max() > 10 * layout.hinge_gap_max_mm + 1e-3
 
 
 def test_flat_obj_is_closed_and_outward(tmp_path: Path) -> None:

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from drawstring.fabrication.pipeline import channel_turn_assembled
+from drawstring.fabrication.pipeline import cad_problems, channel_turn_assembled
 from drawstring.geometry.linkage import build_linkage, gap_centroids, rotating_squares_layout
 from drawstring.geometry.route import plan_route
 
@@ -29,3 +29,25 @@ def test_channel_turn_of_a_planar_loop_is_at_least_one_full_turn() -> None:
     # of the ring and where the route steps in and out, each by a right angle.
     assert turn >= 2 * math.pi - 1e-9
     assert math.isclose(turn / (math.pi / 2), round(turn / (math.pi / 2)), abs_tol=1e-9)
+
+
+def test_cad_problems_name_each_fault_of_the_solids() -> None:
+    clean = {
+        "solids_valid": True,
+        "interference_tiles_max_mm3": 0.0,
+        "interference_tiles_pads_max_mm3": 0.007,  # tessellation of shared pin walls
+        "channel_opening_distance_max_mm": 0.0,
+        "channel_openings_missing": 0,
+    }
+    assert cad_problems(clean) == []
+    faults = {
+        "solids_valid": False,
+        "interference_tiles_max_mm3": 0.000234,
+        "interference_tiles_pads_max_mm3": 5.7,  # an uncut pin hole
+        "channel_opening_distance_max_mm": 0.2,
+        "channel_openings_missing": 1,
+    }
+    found = cad_problems(faults)
+    assert len(found) == 4
+    assert any("sinks 5.7 mm^3" in p for p in found)
+    assert any("interfere in the print pose (0.000234" in p for p in found)
