@@ -113,6 +113,8 @@ class _JointTopLeastSquares:
             np.ascontiguousarray(target_vertices, dtype=np.float64),
             np.ascontiguousarray(target_faces, dtype=np.int64),
         )
+        self.tree = igl.AABB()  # built once: the residual queries it in every evaluation
+        self.tree.init(*self.target)
         tri = self.target[0][self.target[1]]
         normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         self.target_normals = normals / np.maximum(
@@ -207,10 +209,8 @@ class _JointTopLeastSquares:
         # closeness to the target along the closest face's normal
         if self.sqrt_surface > 0:
             w = self.sqrt_surface
-            _, face, closest = igl.point_mesh_squared_distance(
-                np.ascontiguousarray(top), *self.target
-            )
-            fn = self.target_normals[face]
+            _, face, closest = self.tree.squared_distance(*self.target, np.ascontiguousarray(top))
+            fn = self.target_normals[np.asarray(face, dtype=np.int64)]
             res.append(w * np.einsum("vi,vi->v", top - closest, fn))
             if with_jacobian:
                 r = row0 + np.arange(self.n)
