@@ -169,7 +169,7 @@ def save_flat(result: Design, path: Path) -> None:
     centres = gap_centroids(linkage, result.tiles_flat[:, :4, :2])
     draw_route(ax, result.route, centres, result.lift)
     # again, so the route's entries are listed too; below the plot, clear of the tiles
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.06), ncol=5, fontsize=7)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.06), ncol=6, fontsize=7)
     ax.set_aspect("equal")
     ax.autoscale_view()
     m = result.metrics()

@@ -1355,7 +1355,8 @@ def draw_flat(
     """Draw the flat layout on a matplotlib axis.
 
     Tiles (top faces) coloured by component, bottom outlines thin, gaps shaded by opening angle,
-    hinges as filled dots (top) or hollow circles (bottom).
+    hinges as filled dots (top) or hollow circles (bottom); a ``dual`` layout's trimmed pairs
+    (every ``top`` pair is trimmed where it overlaps) crossed.
     """
     from matplotlib import colormaps
     from matplotlib.collections import PolyCollection
@@ -1395,6 +1396,9 @@ def draw_flat(
     top = ~layout.bottom
     ax.plot(pts[top, 0], pts[top, 1], "o", ms=3, color="k", label="top hinge")
     ax.plot(pts[~top, 0], pts[~top, 1], "o", ms=4, mfc="none", mec="r", label="bottom hinge")
+    if layout.strategy == "dual" and layout.trims:
+        cut = np.array([tr.hinge for tr in layout.trims])
+        ax.plot(pts[cut, 0], pts[cut, 1], "x", ms=7, color="m", label="trimmed pair")
     ax.set_aspect("equal")
     ax.autoscale_view()
     ax.legend(loc="upper right", fontsize=7)
