@@ -135,6 +135,15 @@ def build_cad(result: Design) -> tuple[CadResult, CadResult]:
     return flat, assembled
 
 
+def _sunk_fraction(found: Any, pads: Sequence[Any]) -> float:
+    """Largest share of a hinge part's volume inside a tile (0 without hinge parts)."""
+    if found is None or not np.any(found.volumes > 0):
+        return 0.0
+    hit = np.flatnonzero(found.volumes > 0)
+    volumes = np.array([pads[int(j)].volume for j in found.pairs[hit, 1]])
+    return float(np.max(found.volumes[hit] / np.maximum(volumes, 1e-300)))
+
+
 def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
     """Checks measured on the solids (issue 7 section 3), for design.json ``metrics.cad``.
 
@@ -173,6 +182,7 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
         "interference_tiles_pads_max_mm3": round(
             tiles_vs_pads.max_volume if tiles_vs_pads is not None else 0.0, 6
         ),
+        "interference_tiles_pads_max_rel": round(_sunk_fraction(tiles_vs_pads, cad_flat.pads), 6),
         "channel_opening_distance_max_mm": round(_max(channels.distances), 6),
         "channel_openings_missing": int(np.count_nonzero(~np.isfinite(channels.distances))),
         "magnet_pairs": len(cad_flat.magnets),

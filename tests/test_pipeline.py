@@ -35,7 +35,8 @@ def test_cad_problems_name_each_fault_of_the_solids() -> None:
     clean = {
         "solids_valid": True,
         "interference_tiles_max_mm3": 0.0,
-        "interference_tiles_pads_max_mm3": 0.007,  # tessellation of shared pin walls
+        "interference_tiles_pads_max_mm3": 0.007,
+        "interference_tiles_pads_max_rel": 0.0005,  # tessellation of shared pin walls
         "channel_opening_distance_max_mm": 0.0,
         "channel_openings_missing": 0,
     }
@@ -43,11 +44,12 @@ def test_cad_problems_name_each_fault_of_the_solids() -> None:
     faults = {
         "solids_valid": False,
         "interference_tiles_max_mm3": 0.000234,
-        "interference_tiles_pads_max_mm3": 5.7,  # an uncut pin hole
+        "interference_tiles_pads_max_mm3": 5.7,
+        "interference_tiles_pads_max_rel": 0.4,  # an uncut pin hole
         "channel_opening_distance_max_mm": 0.2,
         "channel_openings_missing": 1,
     }
     found = cad_problems(faults)
     assert len(found) == 4
-    assert any("sinks 5.7 mm^3" in p for p in found)
+    assert any("40 % of its volume inside a tile" in p for p in found)
     assert any("interfere in the print pose (0.000234" in p for p in found)
