@@ -465,7 +465,6 @@ def design(
         if resolved.hinges == "dual"
         else None
     )
-    bottom = np.zeros(linkage.n_hinges, dtype=bool) if faces is None else faces.bottom
     with progress.stage("flat"):
         flat = flat_layout(linkage, tiling, assembled, resolved, faces)
     if resolved.co_optimize:
@@ -479,8 +478,9 @@ def design(
         co_block = {"accepted": False, "reason": "off (--no-co-optimize)"}
     tiles_2d = extrude_flat(flat, assembled.tiles, resolved.thickness_mm)
     with progress.stage("hinges"):
+        # dual: the sides and clear openings the kept flat layout was made for
         hinge_layout = layout_hinges(
-            linkage, flat, tiles_2d, assembled.tiles, strategy=resolved.hinges, bottom=bottom
+            linkage, flat, tiles_2d, assembled.tiles, strategy=resolved.hinges
         )
     masses = tile_masses_from_volumes(
         assembled.tiles, profile.density_kg_m3 * profile.infill_fraction

@@ -198,6 +198,9 @@ class FlatResult:
     anchor_3d : (T, 4, 3) float, mm, or None
         The K3D points the corners stand for (the tiles' hinge points in the top planes,
         :func:`hinge_points`); None: the top-face corners.
+    hinges : HingeFaces or None
+        The dual hinge faces and clear openings the layout was made for (``hinges`` of
+        :func:`optimize_flat`).
     """
 
     nodes: FloatArray
@@ -214,6 +217,7 @@ class FlatResult:
     time_s: float
     problems: tuple[str, ...]
     anchor_3d: FloatArray | None = None
+    hinges: HingeFaces | None = None
 
 
 def tile_plane_coordinates(tile_top_3d: FloatArray) -> FloatArray:
@@ -979,6 +983,7 @@ def optimize_flat(
         time_s=elapsed,
         problems=tuple(problems),
         anchor_3d=anchor,
+        hinges=hinges,
     )
 
 

@@ -62,7 +62,6 @@ from drawstring.geometry.flat import FlatResult
 from drawstring.geometry.flatpose import HingeFaces, free_openings, hinge_faces, lay_flat
 from drawstring.geometry.linkage import Linkage, SlitEnds, slit_ends
 from drawstring.geometry.tolerances import (
-    FLAT_FREE_MARGIN_DEG,
     HINGE_ANGLE_MARGIN_DEG,
     HINGE_LAYOUT_CLEARANCE_MM,
     HINGE_LAYOUT_FEASIBLE_MM,
@@ -201,19 +200,17 @@ def dual_hinge_faces(
     posed = lay_flat(tiles)
     ends = slit_ends(linkage)
     theta = np.radians(min_gap_angle_deg)
-    margin = np.radians(FLAT_FREE_MARGIN_DEG)
     start = np.full((2, linkage.n_hinges), theta)  # least clear opening within the bounds
     miss = np.zeros((2, linkage.n_hinges))  # how far the clear openings miss the bounds
     clear = []
     for k, face_bottom in enumerate((False, True)):
+        side = np.full(linkage.n_hinges, face_bottom)
         lo, hi = free_openings(
-            linkage, posed, np.full(linkage.n_hinges, face_bottom),
-            clearance=HINGE_LAYOUT_CLEARANCE_MM, touch=HINGE_LAYOUT_TOUCH_MM,
-        )  # fmt: skip
+            linkage, posed, side, clearance=HINGE_LAYOUT_CLEARANCE_MM, touch=HINGE_LAYOUT_TOUCH_MM
+        )
         clear.append((lo, hi))
         # with the margin the flat layout keeps inside the clear openings
-        first = np.maximum(lo + margin, theta)
-        last = np.minimum(hi - margin, 0.5 * np.pi)
+        first, last, _ = HingeFaces(side, lo, hi).window(theta, 0.5 * np.pi)
         np.maximum.at(start[k], ends.hinge, first)
         np.maximum.at(miss[k], ends.hinge, np.maximum(first - last, 0.0))
     tol = np.radians(HINGE_SIDE_TOL_DEG)
@@ -1225,7 +1222,8 @@ def layout_hinges(
     max_rounds : int
         Augmented Lagrangian rounds.
     bottom : (H,) bool, optional
-        ``dual`` hinge sides decided earlier (the ones the flat layout was made for); default
+        ``dual`` hinge sides; default the faces the flat layout was made for (``flat.hinges``,
+        whose clear openings, computed on ``tiles_3d``, are then reused), else
         :func:`hinge_sides` of ``tiles_3d``.
 
     Returns
@@ -1244,7 +1242,7 @@ def layout_hinges(
     if strategy == "top":
         sides = np.zeros(linkage.n_hinges, dtype=bool)
     elif bottom is None:
-        sides = hinge_sides(linkage, t3)
+        sides = hinge_sides(linkage, t3) if flat.hinges is None else flat.hinges.bottom
     else:
         sides = np.asarray(bottom, dtype=bool)
         if sides.shape != (linkage.n_hinges,):
@@ -1257,7 +1255,10 @@ def layout_hinges(
         # are laid out like top hinges: separated on the hinge face, their overlap trimmed
         ends = slit_ends(linkage)
         bounds = np.radians([theta + HINGE_ANGLE_MARGIN_DEG, 90.0 - HINGE_ANGLE_MARGIN_DEG])
-        _, _, fits = hinge_faces(linkage, t3, sides).window(*bounds)
+        made_for = flat.hinges
+        if made_for is None or not np.array_equal(made_for.bottom, sides):
+            made_for = hinge_faces(linkage, t3, sides)
+        _, _, fits = made_for.window(*bounds)
         trim = np.zeros(linkage.n_hinges, dtype=bool)
         trim[ends.hinge[~fits]] = True
     result = rigid_layout(
