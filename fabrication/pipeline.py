@@ -62,6 +62,7 @@ from drawstring.geometry.simulate import (
 from drawstring.geometry.target import Target, load_target
 from drawstring.geometry.tiling import Tiling, component_flattenings, tile_surface
 from drawstring.geometry.tolerances import (
+    CAD_PAD_INTERFERENCE_REL,
     FLAT_EDGE_ERROR_TOL_MM,
     FLAT_GAP_ANGLE_TOL_DEG,
     FLAT_INTERPENETRATION_TOL_MM3,
@@ -79,11 +80,6 @@ SURFACE_MEAN_REL = 0.02
 
 #: Largest distance (mm) between a channel's exit and the next tile's entry, assembled pose.
 CHANNEL_MATCH_TOL_MM = 0.05
-#: Largest share of a hinge part's volume that may lie inside a tile in the print pose.
-#: Tessellating the curved pin walls a TPU pad shares with its tile gives about 0.05 %
-#: (0.007 mm^3 on the 200-tile saddle); a plywood rubber strip on bottoms of slightly different
-#: heights sinks about 0.1 % into them; an uncut TPU pin hole puts about 40 % of the pad inside.
-CAD_PAD_INTERFERENCE_REL = 0.02
 
 log = logging.getLogger(__name__)
 

@@ -32,7 +32,11 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.errors import InputError
-from drawstring.geometry.tolerances import FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM
+from drawstring.geometry.tolerances import (
+    CAD_PAD_INTERFERENCE_REL,
+    FLAT_EDGE_ERROR_TOL_MM,
+    HINGE_GAP_TOL_MM,
+)
 
 log = logging.getLogger(__name__)
 
@@ -415,6 +419,16 @@ METRIC_RULES: dict[str, MetricRule] = {
     ),
     "thickness_max_mm": MetricRule(
         "thickest tile (tiles differ where the quad mesh is not conical)", _const("(mm)"), None
+    ),
+    "contact_area_lost_mm2": MetricRule(
+        "side-face contact area the hinge trims remove (pairs that overlap in the flat pose)",
+        _const("(mm²)"),
+        None,
+    ),
+    "cad.interference_tiles_pads_max_rel": MetricRule(
+        "largest share of a hinge part's volume inside a tile, print pose",
+        _const(f"≤ {100 * CAD_PAD_INTERFERENCE_REL:g} %"),
+        _at_most(CAD_PAD_INTERFERENCE_REL),
     ),
     "lift_points": MetricRule(
         "points where the string leaves the top face to lift the structure",

@@ -141,6 +141,12 @@ CAD_INTERFERENCE_DEFLECTION_MM = 0.02
 #: ... and by at most this angle (rad) between neighbouring triangles along a curved face.
 CAD_INTERFERENCE_ANGLE_RAD = 0.5
 
+#: Largest share of a hinge part's volume that may lie inside a tile in the print pose.
+#: Tessellating the curved pin walls a TPU pad shares with its tile gives about 0.05 %
+#: (0.007 mm^3 on the 200-tile saddle); a plywood rubber strip on bottoms of slightly different
+#: heights sinks about 0.1 % into them; an uncut TPU pin hole puts about 40 % of the pad inside.
+CAD_PAD_INTERFERENCE_REL = 0.02
+
 #: The flat layout keeps each slit end's opening this far inside the openings at which its two
 #: tiles clear each other (``flatpose.free_openings``), so the rigid hinge layout, which asks
 #: ``HINGE_LAYOUT_CLEARANCE_MM`` along its tilted separating planes, finds them apart already.

@@ -188,6 +188,7 @@ def test_metric_marks() -> None:
             "flat_gap_angle_min_deg": 15.0,
             "surface_distance_max_mm": 1.0,
             "simulation": {"deployed": True},
+            "cad": {"interference_tiles_pads_max_rel": 0.4},  # an uncut pin hole
             "something_new": 1.0,
         },
     }
@@ -197,6 +198,7 @@ def test_metric_marks() -> None:
         "flat_gap_angle_min_deg": True,
         "surface_distance_max_mm": True,  # 1 mm <= 2 % of 100 mm
         "simulation.deployed": True,
+        "cad.interference_tiles_pads_max_rel": False,
         "something_new": None,
     }
 
