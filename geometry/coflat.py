@@ -18,11 +18,11 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 
+from drawstring.geometry.constrained_lsq import constrained_least_squares
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.flat import (
     TILE_EDGES,
     FlatResult,
-    _constrained_edges,
     _flat_constraints,
     gap_junctions,
     tile_plane_coordinates,
@@ -84,7 +84,7 @@ class CoOptimizedTop:
 class _JointTopLeastSquares:
     """Least squares over K2D nodes and K3D vertices together (:func:`co_optimize_top`).
 
-    The variables travel as one ``(rows, 2)`` array for :func:`_constrained_edges`: rows
+    The variables travel as one ``(rows, 2)`` array for :func:`constrained_least_squares`: rows
     ``0 .. n_nodes - 1`` are the K2D nodes, the rest hold the K3D coordinates ``x0 y0 z0 x1 ...``
     two per row (padded with one zero when their count is odd).  Residuals: every tile side and
     diagonal equal in K2D and K3D (``w_edge``), every K3D quad planar (distance to its best-fit
@@ -337,7 +337,7 @@ def co_optimize_top(
     for w_planar, w_edge in CO_STAGES if stages is None else stages:
         problem.sqrt_planar = float(np.sqrt(w_planar))
         problem.sqrt_edge = float(np.sqrt(w_edge))
-        z, used, _ = _constrained_edges(
+        z, used, _ = constrained_least_squares(
             z, problem, constraints, max_steps=per_stage, angle_tol=angle_tol,
             length_tol=angle_tol * side, rho0=CO_RHO_REL * w_edge,
         )  # fmt: skip

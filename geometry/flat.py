@@ -49,7 +49,6 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 import scipy.sparse as sp
@@ -57,6 +56,13 @@ import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from drawstring.geometry.constrained_lsq import (
+    AngleRows,
+    EdgeLeastSquares,
+    SeparationRows,
+    constrained_least_squares,
+    separation_rows,
+)
 from drawstring.geometry.constraints import quad_overlap_mtv, signed_angles
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.flatpose import HingeFaces, hinge_points
@@ -393,253 +399,6 @@ def _overlapping_pairs(
     return pairs[hit].astype(np.int64), depth[hit]
 
 
-@dataclass(frozen=True)
-class _AngleRows:
-    """Inequalities ``lo <= angle(apex, q, p) + offset <= hi`` (rad) at junctions.
-
-    ``arm`` (mm) scales each row so that its value is a length (angle times a typical arm),
-    comparable with the edge residuals.  Angles are read in ``(branch, branch + 2 pi]``, so a
-    reflex angle (a concave component boundary) is not mistaken for an inverted one.
-    """
-
-    elements: IntArray
-    offset: FloatArray
-    lo: FloatArray
-    hi: FloatArray
-    arm: FloatArray
-    branch: float = -np.pi
-
-    @property
-    def n_rows(self) -> int:
-        return 2 * len(self.elements)
-
-    def angles(self, x: FloatArray) -> FloatArray:
-        """Angles ``(k,)`` in rad, offsets included."""
-        e = self.elements
-        raw = signed_angles(x[e[:, 1]] - x[e[:, 0]], x[e[:, 2]] - x[e[:, 0]]) + self.offset
-        return np.where(raw <= self.branch, raw + 2.0 * np.pi, raw)
-
-    def values(self, x: FloatArray) -> FloatArray:
-        """``(2k,)`` mm: lower-bound rows then upper-bound rows (``>= 0`` where they hold)."""
-        ang = self.angles(x)
-        return np.concatenate([self.arm * (ang - self.lo), self.arm * (self.hi - ang)])
-
-    def jacobian(self, x: FloatArray, rows: IntArray) -> sp.csr_matrix:
-        """Gradient rows ``(len(rows), 2n)`` of :meth:`values` for the given row ids."""
-        k = len(self.elements)
-        el = self.elements[rows % k]
-        sign = np.where(rows < k, 1.0, -1.0) * self.arm[rows % k]
-        u = x[el[:, 1]] - x[el[:, 0]]
-        v = x[el[:, 2]] - x[el[:, 0]]
-        du = -np.stack([-u[:, 1], u[:, 0]], axis=1) / np.einsum("ki,ki->k", u, u)[:, None]
-        dv = np.stack([-v[:, 1], v[:, 0]], axis=1) / np.einsum("ki,ki->k", v, v)[:, None]
-        vals = sign[:, None] * np.concatenate([-(du + dv), du, dv], axis=1)
-        cols = np.stack([2 * el, 2 * el + 1], axis=2).reshape(-1, 6)
-        r = np.repeat(np.arange(len(rows)), 6)
-        return sp.csr_matrix((vals.ravel(), (r, cols.ravel())), shape=(len(rows), 2 * len(x)))
-
-
-@dataclass(frozen=True)
-class _SeparationRows:
-    """Linear inequalities ``n . (x_b - x_a) >= margin`` keeping two tiles apart along ``n``."""
-
-    a: IntArray
-    b: IntArray
-    normal: FloatArray
-    margin: FloatArray
-
-    @property
-    def n_rows(self) -> int:
-        return len(self.a)
-
-    def values(self, x: FloatArray) -> FloatArray:
-        return np.einsum("ki,ki->k", x[self.b] - x[self.a], self.normal) - self.margin
-
-    def jacobian(self, x: FloatArray, rows: IntArray) -> sp.csr_matrix:
-        a, b, nrm = self.a[rows], self.b[rows], self.normal[rows]
-        cols = np.stack([2 * a, 2 * a + 1, 2 * b, 2 * b + 1], axis=1)
-        vals = np.concatenate([-nrm, nrm], axis=1)
-        r = np.repeat(np.arange(len(rows)), 4)
-        return sp.csr_matrix((vals.ravel(), (r, cols.ravel())), shape=(len(rows), 2 * len(x)))
-
-
-def _separation_rows(
-    corner_node: IntArray, pairs: IntArray, normals: FloatArray, margin: float
-) -> _SeparationRows:
-    """Rows keeping every corner of tile ``b`` beyond every corner of tile ``a`` along the pair's
-    axis (16 rows per pair, less the rows of a node both tiles share)."""
-    na = np.repeat(corner_node[pairs[:, 0]], 4, axis=1).ravel()
-    nb = np.tile(corner_node[pairs[:, 1]], (1, 4)).ravel()
-    nrm = np.repeat(normals, 16, axis=0)
-    keep = na != nb
-    return _SeparationRows(na[keep], nb[keep], nrm[keep], np.full(int(keep.sum()), margin))
-
-
-class LeastSquares(Protocol):
-    """A least-squares objective for :func:`_constrained_edges`: residuals and their sparse
-    Jacobian over the flattened ``(rows, 2)`` position array."""
-
-    def residual(self, x: FloatArray) -> FloatArray: ...
-
-    def residual_jacobian(self, x: FloatArray) -> tuple[FloatArray, sp.csr_matrix]: ...
-
-
-@dataclass
-class _EdgeLeastSquares:
-    """``sum w (|x_j - x_i| - L)^2`` with its Gauss-Newton Jacobian."""
-
-    edges: IntArray
-    targets: FloatArray
-    sqrt_w: FloatArray
-
-    def residual_jacobian(self, x: FloatArray) -> tuple[FloatArray, sp.csr_matrix]:
-        e = self.edges
-        d = x[e[:, 1]] - x[e[:, 0]]
-        length = np.linalg.norm(d, axis=1)
-        unit = d / np.maximum(length, 1e-300)[:, None]
-        cols = np.stack([2 * e[:, 0], 2 * e[:, 0] + 1, 2 * e[:, 1], 2 * e[:, 1] + 1], axis=1)
-        vals = self.sqrt_w[:, None] * np.concatenate([-unit, unit], axis=1)
-        rows = np.repeat(np.arange(len(e)), 4)
-        jac = sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(len(e), 2 * len(x)))
-        return self.sqrt_w * (length - self.targets), jac
-
-    def residual(self, x: FloatArray) -> FloatArray:
-        d = x[self.edges[:, 1]] - x[self.edges[:, 0]]
-        return self.sqrt_w * (np.linalg.norm(d, axis=1) - self.targets)
-
-
-def _constrained_edges(
-    x0: FloatArray,
-    objective: LeastSquares,
-    constraints: list[_AngleRows | _SeparationRows],
-    *,
-    max_steps: int,
-    angle_tol: float,
-    length_tol: float,
-    rho0: float = 10.0,
-) -> tuple[FloatArray, int, float]:
-    """Minimize the edge energy subject to ``values >= 0`` of every constraint block.
-
-    Augmented Lagrangian (multipliers ``lam``, penalty ``rho``) whose subproblems
-    ``sum w r^2 + sum max(0, lam - rho g)^2 / (2 rho)`` are least-squares problems solved by
-    Levenberg-Marquardt (Gauss-Newton steps, one sparse factorization each).  Gauge freedom
-    (rigid motions) is removed by a tiny diagonal term.  Stops when every row holds to within
-    its tolerance (``angle_tol`` rad for angle rows, ``length_tol`` mm for separation rows) and
-    the positions have settled, or after ``max_steps`` factorizations.
-
-    Returns
-    -------
-    x : (n, 2) float, mm
-    steps : int
-        Factorizations used.
-    violation : float
-        Largest remaining violation in units of the row tolerances (``<= 1``: converged).
-    """
-    x = x0.copy()
-    n = len(x)
-    sizes = [c.n_rows for c in constraints]
-    offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-    m = int(offsets[-1])
-    # Violation tolerance of each row, mm (angle rows: angle tolerance times the arm).
-    row_tol = np.concatenate(
-        [
-            np.tile(c.arm * angle_tol, 2)
-            if isinstance(c, _AngleRows)
-            else np.full(c.n_rows, length_tol)
-            for c in constraints
-        ]
-        or [np.zeros(0)]
-    )
-
-    def values(x: FloatArray) -> FloatArray:
-        if not constraints:
-            return np.zeros(0)
-        return np.concatenate([c.values(x) for c in constraints])
-
-    def penalty_rows(g: FloatArray, lam: FloatArray, rho: float) -> tuple[FloatArray, IntArray]:
-        c = np.maximum(0.0, lam - rho * g)
-        act = np.flatnonzero(c > 0)
-        return c[act] / np.sqrt(2.0 * rho), act
-
-    def jac_rows(x: FloatArray, act: IntArray) -> list[sp.csr_matrix]:
-        out = []
-        for k, c in enumerate(constraints):
-            sel = act[(act >= offsets[k]) & (act < offsets[k + 1])] - offsets[k]
-            if sel.size:
-                out.append(c.jacobian(x, sel))
-        return out
-
-    def cost(x: FloatArray, lam: FloatArray, rho: float) -> float:
-        r = objective.residual(x)
-        pen, _ = penalty_rows(values(x), lam, rho)
-        return float(r @ r + pen @ pen)
-
-    lam = np.zeros(m)
-    rho = rho0
-    steps = 0
-    prev_viol = np.inf
-    mu = 1e-4
-    violation = 0.0
-    for _outer in range(60):
-        # --- Levenberg-Marquardt on the augmented Lagrangian subproblem -----------------
-        moved = 0.0
-        c0 = cost(x, lam, rho)
-        for _inner in range(40):
-            if steps >= max_steps:
-                break
-            r, jac = objective.residual_jacobian(x)
-            pen, act = penalty_rows(values(x), lam, rho)
-            blocks = [jac]
-            if act.size:
-                blocks += [-np.sqrt(0.5 * rho) * j for j in jac_rows(x, act)]
-            jr = sp.vstack(blocks, format="csr")
-            res = np.concatenate([r, pen])
-            jtj = (jr.T @ jr).tocsc()
-            grad = jr.T @ res
-            diag = jtj.diagonal()
-            scale = float(diag.mean()) if diag.size else 1.0
-            improved = False
-            for _try in range(8):
-                mat = jtj + sp.diags(mu * diag + 1e-10 * scale, format="csc")
-                step = spla.splu(
-                    mat, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                    options={"SymmetricMode": True},
-                ).solve(-grad)  # fmt: skip
-                steps += 1
-                trial = x + step.reshape(n, 2)
-                c1 = cost(trial, lam, rho)
-                if c1 < c0:
-                    x, improved = trial, True
-                    decrease = c0 - c1
-                    c0 = c1
-                    mu = max(mu / 3.0, 1e-12)
-                    moved = max(moved, float(np.abs(step).max()))
-                    break
-                mu *= 8.0
-            if not improved or decrease <= 1e-14 * max(c0, 1e-30) or np.abs(step).max() < 1e-10:
-                break
-        # --- multiplier update ------------------------------------------------------------
-        g = values(x)
-        viol_rows = np.maximum(-g, 0.0) / row_tol if m else np.zeros(0)
-        violation = float(viol_rows.max(initial=0.0))  # in units of the tolerance
-        lam = np.maximum(0.0, lam - rho * g)
-        logger.debug(
-            "flat AL round %d: violation %.3g tol, rho %.3g, steps %d",
-            _outer,
-            violation,
-            rho,
-            steps,
-        )
-        if steps >= max_steps:
-            break
-        if violation <= 1.0 and moved < 1e-7:
-            break
-        if violation > 0.25 * prev_viol:
-            rho = min(rho * 10.0, 1e8 * rho0)
-        prev_viol = violation
-    return x, steps, violation
-
-
 def _separate_components(
     linkage: Linkage, nodes: FloatArray, cell_corners_uv: FloatArray, clearance: float
 ) -> tuple[FloatArray, FloatArray]:
@@ -762,7 +521,7 @@ def _flat_constraints(
     collision: bool,
     theta_max: float = 0.5 * np.pi,
     hinges: HingeFaces | None = None,
-) -> list[_AngleRows | _SeparationRows]:
+) -> list[AngleRows | SeparationRows]:
     """The hard rows of the flat layout: gap-angle bounds on the top faces (and, with T3D, on
     the bottom faces where they differ) and the orientation of every gap junction.
 
@@ -771,7 +530,7 @@ def _flat_constraints(
     their offsets from the nodes' angles, and each slit end's opening on its hinge face is kept
     where its two tiles clear each other (:func:`~drawstring.geometry.flatpose.free_openings`,
     ``FLAT_FREE_MARGIN_DEG`` inside)."""
-    constraints: list[_AngleRows | _SeparationRows] = []
+    constraints: list[AngleRows | SeparationRows] = []
     ends = junctions.ends
     if len(ends) and bounds:
         n_ends = len(ends)
@@ -794,13 +553,13 @@ def _flat_constraints(
                 rows = np.flatnonzero(differ | (lo[1] != lo[0]) | (hi[1] != hi[0]))
             if len(rows):
                 constraints.append(
-                    _AngleRows(ends[rows], off[face, rows], lo[face, rows], hi[face, rows],
+                    AngleRows(ends[rows], off[face, rows], lo[face, rows], hi[face, rows],
                                np.full(len(rows), side))
                 )  # fmt: skip
     if len(junctions.elements) and collision:
         k = len(junctions.elements)
         constraints.append(
-            _AngleRows(junctions.elements, np.zeros(k), np.full(k, FLAT_ORIENTATION_MIN_RAD),
+            AngleRows(junctions.elements, np.zeros(k), np.full(k, FLAT_ORIENTATION_MIN_RAD),
                        np.full(k, 1.5 * np.pi), np.full(k, side), branch=-0.5 * np.pi)
         )  # fmt: skip
     return constraints
@@ -900,7 +659,7 @@ def optimize_flat(
     junctions = gap_junctions(linkage)
     ends = junctions.ends
     side = float(np.mean(targets[:, :4]))
-    objective = _EdgeLeastSquares(edges, targets.ravel(), np.full(len(edges), np.sqrt(w_edge)))
+    objective = EdgeLeastSquares(edges, targets.ravel(), np.full(len(edges), np.sqrt(w_edge)))
     constraints = _flat_constraints(
         linkage, junctions, plane, tiles_3d, theta_min + margin, side, w_fab > 0,
         w_collision > 0, theta_max=0.5 * np.pi - margin, hinges=hinges,
@@ -910,7 +669,7 @@ def optimize_flat(
         if nodes0.shape != (linkage.n_nodes, 2):
             raise InputError(f"initial_nodes has shape {nodes0.shape}; pass (n_nodes, 2)")
     angle_tol = np.radians(FLAT_SOLVER_ANGLE_TOL_DEG)
-    nodes, iterations, violation = _constrained_edges(
+    nodes, iterations, violation = constrained_least_squares(
         nodes0, objective, constraints, max_steps=max_iter, angle_tol=angle_tol,
         length_tol=angle_tol * side,
     )  # fmt: skip
@@ -925,8 +684,8 @@ def optimize_flat(
             "flat: %d overlapping tile pairs, adding separation (round %d)", len(pairs), round_
         )
         _, normal = quad_overlap_mtv(nodes[cn[pairs[:, 0]]], nodes[cn[pairs[:, 1]]])
-        constraints.append(_separation_rows(cn, pairs, normal, FLAT_SEPARATION_MARGIN_REL * side))
-        nodes, steps, violation = _constrained_edges(
+        constraints.append(separation_rows(cn, pairs, normal, FLAT_SEPARATION_MARGIN_REL * side))
+        nodes, steps, violation = constrained_least_squares(
             nodes, objective, constraints, max_steps=max(max_iter - iterations, 1),
             angle_tol=angle_tol, length_tol=angle_tol * side,
         )  # fmt: skip
@@ -943,7 +702,7 @@ def optimize_flat(
     top_offset = np.zeros(len(ends))
     if anchor is not None and len(ends):
         top_offset = _face_offsets(plane, np.asarray(tiles_3d), junctions, anchor)[0]
-    fab = _AngleRows(ends, top_offset, np.zeros(len(ends)), np.zeros(len(ends)), np.ones(len(ends)))
+    fab = AngleRows(ends, top_offset, np.zeros(len(ends)), np.zeros(len(ends)), np.ones(len(ends)))
     opening = np.degrees(fab.angles(nodes)) if len(ends) else np.zeros(0)
     if edge_error > FLAT_EDGE_ERROR_TOL_MM:
         problems.append(
