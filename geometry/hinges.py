@@ -63,6 +63,7 @@ from drawstring.geometry.flatpose import HingeFaces, free_openings, hinge_faces,
 from drawstring.geometry.linkage import Linkage, SlitEnds, slit_ends
 from drawstring.geometry.tolerances import (
     HINGE_ANGLE_MARGIN_DEG,
+    HINGE_GAP_TOL_MM,
     HINGE_LAYOUT_CLEARANCE_MM,
     HINGE_LAYOUT_FEASIBLE_MM,
     HINGE_LAYOUT_TOUCH_MM,
@@ -1261,10 +1262,28 @@ def layout_hinges(
         _, _, fits = made_for.window(*bounds)
         trim = np.zeros(linkage.n_hinges, dtype=bool)
         trim[ends.hinge[~fits]] = True
+    never_clear = int(trim.sum())
     result = rigid_layout(
         linkage, t2, ids, strategy=strategy, min_gap_angle_deg=theta,
         clearance_mm=clearance_mm, max_rounds=max_rounds, trim=trim,
     )  # fmt: skip
+    # A plane through the hinge that separates the two whole tiles is stricter than keeping
+    # them apart; where it holds a pair apart, lay that pair out like a trimmed one: separated
+    # on its hinge face, with whatever 3D overlap is left trimmed (often none).
+    apart = (hinge_gaps(result.tiles, ids, in_plane=True) > HINGE_GAP_TOL_MM) & ~trim
+    if apart.any():
+        retry = rigid_layout(
+            linkage, t2, ids, strategy=strategy, min_gap_angle_deg=theta,
+            clearance_mm=clearance_mm, max_rounds=max_rounds, trim=trim | apart,
+        )  # fmt: skip
+        if retry.violation_mm <= max(
+            result.violation_mm, HINGE_LAYOUT_FEASIBLE_MM
+        ) and _in_plane_max(retry, ids) < _in_plane_max(result, ids):
+            result, trim = retry, trim | apart
+            problems.append(
+                f"dual hinges: laid out {_pairs(int(apart.sum()))} again that planes through "
+                "the hinge held apart, separated on their hinge face only"
+            )
     gap_max = float(result.gap_mm.max(initial=0.0))
     if result.violation_mm > HINGE_LAYOUT_FEASIBLE_MM:
         problems.append(
@@ -1274,27 +1293,39 @@ def layout_hinges(
     n_apart = int(np.count_nonzero(~result.is_merged))
     if n_apart:
         problems.append(
-            f"{n_apart} hinge pairs left unmerged (up to "
+            f"{_pairs(n_apart, 'hinge ')} left unmerged (up to "
             f"{float(result.gap_mm[~result.is_merged].max()):.3g} mm apart): merging them would "
             "overlap tiles or break a gap-angle bound"
         )
     trims = hinge_trims(linkage, result.merged, np.flatnonzero(trim))
     lost = float(sum(tr.contact_area_lost_mm2 for tr in trims))
     if trims:
-        which = (
-            "top hinges: "
-            if strategy == "top"
-            else f"dual hinges: {int(trim.sum())} pairs collide on their hinge face at every "
-            f"opening in [{theta:g}, 90] deg; "
-        )
+        which = f"{strategy} hinges: "
+        if never_clear and strategy == "dual":
+            which += (
+                f"{_pairs(never_clear, verb='collide')} on their hinge face at every opening in "
+                f"[{theta:g}, 90] deg; "
+            )
         problems.append(
-            f"{which}{len(trims)} hinged pairs overlap in the flat pose; trimmed "
+            f"{which}{_pairs(len(trims), 'hinged ', 'overlap')} in the flat pose; trimmed "
             f"{sum(tr.volume_mm3 for tr in trims):.3g} mm^3, losing {lost:.3g} mm^2 of contact"
         )
     return HingeLayout(
         strategy, result.merged, sides, ids, result.points, gap_max, trims, lost,
         result.iterations, time.perf_counter() - start, tuple(problems), result.tiles,
     )  # fmt: skip
+
+
+def _pairs(count: int, kind: str = "", verb: str = "") -> str:
+    """``"1 hinged pair overlaps"``, ``"2 hinged pairs overlap"``."""
+    if count == 1:
+        return f"1 {kind}pair" + (f" {verb}s" if verb else "")
+    return f"{count} {kind}pairs" + (f" {verb}" if verb else "")
+
+
+def _in_plane_max(result: RigidLayoutResult, ids: IntArray) -> float:
+    """Largest in-plane distance of a hinge pair of a rigid layout, before merging, mm."""
+    return float(hinge_gaps(result.tiles, ids, in_plane=True).max(initial=0.0))
 
 
 def write_flat_obj(path: str | Path, tiles: ArrayLike) -> None:
