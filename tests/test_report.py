@@ -179,6 +179,18 @@ def test_route_reader_accepts_lists_and_gap_only_lift_points(tmp_path: Path) -> 
         report.read_route(path)
 
 
+def test_scale_factor_is_checked_against_the_bound_the_parts_were_split_with() -> None:
+    design = {
+        "options": {"max_scale_factor": 2.0},
+        "metrics": {"scale_factor_max": 1.5, "split_bound": 1.38},  # tightened after a miss
+    }
+    marks = {row.name: row.passed for row in report.evaluate_metrics(design)}
+    assert marks == {"scale_factor_max": False, "split_bound": True}
+    design["metrics"] = {"scale_factor_max": 1.15, "split_bound": 1.38}
+    marks = {row.name: row.passed for row in report.evaluate_metrics(design)}
+    assert marks == {"scale_factor_max": True, "split_bound": True}
+
+
 def test_metric_marks() -> None:
     design = {
         "options": {"max_scale_factor": 2.0, "min_gap_angle_deg": 12.0},
@@ -194,7 +206,7 @@ def test_metric_marks() -> None:
     }
     marks = {row.name: row.passed for row in report.evaluate_metrics(design)}
     assert marks == {
-        "scale_factor_max": False,
+        "scale_factor_max": False,  # above --max-scale-factor
         "flat_gap_angle_min_deg": True,
         "surface_distance_max_mm": True,  # 1 mm <= 2 % of 100 mm
         "simulation.deployed": True,
