@@ -453,25 +453,10 @@ def shape_and_layout(
     """Tile, shape and lay out the target (stages tiling to hinges), tiling again with a
     tighter split bound (:data:`RETILE_ATTEMPTS`) while the layout misses its accuracy
     targets; the most accurate result is kept (see :data:`RETILE_GAIN`)."""
-    bound = split_bound(options)
-    with progress.stage("tiling"):
-        tiling = tile_surface(
-            loaded.vertices,
-            loaded.faces,
-            flat_map.uv,
-            tiles=options.tiles,
-            grid=options.grid,
-            max_scale_factor=bound,
-        )
-    first = best = _shaped(tiling, bound, loaded, options, progress)
-    first_accuracy = best_accuracy = first.accuracy_mm
-    tried: list[str] = []
-    for _ in range(RETILE_ATTEMPTS):
-        if best_accuracy <= min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM):
-            break
-        bound = 1.0 + RETILE_SHRINK * (min(bound, best.tiling.scale_factor_max) - 1.0)
+
+    def tiled(bound: float) -> Tiling:
         with progress.stage("tiling"):
-            tiling = tile_surface(
+            return tile_surface(
                 loaded.vertices,
                 loaded.faces,
                 flat_map.uv,
@@ -479,6 +464,16 @@ def shape_and_layout(
                 grid=options.grid,
                 max_scale_factor=bound,
             )
+
+    bound = split_bound(options)
+    first = best = _shaped(tiled(bound), bound, loaded, options, progress)
+    first_accuracy = best_accuracy = first.accuracy_mm
+    tried: list[str] = []
+    for _ in range(RETILE_ATTEMPTS):
+        if best_accuracy <= min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM):
+            break
+        bound = 1.0 + RETILE_SHRINK * (min(bound, best.tiling.scale_factor_max) - 1.0)
+        tiling = tiled(bound)
         if _same_parts(tiling, best.tiling):
             break  # no further split keeps enough cells on each side
         trial = _shaped(tiling, bound, loaded, options, progress)
