@@ -544,9 +544,22 @@ def _shaped(
         flat = flat_layout(linkage, tiling, assembled, options, faces)
     if options.co_optimize:
         with progress.stage("co-optimize"):
+            plain = (assembled, flat)
             assembled, flat, co_block = co_optimized(
-                linkage, tiling, assembled, flat, loaded, options, faces
+                linkage, tiling, *plain, loaded, options, faces
             )
+            if not co_block["accepted"] and faces is not None:
+                # On the moved tiles some slit ends no longer clear where they did, and the
+                # windows that shift between rounds can leave the re-solve stranded (1600-tile
+                # wave: 0.14 mm -> 1.4 mm); the clear openings of the eq.-1 tiles held
+                # throughout reach 7.5e-4 mm there.  The hinge stage separates the final
+                # tiles exactly either way.
+                held = co_optimized(
+                    linkage, tiling, *plain, loaded, options, faces, track_openings=False
+                )
+                if held[2]["accepted"]:
+                    assembled, flat = held[0], held[1]
+                    co_block = {**held[2], "openings": "held from the eq.-1 tiles"}
         if not co_block["accepted"]:
             notes.append(f"co-optimization not used: {co_block['reason']}")
     else:
@@ -1031,14 +1044,22 @@ def co_optimized(
     target: Target,
     options: ResolvedOptions,
     faces: HingeFaces | None,
+    *,
+    track_openings: bool = True,
 ) -> tuple[AssembledResult, FlatResult, dict[str, Any]]:
     """K3D and K2D moved together so the flat tiles are congruent to the assembled ones
     (:func:`~drawstring.geometry.coflat.co_optimize_top`; with ``faces``, at their hinge points
-    and with the clear openings of the current tiles), T3D extruded again under the new K3D and
-    the flat layout solved again from the joint one.  The round whose re-solved layout has the
-    smallest edge error is the one kept.  The new design is used only when its flat
-    edge error is lower and the flat layout keeps every hard bound; otherwise the inputs come
-    back unchanged with the reason."""
+    and with the clear openings of the current tiles, or with ``track_openings=False`` those of
+    ``faces`` throughout), T3D extruded again under the new K3D and the flat layout solved
+    again from the joint one.  The round whose re-solved layout has the smallest edge error is
+    the one kept.  The new design is used only when its flat edge error is lower and the flat
+    layout keeps every hard bound; otherwise the inputs come back unchanged with the reason."""
+
+    def openings(tiles: NDArray[np.float64]) -> HingeFaces | None:
+        if faces is None or not track_openings:
+            return faces
+        return hinge_faces(linkage, tiles, faces.bottom)
+
     # Round 1 runs the whole continuation. The bottom faces decide the bottom-face angle bounds,
     # so round 2 repeats the last stage with T3D moved along with the new top (a translation of
     # each bottom vertex with its top vertex is usually close enough for those bounds). T3D is
@@ -1063,11 +1084,7 @@ def co_optimized(
                 w_surface=options.weights[2],
                 stages=stages,
                 start_nodes=nodes,
-                hinges=(
-                    faces
-                    if faces is None or current is assembled
-                    else hinge_faces(linkage, current.tiles, faces.bottom)
-                ),
+                hinges=faces if current is assembled else openings(current.tiles),
             )
             block["steps"] += co.steps
             moved_bottom = current.bottom + (co.top - current.top)
@@ -1083,8 +1100,9 @@ def co_optimized(
             block["reason"] = "the new assembled shape would turn a tile inside out"
             return assembled, flat, block
         current = extruded
-        now = None if faces is None else hinge_faces(linkage, current.tiles, faces.bottom)
-        new_flat = flat_layout(linkage, tiling, current, options, now, initial_nodes=nodes)
+        new_flat = flat_layout(
+            linkage, tiling, current, options, openings(current.tiles), initial_nodes=nodes
+        )
         if best is None or new_flat.edge_error_max_mm < best[1].edge_error_max_mm:
             best, worse = (current, new_flat), 0
         else:

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from drawstring.fabrication import pipeline
 from drawstring.fabrication.pipeline import (
     DesignOptions,
     cad_problems,
@@ -100,3 +101,36 @@ def test_hinged_pairs_that_planes_through_the_hinge_hold_apart_are_laid_out_agai
     assert metrics["flat_overlap_area_mm2"] == 0.0
     assert any("laid out 3 pairs again" in n for n in result.notes)
     assert result.problems == ()
+
+
+def test_co_optimization_can_hold_the_clear_openings_of_the_eq1_tiles(monkeypatch) -> None:
+    # The fallback when tracking the openings of the moved tiles strands the re-solve: with
+    # track_openings=False no opening is recomputed, and the joint solve still makes the flat
+    # tiles congruent.
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    shaped = design("saddle", options)  # for its tiling, target and resolved options
+    linkage = shaped.tiling.linkage
+    eq1 = pipeline.optimize_assembled(
+        shaped.tiling.vertices,
+        shaped.tiling.quads,
+        shaped.target.vertices,
+        shaped.target.faces,
+        thickness=shaped.options.thickness_mm,
+        w_planar=shaped.options.weights[0],
+        w_square=shaped.options.weights[1],
+        w_surface=shaped.options.weights[2],
+    )
+    faces = pipeline.dual_hinge_faces(linkage, eq1.tiles, shaped.options.min_gap_angle_deg)
+    plain = pipeline.flat_layout(linkage, shaped.tiling, eq1, shaped.options, faces)
+
+    def no_recompute(*_args: object, **_kwargs: object) -> None:
+        raise AssertionError("clear openings recomputed")
+
+    monkeypatch.setattr(pipeline, "hinge_faces", no_recompute)
+    _, flat, block = pipeline.co_optimized(
+        linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces,
+        track_openings=False,
+    )  # fmt: skip
+    assert block["accepted"]
+    assert flat.hinges is faces
+    assert flat.edge_error_max_mm < 0.1 * plain.edge_error_max_mm
