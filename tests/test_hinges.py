@@ -92,8 +92,9 @@ def test_dual_pairs_that_never_clear_are_trimmed_not_held_apart() -> None:
     hinges (tops apart, overlap trimmed) and their hinges meet; held apart as rigid pairs
     instead, they could not meet."""
     from drawstring.geometry.flatpose import hinge_faces
-    from drawstring.geometry.hinges import _hinge_vertex_ids, rigid_layout
+    from drawstring.geometry.hinges import _hinge_vertex_ids
     from drawstring.geometry.linkage import slit_ends
+    from drawstring.geometry.rigidlayout import rigid_layout
     from drawstring.geometry.tolerances import FLAT_INTERPENETRATION_TOL_MM3
     from drawstring.geometry.verify import flat_overlap
 
