@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from drawstring.fabrication import pipeline
+from drawstring.fabrication import layout_stage
 from drawstring.fabrication.pipeline import (
     DesignOptions,
     cad_problems,
@@ -110,7 +110,7 @@ def test_co_optimization_can_hold_the_clear_openings_of_the_eq1_tiles(monkeypatc
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
     shaped = design("saddle", options)  # for its tiling, target and resolved options
     linkage = shaped.tiling.linkage
-    eq1 = pipeline.optimize_assembled(
+    eq1 = layout_stage.optimize_assembled(
         shaped.tiling.vertices,
         shaped.tiling.quads,
         shaped.target.vertices,
@@ -120,14 +120,14 @@ def test_co_optimization_can_hold_the_clear_openings_of_the_eq1_tiles(monkeypatc
         w_square=shaped.options.weights[1],
         w_surface=shaped.options.weights[2],
     )
-    faces = pipeline.dual_hinge_faces(linkage, eq1.tiles, shaped.options.min_gap_angle_deg)
-    plain = pipeline.flat_layout(linkage, shaped.tiling, eq1, shaped.options, faces)
+    faces = layout_stage.dual_hinge_faces(linkage, eq1.tiles, shaped.options.min_gap_angle_deg)
+    plain = layout_stage.flat_layout(linkage, shaped.tiling, eq1, shaped.options, faces)
 
     def no_recompute(*_args: object, **_kwargs: object) -> None:
         raise AssertionError("clear openings recomputed")
 
-    monkeypatch.setattr(pipeline, "hinge_faces", no_recompute)
-    _, flat, block = pipeline.co_optimized(
+    monkeypatch.setattr(layout_stage, "hinge_faces", no_recompute)
+    _, flat, block = layout_stage.co_optimized(
         linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces,
         track_openings=False,
     )  # fmt: skip
