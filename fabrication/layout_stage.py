@@ -105,8 +105,8 @@ class ShapedLayout:
     @property
     def accuracy_mm(self) -> float:
         """The larger of the flat edge error and the in-plane hinge gap, mm, as measured on
-        the output (see :func:`measure_design`): how far the flat tiles are from meeting at
-        their hinges with their assembled shapes."""
+        the output (:func:`~drawstring.fabrication.pipeline.measure_design`): how far the flat
+        tiles are from meeting at their hinges with their assembled shapes."""
         tiles = self.assembled.tiles
         edge = verify.flat_edge_errors(self.hinge_layout.tiles[:, :4, :2], tiles[:, :4])
         fabricated = fabricated_tiles(self.hinge_layout, tiles)

@@ -134,3 +134,28 @@ def test_co_optimization_can_hold_the_clear_openings_of_the_eq1_tiles(monkeypatc
     assert block["accepted"]
     assert flat.hinges is faces
     assert flat.edge_error_max_mm < 0.1 * plain.edge_error_max_mm
+
+
+def test_a_part_whose_scale_hardly_varies_is_not_split_further(monkeypatch) -> None:
+    # More splits help only where the area scale varies; a wave part (ratio about 1.03) that
+    # misses its targets misses for another reason, and is tiled once.
+    calls: list[float] = []
+    tile_surface = layout_stage.tile_surface
+
+    def counted(*args: object, max_scale_factor: float, **kwargs: object):
+        calls.append(max_scale_factor)
+        return tile_surface(*args, max_scale_factor=max_scale_factor, **kwargs)
+
+    monkeypatch.setattr(layout_stage, "tile_surface", counted)
+    monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(lambda _self: 1.0))
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    result = design("wave", options)
+    assert result.tiling.scale_factor_max < 1.1
+    assert calls == [split_bound(result.options)]
+    # the same miss on the saddle, whose scale varies more, is tiled again
+    calls.clear()
+    result = design("saddle", options)
+    bound = split_bound(result.options)
+    assert result.tiling.scale_factor_max - 1 >= layout_stage.RETILE_MIN_SHARE * (bound - 1)
+    assert len(calls) == 2 and calls[1] < calls[0]
+    assert any(n.startswith("tiling:") and "kept the first tiling" in n for n in result.notes)
