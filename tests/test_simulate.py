@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from drawstring.geometry import simgroups
 from drawstring.geometry import simulate as S
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.rigid import rigid_copies
@@ -307,7 +308,7 @@ def test_best_rotations_match_the_svd_kabsch() -> None:
     cur = rest @ turn.transpose(0, 2, 1) + 0.05 * rng.normal(size=rest.shape)
     cov = rest.transpose(0, 2, 1) @ cur
     cov[0] = np.diag([1.0, 1.0, -1.0])  # a reflection: only the SVD fallback handles it
-    exact = S._svd_rotations(cov)
+    exact = simgroups._svd_rotations(cov)
     nudge = Rotation.from_rotvec(0.02 * rng.normal(size=(40, 3))).as_matrix()
     # far guesses (identities) and near ones (the answer nudged) both land on the SVD answer
     for guess in (np.tile(np.eye(3), (40, 1, 1)), exact @ nudge):
@@ -327,7 +328,7 @@ def test_faces_stick_only_face_on_face(scene4: S.DeploymentScene) -> None:
     # A pair moved apart by twice the limit along the face normal no longer sticks.
     moved = scene4.tiles_assembled.copy()
     a = faces[0, 0]
-    normal = S._side_normals(moved, faces[:1, 0], faces[:1, 1])[0]
+    normal = simgroups._side_normals(moved, faces[:1, 0], faces[:1, 1])[0]
     moved[a] += 2.0 * limit * normal
     stick = S.face_on_face(moved, faces, partner, limit)
     assert not stick[0] and stick[np.all(faces[:, [0, 2]] != a, axis=1)].all()
