@@ -600,18 +600,7 @@ def contact_face_pairs(linkage: Linkage) -> IntArray:
     -------
     (k, 4) int, ``(tile_a, side_a, tile_b, side_b)``.
     """
-    cells = linkage.tile_cells
-    index = {(int(i), int(j)): t for t, (i, j) in enumerate(cells)}
-    hinged = {(int(min(a, b)), int(max(a, b))) for a, _, b, _ in linkage.hinges}
-    out = []
-    for t, (i, j) in enumerate(cells):
-        right = index.get((int(i) + 1, int(j)))
-        if right is not None and (min(t, right), max(t, right)) in hinged:
-            out.append((t, 1, right, 3))
-        up = index.get((int(i), int(j) + 1))
-        if up is not None and (min(t, up), max(t, up)) in hinged:
-            out.append((t, 2, up, 0))
-    return np.array(out, dtype=np.int64).reshape(-1, 4)
+    return _neighbour_sides(linkage, hinged=True)
 
 
 def split_contact_pairs(linkage: Linkage) -> IntArray:
@@ -624,14 +613,21 @@ def split_contact_pairs(linkage: Linkage) -> IntArray:
     -------
     (k, 4) int, ``(tile_a, side_a, tile_b, side_b)``.
     """
+    return _neighbour_sides(linkage, hinged=False)
+
+
+def _neighbour_sides(linkage: Linkage, *, hinged: bool) -> IntArray:
+    """``(tile_a, side_a, tile_b, side_b)`` of the edge-neighbour tiles that a hinge joins
+    (``hinged``) or that a split separates: cells ``(i, j)``, ``(i + 1, j)`` meet with sides 1
+    and 3, cells ``(i, j)``, ``(i, j + 1)`` with sides 2 and 0."""
     cells = linkage.tile_cells
     index = {(int(i), int(j)): t for t, (i, j) in enumerate(cells)}
-    hinged = {(int(min(a, b)), int(max(a, b))) for a, _, b, _ in linkage.hinges}
+    joined = {(int(min(a, b)), int(max(a, b))) for a, _, b, _ in linkage.hinges}
     out = []
     for t, (i, j) in enumerate(cells):
         for (di, dj), sides in (((1, 0), (1, 3)), ((0, 1), (2, 0))):
             other = index.get((int(i) + di, int(j) + dj))
-            if other is not None and (min(t, other), max(t, other)) not in hinged:
+            if other is not None and ((min(t, other), max(t, other)) in joined) == hinged:
                 out.append((t, sides[0], other, sides[1]))
     return np.array(out, dtype=np.int64).reshape(-1, 4)
 
