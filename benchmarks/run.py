@@ -98,6 +98,8 @@ def pipeline_rows(
             {
                 "case": name,
                 "tiles": result.tiling.linkage.n_tiles,
+                "parts": result.tiling.linkage.n_components,
+                "split_bound": m.get("split_bound"),
                 "hinges": hinges,
                 **{f"{k}_s": round(v, 3) for k, v in result.timings_s.items()},
                 "planarity_mm": m.get("planarity_max_mm"),
