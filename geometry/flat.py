@@ -200,7 +200,8 @@ class FlatResult:
     iterations : int
     time_s : float
     problems : tuple of str
-        Targets this layout does not meet, one sentence each (empty when all are met).
+        Targets this layout does not meet, one sentence each (empty when all are met), led by
+        the area-ratio predictions that explain them.
     anchor_3d : (T, 4, 3) float, mm, or None
         The K3D points the corners stand for (the tiles' hinge points in the top planes,
         :func:`hinge_points`); None: the top-face corners.
@@ -651,7 +652,7 @@ def optimize_flat(
         anchor = hinge_points(linkage, np.asarray(tiles_3d, dtype=np.float64), hinges.bottom)
         top = anchor
     plane = tile_plane_coordinates(top)
-    nodes0, tile_scale, layout_scale, problems = initial_flat_layout(
+    nodes0, tile_scale, layout_scale, predicted = initial_flat_layout(
         linkage, plane, uv_arr, theta_min
     )
     edges = _edge_pairs(linkage)
@@ -704,6 +705,7 @@ def optimize_flat(
         top_offset = _face_offsets(plane, np.asarray(tiles_3d), junctions, anchor)[0]
     fab = AngleRows(ends, top_offset, np.zeros(len(ends)), np.zeros(len(ends)), np.ones(len(ends)))
     opening = np.degrees(fab.angles(nodes)) if len(ends) else np.zeros(0)
+    problems: list[str] = []
     if edge_error > FLAT_EDGE_ERROR_TOL_MM:
         problems.append(
             f"flat edge error {edge_error:.3g} mm exceeds {FLAT_EDGE_ERROR_TOL_MM:g} mm: the tiles "
@@ -722,6 +724,12 @@ def optimize_flat(
     remaining, _ = _overlapping_pairs(linkage, corners, FLAT_OVERLAP_TOL_MM2, False)
     if len(remaining):
         problems.append(f"{len(remaining)} pairs of flat tiles still overlap")
+    # The area-ratio bound is a prediction from the uniform-opening model (the conformal cells'
+    # scale): it explains a measured miss, but a layout that meets every measured bound has
+    # absorbed the ratio (the co-optimized 4-part scanned face: 1.73 > 1.66 with every gap in
+    # its bounds and the edges 9e-4 mm off).
+    if problems:
+        problems = [*predicted, *problems]
     elapsed = time.perf_counter() - start
     logger.info(
         "flat: %d Gauss-Newton steps, %.3f s, edge error %.3g mm, violation %.3g x tol",
