@@ -206,3 +206,30 @@ def test_a_tighter_tiling_that_meets_the_targets_is_kept_without_halving_the_mis
     assert result.tiling.linkage.n_components > 1
     assert result.metrics()["split_bound"] < split_bound(result.options)
     assert any(n.startswith("tiling:") and "kept 2 parts" in n for n in result.notes)
+
+
+def test_a_tiling_that_may_be_split_again_skips_the_held_openings_run(monkeypatch) -> None:
+    # A refused co-optimization of a tiling that may be split again is not run again holding
+    # the eq.-1 openings (more splits are its cure); if that tiling is kept after all, it is.
+    held: list[int] = []  # parts of each tiling whose co-optimization ran holding openings
+
+    def refused(linkage, tiling, assembled, flat, *_args, track_openings=True, **_kwargs):
+        if not track_openings:
+            held.append(linkage.n_components)
+        return assembled, flat, {"accepted": False, "reason": "refused", "steps": 0}
+
+    monkeypatch.setattr(layout_stage, "co_optimized", refused)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+
+    def split_wins(shaped: layout_stage.ShapedLayout) -> float:
+        return 1.0 if shaped.tiling.linkage.n_components == 1 else 1e-4
+
+    monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(split_wins))
+    result = design("saddle", options)
+    assert result.tiling.linkage.n_components == 2
+    assert held == [2]  # the trial tiling ran it, the first one did not
+    held.clear()
+    monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(lambda _s: 1.0))
+    result = design("saddle", options)
+    assert result.tiling.linkage.n_components == 1
+    assert held == [2, 1]  # the first tiling, kept, ran it after all
