@@ -271,6 +271,11 @@ CO_REFINEMENTS = 4
 #: of the tolerance, or within the tolerance and this ratio of the joint solve's.
 CO_STOP_SHARE = 0.1
 CO_STOP_RATIO = 10.0
+#: ... and gives up after its first round when that re-solve is this many times worse than
+#: the plain layout.  Runs that never recovered: 200-tile wave 130x (1.55 mm against 0.012),
+#: one-part chair 6.5x, 1600-tile wave 9x; one that did: the 200-tile wave holding the eq.-1
+#: openings, 2.8x (0.032 mm, then 2.3e-3, 2e-4, 9e-5).
+CO_GIVE_UP_RATIO = 5.0
 
 
 def flat_layout(
@@ -368,6 +373,7 @@ def co_optimized(
         # do not come down in later rounds (the 200-tile chair in one part: 4.5, 2.7, 2.0,
         # 1.9 mm against a plain 0.69 mm).
         error = new_flat.edge_error_max_mm
+        first_round = best is None
         progress_made = best is None or error < best[1].edge_error_max_mm
         if progress_made:
             best = (current, new_flat)
@@ -382,6 +388,7 @@ def co_optimized(
         # (7.3e-4 mm) where it stopped at 3.2e-3 mm and was split once more.
         if (
             worse >= 2
+            or (first_round and error > CO_GIVE_UP_RATIO * flat.edge_error_max_mm)
             or error <= CO_STOP_SHARE * FLAT_EDGE_ERROR_TOL_MM
             or error <= min(FLAT_EDGE_ERROR_TOL_MM, CO_STOP_RATIO * co.edge_error_max_mm)
         ):

@@ -233,3 +233,26 @@ def test_a_tiling_that_may_be_split_again_skips_the_held_openings_run(monkeypatc
     result = design("saddle", options)
     assert result.tiling.linkage.n_components == 1
     assert held == [2, 1]  # the first tiling, kept, ran it after all
+
+
+def test_co_optimization_gives_up_when_its_first_re_solve_is_far_worse(monkeypatch) -> None:
+    # A first re-solve many times worse than the plain layout has never recovered: the run
+    # stops after one round and is refused.
+    shaped, eq1, faces, plain = _saddle_before_co_optimization()
+    flat_layout = layout_stage.flat_layout
+    resolves: list[float] = []
+
+    def far_worse(*args: object, **kwargs: object):
+        out = flat_layout(*args, **kwargs)
+        error = 100.0 * plain.edge_error_max_mm
+        resolves.append(error)
+        return replace(out, edge_error_max_mm=error)
+
+    assert layout_stage.CO_GIVE_UP_RATIO < 100.0
+    monkeypatch.setattr(layout_stage, "flat_layout", far_worse)
+    _, flat, block = layout_stage.co_optimized(
+        shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces
+    )
+    assert len(resolves) == 1
+    assert not block["accepted"] and "did not drop" in block["reason"]
+    assert flat is plain
