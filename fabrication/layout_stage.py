@@ -227,8 +227,9 @@ def _shaped(
             assembled, flat, co_block = co_optimized(
                 linkage, tiling, *plain, loaded, options, faces
             )
-            skipped = not co_block["accepted"] and faces is not None and not fallback
-            if not co_block["accepted"] and faces is not None and fallback:
+            refused = not co_block["accepted"] and faces is not None
+            skipped = refused and not fallback
+            if refused and fallback:
                 # On the moved tiles some slit ends no longer clear where they did, and the
                 # windows that shift between rounds can leave the re-solve stranded (1600-tile
                 # wave: 0.14 mm -> 1.4 mm); the clear openings of the eq.-1 tiles held
@@ -335,7 +336,7 @@ def co_optimized(
     current, nodes = assembled, None
     rounds: list[tuple[tuple[float, float], ...]] = [CO_STAGES, CO_STAGES[-1:]]
     best: tuple[AssembledResult, FlatResult] | None = None
-    worse = 0  # rounds in a row that did not improve on the best
+    worse = 0  # rounds in a row below neither the best round nor the plain layout
     for _ in range(CO_REFINEMENTS + 1):
         for stages in rounds:
             co = co_optimize_top(
