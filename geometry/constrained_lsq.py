@@ -16,10 +16,10 @@ from typing import Protocol
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
 from drawstring.geometry.constraints import signed_angles
+from drawstring.geometry.spd import SpdSolver
 
 logger = logging.getLogger(__name__)
 
@@ -165,7 +165,8 @@ def constrained_least_squares(
 
     Augmented Lagrangian (multipliers ``lam``, penalty ``rho``) whose subproblems
     ``sum w r^2 + sum max(0, lam - rho g)^2 / (2 rho)`` are least-squares problems solved by
-    Levenberg-Marquardt (Gauss-Newton steps, one sparse factorization each).  Gauge freedom
+    Levenberg-Marquardt (Gauss-Newton steps, one sparse factorization each, reusing the
+    ordering while the pattern repeats: :class:`~drawstring.geometry.spd.SpdSolver`).  Gauge freedom
     (rigid motions) is removed by a tiny diagonal term.  Stops when every row holds to within
     its tolerance (``angle_tol`` rad for angle rows, ``length_tol`` mm for separation rows) and
     the positions have settled, or after ``max_steps`` factorizations.
@@ -220,6 +221,7 @@ def constrained_least_squares(
     lam = np.zeros(m)
     rho = rho0
     steps = 0
+    factor = SpdSolver()
     prev_viol = np.inf
     mu = 1e-4
     violation = 0.0
@@ -244,10 +246,7 @@ def constrained_least_squares(
             improved = False
             for _try in range(8):
                 mat = jtj + sp.diags(mu * diag + 1e-10 * scale, format="csc")
-                step = spla.splu(
-                    mat, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                    options={"SymmetricMode": True},
-                ).solve(-grad)  # fmt: skip
+                step = factor.solve(mat, -grad)
                 steps += 1
                 trial = x + step.reshape(n, 2)
                 c1 = cost(trial, lam, rho)

@@ -261,11 +261,12 @@ def free_openings(
     need_b[e, c1] = -touch
     current = ends.angles(np.asarray(tiles, dtype=np.float64), face)
 
-    def ok(opening: FloatArray) -> NDArray[np.bool_]:
-        # turning t1 about the hinge by d lowers the opening by d
+    def ok(opening: FloatArray, sel: IntArray | slice = slice(None)) -> NDArray[np.bool_]:
+        # turning t1 about the hinge by d lowers the opening by d (ends ``sel`` only)
         return _separable(
-            a_hinge, b_hinge, a_other, b_other, need_a, need_b, clearance, current - opening
-        )
+            a_hinge[sel], b_hinge[sel], a_other[sel], b_other[sel], need_a[sel], need_b[sel],
+            clearance, current[sel] - opening,
+        )  # fmt: skip
 
     grid = np.radians(np.linspace(0.0, 90.0, _GRID + 1))
     on_grid = np.stack([ok(np.full(n_ends, g)) for g in grid], axis=1)  # (E, G)
@@ -276,13 +277,18 @@ def free_openings(
     stop = np.where(after.any(axis=1), np.argmax(after, axis=1) - 1, len(grid) - 1)
     lo_out, lo_in = grid[np.maximum(first - 1, 0)], grid[first]
     hi_in, hi_out = grid[stop], grid[np.minimum(stop + 1, len(grid) - 1)]
+    # only the ends whose separable run starts or stops inside [0, 90] deg are refined
+    lo_sel = np.flatnonzero(anywhere & (first > 0))
+    hi_sel = np.flatnonzero(anywhere & (stop < len(grid) - 1))
     for _ in range(_BISECTIONS):
-        mid = 0.5 * (lo_out + lo_in)
-        good = ok(mid)
-        lo_in, lo_out = np.where(good, mid, lo_in), np.where(good, lo_out, mid)
-        mid = 0.5 * (hi_in + hi_out)
-        good = ok(mid)
-        hi_in, hi_out = np.where(good, mid, hi_in), np.where(good, hi_out, mid)
+        mid = 0.5 * (lo_out[lo_sel] + lo_in[lo_sel])
+        good = ok(mid, lo_sel)
+        lo_in[lo_sel] = np.where(good, mid, lo_in[lo_sel])
+        lo_out[lo_sel] = np.where(good, lo_out[lo_sel], mid)
+        mid = 0.5 * (hi_in[hi_sel] + hi_out[hi_sel])
+        good = ok(mid, hi_sel)
+        hi_in[hi_sel] = np.where(good, mid, hi_in[hi_sel])
+        hi_out[hi_sel] = np.where(good, hi_out[hi_sel], mid)
     lo = np.where(first == 0, 0.0, lo_in)
     hi = np.where(stop == len(grid) - 1, 0.5 * np.pi, hi_in)
     return np.where(anywhere, lo, 0.5 * np.pi), np.where(anywhere, hi, 0.0)

@@ -19,12 +19,12 @@ from typing import Any, Literal
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import Linkage, SlitEnds, slit_ends
+from drawstring.geometry.spd import SpdSolver
 from drawstring.geometry.tolerances import (
     HINGE_ANGLE_MARGIN_DEG,
     HINGE_LAYOUT_CLEARANCE_MM,
@@ -529,6 +529,7 @@ def _augmented_lagrangian(
 
     cost, rh, g = evaluate(layout.phi, layout.trans)
     steps = 0
+    factor = SpdSolver()
     for _ in range(inner):
         res, jac = jacobian(layout.phi, layout.trans, g, rh)
         jtj = (jac.T @ jac).tocsc()
@@ -538,10 +539,7 @@ def _augmented_lagrangian(
         # Every component's free rigid motion is fixed by pinning one of its tiles (``pin``);
         # a tiny Levenberg term keeps the system regular.
         damp = sp.diags(1e-9 * np.maximum(diag, 1e-6 * top) + pin * 1e6 * top)
-        step = spla.splu(
-            (jtj + damp).tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-            options={"SymmetricMode": True},
-        ).solve(-grad).reshape(layout.n, 3)  # fmt: skip
+        step = factor.solve(jtj + damp, -grad).reshape(layout.n, 3)
         accepted = False
         alpha = 1.0
         for _ls in range(12):

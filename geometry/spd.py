@@ -1,0 +1,104 @@
+"""Repeated sparse solves with symmetric positive definite matrices of a recurring pattern.
+
+The Levenberg-Marquardt loops of the flat layout, the co-optimization and the rigid hinge
+layout factor one normal matrix ``J^T J + damping`` per step.  Its sparsity pattern changes
+only when inequality rows become active or inactive, so :class:`SpdSolver` keeps one pattern,
+the union of the patterns seen so far, with qdldl's fill-reducing ordering and elimination
+tree for it, and refactors only numerically (the matrix's entries scattered into the union,
+zeros elsewhere) until a matrix brings an entry outside it.  qdldl's ``LDL^T`` without
+pivoting is stable on positive definite matrices; a factor that is not (a non-finite
+solution) falls back to SuperLU.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import qdldl
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+__all__ = ["SpdSolver"]
+
+
+def _upper_keys(upper: sp.csc_matrix) -> IntArray:
+    """Entry keys ``column * n + row`` of a canonical CSC matrix, ascending."""
+    n = upper.shape[0]
+    cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(upper.indptr))
+    return cols * n + upper.indices.astype(np.int64)
+
+
+class SpdSolver:
+    """Solve ``A x = b`` for a sequence of symmetric positive definite sparse ``A`` of one size.
+
+    Examples
+    --------
+    >>> solver = SpdSolver()
+    >>> x = solver.solve(sp.identity(3, format="csc") * 2.0, np.ones(3))
+    >>> bool(np.allclose(x, 0.5))
+    True
+    """
+
+    def __init__(self) -> None:
+        self._solver: qdldl.Solver | None = None
+        self._keys: IntArray = np.zeros(0, dtype=np.int64)  # the union pattern
+        self._indptr: NDArray[np.int32] = np.zeros(0, dtype=np.int32)
+        self._indices: NDArray[np.int32] = np.zeros(0, dtype=np.int32)
+        # the last matrix's own pattern and where its entries sit in the union
+        self._last: tuple[NDArray[np.int32], NDArray[np.int32]] | None = None
+        self._pos: IntArray = np.zeros(0, dtype=np.int64)
+        #: numeric refactorizations in a known pattern, and symbolic analyses
+        self.reused = 0
+        self.analysed = 0
+
+    def solve(self, matrix: sp.spmatrix | sp.sparray, rhs: FloatArray) -> FloatArray:
+        """``x`` with ``matrix @ x = rhs``; ``matrix`` ``(n, n)`` symmetric positive definite
+        (only its upper triangle is read)."""
+        upper = sp.csc_matrix(sp.triu(matrix, format="csc"))
+        upper.sum_duplicates()  # canonical: sorted, no duplicates
+        n = upper.shape[0]
+        last = self._last
+        if not (
+            last is not None
+            and np.array_equal(last[0], upper.indptr)
+            and np.array_equal(last[1], upper.indices)
+        ):
+            keys = _upper_keys(upper)
+            pos = np.searchsorted(self._keys, keys)
+            inside = pos < len(self._keys)
+            inside[inside] = self._keys[pos[inside]] == keys[inside]
+            if self._solver is None or not inside.all():
+                merged = np.sort(np.concatenate([self._keys, keys[~inside]]))
+                self._set_union(merged, n)
+                pos = np.searchsorted(self._keys, keys)
+            self._last, self._pos = (upper.indptr.copy(), upper.indices.copy()), pos
+        values = np.zeros(len(self._keys))
+        values[self._pos] = upper.data
+        union = sp.csc_matrix((values, self._indices, self._indptr), shape=(n, n))
+        x: FloatArray | None = None
+        try:
+            if self._solver is None:
+                self._solver = qdldl.Solver(union, upper=True)
+                self.analysed += 1
+            else:
+                self._solver.update(union, upper=True)
+                self.reused += 1
+            x = np.asarray(self._solver.solve(np.asarray(rhs, dtype=np.float64)))
+        except RuntimeError:  # qdldl refuses a zero pivot it meets while analysing
+            pass
+        if x is not None and np.all(np.isfinite(x)):
+            return x
+        # not numerically positive definite: a pivoting factorization; analyse afresh next time
+        self._solver, self._last = None, None
+        return np.asarray(spla.splu(sp.csc_matrix(matrix), permc_spec="MMD_AT_PLUS_A").solve(rhs))
+
+    def _set_union(self, keys: IntArray, n: int) -> None:
+        """Make ``keys`` the pattern factored from now on (a new symbolic analysis)."""
+        cols, rows = np.divmod(keys, n)
+        self._keys = keys
+        self._indices = rows.astype(np.int32)
+        self._indptr = np.searchsorted(cols, np.arange(n + 1)).astype(np.int32)
+        self._solver = None

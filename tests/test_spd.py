@@ -1,0 +1,48 @@
+"""The repeated sparse SPD solver of the Levenberg-Marquardt loops: answers against dense
+solves while the sparsity pattern repeats, shrinks, grows and returns."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from drawstring.geometry.spd import SpdSolver
+
+
+def spd(n: int, density: float, seed: int) -> sp.csc_matrix:
+    rng = np.random.default_rng(seed)
+    rows = sp.random(3 * n, n, density=density, random_state=rng, format="csr")
+    return sp.csc_matrix(rows.T @ rows + sp.identity(n))
+
+
+def test_solves_match_dense_answers_as_the_pattern_changes() -> None:
+    n = 60
+    rhs = np.linspace(-1.0, 1.0, n)
+    base = spd(n, 0.05, 0)
+    extra = spd(n, 0.05, 1)
+    other = spd(n, 0.05, 2)
+    sequence = [base, 2.0 * base, base + extra, base, 3.0 * base + extra, extra, other]
+    solver = SpdSolver()
+    for matrix in sequence:
+        x = solver.solve(matrix, rhs)
+        np.testing.assert_allclose(x, np.linalg.solve(matrix.toarray(), rhs), rtol=1e-10)
+    # base's pattern grows into base + extra's (one more analysis); base, 3 base + extra and
+    # extra then fit inside it; ``other`` brings entries of its own
+    assert solver.analysed == 3
+    assert solver.reused == len(sequence) - 3
+
+
+def test_a_full_symmetric_matrix_and_its_upper_triangle_give_the_same_answer() -> None:
+    matrix = spd(40, 0.1, 2)
+    rhs = np.arange(40.0)
+    full = SpdSolver().solve(matrix, rhs)
+    upper = SpdSolver().solve(sp.triu(matrix), rhs)
+    np.testing.assert_allclose(full, upper, rtol=1e-12)
+
+
+def test_an_indefinite_matrix_falls_back_to_a_pivoting_solve() -> None:
+    # a zero leading pivot breaks LDL^T without pivoting; LU with pivoting solves it
+    matrix = sp.csc_matrix(np.array([[0.0, 1.0], [1.0, 0.0]]))
+    solver = SpdSolver()
+    x = solver.solve(matrix, np.array([2.0, 3.0]))
+    np.testing.assert_allclose(x, [3.0, 2.0])
