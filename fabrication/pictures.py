@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import textwrap
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -20,12 +21,27 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from drawstring.fabrication.pipeline import Design
+    from drawstring.geometry.lift import LiftPoints
+    from drawstring.geometry.linkage import Linkage
+    from drawstring.geometry.route import Route
     from drawstring.geometry.target import Target
     from drawstring.geometry.tiling import Tiling
 
 #: PNG metadata without version strings, so pictures are byte-identical across runs.
 PNG_METADATA = {"Software": None}
 COMPONENT_COLOURS = ("#f2b872", "#8fc1e3", "#a8d5a2", "#e3a1c9", "#d9d27a", "#b7a6e0")
+#: The string in every picture.
+STRING_COLOUR = "crimson"
+#: Hinge markers in every picture (flat.png, assembly-tiles.png): shape and colour both tell
+#: top from bottom (Okabe-Ito blue and orange: apart for every kind of colour vision and in
+#: grey), and neither is the string's red.
+TOP_HINGE = {"marker": "o", "colour": "#0072B2", "edge": "black", "label": "hinge on the top faces"}
+BOTTOM_HINGE = {
+    "marker": "s",
+    "colour": "#E69F00",
+    "edge": "black",
+    "label": "hinge on the bottom faces",
+}
 
 
 def save(fig: Figure, path: Path, dpi: int = 110) -> None:
@@ -154,52 +170,367 @@ def save_assembled(result: Design, path: Path) -> None:
     save(fig, path)
 
 
+def _lighten(colour: str, amount: float) -> tuple[float, float, float]:
+    """``colour`` blended towards white by ``amount`` (0: unchanged, 1: white)."""
+    from matplotlib.colors import to_rgb
+
+    rgb = np.array(to_rgb(colour))
+    r, g, b = (rgb + amount * (1.0 - rgb)).tolist()
+    return (r, g, b)
+
+
+def draw_hinges(
+    ax: Axes, points: NDArray[np.float64], bottom: NDArray[np.bool_], size: float = 4.0
+) -> None:
+    """Hinge markers in the one convention of every picture (:data:`TOP_HINGE`,
+    :data:`BOTTOM_HINGE`), labelled for the legend."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, np.shape(points)[-1])[:, :2]
+    low = np.asarray(bottom, dtype=bool)
+    for mask, style in ((~low, TOP_HINGE), (low, BOTTOM_HINGE)):
+        ax.plot(
+            pts[mask, 0],
+            pts[mask, 1],
+            linestyle="none",
+            marker=style["marker"],
+            ms=size,
+            mfc=style["colour"],
+            mec=style["edge"],
+            mew=0.5,
+            label=style["label"],
+            zorder=6,
+        )
+
+
+def open_gaps(linkage: Linkage) -> NDArray[np.bool_]:
+    """(G,) bool: gaps that open between hinged tiles of one part.
+
+    A gap counts when all its tiles (four, or fewer at the boundary) belong to one component and
+    it is not on a split line.  A "gap" on a split has its hinges cut and tiles of two parts
+    around it: in the flat layout its tile sides lie far apart, and the space between them is
+    not an opening of the linkage.
+    """
+    keep = np.zeros(linkage.n_gaps, dtype=bool)
+    for g in range(linkage.n_gaps):
+        parts = np.unique(linkage.tile_component[linkage.gap_tiles(g)])
+        keep[g] = len(parts) == 1 and linkage.gap_kind[g] != "split"
+    return keep
+
+
+def gap_rings(linkage: Linkage, corners: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+    """(G) polygons (k, 2): each void traced along its tiles' top sides, counter-clockwise."""
+    rings = []
+    for g in range(linkage.n_gaps):
+        ring: list[NDArray[np.float64]] = []
+        for t, s in linkage.gap_sides[g]:
+            if t < 0:
+                continue
+            ring.append(corners[t, (s + 1) % 4, :2])
+            ring.append(corners[t, s, :2])
+        rings.append(np.array(ring).reshape(-1, 2))
+    return rings
+
+
+def side_openings(tiles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(T, 4, 2) float, mm: the centre of each side face seen from above (where the string's
+    channel opens; side ``s`` joins top corners ``s``, ``s + 1`` and the bottom ones below)."""
+    t = np.asarray(tiles, dtype=np.float64)[..., :2]
+    if t.shape[1] == 4:
+        return np.asarray(0.5 * (t + np.roll(t, -1, axis=1)))
+    top = 0.5 * (t[:, :4] + np.roll(t[:, :4], -1, axis=1))
+    low = 0.5 * (t[:, 4:] + np.roll(t[:, 4:], -1, axis=1))
+    return np.asarray(0.5 * (top + low))
+
+
+def route_runs(
+    openings: NDArray[np.float64],
+    tiles: NDArray[np.int64],
+    enter: NDArray[np.int64],
+    leave: NDArray[np.int64],
+    component: NDArray[np.int64],
+) -> tuple[list[NDArray[np.float64]], list[NDArray[np.float64]]]:
+    """The closed string route as straight runs between side openings.
+
+    Returns ``(within, between)``: runs through a tile or across a gap of one part, and runs
+    from one part to another (across a split, often across empty space in the flat layout).
+    """
+    within: list[NDArray[np.float64]] = []
+    between: list[NDArray[np.float64]] = []
+    count = len(tiles)
+    for k in range(count):
+        tile = int(tiles[k])
+        within.append(np.array([openings[tile, enter[k]], openings[tile, leave[k]]]))
+        after = int(tiles[(k + 1) % count])
+        if count < 2:
+            continue
+        run = np.array([openings[tile, leave[k]], openings[after, enter[(k + 1) % count]]])
+        (within if component[tile] == component[after] else between).append(run)
+    return within, between
+
+
+def draw_flat_layout(
+    ax: Axes,
+    linkage: Linkage,
+    tiles: NDArray[np.float64],
+    hinge_points: NDArray[np.float64],
+    bottom: NDArray[np.bool_],
+    gap_angle_deg: NDArray[np.float64],
+    route: Route | None = None,
+    lift_gaps: NDArray[np.int64] | Sequence[int] = (),
+    trimmed: Sequence[int] = (),
+) -> None:
+    """The flat layout on ``ax``: tiles by part, open gaps by angle, hinges, route, lift points.
+
+    Parameters
+    ----------
+    tiles : (T, 8, 3) float, mm, flat tiles (top corners 0..3).
+    hinge_points : (H, 2+) float, mm.
+    bottom : (H,) bool, hinge on the bottom faces.
+    gap_angle_deg : (G,) float, opening angle per gap (NaN: not measured).  Only the gaps of
+        :func:`open_gaps` with an angle are shaded (gid ``"gaps"``).
+    route : drawn through the tiles' side openings; runs between parts dashed.
+    lift_gaps : gap ids of the lift points (starred at the gap centroid).
+    trimmed : hinge ids of trimmed pairs (crossed).
+    """
+    from drawstring.geometry.linkage import gap_centroids
+    from drawstring.geometry.route import NODE_ENTRANCE
+
+    angle = np.asarray(gap_angle_deg, dtype=np.float64)
+    shade = open_gaps(linkage) & np.isfinite(angle)
+    rings = gap_rings(linkage, tiles)
+    chosen = np.flatnonzero(shade)
+    if len(chosen):
+        pc = PolyCollection(
+            [rings[g] for g in chosen], array=angle[chosen], cmap="viridis", alpha=0.6
+        )
+        pc.set_clim(0.0, 90.0)
+        pc.set_gid("gaps")
+        ax.add_collection(pc)
+        ax.figure.colorbar(
+            pc, ax=ax, label="gap opening angle (deg), gaps within one part", shrink=0.7
+        )
+    colours = [
+        _lighten(COMPONENT_COLOURS[c % len(COMPONENT_COLOURS)], 0.45)
+        for c in linkage.tile_component
+    ]
+    ax.add_collection(
+        PolyCollection(list(tiles[:, 4:, :2]), facecolors="none", edgecolors="0.5", linewidths=0.3)
+    )
+    ax.add_collection(
+        PolyCollection(list(tiles[:, :4, :2]), facecolors=colours, edgecolors="k", linewidths=0.5)
+    )
+    draw_hinges(ax, hinge_points, bottom, size=4.0)
+    cut = np.asarray(trimmed, dtype=np.int64)
+    if cut.size:
+        pts = np.asarray(hinge_points)[cut]
+        ax.plot(pts[:, 0], pts[:, 1], "x", ms=7, color="k", label="trimmed pair", zorder=6)
+    if route is not None and len(route.tiles):
+        within, between = route_runs(
+            side_openings(tiles),
+            route.tiles,
+            route.enter_side,
+            route.leave_side,
+            linkage.tile_component,
+        )
+        ax.add_collection(
+            LineCollection(within, colors=STRING_COLOUR, linewidths=1.8, zorder=4, label="string")
+        )
+        if between:
+            ax.add_collection(
+                LineCollection(
+                    between,
+                    colors=STRING_COLOUR,
+                    linewidths=1.4,
+                    linestyles=(0, (4, 3)),
+                    zorder=4,
+                    label="string from one part to another",
+                )
+            )
+        centres = gap_centroids(linkage, tiles[:, :4, :2])
+        entr = route.gaps[route.labels == NODE_ENTRANCE]
+        ax.plot(
+            centres[entr, 0],
+            centres[entr, 1],
+            "o",
+            mfc="none",
+            mec="k",
+            ms=6,
+            label="boundary entrances",
+            zorder=5,
+        )
+    lifts = np.asarray(lift_gaps, dtype=np.int64)
+    if lifts.size:
+        centres = gap_centroids(linkage, tiles[:, :4, :2])
+        ax.scatter(
+            centres[lifts, 0],
+            centres[lifts, 1],
+            s=180,
+            marker="*",
+            c=STRING_COLOUR,
+            edgecolors="black",
+            zorder=7,
+            label="lift points",
+        )
+    ax.set_aspect("equal")
+    ax.autoscale_view()
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+
+
+def flat_gap_angles(
+    linkage: Linkage, tiles: NDArray[np.float64], bottom: NDArray[np.bool_]
+) -> NDArray[np.float64]:
+    """(G,) float, deg: the smallest opening angle at the slit ends of each gap, measured on the
+    face that carries each hinge; NaN where a gap has no hinged slit end."""
+    from drawstring.geometry.flat import gap_junctions
+    from drawstring.geometry.verify import gap_opening_angles_deg
+
+    angle = np.full(linkage.n_gaps, np.nan)
+    junctions = gap_junctions(linkage)
+    if not junctions.is_end.any():
+        return angle
+    measured = gap_opening_angles_deg(linkage, tiles, bottom)
+    for g, value in zip(junctions.gap[junctions.is_end], measured, strict=True):
+        angle[g] = np.fmin(angle[g], float(value))
+    return angle
+
+
 def save_flat(result: Design, path: Path) -> None:
     """Flat layout: tiles by component, gaps by opening, hinges top/bottom, route, lift points."""
-    from drawstring.geometry.hinges import draw_flat
-    from drawstring.geometry.linkage import gap_centroids
-    from drawstring.geometry.route import draw_route
-
     linkage = result.tiling.linkage
+    layout = result.hinge_layout
     extent = np.ptp(result.tiles_flat[..., :2].reshape(-1, 2), axis=0)
     width = 9.0
     height = float(np.clip(width * extent[1] / max(extent[0], 1e-9), 4.0, 12.0)) + 0.8
     fig, ax = plt.subplots(figsize=(width, height))
-    draw_flat(ax, linkage, result.hinge_layout, result.flat)
-    centres = gap_centroids(linkage, result.tiles_flat[:, :4, :2])
-    draw_route(ax, result.route, centres, result.lift)
-    # again, so the route's entries are listed too; below the plot, clear of the tiles
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.06), ncol=6, fontsize=7)
-    ax.set_aspect("equal")
-    ax.autoscale_view()
+    trimmed = [tr.hinge for tr in layout.trims] if layout.strategy == "dual" else []
+    draw_flat_layout(
+        ax,
+        linkage,
+        layout.tiles,
+        layout.hinge_points,
+        layout.bottom,
+        flat_gap_angles(linkage, layout.tiles, layout.bottom),
+        result.route,
+        result.lift.lift_gaps,
+        trimmed,
+    )
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=4, fontsize=7)
     m = result.metrics()
+    parts = linkage.n_components
     ax.set_title(
-        f"flat layout: {linkage.n_tiles} tiles, gaps {m['flat_gap_angle_min_deg']:.1f}"
-        f"..{m['flat_gap_angle_max_deg']:.1f} deg, overlap {m['flat_overlap_area_mm2']:.2g} mm²\n"
-        "hinges: dot top, red ring bottom; string route, black rings its boundary entrances; "
-        "lift points starred",
+        f"flat layout: {linkage.n_tiles} tiles in {parts} part{'s' if parts != 1 else ''}, "
+        f"gaps {m['flat_gap_angle_min_deg']:.1f}..{m['flat_gap_angle_max_deg']:.1f} deg, "
+        f"overlap {m['flat_overlap_area_mm2']:.2g} mm²\n"
+        "tiles coloured by part; only gaps within one part are shaded"
+        + ("; dashed: the string crossing between parts" if parts > 1 else ""),
         fontsize=9,
     )
     fig.tight_layout()
     save(fig, path)
 
 
-def save_lift(result: Design, path: Path) -> None:
-    """Gap potential energy basins, peaks and the chosen lift points over the flat layout."""
-    from drawstring.geometry.lift import draw_lift
+def draw_lift_basins(
+    ax: Axes,
+    lift: LiftPoints,
+    linkage: Linkage,
+    corners: NDArray[np.float64],
+    max_listed: int = 8,
+) -> None:
+    """Gaps coloured by energy basin, the peaks and the numbered lift points, with a legend.
+
+    Each gap drains uphill to one energy peak: its basin.  Peaks whose basins are lifted
+    together form a cluster, lifted at one lift point.  Gaps between parts (not opening in the
+    flat layout, see :func:`open_gaps`) are drawn hollow.
+    """
+    from matplotlib import colormaps
+    from matplotlib.lines import Line2D
+
     from drawstring.geometry.linkage import gap_centroids
 
-    linkage = result.tiling.linkage
-    fig, ax = plt.subplots(figsize=(8, 6))
-    polys = result.tiles_flat[:, :4, :2]
-    ax.add_collection(PolyCollection(list(polys), facecolors="0.9", edgecolors="0.6", lw=0.3))
-    draw_lift(ax, result.lift, gap_centroids(linkage, polys))
+    pos = gap_centroids(linkage, corners)
+    cmap = colormaps["tab20"]
+    colour = [cmap(int(b) % 20) for b in lift.basin]
+    inside = open_gaps(linkage)
+    ax.scatter(pos[inside, 0], pos[inside, 1], c=np.array(colour)[inside], s=16, zorder=3)
+    ax.scatter(
+        pos[~inside, 0],
+        pos[~inside, 1],
+        facecolors="none",
+        edgecolors=[c for c, keep in zip(colour, inside, strict=True) if not keep],
+        s=16,
+        zorder=3,
+    )
+    pk = pos[lift.peaks]
+    ax.scatter(pk[:, 0], pk[:, 1], c="black", s=30, marker="o", zorder=4)
+    lp = pos[lift.lift_gaps]
+    ax.scatter(lp[:, 0], lp[:, 1], c=STRING_COLOUR, s=200, marker="*", edgecolors="k", zorder=5)
+    for number, (x, y) in enumerate(lp[:, :2], start=1):
+        ax.annotate(
+            str(number),
+            (x, y),
+            xytext=(7, 7),
+            textcoords="offset points",
+            fontsize=9,
+            fontweight="bold",
+            zorder=6,
+        )
+    handles: list[Line2D] = [
+        Line2D(
+            [], [], ls="none", marker="*", ms=12, mfc=STRING_COLOUR, mec="k", label="lift point"
+        ),
+        Line2D([], [], ls="none", marker="o", ms=6, color="k", label="energy peak"),
+    ]
+    for k, gap in enumerate(lift.peaks[:max_listed]):
+        cluster = int(lift.clusters[k]) if k < len(lift.clusters) else -1
+        where = f", lifted at {cluster + 1}" if 0 <= cluster < len(lift.lift_gaps) else ""
+        handles.append(
+            Line2D(
+                [],
+                [],
+                ls="none",
+                marker="o",
+                ms=5,
+                color=cmap(k % 20),
+                label=f"basin of peak {k + 1} (gap {int(gap)}){where}",
+            )
+        )
+    if len(lift.peaks) > max_listed:
+        handles.append(
+            Line2D([], [], ls="none", label=f"... {len(lift.peaks) - max_listed} more basins")
+        )
+    if not inside.all():
+        handles.append(
+            Line2D(
+                [],
+                [],
+                ls="none",
+                marker="o",
+                ms=5,
+                mfc="none",
+                mec="0.3",
+                label="gap between parts",
+            )
+        )
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2, fontsize=7)
     ax.set_aspect("equal")
     ax.autoscale_view()
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+
+
+def save_lift(result: Design, path: Path) -> None:
+    """Gap potential energy basins, peaks and the chosen lift points over the flat layout."""
+    linkage = result.tiling.linkage
+    fig, ax = plt.subplots(figsize=(8, 7.5))
+    polys = result.tiles_flat[:, :4, :2]
+    ax.add_collection(PolyCollection(list(polys), facecolors="0.9", edgecolors="0.6", lw=0.3))
+    draw_lift_basins(ax, result.lift, linkage, polys)
+    lift = result.lift
     ax.set_title(
-        f"lift points (stars): {len(result.lift.lift_gaps)} of {len(result.lift.peaks)} energy "
-        f"peaks; gaps coloured by basin; coupling threshold {result.lift.tau:g}\n"
-        + "\n".join(textwrap.wrap(f"deployment check: {result.lift.check_name}", 90)),
+        f"{len(lift.lift_gaps)} lift point(s) (stars) for {len(lift.peaks)} energy peak(s) "
+        f"(black); coupling threshold {lift.tau:g}\n"
+        "each gap is coloured by its basin: the energy peak it climbs to\n"
+        + "\n".join(textwrap.wrap(f"deployment check: {lift.check_name}", 90)),
         fontsize=9,
     )
     fig.tight_layout()

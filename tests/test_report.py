@@ -541,3 +541,74 @@ def test_page_without_geometry_in_a_real_browser(tmp_path: Path, browser: Browse
     assert browser.evaluate("drawstringView.message") == "no geometry"
     assert browser.evaluate("document.getElementById('deploy').disabled") is True
     assert browser.problems() == []
+
+
+# ----------------------------------------------------------------------------------------------
+# Pictures of the output folder (flat.png)
+# ----------------------------------------------------------------------------------------------
+
+
+def _two_part_layout() -> tuple[Linkage, np.ndarray]:
+    """A 4 x 3 grid split through in two parts, the right part moved 80 mm away."""
+    from drawstring.geometry.linkage import Split
+
+    link = build_linkage(np.ones((4, 3), dtype=bool), (Split("x", 2, 0, 3),))
+    tiles = fake_tiles(link, OPENING, 0.0)
+    tiles[link.tile_component == link.tile_component[-1], :, 0] += 80.0
+    return link, tiles
+
+
+def test_flat_picture_shades_no_gap_between_parts() -> None:
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+
+    from drawstring.fabrication import pictures
+
+    link, tiles = _two_part_layout()
+    assert link.n_components == 2
+    split_gaps = [
+        g for g in range(link.n_gaps) if len(set(link.tile_component[link.gap_tiles(g)])) > 1
+    ]
+    assert split_gaps, "the split leaves gaps with tiles of both parts"
+    bottom = np.zeros(link.n_hinges, dtype=bool)
+    angle = pictures.flat_gap_angles(link, tiles, bottom)
+    # The moved part's split gaps measure an angle or none; either way they are not drawn.
+    points = tiles[link.hinges[:, 0], link.hinges[:, 1], :2]
+    fig, ax = plt.subplots()
+    pictures.draw_flat_layout(ax, link, tiles, points, bottom, angle)
+    (shaded,) = [c for c in ax.collections if c.get_gid() == "gaps"]
+    assert isinstance(shaded, PolyCollection)
+    drawn = [p.vertices[: len(p.vertices) - 1] for p in shaded.get_paths()]
+    rings = pictures.gap_rings(link, tiles)
+    one_part = [g for g in range(link.n_gaps) if g not in split_gaps and np.isfinite(angle[g])]
+    assert len(drawn) == len(one_part) > 0
+    for g in split_gaps:
+        assert not any(
+            len(d) >= len(rings[g]) and np.allclose(d[: len(rings[g])], rings[g]) for d in drawn
+        )
+    # Every shaded polygon lies within one part's tiles (none spans the 80 mm between parts).
+    for d in drawn:
+        assert np.ptp(d[:, 0]) < 2 * SIDE
+    plt.close(fig)
+
+
+def test_flat_picture_dashes_the_string_between_parts() -> None:
+    from drawstring.fabrication import pictures
+
+    link, tiles = _two_part_layout()
+    loop = boundary_loop(build_linkage(np.ones((4, 3), dtype=bool)))
+    cells = link.tile_cells
+    enter = [side_towards(cells[t], cells[loop[k - 1]]) for k, t in enumerate(loop)]
+    leave = [side_towards(cells[t], cells[loop[(k + 1) % len(loop)]]) for k, t in enumerate(loop)]
+    within, between = pictures.route_runs(
+        pictures.side_openings(tiles),
+        np.array(loop),
+        np.array(enter),
+        np.array(leave),
+        link.tile_component,
+    )
+    # The loop around the grid crosses the split twice: twice from one part to the other.
+    assert len(between) == 2
+    for run in between:
+        assert np.ptp(run[:, 0]) > 60.0  # across the space between the parts
+    assert all(np.ptp(run[:, 0]) < 2 * SIDE for run in within)
