@@ -7,6 +7,7 @@ import dataclasses
 import itertools
 import shutil
 import subprocess
+import sys
 import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
@@ -91,9 +92,10 @@ def _write(built: Built, folder: Path) -> list[str]:
     )
 
 
-@pytest.fixture(scope="module", params=PROFILES)
-def built(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Built:
-    profile, d = _sample(request.param)
+def _built(name: str, folder: Path) -> Built:
+    """The sample of a profile built and written into ``folder`` (the fixture and the
+    fresh-process rerun share it)."""
+    profile, d = _sample(name)
     args = (
         d.tiles_2d,
         d.tiles_3d,
@@ -114,9 +116,14 @@ def built(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFacto
         pads=(),
         pad_hinge=np.zeros(0, dtype=np.int64),
     )
-    result = Built(profile, d, flat, assembled, tmp_path_factory.mktemp(request.param), [])
+    result = Built(profile, d, flat, assembled, folder, [])
     result.files = _write(result, result.folder)
     return result
+
+
+@pytest.fixture(scope="module", params=PROFILES)
+def built(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Built:
+    return _built(request.param, tmp_path_factory.mktemp(request.param))
 
 
 def test_files_written(built: Built) -> None:
@@ -125,11 +132,80 @@ def test_files_written(built: Built) -> None:
     assert all((built.folder / f).is_file() for f in built.files)
 
 
-def test_repeat_run_is_byte_identical(built: Built, tmp_path: Path) -> None:
-    again = _write(built, tmp_path)
-    assert again == built.files
+#: Loads this test module from argv[1], then builds and writes profile argv[2]'s sample into
+#: the folder argv[3].
+_BUILD_AGAIN = """
+import importlib.util, sys
+from pathlib import Path
+spec = importlib.util.spec_from_file_location("exports_tests", sys.argv[1])
+module = sys.modules[spec.name] = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(module)
+module._built(sys.argv[2], Path(sys.argv[3]))
+"""
+
+
+def test_repeat_run_in_a_fresh_process_is_byte_identical(built: Built, tmp_path: Path) -> None:
+    """Every file again, built and written by another process.
+
+    Writing again in this process would reuse the very same OCCT shapes (same memory
+    addresses, same hash seed), which hides any order that follows addresses: OCCT's STEP
+    writer laid out its colours that way.  A new process builds its shapes elsewhere.
+    """
+    again = tmp_path / "again"
+    command = [sys.executable, "-c", _BUILD_AGAIN, __file__, built.profile.name, str(again)]
+    subprocess.run(command, check=True, capture_output=True, timeout=600)
+    names = sorted(str(p.relative_to(again)) for p in again.rglob("*") if p.is_file())
+    assert names == built.files
     for name in built.files:
-        assert (built.folder / name).read_bytes() == (tmp_path / name).read_bytes(), name
+        assert (built.folder / name).read_bytes() == (again / name).read_bytes(), name
+
+
+#: Writes a STEP assembly of twelve coloured boxes to argv[1].
+_BOXES_STEP = """
+import sys
+from pathlib import Path
+import build123d as bd
+from drawstring.fabrication.exports import write_step
+parts = [
+    (f"part_{k}", bd.Solid.make_box(1.0 + k, 2.0, 3.0).moved(bd.Location((10.0 * k, 0, 0))),
+     "TPU" if k % 3 == 0 else "PLA")
+    for k in range(12)
+]
+write_step(Path(sys.argv[1]), parts, "boxes")
+"""
+
+
+def test_step_colours_do_not_depend_on_the_process(tmp_path: Path) -> None:
+    """OCCT orders the colour entities by shape address: two processes, same bytes."""
+    paths = [tmp_path / "a.step", tmp_path / "b.step"]
+    for path in paths:
+        command = [sys.executable, "-c", _BOXES_STEP, str(path)]
+        subprocess.run(command, check=True, capture_output=True, timeout=300)
+    first, second = (p.read_bytes() for p in paths)
+    assert first == second
+    # Colours and names survive the re-laid colour section.
+    parts = bd.import_step(paths[0]).children
+    assert sorted(p.label for p in parts) == sorted(f"part_{k}" for k in range(12))
+    colours = {p.label: tuple(round(c, 2) for c in tuple(p.color)[:3]) for p in parts}
+    assert colours["part_0"] == (0.16, 0.36, 0.69) and colours["part_1"] == (0.91, 0.64, 0.24)
+
+
+def test_step_colour_section_is_canonical_in_one_process(tmp_path: Path) -> None:
+    """Copies of the same solids sit at other addresses: the file must not change."""
+    import copy
+
+    from drawstring.fabrication.exports import write_step
+
+    boxes = [
+        (f"part_{k}", bd.Solid.make_box(1.0 + k, 2.0, 3.0), "TPU" if k % 2 else "PLA")
+        for k in range(8)
+    ]
+    texts = []
+    for round_ in range(3):
+        parts = [(n, copy.deepcopy(s), m) for n, s, m in boxes]
+        write_step(tmp_path / f"{round_}.step", parts, "boxes")
+        texts.append((tmp_path / f"{round_}.step").read_bytes())
+    assert texts[0] == texts[1] == texts[2]
 
 
 def _step_solids(path: Path) -> list:
