@@ -535,3 +535,52 @@ def save_lift(result: Design, path: Path) -> None:
     )
     fig.tight_layout()
     save(fig, path)
+
+
+def place_labels(
+    anchors: NDArray[np.float64],
+    sizes: NDArray[np.float64],
+    step: float | None = None,
+    rings: int = 6,
+    directions: int = 16,
+    blocked: NDArray[np.float64] | None = None,
+    bounds: Sequence[float] | None = None,
+) -> NDArray[np.float64]:
+    """Centres (n, 2) for n labels such that no two label boxes overlap.
+
+    Works in any unit shared by the arguments (display pixels in practice).  Label ``i`` of size
+    ``sizes[i]`` (width, height) is centred on ``anchors[i]`` when that box is free, else at the
+    nearest free spot on rings of radius ``k * step`` (``k = 1 .. rings``, default step: the
+    label height) around it; labels are placed in order, each avoiding those before it and the
+    ``blocked`` boxes ``(m, 4)`` ``(x0, y0, x1, y1)``, and inside ``bounds`` ``(x0, y0, x1, y1)``
+    when given.  A label with no free spot stays on its anchor.  Draw a leader line to every
+    label moved off its anchor.
+    """
+    anchors = np.asarray(anchors, dtype=np.float64).reshape(-1, 2)
+    sizes = np.broadcast_to(np.asarray(sizes, dtype=np.float64), anchors.shape)
+    boxes: list[NDArray[np.float64]] = [
+        np.asarray(b, dtype=np.float64) for b in (blocked if blocked is not None else [])
+    ]
+    angles = np.linspace(0.0, 2.0 * np.pi, directions, endpoint=False)
+    placed = anchors.copy()
+    for i, (anchor, size) in enumerate(zip(anchors, sizes, strict=True)):
+        radius = float(step) if step is not None else float(size[1])
+        offsets = [np.zeros(2)] + [
+            k * radius * np.array([np.cos(a), np.sin(a)])
+            for k in range(1, rings + 1)
+            for a in angles
+        ]
+        for offset in offsets:
+            centre = anchor + offset
+            box = np.concatenate([centre - 0.5 * size, centre + 0.5 * size])
+            if bounds is not None and (
+                box[0] < bounds[0] or box[1] < bounds[1] or box[2] > bounds[2] or box[3] > bounds[3]
+            ):
+                continue
+            if not any(
+                box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3] for b in boxes
+            ):
+                placed[i] = centre
+                boxes.append(box)
+                break
+    return placed

@@ -455,3 +455,153 @@ def test_offset_and_shelf_pack_known_answers() -> None:
     assert np.all(position + placed <= [59.0, 44.0])
     with pytest.raises(InputError, match="does not fit"):
         shelf_pack(np.array([[100.0, 100.0]]), (60.0, 45.0), 2.0, 1.0)
+
+
+# --------------------------------------------------------------------------------------------
+# assembly guide
+
+
+def test_assembly_sections_are_numbered_in_order(built: Built) -> None:
+    import re
+
+    guide = (built.folder / "fabrication" / "assembly.md").read_text()
+    numbers = [int(n) for n in re.findall(r"^## (\d+)\. ", guide, flags=re.M)]
+    assert numbers == list(range(1, len(numbers) + 1)) and len(numbers) >= 4
+    # The sample's route enters its first tile and leaves its last through the top face: one
+    # lift point, where both string ends stand up; the spare lift bore is named.
+    from drawstring.cad.design import normalize_route
+
+    steps = normalize_route(built.design.route_steps)
+    first, last = int(steps[0, 1]), int(steps[-1, 1])
+    lines = guide.splitlines()
+    assert any(
+        line.startswith(f"1. tile {first}:") and "in through the top face ▼ at lift point A" in line
+        for line in lines
+    )
+    assert any(
+        line.startswith(f"{len(steps)}. tile {last}:")
+        and "out through the top face ▲ at lift point A" in line
+        for line in lines
+    )
+    tile, side = built.design.lift_tiles[0]
+    assert f"tile {tile} side {side}" in guide
+    assert "string ends at lift point A" in guide
+
+
+def _ring_route() -> tuple[object, object, list[int]]:
+    """A closed route round a 4 x 3 grid with two lift gaps, as the pipeline builds it."""
+    from drawstring.geometry.linkage import build_linkage
+    from drawstring.geometry.route import Route
+
+    link = build_linkage(np.ones((4, 3), dtype=bool))
+    ring = [(0, 0), (1, 0), (2, 0), (3, 0), (3, 1), (3, 2), (2, 2), (1, 2), (0, 2), (0, 1)]
+    index = {tuple(c): t for t, c in enumerate(link.tile_cells.tolist())}
+    tiles = [index[c] for c in ring]
+    towards = {(0, -1): 0, (1, 0): 1, (0, 1): 2, (-1, 0): 3}
+
+    def side(a: int, b: int) -> int:
+        di, dj = (link.tile_cells[b] - link.tile_cells[a]).tolist()
+        return towards[(di, dj)]
+
+    count = len(tiles)
+    enter = [side(t, tiles[k - 1]) for k, t in enumerate(tiles)]
+    leave = [side(t, tiles[(k + 1) % count]) for k, t in enumerate(tiles)]
+    gaps: list[int] = []
+    for k, t in enumerate(tiles):  # a gap by both tiles, else one by this tile
+        near = [g for g in range(link.n_gaps) if t in link.gap_tiles(g).tolist()]
+        both = [g for g in near if tiles[k - 1] in link.gap_tiles(g).tolist()]
+        fresh = [g for g in both + near if g not in gaps]
+        gaps.append((fresh or both or near)[0])
+    route = Route(
+        gaps=np.array(gaps),
+        labels=np.zeros(count, dtype=np.int64),
+        tiles=np.array(tiles),
+        enter_side=np.array(enter),
+        leave_side=np.array(leave),
+        turn_angle_total_rad=0.0,
+        method="test",
+        lower_bound_rad=None,
+        crossings=0,
+        boundary_tiles_covered=True,
+        length_flat_mm=0.0,
+    )
+    once = [k for k in range(1, count) if gaps.count(gaps[k]) == 1]
+    return link, route, [gaps[once[1]], gaps[once[-2]]]
+
+
+def test_every_lift_exit_of_route_json_is_in_assembly_md(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import re
+
+    from drawstring.fabrication import exports
+    from drawstring.fabrication.cad_stage import lift_exits, route_steps
+    from drawstring.geometry.linkage import gap_centroids, rotating_squares_layout
+    from drawstring.geometry.route import route_to_json
+
+    link, route, lift_gaps = _ring_route()
+    top = rotating_squares_layout(link, 0.4, 12.0)
+    tiles = np.zeros((link.n_tiles, 8, 3))
+    tiles[:, :4, :2], tiles[:, 4:, :2], tiles[:, :4, 2] = top, top, 6.0
+    document = route_to_json(route, link, gap_centroids(link, top), lift_gaps=lift_gaps)
+    exits = [p for p in document["lift_points"] if p.get("exit") == "top"]
+    assert len(exits) == 2
+    steps, lifts = route_steps(route), lift_exits(route, np.array(lift_gaps))
+    figures = []
+    monkeypatch.setattr(exports, "_figure_png", lambda fig, path: figures.append((fig, path.name)))
+    pictures = exports.write_pictures(
+        tmp_path, tiles, tiles, link.hinges, ["top"] * link.n_hinges, steps, lifts
+    )
+    record = exports._Record(
+        estimates={"string_length_mm": 900.0, "string_rule": "rule", "flat_route_length_mm": 500.0}
+    )
+    record.sheets = {"hinges": {"sheets": 1}}
+    exports._write_assembly(
+        tmp_path / "assembly.md",
+        load_profile("laser-epdm"),
+        "ring",
+        record,
+        link.hinges,
+        ["top"] * link.n_hinges,
+        steps,
+        lifts,
+        [],
+        [],
+        pictures,
+    )
+    lines = (tmp_path / "assembly.md").read_text().splitlines()
+    numbers = [int(n) for n in re.findall(r"^## (\d+)\. ", "\n".join(lines), flags=re.M)]
+    assert numbers == list(range(1, len(numbers) + 1))
+    letters = set()
+    for lift in exits:
+        up = [line for line in lines if f". tile {lift['arrive_tile']}: " in line]
+        down = [line for line in lines if f". tile {lift['depart_tile']}: " in line]
+        assert len(up) == len(down) == 1
+        letter = re.search(r"out through the top face ▲ at lift point (\w)", up[0])
+        assert letter is not None, up[0]
+        assert f"in through the top face ▼ at lift point {letter[1]}" in down[0]
+        letters.add(letter[1])
+    assert letters == {"A", "B"}
+    # The threading picture draws what its legend lists: one ▲ and one ▼ per lift point.
+    (threading,) = [fig for fig, name in figures if name == "assembly-threading.png"]
+    ax = threading.axes[0]
+    drawn = [line.get_marker() for line in ax.lines if len(line.get_xdata())]
+    assert drawn.count("^") == drawn.count("v") == 2
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert "string comes up out of the top face" in legend
+    assert "string goes back down into the top face" in legend
+
+
+def test_threading_labels_do_not_overlap() -> None:
+    from drawstring.fabrication.pictures import place_labels
+
+    rng = np.random.default_rng(3)
+    anchors = np.vstack([rng.normal(0.0, 8.0, (40, 2)), [[0.0, 0.0]] * 5])  # a dense cluster
+    sizes = np.tile([14.0, 10.0], (len(anchors), 1))
+    placed = place_labels(anchors, sizes, blocked=np.array([[-5.0, -5.0, 5.0, 5.0]]))
+    boxes = np.hstack([placed - sizes / 2, placed + sizes / 2])
+    for a, b in itertools.combinations(range(len(boxes)), 2):
+        p, q = boxes[a], boxes[b]
+        assert not (p[0] < q[2] and q[0] < p[2] and p[1] < q[3] and q[1] < p[3]), (a, b)
+    for box in boxes:  # none over the blocked box either
+        assert not (box[0] < 5 and -5 < box[2] and box[1] < 5 and -5 < box[3])
