@@ -344,7 +344,14 @@ def new_dxf() -> ezdxf.document.Drawing:
 
 
 def save_dxf(doc: ezdxf.document.Drawing, path: Path) -> None:
-    """Write ``doc`` with fixed metadata (byte-identical on repeat runs)."""
+    """Write ``doc`` with fixed metadata (byte-identical on repeat runs, in any process).
+
+    ezdxf adds a CLASS for every entity type in use by iterating a set of type names, whose
+    order follows Python's per-process string hash seed; the classes are written sorted by
+    name instead (their order carries no meaning).
+    """
+    doc.classes.add_required_classes(doc.dxfversion)
+    doc.classes.classes = dict(sorted(doc.classes.classes.items()))
     stream = io.StringIO()
     with _fixed_dxf_metadata():
         doc.write(stream)
