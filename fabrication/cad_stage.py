@@ -19,6 +19,7 @@ from drawstring.geometry.route import Route
 if TYPE_CHECKING:
     from drawstring.cad.design import CadResult
 
+    from .exports import Measures
     from .pipeline import Design
 
 
@@ -107,6 +108,31 @@ def print_tiles(result: Design) -> NDArray[np.float64]:
     return fabricated_tiles(result.hinge_layout, result.tiles_assembled)
 
 
+def route_lengths(result: Design) -> tuple[float, float]:
+    """(flat, assembled) string route length of a design, mm: along the channels of the tiles
+    as printed and as assembled (:func:`~.exports_parts.route_lengths`, the value every output
+    reports; it needs no solids)."""
+    from .exports_parts import route_lengths as measured
+
+    return measured(print_tiles(result), result.tiles_assembled, route_steps(result.route))
+
+
+def fabrication_measures(result: Design, cad_flat: CadResult) -> Measures:
+    """Route, string and mass measured on a design's solids (:func:`~.exports.
+    measure_fabrication` with the design's print tiles, route and lift bores)."""
+    from .exports import measure_fabrication
+
+    inputs = cad_inputs(result)
+    return measure_fabrication(
+        result.profile,
+        print_tiles(result),
+        result.tiles_assembled,
+        inputs.route_steps,
+        inputs.lift_tiles,
+        cad_flat,
+    )
+
+
 def build_cad(result: Design) -> tuple[CadResult, CadResult]:
     """Solids of every tile and hinge part, in the flat (print) and the assembled pose."""
     from drawstring.cad.design import build_design_solids
@@ -151,6 +177,8 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
     volumes between tiles and between tiles and hinge parts in the flat print pose (manifold3d);
     channel continuity (distance between each channel exit and the next tile's entry in the
     assembled pose); magnet pockets paired (distance apart and facing) in the assembled pose.
+    Mass, route and string length as the fabrication files state them
+    (:func:`fabrication_measures`).
     """
     from drawstring.cad.checks import (
         channel_continuity,
@@ -189,6 +217,7 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
         "magnet_pocket_distance_max_mm": round(_max(pockets.distances), 6),
         "magnet_pockets_missing": int(np.count_nonzero(~np.isfinite(pockets.distances))),
         "magnet_pockets_facing": bool(np.all(facing < -0.999)) if len(facing) else True,
+        **fabrication_measures(result, cad_flat).to_json(),
         "notes": list(cad_flat.notes),
     }
 

@@ -49,9 +49,9 @@ from drawstring.fabrication.exports_dxf import (
     nest_parts,
     write_sheets_dxf,
 )
-from drawstring.fabrication.exports_panels import Panel, cable_runs, tile_panels
+from drawstring.fabrication.exports_panels import CableRun, Panel, cable_runs, tile_panels
 from drawstring.fabrication.exports_parts import (
-    route_length,
+    route_lengths,
     route_openings,
     strip_part,
     write_placement,
@@ -86,6 +86,115 @@ def _colour(material: str) -> bd.Color:
         if key.lower() in material.lower():
             return bd.Color(*rgb)
     return bd.Color(0.7, 0.7, 0.7)
+
+
+@dataclass(frozen=True)
+class Measures:
+    """Quantities of a design measured on its fabricated geometry, rounded once: every output
+    that states them (bom.csv, manifest.json, assembly.md, route.json, design.json's
+    ``metrics.cad``) takes them from :func:`measure_fabrication`.
+
+    Attributes
+    ----------
+    route_flat_mm, route_assembled_mm : string route along the channels of the printed tiles
+        and straight across the gaps (:func:`~.exports_parts.route_lengths`), 0.1 mm.
+    string_mm : string to cut, ``route_flat_mm x (1 + STRING_MARGIN) + 2 x tail_mm``, 0.1 mm.
+    tail_mm : each of the two ends to hold while pulling, 0.1 mm.
+    tile_volume_mm3, hinge_volume_mm3 : volumes of the tile and hinge-part solids, 0.1 mm^3.
+    tile_mass_g : printed tiles (solid volume x density x infill) or, for plywood, the panels
+        (area x panel thickness x density), 0.1 g.
+    hinge_mass_g : hinge parts (volume x hinge density), 0.1 g.
+    mass_g : ``tile_mass_g + hinge_mass_g`` (magnets and string left out), 0.1 g.
+    """
+
+    route_flat_mm: float
+    route_assembled_mm: float
+    string_mm: float
+    tail_mm: float
+    tile_volume_mm3: float
+    hinge_volume_mm3: float
+    tile_mass_g: float
+    hinge_mass_g: float
+    mass_g: float
+
+    def to_json(self) -> dict[str, Any]:
+        """Keys of design.json's ``metrics.cad``."""
+        return {
+            "mass_g": self.mass_g,
+            "tile_mass_g": self.tile_mass_g,
+            "hinge_mass_g": self.hinge_mass_g,
+            "route_length_mm": {"flat": self.route_flat_mm, "assembled": self.route_assembled_mm},
+            "string_length_mm": self.string_mm,
+        }
+
+
+def plywood_panels(
+    profile: Profile,
+    tiles_flat: NDArray[np.float64],
+    steps: NDArray[np.int64],
+    lifts: NDArray[np.int64],
+) -> tuple[list[Panel], list[CableRun]]:
+    """The six panels of every tile, with the cable holes of the route drilled, and the runs."""
+    drill: dict[int, list[tuple[int, NDArray[np.float64]]]] = {}
+    runs = cable_runs(tiles_flat, steps, lifts)
+    for run in runs:
+        drill.setdefault(run.tile, []).extend(run.drill_points)
+    panels: list[Panel] = []
+    for tile in range(len(tiles_flat)):
+        panels += tile_panels(tile, tiles_flat[tile], profile, drill.get(tile, []))
+    return panels, runs
+
+
+def measure_fabrication(
+    profile: Profile,
+    tiles_flat: NDArray[np.float64],
+    tiles_assembled: NDArray[np.float64],
+    route_steps: NDArray[np.int64] | Sequence[Sequence[int]],
+    lift_tiles: NDArray[np.int64] | Sequence[Sequence[int]],
+    cad_flat: CadResult,
+    panels: Sequence[Panel] | None = None,
+) -> Measures:
+    """Route, string and mass of a design, measured on what is fabricated.
+
+    Parameters
+    ----------
+    profile : the fabrication profile (process, densities, infill, panel thickness).
+    tiles_flat, tiles_assembled : (T, 8, 3) float, mm: the tiles as printed (the pose of
+        ``flat.step``) and assembled.
+    route_steps, lift_tiles : the route and the extra lift bores (as :func:`write_fabrication`).
+    cad_flat : the solids in the print pose (tile and hinge-part volumes).
+    panels : plywood panels when the caller has them (made here otherwise).
+    """
+    steps = normalize_route(route_steps)
+    flat_route, assembled_route = route_lengths(
+        np.asarray(tiles_flat, dtype=np.float64),
+        np.asarray(tiles_assembled, dtype=np.float64),
+        steps,
+    )
+    tail = max(STRING_TAIL_MIN_MM, 0.1 * flat_route)
+    tile_volume = float(sum(s.volume for s in cad_flat.tiles))
+    pad_volume = float(sum(s.volume for s in cad_flat.pads))
+    if profile.process == "plywood-cnc":
+        if panels is None:
+            lifts = np.asarray(lift_tiles, dtype=np.int64).reshape(-1, 2)
+            panels = plywood_panels(profile, np.asarray(tiles_flat, float), steps, lifts)[0]
+        area = sum(p.area for p in panels)
+        tile_mass = area * profile.panel_thickness_mm * 1e-9 * profile.density_kg_m3 * 1e3
+    else:
+        tile_mass = _tile_mass_g(tile_volume, profile)
+    tile_g = round(tile_mass, 1)
+    hinge_g = round(pad_volume * 1e-9 * profile.hinge_density_kg_m3 * 1e3, 1)
+    return Measures(
+        route_flat_mm=flat_route,
+        route_assembled_mm=assembled_route,
+        string_mm=round(flat_route * (1.0 + STRING_MARGIN) + 2.0 * tail, 1),
+        tail_mm=round(tail, 1),
+        tile_volume_mm3=round(tile_volume, 1),
+        hinge_volume_mm3=round(pad_volume, 1),
+        tile_mass_g=tile_g,
+        hinge_mass_g=hinge_g,
+        mass_g=round(tile_g + hinge_g, 1),
+    )
 
 
 @dataclass
@@ -1001,13 +1110,18 @@ def write_fabrication(
     step_processes = _start_step_writers(step_jobs, workers)
     written += ["flat.step", "assembled.step"]
 
-    tile_volume = float(sum(s.volume for s in cad_flat.tiles))
-    pad_volume = float(sum(s.volume for s in cad_flat.pads))
-    record.estimates["_tile_volume"] = tile_volume
-    record.estimates["_pad_volume"] = pad_volume
-    n_tiles, n_pads = len(cad_flat.tiles), len(cad_flat.pads)
-    hinge_mass = pad_volume * 1e-9 * profile.hinge_density_kg_m3 * 1e3
     panels: list[Panel] = []
+    runs: list[CableRun] = []
+    if profile.process == "plywood-cnc":
+        panels, runs = plywood_panels(profile, tiles_flat, steps, lifts)
+    measures = measure_fabrication(
+        profile, tiles_flat, tiles_assembled, steps, lifts, cad_flat, panels
+    )
+    record.estimates["_tile_volume"] = measures.tile_volume_mm3
+    record.estimates["_pad_volume"] = measures.hinge_volume_mm3
+    n_tiles, n_pads = len(cad_flat.tiles), len(cad_flat.pads)
+    hinge_mass = measures.hinge_mass_g
+    tile_mass = measures.tile_mass_g
 
     if profile.process == "fdm-dual":
         written += _fdm_exports(
@@ -1022,7 +1136,6 @@ def write_fabrication(
             True,
             "print.3mf",
         )
-        tile_mass = _tile_mass_g(tile_volume, profile)
         record.bom.append(
             _row(
                 "tile",
@@ -1082,7 +1195,6 @@ def write_fabrication(
                 False,
                 "tiles.3mf",
             )
-            tile_mass = _tile_mass_g(tile_volume, profile)
             record.bom.append(
                 _row(
                     "tile",
@@ -1097,12 +1209,6 @@ def write_fabrication(
                 _row("glue", "contact glue for rubber to PLA", 1, "", 0.0, "one small tube")
             )
         else:
-            drill: dict[int, list[tuple[int, NDArray[np.float64]]]] = {}
-            runs = cable_runs(tiles_flat, steps, lifts)
-            for run in runs:
-                drill.setdefault(run.tile, []).extend(run.drill_points)
-            for tile in range(n_tiles):
-                panels += tile_panels(tile, tiles_flat[tile], profile, drill.get(tile, []))
             panel_spacing = max(5.0, 2.0 * profile.tool_diameter_mm)
             panel_nesting = nest_parts(
                 [p.part for p in panels],
@@ -1117,17 +1223,13 @@ def write_fabrication(
             }
             _write_cutlist(out / "cutlist.csv", panels, sheet_of)
             written += ["panels.dxf", "cutlist.csv"]
-            panel_area = sum(p.area for p in panels)
-            panel_mass = (
-                panel_area * profile.panel_thickness_mm * 1e-9 * profile.density_kg_m3 * 1e3
-            )
             record.bom.append(
                 _row(
                     "panel",
                     f"plywood panel {profile.panel_thickness_mm:g} mm ({profile.joint} joints)",
                     len(panels),
                     profile.tile_material,
-                    panel_mass,
+                    tile_mass,
                     f"panels.dxf on {len(panel_nesting.sheets)} sheets of "
                     f"{profile.bed_x_mm:g} x {profile.bed_y_mm:g} mm; cutlist.csv",
                 )
@@ -1162,7 +1264,6 @@ def write_fabrication(
             pc, pe = _cut_length(panel_nesting)
             cut_total += pc
             engrave_total += pe
-            tile_mass = panel_mass
         if profile.cut_speed_mm_s > 0:
             seconds = (cut_total + engrave_total) / profile.cut_speed_mm_s
             record.estimates["cut_time_h"] = round(seconds / 3600.0, 2)
@@ -1171,9 +1272,7 @@ def write_fabrication(
                 f"{profile.cut_speed_mm_s:g} mm/s, one pass"
             )
 
-    flat_route = route_length(tiles_flat, steps)
-    tail = max(STRING_TAIL_MIN_MM, 0.1 * flat_route)
-    string_mm = flat_route * (1.0 + STRING_MARGIN) + 2.0 * tail
+    flat_route, string_mm, tail = measures.route_flat_mm, measures.string_mm, measures.tail_mm
     record.bom.append(
         _row(
             "string",
@@ -1212,12 +1311,13 @@ def write_fabrication(
     del record.estimates["_tile_volume"], record.estimates["_pad_volume"]
     record.estimates.update(
         {
-            "tile_volume_mm3": round(tile_volume, 1),
-            "hinge_volume_mm3": round(pad_volume, 1),
-            "tile_mass_g": round(tile_mass, 1),
-            "hinge_mass_g": round(hinge_mass, 1),
-            "string_length_mm": round(string_mm, 1),
-            "flat_route_length_mm": round(flat_route, 1),
+            "tile_volume_mm3": measures.tile_volume_mm3,
+            "hinge_volume_mm3": measures.hinge_volume_mm3,
+            "tile_mass_g": tile_mass,
+            "hinge_mass_g": hinge_mass,
+            "mass_g": measures.mass_g,
+            "string_length_mm": string_mm,
+            "flat_route_length_mm": flat_route,
             "string_rule": f"flat route x {1 + STRING_MARGIN:g} + 2 x "
             f"max({STRING_TAIL_MIN_MM:g} mm, 10 % of the route)",
             "material_cost": round(cost, 2),
@@ -1330,6 +1430,14 @@ def _write_bom(path: Path, record: _Record, profile: Profile) -> None:
             writer.writerow(
                 {"item": key.replace("_h", ""), "description": f"{estimates[key]} h", "note": basis}
             )
+    writer.writerow(
+        {
+            "item": "mass",
+            "description": f"{estimates['mass_g']} g",
+            "note": "tiles + hinge parts as made (design.json metrics.cad.mass_g); no magnets "
+            "or string",
+        }
+    )
     writer.writerow(
         {
             "item": "material cost",

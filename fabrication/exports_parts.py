@@ -210,6 +210,22 @@ def route_length(tiles: NDArray[np.float64], steps: NDArray[np.int64]) -> float:
     return float(inside.sum() + between.sum())
 
 
+def route_lengths(
+    tiles_flat: NDArray[np.float64], tiles_assembled: NDArray[np.float64], steps: NDArray[np.int64]
+) -> tuple[float, float]:
+    """(flat, assembled) length of the string route, mm rounded to 0.1 mm: the length every
+    output reports (route.json, design.json, bom.csv, manifest.json, assembly.md).
+
+    Measured along the string's centre line on the fabricated geometry (:func:`route_length`:
+    through the channels and lift bores the solids are cut with, straight across the gaps),
+    with ``tiles_flat`` the tiles as printed (the pose of ``flat.step``).
+    """
+    return (
+        round(route_length(tiles_flat, steps), 1),
+        round(route_length(tiles_assembled, steps), 1),
+    )
+
+
 def top_face_centres(tiles: NDArray[np.float64]) -> NDArray[np.float64]:
     """(T, 3) float, mm: centroids of the top faces."""
     return np.array([face_planes(t)[0][4] for t in tiles]).reshape(-1, 3)

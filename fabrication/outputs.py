@@ -86,7 +86,14 @@ def tiles_obj(tiles: NDArray[np.float64], header: str) -> str:
 
 
 def write_route(result: Design, folder: Path) -> list[str]:
-    """``route.json``: the ordered string route with sides, positions and lift points."""
+    """``route.json``: the ordered string route with sides, positions and lift points.
+
+    ``length_flat_mm`` and ``length_assembled_mm`` are the string's length along the channels
+    (:func:`~.cad_stage.route_lengths`, as bom.csv and manifest.json state it), not the
+    polyline through the gap centroids the route was planned on.
+    """
+    from .cad_stage import route_lengths
+
     linkage = result.tiling.linkage
     document = route_to_json(
         result.route,
@@ -95,6 +102,7 @@ def write_route(result: Design, folder: Path) -> list[str]:
         gap_centroids(linkage, result.tiles_assembled[:, :4]),
         result.lift.lift_gaps,
     )
+    document["length_flat_mm"], document["length_assembled_mm"] = route_lengths(result)
     text = json.dumps(_rounded(document), indent=1, allow_nan=False)
     (folder / "route.json").write_text(text + "\n", encoding="utf-8")
     return ["route.json"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import itertools
+import json
 import os
 import shutil
 import subprocess
@@ -19,7 +20,7 @@ import pytest
 bd = pytest.importorskip("build123d")
 ezdxf = pytest.importorskip("ezdxf")
 
-from drawstring.cad.design import CadResult, build_design_solids  # noqa: E402
+from drawstring.cad.design import CadResult, build_design_solids, normalize_route  # noqa: E402
 from drawstring.cad.samples import SampleDesign, cylinder_design  # noqa: E402
 from drawstring.cad.tiles import move_solid  # noqa: E402
 from drawstring.fabrication.exports import write_fabrication  # noqa: E402
@@ -427,6 +428,65 @@ def test_plywood_cutlist_known_dihedral(built: Built) -> None:
     assert sum(int(row["holes"]) for row in rows) > 0
 
 
+def test_outputs_state_the_measured_mass_and_route(built: Built) -> None:
+    """bom.csv, manifest.json and assembly.md give the same mass, route and string length,
+    the ones measured on the solids and the channels."""
+    from drawstring.cad.checks import _opening
+    from drawstring.cad.design import route_links
+    from drawstring.cad.features import channel_radius
+    from drawstring.fabrication.exports import measure_fabrication, plywood_panels
+    from drawstring.fabrication.exports_parts import route_openings
+
+    d, profile, cad = built.design, built.profile, built.flat
+    measures = measure_fabrication(
+        profile, d.tiles_2d, d.tiles_3d, d.route_steps, d.lift_tiles, cad
+    )
+    # The masses: the solids' volumes (plywood: the panels) times the densities.
+    if profile.process == "plywood-cnc":
+        steps = normalize_route(d.route_steps)
+        panels, _ = plywood_panels(profile, d.tiles_2d, steps, d.lift_tiles)
+        area = sum(p.area for p in panels)
+        tile_g = area * profile.panel_thickness_mm * profile.density_kg_m3 * 1e-6
+    else:
+        volume = sum(s.volume for s in cad.tiles)
+        tile_g = volume * profile.density_kg_m3 * profile.infill_fraction * 1e-6
+    hinge_g = sum(s.volume for s in cad.pads) * profile.hinge_density_kg_m3 * 1e-6
+    assert measures.tile_mass_g == pytest.approx(tile_g, abs=0.051)
+    assert measures.hinge_mass_g == pytest.approx(hinge_g, abs=0.051)
+    assert measures.mass_g == round(measures.tile_mass_g + measures.hinge_mass_g, 1)
+    # The route: inside the channels, then straight from each opening to the next, and those
+    # straight runs are where the holes are on the solids.
+    steps = normalize_route(d.route_steps)
+    entry, exit_, inside = route_openings(d.tiles_2d, steps)
+    between = np.linalg.norm(np.roll(entry, -1, axis=0) - exit_, axis=1)
+    assert measures.route_flat_mm == round(float(inside.sum() + between.sum()), 1)
+    radius = channel_radius(profile)
+    for tile_a, side_a, tile_b, side_b in route_links(steps):
+        k = next(i for i in range(len(steps)) if steps[i, 1] == tile_a and steps[i, 3] == side_a)
+        hole_a = _opening(cad.tiles[tile_a], d.tiles_2d[tile_a], side_a, radius)
+        hole_b = _opening(cad.tiles[tile_b], d.tiles_2d[tile_b], side_b, radius)
+        assert hole_a is not None and hole_b is not None
+        assert float(np.linalg.norm(hole_b - hole_a)) == pytest.approx(between[k], abs=0.05)
+
+    rows = {r["item"]: r for r in csv.DictReader((built.folder / "fabrication/bom.csv").open())}
+    tile_item = "panel" if profile.process == "plywood-cnc" else "tile"
+    hinge_item = "hinge pad" if profile.process == "fdm-dual" else "hinge strip"
+    assert float(rows[tile_item]["mass_g"]) == measures.tile_mass_g
+    assert float(rows[hinge_item]["mass_g"]) == measures.hinge_mass_g
+    assert rows["mass"]["description"] == f"{measures.mass_g} g"
+    assert float(rows["string"]["length_mm"]) == measures.string_mm
+    assert f"flat route {measures.route_flat_mm / 1000:.3f} m" in rows["string"]["note"]
+    manifest = json.loads((built.folder / "fabrication/manifest.json").read_text())
+    estimates = manifest["estimates"]
+    assert estimates["mass_g"] == measures.mass_g
+    assert estimates["tile_mass_g"] == measures.tile_mass_g
+    assert estimates["hinge_mass_g"] == measures.hinge_mass_g
+    assert estimates["flat_route_length_mm"] == measures.route_flat_mm
+    assert estimates["string_length_mm"] == measures.string_mm
+    guide = (built.folder / "fabrication/assembly.md").read_text()
+    assert f"**{measures.string_mm / 1000:.2f} m**" in guide
+
+
 def test_bom_string_and_magnets(built: Built) -> None:
     rows = list(csv.DictReader((built.folder / "fabrication" / "bom.csv").open()))
     items = {row["item"]: row for row in rows}
@@ -465,6 +525,32 @@ def test_offset_and_shelf_pack_known_answers() -> None:
     assert np.all(position + placed <= [59.0, 44.0])
     with pytest.raises(InputError, match="does not fit"):
         shelf_pack(np.array([[100.0, 100.0]]), (60.0, 45.0), 2.0, 1.0)
+
+
+def test_a_design_states_one_mass_and_route_length_everywhere(tmp_path: Path) -> None:
+    """design.json (metrics.cad), route.json, bom.csv, manifest.json and assembly.md of one
+    design agree on the measured route, string and mass."""
+    from drawstring.fabrication.pipeline import DesignOptions, design, write_design
+
+    options = DesignOptions(grid=(5, 5), resolution=1500, simulate=False)
+    out = write_design(design("saddle", options), tmp_path / "saddle")
+    cad = json.loads((out / "design.json").read_text())["metrics"]["cad"]
+    route = json.loads((out / "route.json").read_text())
+    estimates = json.loads((out / "fabrication/manifest.json").read_text())["estimates"]
+    rows = {r["item"]: r for r in csv.DictReader((out / "fabrication/bom.csv").open())}
+    guide = (out / "fabrication/assembly.md").read_text()
+
+    flat, assembled = cad["route_length_mm"]["flat"], cad["route_length_mm"]["assembled"]
+    assert route["length_flat_mm"] == flat == estimates["flat_route_length_mm"]
+    assert route["length_assembled_mm"] == assembled < flat
+    assert f"flat route {flat / 1000:.3f} m" in rows["string"]["note"]
+    string = cad["string_length_mm"]
+    assert string == estimates["string_length_mm"] == float(rows["string"]["length_mm"])
+    assert f"**{string / 1000:.2f} m**" in guide
+    assert cad["mass_g"] == estimates["mass_g"] == float(rows["mass"]["description"][:-2])
+    assert cad["tile_mass_g"] == estimates["tile_mass_g"] == float(rows["tile"]["mass_g"])
+    assert cad["hinge_mass_g"] == estimates["hinge_mass_g"] == float(rows["hinge pad"]["mass_g"])
+    assert cad["mass_g"] == round(cad["tile_mass_g"] + cad["hinge_mass_g"], 1)
 
 
 # --------------------------------------------------------------------------------------------
