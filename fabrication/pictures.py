@@ -421,8 +421,12 @@ def save_flat(result: Design, path: Path) -> None:
         f"flat layout: {linkage.n_tiles} tiles in {parts} part{'s' if parts != 1 else ''}, "
         f"gaps {m['flat_gap_angle_min_deg']:.1f}..{m['flat_gap_angle_max_deg']:.1f} deg, "
         f"overlap {m['flat_overlap_area_mm2']:.2g} mm²\n"
-        "tiles coloured by part; only gaps within one part are shaded"
-        + ("; dashed: the string crossing between parts" if parts > 1 else ""),
+        + (
+            "tiles coloured by part; only gaps within one part are shaded; dashed: the string "
+            "crossing between parts"
+            if parts > 1
+            else "gaps shaded by opening angle"
+        ),
         fontsize=9,
     )
     fig.tight_layout()
