@@ -845,7 +845,37 @@ def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
         probe = probe.parent
     if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
         raise InputError(f"cannot write into {probe}; choose a writable --out folder")
+    if out.is_dir():
+        _probe_rename(out)
     return out
+
+
+def _probe_rename(out: Path) -> None:
+    """Refuse a folder that cannot be renamed (immutable, a mount point, a sticky parent owned
+    by someone else): :func:`write_design` renames it aside to replace it, at the very end.
+    The probe renames it to a unique sibling name and straight back."""
+    aside = out.parent / f".{out.name}.{os.getpid()}.{time.monotonic_ns()}.probe"
+    try:
+        os.rename(out, aside)
+    except OSError as exc:
+        raise _placement_error(out, exc) from None
+    try:
+        os.rename(aside, out)
+    except OSError as exc:
+        raise InputError(
+            f"cannot rename {aside} back to {out} ({exc.strerror or exc}); rename it by hand"
+        ) from None
+
+
+def _placement_error(out: Path, exc: OSError) -> InputError:
+    """The one-line refusal for an OSError while writing or placing the output folder."""
+    reason = exc.strerror or type(exc).__name__
+    if exc.filename is not None and Path(exc.filename) != out:
+        reason = f"{reason}: {exc.filename}"
+    return InputError(
+        f"cannot write the design to {out} ({reason}); choose another --out, or make {out} "
+        "and its parent folder writable"
+    )
 
 
 Writer = Callable[[Design, Path], list[str]]
@@ -866,8 +896,11 @@ def write_design(
     from .report import write_report
 
     out = check_out_dir(out_dir)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    except OSError as exc:
+        raise _placement_error(out, exc) from None
     try:
         files: list[str] = []
         for writer in writers or DEFAULT_WRITERS:
@@ -879,17 +912,46 @@ def write_design(
         )
         write_report(staging)  # last: it reads every other file of the folder
         os.chmod(staging, 0o755)
-        if out.exists():
-            retired = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
-            os.rename(out, retired / out.name)
-            os.rename(staging, out)
-            shutil.rmtree(retired, ignore_errors=True)
-        else:
-            os.rename(staging, out)
+        _place(staging, out)
+    except OSError as exc:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise _placement_error(out, exc) from None
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
     return out
+
+
+def _place(staging: Path, out: Path) -> None:
+    """Rename the finished ``staging`` folder to ``out``, replacing an earlier folder there.
+
+    The earlier folder is first renamed into a temporary sibling, removed only once the new
+    one is in place; when a rename fails it is renamed back and the temporary sibling removed,
+    so an :class:`OSError` leaves ``out`` as it was (the caller removes ``staging``).
+    """
+    if not out.exists():
+        os.rename(staging, out)
+        return
+    retired = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
+    aside = retired / out.name
+    try:
+        os.rename(out, aside)
+    except OSError:
+        shutil.rmtree(retired, ignore_errors=True)
+        raise
+    try:
+        os.rename(staging, out)
+    except OSError as exc:
+        try:
+            os.rename(aside, out)
+        except OSError:
+            raise InputError(
+                f"cannot write the design to {out} ({exc.strerror or exc}), nor put the earlier "
+                f"folder back: it is now {aside}; rename it by hand"
+            ) from None
+        shutil.rmtree(retired, ignore_errors=True)
+        raise
+    shutil.rmtree(retired, ignore_errors=True)
 
 
 def with_options(options: DesignOptions, **changes: Any) -> DesignOptions:

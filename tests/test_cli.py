@@ -305,3 +305,61 @@ def test_dual_hinges_meet_on_their_own_faces(tmp_path: Path) -> None:
     step = m_on["thickness_max_mm"] - m_on["thickness_min_mm"]
     assert m_on["hinge_gap_max_mm"] <= np.hypot(m_on["hinge_gap_in_plane_max_mm"], step) + 1e-9
     assert m_on["flat_interpenetration_mm3"] <= 1e-6 and m_on["flat_overlap_area_mm2"] <= 1e-6
+
+
+def test_an_output_folder_that_cannot_be_renamed_is_refused_up_front(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # An existing empty folder that cannot be renamed (chattr +i, a mount point): refused
+    # before the design runs, in one line; the folder is untouched and nothing is left beside.
+    import os
+
+    out = tmp_path / "ro"
+    out.mkdir()
+    real_rename = os.rename
+
+    def refuse(src: object, dst: object) -> None:
+        if Path(str(src)) == out:
+            raise PermissionError(1, "Operation not permitted", str(src))
+        real_rename(src, dst)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(os, "rename", refuse)
+    assert main(["design", "saddle", *SMALL, "--no-simulate", "--out", str(out)]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "Operation not permitted" in lines[0] and "--out" in lines[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ro"] and not any(out.iterdir())
+
+
+@pytest.mark.parametrize("existing", [True, False])
+def test_a_failed_rename_into_place_is_one_line_and_leaves_nothing_behind(
+    existing: bool,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # The finished design cannot be renamed into place (after the up-front checks passed): one
+    # line, exit 2, the staging and retired folders removed, an earlier design put back.
+    import os
+
+    out = tmp_path / "d"
+    args = ["design", "saddle", *SMALL, "--no-simulate", "--out", str(out)]
+    if existing:
+        assert main(args) == 0
+        before = (out / "design.json").read_bytes()
+    real_rename = os.rename
+
+    def refuse_staging(src: object, dst: object) -> None:
+        if str(src).endswith(".tmp"):
+            raise OSError(28, "No space left on device", str(src))
+        real_rename(src, dst)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(os, "rename", refuse_staging)
+    capsys.readouterr()
+    assert main(args) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "No space left on device" in lines[0] and "--out" in lines[0]
+    if existing:
+        assert (out / "design.json").read_bytes() == before
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
+    else:
+        assert sorted(p.name for p in tmp_path.iterdir()) == []
