@@ -194,15 +194,25 @@ def _run_targets() -> int:
 
 
 def _run_profiles(args: argparse.Namespace) -> int:
-    from .profiles import PROCESS_GUIDE, SHIPPED_PROFILES, load_profile, rough_estimate
+    from .profiles import (
+        MAX_TILES,
+        MIN_TILES,
+        PROCESS_GUIDE,
+        SHIPPED_PROFILES,
+        load_profile,
+        rough_estimate,
+    )
 
     if args.show:
         print(load_profile(args.show).to_toml(), end="")
         return 0
     if args.size is not None and not (args.size > 0 and args.size < float("inf")):
         raise InputError(f"--size must be a positive number of millimetres (got {args.size})")
-    if args.tiles is not None and args.tiles < 1:
-        raise InputError(f"--tiles must be at least 1 (got {args.tiles})")
+    if args.tiles is not None and not MIN_TILES <= args.tiles <= MAX_TILES:
+        raise InputError(
+            f"--tiles must be between {MIN_TILES} and {MAX_TILES} (got {args.tiles}), as for "
+            "drawstring design"
+        )
     for name in SHIPPED_PROFILES:
         profile = load_profile(name)
         machine, outputs = PROCESS_GUIDE[profile.process]

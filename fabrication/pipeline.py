@@ -15,6 +15,7 @@ import json
 import logging
 import math
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -34,7 +35,7 @@ from drawstring.geometry import verify
 from drawstring.geometry.assembled import (
     AssembledResult,
 )
-from drawstring.geometry.errors import InputError
+from drawstring.geometry.errors import DesignError, InputError
 from drawstring.geometry.flat import FlatResult
 from drawstring.geometry.flatten import Flattening, flatten
 from drawstring.geometry.hinges import (
@@ -53,7 +54,7 @@ from drawstring.geometry.simulate import (
     split_contact_pairs,
 )
 from drawstring.geometry.target import Target, load_target
-from drawstring.geometry.tiling import Tiling
+from drawstring.geometry.tiling import Tiling, grid_shape_for
 from drawstring.geometry.tolerances import (
     CAD_PAD_INTERFERENCE_REL,
     FLAT_EDGE_ERROR_TOL_MM,
@@ -70,7 +71,7 @@ from .layout_stage import (
     shape_and_layout,
     split_bound,
 )
-from .profiles import Profile, load_profile
+from .profiles import MAX_TILES, MIN_GRID_SIDE, MIN_TILES, Profile, load_profile
 
 #: Mean distance of K3D to the target, as a fraction of the mean tile side, above which the
 #: design is flagged (issue 3 quality target).
@@ -112,13 +113,20 @@ class DesignOptions:
 
     def validate(self) -> None:
         """Refuse values out of range with a one-line :class:`InputError`."""
-        if self.tiles is not None and not 1 <= self.tiles <= 20_000:
-            raise InputError(f"--tiles must be between 1 and 20000 (got {self.tiles})")
-        if self.grid is not None and (
-            len(self.grid) != 2 or min(self.grid) < 1 or self.grid[0] * self.grid[1] > 20_000
-        ):
+        if self.tiles is not None and not MIN_TILES <= self.tiles <= MAX_TILES:
             raise InputError(
-                f"--grid I J needs two whole numbers >= 1 with I*J <= 20000 (got {self.grid})"
+                f"--tiles must be between {MIN_TILES} and {MAX_TILES} (got {self.tiles}); the "
+                f"string route needs a grid of at least {MIN_GRID_SIDE} x {MIN_GRID_SIDE} tiles"
+            )
+        if self.grid is not None and (
+            len(self.grid) != 2
+            or min(self.grid) < MIN_GRID_SIDE
+            or self.grid[0] * self.grid[1] > MAX_TILES
+        ):
+            shown = " ".join(str(n) for n in self.grid)
+            raise InputError(
+                f"--grid I J needs two whole numbers >= {MIN_GRID_SIDE} with I*J <= {MAX_TILES} "
+                f"(got {shown}); the string route needs at least {MIN_GRID_SIDE} tiles each way"
             )
         if self.size_mm is not None and not (math.isfinite(self.size_mm) and self.size_mm > 0):
             raise InputError(
@@ -352,6 +360,58 @@ def resolve_options(options: DesignOptions, profile: Profile) -> ResolvedOptions
     )
 
 
+def check_grid(options: ResolvedOptions, flat_map: Flattening, *, from_profile: bool) -> None:
+    """Refuse a tile count that gives this target's flattening a grid too narrow for a string
+    route (fewer than :data:`MIN_GRID_SIDE` cells one way), before the costly stages."""
+    if options.tiles is None:
+        return
+    width, height = np.ptp(flat_map.uv, axis=0).tolist()
+    n_i, n_j = grid_shape_for(width, height, options.tiles)
+    if min(n_i, n_j) >= MIN_GRID_SIDE:
+        return
+    need = options.tiles
+    while need < MAX_TILES and min(grid_shape_for(width, height, need)) < MIN_GRID_SIDE:
+        need += 1
+    asked = f"the profile's {options.tiles} tiles" if from_profile else f"--tiles {options.tiles}"
+    raise InputError(
+        f"with {asked} this target gets a {n_i} x {n_j} grid, but the string route needs at least "
+        f"{MIN_GRID_SIDE} tiles each way: use --tiles {need} or more, or --grid "
+        f"{MIN_GRID_SIDE} {MIN_GRID_SIDE}"
+    )
+
+
+#: The assembled stage's refusal of a thickness that turns tiles inside out
+#: (``geometry.assembled``); :func:`size_refusal` reads its numbers.
+_INSIDE_OUT = re.compile(
+    r"thickness (?P<thickness>[0-9.e+-]+) mm turns (?P<tiles>\d+) tile\(s\) inside out.*"
+    r"--thickness (?P<advice>[0-9.e+-]+) or less"
+)
+
+
+def size_refusal(exc: DesignError, options: ResolvedOptions) -> InputError | None:
+    """The one-line refusal of a size too small for the tile thickness, or None when ``exc``
+    is another design error.
+
+    Tiles turn inside out where the thickness exceeds about the target's radius of curvature,
+    which scales with ``--size``: the design at ``size * thickness / advice`` is the one at
+    ``--thickness advice`` scaled up, so that size is the one to suggest.
+    """
+    found = _INSIDE_OUT.search(str(exc))
+    if found is None:
+        return None
+    thickness, advice = float(found["thickness"]), float(found["advice"])
+    if not 0 < advice < thickness:
+        return None
+    wanted = options.size_mm * thickness / advice
+    step = 10.0 ** (math.floor(math.log10(wanted)) - 1)  # two significant digits, rounded up
+    size = math.ceil(wanted / step - 1e-9) * step
+    return InputError(
+        f"--size {options.size_mm:g} mm is too small for {thickness:g} mm thick tiles: "
+        f"{found['tiles']} tile(s) turn inside out where this target curves tightly; use "
+        f"--size {size:g} or more, --thickness {advice:g} or less, or fewer --tiles"
+    )
+
+
 def channel_turn_assembled(route: Route, tiles_3d: NDArray[np.float64]) -> float:
     """Total turn (rad) of the string along its channels in the assembled state.
 
@@ -427,7 +487,14 @@ def _design(
         flat_map = flatten(
             loaded.vertices, loaded.faces, mode="rectangle", corners=resolved.corners
         )
-    shaped = shape_and_layout(loaded, flat_map, resolved, progress)
+    check_grid(resolved, flat_map, from_profile=options.tiles is None and options.grid is None)
+    try:
+        shaped = shape_and_layout(loaded, flat_map, resolved, progress)
+    except DesignError as exc:
+        refusal = size_refusal(exc, resolved)
+        if refusal is None:
+            raise
+        raise refusal from exc
     notes.extend(shaped.notes)
     tiling, assembled, flat = shaped.tiling, shaped.assembled, shaped.flat
     co_block, hinge_layout, linkage = shaped.co_block, shaped.hinge_layout, shaped.tiling.linkage

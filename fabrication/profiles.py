@@ -35,13 +35,30 @@ class Field:
     choices: tuple[str, ...] = ()
 
 
+#: Fewest grid cells each way a design can have: the closed string route must pass every
+#: boundary tile once through the gaps its contact rules allow, and a grid one or two cells
+#: wide has no such loop.  Found with ``drawstring design saddle --no-cad --no-simulate``:
+#: ``--grid`` 1 1, 2 2, 2 3, 3 2, 2 5 and 2 8 all fail in the route stage ("no valid closed
+#: string route"), 3 3, 3 4 and 4 3 give designs without problems.
+MIN_GRID_SIDE = 3
+#: Fewest ``--tiles`` (or ``default_tiles``) that can give a valid design.  A tile count maps
+#: to columns and rows ``round(sqrt(tiles * w / h))`` and ``round(sqrt(tiles * h / w))``
+#: (``geometry.tiling.grid_shape_for``); on the squarest target (w = h) both reach
+#: MIN_GRID_SIDE = 3 from 7 tiles on (round(sqrt(6)) = 2, round(sqrt(7)) = 3).  Found with
+#: ``drawstring design saddle --tiles N --no-cad --no-simulate``: N = 1 to 6 fail in the route
+#: stage, 7, 8, 9, 12 (all a 3 x 3 grid) and 16 give designs without problems.  Elongated
+#: targets need more; the pipeline checks the grid once the target is flattened.
+MIN_TILES = 7
+#: Most tiles (or grid cells) a design may have.
+MAX_TILES = 20_000
+
 # Schema: attribute name on Profile -> where it lives in the TOML and what it may hold.
 SCHEMA: dict[str, Field] = {
     "name": Field("", "name", str),
     "process": Field("", "process", str, choices=get_args(Process)),
     "description": Field("", "description", str),
     "default_size_mm": Field("design", "default_size_mm", float, 10.0, 10_000.0, "mm"),
-    "default_tiles": Field("design", "default_tiles", int, 4, 20_000, "tiles"),
+    "default_tiles": Field("design", "default_tiles", int, MIN_TILES, MAX_TILES, "tiles"),
     "size_min_mm": Field("design", "size_min_mm", float, 10.0, 10_000.0, "mm"),
     "size_max_mm": Field("design", "size_max_mm", float, 10.0, 10_000.0, "mm"),
     "thickness_mm": Field("tile", "thickness_mm", float, 0.5, 500.0, "mm"),

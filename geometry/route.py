@@ -544,7 +544,13 @@ def _solve_cycle(
             options={"time_limit": time_limit, "disp": False},
         )
         if res.x is None:
-            raise DesignError(f"no valid closed string route exists ({res.message})")
+            # milp status 2: proved infeasible; otherwise a time or iteration limit was hit
+            found = "exists" if res.status == 2 else f"was found within {time_limit:g} s"
+            raise DesignError(
+                f"no closed string route {found} that passes every boundary tile and each tile "
+                "and gap at most once between contact partners without crossing itself; a "
+                "shape part only one or two tiles wide has none: use more tiles (--tiles or --grid)"
+            )
         if res.status != 0:
             optimal = False
         z = res.x[:n_e] > 0.5

@@ -94,6 +94,8 @@ def test_targets_and_profiles_listings() -> None:
         assert done.stdout.count(key) == 3, key
     done = run_cli("profiles", "--size", "0")
     assert done.returncode == 2 and "--size" in done.stderr
+    done = run_cli("profiles", "--tiles", "3")
+    assert done.returncode == 2 and "--tiles must be between 7 and 20000" in done.stderr
     done = run_cli("profiles", "--show", "laser-epdm")
     assert done.returncode == 0 and 'process = "laser-epdm"' in done.stdout
 
@@ -174,6 +176,13 @@ def test_bad_meshes_exit_2_with_one_line_and_no_folder(case: str, tmp_path: Path
         (["saddle", "--thickness", "0"], "--thickness"),
         (["saddle", "--up", "0", "0", "0"], "--up"),
         (["saddle", "--up", "0", "nan", "1"], "--up"),
+        # Fewer tiles than a 3 x 3 grid, which the string route needs (MIN_TILES).
+        (["saddle", "--tiles", "1"], "--tiles must be between 7 and 20000"),
+        (["saddle", "--tiles", "3"], "--tiles must be between 7 and 20000"),
+        (["saddle", "--tiles", "6"], "--tiles must be between 7 and 20000"),
+        (["saddle", "--grid", "2", "8"], "--grid I J needs two whole numbers >= 3"),
+        # A tile count the flattened target turns into a grid two cells wide (peanut: 5 x 2).
+        (["peanut", "--tiles", "9"], "use --tiles 15 or more"),
     ],
 )
 def test_bad_options_exit_2(args: list[str], words: str, tmp_path: Path) -> None:
@@ -363,3 +372,36 @@ def test_a_failed_rename_into_place_is_one_line_and_leaves_nothing_behind(
         assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
     else:
         assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_a_size_too_small_for_the_thickness_is_refused_with_both_fixes(tmp_path: Path) -> None:
+    # Tiles thicker than the target's curvature radius turn inside out; found in the assembled
+    # stage, refused in one line naming --size and --thickness, with no folder written.
+    out = tmp_path / "small"
+    done = run_cli("design", "saddle", *SMALL, "--no-simulate", "--size", "5", "--out", str(out))
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--size 5 mm is too small for 6 mm thick tiles" in lines[0]
+    assert "--size 13 or more, --thickness 2.4 or less" in lines[0]
+    assert not out.exists()
+    # The size it suggests works (the geometry scales with --size).
+    assert (
+        main(["design", "saddle", *SMALL, "--no-simulate", "--size", "13", "--out", str(out)]) == 0
+    )
+
+
+def test_a_route_failure_found_late_is_one_line_without_solver_internals(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A grid two cells wide has no closed string route.  --grid refuses it up front; with that
+    # check lifted, the route stage's own refusal is one plain line too.
+    from drawstring.fabrication import pipeline
+
+    monkeypatch.setattr(pipeline, "MIN_GRID_SIDE", 1, raising=False)  # absent before the check
+    out = tmp_path / "narrow"
+    args = ["design", "saddle", "--grid", "2", "2", "--resolution", "1500", "--no-cad"]
+    assert main([*args, "--no-simulate", "--quiet", "--out", str(out)]) == 3
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "no closed string route exists" in lines[0]
+    assert "use more tiles" in lines[0] and "HiGHS" not in lines[0] and "Status" not in lines[0]
+    assert not out.exists()

@@ -45,6 +45,8 @@ def shipped_table(name: str = "fdm-dual") -> dict:
         ("hinge", "interlock", "glue", "must be one of"),
         ("tile", "colour", "red", "unknown key tile.colour"),
         ("machine", "bed_x_mm", 0.0, "out of range"),
+        # fewer tiles than a 3 x 3 grid can never give a string route (profiles.MIN_TILES)
+        ("design", "default_tiles", 6, "out of range (7 to 20000 tiles)"),
     ],
 )
 def test_bad_values_are_refused_with_file_key_value_and_range(
