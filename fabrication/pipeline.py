@@ -147,9 +147,15 @@ class DesignOptions:
                 f"--min-gap-angle must be in [0, 90) degrees (got {self.min_gap_angle_deg})"
             )
         if len(self.weights) != 3 or not all(math.isfinite(w) and w >= 0 for w in self.weights):
+            shown = " ".join(f"{w:g}" for w in self.weights)
             raise InputError(
-                f"--weights needs three non-negative numbers (planar square surface), got "
-                f"{self.weights}"
+                f"--weights PLANAR SQUARE SURFACE must be three finite numbers >= 0 (got {shown}); "
+                "the paper uses 10000 10 0.1"
+            )
+        if not any(w > 0 for w in self.weights):
+            raise InputError(
+                "--weights: at least one of PLANAR SQUARE SURFACE must be positive "
+                "(paper: 10000 10 0.1)"
             )
         if self.hinges not in HINGE_STRATEGIES:
             raise InputError(f"--hinges must be dual or top (got {self.hinges!r})")
