@@ -109,22 +109,37 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+VERBOSE_HELP = "log what each stage does, and every library warning"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="drawstring",
         description="Turn a curved surface into a flat auxetic linkage pulled shut by one string.",
     )
-    parser.add_argument("-v", "--verbose", action="store_true", help="log what each stage does")
+    parser.add_argument("-v", "--verbose", action="store_true", help=VERBOSE_HELP)
+    # -v also after the subcommand.  SUPPRESS: a subcommand that does not see -v must not
+    # overwrite the main parser's value with a default of its own.
+    verbose = _Parser(add_help=False)
+    verbose.add_argument(
+        "-v", "--verbose", action="store_true", default=argparse.SUPPRESS, help=VERBOSE_HELP
+    )
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    design_p = sub.add_parser("design", help="design a linkage for a target and write its files")
+    design_p = sub.add_parser(
+        "design", parents=[verbose], help="design a linkage for a target and write its files"
+    )
     _add_design_options(design_p)
-    sub.add_parser("targets", help="list the built-in targets")
-    sim = sub.add_parser("simulate", help="simulate the deployment of an existing design")
+    sub.add_parser("targets", parents=[verbose], help="list the built-in targets")
+    sim = sub.add_parser(
+        "simulate", parents=[verbose], help="simulate the deployment of an existing design"
+    )
     sim.add_argument("folder", type=Path, help="a design folder written by `drawstring design`")
     sim.add_argument("--quiet", action="store_true", help="no progress output")
-    view = sub.add_parser("view", help="open a design's report.html in the browser")
+    view = sub.add_parser(
+        "view", parents=[verbose], help="open a design's report.html in the browser"
+    )
     view.add_argument("folder", type=Path, help="a design folder written by `drawstring design`")
-    prof = sub.add_parser("profiles", help="list the fabrication profiles")
+    prof = sub.add_parser("profiles", parents=[verbose], help="list the fabrication profiles")
     prof.add_argument("--show", metavar="NAME", help="print a profile as TOML to copy and edit")
     prof.add_argument("--size", type=float, help="estimate for a design this size (mm)")
     prof.add_argument("--tiles", type=int, help="estimate for this many tiles")
@@ -276,6 +291,7 @@ def _run_view(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.verbose = getattr(args, "verbose", False)
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",

@@ -419,3 +419,14 @@ def test_a_route_failure_found_late_is_one_line_without_solver_internals(
     assert len(lines) == 1 and "no closed string route exists" in lines[0]
     assert "use more tiles" in lines[0] and "HiGHS" not in lines[0] and "Status" not in lines[0]
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "argv", [["-v", "design", "saddle"], ["design", "saddle", "-v"], ["design", "saddle"]]
+)
+def test_verbose_is_accepted_before_and_after_the_subcommand(argv: list[str]) -> None:
+    from drawstring.fabrication.cli import build_parser
+
+    assert build_parser().parse_args(argv).verbose is ("-v" in argv)
+    done = run_cli("targets", "-v")
+    assert done.returncode == 0 and "saddle" in done.stdout
