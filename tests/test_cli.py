@@ -430,3 +430,31 @@ def test_verbose_is_accepted_before_and_after_the_subcommand(argv: list[str]) ->
     assert build_parser().parse_args(argv).verbose is ("-v" in argv)
     done = run_cli("targets", "-v")
     assert done.returncode == 0 and "saddle" in done.stdout
+
+
+def test_library_warnings_the_design_lists_are_not_repeated_as_log_lines(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # A deployment that gets stuck with every lift set: the lift sweep logs a warning and the
+    # design lists the stuck simulation as a warning; without -v only the latter is printed.
+    import dataclasses
+
+    from drawstring.fabrication import pipeline
+
+    real = pipeline.simulate_stage
+    first: list[object] = []
+
+    def stuck(*args: object, **kwargs: object) -> object:
+        if not first:
+            first.append(real(*args, **kwargs))  # type: ignore[arg-type]
+        return dataclasses.replace(first[0], deployed=False)  # type: ignore[type-var]
+
+    monkeypatch.setattr(pipeline, "simulate_stage", stuck)
+    out = tmp_path / "stuck"
+    for verbose in ([], ["-v"]):
+        caplog.clear()
+        assert main(["design", "saddle", *SMALL, *verbose, "--out", str(out)]) == 0
+        doc = json.loads((out / "design.json").read_text())
+        assert any("simulation got stuck" in w for w in doc["warnings"])
+        logged = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+        assert any("failed for every threshold" in m for m in logged) == bool(verbose), logged
