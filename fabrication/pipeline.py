@@ -15,7 +15,6 @@ import json
 import logging
 import math
 import os
-import re
 import shutil
 import sys
 import tempfile
@@ -35,7 +34,7 @@ from drawstring.geometry import verify
 from drawstring.geometry.assembled import (
     AssembledResult,
 )
-from drawstring.geometry.errors import DesignError, InputError
+from drawstring.geometry.errors import InputError, ThicknessError
 from drawstring.geometry.flat import FlatResult
 from drawstring.geometry.flatten import Flattening, flatten
 from drawstring.geometry.hinges import (
@@ -386,26 +385,15 @@ def check_grid(options: ResolvedOptions, flat_map: Flattening, *, from_profile: 
     )
 
 
-#: The assembled stage's refusal of a thickness that turns tiles inside out
-#: (``geometry.assembled``); :func:`size_refusal` reads its numbers.
-_INSIDE_OUT = re.compile(
-    r"thickness (?P<thickness>[0-9.e+-]+) mm turns (?P<tiles>\d+) tile\(s\) inside out.*"
-    r"--thickness (?P<advice>[0-9.e+-]+) or less"
-)
-
-
-def size_refusal(exc: DesignError, options: ResolvedOptions) -> InputError | None:
-    """The one-line refusal of a size too small for the tile thickness, or None when ``exc``
-    is another design error.
+def size_refusal(exc: ThicknessError, options: ResolvedOptions) -> InputError | None:
+    """The one-line refusal of a size too small for the tile thickness, or None when the
+    assembled stage found no thickness that works.
 
     Tiles turn inside out where the thickness exceeds about the target's radius of curvature,
     which scales with ``--size``: the design at ``size * thickness / advice`` is the one at
     ``--thickness advice`` scaled up, so that size is the one to suggest.
     """
-    found = _INSIDE_OUT.search(str(exc))
-    if found is None:
-        return None
-    thickness, advice = float(found["thickness"]), float(found["advice"])
+    thickness, advice = exc.thickness, exc.advice
     if not 0 < advice < thickness:
         return None
     wanted = options.size_mm * thickness / advice
@@ -413,7 +401,7 @@ def size_refusal(exc: DesignError, options: ResolvedOptions) -> InputError | Non
     size = math.ceil(wanted / step - 1e-9) * step
     return InputError(
         f"--size {options.size_mm:g} mm is too small for {thickness:g} mm thick tiles: "
-        f"{found['tiles']} tile(s) turn inside out where this target curves tightly; use "
+        f"{exc.inverted} tile(s) turn inside out where this target curves tightly; use "
         f"--size {size:g} or more, --thickness {advice:g} or less, or fewer --tiles"
     )
 
@@ -496,7 +484,7 @@ def _design(
     check_grid(resolved, flat_map, from_profile=options.tiles is None and options.grid is None)
     try:
         shaped = shape_and_layout(loaded, flat_map, resolved, progress)
-    except DesignError as exc:
+    except ThicknessError as exc:
         refusal = size_refusal(exc, resolved)
         if refusal is None:
             raise

@@ -46,7 +46,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 
-from drawstring.geometry.errors import DesignError, InputError
+from drawstring.geometry.errors import InputError, ThicknessError
 from drawstring.geometry.solver import (
     ClosenessToPoints,
     ClosenessToSurface,
@@ -978,10 +978,13 @@ def optimize_assembled(
         step = 10.0 ** (math.floor(math.log10(advice)) - 1) if advice > 0 else 1.0
         quoted = math.floor(advice / step) * step
         thinner = f"{quoted:g} or less" if 0 < quoted < thickness else "a smaller value"
-        raise DesignError(
+        raise ThicknessError(
             f"thickness {thickness:g} mm turns {inverted} tile(s) inside out where the target "
             f"curves tighter than that; use --thickness {thinner}, or fewer tiles (larger "
-            "tiles smooth tight spots over)"
+            "tiles smooth tight spots over)",
+            thickness=float(thickness),
+            inverted=inverted,
+            advice=float(quoted) if 0 < quoted < thickness else 0.0,
         )
     metrics = measure_assembled(tiles, faces, t_verts, t_faces)
     metrics["planarity_max_before_mm"] = before["planarity_max_mm"]
