@@ -613,7 +613,8 @@ def with_cad(result: Design, progress: Progress) -> Design:
         result,
         cad_flat=cad_flat,
         cad_assembled=cad_assembled,
-        measured={**result.measured, "cad": measured},
+        # the mass of the tiles as cut plus the hinge parts replaces the uncut tiles' estimate
+        measured={**result.measured, "cad": measured, "mass_g": measured["mass_g"]},
         problems=tuple(problems),
         notes=tuple(notes),
         timings_s=progress.ordered_timings(),
@@ -798,6 +799,13 @@ def measure_design(
     metrics["route"] = _jsonable(
         route_metrics(route, linkage, flat_gaps, assembled_gaps, profile.friction_coefficient)
     )
+    # the string's length along its channels on the fabricated tiles, as every other output
+    # reports it (not the planning polyline through the gap centres)
+    from .cad_stage import route_steps
+    from .exports_parts import route_lengths
+
+    flat_length, assembled_length = route_lengths(fabricated, assembled.tiles, route_steps(route))
+    metrics["route"]["length_mm"] = {"flat": flat_length, "assembled": assembled_length}
     channel_turn = channel_turn_assembled(route, assembled.tiles)
     metrics["route"]["turn_angle_channels_assembled_rad"] = _round(channel_turn, 6)
     metrics["route"]["capstan_factor_channels_assembled"] = _round(

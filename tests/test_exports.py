@@ -534,7 +534,8 @@ def test_a_design_states_one_mass_and_route_length_everywhere(tmp_path: Path) ->
 
     options = DesignOptions(grid=(5, 5), resolution=1500, simulate=False)
     out = write_design(design("saddle", options), tmp_path / "saddle")
-    cad = json.loads((out / "design.json").read_text())["metrics"]["cad"]
+    metrics = json.loads((out / "design.json").read_text())["metrics"]
+    cad = metrics["cad"]
     route = json.loads((out / "route.json").read_text())
     estimates = json.loads((out / "fabrication/manifest.json").read_text())["estimates"]
     rows = {r["item"]: r for r in csv.DictReader((out / "fabrication/bom.csv").open())}
@@ -543,11 +544,13 @@ def test_a_design_states_one_mass_and_route_length_everywhere(tmp_path: Path) ->
     flat, assembled = cad["route_length_mm"]["flat"], cad["route_length_mm"]["assembled"]
     assert route["length_flat_mm"] == flat == estimates["flat_route_length_mm"]
     assert route["length_assembled_mm"] == assembled < flat
+    assert metrics["route"]["length_mm"] == {"flat": flat, "assembled": assembled}
     assert f"flat route {flat / 1000:.3f} m" in rows["string"]["note"]
     string = cad["string_length_mm"]
     assert string == estimates["string_length_mm"] == float(rows["string"]["length_mm"])
     assert f"**{string / 1000:.2f} m**" in guide
-    assert cad["mass_g"] == estimates["mass_g"] == float(rows["mass"]["description"][:-2])
+    assert metrics["mass_g"] == cad["mass_g"] == estimates["mass_g"]
+    assert cad["mass_g"] == float(rows["mass"]["description"][:-2])
     assert cad["tile_mass_g"] == estimates["tile_mass_g"] == float(rows["tile"]["mass_g"])
     assert cad["hinge_mass_g"] == estimates["hinge_mass_g"] == float(rows["hinge pad"]["mass_g"])
     assert cad["mass_g"] == round(cad["tile_mass_g"] + cad["hinge_mass_g"], 1)
