@@ -30,7 +30,7 @@ from drawstring.geometry.flatpose import HingeFaces, hinge_faces
 from drawstring.geometry.flatten import Flattening
 from drawstring.geometry.hinges import HingeLayout, dual_hinge_faces, layout_hinges
 from drawstring.geometry.linkage import Linkage
-from drawstring.geometry.rigid import apply_rigid, rigid_fit
+from drawstring.geometry.rigid import rigid_copies
 from drawstring.geometry.target import Target
 from drawstring.geometry.tiling import Tiling, component_flattenings, tile_surface
 from drawstring.geometry.tolerances import (
@@ -51,13 +51,6 @@ def fabricated_tiles(layout: HingeLayout, tiles_3d: NDArray[np.float64]) -> NDAr
     hinge gaps)."""
     placed = layout.rigid_tiles if layout.rigid_tiles is not None else layout.tiles
     return rigid_copies(tiles_3d, placed)
-
-
-def rigid_copies(source: NDArray[np.float64], placed: NDArray[np.float64]) -> NDArray[np.float64]:
-    """(T, 8, 3) each ``source`` tile moved by the rotation and translation (Kabsch, no
-    reflection) that best fits it onto the matching ``placed`` tile."""
-    rotation, translation = rigid_fit(source, placed)
-    return apply_rigid(rotation, translation, source)
 
 
 def split_bound(options: ResolvedOptions) -> float:

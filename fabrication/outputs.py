@@ -77,6 +77,25 @@ def write_tiles(result: Design, folder: Path) -> list[str]:
     return ["assembled.obj", "flat.obj"]
 
 
+def write_tiles_npz(result: Design, folder: Path) -> list[str]:
+    """``tiles.npz``: the tiles at full precision (float64, mm), ``assembled`` (T3D) and
+    ``fabricated`` (each T3D tile moved rigidly onto its place in the flat layout, the pose the
+    deployment simulation starts from), so ``drawstring simulate`` repeats the design's run
+    exactly (the OBJ files round to 1e-6 mm)."""
+    from drawstring.geometry.npz import save_npz
+
+    from .layout_stage import fabricated_tiles
+
+    save_npz(
+        folder / "tiles.npz",
+        {
+            "assembled": np.asarray(result.tiles_assembled, dtype=np.float64),
+            "fabricated": fabricated_tiles(result.hinge_layout, result.tiles_assembled),
+        },
+    )
+    return ["tiles.npz"]
+
+
 def tiles_obj(tiles: NDArray[np.float64], header: str) -> str:
     """OBJ text of (T, 8, 3) tiles as closed outward quad meshes, one group per tile."""
     count = len(tiles)
@@ -191,6 +210,7 @@ def write_fabrication_files(result: Design, folder: Path) -> list[str]:
 DEFAULT_WRITERS: tuple[Writer, ...] = (
     write_lifted_mesh,
     write_tiles,
+    write_tiles_npz,
     write_route,
     write_pictures,
     write_stage_pictures,

@@ -66,7 +66,6 @@ from drawstring.geometry.tolerances import (
 
 from .layout_stage import (
     fabricated_tiles,
-    rigid_copies,
     shape_and_layout,
     split_bound,
 )
@@ -1031,21 +1030,22 @@ def with_options(options: DesignOptions, **changes: Any) -> DesignOptions:
 def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Path:
     """Run the deployment simulation on a design folder written by :func:`write_design`.
 
-    Reads ``design.json`` (options, linkage cells and splits, lift points), ``assembled.obj``,
-    ``flat.obj``, ``hinges.json`` and ``route.json``; writes ``deploy.npz`` and ``deploy.gif``,
+    Reads ``design.json`` (options, linkage cells and splits, lift points), ``tiles.npz`` (the
+    tiles at full precision), ``hinges.json`` and ``route.json``, so that a design's own run is
+    repeated exactly; writes ``deploy.npz`` and ``deploy.gif``,
     the ``simulation`` metrics and timing into ``design.json``, and rewrites ``report.html``.
     Every file is written next to its final name first and renamed into place.
     """
     from drawstring.geometry.linkage import Split, build_linkage
 
     from .outputs import save_deployment
-    from .report import read_obj_tiles, write_report
+    from .report import write_report
 
     root = Path(folder)
     design_path = root / "design.json"
     if not design_path.is_file():
         raise InputError(f"{root} is not a drawstring design folder (no design.json)")
-    needed = ("assembled.obj", "flat.obj", "hinges.json", "route.json")
+    needed = ("tiles.npz", "hinges.json", "route.json")
     missing = [name for name in needed if not (root / name).is_file()]
     if missing:
         raise InputError(f"{root} lacks {', '.join(missing)}; run drawstring design again")
@@ -1064,8 +1064,8 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
         for s in block.get("split_lines", [])
     )
     linkage = build_linkage(cells, splits)
-    assembled = read_obj_tiles(root / "assembled.obj")
-    flat = read_obj_tiles(root / "flat.obj")
+    with np.load(root / "tiles.npz") as stored:
+        assembled, fabricated = stored["assembled"], stored["fabricated"]
     hinges = json.loads((root / "hinges.json").read_text(encoding="utf-8"))["hinges"]
     hinge_vertices = np.array([h["vertices"] for h in hinges], dtype=np.int64).reshape(-1, 2)
     route_doc = json.loads((root / "route.json").read_text(encoding="utf-8"))
@@ -1075,13 +1075,13 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
     ).reshape(-1, 4)
     points = doc.get("metrics", {}).get("lift_points", {}).get("points", [])
     lift_gaps = np.array([p["gap"] for p in points], dtype=np.int64)
-    if len(assembled) != linkage.n_tiles or len(flat) != linkage.n_tiles:
-        raise InputError(f"{root}: the OBJ files do not match design.json; run design again")
+    if assembled.shape != (linkage.n_tiles, 8, 3) or fabricated.shape != assembled.shape:
+        raise InputError(f"{root}: tiles.npz does not match design.json; run design again")
     progress = Progress(quiet=quiet)
     with progress.stage("simulate"):
         simulation = simulate_stage(
             linkage,
-            rigid_copies(assembled, flat),
+            fabricated,
             assembled,
             hinge_vertices,
             steps,
@@ -1089,6 +1089,7 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
             float(doc["options"]["thickness_mm"]),
         )
     result_block = _jsonable(simulation.to_json())
+    result_block["runs"] = 1  # simulations this command ran (a design's lift sweep may run more)
     result_block.pop("time_s", None)
     per_step = float(result_block.pop("per_step_ms", 0.0)) / 1000.0
     doc.setdefault("metrics", {})["simulation"] = result_block

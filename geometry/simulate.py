@@ -52,10 +52,8 @@ within the step budget.  Otherwise the result is "stuck" with the open route gap
 
 from __future__ import annotations
 
-import io
 import logging
 import time
-import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -66,6 +64,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import Linkage, build_linkage, rotating_squares_layout
+from drawstring.geometry.npz import save_npz
 from drawstring.geometry.rigid import rigid_copies
 from drawstring.geometry.simgroups import (  # noqa: F401 (re-exported)
     SIDE_FACES,
@@ -767,10 +766,8 @@ def simulate_stage(
 
 
 def save_deploy_npz(result: SimulationResult, path: str | Path) -> Path:
-    """Write ``deploy.npz`` (key ``frames``: (F, T, 8, 3) float32, mm) byte-identically.
-
-    ``np.savez_compressed`` stamps the current time into the zip; this writes the same ``.npy``
-    member with a fixed date, so equal frames give equal files.  ``np.load`` reads it as usual.
+    """Write ``deploy.npz`` (key ``frames``: (F, T, 8, 3) float32, mm) byte-identically
+    (:func:`~drawstring.geometry.npz.save_npz`).
 
     Parameters
     ----------
@@ -781,18 +778,7 @@ def save_deploy_npz(result: SimulationResult, path: str | Path) -> Path:
     -------
     The path written.
     """
-    buffer = io.BytesIO()
-    np.lib.format.write_array(
-        buffer, np.ascontiguousarray(result.frames, dtype=np.float32), allow_pickle=False
-    )
-    info = zipfile.ZipInfo("frames.npy", date_time=(1980, 1, 1, 0, 0, 0))
-    info.compress_type = zipfile.ZIP_DEFLATED
-    info.create_system = 3
-    info.external_attr = 0o644 << 16
-    out = Path(path)
-    with zipfile.ZipFile(out, "w") as archive:
-        archive.writestr(info, buffer.getvalue(), compresslevel=6)
-    return out
+    return save_npz(path, {"frames": np.asarray(result.frames, dtype=np.float32)})
 
 
 def _lift_above(x: FloatArray, level: float, n_tiles: int) -> FloatArray:

@@ -254,6 +254,20 @@ def test_simulate_an_existing_design(tmp_path: Path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
 
 
+def test_simulate_repeats_the_designs_own_run_exactly(tmp_path: Path) -> None:
+    # tiles.npz keeps the tiles at full precision, so simulating the folder again reproduces
+    # the design's simulation byte for byte (from the OBJ files, rounded, it drifted).
+    out = tmp_path / "d"
+    args = ["design", "saddle", "--grid", "6", "5", "--resolution", "1500", "--no-cad"]
+    assert main([*args, "--quiet", "--out", str(out)]) == 0
+    frames = (out / "deploy.npz").read_bytes()
+    block = json.loads((out / "design.json").read_text())["metrics"]["simulation"]
+    assert main(["simulate", str(out), "--quiet"]) == 0
+    assert (out / "deploy.npz").read_bytes() == frames
+    again = json.loads((out / "design.json").read_text())["metrics"]["simulation"]
+    assert again == block
+
+
 def test_simulate_refuses_a_folder_that_is_not_a_design(tmp_path: Path) -> None:
     done = run_cli("simulate", str(tmp_path))
     assert done.returncode == 2
