@@ -347,8 +347,8 @@ def build_design_solids(
     if pose == "assembled":
         built = tuple(move_solid(s, m) for s, m in zip(built, transforms, strict=True))
         pad_solids, pad_hinge = (), np.zeros(0, dtype=np.int64)
-    for note in notes:
-        log.warning("%s", note)
+    for note in notes:  # returned in CadResult.notes, which the design lists
+        log.info("%s", note)
     return CadResult(
         pose, built, pad_solids, pad_hinge, tuple(magnets), min_radius, transforms, tuple(notes)
     )

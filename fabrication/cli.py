@@ -16,15 +16,11 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import logging  # noqa: E402
 import sys  # noqa: E402
-from collections.abc import Callable, Iterator, Sequence  # noqa: E402
-from contextlib import contextmanager  # noqa: E402
+from collections.abc import Sequence  # noqa: E402
 from pathlib import Path  # noqa: E402
-from typing import TYPE_CHECKING, NoReturn  # noqa: E402
+from typing import NoReturn  # noqa: E402
 
 from drawstring.geometry.errors import DesignError, InputError  # noqa: E402
-
-if TYPE_CHECKING:
-    from .pipeline import Design
 
 EXIT_INPUT = 2
 EXIT_DESIGN = 3
@@ -150,66 +146,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-class _HeldWarnings(logging.Filter):
-    """The library's WARNING records, held back from stderr while a design runs."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.records: list[logging.LogRecord] = []
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        if not record.name.startswith("drawstring.") or record.levelno != logging.WARNING:
-            return True
-        if not any(r is record for r in self.records):  # one record passes every handler
-            self.records.append(record)
-        return False
-
-
-@contextmanager
-def _library_warnings(verbose: bool) -> Iterator[Callable[[Callable[[str], bool]], None]]:
-    """Without -v, hold the library's warning log records back while a design runs.
-
-    Yields ``release(reported)``, which logs the held records whose message ``reported``
-    rejects: a fact the design lists itself (a note or warning in design.json, printed by the
-    CLI) is said once, not again as a raw log line.  Records still held when the block ends (it
-    raised: the error line is the one line to print) are dropped.  With -v every record is
-    logged as it comes.
-    """
-    held = _HeldWarnings()
-    handlers = [] if verbose else list(logging.getLogger().handlers)
-    for handler in handlers:
-        handler.addFilter(held)
-
-    def release(reported: Callable[[str], bool]) -> None:
-        for handler in handlers:
-            handler.removeFilter(held)
-        records, held.records = held.records, []
-        for record in records:
-            if not reported(record.getMessage()):
-                logging.getLogger(record.name).handle(record)
-
-    try:
-        yield release
-    finally:
-        for handler in handlers:
-            handler.removeFilter(held)
-
-
-def _reported_by(result: Design) -> Callable[[str], bool]:
-    """Whether a library warning's message is a fact the design lists itself."""
-    listed = [*result.notes, *result.warnings]
-    stuck = result.simulation is not None and not result.simulation.deployed
-
-    def reported(message: str) -> bool:
-        if any(message in line for line in listed):
-            return True  # e.g. the CAD notes, logged and listed as "cad: ..."
-        # The lift sweep's "deployment check ... failed for every threshold": with the
-        # simulation as the check, the design warns that the simulation got stuck.
-        return stuck and message.startswith("lift points: deployment check")
-
-    return reported
-
-
 def _run_design(args: argparse.Namespace) -> int:
     from .pipeline import DesignOptions, Progress, check_out_dir, default_out_dir, design
     from .pipeline import write_design as write
@@ -236,10 +172,8 @@ def _run_design(args: argparse.Namespace) -> int:
     out = args.out if args.out is not None else default_out_dir(args.target)
     check_out_dir(out)  # refuse before hours of work, not after
     progress = Progress(quiet=args.quiet)
-    with _library_warnings(args.verbose) as release:
-        result = design(args.target, options, progress=progress)
-        folder = write(result, out)
-        release(_reported_by(result))
+    result = design(args.target, options, progress=progress)
+    folder = write(result, out)
     if not args.quiet:
         print(f"wrote {folder}")
         for note in result.notes:

@@ -539,6 +539,11 @@ def _design(
             gap_positions=gap_centroids(linkage, assembled.tiles[:, :4]),
             deploy_check=deploy_check,
         )
+    if not resolved.simulate and lift.sweep and not any(ok for _, _, ok in lift.sweep):
+        notes.append(
+            f"lift points: the check '{lift.check_name}' failed for every threshold, so every "
+            "energy peak is a lift point (run with the deployment simulation to check the pull)"
+        )
     route, route_note = route_for(lift.lift_gaps)
     if route_note:
         notes.append(route_note)

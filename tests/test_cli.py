@@ -446,29 +446,42 @@ def test_verbose_is_accepted_before_and_after_the_subcommand(argv: list[str]) ->
     assert done.returncode == 0 and "saddle" in done.stdout
 
 
-def test_library_warnings_the_design_lists_are_not_repeated_as_log_lines(
+def test_facts_the_design_lists_are_not_repeated_as_log_lines(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
-    # A deployment that gets stuck with every lift set: the lift sweep logs a warning and the
-    # design lists the stuck simulation as a warning; without -v only the latter is printed.
+    # A lift sweep whose check fails at every threshold: the failure is data (metrics.lift_points
+    # .sweep), no WARNING record; the design lists it, as the stuck simulation when the check is
+    # the simulation, as a note when it is the geometric stand-in (--no-simulate).
     import dataclasses
 
     from drawstring.fabrication import pipeline
 
-    real = pipeline.simulate_stage
+    real_simulate = pipeline.simulate_stage
     first: list[object] = []
 
     def stuck(*args: object, **kwargs: object) -> object:
         if not first:
-            first.append(real(*args, **kwargs))  # type: ignore[arg-type]
+            first.append(real_simulate(*args, **kwargs))  # type: ignore[arg-type]
         return dataclasses.replace(first[0], deployed=False)  # type: ignore[type-var]
 
+    real_select = pipeline.select_lift_points
+
+    def failing(*args: object, **kwargs: object) -> object:
+        if kwargs.get("deploy_check") is None:  # the stand-in
+            kwargs["deploy_check"] = lambda _gaps: False
+        return real_select(*args, **kwargs)  # type: ignore[arg-type]
+
     monkeypatch.setattr(pipeline, "simulate_stage", stuck)
-    out = tmp_path / "stuck"
-    for verbose in ([], ["-v"]):
+    monkeypatch.setattr(pipeline, "select_lift_points", failing)
+    for extra in ([], ["--no-simulate"]):
+        out = tmp_path / f"stuck{len(extra)}"
         caplog.clear()
-        assert main(["design", "saddle", *SMALL, *verbose, "--out", str(out)]) == 0
+        assert main(["design", "saddle", *SMALL, *extra, "--out", str(out)]) == 0
         doc = json.loads((out / "design.json").read_text())
-        assert any("simulation got stuck" in w for w in doc["warnings"])
-        logged = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
-        assert any("failed for every threshold" in m for m in logged) == bool(verbose), logged
+        assert not [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+        sweep = doc["metrics"]["lift_points"]["sweep"]
+        assert sweep and not any(row["passed"] for row in sweep)
+        if extra:
+            assert any("failed for every threshold" in n for n in doc["notes"])
+        else:
+            assert any("simulation got stuck" in w for w in doc["warnings"])
