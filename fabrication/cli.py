@@ -233,8 +233,7 @@ def _run_profiles(args: argparse.Namespace) -> int:
         machine, outputs = PROCESS_GUIDE[profile.process]
         size = args.size if args.size is not None else profile.default_size_mm
         tiles = args.tiles if args.tiles is not None else profile.default_tiles
-        guess = rough_estimate(profile, size, tiles)
-        fits = "" if profile.size_min_mm <= size <= profile.size_max_mm else "  (outside its range)"
+        fits = profile.size_min_mm <= size <= profile.size_max_mm
         print(f"{name}: {profile.description}")
         print(f"    needs:     {machine}")
         print(
@@ -246,10 +245,15 @@ def _run_profiles(args: argparse.Namespace) -> int:
             f"    suits:     {profile.size_min_mm:g} to {profile.size_max_mm:g} mm "
             f"(default {profile.default_size_mm:g} mm, {profile.default_tiles} tiles)"
         )
+        if not fits:
+            # the estimate's model (tile thickness, panels, hinge parts) only holds in range
+            print(f"    roughly:   not estimated: {size:g} mm is outside this profile's range")
+            continue
+        guess = rough_estimate(profile, size, tiles)
         print(
             f"    roughly:   {guess.mass_g / 1000:.2f} kg, {guess.cost:.0f} "
             f"{profile.currency} of material, {guess.hours:.1f} h of {guess.basis} for a "
-            f"{size:g} mm design of {tiles} tiles{fits}"
+            f"{size:g} mm design of {tiles} tiles"
         )
     print(
         "Estimate another design with `drawstring profiles --size MM --tiles N`; copy a "

@@ -92,6 +92,11 @@ def test_targets_and_profiles_listings() -> None:
     assert "fdm-dual" in done.stdout and "plywood-cnc" in done.stdout
     for key in ("needs:", "materials:", "makes:", "suits:", "roughly:"):
         assert done.stdout.count(key) == 3, key
+    # a size outside a profile's range gets no estimate (its model does not hold there)
+    done = run_cli("profiles", "--size", "5")
+    assert done.returncode == 0
+    assert done.stdout.count("not estimated: 5 mm is outside this profile's range") == 3
+    assert " kg," not in done.stdout
     done = run_cli("profiles", "--size", "0")
     assert done.returncode == 2 and "--size" in done.stderr
     done = run_cli("profiles", "--tiles", "3")
