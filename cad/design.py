@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
@@ -23,16 +23,26 @@ from numpy.typing import NDArray
 from drawstring.cad.features import (
     BEND_RADIUS_SLACK_MM,
     SIDE_TOP_FACE,
+    HingePins,
     HingeSide,
+    KeepOut,
     MagnetPair,
+    PinPlan,
     build_tile,
+    channel_keep_out,
     channel_path,
+    feature_wall_mm,
     hinge_pad,
+    hinge_strip_lengths,
     label_engraving,
     lift_bore,
+    lift_chamfer,
     lift_path,
     magnet_pockets,
+    pin_keep_out,
+    plan_pins,
     string_channel,
+    strip_keep_outs,
     trim_tool,
 )
 from drawstring.cad.features import channel_radius as _channel_radius
@@ -105,8 +115,20 @@ class _TileJob:
     pads: list[int] = field(default_factory=list)
 
 
-_HingeData = tuple[NDArray[np.float64], int, NDArray[np.float64], int, HingeSide]
-_JobResult = tuple[int, bd.Solid, list[tuple[int, bd.Solid]], list[str]]
+_HingeData = tuple[NDArray[np.float64], int, NDArray[np.float64], int, HingeSide, HingePins | None]
+
+
+@dataclass
+class _JobResult:
+    """A worker's tile: its solid, the pads it built, its notes, whether its number was
+    engraved, and the features whose cut failed and were left out."""
+
+    tile: int
+    solid: bd.Solid
+    pads: list[tuple[int, bd.Solid]]
+    notes: list[str]
+    labelled: bool
+    failed: list[str]
 
 
 def normalize_route(route_steps: NDArray[np.int64] | Sequence[Sequence[int]]) -> NDArray[np.int64]:
@@ -147,44 +169,92 @@ def _build_job(job: _TileJob, profile: Profile, hinge_data: tuple[_HingeData, ..
     """Worker: build the tools of one tile, cut them, and build the pads this tile owns."""
     notes: list[str] = []
     tools: list[bd.Shape] = list(job.tools)
+    names = ["magnet pocket"] * len(tools)
     tools += [string_channel(job.vertices, a, b, profile) for a, b in job.channels]
-    tools += [lift_bore(job.vertices, side, profile) for side in job.lifts]
+    names += ["string channel"] * len(job.channels)
+    opened = {side for pair in job.channels for side in pair}
+    tools += [lift_bore(job.vertices, side, profile, shared=side in opened) for side in job.lifts]
+    names += ["lift bore"] * len(job.lifts)
     tools += [trim_tool(points) for points in job.trims]
+    names += ["trim"] * len(job.trims)
     owned = set(job.pads)
     built_pads: dict[int, bd.Solid] = {}
     for hinge, is_a in job.hinges:
-        tile_a, corner_a, tile_b, corner_b, side = hinge_data[hinge]
+        tile_a, corner_a, tile_b, corner_b, side, pins = hinge_data[hinge]
         # The pad this tile owns comes out of the same call as its tools (one frame, one build).
         make_pad = hinge in owned and hinge not in built_pads
-        parts = hinge_pad(tile_a, corner_a, tile_b, corner_b, side, profile, build_pad=make_pad)
-        tools.extend(parts.tools_a if is_a else parts.tools_b)
+        parts = hinge_pad(
+            tile_a, corner_a, tile_b, corner_b, side, profile, build_pad=make_pad, pins=pins
+        )
+        own = parts.tools_a if is_a else parts.tools_b
+        tools.extend(own)
+        names += [f"hinge {hinge} recess or key"] * len(own)
         if is_a:
             notes.extend(f"hinge {hinge}: {n}" for n in parts.notes)
         if make_pad and parts.pad is not None:
             built_pads[hinge] = parts.pad
+    labelled = False
     if job.label:
         engraving = label_engraving(job.vertices, job.tile, profile)
-        if engraving is None:
-            notes.append(f"tile {job.tile}: label too small to engrave")
-        else:
+        if engraving is not None:
             tools.append(engraving)
-    try:
-        solid = build_tile(tile_solid(job.vertices), tools)
-    except RuntimeError as exc:
-        kinds = (
-            f"{len(job.channels)} channel(s), {len(job.lifts)} lift bore(s), "
-            f"{len(job.trims)} trim(s), {len(job.hinges)} hinge(s), label {job.label}"
-        )
-        raise RuntimeError(f"tile {job.tile} ({kinds}): {exc}") from exc
+            names.append("number engraving")
+            labelled = True
+    failed_tools: list[int] = []
+    solid = build_tile(tile_solid(job.vertices), tools, failed=failed_tools)
     pads = []
     for hinge in job.pads:
         if hinge not in built_pads:
-            tile_a, corner_a, tile_b, corner_b, side = hinge_data[hinge]
-            parts = hinge_pad(tile_a, corner_a, tile_b, corner_b, side, profile, build_pad=True)
+            tile_a, corner_a, tile_b, corner_b, side, pins = hinge_data[hinge]
+            parts = hinge_pad(
+                tile_a, corner_a, tile_b, corner_b, side, profile, build_pad=True, pins=pins
+            )
             assert parts.pad is not None
             built_pads[hinge] = parts.pad
         pads.append((hinge, built_pads[hinge]))
-    return job.tile, solid, pads, notes
+    failed = [names[i] for i in failed_tools]
+    return _JobResult(job.tile, solid, pads, notes, labelled, failed)
+
+
+def _plan_all_pins(
+    flat: NDArray[np.float64],
+    hinge_rows: NDArray[np.int64],
+    sides: Sequence[HingeSide],
+    steps: NDArray[np.int64],
+    lifts: NDArray[np.int64],
+    profile: Profile,
+) -> list[PinPlan]:
+    """The TPU pins of every through-holes hinge, each kept a wall away from its tile's
+    channels and lift bores, the other hinges' strips, and the pins planned before it (hinge
+    order), so that no pin blocks the string and no two holes merge."""
+    keep = [KeepOut() for _ in flat]
+    for _, tile, enter, leave in steps:
+        keep[tile] += channel_keep_out(flat[tile], int(enter), int(leave), profile)
+    for tile, side in lifts:
+        keep[tile] += channel_keep_out(flat[tile], int(side), SIDE_TOP_FACE, profile)
+    strips: list[list[tuple[int, KeepOut]]] = [[] for _ in flat]
+    for hinge, ((a, ca, b, cb), side) in enumerate(zip(hinge_rows, sides, strict=True)):
+        in_a, in_b = strip_keep_outs(flat[a], int(ca), flat[b], int(cb), side, profile)
+        strips[a].append((hinge, in_a))
+        strips[b].append((hinge, in_b))
+
+    def others(tile: int, hinge: int) -> KeepOut:
+        found = keep[tile]
+        for other, strip in strips[tile]:
+            if other != hinge:
+                found = found + strip
+        return found
+
+    plans = []
+    for hinge, ((a, ca, b, cb), side) in enumerate(zip(hinge_rows, sides, strict=True)):
+        plan = plan_pins(
+            flat[a], int(ca), flat[b], int(cb), side, profile, (others(a, hinge), others(b, hinge))
+        )
+        for tile, pin in zip((a, b), plan.pins, strict=True):
+            if pin is not None:
+                keep[tile] = keep[tile] + pin_keep_out(pin, profile)
+        plans.append(plan)
+    return plans
 
 
 def _build_chunk(
@@ -268,11 +338,6 @@ def build_design_solids(
             min_radius[index] = lift_path(flat[tile], int(min(enter, leave))).radius
         else:
             min_radius[index] = channel_path(flat[tile], int(enter), int(leave)).min_radius
-        if min_radius[index] < profile.min_bend_radius_mm - BEND_RADIUS_SLACK_MM:
-            notes.append(
-                f"route step {index} (tile {tile}): bend radius {min_radius[index]:.2f} mm is "
-                f"below the profile's {profile.min_bend_radius_mm} mm"
-            )
         if SIDE_TOP_FACE in (enter, leave):
             side = leave if enter == SIDE_TOP_FACE else enter
             jobs[tile].lifts.append(int(side))
@@ -283,6 +348,19 @@ def build_design_solids(
     for tile, side in lifts:
         jobs[tile].lifts.append(int(side))
         channel_sides[tile].add(int(side))
+    plain = sorted(
+        {
+            job.tile
+            for job in jobs
+            for side in job.lifts
+            if lift_chamfer(job.vertices, lift_path(job.vertices, side), profile) <= 0.0
+        }
+    )
+    if plain:
+        notes.append(
+            f"lift bores leave tiles {_id_ranges(plain)} without a chamfer: their top faces are "
+            "too small for one (the string runs over the bore's edge there)"
+        )
 
     magnets = []
     clearance = _channel_radius(profile) + 0.5 * profile.magnet_diameter_mm
@@ -318,9 +396,15 @@ def build_design_solids(
     for side in sides:
         if side not in ("top", "bottom"):
             raise InputError(f"hinge side {side!r} must be 'top' or 'bottom'")
+    notes.extend(_bend_notes(min_radius, steps, profile))
+    notes.extend(_strip_notes(flat, hinge_rows, sides, profile))
+    plans: list[PinPlan | None] = [None] * len(hinge_rows)
+    if profile.hinge_interlock == "through-holes":
+        plans = list(_plan_all_pins(flat, hinge_rows, sides, steps, lifts, profile))
+        notes.extend(_pin_notes(plans))
     hinge_data = tuple(
-        (flat[a], int(ca), flat[b], int(cb), side)
-        for (a, ca, b, cb), side in zip(hinge_rows, sides, strict=True)
+        (flat[a], int(ca), flat[b], int(cb), side, None if plan is None else plan.pins)
+        for (a, ca, b, cb), side, plan in zip(hinge_rows, sides, plans, strict=True)
     )
     for index, (a, _, b, _) in enumerate(hinge_rows):
         jobs[a].hinges.append((index, True))
@@ -331,10 +415,21 @@ def build_design_solids(
 
     tiles: list[bd.Solid | None] = [None] * n_tiles
     pads: dict[int, bd.Solid] = {}
-    for tile, solid, tile_pads, tile_notes in results:
-        tiles[tile] = solid
-        pads.update(tile_pads)
-        notes.extend(tile_notes)
+    for done in sorted(results, key=lambda r: r.tile):
+        tiles[done.tile] = done.solid
+        pads.update(done.pads)
+        notes.extend(done.notes)
+        notes.extend(
+            f"tile {done.tile}: the cut of its {name} failed and was left out"
+            for name in done.failed
+        )
+    if labels:
+        unlabelled = [r.tile for r in results if not r.labelled]
+        if unlabelled:
+            notes.append(
+                f"tile numbers not engraved on {len(unlabelled)} of {n_tiles} tiles, too small "
+                f"for digits of {feature_wall_mm(profile):g} mm strokes: {_id_ranges(unlabelled)}"
+            )
     transforms, residual = rigid_transforms(flat, assembled)
     if residual.size and residual.max() > 1e-3:
         notes.append(
@@ -352,6 +447,85 @@ def build_design_solids(
     return CadResult(
         pose, built, pad_solids, pad_hinge, tuple(magnets), min_radius, transforms, tuple(notes)
     )
+
+
+#: Notes list at most this many runs of ids (then how many more there are).
+_MAX_RUNS = 12
+
+
+def _id_ranges(ids: Iterable[int]) -> str:
+    """Sorted ids as runs, ``0-3, 7, 9-10``, the first :data:`_MAX_RUNS` of them."""
+    runs: list[list[int]] = []
+    for i in sorted(int(x) for x in ids):
+        if runs and i == runs[-1][1] + 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    shown = ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs[:_MAX_RUNS])
+    rest = sum(b - a + 1 for a, b in runs[_MAX_RUNS:])
+    return shown + (f" and {rest} more" if rest else "")
+
+
+def _bend_notes(
+    min_radius: NDArray[np.float64], steps: NDArray[np.int64], profile: Profile
+) -> list[str]:
+    """One note for all route steps whose channel or lift bore bends tighter than the profile
+    allows."""
+    tight = np.flatnonzero(min_radius < profile.min_bend_radius_mm - BEND_RADIUS_SLACK_MM)
+    if not len(tight):
+        return []
+    worst = int(tight[np.argmin(min_radius[tight])])
+    return [
+        f"{len(tight)} of {len(steps)} route steps bend tighter than the profile's "
+        f"{profile.min_bend_radius_mm:g} mm: bend radius down to {min_radius[worst]:.2f} mm "
+        f"(route step {worst}, tile {int(steps[worst, 1])}); steps {_id_ranges(tight)}"
+    ]
+
+
+def _strip_notes(
+    flat: NDArray[np.float64],
+    hinge_rows: NDArray[np.int64],
+    sides: Sequence[HingeSide],
+    profile: Profile,
+) -> list[str]:
+    """One note for the hinge strips shortened to keep a wall from the other strips of their
+    tiles (:func:`~drawstring.cad.features.hinge_strip_lengths`)."""
+    half = 0.5 * profile.hinge_pad_length_mm
+    lengths = np.array(
+        [
+            hinge_strip_lengths(flat[a], int(ca), flat[b], int(cb), side, profile)
+            for (a, ca, b, cb), side in zip(hinge_rows, sides, strict=True)
+        ]
+    ).reshape(-1, 2)
+    short = np.flatnonzero((lengths < half - 1e-9).any(axis=1))
+    if not len(short):
+        return []
+    return [
+        f"{int((lengths < half - 1e-9).sum())} of {lengths.size} hinge strip halves run less "
+        f"than the profile's {half:g} mm into their tiles (down to {lengths.min():.2f} mm), so "
+        f"that the strips of a tile's corners keep a wall apart (hinges {_id_ranges(short)})"
+    ]
+
+
+def _pin_notes(plans: Sequence[PinPlan]) -> list[str]:
+    """Notes on the TPU pins cut short or left out, one line each, naming the hinges."""
+    total = 2 * len(plans)
+    short = [h for h, plan in enumerate(plans) if any(plan.short)]
+    missing = [h for h, plan in enumerate(plans) if None in plan.pins]
+    count_short = sum(sum(plan.short) for plan in plans)
+    count_missing = sum(pin is None for plan in plans for pin in plan.pins)
+    notes = []
+    if count_short:
+        notes.append(
+            f"{count_short} of {total} hinge pins end short of the opposite face to clear a "
+            f"string channel, a lift bore or another hinge (hinges {_id_ranges(short)})"
+        )
+    if count_missing:
+        notes.append(
+            f"{count_missing} of {total} hinge pins left out, no room for them on their tiles: "
+            f"those pads are held by their recess only (hinges {_id_ranges(missing)})"
+        )
+    return notes
 
 
 def _run_jobs(

@@ -43,6 +43,9 @@ LABEL_FILL = 0.6
 _DIGIT_WIDTH, _DIGIT_SPACING, _DIGIT_STROKE = 0.55, 0.22, 0.18
 #: Glue recess depth as a fraction of the rubber strip thickness.
 GLUE_RECESS_DEPTH_FRACTION = 0.5
+#: A TPU hinge pin cut shorter than this many of its radii (to clear a channel or another pin)
+#: is left out: a stub that short does not key the pad.
+MIN_PIN_LENGTH_RADII = 1.0
 
 
 # --------------------------------------------------------------------------------------------
@@ -72,6 +75,38 @@ def _check_side(side: int, name: str) -> None:
 def channel_radius(profile: Profile) -> float:
     """Radius (mm) of a string channel: half of string diameter plus clearance."""
     return 0.5 * (profile.string_diameter_mm + profile.channel_clearance_mm)
+
+
+def feature_wall_mm(profile: Profile) -> float:
+    """Thinnest wall (mm) left between a feature and a tile face or another feature: a nozzle
+    width, two kerfs, and at least 0.3 mm (the label strokes' limit too)."""
+    return max(profile.nozzle_mm, 2.0 * profile.kerf_mm, 0.3)
+
+
+def channel_min_face_mm(profile: Profile) -> float:
+    """Narrowest side face (mm, edge length at mid-thickness) a string channel can open through:
+    the bore and a :func:`feature_wall_mm` either side of it."""
+    return 2.0 * (channel_radius(profile) + feature_wall_mm(profile))
+
+
+def hinge_sink_depth(profile: Profile) -> float:
+    """How deep (mm) the hinge features reach into a tile from its hinge face, pins aside (they
+    are cut short around the channels): the TPU recess, the dovetail key, the glue recess or the
+    screw and staple holes."""
+    if profile.hinge_interlock == "through-holes":
+        return profile.hinge_thickness_mm
+    if profile.hinge_interlock == "dovetail":
+        return 2.0 * profile.hinge_thickness_mm
+    if profile.hinge_interlock == "glue-recess":
+        return GLUE_RECESS_DEPTH_FRACTION * profile.hinge_thickness_mm
+    return 0.25 * profile.thickness_mm
+
+
+def channel_min_thickness_mm(profile: Profile) -> float:
+    """Thinnest tile (mm) whose mid-thickness string channel keeps a :func:`feature_wall_mm`
+    from the hinge features and the label sunk into its top and bottom faces."""
+    sunk = max(hinge_sink_depth(profile), label_depth(profile))
+    return 2.0 * (channel_radius(profile) + feature_wall_mm(profile) + sunk)
 
 
 def _bezier_points(control: NDArray[np.float64], samples: int = 65) -> NDArray[np.float64]:
@@ -264,14 +299,62 @@ def lift_path(tile: NDArray[np.float64], side: int) -> LiftPath:
     return LiftPath(entry, arc, inward, up, radius)
 
 
-def lift_bore(tile: NDArray[np.float64], side: int, profile: Profile) -> bd.Solid:
+def lift_bore_depth_mm(
+    tile: NDArray[np.float64], side: int, profile: Profile
+) -> tuple[float, float]:
+    """How deep ``tile`` is from side face ``side`` inward, and how deep it would have to be
+    for the lift bore from that side (:func:`lift_path`) to keep a :func:`feature_wall_mm`
+    from every other side face (mm).
+
+    The bore's bend rises from mid-thickness to the top face, so it reaches about half the
+    tile's thickness in from its side face whatever the tile's size: on a small tile it breaks
+    out through the far side face.
+    """
+    tile = np.asarray(tile, dtype=np.float64)
+    path = lift_path(tile, side)
+    centroids, normals = face_planes(tile)
+    points = np.vstack([path.entry[None], _arc_samples(path.arc)])
+    others = [k for k in range(4) if k != side]
+    beyond = np.einsum("pd,kd->pk", points, normals[others]) - np.einsum(
+        "kd,kd->k", centroids[others], normals[others]
+    )
+    overshoot = float(beyond.max()) + channel_radius(profile) + feature_wall_mm(profile)
+    opposite = (side + 2) % 4
+    depth = float((centroids[opposite] - path.entry) @ normals[opposite])
+    return depth, depth + overshoot
+
+
+def lift_chamfer(tile: NDArray[np.float64], path: LiftPath, profile: Profile) -> float:
+    """Depth (mm) of the 45-degree chamfer at a lift bore's exit: ``max(radius, 0.5 mm)``, or 0
+    (no chamfer) where its rim would come nearer than :func:`feature_wall_mm` to the top face's
+    edges.  Not a shallower one: a chamfer whose cone starts in the bore's bend (under about
+    0.55 mm for the shipped FDM profiles, measured on a 4.4 mm tile) gives a solid that OCCT
+    meshes with open seams."""
+    radius = channel_radius(profile)
+    chamfer = max(radius, 0.5)
+    top = np.asarray(tile, dtype=np.float64)[:4]
+    margin = _footprint_margin(np.concatenate([top, top]), path.arc[2], path.end_tangent)
+    return chamfer if margin >= radius + chamfer + feature_wall_mm(profile) else 0.0
+
+
+#: How much thinner (mm, radius) a lift bore is cut where a string channel opens through the
+#: same side face: the two tubes would otherwise share their cylinder just outside the face, and
+#: OCCT then leaves seams that mesh open (saddle, 47 mm, 200 tiles: tile 98).
+SHARED_OPENING_INSET_MM = 0.02
+
+
+def lift_bore(
+    tile: NDArray[np.float64], side: int, profile: Profile, *, shared: bool = False
+) -> bd.Solid:
     """Tool: a channel from side ``side`` that leaves upward through the top face.
 
     Follows :func:`lift_path`.  The exit is chamfered at 45 degrees (depth
-    ``max(radius, 0.5 mm)``) so the string, pulled upward, does not run over a sharp edge.
+    :func:`lift_chamfer`) so the string, pulled upward, does not run over a sharp edge.
+    ``shared``: a string channel opens through the same side face; the bore is then
+    :data:`SHARED_OPENING_INSET_MM` thinner, inside that channel where they overlap.
     """
     tile = np.asarray(tile, dtype=np.float64)
-    radius = channel_radius(profile)
+    radius = channel_radius(profile) - (SHARED_OPENING_INSET_MM if shared else 0.0)
     path = lift_path(tile, side)
     if path.radius < profile.min_bend_radius_mm - BEND_RADIUS_SLACK_MM:
         log.debug(
@@ -288,7 +371,9 @@ def lift_bore(tile: NDArray[np.float64], side: int, profile: Profile) -> bd.Soli
     edges.append(bd.Edge.make_line(_vec(exit_point), _vec(outer_end)))
     section = bd.Wire([bd.Edge.make_circle(radius, _plane(outer_start, path.start_tangent))])
     tube = clean_solid(bd.Solid.sweep(section, bd.Wire(edges), transition=bd.Transition.ROUND))
-    chamfer = max(radius, 0.5)
+    chamfer = lift_chamfer(tile, path, profile)
+    if chamfer <= 0.0:
+        return tube
     cone_base = exit_point - chamfer * path.end_tangent
     height = chamfer + TOOL_OVERSHOOT_MM
     cone = bd.Solid.make_cone(radius, radius + height, height, _plane(cone_base, path.end_tangent))
@@ -533,7 +618,7 @@ def label_engraving(
     The text reads correctly when the bottom face is seen from outside, runs along side 0, is
     centred on the face and fits inside ``LABEL_FILL`` of the face's inscribed radius.  Returns
     ``None`` (and logs) when the strokes would be thinner than the machine can make
-    (``max(nozzle, 2 kerf, 0.3 mm)``).
+    (:func:`feature_wall_mm`: ``max(nozzle, 2 kerf, 0.3 mm)``).
     """
     if tile_id < 0:
         raise InputError(f"tile_id = {tile_id} must be >= 0")
@@ -551,9 +636,12 @@ def label_engraving(
     text = str(tile_id)
     width_over_height = len(text) * _DIGIT_WIDTH + (len(text) - 1) * _DIGIT_SPACING
     height = LABEL_FILL * inradius / float(np.hypot(0.5 * width_over_height, 0.5))
-    min_stroke = max(profile.nozzle_mm, 2 * profile.kerf_mm, 0.3)
+    min_stroke = feature_wall_mm(profile)
     if _DIGIT_STROKE * height < min_stroke:
-        log.warning("tile %d: label strokes %.2f mm too thin; no label", tile_id, height / 7)
+        # debug: the design lists the tiles without numbers in one note
+        log.debug(
+            "tile %d: label strokes %.2f mm too thin; no label", tile_id, _DIGIT_STROKE * height
+        )
         return None
     depth = label_depth(profile)
     solids = [
@@ -591,11 +679,48 @@ class _HingeFrame:
     points : (k, 3) polyline: end inside tile a, corner a, [corner b], end inside tile b.
     normal : (3,) outward normal of the hinge face (up for "top", down for "bottom").
     halves : per tile, (corner point, unit direction from the corner into the tile).
+    lengths : per tile, how far (mm) the strip runs from the corner into the tile.
     """
 
     points: NDArray[np.float64]
     normal: NDArray[np.float64]
     halves: tuple[tuple[NDArray[np.float64], NDArray[np.float64]], ...]
+    lengths: tuple[float, float]
+
+
+def strip_room(profile: Profile) -> float:
+    """How far (mm) a hinge strip's end stays from the centre of its tile's hinge face: half the
+    strip width and a :func:`feature_wall_mm`, so that the strips of a tile's four corners,
+    which all run towards that centre, keep a wall between them."""
+    return 0.5 * profile.hinge_width_mm + feature_wall_mm(profile)
+
+
+def strip_min_reach_mm(profile: Profile) -> float:
+    """Shortest distance (mm) from a hinged corner to its face's centre that still leaves the
+    strip half a width of its own in the tile (see :func:`strip_room`)."""
+    return strip_room(profile) + 0.5 * profile.hinge_width_mm
+
+
+def hinge_strip_lengths(
+    tile_a: NDArray[np.float64],
+    corner_a: int,
+    tile_b: NDArray[np.float64],
+    corner_b: int,
+    side: HingeSide,
+    profile: Profile,
+) -> tuple[float, float]:
+    """How far (mm) a hinge's strip runs into tile a and into tile b: half the profile's pad
+    length, less where the strip's end would come within :func:`strip_room` of the centre of
+    the tile's hinge face (never under half the strip width)."""
+    frame = _hinge_frame(
+        np.asarray(tile_a, dtype=np.float64),
+        corner_a,
+        np.asarray(tile_b, dtype=np.float64),
+        corner_b,
+        side,
+        profile,
+    )
+    return frame.lengths
 
 
 def _hinge_frame(
@@ -604,8 +729,10 @@ def _hinge_frame(
     tile_b: NDArray[np.float64],
     corner_b: int,
     side: HingeSide,
-    half_length: float,
+    profile: Profile,
 ) -> _HingeFrame:
+    """The strip of a hinge: half the profile's pad length into each tile, less where its end
+    would come within :func:`strip_room` of the centre of the tile's hinge face."""
     if side not in ("top", "bottom"):
         raise InputError(f"hinge side {side!r} must be 'top' or 'bottom'")
     for corner, name in ((corner_a, "corner_a"), (corner_b, "corner_b")):
@@ -616,14 +743,19 @@ def _hinge_frame(
     normal = _unit(face_planes(tile_a)[1][face] + face_planes(tile_b)[1][face])
     point_a, point_b = tile_a[shift + corner_a], tile_b[shift + corner_b]
     level = 0.5 * (point_a + point_b) @ normal
+    half_length = 0.5 * profile.hinge_pad_length_mm
     halves = []
+    lengths = []
     for tile, point in ((tile_a, point_a), (tile_b, point_b)):
         point = point - (point @ normal - level) * normal
         towards = tile[shift : shift + 4].mean(axis=0) - point
-        halves.append((point, _unit(towards - (towards @ normal) * normal)))
+        towards = towards - (towards @ normal) * normal
+        halves.append((point, _unit(towards)))
+        reach = float(np.linalg.norm(towards)) - strip_room(profile)
+        lengths.append(max(min(half_length, reach), 0.5 * profile.hinge_width_mm))
     (pa, da), (pb, db) = halves
-    points = [pa + half_length * da]
-    for candidate in (pa, pb, pb + half_length * db):
+    points = [pa + lengths[0] * da]
+    for candidate in (pa, pb, pb + lengths[1] * db):
         if np.linalg.norm(candidate - points[-1]) > 1e-6:
             points.append(candidate)
     kept = [points[0]]  # drop interior points where the polyline runs straight on
@@ -632,7 +764,7 @@ def _hinge_frame(
         if np.linalg.norm(turn) > 1e-6:
             kept.append(points[i])
     kept.append(points[-1])
-    return _HingeFrame(np.array(kept), normal, (halves[0], halves[1]))
+    return _HingeFrame(np.array(kept), normal, (halves[0], halves[1]), (lengths[0], lengths[1]))
 
 
 def _strip_outline(points: NDArray[np.float64], width: float, normal: NDArray) -> bd.Face:
@@ -724,12 +856,15 @@ def _place_holes(
     stations: tuple[float, ...],
     radius: float,
     wall: float,
+    limit: float = np.inf,
 ) -> tuple[list[NDArray[np.float64]], list[str]]:
-    """Hole axes along one half of a strip, each slid inward until it keeps ``wall`` from the
-    tile's side faces; stations that never fit are reported."""
+    """Hole axes along one half of a strip, each slid inward (up to ``limit`` mm from the
+    corner) until it keeps ``wall`` from the tile's side faces; stations that never fit are
+    reported."""
     placed, notes = [], []
     for station in stations:
-        for distance in np.linspace(station, station + 4.0 * radius, 17):
+        candidates = np.linspace(station, station + 4.0 * radius, 17)
+        for distance in candidates[candidates <= limit + 1e-9]:
             point = corner + distance * direction
             if _footprint_margin(tile, point, normal) >= radius + wall:
                 placed.append(point)
@@ -750,42 +885,280 @@ def _cylinder_between(
     return bd.Solid.make_cylinder(radius, stop - start, _plane(point - start * normal, -normal))
 
 
+def pin_radius(profile: Profile) -> float:
+    """Radius (mm) of a through-holes hinge's TPU pin: ``max(0.75 width, 1.5 nozzle)``."""
+    return max(0.75 * profile.hinge_width_mm, 1.5 * profile.nozzle_mm)
+
+
+@dataclass(frozen=True)
+class KeepOut:
+    """Solids a hinge pin keeps a wall away from, as a union of balls.
+
+    Attributes
+    ----------
+    centres : (k, 3) float, mm, sampled densely (:data:`_KEEP_OUT_SPACING_MM`) along channels,
+        lift bores, hinge strips and pins.
+    radii : (k,) float, mm.
+    """
+
+    centres: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
+    radii: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+
+    def __add__(self, other: KeepOut) -> KeepOut:
+        return KeepOut(
+            np.vstack([self.centres, other.centres]), np.concatenate([self.radii, other.radii])
+        )
+
+
+#: Spacing (mm) of the balls of a :class:`KeepOut` along a centre line: the union of balls of
+#: radius >= 0.3 mm this far apart falls short of the tube by under 0.005 mm.
+_KEEP_OUT_SPACING_MM = 0.1
+
+
+def _resample(points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A polyline ((k, 3) mm) with points added so that none are more than
+    :data:`_KEEP_OUT_SPACING_MM` apart."""
+    out = [points[:1]]
+    for a, b in zip(points[:-1], points[1:], strict=True):
+        count = max(1, int(np.ceil(np.linalg.norm(b - a) / _KEEP_OUT_SPACING_MM)))
+        out.append(a + np.linspace(0.0, 1.0, count + 1)[1:, None] * (b - a))
+    return np.vstack(out)
+
+
+def _tube_keep_out(points: NDArray[np.float64], radius: float) -> KeepOut:
+    centres = _resample(np.asarray(points, dtype=np.float64))
+    return KeepOut(centres, np.full(len(centres), radius))
+
+
+def _arc_samples(arc: NDArray[np.float64], count: int = 33) -> NDArray[np.float64]:
+    """Points along the circular arc through start, middle and end (``arc`` (3, 3), mm)."""
+    a, m, b = arc
+    u, v = m - a, b - a
+    w = np.cross(u, v)
+    if np.linalg.norm(w) < 1e-12:
+        return np.linspace(a, b, count)
+    centre = a + (u @ u * np.cross(v, w) + v @ v * np.cross(w, u)) / (2.0 * (w @ w))
+    radius = float(np.linalg.norm(a - centre))
+    e1 = (a - centre) / radius
+    e2 = _unit((m - centre) - ((m - centre) @ e1) * e1)
+    turn = 2.0 * float(np.arctan2((m - centre) @ e2, (m - centre) @ e1))
+    angles = np.linspace(0.0, turn, count)[:, None]
+    return np.asarray(centre + radius * (np.cos(angles) * e1 + np.sin(angles) * e2))
+
+
+def channel_keep_out(
+    tile: NDArray[np.float64], enter_side: int, leave_side: int, profile: Profile
+) -> KeepOut:
+    """The string channel of one route step through ``tile`` ((8, 3), mm) as balls, or its lift
+    bore when a side is ``SIDE_TOP_FACE`` (the chamfered exit as balls of the chamfer's top
+    radius)."""
+    tile = np.asarray(tile, dtype=np.float64)
+    radius = channel_radius(profile)
+    if SIDE_TOP_FACE not in (enter_side, leave_side):
+        return _tube_keep_out(channel_path(tile, enter_side, leave_side).points(129), radius)
+    side = enter_side if leave_side == SIDE_TOP_FACE else leave_side
+    path = lift_path(tile, side)
+    chamfer = lift_chamfer(tile, path, profile)
+    exit_point = path.arc[2]
+    bore = _tube_keep_out(
+        np.vstack([path.entry[None], _arc_samples(path.arc), exit_point[None]]), radius
+    )
+    top = exit_point + (radius + TOOL_OVERSHOOT_MM) * path.end_tangent
+    flare = _tube_keep_out(np.stack([exit_point - chamfer * path.end_tangent, top]), radius)
+    return bore + KeepOut(flare.centres, flare.radii + chamfer)
+
+
+@dataclass(frozen=True)
+class HingePin:
+    """One TPU pin of a through-holes hinge and the hole it fills.
+
+    Attributes
+    ----------
+    point : (3,) float, mm, where the pin's axis meets the hinge face plane.
+    normal : (3,) float, the hinge face's outward normal; the pin runs along its opposite.
+    depth : float, mm, how far below the hinge face the pin ends (it starts at the recess floor,
+        ``hinge_thickness_mm`` deep).
+    through : whether it ends on the opposite face (its hole is then cut on past that face).
+    """
+
+    point: NDArray[np.float64]
+    normal: NDArray[np.float64]
+    depth: float
+    through: bool
+
+
+#: Per tile half (tile a, tile b) of a hinge: its pin, or None where it has none.
+HingePins = tuple[HingePin | None, HingePin | None]
+
+
+@dataclass(frozen=True)
+class PinPlan:
+    """The pins of one through-holes hinge (:func:`plan_pins`).
+
+    Attributes
+    ----------
+    pins : per tile (a, b), the pin or None where none fits.
+    short : per tile, whether the pin was cut short to clear another feature.
+    notes : one line per pin that does not fit, for the hinge's record.
+    """
+
+    pins: HingePins
+    short: tuple[bool, bool]
+    notes: tuple[str, ...] = field(default=())
+
+
+def pin_keep_out(pin: HingePin, profile: Profile) -> KeepOut:
+    """A planned pin as balls along its axis."""
+    start = pin.point - profile.hinge_thickness_mm * pin.normal
+    return _tube_keep_out(
+        np.stack([start, pin.point - pin.depth * pin.normal]), pin_radius(profile)
+    )
+
+
+def strip_keep_outs(
+    tile_a: NDArray[np.float64],
+    corner_a: int,
+    tile_b: NDArray[np.float64],
+    corner_b: int,
+    side: HingeSide,
+    profile: Profile,
+) -> tuple[KeepOut, KeepOut]:
+    """A TPU hinge's strip (the recess it sits in) as balls, the half in tile a and in tile b:
+    from each hinged corner inward as far as the strip runs, half the strip thickness deep."""
+    tile_a, tile_b = np.asarray(tile_a, dtype=np.float64), np.asarray(tile_b, dtype=np.float64)
+    frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, profile)
+    depth = 0.5 * profile.hinge_thickness_mm
+    radius = float(np.hypot(0.5 * profile.hinge_width_mm, depth))
+    found = []
+    for (corner, direction), length in zip(frame.halves, frame.lengths, strict=True):
+        start = corner - depth * frame.normal
+        found.append(_tube_keep_out(np.stack([start, start + length * direction]), radius))
+    return found[0], found[1]
+
+
+def _clear_depth(
+    point: NDArray[np.float64],
+    axis: NDArray[np.float64],
+    radius: float,
+    start: float,
+    stop: float,
+    keep_out: KeepOut,
+    wall: float,
+) -> float:
+    """The deepest end (mm, at most ``stop``) of a cylinder of ``radius`` on the axis
+    ``point + t axis`` from ``t = start`` that stays ``wall`` away from every ball of
+    ``keep_out``; below ``start`` when no length does."""
+    if not len(keep_out.radii):
+        return stop
+    rel = keep_out.centres - point
+    along = rel @ axis
+    off_axis = np.linalg.norm(rel - along[:, None] * axis, axis=1)
+    reach = keep_out.radii + wall
+    lateral = np.maximum(off_axis - radius, 0.0)
+    near = lateral < reach
+    # Axial half-extent of each inflated ball where it meets the infinite cylinder.
+    half = np.sqrt(np.maximum(reach[near] ** 2 - lateral[near] ** 2, 0.0))
+    low, high = along[near] - half, along[near] + half
+    below = high > start  # balls wholly on the hinge face's side of the pin are no obstacle
+    if not np.any(below):
+        return stop
+    if np.any(low[below] <= start):
+        return start - 1.0
+    return float(min(stop, low[below].min()))
+
+
+def plan_pins(
+    tile_a: NDArray[np.float64],
+    corner_a: int,
+    tile_b: NDArray[np.float64],
+    corner_b: int,
+    side: HingeSide,
+    profile: Profile,
+    keep_out: tuple[KeepOut | None, KeepOut | None] = (None, None),
+) -> PinPlan:
+    """Where the TPU pins of a through-holes hinge go, one per tile (a "lollipop").
+
+    Each pin sits at the inner end of the strip, slid inward until it keeps a wall from the
+    tile's side faces, and runs from the recess floor to the opposite face (blind, one diameter
+    short of it, when that face is tilted).  ``keep_out`` per tile (channels, lift bores, other
+    hinges' strips and pins, see :class:`KeepOut`) cuts a pin short to keep a wall from them; a
+    pin shorter than ``MIN_PIN_LENGTH_RADII`` radii is left out.
+
+    ``keep_out`` entries are None for no other features (only the tile's edges limit the pin).
+    """
+    tiles = (np.asarray(tile_a, dtype=np.float64), np.asarray(tile_b, dtype=np.float64))
+    frame = _hinge_frame(tiles[0], corner_a, tiles[1], corner_b, side, profile)
+    radius = pin_radius(profile)
+    wall = max(profile.nozzle_mm, 0.3)
+    floor = profile.hinge_thickness_mm
+    pins: list[HingePin | None] = []
+    short = [False, False]
+    notes: list[str] = []
+    for index, (tile, (corner, direction), length, keep, name) in enumerate(
+        zip(tiles, frame.halves, frame.lengths, keep_out, ("a", "b"), strict=True)
+    ):
+        # the axis stays under the strip: a pin beyond its end would not hold it
+        points, missing = _place_holes(
+            tile, corner, direction, frame.normal, (length - radius,), radius, wall, length
+        )
+        notes += missing
+        if not points:
+            pins.append(None)
+            continue
+        point = points[0]
+        depth, through = _depth_to_opposite(tile, side, point, frame.normal)
+        if not through:
+            depth -= radius * 2.0  # tilted opposite face: keep the hole blind
+        if keep is not None:
+            clear = _clear_depth(point, -frame.normal, radius, floor, depth, keep, wall)
+            if clear < depth:
+                depth, through, short[index] = clear, False, True
+        if depth - floor < MIN_PIN_LENGTH_RADII * radius:
+            short[index] = False
+            notes.append(f"pin in tile {name} left out: no room clear of the tile's other features")
+            pins.append(None)
+            continue
+        pins.append(HingePin(point, frame.normal, float(depth), through))
+    return PinPlan((pins[0], pins[1]), (short[0], short[1]), tuple(notes))
+
+
 def _tpu_pad(
     tiles: tuple[NDArray[np.float64], NDArray[np.float64]],
     frame: _HingeFrame,
+    corners: tuple[int, int],
     side: HingeSide,
     profile: Profile,
     build_pad: bool,
+    pins: HingePins | None,
 ) -> HingeParts:
     """Dual-material FDM pad: a TPU strip sunk into both tiles, keyed by pins or a dovetail."""
     thickness, width = profile.hinge_thickness_mm, profile.hinge_width_mm
-    half = 0.5 * profile.hinge_pad_length_mm
     wall = max(profile.nozzle_mm, 0.3)
     recess = _slab(frame, frame.points, width, -TOOL_OVERSHOOT_MM, thickness)
     tools: tuple[list[bd.Solid], list[bd.Solid]] = ([recess], [recess])
     keys: list[bd.Solid] = []
     notes: list[str] = []
-    for index, (tile, (corner, direction)) in enumerate(zip(tiles, frame.halves, strict=True)):
-        if profile.hinge_interlock == "through-holes":
-            # A TPU pin through the tile at the inner end of the strip (a "lollipop").
-            radius = max(0.75 * width, 1.5 * profile.nozzle_mm)
-            points, missing = _place_holes(
-                tile, corner, direction, frame.normal, (half - radius,), radius, wall
-            )
-            notes += missing
-            for point in points:
-                depth, through = _depth_to_opposite(tile, side, point, frame.normal)
-                if not through:
-                    depth -= radius * 2.0  # tilted opposite face: keep the hole blind
-                stop = depth + (TOOL_OVERSHOOT_MM if through else 0.0)
-                # the hole starts at the recess floor, like the pin: cutting it from above the
-                # surface through the recess left it uncut on some hinges (OCCT)
-                tools[index].append(_cylinder_between(point, frame.normal, radius, thickness, stop))
-                # The pin starts at the strip's underside: starting it inside the strip (which
-                # the union makes no different where the strip covers it) left OCCT's fuse
-                # non-manifold on some hinges.
-                keys.append(_cylinder_between(point, frame.normal, radius, thickness, depth))
-        else:
+    if profile.hinge_interlock == "through-holes":
+        if pins is None:
+            plan = plan_pins(tiles[0], corners[0], tiles[1], corners[1], side, profile)
+            pins = plan.pins
+            notes += plan.notes
+        radius = pin_radius(profile)
+        for index, pin in enumerate(pins):
+            if pin is None:
+                continue
+            stop = pin.depth + (TOOL_OVERSHOOT_MM if pin.through else 0.0)
+            # the hole starts at the recess floor, like the pin: cutting it from above the
+            # surface through the recess left it uncut on some hinges (OCCT)
+            tools[index].append(_cylinder_between(pin.point, frame.normal, radius, thickness, stop))
+            # The pin starts at the strip's underside: starting it inside the strip (which
+            # the union makes no different where the strip covers it) left OCCT's fuse
+            # non-manifold on some hinges.
+            keys.append(_cylinder_between(pin.point, frame.normal, radius, thickness, pin.depth))
+    else:
+        for index, (tile, (corner, direction), half) in enumerate(
+            zip(tiles, frame.halves, frame.lengths, strict=True)
+        ):
             # Dovetail: a key 1.8 x wider than the strip just above it, held by the narrow neck.
             key_width = 1.8 * width
             inner = next(
@@ -822,13 +1195,13 @@ def glue_recess(
     """Laser-cut rubber hinge: a shallow recess where the strip is glued, and the strip itself.
 
     The recess is ``GLUE_RECESS_DEPTH_FRACTION`` of the strip thickness deep and follows the
-    strip outline (``hinge_width_mm`` wide, ``hinge_pad_length_mm`` long); the strip (``pad``)
-    sits in it and stands proud by the rest of its thickness.
+    strip outline (``hinge_width_mm`` wide, ``hinge_pad_length_mm`` long, shorter on small tiles:
+    :func:`hinge_strip_lengths`); the strip (``pad``) sits in it and stands proud by the rest of
+    its thickness.
     """
     tile_a, tile_b = np.asarray(tile_a, dtype=float), np.asarray(tile_b, dtype=float)
     thickness, width = profile.hinge_thickness_mm, profile.hinge_width_mm
-    half = 0.5 * profile.hinge_pad_length_mm
-    frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, half)
+    frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, profile)
     depth = GLUE_RECESS_DEPTH_FRACTION * thickness
     recess = (_slab(frame, frame.points, width, -TOOL_OVERSHOOT_MM, depth),)
     pad = _slab(frame, frame.points, width, depth - thickness, depth) if build_pad else None
@@ -852,14 +1225,13 @@ def strip_holes(
     """
     tile_a, tile_b = np.asarray(tile_a, dtype=float), np.asarray(tile_b, dtype=float)
     thickness, width = profile.hinge_thickness_mm, profile.hinge_width_mm
-    half = 0.5 * profile.hinge_pad_length_mm
-    frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, half)
+    frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, profile)
     wall = max(profile.tool_diameter_mm, 1.0)
     depth = 0.25 * profile.thickness_mm
     tools: tuple[list[bd.Solid], list[bd.Solid]] = ([], [])
     notes: list[str] = []
-    for index, (tile, (corner, direction)) in enumerate(
-        zip((tile_a, tile_b), frame.halves, strict=True)
+    for index, (tile, (corner, direction), half) in enumerate(
+        zip((tile_a, tile_b), frame.halves, frame.lengths, strict=True)
     ):
         if profile.hinge_interlock == "screws":
             radius = 0.5 * float(np.clip(0.12 * width, 2.0, 5.0))
@@ -894,6 +1266,7 @@ def hinge_pad(
     side: HingeSide,
     profile: Profile,
     build_pad: bool = True,
+    pins: HingePins | None = None,
 ) -> HingeParts:
     """The hinge part and tile tools for the profile's process.
 
@@ -905,11 +1278,14 @@ def hinge_pad(
     side : ``"top"`` or ``"bottom"``: the face whose corners the hinge joins.
     profile : ``hinge_interlock`` picks the kind.  ``through-holes`` / ``dovetail``: a TPU pad
         ``hinge_thickness_mm`` thick and ``hinge_width_mm`` wide running ``hinge_pad_length_mm``
-        / 2 from each corner into its tile, sunk flush into both tiles, keyed by a TPU pin
-        through each tile (diameter ``max(1.5 width, 3 nozzle)``) or by a key 1.8 x wider under
-        the strip.  ``glue-recess``: :func:`glue_recess`.  ``screws`` / ``staples``:
+        / 2 from each corner into its tile (less on small tiles: :func:`hinge_strip_lengths`),
+        sunk flush into both tiles, keyed by a TPU pin through each tile (diameter
+        ``max(1.5 width, 3 nozzle)``, see :func:`plan_pins`) or by a key 1.8 x wider under the
+        strip.  ``glue-recess``: :func:`glue_recess`.  ``screws`` / ``staples``:
         :func:`strip_holes`.
     build_pad : also build the part (tile jobs only need the tools).
+    pins : ``through-holes`` only: the pins as :func:`plan_pins` placed them around the tiles'
+        other features (default: planned here, clear of the tiles' edges only).
 
     Returns
     -------
@@ -919,10 +1295,10 @@ def hinge_pad(
     tile_a = np.asarray(tile_a, dtype=np.float64)
     tile_b = np.asarray(tile_b, dtype=np.float64)
     if profile.hinge_interlock in ("through-holes", "dovetail"):
-        frame = _hinge_frame(
-            tile_a, corner_a, tile_b, corner_b, side, 0.5 * profile.hinge_pad_length_mm
+        frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, profile)
+        return _tpu_pad(
+            (tile_a, tile_b), frame, (corner_a, corner_b), side, profile, build_pad, pins
         )
-        return _tpu_pad((tile_a, tile_b), frame, side, profile, build_pad)
     if profile.hinge_interlock == "glue-recess":
         return glue_recess(tile_a, corner_a, tile_b, corner_b, side, profile, build_pad)
     return strip_holes(tile_a, corner_a, tile_b, corner_b, side, profile, build_pad)
@@ -957,25 +1333,32 @@ def _plausible(pieces: list[bd.Solid], base: bd.Solid) -> bool:
     return bool(largest.is_manifold and largest.is_valid)
 
 
-def build_tile(tile: NDArray[np.float64] | bd.Solid, tools: list[bd.Shape]) -> bd.Solid:
+def build_tile(
+    tile: NDArray[np.float64] | bd.Solid,
+    tools: list[bd.Shape],
+    *,
+    failed: list[int] | None = None,
+) -> bd.Solid:
     """The tile minus the tools that touch it, in one boolean operation.
 
     Tools whose bounding box misses the tile's are skipped.  If the cut splits the tile, the
-    largest piece is kept and a warning is logged.
+    largest piece is kept and a warning is logged.  A tool whose cut fails even on its own and
+    slightly shifted raises ``RuntimeError``, or, given a ``failed`` list, is left uncut and its
+    index in ``tools`` appended there.
     """
     base = tile if isinstance(tile, bd.Solid) else tile_solid(np.asarray(tile))
     box = bounding_box(base)
     touching = []
-    for tool in tools:
+    for index, tool in enumerate(tools):
         tool_box = bounding_box(tool)
         if np.all(tool_box[0] <= box[1] + 1e-6) and np.all(tool_box[1] >= box[0] - 1e-6):
-            touching.append(tool)
-    pieces = cut(base, touching)
+            touching.append((index, tool))
+    pieces = cut(base, [tool for _, tool in touching])
     if not _plausible(pieces, base):
         # OCCT's batched cut can fail where two tools share a face (a channel and a lift bore
         # leaving through the same opening); cutting one tool at a time avoids that.
         pieces = [base]
-        for tool in touching:
+        for index, tool in touching:
             current = max(pieces, key=lambda s: s.volume)
             for nudge in _NUDGES_MM:
                 # A coincident face can defeat the boolean; a micrometre shift does not change
@@ -986,7 +1369,9 @@ def build_tile(tile: NDArray[np.float64] | bd.Solid, tools: list[bd.Shape]) -> b
                     pieces = attempt
                     break
             else:
-                raise RuntimeError("a feature's cut failed even after shifting it slightly")
+                if failed is None:
+                    raise RuntimeError("a feature's cut failed even after shifting it slightly")
+                failed.append(index)
     if not pieces:
         raise RuntimeError("cutting the features removed the whole tile")
     if len(pieces) > 1:
