@@ -6,6 +6,7 @@ plain arrays.  This module translates one into the other and runs the CAD build 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
@@ -13,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import SIDE_BOTTOM, SIDE_LEFT, SIDE_RIGHT, SIDE_TOP, Linkage
 from drawstring.geometry.route import Route
 
@@ -133,11 +135,172 @@ def fabrication_measures(result: Design, cad_flat: CadResult) -> Measures:
     )
 
 
+#: Side faces of a tile, as (top corner, next top corner, bottom corner, next bottom corner).
+_SIDE_EDGES = np.array([[k, (k + 1) % 4, 4 + k, 4 + (k + 1) % 4] for k in range(4)])
+
+
+def channel_faces_mm(tiles: NDArray[np.float64], inputs: CadInputs) -> NDArray[np.float64]:
+    """Width (mm, edge length at mid-thickness) of every side face a string channel or lift
+    bore opens through, one per opening."""
+    openings = [
+        (tile, side)
+        for _, tile, enter, leave in inputs.route_steps.tolist()
+        for side in (enter, leave)
+        if side < 4  # 4: a lift bore's exit through the top face
+    ]
+    openings += [(tile, side) for tile, side in inputs.lift_tiles.tolist()]
+    if not openings:
+        return np.zeros(0)
+    tile_ids, sides = np.array(openings, dtype=np.int64).T
+    corners = tiles[tile_ids[:, None], _SIDE_EDGES[sides]]  # (K, 4, 3)
+    top = np.linalg.norm(corners[:, 1] - corners[:, 0], axis=1)
+    bottom = np.linalg.norm(corners[:, 3] - corners[:, 2], axis=1)
+    return np.asarray(0.5 * (top + bottom))
+
+
+def _round_up(value: float) -> float:
+    """``value`` rounded up to two significant digits."""
+    step = 10.0 ** (math.floor(math.log10(value)) - 1)
+    return math.ceil(value / step - 1e-9) * step
+
+
+@dataclass(frozen=True)
+class _Shortfall:
+    """A feature that does not fit the smallest tile it goes in: what it is, how much room
+    (mm) that tile gives it and how much it needs."""
+
+    what: str
+    have: float
+    need: float
+
+
+def _shortfalls(result: Design) -> list[_Shortfall]:
+    """The features the profile cannot give up on that do not fit this design's tiles."""
+    from drawstring.cad.features import (
+        channel_min_face_mm,
+        lift_bore_depth_mm,
+        strip_min_reach_mm,
+    )
+
+    profile = result.profile
+    tiles = print_tiles(result)
+    inputs = cad_inputs(result)
+    bore = f"{profile.string_diameter_mm + profile.channel_clearance_mm:g} mm string channel"
+    found = []
+    faces = channel_faces_mm(tiles, inputs)
+    if len(faces) and faces.min() < channel_min_face_mm(profile) - 1e-9:
+        found.append(
+            _Shortfall(
+                f"side faces as narrow as {faces.min():.2f} mm where the string runs, and the "
+                f"{bore} needs {channel_min_face_mm(profile):.2f} mm with its walls",
+                float(faces.min()),
+                channel_min_face_mm(profile),
+            )
+        )
+    bores = {(int(t), int(s)) for t, s in inputs.lift_tiles.tolist()}
+    for _, tile, enter, leave in inputs.route_steps.tolist():
+        if 4 in (enter, leave):  # through the top face: a lift bore from the other side
+            bores.add((int(tile), int(min(enter, leave))))
+    if bores:
+        depths = [lift_bore_depth_mm(tiles[t], s, profile) for t, s in sorted(bores)]
+        have, need = min(depths, key=lambda d: d[0] / d[1])
+        if have < need - 1e-9:
+            found.append(
+                _Shortfall(
+                    f"lift-point tiles {have:.2f} mm deep, and the lift bore, which bends up "
+                    f"from mid-thickness to the top face, needs {need:.2f} mm",
+                    have,
+                    need,
+                )
+            )
+    hinges = np.asarray(result.tiling.linkage.hinges, dtype=np.int64).reshape(-1, 4)
+    if len(hinges):
+        # from each hinged corner to the centre of the hinge face, in both tiles of each hinge
+        shift = np.where(np.asarray(result.hinge_layout.sides) == "top", 0, 4)
+        distances = []
+        for ids, at in ((hinges[:, 0], hinges[:, 1]), (hinges[:, 2], hinges[:, 3])):
+            ring = tiles[ids[:, None], shift[:, None] + np.arange(4)]  # (H, 4, 3)
+            point = tiles[ids, shift + at]
+            distances.append(np.linalg.norm(ring.mean(axis=1) - point, axis=1))
+        corner = float(np.min(distances))
+        reach = strip_min_reach_mm(profile)
+        if corner < reach - 1e-9:
+            found.append(
+                _Shortfall(
+                    f"hinged corners {corner:.2f} mm from their tiles' centres, and a "
+                    f"{profile.hinge_width_mm:g} mm wide hinge strip needs {reach:.2f} mm",
+                    corner,
+                    reach,
+                )
+            )
+    return found
+
+
+def feature_fit_refusal(result: Design) -> InputError | None:
+    """The one-line refusal of tiles too small or too thin for the profile's string channel,
+    lift bores or hinge strips, or None when they fit.
+
+    Checked before any solid is built: the tile thickness against
+    :func:`~drawstring.cad.features.channel_min_thickness_mm`; the side faces the string passes
+    against :func:`~drawstring.cad.features.channel_min_face_mm`; each lift-point tile's depth
+    against :func:`~drawstring.cad.features.lift_bore_depth_mm`; and each hinged corner's
+    distance from its face's centre against
+    :func:`~drawstring.cad.features.strip_min_reach_mm`.  Every other feature gives way on a
+    small tile (pins cut short or left out, strips shortened, chamfers and numbers dropped, each
+    with a note).  The size suggested scales the tiles up to the worst shortfall.
+
+    The bounds keep a :func:`~drawstring.cad.features.feature_wall_mm` (one nozzle) of
+    material around each feature.  Measured on the saddle, fdm-dual, 200 tiles, with the full
+    CLI: the lift bores decide (their bend rises 3 mm, half the 6 mm thickness, so it needs
+    3.83 mm of tile whatever the size).  ``--size 46`` (lift tiles 3.81 mm deep) is refused;
+    ``--size 47`` (3.88 mm) builds, meshes and writes with no problem.  With the check lifted,
+    the bore cuts a notch out of the far side face from about ``--size 41`` down (``--size 40``:
+    3.27 mm deep) and, from ``--size 35`` down, the channel checks find openings missing; in
+    between, the wall left is thinner than a nozzle.  The channel faces alone (2.40 mm) would
+    refuse only below ``--size 39``.
+    """
+    from drawstring.cad.features import channel_min_thickness_mm
+
+    profile, options = result.profile, result.options
+    thickness = options.thickness_mm
+    need_thickness = channel_min_thickness_mm(profile)
+    if thickness < need_thickness - 1e-9:
+        return InputError(
+            f"{thickness:g} mm thick tiles are too thin for the {profile.name} profile's string "
+            f"channel ({profile.string_diameter_mm + profile.channel_clearance_mm:g} mm bore at "
+            f"mid-thickness, walls and hinge recesses above and below it need "
+            f"{need_thickness:.2f} mm); use --thickness {_round_up(need_thickness):g} or more"
+        )
+    found = _shortfalls(result)
+    if not found:
+        return None
+    worst = max(found, key=lambda f: f.need / f.have)
+    count = (
+        f"--grid {options.grid[0]} {options.grid[1]}" if options.grid else f"{options.tiles} tiles"
+    )
+    fewer = "a smaller --grid" if options.grid else "fewer --tiles"
+    size = _round_up(options.size_mm * worst.need / worst.have)
+    return InputError(
+        f"--size {options.size_mm:g} mm with {count} gives tiles too small for the "
+        f"{profile.name} profile: {worst.what}; use --size {size:g} or more, or {fewer}"
+    )
+
+
 def build_cad(result: Design) -> tuple[CadResult, CadResult]:
-    """Solids of every tile and hinge part, in the flat (print) and the assembled pose."""
+    """Solids of every tile and hinge part, in the flat (print) and the assembled pose.
+
+    Raises
+    ------
+    InputError
+        When the tiles are too small or too thin for the string channel
+        (:func:`feature_fit_refusal`), before any solid is built.
+    """
     from drawstring.cad.design import build_design_solids
     from drawstring.cad.tiles import move_solid
 
+    refusal = feature_fit_refusal(result)
+    if refusal is not None:
+        raise refusal
     inputs = cad_inputs(result)
     flat = build_design_solids(
         print_tiles(result),
@@ -192,8 +355,14 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
     flat_tiles = print_tiles(result)
     valid_tiles = check_valid(cad_flat.tiles)
     valid_pads = check_valid(cad_flat.pads)
-    # One tessellation of each tile serves both interference checks.
-    tile_meshes = [to_manifold(solid) for solid in cad_flat.tiles]
+    # One tessellation of each tile serves both interference checks.  A tile that meshes with
+    # open seams counts as not valid (it cannot be exported as a closed mesh either).
+    tile_meshes = []
+    for index, solid in enumerate(cad_flat.tiles):
+        try:
+            tile_meshes.append(to_manifold(solid))
+        except RuntimeError:
+            valid_tiles[index] = False
     tiles_vs_tiles = interference(tile_meshes)
     tiles_vs_pads = interference(tile_meshes, cad_flat.pads) if cad_flat.pads else None
     channels = channel_continuity(

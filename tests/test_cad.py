@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import pickle
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,12 +17,18 @@ from drawstring.cad import checks  # noqa: E402
 from drawstring.cad.design import CadResult, build_design_solids, route_links  # noqa: E402
 from drawstring.cad.features import (  # noqa: E402
     SIDE_TOP_FACE,
+    KeepOut,
     build_tile,
+    channel_keep_out,
     channel_path,
     hinge_pad,
+    hinge_strip_lengths,
     label_engraving,
+    lift_bore_depth_mm,
     lift_path,
     magnet_pockets,
+    pin_radius,
+    plan_pins,
     string_channel,
     trim_tool,
 )
@@ -333,3 +342,102 @@ def test_bad_design_inputs_raise(design: SampleDesign, profile: Profile) -> None
             None,
             profile,
         )
+
+
+# --- small tiles -----------------------------------------------------------------------------
+
+
+def _tile(width: float, thickness: float = 6.0, at: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+    """A ``width`` x ``width`` tile ``thickness`` thick with its bottom face on z = 0."""
+    top = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=float) * width
+    top += [at[0], at[1], thickness]
+    return np.vstack([top, top - [0, 0, thickness]])
+
+
+def test_pins_stop_short_of_the_string_channel(profile: Profile) -> None:
+    # Two 4.5 mm tiles hinged on top at one corner; a straight channel crosses tile a's middle,
+    # 1.15 mm from the pin's axis: a pin through the whole tile would block the string.
+    tile_a, tile_b = _tile(4.5), _tile(4.5, at=(4.5, 4.5))
+    channel = channel_keep_out(tile_a, 3, 1, profile)
+    free = plan_pins(tile_a, 2, tile_b, 0, "top", profile)
+    kept = plan_pins(tile_a, 2, tile_b, 0, "top", profile, (channel, None))
+    assert free.pins[0] is not None and free.pins[0].through
+    pin = kept.pins[0]
+    assert pin is not None and not pin.through and kept.short == (True, False)
+    assert profile.hinge_thickness_mm + pin_radius(profile) <= pin.depth < 3.0 - 0.8
+    tube = string_channel(tile_a, 3, 1, profile)
+    for plan, blocked in ((free, True), (kept, False)):
+        pad = hinge_pad(tile_a, 2, tile_b, 0, "top", profile, pins=plan.pins).pad
+        assert pad is not None
+        assert (checks.interference([tube], [pad]).max_volume > 1e-3) is blocked
+    # Nothing left above the channel: the pin is left out, with a note.
+    crowded = KeepOut(np.array([[3.4, 3.4, 5.2]]), np.array([0.5]))
+    none = plan_pins(tile_a, 2, tile_b, 0, "top", profile, (crowded, None))
+    assert none.pins[0] is None and none.short == (False, False)
+    assert any("left out" in note for note in none.notes)
+
+
+def test_strips_stop_short_of_the_tile_centre(profile: Profile) -> None:
+    # 3 mm tiles: the corner is 2.12 mm from the face's centre; the strip keeps half its width
+    # and a wall (0.4 + 0.4 mm) from it, so its strips from four corners never meet.
+    small = hinge_strip_lengths(_tile(3.0), 2, _tile(3.0, at=(3.0, 3.0)), 0, "top", profile)
+    assert small == pytest.approx((3.0 / np.sqrt(2) - 0.8,) * 2)
+    big = hinge_strip_lengths(_tile(12.0), 2, _tile(12.0, at=(12.0, 12.0)), 0, "top", profile)
+    assert big == (2.0, 2.0)
+    parts = hinge_pad(_tile(3.0), 2, _tile(3.0, at=(3.0, 3.0)), 0, "top", profile)
+    assert parts.pad is not None
+    box = parts.pad.bounding_box()
+    assert box.max.X - box.min.X < 2 * small[0] / np.sqrt(2) + profile.hinge_width_mm + 1e-6
+
+
+def test_lift_bore_needs_half_the_thickness_of_tile_depth(profile: Profile) -> None:
+    # From mid-thickness the bore bends up 3 mm to the top of a 6 mm tile, so it reaches 3 mm in
+    # from its side face, plus its 0.8 mm radius and a 0.4 mm wall.
+    have, need = lift_bore_depth_mm(_tile(3.0), 0, profile)
+    assert have == pytest.approx(3.0) and need == pytest.approx(4.2, abs=1e-3)
+    have, need = lift_bore_depth_mm(_tile(12.0), 0, profile)
+    assert have == pytest.approx(12.0) and need < have
+
+
+def test_a_failed_cut_is_listed_when_asked(monkeypatch: pytest.MonkeyPatch) -> None:
+    from drawstring.cad import features
+
+    # The second tool (and any batch holding it) fails to cut however it is shifted.
+    tools = [trim_tool(_box(1.0)), trim_tool(_box(1.0) + [0.5, 0.5, 0.0])]
+    real_cut = features.cut
+
+    def failing(base: bd.Solid, cutters: list[bd.Shape]) -> list[bd.Solid]:
+        if any(cutter.bounding_box().min.X > 0.25 for cutter in cutters):
+            return []
+        return real_cut(base, cutters)
+
+    monkeypatch.setattr(features, "cut", failing)
+    with pytest.raises(RuntimeError, match="cut failed"):
+        build_tile(_box(2.0), tools)
+    failed: list[int] = []
+    solid = build_tile(_box(2.0), tools, failed=failed)
+    assert failed == [1]
+    assert solid.volume == pytest.approx(8.0 - 1.0)
+
+
+def test_small_tiles_build_or_are_refused_with_a_size_that_builds(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # 3 x 3 tiles on a 12 mm saddle are 4 mm across: too small for the TPU pins and the numbers
+    # (left out, with notes), not for the channel and lift bores.  The CAD stage crashed here
+    # (an OCCT boolean failed on a tile with a channel, a lift bore and three hinges).
+    from drawstring.fabrication.cli import main
+
+    args = ["design", "saddle", "--grid", "3", "3", "--resolution", "1500", "--no-simulate"]
+    out = tmp_path / "small"
+    assert main([*args, "--quiet", "--size", "11", "--out", str(out)]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "too small for the fdm-dual profile" in lines[0]
+    assert "the lift bore" in lines[0] and not out.exists()
+    suggested = re.search(r"use --size (\S+) or more, or a smaller --grid", lines[0])
+    assert suggested is not None
+    assert main([*args, "--quiet", "--size", suggested.group(1), "--out", str(out)]) == 0
+    written = json.loads((out / "design.json").read_text())
+    assert written["problems"] == []
+    notes = " ".join(written["notes"])
+    assert "hinge pins left out" in notes and "tile numbers not engraved" in notes
