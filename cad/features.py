@@ -280,11 +280,15 @@ def lift_path(tile: NDArray[np.float64], side: int) -> LiftPath:
     sin_turn = float(np.sqrt(1.0 - cos_turn**2))
     height = float((centroids[FACE_TOP] - entry) @ up)
     reach = float((centroids[FACE_TOP] - entry) @ inward)
+    # A run along an inward direction that rises (a side face leaning out) climbs too: stop it
+    # where half the rise is left for the bend, or on a large tile it would pass the top face.
+    longest = 0.5 * height / cos_turn if cos_turn > 1e-9 else np.inf
     run = 0.0
     radius = height / sin_turn
     for _ in range(3):
         radius = (height - run * cos_turn) / sin_turn
         run = max(0.0, reach - radius * (1.0 - cos_turn * cos_turn) / sin_turn * sin_turn)
+        run = min(run, longest)
     radius = (height - run * cos_turn) / sin_turn
     if radius <= 0.0:
         raise InputError("tile too thin for a lift bore; check the tile vertices")

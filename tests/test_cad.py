@@ -441,3 +441,15 @@ def test_small_tiles_build_or_are_refused_with_a_size_that_builds(
     assert written["problems"] == []
     notes = " ".join(written["notes"])
     assert "hinge pins left out" in notes and "tile numbers not engraved" in notes
+
+
+def test_lift_path_on_a_large_tile_with_leaning_sides() -> None:
+    # Top face 40 mm, bottom face 36 mm: the inward direction from a side face rises, and the
+    # straight run towards the top face's centre used to climb past the top face
+    # ("tile too thin for a lift bore" on a 4 x 4 laser-epdm saddle).
+    tile = _tile(40.0)
+    tile[4:] = _tile(36.0, at=(2.0, 2.0))[4:]
+    path = lift_path(tile, 0)
+    assert path.radius >= 1.5  # half of the 3 mm rise, over the sine of the turn
+    assert path.arc[2][2] == pytest.approx(6.0)  # leaves through the top face
+    assert 0.0 < path.arc[2][1] < 40.0
