@@ -1529,8 +1529,8 @@ def _write_assembly(
         lines.append("")
         lines.append(
             "Print `placement.svg` at 100 % (1:1), lay the tiles on it by number, and fix each "
-            "strip where the template shows it (blue: on the top faces, pink: on the bottom "
-            "faces)."
+            "strip where the template shows it (blue, marked with a circle: on the top faces; "
+            "orange, marked with a square: on the bottom faces)."
         )
         lines.append("")
     lines += [

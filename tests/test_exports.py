@@ -704,3 +704,39 @@ def test_threading_labels_do_not_overlap() -> None:
         assert not (p[0] < q[2] and q[0] < p[2] and p[1] < q[3] and q[1] < p[3]), (a, b)
     for box in boxes:  # none over the blocked box either
         assert not (box[0] < 5 and -5 < box[2] and box[1] < 5 and -5 < box[3])
+
+
+def test_placement_marks_hinges_as_every_picture_does(built: Built) -> None:
+    # Top-face strips blue with a circle, bottom-face strips orange with a square (black-edged
+    # markers), as flat.png and the assembly pictures; the guide says the same.
+    if "placement.svg" not in EXPECTED[built.profile.process]:
+        pytest.skip(f"no placement template for {built.profile.process}")
+    from drawstring.fabrication.exports_parts import PLACEMENT_HINGES
+    from drawstring.fabrication.pictures import BOTTOM_HINGE, TOP_HINGE
+
+    top, bottom = PLACEMENT_HINGES["top"], PLACEMENT_HINGES["bottom"]
+    assert (top.colour, top.marker) == (TOP_HINGE["colour"], "circle")
+    assert (bottom.colour, bottom.marker) == (BOTTOM_HINGE["colour"], "square")
+    sides = [built.design.hinge_side[int(h)] for h in built.flat.pad_hinge]
+    counts = {"top": sides.count("top"), "bottom": sides.count("bottom")}
+    assert counts["top"] and counts["bottom"]  # the sample has hinges on both faces
+    root = ET.parse(built.folder / "fabrication" / "placement.svg").getroot()
+    svg = "{http://www.w3.org/2000/svg}"
+    strokes = [e.get("stroke") for e in root.iter(f"{svg}polygon")]
+    assert strokes.count(top.colour) == counts["top"]
+    assert strokes.count(bottom.colour) == counts["bottom"]
+    assert "#c02090" not in (built.folder / "fabrication" / "placement.svg").read_text()
+    circles, squares = list(root.iter(f"{svg}circle")), list(root.iter(f"{svg}rect"))
+    assert [c.get("fill") for c in circles] == [top.colour] * counts["top"]
+    assert [r.get("fill") for r in squares] == [bottom.colour] * counts["bottom"]
+    assert {e.get("stroke") for e in circles + squares} == {"#000000"}
+    doc = ezdxf.readfile(built.folder / "fabrication" / "placement.dxf")
+    for style, count in ((top, counts["top"]), (bottom, counts["bottom"])):
+        layer = doc.layers.get(style.layer)
+        assert layer.color == style.aci and layer.rgb == style.rgb
+        entities = doc.modelspace().query(f"*[layer=='{style.layer}']")
+        assert len(entities) == 2 * count  # the strip and its marker
+        kinds = {e.dxftype() for e in entities}
+        assert kinds == ({"LWPOLYLINE", "CIRCLE"} if style is top else {"LWPOLYLINE"})
+    guide = (built.folder / "fabrication" / "assembly.md").read_text()
+    assert "orange, marked with a square: on the bottom faces" in guide and "pink" not in guide
