@@ -52,20 +52,28 @@ def route_steps(route: Route) -> NDArray[np.int64]:
 
 
 def lift_exits(route: Route, lift_gaps: NDArray[np.int64]) -> NDArray[np.int64]:
-    """(L, 2) ``(tile, side)`` for the string to leave and re-enter through the top faces.
+    """(L, 2) ``(tile, side)`` for the string to leave and re-enter through the top faces
+    (:func:`lift_bores` of the route's steps)."""
+    return lift_bores(route_steps(route), lift_gaps)
+
+
+def lift_bores(steps: NDArray[np.int64], lift_gaps: NDArray[np.int64]) -> NDArray[np.int64]:
+    """(L, 2) ``(tile, side)``: the lift bores of a route given as (S, 4) rows ``(gap, tile,
+    enter_side, leave_side)`` (:func:`route_steps`, or ``route.json``'s steps), sorted.
 
     At a lift gap the route arrives from the previous step's tile (through its leaving side) and
     departs into this step's tile (through its entering side); both tiles get a bore from that
     side up through the top face, so the pulled loop runs out of one and back into the other.
     """
     rows: list[tuple[int, int]] = []
-    count = len(route.gaps)
+    steps = np.asarray(steps, dtype=np.int64).reshape(-1, 4)
+    count = len(steps)
     for gap in np.asarray(lift_gaps, dtype=np.int64).tolist():
-        hits = np.flatnonzero(route.gaps == gap)
+        hits = np.flatnonzero(steps[:, 0] == gap)
         for k in hits.tolist():
             before = (k - 1) % count
-            rows.append((int(route.tiles[before]), int(route.leave_side[before])))
-            rows.append((int(route.tiles[k]), int(route.enter_side[k])))
+            rows.append((int(steps[before, 1]), int(steps[before, 3])))
+            rows.append((int(steps[k, 1]), int(steps[k, 2])))
     return np.array(sorted(set(rows)), dtype=np.int64).reshape(-1, 2)
 
 

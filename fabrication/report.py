@@ -983,31 +983,71 @@ def _assembly(found: _Folder) -> str:
             "and lift-point steps will appear here once it is.</span>"
         )
     else:
-        first = route.steps[0]
-        start = (
-            f"tile {first[1]}, {SIDE_NAMES[first[2] % 4]} side"
-            if first[0] < 0
-            else f"gap {first[0]} into tile {first[1]} ({SIDE_NAMES[first[2] % 4]} side)"
-        )
-        order = " → ".join(str(t) for t in route.steps[:, 1])
-        steps.append(
-            f"Thread the string through the {len(route.steps)} tiles of the route, starting at "
-            f"{_e(start)}, in this order (tile ids, shown in the 3D view when you click a tile): "
-            f"<details><summary>tile order</summary><p class=mono>{_e(order)}</p></details>"
-        )
-        if len(route.lift):
-            where = ", ".join(f"tile {t}" for t in route.lift[:, 1] if t >= 0) or "see route.json"
-            steps.append(
-                f"At the {len(route.lift)} lift point{'s' if len(route.lift) != 1 else ''} "
-                f"({_e(where)}) the string leaves through the top face: hold it there as a loop."
-            )
-        steps.append(
-            "Lay the linkage flat, pull both ends of the string steadily "
-            + ("while lifting the lift loops, " if len(route.lift) else "")
-            + "until every gap has closed, then tie the string off."
-        )
+        steps += _threading_steps(route)
     items = "".join(f"<li>{s}</li>" for s in steps)
     return f"<ol class=steps>{items}</ol>"
+
+
+def _threading_steps(route: Route) -> list[str]:
+    """The threading, lift-point and pulling steps, in the assembly guide's order: the guide
+    (``fabrication/assembly.md``) starts the closed route at the lift point where both string
+    ends stand up, and this page names the same start (the guide's own function decides it)."""
+    from .cad_stage import lift_bores
+    from .exports import _guide
+
+    guide = _guide(route.steps, lift_bores(route.steps, route.lift[:, 0]))
+    first = guide.order[0]
+    gap, tile, enter, _ = (int(v) for v in route.steps[first])
+    tails = next((stop for stop in guide.stops if stop.in_step == 0), None)
+    if tails is not None:
+        start = (
+            f"lift point {tails.letter}, down through the top face into tile {tile}, with both "
+            "string ends left standing up there"
+        )
+    elif gap < 0:
+        start = f"tile {tile}, {SIDE_NAMES[enter % 4]} side"
+    else:
+        start = f"gap {gap} into tile {tile} ({SIDE_NAMES[enter % 4]} side)"
+    counted = (
+        f" (the route is a closed loop; step 1 here is step {first + 1} of "
+        f"<span class=mono>route.json</span>, as in the assembly guide)"
+        if first
+        else ""
+    )
+    order = " → ".join(str(t) for t in route.steps[guide.order, 1])
+    steps = [
+        f"Thread the string through the {len(route.steps)} tiles of the route, starting at "
+        f"{_e(start)}{counted}, in this order (tile ids, shown in the 3D view when you click a "
+        f"tile): <details><summary>tile order</summary><p class=mono>{_e(order)}</p></details>"
+    ]
+
+    def tile_at(step: int | None) -> str | None:
+        return None if step is None else f"tile {route.steps[guide.order[step], 1]}"
+
+    if guide.stops:
+        points = []
+        for stop in guide.stops:
+            where = " → ".join(t for t in (tile_at(stop.out_step), tile_at(stop.in_step)) if t)
+            what = "the two string ends" if stop.tails else "a loop: hold it there"
+            points.append(f"{stop.letter} ({where}): {what}")
+        count = len(guide.stops)
+        steps.append(
+            f"At the {count} lift point{'s' if count != 1 else ''} the string leaves through "
+            f"the top face: {_e('; '.join(points))}."
+        )
+    elif len(route.lift):
+        where = ", ".join(f"tile {t}" for t in route.lift[:, 1] if t >= 0) or "see route.json"
+        steps.append(
+            f"At the {len(route.lift)} lift point{'s' if len(route.lift) != 1 else ''} "
+            f"({_e(where)}) the string leaves through the top face: hold it there as a loop."
+        )
+    lifted = bool(guide.stops) or bool(len(route.lift))
+    steps.append(
+        "Lay the linkage flat, pull both ends of the string steadily "
+        + ("while lifting the lift loops, " if lifted else "")
+        + "until every gap has closed, then tie the string off."
+    )
+    return steps
 
 
 def _viewer(view: dict[str, Any]) -> str:

@@ -612,3 +612,22 @@ def test_flat_picture_dashes_the_string_between_parts() -> None:
     for run in between:
         assert np.ptp(run[:, 0]) > 60.0  # across the space between the parts
     assert all(np.ptp(run[:, 0]) < 2 * SIDE for run in within)
+
+
+def test_threading_starts_where_the_assembly_guide_does(tmp_path: Path) -> None:
+    # assembly.md starts the closed route at the lift point where both string ends stand up
+    # and says which route.json step is its step 1; the page says the same.  The fake route
+    # lifts at gap 3, between its steps 2 and 3 (route.json indices), so step 1 is step 4.
+    link = make_design_folder(tmp_path)
+    loop = boundary_loop(link)
+    page = report.render_report(tmp_path)
+    text = page[page.index("Thread the string") :]
+    assert text.startswith(
+        f"Thread the string through the {len(loop)} tiles of the route, starting at lift point "
+        f"A, down through the top face into tile {loop[3]}, with both string ends left standing "
+        "up there (the route is a closed loop; step 1 here is step 4 of "
+        "<span class=mono>route.json</span>, as in the assembly guide)"
+    )
+    order = " → ".join(str(t) for t in loop[3:] + loop[:3])
+    assert f"<p class=mono>{order}</p>" in text
+    assert f"A (tile {loop[2]} → tile {loop[3]}): the two string ends" in text
