@@ -23,15 +23,18 @@ from numpy.typing import NDArray
 from drawstring.cad.features import (
     BEND_RADIUS_SLACK_MM,
     SIDE_TOP_FACE,
+    Footprint,
     HingePins,
     HingeSide,
     KeepOut,
     MagnetPair,
     PinPlan,
+    StripNeighbours,
     build_tile,
     channel_keep_out,
     channel_path,
     feature_wall_mm,
+    hinge_face_footprints,
     hinge_pad,
     hinge_strip_lengths,
     label_engraving,
@@ -115,7 +118,9 @@ class _TileJob:
     pads: list[int] = field(default_factory=list)
 
 
-_HingeData = tuple[NDArray[np.float64], int, NDArray[np.float64], int, HingeSide, HingePins | None]
+_HingeData = tuple[
+    NDArray[np.float64], int, NDArray[np.float64], int, HingeSide, HingePins | None, StripNeighbours
+]
 
 
 @dataclass
@@ -179,12 +184,26 @@ def _build_job(job: _TileJob, profile: Profile, hinge_data: tuple[_HingeData, ..
     names += ["trim"] * len(job.trims)
     owned = set(job.pads)
     built_pads: dict[int, bd.Solid] = {}
+    bottom: list[Footprint] = []  # what the hinges put where the tile's number goes
     for hinge, is_a in job.hinges:
-        tile_a, corner_a, tile_b, corner_b, side, pins = hinge_data[hinge]
+        tile_a, corner_a, tile_b, corner_b, side, pins, crowd = hinge_data[hinge]
+        if job.label:
+            on_a, on_b = hinge_face_footprints(
+                tile_a, corner_a, tile_b, corner_b, side, profile, pins, crowd
+            )
+            bottom.extend(on_a if is_a else on_b)
         # The pad this tile owns comes out of the same call as its tools (one frame, one build).
         make_pad = hinge in owned and hinge not in built_pads
         parts = hinge_pad(
-            tile_a, corner_a, tile_b, corner_b, side, profile, build_pad=make_pad, pins=pins
+            tile_a,
+            corner_a,
+            tile_b,
+            corner_b,
+            side,
+            profile,
+            build_pad=make_pad,
+            pins=pins,
+            neighbours=crowd,
         )
         own = parts.tools_a if is_a else parts.tools_b
         tools.extend(own)
@@ -195,7 +214,7 @@ def _build_job(job: _TileJob, profile: Profile, hinge_data: tuple[_HingeData, ..
             built_pads[hinge] = parts.pad
     labelled = False
     if job.label:
-        engraving = label_engraving(job.vertices, job.tile, profile)
+        engraving = label_engraving(job.vertices, job.tile, profile, bottom)
         if engraving is not None:
             tools.append(engraving)
             names.append("number engraving")
@@ -205,15 +224,43 @@ def _build_job(job: _TileJob, profile: Profile, hinge_data: tuple[_HingeData, ..
     pads = []
     for hinge in job.pads:
         if hinge not in built_pads:
-            tile_a, corner_a, tile_b, corner_b, side, pins = hinge_data[hinge]
+            tile_a, corner_a, tile_b, corner_b, side, pins, crowd = hinge_data[hinge]
             parts = hinge_pad(
-                tile_a, corner_a, tile_b, corner_b, side, profile, build_pad=True, pins=pins
+                tile_a,
+                corner_a,
+                tile_b,
+                corner_b,
+                side,
+                profile,
+                build_pad=True,
+                pins=pins,
+                neighbours=crowd,
             )
             assert parts.pad is not None
             built_pads[hinge] = parts.pad
         pads.append((hinge, built_pads[hinge]))
     failed = [names[i] for i in failed_tools]
     return _JobResult(job.tile, solid, pads, notes, labelled, failed)
+
+
+def strip_neighbours(
+    hinges: NDArray[np.int64], hinge_side: Sequence[HingeSide]
+) -> list[StripNeighbours]:
+    """Per hinge ``(tile_a, corner_a, tile_b, corner_b)``, the other corners of tile a's and of
+    tile b's hinge face that hold strips too (hinges on the same face of the same tile), which
+    the strip keeps a wall from (:func:`~drawstring.cad.features.strip_room`)."""
+    rows = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
+    held: dict[tuple[int, str], set[int]] = {}
+    for (a, ca, b, cb), side in zip(rows.tolist(), hinge_side, strict=True):
+        held.setdefault((a, side), set()).add(ca)
+        held.setdefault((b, side), set()).add(cb)
+    return [
+        (
+            tuple(sorted(held[(a, side)] - {ca})),
+            tuple(sorted(held[(b, side)] - {cb})),
+        )
+        for (a, ca, b, cb), side in zip(rows.tolist(), hinge_side, strict=True)
+    ]
 
 
 def _plan_all_pins(
@@ -223,6 +270,7 @@ def _plan_all_pins(
     steps: NDArray[np.int64],
     lifts: NDArray[np.int64],
     profile: Profile,
+    crowds: Sequence[StripNeighbours],
 ) -> list[PinPlan]:
     """The TPU pins of every through-holes hinge, each kept a wall away from its tile's
     channels and lift bores, the other hinges' strips, and the pins planned before it (hinge
@@ -234,7 +282,9 @@ def _plan_all_pins(
         keep[tile] += channel_keep_out(flat[tile], int(side), SIDE_TOP_FACE, profile)
     strips: list[list[tuple[int, KeepOut]]] = [[] for _ in flat]
     for hinge, ((a, ca, b, cb), side) in enumerate(zip(hinge_rows, sides, strict=True)):
-        in_a, in_b = strip_keep_outs(flat[a], int(ca), flat[b], int(cb), side, profile)
+        in_a, in_b = strip_keep_outs(
+            flat[a], int(ca), flat[b], int(cb), side, profile, crowds[hinge]
+        )
         strips[a].append((hinge, in_a))
         strips[b].append((hinge, in_b))
 
@@ -248,7 +298,14 @@ def _plan_all_pins(
     plans = []
     for hinge, ((a, ca, b, cb), side) in enumerate(zip(hinge_rows, sides, strict=True)):
         plan = plan_pins(
-            flat[a], int(ca), flat[b], int(cb), side, profile, (others(a, hinge), others(b, hinge))
+            flat[a],
+            int(ca),
+            flat[b],
+            int(cb),
+            side,
+            profile,
+            (others(a, hinge), others(b, hinge)),
+            crowds[hinge],
         )
         for tile, pin in zip((a, b), plan.pins, strict=True):
             if pin is not None:
@@ -397,14 +454,15 @@ def build_design_solids(
         if side not in ("top", "bottom"):
             raise InputError(f"hinge side {side!r} must be 'top' or 'bottom'")
     notes.extend(_bend_notes(min_radius, steps, profile))
-    notes.extend(_strip_notes(flat, hinge_rows, sides, profile))
+    crowds = strip_neighbours(hinge_rows, sides)
+    notes.extend(_strip_notes(flat, hinge_rows, sides, profile, crowds))
     plans: list[PinPlan | None] = [None] * len(hinge_rows)
     if profile.hinge_interlock == "through-holes":
-        plans = list(_plan_all_pins(flat, hinge_rows, sides, steps, lifts, profile))
+        plans = list(_plan_all_pins(flat, hinge_rows, sides, steps, lifts, profile, crowds))
         notes.extend(_pin_notes(plans))
     hinge_data = tuple(
-        (flat[a], int(ca), flat[b], int(cb), side, None if plan is None else plan.pins)
-        for (a, ca, b, cb), side, plan in zip(hinge_rows, sides, plans, strict=True)
+        (flat[a], int(ca), flat[b], int(cb), side, None if plan is None else plan.pins, crowd)
+        for (a, ca, b, cb), side, plan, crowd in zip(hinge_rows, sides, plans, crowds, strict=True)
     )
     for index, (a, _, b, _) in enumerate(hinge_rows):
         jobs[a].hinges.append((index, True))
@@ -428,7 +486,8 @@ def build_design_solids(
         if unlabelled:
             notes.append(
                 f"tile numbers not engraved on {len(unlabelled)} of {n_tiles} tiles, too small "
-                f"for digits of {feature_wall_mm(profile):g} mm strokes: {_id_ranges(unlabelled)}"
+                f"for digits of {feature_wall_mm(profile):g} mm strokes clear of the hinge strips "
+                f"and pins on their bottom faces: {_id_ranges(unlabelled)}"
             )
     transforms, residual = rigid_transforms(flat, assembled)
     if residual.size and residual.max() > 1e-3:
@@ -487,14 +546,15 @@ def _strip_notes(
     hinge_rows: NDArray[np.int64],
     sides: Sequence[HingeSide],
     profile: Profile,
+    crowds: Sequence[StripNeighbours],
 ) -> list[str]:
     """One note for the hinge strips shortened to keep a wall from the other strips of their
     tiles (:func:`~drawstring.cad.features.hinge_strip_lengths`)."""
     half = 0.5 * profile.hinge_pad_length_mm
     lengths = np.array(
         [
-            hinge_strip_lengths(flat[a], int(ca), flat[b], int(cb), side, profile)
-            for (a, ca, b, cb), side in zip(hinge_rows, sides, strict=True)
+            hinge_strip_lengths(flat[a], int(ca), flat[b], int(cb), side, profile, crowd)
+            for (a, ca, b, cb), side, crowd in zip(hinge_rows, sides, crowds, strict=True)
         ]
     ).reshape(-1, 2)
     short = np.flatnonzero((lengths < half - 1e-9).any(axis=1))

@@ -12,6 +12,7 @@ point, where the string leaves the linkage upward).
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
 
@@ -614,14 +615,122 @@ def label_depth(profile: Profile) -> float:
     return float(np.clip(0.07 * profile.thickness_mm, 0.3, 2.0))
 
 
+#: Per tile of a hinge (a, b): the other corners of its hinge face that hold hinge strips, or
+#: None for all of them (see :func:`strip_room`).
+StripNeighbours = tuple[Sequence[int] | None, Sequence[int] | None]
+
+#: A footprint on a tile face: a polyline ((k, 3) float, mm; one point for a disc) and the
+#: radius (mm) it is thickened by.
+Footprint = tuple[NDArray[np.float64], float]
+
+
+def _box_point_distance(half: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray:
+    """Distance (mm) from each 2D point ((k, 2)) to the box ``[-half, half]`` (0 inside)."""
+    return np.asarray(np.linalg.norm(np.maximum(np.abs(points) - half, 0.0), axis=-1))
+
+
+def _box_segment_distance(
+    half: NDArray[np.float64], a: NDArray[np.float64], b: NDArray[np.float64]
+) -> float:
+    """Distance (mm) from the 2D segment ``a``-``b`` to the box ``[-half, half]`` (0 where
+    they meet): between disjoint convex shapes it is reached at a vertex of one of them."""
+    direction = b - a
+    low, high = 0.0, 1.0  # Liang-Barsky: the part of the segment inside the box
+    for axis in range(2):
+        if abs(direction[axis]) < 1e-15:
+            if abs(a[axis]) > half[axis]:
+                low, high = 1.0, 0.0
+                break
+            continue
+        t0 = (-half[axis] - a[axis]) / direction[axis]
+        t1 = (half[axis] - a[axis]) / direction[axis]
+        low, high = max(low, min(t0, t1)), min(high, max(t0, t1))
+    if low <= high:
+        return 0.0
+    corners = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]]) * half
+    length2 = float(direction @ direction)
+    t = np.clip((corners - a) @ direction / max(length2, 1e-300), 0.0, 1.0)
+    to_corners = np.linalg.norm(a + t[:, None] * direction - corners, axis=1)
+    ends = _box_point_distance(half, np.stack([a, b]))
+    return float(min(to_corners.min(), ends.min()))
+
+
+def _label_clear_height(
+    height: float,
+    aspect: float,
+    footprints: Sequence[tuple[NDArray[np.float64], float]],
+    wall: float,
+) -> float:
+    """The largest text height (mm, at most ``height``) whose box (``aspect`` times as wide as
+    high, centred on the origin) keeps ``wall`` from every 2D footprint (polyline, radius)."""
+
+    def clear(h: float) -> bool:
+        half = 0.5 * h * np.array([aspect, 1.0])
+        for points, radius in footprints:
+            if len(points) == 1:
+                gap = float(_box_point_distance(half, points)[0])
+            else:
+                gap = min(
+                    _box_segment_distance(half, p, q)
+                    for p, q in zip(points[:-1], points[1:], strict=True)
+                )
+            if gap < radius + wall:
+                return False
+        return True
+
+    if clear(height):
+        return height
+    low, high = 0.0, height
+    for _ in range(40):  # a nanometre on a 10 mm label
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if clear(middle) else (low, middle)
+    return low
+
+
+def hinge_face_footprints(
+    tile_a: NDArray[np.float64],
+    corner_a: int,
+    tile_b: NDArray[np.float64],
+    corner_b: int,
+    side: HingeSide,
+    profile: Profile,
+    pins: HingePins | None = None,
+    neighbours: StripNeighbours = (None, None),
+) -> tuple[list[Footprint], list[Footprint]]:
+    """What a hinge puts on the bottom faces of tile a and of tile b (where tile numbers are
+    engraved): a bottom hinge's strip (its recess, or the strip glued or screwed on; the holes
+    under it lie inside) and the pins whose holes open there (a bottom hinge's pins, a top
+    hinge's pins that run through)."""
+    tile_a, tile_b = np.asarray(tile_a, dtype=np.float64), np.asarray(tile_b, dtype=np.float64)
+    found: tuple[list[Footprint], list[Footprint]] = ([], [])
+    if side == "bottom":
+        frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, profile, neighbours)
+        for kept in found:
+            kept.append((frame.points, 0.5 * profile.hinge_width_mm))
+    for kept, pin in zip(found, pins or (None, None), strict=True):
+        if pin is None:
+            continue
+        if side == "bottom":
+            kept.append((pin.point[None], pin_radius(profile)))
+        elif pin.through:
+            kept.append(((pin.point - pin.depth * pin.normal)[None], pin_radius(profile)))
+    return found
+
+
 def label_engraving(
-    tile: NDArray[np.float64], tile_id: int, profile: Profile
+    tile: NDArray[np.float64],
+    tile_id: int,
+    profile: Profile,
+    keep_out: Sequence[Footprint] = (),
 ) -> bd.Compound | None:
     """Tool: the tile number engraved in seven-segment digits on the bottom face.
 
     The text reads correctly when the bottom face is seen from outside, runs along side 0, is
-    centred on the face and fits inside ``LABEL_FILL`` of the face's inscribed radius.  Returns
-    ``None`` (and logs) when the strokes would be thinner than the machine can make
+    centred on the face and fits inside ``LABEL_FILL`` of the face's inscribed radius.  It is
+    made smaller where it would come within :func:`feature_wall_mm` of a ``keep_out`` footprint
+    on the bottom face (:func:`hinge_face_footprints`: hinge strips and pin holes, which would
+    cover or cut the digits, and whose recesses overlapping an engraving made OCCT's cut fail).
+    Returns ``None`` (and logs) when the strokes would be thinner than the machine can make
     (:func:`feature_wall_mm`: ``max(nozzle, 2 kerf, 0.3 mm)``).
     """
     if tile_id < 0:
@@ -641,6 +750,12 @@ def label_engraving(
     width_over_height = len(text) * _DIGIT_WIDTH + (len(text) - 1) * _DIGIT_SPACING
     height = LABEL_FILL * inradius / float(np.hypot(0.5 * width_over_height, 0.5))
     min_stroke = feature_wall_mm(profile)
+    if keep_out:
+        footprints = []
+        for points, radius in keep_out:
+            rel = np.asarray(points, dtype=np.float64).reshape(-1, 3) - centre
+            footprints.append((np.stack([rel @ axis_x, rel @ axis_y], axis=1), float(radius)))
+        height = _label_clear_height(height, width_over_height, footprints, min_stroke)
     if _DIGIT_STROKE * height < min_stroke:
         # debug: the design lists the tiles without numbers in one note
         log.debug(
@@ -692,17 +807,49 @@ class _HingeFrame:
     lengths: tuple[float, float]
 
 
-def strip_room(profile: Profile) -> float:
-    """How far (mm) a hinge strip's end stays from the centre of its tile's hinge face: half the
-    strip width and a :func:`feature_wall_mm`, so that the strips of a tile's four corners,
-    which all run towards that centre, keep a wall between them."""
-    return 0.5 * profile.hinge_width_mm + feature_wall_mm(profile)
+def strip_room(
+    profile: Profile,
+    ring: NDArray[np.float64] | None = None,
+    corner: int = 0,
+    others: Sequence[int] | None = None,
+) -> float:
+    """How far (mm) a hinge strip's end stays from the centre of its tile's hinge face, so that
+    the strips of the face's corners, which all run towards that centre, keep a
+    :func:`feature_wall_mm` between them: half the strip width and a wall, and, given the
+    face's corners ``ring`` ((4, 3), mm), at least ``(width + wall) / (2 sin(angle / 2))``,
+    where ``angle`` is the smallest one at the centre between ``corner`` and another corner of
+    the face that holds a strip (``others``; None: any corner).  Two strips ending that far out
+    on rays that far apart are a width and a wall apart; on a square face that is 0.71 (width
+    + wall), more than half a width and a wall for any strip over 1.41 walls wide.  Recesses of
+    neighbouring corners' strips overlapping in thin slivers made OCCT's cut of a tile fail."""
+    width, wall = profile.hinge_width_mm, feature_wall_mm(profile)
+    room = 0.5 * width + wall
+    if ring is None:
+        return room
+    spokes = np.asarray(ring, dtype=np.float64) - np.asarray(ring, dtype=np.float64).mean(axis=0)
+    lengths = np.linalg.norm(spokes, axis=1)
+    if lengths.min() < 1e-12:
+        return float("inf")
+    units = spokes / lengths[:, None]
+    crowd = [k for k in (range(4) if others is None else others) if k != corner]
+    if not crowd:
+        return room
+    cosines = units[crowd] @ units[corner]
+    half_angle = 0.5 * float(np.arccos(np.clip(cosines.max(), -1.0, 1.0)))
+    if half_angle < 1e-9:
+        return float("inf")
+    return max(room, (width + wall) / (2.0 * np.sin(half_angle)))
 
 
-def strip_min_reach_mm(profile: Profile) -> float:
+def strip_min_reach_mm(
+    profile: Profile,
+    ring: NDArray[np.float64] | None = None,
+    corner: int = 0,
+    others: Sequence[int] | None = None,
+) -> float:
     """Shortest distance (mm) from a hinged corner to its face's centre that still leaves the
     strip half a width of its own in the tile (see :func:`strip_room`)."""
-    return strip_room(profile) + 0.5 * profile.hinge_width_mm
+    return strip_room(profile, ring, corner, others) + 0.5 * profile.hinge_width_mm
 
 
 def hinge_strip_lengths(
@@ -712,10 +859,12 @@ def hinge_strip_lengths(
     corner_b: int,
     side: HingeSide,
     profile: Profile,
+    neighbours: StripNeighbours = (None, None),
 ) -> tuple[float, float]:
     """How far (mm) a hinge's strip runs into tile a and into tile b: half the profile's pad
     length, less where the strip's end would come within :func:`strip_room` of the centre of
-    the tile's hinge face (never under half the strip width)."""
+    the tile's hinge face (never under half the strip width).  ``neighbours``: per tile, the
+    other corners of its hinge face that hold strips (None: all of them)."""
     frame = _hinge_frame(
         np.asarray(tile_a, dtype=np.float64),
         corner_a,
@@ -723,6 +872,7 @@ def hinge_strip_lengths(
         corner_b,
         side,
         profile,
+        neighbours,
     )
     return frame.lengths
 
@@ -734,9 +884,12 @@ def _hinge_frame(
     corner_b: int,
     side: HingeSide,
     profile: Profile,
+    neighbours: StripNeighbours = (None, None),
 ) -> _HingeFrame:
     """The strip of a hinge: half the profile's pad length into each tile, less where its end
-    would come within :func:`strip_room` of the centre of the tile's hinge face."""
+    would come within :func:`strip_room` of the centre of the tile's hinge face (the strips of
+    neighbouring corners met there: their recesses overlapping in thin slivers made OCCT's
+    cut of a tile fail)."""
     if side not in ("top", "bottom"):
         raise InputError(f"hinge side {side!r} must be 'top' or 'bottom'")
     for corner, name in ((corner_a, "corner_a"), (corner_b, "corner_b")):
@@ -750,12 +903,15 @@ def _hinge_frame(
     half_length = 0.5 * profile.hinge_pad_length_mm
     halves = []
     lengths = []
-    for tile, point in ((tile_a, point_a), (tile_b, point_b)):
+    for tile, corner, point, others in zip(
+        (tile_a, tile_b), (corner_a, corner_b), (point_a, point_b), neighbours, strict=True
+    ):
         point = point - (point @ normal - level) * normal
-        towards = tile[shift : shift + 4].mean(axis=0) - point
+        ring = tile[shift : shift + 4]
+        towards = ring.mean(axis=0) - point
         towards = towards - (towards @ normal) * normal
         halves.append((point, _unit(towards)))
-        reach = float(np.linalg.norm(towards)) - strip_room(profile)
+        reach = float(np.linalg.norm(towards)) - strip_room(profile, ring, corner, others)
         lengths.append(max(min(half_length, reach), 0.5 * profile.hinge_width_mm))
     (pa, da), (pb, db) = halves
     points = [pa + lengths[0] * da]
@@ -1026,11 +1182,12 @@ def strip_keep_outs(
     corner_b: int,
     side: HingeSide,
     profile: Profile,
+    neighbours: StripNeighbours = (None, None),
 ) -> tuple[KeepOut, KeepOut]:
     """A TPU hinge's strip (the recess it sits in) as balls, the half in tile a and in tile b:
     from each hinged corner inward as far as the strip runs, half the strip thickness deep."""
     tile_a, tile_b = np.asarray(tile_a, dtype=np.float64), np.asarray(tile_b, dtype=np.float64)
-    frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, profile)
+    frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, profile, neighbours)
     depth = 0.5 * profile.hinge_thickness_mm
     radius = float(np.hypot(0.5 * profile.hinge_width_mm, depth))
     found = []
@@ -1079,6 +1236,7 @@ def plan_pins(
     side: HingeSide,
     profile: Profile,
     keep_out: tuple[KeepOut | None, KeepOut | None] = (None, None),
+    neighbours: StripNeighbours = (None, None),
 ) -> PinPlan:
     """Where the TPU pins of a through-holes hinge go, one per tile (a "lollipop").
 
@@ -1091,7 +1249,7 @@ def plan_pins(
     ``keep_out`` entries are None for no other features (only the tile's edges limit the pin).
     """
     tiles = (np.asarray(tile_a, dtype=np.float64), np.asarray(tile_b, dtype=np.float64))
-    frame = _hinge_frame(tiles[0], corner_a, tiles[1], corner_b, side, profile)
+    frame = _hinge_frame(tiles[0], corner_a, tiles[1], corner_b, side, profile, neighbours)
     radius = pin_radius(profile)
     wall = max(profile.nozzle_mm, 0.3)
     floor = profile.hinge_thickness_mm
@@ -1134,6 +1292,7 @@ def _tpu_pad(
     profile: Profile,
     build_pad: bool,
     pins: HingePins | None,
+    neighbours: StripNeighbours = (None, None),
 ) -> HingeParts:
     """Dual-material FDM pad: a TPU strip sunk into both tiles, keyed by pins or a dovetail."""
     thickness, width = profile.hinge_thickness_mm, profile.hinge_width_mm
@@ -1144,7 +1303,9 @@ def _tpu_pad(
     notes: list[str] = []
     if profile.hinge_interlock == "through-holes":
         if pins is None:
-            plan = plan_pins(tiles[0], corners[0], tiles[1], corners[1], side, profile)
+            plan = plan_pins(
+                tiles[0], corners[0], tiles[1], corners[1], side, profile, neighbours=neighbours
+            )
             pins = plan.pins
             notes += plan.notes
         radius = pin_radius(profile)
@@ -1195,6 +1356,7 @@ def glue_recess(
     side: HingeSide,
     profile: Profile,
     build_pad: bool = True,
+    neighbours: StripNeighbours = (None, None),
 ) -> HingeParts:
     """Laser-cut rubber hinge: a shallow recess where the strip is glued, and the strip itself.
 
@@ -1205,7 +1367,7 @@ def glue_recess(
     """
     tile_a, tile_b = np.asarray(tile_a, dtype=float), np.asarray(tile_b, dtype=float)
     thickness, width = profile.hinge_thickness_mm, profile.hinge_width_mm
-    frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, profile)
+    frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, profile, neighbours)
     depth = GLUE_RECESS_DEPTH_FRACTION * thickness
     recess = (_slab(frame, frame.points, width, -TOOL_OVERSHOOT_MM, depth),)
     pad = _slab(frame, frame.points, width, depth - thickness, depth) if build_pad else None
@@ -1220,6 +1382,7 @@ def strip_holes(
     side: HingeSide,
     profile: Profile,
     build_pad: bool = True,
+    neighbours: StripNeighbours = (None, None),
 ) -> HingeParts:
     """Plywood hinge: the rubber strip lying on the face and pilot holes for screws or staples.
 
@@ -1229,7 +1392,7 @@ def strip_holes(
     """
     tile_a, tile_b = np.asarray(tile_a, dtype=float), np.asarray(tile_b, dtype=float)
     thickness, width = profile.hinge_thickness_mm, profile.hinge_width_mm
-    frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, profile)
+    frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, profile, neighbours)
     wall = max(profile.tool_diameter_mm, 1.0)
     depth = 0.25 * profile.thickness_mm
     tools: tuple[list[bd.Solid], list[bd.Solid]] = ([], [])
@@ -1271,6 +1434,7 @@ def hinge_pad(
     profile: Profile,
     build_pad: bool = True,
     pins: HingePins | None = None,
+    neighbours: StripNeighbours = (None, None),
 ) -> HingeParts:
     """The hinge part and tile tools for the profile's process.
 
@@ -1290,6 +1454,8 @@ def hinge_pad(
     build_pad : also build the part (tile jobs only need the tools).
     pins : ``through-holes`` only: the pins as :func:`plan_pins` placed them around the tiles'
         other features (default: planned here, clear of the tiles' edges only).
+    neighbours : per tile, the other corners of its hinge face holding strips, which the strip
+        stops short of (:func:`strip_room`; default: all of them).
 
     Returns
     -------
@@ -1299,13 +1465,20 @@ def hinge_pad(
     tile_a = np.asarray(tile_a, dtype=np.float64)
     tile_b = np.asarray(tile_b, dtype=np.float64)
     if profile.hinge_interlock in ("through-holes", "dovetail"):
-        frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, profile)
+        frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, profile, neighbours)
         return _tpu_pad(
-            (tile_a, tile_b), frame, (corner_a, corner_b), side, profile, build_pad, pins
+            (tile_a, tile_b),
+            frame,
+            (corner_a, corner_b),
+            side,
+            profile,
+            build_pad,
+            pins,
+            neighbours,
         )
     if profile.hinge_interlock == "glue-recess":
-        return glue_recess(tile_a, corner_a, tile_b, corner_b, side, profile, build_pad)
-    return strip_holes(tile_a, corner_a, tile_b, corner_b, side, profile, build_pad)
+        return glue_recess(tile_a, corner_a, tile_b, corner_b, side, profile, build_pad, neighbours)
+    return strip_holes(tile_a, corner_a, tile_b, corner_b, side, profile, build_pad, neighbours)
 
 
 # --------------------------------------------------------------------------------------------

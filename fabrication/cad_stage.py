@@ -184,6 +184,7 @@ class _Shortfall:
 
 def _shortfalls(result: Design) -> list[_Shortfall]:
     """The features the profile cannot give up on that do not fit this design's tiles."""
+    from drawstring.cad.design import strip_neighbours
     from drawstring.cad.features import (
         channel_min_face_mm,
         lift_bore_depth_mm,
@@ -223,15 +224,20 @@ def _shortfalls(result: Design) -> list[_Shortfall]:
             )
     hinges = np.asarray(result.tiling.linkage.hinges, dtype=np.int64).reshape(-1, 4)
     if len(hinges):
-        # from each hinged corner to the centre of the hinge face, in both tiles of each hinge
-        shift = np.where(np.asarray(result.hinge_layout.sides) == "top", 0, 4)
-        distances = []
-        for ids, at in ((hinges[:, 0], hinges[:, 1]), (hinges[:, 2], hinges[:, 3])):
-            ring = tiles[ids[:, None], shift[:, None] + np.arange(4)]  # (H, 4, 3)
-            point = tiles[ids, shift + at]
-            distances.append(np.linalg.norm(ring.mean(axis=1) - point, axis=1))
-        corner = float(np.min(distances))
-        reach = strip_min_reach_mm(profile)
+        # from each hinged corner to the centre of the hinge face, in both tiles of each hinge,
+        # against what the strip needs there (more where a corner holding another strip on the
+        # same face is close in angle)
+        sides = list(result.hinge_layout.sides)
+        corners = []
+        for (a, ca, b, cb), side, crowd in zip(
+            hinges.tolist(), sides, strip_neighbours(hinges, sides), strict=True
+        ):
+            shift = 0 if side == "top" else 4
+            for tile, k, others in ((a, ca, crowd[0]), (b, cb, crowd[1])):
+                ring = tiles[tile, shift : shift + 4]
+                have = float(np.linalg.norm(ring.mean(axis=0) - ring[k]))
+                corners.append((have, strip_min_reach_mm(profile, ring, k, others)))
+        corner, reach = min(corners, key=lambda c: c[0] / c[1])
         if corner < reach - 1e-9:
             found.append(
                 _Shortfall(

@@ -21,6 +21,8 @@ from drawstring.cad.features import (  # noqa: E402
     build_tile,
     channel_keep_out,
     channel_path,
+    feature_wall_mm,
+    hinge_face_footprints,
     hinge_pad,
     hinge_strip_lengths,
     label_engraving,
@@ -378,16 +380,102 @@ def test_pins_stop_short_of_the_string_channel(profile: Profile) -> None:
 
 
 def test_strips_stop_short_of_the_tile_centre(profile: Profile) -> None:
-    # 3 mm tiles: the corner is 2.12 mm from the face's centre; the strip keeps half its width
-    # and a wall (0.4 + 0.4 mm) from it, so its strips from four corners never meet.
+    # 3 mm tiles: the corner is 2.12 mm from the face's centre.  Alone on its face the strip
+    # keeps half its width and a wall (0.4 + 0.4 mm) from it; with strips at the neighbouring
+    # corners, 90 degrees round the centre, (width + wall) / sqrt(2) = 0.85 mm, so that the
+    # strips' ends keep a wall apart too.
+    alone = hinge_strip_lengths(
+        _tile(3.0), 2, _tile(3.0, at=(3.0, 3.0)), 0, "top", profile, neighbours=((), ())
+    )
+    assert alone == pytest.approx((3.0 / np.sqrt(2) - 0.8,) * 2)
     small = hinge_strip_lengths(_tile(3.0), 2, _tile(3.0, at=(3.0, 3.0)), 0, "top", profile)
-    assert small == pytest.approx((3.0 / np.sqrt(2) - 0.8,) * 2)
+    assert small == pytest.approx(((3.0 - 1.2) / np.sqrt(2),) * 2)
+    opposite = hinge_strip_lengths(
+        _tile(3.0), 2, _tile(3.0, at=(3.0, 3.0)), 0, "top", profile, neighbours=((0,), (2,))
+    )
+    assert opposite == pytest.approx(alone)
     big = hinge_strip_lengths(_tile(12.0), 2, _tile(12.0, at=(12.0, 12.0)), 0, "top", profile)
     assert big == (2.0, 2.0)
     parts = hinge_pad(_tile(3.0), 2, _tile(3.0, at=(3.0, 3.0)), 0, "top", profile)
     assert parts.pad is not None
     box = parts.pad.bounding_box()
     assert box.max.X - box.min.X < 2 * small[0] / np.sqrt(2) + profile.hinge_width_mm + 1e-6
+
+
+# Three tiles of the laser-epdm saddle at --size 100 before the fix (tile 18 and the tiles of
+# its bottom hinges at corners 0 and 3), to 6 decimals.  Their glue recesses overlapped near
+# tile 18's centre and its number engraving overlapped both: the batched cut raised "OCCT
+# boolean operation failed" and the build crashed.
+_CROWDED = np.array(
+    [
+        # tile 18
+        [38.026862, 10.400568, 6.000000],
+        [46.656729, 11.239913, 6.000000],
+        [45.275139, 19.620186, 6.000000],
+        [37.405316, 18.331508, 6.000000],
+        [37.740661, 10.360450, -0.001200],
+        [46.999155, 11.260936, -0.001028],
+        [45.635416, 19.533003, -0.001241],
+        [37.130939, 18.140397, -0.001387],
+        # tile a of the hinge at corner 0 (its corner 3)
+        [35.996143, 2.186109, 6.000000],
+        [44.525228, -0.282400, 6.000000],
+        [46.444669, 8.236796, 6.000000],
+        [38.015184, 10.267288, 6.000000],
+        [35.711548, 2.239042, -0.000872],
+        [44.849257, -0.405614, -0.000681],
+        [46.784143, 8.182058, -0.000982],
+        [37.740628, 10.360458, -0.001155],
+        # tile b of the hinge at corner 3 (its corner 2)
+        [27.359493, 12.610020, 6.000000],
+        [34.856886, 10.687220, 6.000000],
+        [36.873509, 18.382632, 6.000000],
+        [29.102450, 20.358669, 6.000000],
+        [27.113106, 12.653325, -0.000053],
+        [35.152710, 10.591468, -0.000104],
+        [37.130948, 18.140369, -0.000290],
+        [28.822555, 20.253042, -0.000237],
+    ]
+).reshape(3, 8, 3)
+
+
+def test_crowded_bottom_face_cuts_in_one_go() -> None:
+    laser = load_profile("laser-epdm")
+    tile, tile_a, tile_b = _CROWDED
+    wall = feature_wall_mm(laser)
+    first = hinge_pad(tile, 0, tile_a, 3, "bottom", laser, build_pad=False)
+    second = hinge_pad(tile_b, 2, tile, 3, "bottom", laser, build_pad=False)
+    recesses = [*first.tools_a, *second.tools_b]
+    # The strips of neighbouring corners stop a wall apart (they overlapped by 0.14 mm).
+    assert recesses[0].distance_to(recesses[1]) > wall - 1e-4
+    # The number keeps a wall from the strips: on this 8.5 mm tile there is no room left.
+    assert label_engraving(tile, 18, laser).distance_to(recesses[0]) == 0.0  # type: ignore[union-attr]
+    footprints = (
+        hinge_face_footprints(tile, 0, tile_a, 3, "bottom", laser)[0]
+        + hinge_face_footprints(tile_b, 2, tile, 3, "bottom", laser)[1]
+    )
+    assert label_engraving(tile, 18, laser, footprints) is None
+    failed: list[int] = []
+    solid = build_tile(tile, recesses, failed=failed)
+    assert failed == [] and solid.is_valid
+    # both recesses cut: each about 3 mm wide, 4 mm long (with its round end), 0.5 mm deep
+    assert tile_solid(tile).volume - solid.volume > 2 * 5.0
+
+
+def test_label_keeps_a_wall_from_the_hinge_strips() -> None:
+    laser = load_profile("laser-epdm")
+    tile = _tile(12.0)
+    free = label_engraving(tile, 187, laser)
+    # a 3 mm strip from corner 0 towards the centre, ending 4.2 mm from it
+    strip = np.array([[0.0, 0.0, 0.0], [3.0, 3.0, 0.0]])
+    near = label_engraving(tile, 187, laser, [(strip, 1.5)])
+    assert free is not None and near is not None
+    small, large = near.bounding_box(), free.bounding_box()
+    assert small.max.Y - small.min.Y < large.max.Y - large.min.Y
+    corner = np.array([small.min.X, small.min.Y])  # the label corner nearest the strip
+    along = np.clip(corner @ [1.0, 1.0] / 6.0, 0.0, 1.0) * strip[1, :2]
+    assert np.linalg.norm(corner - along) >= 1.5 + feature_wall_mm(laser) - 1e-6
+    assert label_engraving(tile, 187, laser, [(strip * 1.5, 1.5)]) is None  # ends 2.1 mm out
 
 
 def test_lift_bore_needs_half_the_thickness_of_tile_depth(profile: Profile) -> None:
