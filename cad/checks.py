@@ -32,15 +32,22 @@ if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fiel
     from drawstring.cad.dimensions import FeatureDimensions as Profile
 
 
+def _valid(solid: bd.Shape) -> bool:
+    try:
+        return bool(
+            isinstance(solid, bd.Solid)
+            and solid.is_valid
+            and solid.is_manifold
+            and solid.volume > 0.0
+        )
+    except Exception:  # the kernel failing on the shape: not a valid solid
+        return False
+
+
 def check_valid(solids: Sequence[bd.Shape]) -> NDArray[np.bool_]:
-    """(n,) bool: each shape is one solid that passes BRepCheck, is closed and has volume > 0."""
-    return np.array(
-        [
-            isinstance(s, bd.Solid) and s.is_valid and s.is_manifold and s.volume > 0.0
-            for s in solids
-        ],
-        dtype=bool,
-    )
+    """(n,) bool: each shape is one solid that passes BRepCheck, is closed and has volume > 0
+    (False where the kernel raises while checking it)."""
+    return np.array([_valid(s) for s in solids], dtype=bool)
 
 
 def to_manifold(
@@ -170,9 +177,13 @@ def face_openings(
 def _opening(
     solid: bd.Shape, tile: NDArray[np.float64], side: int, radius: float
 ) -> NDArray[np.float64] | None:
-    """Centre of the hole in side face ``side`` whose radius is closest to ``radius``."""
+    """Centre of the hole in side face ``side`` whose radius is closest to ``radius`` (None
+    where there is none, or the kernel raises while looking)."""
     centroids, normals = face_planes(tile)
-    holes = face_openings(solid, centroids[side], normals[side])
+    try:
+        holes = face_openings(solid, centroids[side], normals[side])
+    except Exception:  # the kernel failing on the solid: the opening counts as missing
+        return None
     if not holes:
         return None
     centre, _ = min(holes, key=lambda h: abs(h[1] - radius))

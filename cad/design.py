@@ -11,9 +11,10 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from typing import TYPE_CHECKING, Literal
 
 import build123d as bd
@@ -78,6 +79,9 @@ class CadResult:
     channel_min_radius : (S,) float, mm, smallest bend radius of each route step's channel.
     transforms : (T, 4, 4) float, rigid motions from the flat pose to the assembled pose.
     notes : human-readable problems (features that did not fit, tight bends).
+    failed : ``(tile, feature)`` for each feature (or hinge part) left out because the CAD
+        kernel failed on it (:func:`build_design_solids`); the solid checks count those tiles
+        as faults.
     """
 
     pose: Pose
@@ -88,6 +92,7 @@ class CadResult:
     channel_min_radius: NDArray[np.float64]
     transforms: NDArray[np.float64]
     notes: tuple[str, ...] = field(default=())
+    failed: tuple[tuple[int, str], ...] = field(default=())
 
     def records(self) -> dict[str, object]:
         """JSON-ready summary: magnet pairs with polarity, pads per hinge, notes."""
@@ -100,6 +105,7 @@ class CadResult:
                 None if not np.isfinite(r) else round(float(r), 4) for r in self.channel_min_radius
             ],
             "notes": list(self.notes),
+            "failed": [{"tile": tile, "feature": name} for tile, name in self.failed],
         }
 
 
@@ -170,41 +176,75 @@ def route_links(route_steps: NDArray[np.int64]) -> NDArray[np.int64]:
     return np.array(links, dtype=np.int64).reshape(-1, 4)
 
 
+def _kernel_failure(what: str, exc: Exception) -> None:
+    """Re-raise bad input; log any other exception (OCP's Standard_Failure, build123d's errors)
+    as the kernel failure of ``what``, which the caller leaves out."""
+    if isinstance(exc, InputError):
+        raise exc
+    log.debug("%s: %s: %s", what, type(exc).__name__, exc, exc_info=exc)
+
+
 def _build_job(job: _TileJob, profile: Profile, hinge_data: tuple[_HingeData, ...]) -> _JobResult:
-    """Worker: build the tools of one tile, cut them, and build the pads this tile owns."""
+    """Worker: build the tools of one tile, cut them, and build the pads this tile owns.
+
+    A feature whose tool or cut fails in the kernel (any exception but :class:`InputError`) is
+    left out and named in the result's ``failed``; a tile whose cut fails altogether is the
+    plain block, every feature named; a hinge part that cannot be built is left out, named too.
+    """
     notes: list[str] = []
+    failed: list[str] = []
     tools: list[bd.Shape] = list(job.tools)
     names = ["magnet pocket"] * len(tools)
-    tools += [string_channel(job.vertices, a, b, profile) for a, b in job.channels]
-    names += ["string channel"] * len(job.channels)
+
+    def add(name: str, make: Callable[[], bd.Shape | None]) -> bool:
+        """Add a tool; False only where ``make`` finds no room for it (returns None)."""
+        try:
+            tool = make()
+        except Exception as exc:  # the kernel's own errors, whatever their class
+            _kernel_failure(f"tile {job.tile}: {name}", exc)
+            failed.append(name)
+            return True
+        if tool is None:
+            return False
+        tools.append(tool)
+        names.append(name)
+        return True
+
+    for a, b in job.channels:
+        add("string channel", partial(string_channel, job.vertices, a, b, profile))
     opened = {side for pair in job.channels for side in pair}
-    tools += [lift_bore(job.vertices, side, profile, shared=side in opened) for side in job.lifts]
-    names += ["lift bore"] * len(job.lifts)
-    tools += [trim_tool(points) for points in job.trims]
-    names += ["trim"] * len(job.trims)
+    for side in job.lifts:
+        add("lift bore", partial(lift_bore, job.vertices, side, profile, shared=side in opened))
+    for points in job.trims:
+        add("trim", partial(trim_tool, points))
     owned = set(job.pads)
     built_pads: dict[int, bd.Solid] = {}
     bottom: list[Footprint] = []  # what the hinges put where the tile's number goes
     for hinge, is_a in job.hinges:
         tile_a, corner_a, tile_b, corner_b, side, pins, crowd = hinge_data[hinge]
-        if job.label:
-            on_a, on_b = hinge_face_footprints(
-                tile_a, corner_a, tile_b, corner_b, side, profile, pins, crowd
-            )
-            bottom.extend(on_a if is_a else on_b)
         # The pad this tile owns comes out of the same call as its tools (one frame, one build).
         make_pad = hinge in owned and hinge not in built_pads
-        parts = hinge_pad(
-            tile_a,
-            corner_a,
-            tile_b,
-            corner_b,
-            side,
-            profile,
-            build_pad=make_pad,
-            pins=pins,
-            neighbours=crowd,
-        )
+        try:
+            if job.label:
+                on_a, on_b = hinge_face_footprints(
+                    tile_a, corner_a, tile_b, corner_b, side, profile, pins, crowd
+                )
+                bottom.extend(on_a if is_a else on_b)
+            parts = hinge_pad(
+                tile_a,
+                corner_a,
+                tile_b,
+                corner_b,
+                side,
+                profile,
+                build_pad=make_pad,
+                pins=pins,
+                neighbours=crowd,
+            )
+        except Exception as exc:
+            _kernel_failure(f"tile {job.tile}: hinge {hinge}", exc)
+            failed.append(f"hinge {hinge} recess or key")
+            continue
         own = parts.tools_a if is_a else parts.tools_b
         tools.extend(own)
         names += [f"hinge {hinge} recess or key"] * len(own)
@@ -214,32 +254,48 @@ def _build_job(job: _TileJob, profile: Profile, hinge_data: tuple[_HingeData, ..
             built_pads[hinge] = parts.pad
     labelled = False
     if job.label:
-        engraving = label_engraving(job.vertices, job.tile, profile, bottom)
-        if engraving is not None:
-            tools.append(engraving)
-            names.append("number engraving")
-            labelled = True
+        labelled = add(
+            "number engraving", partial(label_engraving, job.vertices, job.tile, profile, bottom)
+        )
+    try:
+        block = tile_solid(job.vertices)
+    except Exception as exc:
+        _kernel_failure(f"tile {job.tile}: block", exc)
+        raise InputError(
+            f"tile {job.tile}: the CAD kernel cannot make a solid of its 8 vertices "
+            f"({type(exc).__name__}); check the tile vertices"
+        ) from exc
     failed_tools: list[int] = []
-    solid = build_tile(tile_solid(job.vertices), tools, failed=failed_tools)
+    try:
+        solid = build_tile(block, tools, failed=failed_tools)
+    except Exception as exc:
+        _kernel_failure(f"tile {job.tile}: cut", exc)
+        solid, failed_tools = block, list(range(len(tools)))
+    failed += [names[i] for i in failed_tools]
     pads = []
     for hinge in job.pads:
         if hinge not in built_pads:
             tile_a, corner_a, tile_b, corner_b, side, pins, crowd = hinge_data[hinge]
-            parts = hinge_pad(
-                tile_a,
-                corner_a,
-                tile_b,
-                corner_b,
-                side,
-                profile,
-                build_pad=True,
-                pins=pins,
-                neighbours=crowd,
-            )
-            assert parts.pad is not None
-            built_pads[hinge] = parts.pad
+            try:
+                pad = hinge_pad(
+                    tile_a,
+                    corner_a,
+                    tile_b,
+                    corner_b,
+                    side,
+                    profile,
+                    build_pad=True,
+                    pins=pins,
+                    neighbours=crowd,
+                ).pad
+            except Exception as exc:
+                _kernel_failure(f"tile {job.tile}: hinge {hinge} part", exc)
+                pad = None
+            if pad is None:
+                failed.append(f"hinge {hinge} part")
+                continue
+            built_pads[hinge] = pad
         pads.append((hinge, built_pads[hinge]))
-    failed = [names[i] for i in failed_tools]
     return _JobResult(job.tile, solid, pads, notes, labelled, failed)
 
 
@@ -360,6 +416,11 @@ def build_design_solids(
     pose : ``"flat"`` or ``"assembled"``.
     labels : engrave tile numbers on the bottom faces.
     workers : worker processes (default: CPU count, used from ``PARALLEL_MIN_TILES`` tiles on).
+
+    A feature or hinge part the CAD kernel fails on (an exception from OCP or build123d, or a
+    cut that fails however it is shifted) is left out, noted and listed in
+    ``CadResult.failed`` with its tile; a tile whose cut fails altogether is its plain block.
+    Bad input still raises :class:`InputError`.
     """
     if pose not in ("flat", "assembled"):
         raise InputError(f"pose {pose!r} must be 'flat' or 'assembled'")
@@ -422,19 +483,25 @@ def build_design_solids(
     magnets = []
     clearance = _channel_radius(profile) + 0.5 * profile.magnet_diameter_mm
     clearance += profile.magnet_clearance_mm + max(profile.nozzle_mm, 0.5)
+    failed: list[tuple[int, str]] = []
     for tile_a, side_a, tile_b, side_b in pairs:
         shared = side_a in channel_sides[tile_a] or side_b in channel_sides[tile_b]
-        tool_a, tool_b, record = magnet_pockets(
-            assembled[tile_a],
-            int(side_a),
-            assembled[tile_b],
-            int(side_b),
-            profile,
-            flat_a=flat[tile_a],
-            flat_b=flat[tile_b],
-            offset_mm=clearance if shared else 0.0,
-            tile_ids=(int(tile_a), int(tile_b)),
-        )
+        try:
+            tool_a, tool_b, record = magnet_pockets(
+                assembled[tile_a],
+                int(side_a),
+                assembled[tile_b],
+                int(side_b),
+                profile,
+                flat_a=flat[tile_a],
+                flat_b=flat[tile_b],
+                offset_mm=clearance if shared else 0.0,
+                tile_ids=(int(tile_a), int(tile_b)),
+            )
+        except Exception as exc:
+            _kernel_failure(f"tiles {tile_a} and {tile_b}: magnet pockets", exc)
+            failed += [(int(tile_a), "magnet pocket"), (int(tile_b), "magnet pocket")]
+            continue
         jobs[tile_a].tools.append(tool_a)
         jobs[tile_b].tools.append(tool_b)
         magnets.append(record)
@@ -477,10 +544,12 @@ def build_design_solids(
         tiles[done.tile] = done.solid
         pads.update(done.pads)
         notes.extend(done.notes)
-        notes.extend(
-            f"tile {done.tile}: the cut of its {name} failed and was left out"
-            for name in done.failed
-        )
+        failed += [(done.tile, name) for name in done.failed]
+    failed.sort(key=lambda f: f[0])
+    notes.extend(
+        f"tile {tile}: its {name} failed in the CAD kernel and was left out"
+        for tile, name in failed
+    )
     if labels:
         unlabelled = [r.tile for r in results if not r.labelled]
         if unlabelled:
@@ -504,7 +573,15 @@ def build_design_solids(
     for note in notes:  # returned in CadResult.notes, which the design lists
         log.info("%s", note)
     return CadResult(
-        pose, built, pad_solids, pad_hinge, tuple(magnets), min_radius, transforms, tuple(notes)
+        pose,
+        built,
+        pad_solids,
+        pad_hinge,
+        tuple(magnets),
+        min_radius,
+        transforms,
+        tuple(notes),
+        tuple(failed),
     )
 
 

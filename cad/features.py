@@ -1497,17 +1497,31 @@ def trim_tool(points: NDArray[np.float64]) -> bd.Solid:
 _NUDGES_MM = ((0.0, 0.0, 0.0), (0.002, 0.0, 0.0), (0.0, 0.002, 0.0), (0.0, 0.0, 0.002))
 
 
-def _plausible(pieces: list[bd.Solid], base: bd.Solid) -> bool:
+def _plausible(pieces: list[bd.Solid] | None, base: bd.Solid) -> bool:
     """A cut result is plausible when its largest piece is a valid, manifold solid keeping at
     least half the volume: the features are small next to a tile, so anything less (or a
-    non-manifold seam where two tools touch) is a failed boolean."""
+    non-manifold seam where two tools touch, or a kernel error while measuring it) is a failed
+    boolean."""
     if not pieces:
         return False
-    volumes = [p.volume for p in pieces]  # each volume integral once
-    largest = pieces[int(np.argmax(volumes))]
-    if max(volumes) < 0.5 * base.volume:
+    try:
+        volumes = [p.volume for p in pieces]  # each volume integral once
+        largest = pieces[int(np.argmax(volumes))]
+        if max(volumes) < 0.5 * base.volume:
+            return False
+        return bool(largest.is_manifold and largest.is_valid)
+    except Exception:  # OCCT's own failures (Standard_Failure) are not RuntimeErrors
+        log.debug("checking a cut result failed", exc_info=True)
         return False
-    return bool(largest.is_manifold and largest.is_valid)
+
+
+def _try_cut(base: bd.Solid, tools: Sequence[bd.Shape]) -> list[bd.Solid] | None:
+    """:func:`~drawstring.cad.kernel.cut`, or None where the kernel fails or raises."""
+    try:
+        return cut(base, tools)
+    except Exception:  # OCCT's own failures (Standard_Failure) are not RuntimeErrors
+        log.debug("OCCT cut failed", exc_info=True)
+        return None
 
 
 def build_tile(
@@ -1519,9 +1533,10 @@ def build_tile(
     """The tile minus the tools that touch it, in one boolean operation.
 
     Tools whose bounding box misses the tile's are skipped.  If the cut splits the tile, the
-    largest piece is kept and a warning is logged.  A tool whose cut fails even on its own and
-    slightly shifted raises ``RuntimeError``, or, given a ``failed`` list, is left uncut and its
-    index in ``tools`` appended there.
+    largest piece is kept and a warning is logged.  Where the batched cut fails (or raises),
+    the tools are cut one at a time; a tool whose cut fails even on its own and slightly
+    shifted raises ``RuntimeError``, or, given a ``failed`` list, is left uncut and its index
+    in ``tools`` appended there.
     """
     base = tile if isinstance(tile, bd.Solid) else tile_solid(np.asarray(tile))
     box = bounding_box(base)
@@ -1530,8 +1545,10 @@ def build_tile(
         tool_box = bounding_box(tool)
         if np.all(tool_box[0] <= box[1] + 1e-6) and np.all(tool_box[1] >= box[0] - 1e-6):
             touching.append((index, tool))
-    pieces = cut(base, [tool for _, tool in touching])
-    if not _plausible(pieces, base):
+    batched = _try_cut(base, [tool for _, tool in touching])
+    if batched is not None and _plausible(batched, base):
+        pieces = batched
+    else:
         # OCCT's batched cut can fail where two tools share a face (a channel and a lift bore
         # leaving through the same opening); cutting one tool at a time avoids that.
         pieces = [base]
@@ -1541,8 +1558,8 @@ def build_tile(
                 # A coincident face can defeat the boolean; a micrometre shift does not change
                 # what is printed.
                 moved = tool if not any(nudge) else tool.moved(bd.Location(nudge))
-                attempt = cut(current, [moved])
-                if _plausible(attempt, current):
+                attempt = _try_cut(current, [moved])
+                if attempt is not None and _plausible(attempt, current):
                     pieces = attempt
                     break
             else:

@@ -350,12 +350,13 @@ def _sunk_fraction(found: Any, pads: Sequence[Any]) -> float:
 def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
     """Checks measured on the solids (issue 7 section 3), for design.json ``metrics.cad``.
 
-    Validity (BRepCheck, closed, positive volume) of every tile and hinge part; interference
-    volumes between tiles and between tiles and hinge parts in the flat print pose (manifold3d);
-    channel continuity (distance between each channel exit and the next tile's entry in the
-    assembled pose); magnet pockets paired (distance apart and facing) in the assembled pose.
-    Mass, route and string length as the fabrication files state them
-    (:func:`fabrication_measures`).
+    Validity (BRepCheck, closed, positive volume, meshes closed) of every tile and hinge part,
+    a tile missing a feature the CAD kernel failed on counting as not valid
+    (``tiles_not_valid``, ``CadResult.failed``); interference volumes between tiles and between
+    tiles and hinge parts in the flat print pose (manifold3d); channel continuity (distance
+    between each channel exit and the next tile's entry in the assembled pose); magnet pockets
+    paired (distance apart and facing) in the assembled pose.  Mass, route and string length as
+    the fabrication files state them (:func:`fabrication_measures`).
     """
     from drawstring.cad.checks import (
         channel_continuity,
@@ -370,15 +371,27 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
     valid_tiles = check_valid(cad_flat.tiles)
     valid_pads = check_valid(cad_flat.pads)
     # One tessellation of each tile serves both interference checks.  A tile that meshes with
-    # open seams counts as not valid (it cannot be exported as a closed mesh either).
+    # open seams, or that the kernel fails to mesh, counts as not valid (it cannot be exported
+    # as a closed mesh either).
     tile_meshes = []
     for index, solid in enumerate(cad_flat.tiles):
         try:
             tile_meshes.append(to_manifold(solid))
-        except RuntimeError:
+        except Exception:
             valid_tiles[index] = False
+    pad_meshes, meshed_pads = [], []
+    for index, solid in enumerate(cad_flat.pads):
+        try:
+            pad_meshes.append(to_manifold(solid))
+            meshed_pads.append(solid)
+        except Exception:
+            valid_pads[index] = False
     tiles_vs_tiles = interference(tile_meshes)
-    tiles_vs_pads = interference(tile_meshes, cad_flat.pads) if cad_flat.pads else None
+    tiles_vs_pads = interference(tile_meshes, pad_meshes) if pad_meshes else None
+    # A tile missing a feature the kernel failed on is a fault too (CadResult.failed).
+    not_valid = sorted(
+        {int(t) for t in np.flatnonzero(~valid_tiles)} | {t for t, _ in cad_flat.failed}
+    )
     channels = channel_continuity(
         cad_flat.tiles, flat_tiles, cad_flat.transforms, inputs.route_steps, result.profile
     )
@@ -386,14 +399,15 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
         cad_flat.tiles, flat_tiles, cad_flat.transforms, cad_flat.magnets
     )
     return {
-        "solids_valid": bool(valid_tiles.all() and valid_pads.all()),
+        "solids_valid": bool(not not_valid and valid_pads.all()),
+        "tiles_not_valid": not_valid,
         "tiles": len(cad_flat.tiles),
         "hinge_parts": len(cad_flat.pads),
         "interference_tiles_max_mm3": round(tiles_vs_tiles.max_volume, 6),
         "interference_tiles_pads_max_mm3": round(
             tiles_vs_pads.max_volume if tiles_vs_pads is not None else 0.0, 6
         ),
-        "interference_tiles_pads_max_rel": round(_sunk_fraction(tiles_vs_pads, cad_flat.pads), 6),
+        "interference_tiles_pads_max_rel": round(_sunk_fraction(tiles_vs_pads, meshed_pads), 6),
         "channel_opening_distance_max_mm": round(_max(channels.distances), 6),
         "channel_openings_missing": int(np.count_nonzero(~np.isfinite(channels.distances))),
         "magnet_pairs": len(cad_flat.magnets),

@@ -14,7 +14,12 @@ import pytest
 bd = pytest.importorskip("build123d")
 
 from drawstring.cad import checks  # noqa: E402
-from drawstring.cad.design import CadResult, build_design_solids, route_links  # noqa: E402
+from drawstring.cad.design import (  # noqa: E402
+    CadResult,
+    build_design_solids,
+    normalize_route,
+    route_links,
+)
 from drawstring.cad.features import (  # noqa: E402
     SIDE_TOP_FACE,
     KeepOut,
@@ -506,6 +511,98 @@ def test_a_failed_cut_is_listed_when_asked(monkeypatch: pytest.MonkeyPatch) -> N
     solid = build_tile(_box(2.0), tools, failed=failed)
     assert failed == [1]
     assert solid.volume == pytest.approx(8.0 - 1.0)
+
+
+def test_a_kernel_exception_in_a_cut_is_listed(monkeypatch: pytest.MonkeyPatch) -> None:
+    from OCP.Standard import Standard_Failure
+
+    from drawstring.cad import features
+
+    # OCCT raising (not returning a failed result) on any cut holding the second tool
+    tools = [trim_tool(_box(1.0)), trim_tool(_box(1.0) + [0.5, 0.5, 0.0])]
+    real_cut = features.cut
+
+    def raising(base: bd.Solid, cutters: list[bd.Shape]) -> list[bd.Solid]:
+        if any(cutter.bounding_box().min.X > 0.25 for cutter in cutters):
+            raise Standard_Failure("BOPAlgo: made up")
+        return real_cut(base, cutters)
+
+    monkeypatch.setattr(features, "cut", raising)
+    failed: list[int] = []
+    solid = build_tile(_box(2.0), tools, failed=failed)
+    assert failed == [1]
+    assert solid.volume == pytest.approx(8.0 - 1.0)
+
+
+def test_a_feature_the_kernel_fails_on_is_left_out_and_listed(
+    design: SampleDesign, profile: Profile, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from OCP.Standard import Standard_Failure
+
+    from drawstring.cad import design as cad_design
+
+    steps = normalize_route(design.route_steps)
+    channelled = sorted({int(t) for _, t, a, b in steps if SIDE_TOP_FACE not in (a, b)})
+    victim = channelled[0]
+    real_channel = cad_design.string_channel
+
+    def channel(tile: np.ndarray, *args: object) -> bd.Solid:
+        if np.array_equal(tile, design.tiles_2d[victim]):
+            raise Standard_Failure("BRepOffsetAPI_MakePipeShell: made up")
+        return real_channel(tile, *args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(cad_design, "string_channel", channel)
+    result = build_design_solids(
+        design.tiles_2d,
+        design.tiles_3d,
+        design.linkage.hinges,
+        design.hinge_side,
+        design.route_steps,
+        design.lift_tiles,
+        design.magnet_pairs,
+        design.trims,
+        profile,
+        workers=1,
+    )
+    assert {tile for tile, _ in result.failed} == {victim}
+    assert {name for _, name in result.failed} == {"string channel"}
+    assert any(
+        note.startswith(f"tile {victim}: its string channel failed in the CAD kernel")
+        for note in result.notes
+    )
+    assert checks.check_valid(result.tiles).all()  # the tile is there, without its channel
+    assert result.records()["failed"][0]["tile"] == victim  # type: ignore[index]
+
+
+def test_a_kernel_failure_is_a_design_problem_not_a_traceback(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from OCP.Standard import Standard_Failure
+
+    from drawstring.cad import design as cad_design
+    from drawstring.fabrication.cli import main
+
+    # 9 tiles build in this process, in tile order: the fifth cut is tile 4's.
+    real_build = cad_design.build_tile
+    calls = []
+
+    def build(*args: object, **kwargs: object) -> bd.Solid:
+        calls.append(1)
+        if len(calls) == 5:
+            raise Standard_Failure("BOPAlgo_AlertBuilderFailed: made up")
+        return real_build(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(cad_design, "build_tile", build)
+    out = tmp_path / "design"
+    args = ["design", "saddle", "--grid", "3", "3", "--resolution", "1500", "--no-simulate"]
+    assert main([*args, "--quiet", "--size", "40", "--out", str(out)]) == 3
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "not valid" in err
+    written = json.loads((out / "design.json").read_text())
+    assert any("not valid" in p for p in written["problems"])
+    assert written["metrics"]["cad"]["tiles_not_valid"] == [4]
+    assert any(n.startswith("cad: tile 4: its ") for n in written["notes"])
+    assert (out / "design.json").is_file()
 
 
 def test_small_tiles_build_or_are_refused_with_a_size_that_builds(
