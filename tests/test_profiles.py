@@ -109,3 +109,18 @@ def test_rough_estimate_scales_with_area(name: str) -> None:
     assert large.hours >= small.hours > 0
     with pytest.raises(InputError):
         rough_estimate(profile, -1.0, 200)
+
+
+@pytest.mark.parametrize("name", SHIPPED_PROFILES)
+def test_smallest_size_gives_tiles_the_cad_features_fit(name: str) -> None:
+    # The saddle at the profile's size_min_mm with its default tiles passes the check that
+    # refuses tiles too small for the string channel, lift bores and hinge strips before the
+    # CAD build (feature_fit_refusal); no solid is built.
+    from drawstring.fabrication.cad_stage import feature_fit_refusal
+    from drawstring.fabrication.pipeline import DesignOptions, design
+
+    profile = load_profile(name)
+    options = DesignOptions(profile=name, size_mm=profile.size_min_mm, simulate=False, cad=False)
+    result = design("saddle", options)
+    assert result.options.tiles == profile.default_tiles
+    assert feature_fit_refusal(result) is None
