@@ -629,7 +629,15 @@ def cad_problems(measured: dict[str, Any]) -> list[str]:
     """Hard faults of the solids, from their measures (:func:`~.cad_stage.measure_cad`)."""
     problems = []
     if not measured["solids_valid"]:
-        problems.append("some tile or hinge solids are not valid B-rep solids")
+        bad = measured.get("tiles_not_valid", [])
+        which = f": tiles {', '.join(str(t) for t in bad)}" if bad else ""
+        problems.append(
+            "some tile or hinge solids are not valid B-rep solids or miss a feature the CAD "
+            f"kernel failed on{which} (metrics.cad.tiles_not_valid and the notes)"
+        )
+    pockets = measured.get("magnet_pockets_missing", 0)
+    if pockets:
+        problems.append(f"{pockets} magnet pocket(s) were not cut (metrics.cad)")
     overlap = measured["interference_tiles_max_mm3"]
     if overlap > FLAT_INTERPENETRATION_TOL_MM3:
         problems.append(f"tile solids interfere in the print pose ({overlap} mm^3)")

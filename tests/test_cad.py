@@ -599,7 +599,7 @@ def test_a_kernel_failure_is_a_design_problem_not_a_traceback(
     err = capsys.readouterr().err
     assert "Traceback" not in err and "not valid" in err
     written = json.loads((out / "design.json").read_text())
-    assert any("not valid" in p for p in written["problems"])
+    assert any("not valid" in p and "tiles 4 " in p for p in written["problems"])
     assert written["metrics"]["cad"]["tiles_not_valid"] == [4]
     assert any(n.startswith("cad: tile 4: its ") for n in written["notes"])
     assert (out / "design.json").is_file()
