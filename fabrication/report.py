@@ -992,8 +992,8 @@ def _threading_steps(route: Route) -> list[str]:
     """The threading, lift-point and pulling steps, in the assembly guide's order: the guide
     (``fabrication/assembly.md``) starts the closed route at the lift point where both string
     ends stand up, and this page names the same start (the guide's own function decides it)."""
+    from .assembly_guide import _guide
     from .cad_stage import lift_bores
-    from .exports import _guide
 
     guide = _guide(route.steps, lift_bores(route.steps, route.lift[:, 0]))
     first = guide.order[0]

@@ -633,7 +633,7 @@ def test_every_lift_exit_of_route_json_is_in_assembly_md(
 ) -> None:
     import re
 
-    from drawstring.fabrication import exports
+    from drawstring.fabrication import assembly_guide, exports
     from drawstring.fabrication.cad_stage import lift_exits, route_steps
     from drawstring.geometry.linkage import gap_centroids, rotating_squares_layout
     from drawstring.geometry.route import route_to_json
@@ -647,15 +647,22 @@ def test_every_lift_exit_of_route_json_is_in_assembly_md(
     assert len(exits) == 2
     steps, lifts = route_steps(route), lift_exits(route, np.array(lift_gaps))
     figures = []
-    monkeypatch.setattr(exports, "_figure_png", lambda fig, path: figures.append((fig, path.name)))
-    pictures = exports.write_pictures(
+    monkeypatch.setattr(
+        assembly_guide, "_figure_png", lambda fig, path: figures.append((fig, path.name))
+    )
+    pictures = assembly_guide.write_pictures(
         tmp_path, tiles, tiles, link.hinges, ["top"] * link.n_hinges, steps, lifts
     )
     record = exports._Record(
-        estimates={"string_length_mm": 900.0, "string_rule": "rule", "flat_route_length_mm": 500.0}
+        estimates={
+            "string_length_mm": 900.0,
+            "string_rule": "rule",
+            "flat_route_length_mm": 500.0,
+            "string_tail_mm": 150.0,
+        }
     )
     record.sheets = {"hinges": {"sheets": 1}}
-    exports._write_assembly(
+    assembly_guide._write_assembly(
         tmp_path / "assembly.md",
         load_profile("laser-epdm"),
         "ring",
