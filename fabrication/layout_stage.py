@@ -128,16 +128,19 @@ def shape_and_layout(
                 max_scale_factor=bound,
             )
 
+    # Tighter split bounds cut the linkage but keep the quad mesh, so eq. 1 and the extrusion
+    # are solved once per distinct mesh (1-2 s each at 200 tiles; the chair re-tiles twice).
+    shapes: dict[bytes, AssembledResult] = {}
     bound = split_bound(options)
     first_tiling = tiled(bound)
     if first_tiling.scale_factor_max - 1.0 < RETILE_MIN_SHARE * (bound - 1.0):
         # its area scale hardly varies: more splits are not what it lacks
-        return _shaped(first_tiling, bound, loaded, options, progress)
+        return _shaped(first_tiling, bound, loaded, options, progress, shapes)
     # A tiling that may be split again goes without the held-openings fallback: its
     # co-optimization is refused for its area scale, which more splits mend (the 200-tile
     # chair in one part: the fallback took 4.5 s and still missed by 0.2 mm).  It runs after
     # all if the first tiling is the one kept.
-    first = best = _shaped(first_tiling, bound, loaded, options, progress, fallback=False)
+    first = best = _shaped(first_tiling, bound, loaded, options, progress, shapes, fallback=False)
     first_accuracy = best_accuracy = first.accuracy_mm
     target = min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
     tried: list[str] = []
@@ -148,14 +151,14 @@ def shape_and_layout(
         tiling = tiled(bound)
         if _same_parts(tiling, best.tiling):
             break  # no further split keeps enough cells on each side
-        trial = _shaped(tiling, bound, loaded, options, progress)
+        trial = _shaped(tiling, bound, loaded, options, progress, shapes)
         accuracy = trial.accuracy_mm
         tried.append(f"{_parts(tiling)} at bound {bound:.3g}: {accuracy:.2g} mm")
         if not (accuracy < RETILE_GAIN * best_accuracy or accuracy <= target):
             break  # splitting does not help this design (e.g. errors at split-line ends)
         best, best_accuracy = trial, accuracy
     if best is first and first.fallback_skipped and first_accuracy > target:
-        best = first = _shaped(first_tiling, first.split_bound, loaded, options, progress)
+        best = first = _shaped(first_tiling, first.split_bound, loaded, options, progress, shapes)
     if not tried:
         return first
     outcome = f"kept {_parts(best.tiling)}" if best is not first else "kept the first tiling"
@@ -185,26 +188,32 @@ def _shaped(
     loaded: Target,
     options: ResolvedOptions,
     progress: Progress,
+    shapes: dict[bytes, AssembledResult],
     *,
     fallback: bool = True,
 ) -> ShapedLayout:
     """Stages assembled to hinges on one tiling (see :func:`shape_and_layout`); with
     ``fallback=False`` a refused co-optimization is not run again holding the eq.-1
-    openings."""
+    openings.  ``shapes`` holds the assembled configurations already solved, by quad mesh."""
     notes = list(tiling.notes)
     linkage = tiling.linkage
     skipped = False
+    key = tiling.vertices.tobytes() + b"|" + tiling.quads.tobytes()
     with progress.stage("assembled"):
-        assembled = optimize_assembled(
-            tiling.vertices,
-            tiling.quads,
-            loaded.vertices,
-            loaded.faces,
-            thickness=options.thickness_mm,
-            w_planar=options.weights[0],
-            w_square=options.weights[1],
-            w_surface=options.weights[2],
-        )
+        if key not in shapes:
+            shapes[key] = optimize_assembled(
+                tiling.vertices,
+                tiling.quads,
+                loaded.vertices,
+                loaded.faces,
+                thickness=options.thickness_mm,
+                w_planar=options.weights[0],
+                w_square=options.weights[1],
+                w_surface=options.weights[2],
+            )
+            for array in (shapes[key].top, shapes[key].bottom, shapes[key].tiles):
+                array.flags.writeable = False  # shared between tilings: nothing may edit it
+        assembled = shapes[key]
     # Hinge sides are decided once, on the eq.-1 tiles; the flat layout makes the hinged
     # corners meet on the face that carries each hinge.
     faces = (

@@ -225,9 +225,20 @@ def test_a_tiling_that_may_be_split_again_skips_the_held_openings_run(monkeypatc
         return 1.0 if shaped.tiling.linkage.n_components == 1 else 1e-4
 
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(split_wins))
+    solved: list[int] = []  # quads of each eq.-1 solve
+    solve = layout_stage.optimize_assembled
+
+    def counted(vertices, quads, *args, **kwargs):
+        solved.append(len(quads))
+        return solve(vertices, quads, *args, **kwargs)
+
+    monkeypatch.setattr(layout_stage, "optimize_assembled", counted)
     result = design("saddle", options)
     assert result.tiling.linkage.n_components == 2
     assert held == [2]  # the trial tiling ran it, the first one did not
+    # the split tiling cuts the linkage, not the quad mesh: eq. 1 is solved once
+    assert solved == [result.tiling.linkage.n_tiles]
+    assert not result.assembled.tiles.flags.writeable
     held.clear()
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(lambda _s: 1.0))
     result = design("saddle", options)
