@@ -6,8 +6,10 @@ only when inequality rows become active or inactive, so :class:`SpdSolver` keeps
 the union of the patterns seen so far, with qdldl's fill-reducing ordering and elimination
 tree for it, and refactors only numerically (the matrix's entries scattered into the union,
 zeros elsewhere) until a matrix brings an entry outside it.  qdldl's ``LDL^T`` without
-pivoting is stable on positive definite matrices; a factor that is not (a non-finite
-solution) falls back to SuperLU.
+pivoting is stable on positive definite matrices.  On one that is not, qdldl may refuse it,
+return non-finite values or, when refactoring, keep its previous factor without a word; so
+every answer's backward error is checked (:data:`BACKWARD_ERROR_TOL`) and a failed one is
+solved again with SuperLU.
 """
 
 from __future__ import annotations
@@ -21,7 +23,12 @@ from numpy.typing import NDArray
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-__all__ = ["SpdSolver"]
+__all__ = ["BACKWARD_ERROR_TOL", "SpdSolver"]
+
+#: Largest accepted normwise backward error ``|A x - b| / (|A| |x| + |b|)`` (infinity norms) of
+#: a qdldl answer; a stable ``LDL^T`` of a positive definite matrix stays near machine
+#: precision, a stale or broken factor is off by order one.
+BACKWARD_ERROR_TOL = 1e-8
 
 
 def _upper_keys(upper: sp.csc_matrix) -> IntArray:
@@ -29,6 +36,18 @@ def _upper_keys(upper: sp.csc_matrix) -> IntArray:
     n = upper.shape[0]
     cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(upper.indptr))
     return cols * n + upper.indices.astype(np.int64)
+
+
+def _backward_error(matrix: sp.csc_matrix, x: FloatArray, b: FloatArray) -> float:
+    """Normwise backward error of ``x`` as a solution of ``matrix @ x = b`` (inf: not
+    finite)."""
+    if not np.all(np.isfinite(x)):
+        return float("inf")
+    row_sums = np.asarray(abs(matrix).sum(axis=1)).ravel()
+    scale = float(row_sums.max(initial=0.0)) * float(np.abs(x).max(initial=0.0))
+    scale += float(np.abs(b).max(initial=0.0))
+    residual = float(np.abs(matrix @ x - b).max(initial=0.0))
+    return residual / scale if scale > 0 else residual
 
 
 class SpdSolver:
@@ -78,6 +97,8 @@ class SpdSolver:
         values = np.zeros(len(self._keys))
         values[self._pos] = upper.data
         union = sp.csc_matrix((values, self._indices, self._indptr), shape=(n, n))
+        b = np.asarray(rhs, dtype=np.float64)
+        full = sp.csc_matrix(upper + sp.triu(upper, k=1, format="csc").T)
         x: FloatArray | None = None
         try:
             if self._solver is None:
@@ -86,14 +107,14 @@ class SpdSolver:
             else:
                 self._solver.update(union, upper=True)
                 self.reused += 1
-            x = np.asarray(self._solver.solve(np.asarray(rhs, dtype=np.float64)))
+            x = np.asarray(self._solver.solve(b))
         except RuntimeError:  # qdldl refuses a zero pivot it meets while analysing
             pass
-        if x is not None and np.all(np.isfinite(x)):
+        if x is not None and _backward_error(full, x, b) <= BACKWARD_ERROR_TOL:
             return x
         # not numerically positive definite: a pivoting factorization; analyse afresh next time
         self._solver, self._last = None, None
-        return np.asarray(spla.splu(sp.csc_matrix(matrix), permc_spec="MMD_AT_PLUS_A").solve(rhs))
+        return np.asarray(spla.splu(full, permc_spec="MMD_AT_PLUS_A").solve(b))
 
     def _set_union(self, keys: IntArray, n: int) -> None:
         """Make ``keys`` the pattern factored from now on (a new symbolic analysis)."""

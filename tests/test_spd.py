@@ -46,3 +46,20 @@ def test_an_indefinite_matrix_falls_back_to_a_pivoting_solve() -> None:
     solver = SpdSolver()
     x = solver.solve(matrix, np.array([2.0, 3.0]))
     np.testing.assert_allclose(x, [3.0, 2.0])
+
+
+def test_a_refactored_indefinite_matrix_is_not_answered_with_the_old_factor() -> None:
+    # qdldl keeps its previous factor when a refactorization meets a zero pivot; the answer to
+    # the first matrix must not come back for the second
+    solver = SpdSolver()
+    first = sp.csc_matrix(np.array([[2.0, 1.0], [1.0, 2.0]]))
+    np.testing.assert_allclose(solver.solve(first, np.ones(2)), [1 / 3, 1 / 3])
+    second = sp.csc_matrix(np.array([[0.0, 1.0], [1.0, 2.0]]))
+    np.testing.assert_allclose(solver.solve(second, np.ones(2)), [-1.0, 1.0])
+    np.testing.assert_allclose(solver.solve(first, np.ones(2)), [1 / 3, 1 / 3])
+
+
+def test_the_pivoting_fallback_reads_only_the_upper_triangle_too() -> None:
+    matrix = sp.csc_matrix(np.array([[0.0, 1.0], [1.0, 0.0]]))
+    x = SpdSolver().solve(sp.triu(matrix), np.array([2.0, 3.0]))
+    np.testing.assert_allclose(x, [3.0, 2.0])
