@@ -53,7 +53,7 @@ from drawstring.geometry.simulate import (
     split_contact_pairs,
 )
 from drawstring.geometry.target import Target, load_target
-from drawstring.geometry.tiling import Tiling, grid_shape_for
+from drawstring.geometry.tiling import Tiling, grid_shape_for, parts_in_place
 from drawstring.geometry.tolerances import (
     CAD_PAD_INTERFERENCE_REL,
     FLAT_EDGE_ERROR_TOL_MM,
@@ -494,7 +494,10 @@ def _design(
     masses = tile_masses_from_volumes(
         assembled.tiles, profile.density_kg_m3 * profile.infill_fraction
     )
-    flat_gap_xy = gap_centroids(linkage, hinge_layout.tiles[:, :4, :2])
+    # the route is planned with the parts side by side as they meet in the assembled shape
+    flat_gap_xy = gap_centroids(
+        linkage, parts_in_place(linkage, hinge_layout.tiles[:, :4, :2], tiling.uv)
+    )
     fabricated = fabricated_tiles(hinge_layout, assembled.tiles)
     routes: dict[tuple[int, ...], tuple[Route, str | None]] = {}
     runs: dict[tuple[int, ...], SimulationResult] = {}
@@ -807,7 +810,7 @@ def measure_design(
     metrics["contact_area_lost_mm2"] = _round(hinge_layout.contact_area_lost_mm2, 6)
     metrics["lift_points"] = lift.to_json()
     assembled_gaps = gap_centroids(linkage, assembled.tiles[:, :4])
-    flat_gaps = gap_centroids(linkage, top_2d)
+    flat_gaps = gap_centroids(linkage, parts_in_place(linkage, top_2d, tiling.uv))
     metrics["route"] = _jsonable(
         route_metrics(route, linkage, flat_gaps, assembled_gaps, profile.friction_coefficient)
     )

@@ -194,11 +194,11 @@ def component_flattenings(
         members = np.nonzero(linkage.tile_component == c)[0]
         quads = linkage.tile_corners[members]
         own_uv, area_scale[members] = part_flattening(vertices, quads)
-        layout_uv[members] = _align_similarity(own_uv, grid_uv[quads])
+        layout_uv[members] = align_similarity(own_uv, grid_uv[quads])
     return layout_uv, area_scale
 
 
-def _align_similarity(
+def align_similarity(
     source: NDArray[np.float64], target: NDArray[np.float64]
 ) -> NDArray[np.float64]:
     """Move 2D points ``source`` by the rotation, uniform scale and translation that best fit
@@ -216,6 +216,34 @@ def _align_similarity(
     rotation = u @ fix @ vt
     scale = float(np.trace(np.diag(sigma) @ fix) / max((a**2).sum(), 1e-300))
     return np.asarray((scale * a @ rotation.T + mu_d).reshape(source.shape))
+
+
+def parts_in_place(
+    linkage: Linkage, corners: NDArray[np.float64], grid_uv: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Flat tile corners with every part moved onto its place in the flattened grid.
+
+    A flat layout of several parts spreads them apart for cutting, so a gap on a split line
+    (its sides on two parts) has no meaningful flat position there, and string segments
+    between parts cut across other parts.  Here each part is moved by the rotation, uniform
+    scale and translation (:func:`align_similarity`) that best fit its corners onto its
+    cells in ``grid_uv``, so parts that meet at a split line sit side by side, as they do in
+    the assembled shape; each part keeps its own flat shape.  One part is returned unmoved.
+
+    Parameters
+    ----------
+    linkage : topology (``tile_component``, ``tile_corners``).
+    corners : (T, 4, 2) float, mm, flat tile corners.
+    grid_uv : (n, 2) float, mm, grid vertices in the flattened domain (``Tiling.uv``).
+    """
+    corners = np.asarray(corners, dtype=np.float64)
+    if linkage.n_components <= 1:
+        return corners
+    placed = corners.copy()
+    for part in range(linkage.n_components):
+        members = linkage.tile_component == part
+        placed[members] = align_similarity(corners[members], grid_uv[linkage.tile_corners[members]])
+    return placed
 
 
 def _scale_ratio(scale: NDArray[np.float64]) -> float:

@@ -10,7 +10,13 @@ import pytest
 from numpy.typing import NDArray
 
 from drawstring.geometry.errors import DesignError
-from drawstring.geometry.linkage import Linkage, Split, build_linkage, rotating_squares_layout
+from drawstring.geometry.linkage import (
+    Linkage,
+    Split,
+    build_linkage,
+    gap_centroids,
+    rotating_squares_layout,
+)
 from drawstring.geometry.route import (
     NODE_ENTRANCE,
     NODE_SPLIT,
@@ -22,6 +28,7 @@ from drawstring.geometry.route import (
     route_metrics,
     route_to_json,
 )
+from drawstring.geometry.tiling import parts_in_place
 
 
 def _centroids(linkage: Linkage, opening: float = 0.5) -> NDArray[np.float64]:
@@ -326,3 +333,33 @@ def test_a_split_part_the_route_cannot_reach_is_a_design_problem() -> None:
     # a route through every part has no such problem
     full = build_linkage(cells, splits[:2])
     assert route_problems(plan_route(full, _centroids(full), [], exact_limit=0), full) == []
+
+
+def test_parts_laid_apart_for_cutting_are_routed_as_they_meet() -> None:
+    # Cut layouts spread the parts (here the right part goes left of the other, turned a
+    # quarter): gap centroids on the split line then sit between the parts, and the route
+    # planned through them crosses itself.  Moved back onto the grid, parts sit side by side
+    # and the route is the one of the layout in place.
+    linkage = build_linkage(np.ones((10, 8), dtype=bool), (Split("x", 5, 0, 8),))
+    in_place = rotating_squares_layout(linkage, 0.5, side=10.0)
+    grid_uv = linkage.vertex_ij * 10.0
+    right = linkage.tile_component == linkage.tile_component[-1]
+    spread = in_place.copy()
+    spread[right] = spread[right] @ np.array([[0.0, 1.0], [-1.0, 0.0]]) - [200.0, 0.0]
+    spread[~right] += [60.0, 0.0]
+    apart = plan_route(linkage, gap_centroids(linkage, spread), [])
+    assert apart.crossings > 0
+    placed = parts_in_place(linkage, spread, grid_uv)
+    route = plan_route(linkage, gap_centroids(linkage, placed), [])
+    expected = plan_route(linkage, gap_centroids(linkage, in_place), [])
+    assert route.crossings == 0
+    np.testing.assert_array_equal(route.gaps, expected.gaps)
+    assert route.turn_angle_total_rad == pytest.approx(expected.turn_angle_total_rad, rel=1e-9)
+    # each part keeps its own shape (a similarity): corner distances keep their ratios
+    for part in (right, ~right):
+        before = np.linalg.norm(spread[part][:, 0] - spread[part][:, 2], axis=1)
+        after = np.linalg.norm(placed[part][:, 0] - placed[part][:, 2], axis=1)
+        np.testing.assert_allclose(after / before, (after / before)[0], rtol=1e-12)
+    one = build_linkage(np.ones((4, 4), dtype=bool))
+    corners = rotating_squares_layout(one, 0.5, side=10.0) + 100.0
+    np.testing.assert_array_equal(parts_in_place(one, corners, one.vertex_ij * 10.0), corners)
