@@ -405,7 +405,11 @@ def _separate_components(
 ) -> tuple[FloatArray, FloatArray]:
     """Translate components apart (away from each other along their uv offsets).
 
-    ``cell_corners_uv`` (T, 4, 2) are the tiles' corners in the flat domain.
+    ``cell_corners_uv`` (T, 4, 2) are the tiles' corners in the flat domain.  Parts are placed
+    from the middle out: the one nearest the tiles' centre stays, and each next one moves
+    away from that centre until it clears those placed, so parts keep the order in which they
+    meet (a middle part moved last would pass the outer ones, and the string between parts
+    would cross them).
 
     Returns the new nodes and the ``(C, 2)`` offsets applied.
     """
@@ -418,7 +422,9 @@ def _separate_components(
     cell_uv = cell_corners_uv.mean(axis=1)
     overall = cell_uv.mean(axis=0)
     sizes = np.bincount(linkage.tile_component)
-    order = np.argsort(-sizes, kind="stable")
+    centres = np.array([cell_uv[linkage.tile_component == c].mean(axis=0) for c in range(n_comp)])
+    distance = np.linalg.norm(centres - overall, axis=1)
+    order = np.lexsort((-sizes, distance))  # nearest first, the larger of equals first
     out = nodes.copy()
     placed: list[int] = [int(order[0])]
     for c in order[1:]:
