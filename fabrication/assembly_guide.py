@@ -112,11 +112,21 @@ def _guide(steps: NDArray[np.int64], lifts: NDArray[np.int64]) -> _Guide:
     moved = [(guide_step(o), out_side, guide_step(s), in_side) for o, out_side, s, in_side in raw]
     moved.sort(key=lambda m: (m[2] != 0, m[0] if m[0] is not None else -1))
     stops = [
-        _Stop(chr(ord("A") + k), o, out_side, s, in_side, tails=s == 0)
+        _Stop(_stop_label(k), o, out_side, s, in_side, tails=s == 0)
         for k, (o, out_side, s, in_side) in enumerate(moved)
     ]
     spare = sorted(bores - used)
     return _Guide(order, stops, spare)
+
+
+def _stop_label(index: int) -> str:
+    """A, B, ..., Z, AA, AB, ...: the name of stop ``index`` (from 0)."""
+    label = ""
+    index += 1
+    while index:
+        index, rest = divmod(index - 1, 26)
+        label = chr(ord("A") + rest) + label
+    return label
 
 
 def _stop_points(

@@ -19,6 +19,7 @@ import shutil
 import sys
 import tempfile
 import time
+import zipfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
@@ -377,10 +378,15 @@ def check_grid(options: ResolvedOptions, flat_map: Flattening, *, from_profile: 
     while need < MAX_TILES and min(grid_shape_for(width, height, need)) < MIN_GRID_SIDE:
         need += 1
     asked = f"the profile's {options.tiles} tiles" if from_profile else f"--tiles {options.tiles}"
+    grid = f"--grid {MIN_GRID_SIDE} {MIN_GRID_SIDE}"
+    fix = (
+        f"use --tiles {need} or more, or {grid}"
+        if min(grid_shape_for(width, height, need)) >= MIN_GRID_SIDE
+        else f"use {grid} or more (no tile count up to {MAX_TILES} gives such a grid)"
+    )
     raise InputError(
         f"with {asked} this target gets a {n_i} x {n_j} grid, but the string route needs at least "
-        f"{MIN_GRID_SIDE} tiles each way: use --tiles {need} or more, or --grid "
-        f"{MIN_GRID_SIDE} {MIN_GRID_SIDE}"
+        f"{MIN_GRID_SIDE} tiles each way: {fix}"
     )
 
 
@@ -398,10 +404,11 @@ def size_refusal(exc: ThicknessError, options: ResolvedOptions) -> InputError | 
     wanted = options.size_mm * thickness / advice
     step = 10.0 ** (math.floor(math.log10(wanted)) - 1)  # two significant digits, rounded up
     size = math.ceil(wanted / step - 1e-9) * step
+    fewer = "a smaller --grid" if options.grid is not None else "fewer --tiles"
     return InputError(
         f"--size {options.size_mm:g} mm is too small for {thickness:g} mm thick tiles: "
         f"{exc.inverted} tile(s) turn inside out where this target curves tightly; use "
-        f"--size {size:g} or more, --thickness {advice:g} or less, or fewer --tiles"
+        f"--size {size:g} or more, --thickness {advice:g} or less, or {fewer}"
     )
 
 
@@ -1052,8 +1059,6 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
     the ``simulation`` metrics and timing into ``design.json``, and rewrites ``report.html``.
     Every file is written next to its final name first and renamed into place.
     """
-    from drawstring.geometry.linkage import Split, build_linkage
-
     from .outputs import save_deployment
     from .report import write_report
 
@@ -1065,6 +1070,79 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
     missing = [name for name in needed if not (root / name).is_file()]
     if missing:
         raise InputError(f"{root} lacks {', '.join(missing)}; run drawstring design again")
+    try:
+        doc, linkage, assembled, fabricated, hinge_vertices, steps, lift_gaps = _read_design(
+            root, design_path
+        )
+    except InputError:
+        raise
+    except (OSError, ValueError, KeyError, TypeError, IndexError, zipfile.BadZipFile) as exc:
+        what = exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__
+        raise InputError(
+            f"{root}: the design files cannot be read ({what}); run drawstring design again"
+        ) from exc
+    if assembled.shape != (linkage.n_tiles, 8, 3) or fabricated.shape != assembled.shape:
+        raise InputError(f"{root}: tiles.npz does not match design.json; run design again")
+    progress = Progress(quiet=quiet)
+    with progress.stage("simulate"):
+        simulation = simulate_stage(
+            linkage,
+            fabricated,
+            assembled,
+            hinge_vertices,
+            steps,
+            lift_gaps,
+            float(doc["options"]["thickness_mm"]),
+        )
+    result_block = _jsonable(simulation.to_json())
+    # the lift sweep's count is the design's; a design made without simulating has run once now
+    runs = doc.get("metrics", {}).get("simulation", {}).get("runs")
+    result_block["runs"] = runs if isinstance(runs, int) else 1
+    result_block.pop("time_s", None)
+    per_step = float(result_block.pop("per_step_ms", 0.0)) / 1000.0
+    doc.setdefault("metrics", {})["simulation"] = result_block
+    doc.setdefault("timings_s", {})["simulate"] = round(progress.timings["simulate"], 3)
+    doc["timings_s"]["simulate_per_step"] = round(per_step, 3)
+    try:
+        staging = Path(tempfile.mkdtemp(prefix=f".{root.name}.", suffix=".tmp", dir=root.parent))
+    except OSError as exc:
+        raise InputError(
+            f"cannot write beside {root} ({exc.strerror}); check the folder's permissions"
+        ) from exc
+    try:
+        written = save_deployment(simulation, steps, staging)
+        doc["files"] = sorted(set(doc.get("files", [])) | set(written))
+        (staging / "design.json").write_text(
+            json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8"
+        )
+        for name in [*written, "design.json"]:
+            os.replace(staging / name, root / name)
+        write_report(root)
+    except OSError as exc:
+        raise InputError(
+            f"cannot write into {root} ({exc.strerror}); check the folder's permissions and "
+            "free space"
+        ) from exc
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return root
+
+
+def _read_design(
+    root: Path, design_path: Path
+) -> tuple[
+    dict[str, Any],
+    Linkage,
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.int64],
+    NDArray[np.int64],
+    NDArray[np.int64],
+]:
+    """What :func:`simulate_folder` reads from a design folder (raises what the readers
+    raise on damaged files)."""
+    from drawstring.geometry.linkage import Split, build_linkage
+
     doc = json.loads(design_path.read_text(encoding="utf-8"))
     block = doc.get("linkage", {})
     if "tile_cells" not in block:
@@ -1091,36 +1169,4 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
     ).reshape(-1, 4)
     points = doc.get("metrics", {}).get("lift_points", {}).get("points", [])
     lift_gaps = np.array([p["gap"] for p in points], dtype=np.int64)
-    if assembled.shape != (linkage.n_tiles, 8, 3) or fabricated.shape != assembled.shape:
-        raise InputError(f"{root}: tiles.npz does not match design.json; run design again")
-    progress = Progress(quiet=quiet)
-    with progress.stage("simulate"):
-        simulation = simulate_stage(
-            linkage,
-            fabricated,
-            assembled,
-            hinge_vertices,
-            steps,
-            lift_gaps,
-            float(doc["options"]["thickness_mm"]),
-        )
-    result_block = _jsonable(simulation.to_json())
-    result_block["runs"] = 1  # simulations this command ran (a design's lift sweep may run more)
-    result_block.pop("time_s", None)
-    per_step = float(result_block.pop("per_step_ms", 0.0)) / 1000.0
-    doc.setdefault("metrics", {})["simulation"] = result_block
-    doc.setdefault("timings_s", {})["simulate"] = round(progress.timings["simulate"], 3)
-    doc["timings_s"]["simulate_per_step"] = round(per_step, 3)
-    staging = Path(tempfile.mkdtemp(prefix=f".{root.name}.", suffix=".tmp", dir=root.parent))
-    try:
-        written = save_deployment(simulation, steps, staging)
-        doc["files"] = sorted(set(doc.get("files", [])) | set(written))
-        (staging / "design.json").write_text(
-            json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8"
-        )
-        for name in [*written, "design.json"]:
-            os.replace(staging / name, root / name)
-        write_report(root)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-    return root
+    return doc, linkage, assembled, fabricated, hinge_vertices, steps, lift_gaps

@@ -545,11 +545,18 @@ def _solve_cycle(
         )
         if res.x is None:
             # milp status 2: proved infeasible; otherwise a time or iteration limit was hit
-            found = "exists" if res.status == 2 else f"was found within {time_limit:g} s"
+            rule = (
+                "that passes every boundary tile and each tile and gap at most once between "
+                "contact partners without crossing itself"
+            )
+            if res.status == 2:
+                raise DesignError(
+                    f"no closed string route exists {rule}; a shape part only one or two tiles "
+                    "wide has none: use more tiles (--tiles or --grid)"
+                )
             raise DesignError(
-                f"no closed string route {found} that passes every boundary tile and each tile "
-                "and gap at most once between contact partners without crossing itself; a "
-                "shape part only one or two tiles wide has none: use more tiles (--tiles or --grid)"
+                f"no closed string route was found within {time_limit:g} s {rule}; the route "
+                "program is too large for its time limit: use fewer tiles (--tiles or --grid)"
             )
         if res.status != 0:
             optimal = False

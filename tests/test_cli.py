@@ -242,7 +242,7 @@ def test_bad_profile_file_is_refused(tmp_path: Path) -> None:
     assert not out.exists()
 
 
-def test_simulate_an_existing_design(tmp_path: Path) -> None:
+def test_simulate_an_existing_design(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "d"
     args = ["design", "saddle", "--grid", "6", "5", "--resolution", "1500", "--no-cad"]
     assert main([*args, "--no-simulate", "--quiet", "--out", str(out)]) == 0
@@ -257,6 +257,14 @@ def test_simulate_an_existing_design(tmp_path: Path) -> None:
     assert frames.ndim == 4 and frames.shape[1:] == (30, 8, 3)
     # No staging folder is left beside the design.
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
+    # A damaged tiles.npz is refused in one line, and design.json is left as it was.
+    (out / "tiles.npz").write_bytes((out / "tiles.npz").read_bytes()[:100])
+    before = (out / "design.json").read_bytes()
+    assert main(["simulate", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "cannot be read" in err and "run drawstring design again" in err
+    assert len(err.splitlines()) == 1
+    assert (out / "design.json").read_bytes() == before
 
 
 def test_simulate_repeats_the_designs_own_run_exactly(tmp_path: Path) -> None:

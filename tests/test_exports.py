@@ -747,3 +747,11 @@ def test_placement_marks_hinges_as_every_picture_does(built: Built) -> None:
         assert kinds == ({"LWPOLYLINE", "CIRCLE"} if style is top else {"LWPOLYLINE"})
     guide = (built.folder / "fabrication" / "assembly.md").read_text()
     assert "orange, marked with a square: on the bottom faces" in guide and "pink" not in guide
+
+
+def test_stops_past_z_get_two_letters() -> None:
+    from drawstring.fabrication.assembly_guide import _stop_label
+
+    labels = [_stop_label(k) for k in range(30)]
+    assert labels[:3] == ["A", "B", "C"] and labels[25:28] == ["Z", "AA", "AB"]
+    assert len(set(labels)) == 30
