@@ -124,7 +124,12 @@ def route_lengths(result: Design) -> tuple[float, float]:
     reports; it needs no solids)."""
     from .exports_parts import route_lengths as measured
 
-    return measured(print_tiles(result), result.tiles_assembled, route_steps(result.route))
+    return measured(
+        print_tiles(result),
+        result.tiles_assembled,
+        route_steps(result.route),
+        lift_exits(result.route, result.lift.lift_gaps),
+    )
 
 
 def fabrication_measures(result: Design, cad_flat: CadResult) -> Measures:

@@ -168,6 +168,7 @@ def measure_fabrication(
         np.asarray(tiles_flat, dtype=np.float64),
         np.asarray(tiles_assembled, dtype=np.float64),
         steps,
+        lift_tiles,
     )
     tail = max(STRING_TAIL_MIN_MM, 0.1 * flat_route)
     tile_volume = float(sum(s.volume for s in cad_flat.tiles))

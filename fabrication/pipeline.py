@@ -823,10 +823,12 @@ def measure_design(
     )
     # the string's length along its channels on the fabricated tiles, as every other output
     # reports it (not the planning polyline through the gap centres)
-    from .cad_stage import route_steps
+    from .cad_stage import lift_exits, route_steps
     from .exports_parts import route_lengths
 
-    flat_length, assembled_length = route_lengths(fabricated, assembled.tiles, route_steps(route))
+    flat_length, assembled_length = route_lengths(
+        fabricated, assembled.tiles, route_steps(route), lift_exits(route, lift.lift_gaps)
+    )
     metrics["route"]["length_mm"] = {"flat": flat_length, "assembled": assembled_length}
     channel_turn = channel_turn_assembled(route, assembled.tiles)
     metrics["route"]["turn_angle_channels_assembled_rad"] = _round(channel_turn, 6)

@@ -755,3 +755,30 @@ def test_stops_past_z_get_two_letters() -> None:
     labels = [_stop_label(k) for k in range(30)]
     assert labels[:3] == ["A", "B", "C"] and labels[25:28] == ["Z", "AA", "AB"]
     assert len(set(labels)) == 30
+
+
+def test_the_route_length_goes_up_over_and_down_the_lift_bores() -> None:
+    from drawstring.cad.features import lift_path
+    from drawstring.fabrication.exports_parts import route_length
+
+    # a 2 x 2 block of 10 mm boxes, 3 mm thick, touching; the loop 0 -> 1 -> 3 -> 2 -> 0
+    offsets = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)
+    cells = np.array([[0, 0], [1, 0], [0, 1], [1, 1]], dtype=float)
+    top = np.concatenate([(cells[:, None] + offsets) * 10.0, np.zeros((4, 4, 1))], axis=2)
+    tiles = np.concatenate([top, top - [0.0, 0.0, 3.0]], axis=1)
+    steps = np.array([[0, 0, 2, 1], [1, 1, 3, 2], [2, 3, 0, 3], [3, 2, 1, 0]])
+    plain = route_length(tiles, steps)
+    bores = np.array([[0, 1], [1, 3]])  # the string is pulled up between tiles 0 and 1
+    lifted = route_length(tiles, steps, bores)
+    up, down = lift_path(tiles[0], 1), lift_path(tiles[1], 3)
+    assert up.arc[2][2] == pytest.approx(0.0) and down.arc[2][2] == pytest.approx(0.0)
+    over = float(np.linalg.norm(down.arc[2] - up.arc[2]))
+    # each bore climbs half the thickness at least; the faces touch, so straight across is 0
+    assert lifted - plain >= over + 3.0 - 1e-9
+    assert lifted - plain <= over + 2 * (1.5 + 10.0)
+    # a bore on one side only is not a lift crossing
+    assert route_length(tiles, steps, bores[:1]) == pytest.approx(plain)
+    # the same in any pose
+    turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    moved = tiles @ turn.T + [5.0, -2.0, 7.0]
+    assert route_length(moved, steps, bores) == pytest.approx(lifted, rel=1e-12)
