@@ -110,6 +110,10 @@ class ShapedLayout:
         return max(float(edge.max(initial=0.0)), float(gaps.max(initial=0.0)))
 
 
+#: A quad mesh as a dictionary key: vertex array shape and bytes, quad array shape and bytes.
+MeshKey = tuple[tuple[int, ...], bytes, tuple[int, ...], bytes]
+
+
 def shape_and_layout(
     loaded: Target, flat_map: Flattening, options: ResolvedOptions, progress: Progress
 ) -> ShapedLayout:
@@ -130,7 +134,7 @@ def shape_and_layout(
 
     # Tighter split bounds cut the linkage but keep the quad mesh, so eq. 1 and the extrusion
     # are solved once per distinct mesh (1-2 s each at 200 tiles; the chair re-tiles twice).
-    shapes: dict[bytes, AssembledResult] = {}
+    shapes: dict[MeshKey, AssembledResult] = {}
     bound = split_bound(options)
     first_tiling = tiled(bound)
     if first_tiling.scale_factor_max - 1.0 < RETILE_MIN_SHARE * (bound - 1.0):
@@ -188,17 +192,24 @@ def _shaped(
     loaded: Target,
     options: ResolvedOptions,
     progress: Progress,
-    shapes: dict[bytes, AssembledResult],
+    shapes: dict[MeshKey, AssembledResult],
     *,
     fallback: bool = True,
 ) -> ShapedLayout:
     """Stages assembled to hinges on one tiling (see :func:`shape_and_layout`); with
     ``fallback=False`` a refused co-optimization is not run again holding the eq.-1
-    openings.  ``shapes`` holds the assembled configurations already solved, by quad mesh."""
+    openings.  ``shapes`` holds the assembled configurations already solved, by quad mesh;
+    their arrays are read-only, as they may be shared between tilings (and so are those of a
+    design that keeps the eq.-1 tiles, e.g. with ``--no-co-optimize``)."""
     notes = list(tiling.notes)
     linkage = tiling.linkage
     skipped = False
-    key = tiling.vertices.tobytes() + b"|" + tiling.quads.tobytes()
+    key = (
+        tiling.vertices.shape,
+        tiling.vertices.tobytes(),
+        tiling.quads.shape,
+        tiling.quads.tobytes(),
+    )
     with progress.stage("assembled"):
         if key not in shapes:
             shapes[key] = optimize_assembled(
