@@ -198,6 +198,31 @@ def component_flattenings(
     return layout_uv, area_scale
 
 
+def _fit_similarity(
+    source: NDArray[np.float64], target: NDArray[np.float64], *, scaling: bool = True
+) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+    """Scale, rotation (2, 2) and translation (2,) that best map 2D points ``source`` onto
+    ``target`` in the least-squares sense (Umeyama; reflections excluded; ``scaling=False``:
+    a rigid motion)."""
+    src = source.reshape(-1, 2)
+    dst = target.reshape(-1, 2)
+    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
+    a, b = src - mu_s, dst - mu_d
+    u, sigma, vt = np.linalg.svd(b.T @ a)
+    d = np.sign(np.linalg.det(u @ vt)) or 1.0
+    fix = np.diag([1.0, d])
+    rotation = u @ fix @ vt
+    scale = float(np.trace(np.diag(sigma) @ fix) / max((a**2).sum(), 1e-300)) if scaling else 1.0
+    return scale, rotation, mu_d - scale * rotation @ mu_s
+
+
+def _apply_similarity(
+    fit: tuple[float, NDArray[np.float64], NDArray[np.float64]], points: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    scale, rotation, shift = fit
+    return np.asarray(scale * points @ rotation.T + shift)
+
+
 def align_similarity(
     source: NDArray[np.float64], target: NDArray[np.float64]
 ) -> NDArray[np.float64]:
@@ -221,29 +246,60 @@ def align_similarity(
 def parts_in_place(
     linkage: Linkage, corners: NDArray[np.float64], grid_uv: NDArray[np.float64]
 ) -> NDArray[np.float64]:
-    """Flat tile corners with every part moved onto its place in the flattened grid.
+    """Flat tile corners with the parts of a split design moved together where they meet.
 
     A flat layout of several parts spreads them apart for cutting, so a gap on a split line
     (its sides on two parts) has no meaningful flat position there, and string segments
-    between parts cut across other parts.  Here each part is moved by the rotation, uniform
-    scale and translation (:func:`align_similarity`) that best fit its corners onto its
-    cells in ``grid_uv``, so parts that meet at a split line sit side by side, as they do in
-    the assembled shape; each part keeps its own flat shape.  One part is returned unmoved.
+    between parts cut across other parts.  Here the largest part stays; every other part, in
+    turn the one with most cut hinges to those placed, is moved rigidly so that the corners
+    those hinges would join (the hinges the splits removed) best meet: each part keeps its
+    own flat shape and size.  A part with fewer than two cut hinges to the placed ones is
+    placed where ``grid_uv`` puts it relative to them (a similarity fit).  One part is
+    returned unmoved.
 
     Parameters
     ----------
-    linkage : topology (``tile_component``, ``tile_corners``).
+    linkage : topology (``tile_component``, ``tile_cells``, ``tile_corners``).
     corners : (T, 4, 2) float, mm, flat tile corners.
     grid_uv : (n, 2) float, mm, grid vertices in the flattened domain (``Tiling.uv``).
     """
     corners = np.asarray(corners, dtype=np.float64)
-    if linkage.n_components <= 1:
+    count = linkage.n_components
+    if count <= 1:
         return corners
-    placed = corners.copy()
-    for part in range(linkage.n_components):
-        members = linkage.tile_component == part
-        placed[members] = align_similarity(corners[members], grid_uv[linkage.tile_corners[members]])
-    return placed
+    component = linkage.tile_component
+    cells = np.zeros(linkage.grid_shape, dtype=bool)
+    cells[linkage.tile_cells[:, 0], linkage.tile_cells[:, 1]] = True
+    whole = build_linkage(cells).hinges  # same tile numbering, no splits
+    cut = whole[component[whole[:, 0]] != component[whole[:, 2]]]
+    # both directions: (tile, corner) in one part, (tile, corner) it would be hinged to
+    ends = np.concatenate([cut, cut[:, [2, 3, 0, 1]]])
+    placed = np.zeros(count, dtype=bool)
+    placed[int(np.argmax(np.bincount(component, minlength=count)))] = True
+    result = corners.copy()
+    while not placed.all():
+        to_placed = placed[component[ends[:, 2]]]
+        part_of = component[ends[:, 0]]
+        shared = np.bincount(part_of[to_placed], minlength=count) * ~placed
+        part = int(np.argmax(np.where(placed, -1, shared)))  # most cut hinges, lowest index
+        if shared[part] >= 2:
+            rows = ends[to_placed & (part_of == part)]
+            fit = _fit_similarity(
+                corners[rows[:, 0], rows[:, 1]], result[rows[:, 2], rows[:, 3]], scaling=False
+            )
+        else:
+            done = placed[component]
+            frame = _fit_similarity(
+                grid_uv[linkage.tile_corners[done]], result[done]
+            )  # grid -> the placed parts' frame
+            own = component == part
+            fit = _fit_similarity(
+                corners[own], _apply_similarity(frame, grid_uv[linkage.tile_corners[own]])
+            )
+        members = component == part
+        result[members] = _apply_similarity(fit, corners[members].reshape(-1, 2)).reshape(-1, 4, 2)
+        placed[part] = True
+    return result
 
 
 def _scale_ratio(scale: NDArray[np.float64]) -> float:

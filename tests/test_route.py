@@ -355,11 +355,33 @@ def test_parts_laid_apart_for_cutting_are_routed_as_they_meet() -> None:
     assert route.crossings == 0
     np.testing.assert_array_equal(route.gaps, expected.gaps)
     assert route.turn_angle_total_rad == pytest.approx(expected.turn_angle_total_rad, rel=1e-9)
-    # each part keeps its own shape (a similarity): corner distances keep their ratios
-    for part in (right, ~right):
-        before = np.linalg.norm(spread[part][:, 0] - spread[part][:, 2], axis=1)
-        after = np.linalg.norm(placed[part][:, 0] - placed[part][:, 2], axis=1)
-        np.testing.assert_allclose(after / before, (after / before)[0], rtol=1e-12)
+    # the parts meet again exactly as in the layout in place: one rigid motion away from it
+    # (the largest part, here the left one by index, stays where it was cut)
+    np.testing.assert_allclose(placed[~right], spread[~right], atol=1e-12)
+    src, dst = in_place.reshape(-1, 2), placed.reshape(-1, 2)
+    u, _, vt = np.linalg.svd((dst - dst.mean(0)).T @ (src - src.mean(0)))
+    rotation = u @ vt
+    moved = (src - src.mean(0)) @ rotation.T + dst.mean(0)
+    np.testing.assert_allclose(moved, dst, atol=1e-9)
     one = build_linkage(np.ones((4, 4), dtype=bool))
     corners = rotating_squares_layout(one, 0.5, side=10.0) + 100.0
     np.testing.assert_array_equal(parts_in_place(one, corners, one.vertex_ij * 10.0), corners)
+
+
+def test_a_part_held_by_one_cut_hinge_is_placed_by_the_grid() -> None:
+    # a lone tile sticking out of a 6 x 6 block, cut off: one removed hinge cannot fix its
+    # turn, so it goes where the grid puts it relative to the block
+    cells = np.zeros((7, 6), dtype=bool)
+    cells[:6, :] = True
+    cells[6, 0] = True
+    linkage = build_linkage(cells, (Split("x", 6, 0, 1),))
+    assert linkage.n_components == 2
+    lone = linkage.tile_component == linkage.tile_component[linkage.tile_cells[:, 0] == 6][0]
+    grid_uv = linkage.vertex_ij * 10.0
+    in_place = grid_uv[linkage.tile_corners]  # the grid itself, gaps closed
+    spread = in_place.copy()
+    spread[lone] = spread[lone] @ np.array([[0.0, -1.0], [1.0, 0.0]]).T + [300.0, 40.0]
+    spread[~lone] += [-20.0, 5.0]
+    placed = parts_in_place(linkage, spread, grid_uv)
+    np.testing.assert_allclose(placed[~lone], spread[~lone])
+    np.testing.assert_allclose(placed[lone], in_place[lone] + [-20.0, 5.0], atol=1e-9)
