@@ -496,7 +496,7 @@ def _write_assembly(
     est = record.estimates
     section = itertools.count(1)
     # each end to hold while pulling (bom.csv's string rule)
-    tail = float(est.get("string_tail_mm", 0.0))
+    tail = float(est["string_tail_mm"])
     lines = [
         f"# Assembling {design_name} ({profile.name})",
         "",

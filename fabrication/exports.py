@@ -94,8 +94,9 @@ class Measures:
 
     Attributes
     ----------
-    route_flat_mm, route_assembled_mm : string route along the channels of the printed tiles
-        and straight across the gaps (:func:`~.exports_parts.route_lengths`), 0.1 mm.
+    route_flat_mm, route_assembled_mm : string route along the channels of the printed tiles,
+        straight across the gaps and up, over and down the lift bores at lift points
+        (:func:`~.exports_parts.route_lengths`), 0.1 mm.
     string_mm : string to cut, ``route_flat_mm x (1 + STRING_MARGIN) + 2 x tail_mm``, 0.1 mm.
     tail_mm : each of the two ends to hold while pulling, 0.1 mm.
     tile_volume_mm3, hinge_volume_mm3 : volumes of the tile and hinge-part solids, 0.1 mm^3.

@@ -20,6 +20,7 @@ import sys
 import tempfile
 import time
 import zipfile
+import zlib
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
@@ -1076,15 +1077,37 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
         doc, linkage, assembled, fabricated, hinge_vertices, steps, lift_gaps = _read_design(
             root, design_path
         )
+        thickness = float(doc["options"]["thickness_mm"])
     except InputError:
         raise
-    except (OSError, ValueError, KeyError, TypeError, IndexError, zipfile.BadZipFile) as exc:
+    except (
+        OSError,
+        EOFError,
+        ValueError,
+        KeyError,
+        TypeError,
+        IndexError,
+        zipfile.BadZipFile,
+        zlib.error,
+    ) as exc:
         what = exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__
         raise InputError(
             f"{root}: the design files cannot be read ({what}); run drawstring design again"
         ) from exc
     if assembled.shape != (linkage.n_tiles, 8, 3) or fabricated.shape != assembled.shape:
         raise InputError(f"{root}: tiles.npz does not match design.json; run design again")
+    in_range = (
+        np.all((steps[:, 0] >= 0) & (steps[:, 0] < linkage.n_gaps))
+        and np.all((steps[:, 1] >= 0) & (steps[:, 1] < linkage.n_tiles))
+        and np.all((steps[:, 2:] >= 0) & (steps[:, 2:] <= 4))
+        and np.all((hinge_vertices >= 0) & (hinge_vertices < 8 * linkage.n_tiles))
+        and np.all((lift_gaps >= 0) & (lift_gaps < linkage.n_gaps))
+    )
+    if not in_range:
+        raise InputError(
+            f"{root}: route.json, hinges.json or the lift points do not match design.json; "
+            "run drawstring design again"
+        )
     progress = Progress(quiet=quiet)
     with progress.stage("simulate"):
         simulation = simulate_stage(
@@ -1094,7 +1117,7 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
             hinge_vertices,
             steps,
             lift_gaps,
-            float(doc["options"]["thickness_mm"]),
+            thickness,
         )
     result_block = _jsonable(simulation.to_json())
     # the lift sweep's count is the design's; a design made without simulating has run once now

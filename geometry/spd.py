@@ -38,15 +38,22 @@ def _upper_keys(upper: sp.csc_matrix) -> IntArray:
     return cols * n + upper.indices.astype(np.int64)
 
 
-def _backward_error(matrix: sp.csc_matrix, x: FloatArray, b: FloatArray) -> float:
-    """Normwise backward error of ``x`` as a solution of ``matrix @ x = b`` (inf: not
-    finite)."""
+def _backward_error(upper: sp.csc_matrix, x: FloatArray, b: FloatArray) -> float:
+    """Normwise backward error of ``x`` as a solution of ``A x = b``, ``A`` the symmetric
+    matrix of which ``upper`` is the upper triangle (inf: not finite)."""
     if not np.all(np.isfinite(x)):
         return float("inf")
-    row_sums = np.asarray(abs(matrix).sum(axis=1)).ravel()
+    diagonal = upper.diagonal()
+    product = upper @ x + upper.T @ x - diagonal * x
+    magnitude = abs(upper)
+    row_sums = (
+        np.asarray(magnitude.sum(axis=1)).ravel()
+        + np.asarray(magnitude.sum(axis=0)).ravel()
+        - np.abs(diagonal)
+    )
     scale = float(row_sums.max(initial=0.0)) * float(np.abs(x).max(initial=0.0))
     scale += float(np.abs(b).max(initial=0.0))
-    residual = float(np.abs(matrix @ x - b).max(initial=0.0))
+    residual = float(np.abs(product - b).max(initial=0.0))
     return residual / scale if scale > 0 else residual
 
 
@@ -98,7 +105,6 @@ class SpdSolver:
         values[self._pos] = upper.data
         union = sp.csc_matrix((values, self._indices, self._indptr), shape=(n, n))
         b = np.asarray(rhs, dtype=np.float64)
-        full = sp.csc_matrix(upper + sp.triu(upper, k=1, format="csc").T)
         x: FloatArray | None = None
         try:
             if self._solver is None:
@@ -110,10 +116,11 @@ class SpdSolver:
             x = np.asarray(self._solver.solve(b))
         except RuntimeError:  # qdldl refuses a zero pivot it meets while analysing
             pass
-        if x is not None and _backward_error(full, x, b) <= BACKWARD_ERROR_TOL:
+        if x is not None and _backward_error(upper, x, b) <= BACKWARD_ERROR_TOL:
             return x
         # not numerically positive definite: a pivoting factorization; analyse afresh next time
         self._solver, self._last = None, None
+        full = sp.csc_matrix(upper + sp.triu(upper, k=1, format="csc").T)
         return np.asarray(spla.splu(full, permc_spec="MMD_AT_PLUS_A").solve(b))
 
     def _set_union(self, keys: IntArray, n: int) -> None:

@@ -257,14 +257,26 @@ def test_simulate_an_existing_design(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert frames.ndim == 4 and frames.shape[1:] == (30, 8, 3)
     # No staging folder is left beside the design.
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
-    # A damaged tiles.npz is refused in one line, and design.json is left as it was.
-    (out / "tiles.npz").write_bytes((out / "tiles.npz").read_bytes()[:100])
+    # Damaged files are refused in one line, and design.json is left as it was.
     before = (out / "design.json").read_bytes()
-    assert main(["simulate", str(out), "--quiet"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert "cannot be read" in err and "run drawstring design again" in err
-    assert len(err.splitlines()) == 1
-    assert (out / "design.json").read_bytes() == before
+    tiles = (out / "tiles.npz").read_bytes()
+    middle = len(tiles) // 2
+    flipped = tiles[:middle] + bytes(b ^ 0xFF for b in tiles[middle : middle + 64])
+    route = json.loads((out / "route.json").read_text())
+    route["steps"][0]["tile"] = 10_000
+    for name, damaged, complaint in (
+        ("tiles.npz", tiles[:100], "cannot be read"),
+        ("tiles.npz", flipped + tiles[middle + 64 :], "cannot be read"),
+        ("route.json", json.dumps(route).encode(), "do not match"),
+    ):
+        good = (out / name).read_bytes()
+        (out / name).write_bytes(damaged)
+        assert main(["simulate", str(out), "--quiet"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert complaint in err and "run drawstring design again" in err
+        assert len(err.splitlines()) == 1
+        assert (out / "design.json").read_bytes() == before
+        (out / name).write_bytes(good)
 
 
 def test_simulate_repeats_the_designs_own_run_exactly(tmp_path: Path) -> None:

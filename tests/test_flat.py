@@ -238,3 +238,27 @@ def test_an_area_ratio_prediction_alone_is_not_a_problem(monkeypatch) -> None:
     flat = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=10.0)
     assert flat.edge_error_max_mm <= 1e-3
     assert flat.problems == ()
+
+
+def test_split_parts_are_laid_out_in_the_order_in_which_they_meet() -> None:
+    # three parts in a row, the outer ones larger: the middle one stays and the outer ones
+    # move outwards, so the string between parts never has to cross one (placed largest
+    # first, the middle part used to slide past an outer one)
+    from drawstring.geometry.linkage import rotating_squares_layout
+
+    splits = (Split("x", 5, 0, 6), Split("x", 8, 0, 6))
+    linkage = build_linkage(np.ones((14, 6), dtype=bool), splits)
+    assert linkage.n_components == 3
+    corners = rotating_squares_layout(linkage, 0.3, side=10.0)
+    nodes = np.zeros((linkage.n_nodes, 2))
+    nodes[linkage.corner_node] = corners
+    cells_uv = (linkage.tile_cells[:, None, :] + [[0, 0], [1, 0], [1, 1], [0, 1]]) * 10.0
+    moved, offsets = flat_module._separate_components(linkage, nodes, cells_uv, 2.0)
+    parts = [linkage.tile_component[linkage.tile_cells[:, 0] == i][0] for i in (0, 6, 13)]
+    assert np.all(offsets[parts[1]] == 0.0)  # the middle part, nearest the centre, stays
+    assert offsets[parts[0], 0] < 0 < offsets[parts[2], 0]
+    spans = []
+    for part in parts:
+        xs = moved[linkage.corner_node[linkage.tile_component == part]][..., 0]
+        spans.append((xs.min(), xs.max()))
+    assert spans[0][1] < spans[1][0] and spans[1][1] < spans[2][0]
