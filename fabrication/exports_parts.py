@@ -328,7 +328,9 @@ def route_length(
     ``bores`` (L, 2) ``(tile, side)`` are the lift bores
     (:func:`~drawstring.fabrication.cad_stage.lift_bores`): where both tiles of a crossing
     have one on the contact face between them, the string comes up one bore, runs over the
-    gap from top face to top face and goes down the other instead of straight across.
+    gap from top face to top face and goes down the other instead of straight across.  (A
+    route passes each tile once, ``Route.tiles_passed_once``, so a contact face is crossed at
+    most once and its two bores name one crossing.)
     """
     if len(steps) == 0:
         return 0.0
