@@ -43,14 +43,7 @@ def run(cases: tuple[tuple[int, int], ...] = CASES, workers: int | None = None) 
         design = cylinder_design(cells, radius=30.0 * cells[0])
         cpu_start, wall_start = _cpu_seconds(), time.perf_counter()
         result = build_design_solids(
-            design.tiles_2d,
-            design.tiles_3d,
-            design.linkage.hinges,
-            design.hinge_side,
-            design.route_steps,
-            design.lift_tiles,
-            design.magnet_pairs,
-            design.trims,
+            *design.solid_inputs(),
             profile,
             workers=workers,
         )

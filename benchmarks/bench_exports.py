@@ -54,14 +54,7 @@ def run(
             )
         start = time.perf_counter()
         flat = build_design_solids(
-            design.tiles_2d,
-            design.tiles_3d,
-            design.linkage.hinges,
-            design.hinge_side,
-            design.route_steps,
-            design.lift_tiles,
-            design.magnet_pairs,
-            design.trims,
+            *design.solid_inputs(),
             profile,
             workers=workers,
         )

@@ -9,6 +9,7 @@ tiles share their contact faces.  The flat pose puts each tile, moved rigidly, o
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,6 +31,19 @@ class SampleDesign:
     lift_tiles: NDArray[np.int64]
     magnet_pairs: NDArray[np.int64]
     trims: dict[int, list[NDArray[np.float64]]]
+
+    def solid_inputs(self) -> tuple[Any, ...]:
+        """The design's positional arguments of ``build_design_solids`` before ``profile``."""
+        return (
+            self.tiles_2d,
+            self.tiles_3d,
+            self.linkage.hinges,
+            self.hinge_side,
+            self.route_steps,
+            self.lift_tiles,
+            self.magnet_pairs,
+            self.trims,
+        )
 
 
 def cylinder_tiles(

@@ -70,14 +70,7 @@ def design() -> SampleDesign:
 @pytest.fixture(scope="module")
 def built(design: SampleDesign, profile: Profile) -> CadResult:
     return build_design_solids(
-        design.tiles_2d,
-        design.tiles_3d,
-        design.linkage.hinges,
-        design.hinge_side,
-        design.route_steps,
-        design.lift_tiles,
-        design.magnet_pairs,
-        design.trims,
+        *design.solid_inputs(),
         profile,
         workers=1,
     )
@@ -553,14 +546,7 @@ def test_a_feature_the_kernel_fails_on_is_left_out_and_listed(
 
     monkeypatch.setattr(cad_design, "string_channel", channel)
     result = build_design_solids(
-        design.tiles_2d,
-        design.tiles_3d,
-        design.linkage.hinges,
-        design.hinge_side,
-        design.route_steps,
-        design.lift_tiles,
-        design.magnet_pairs,
-        design.trims,
+        *design.solid_inputs(),
         profile,
         workers=1,
     )

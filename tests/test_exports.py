@@ -98,17 +98,7 @@ def _built(name: str, folder: Path) -> Built:
     """The sample of a profile built and written into ``folder`` (the fixture and the
     fresh-process rerun share it)."""
     profile, d = _sample(name)
-    args = (
-        d.tiles_2d,
-        d.tiles_3d,
-        d.linkage.hinges,
-        d.hinge_side,
-        d.route_steps,
-        d.lift_tiles,
-        d.magnet_pairs,
-        d.trims,
-        profile,
-    )
+    args = (*d.solid_inputs(), profile)
     flat = build_design_solids(*args, workers=1)
     # The assembled pose is the flat solids moved rigidly (what build_design_solids does).
     assembled = dataclasses.replace(
