@@ -22,7 +22,8 @@ from scipy.spatial import cKDTree
 from drawstring.cad.design import route_links
 from drawstring.cad.features import MagnetPair, channel_radius
 from drawstring.cad.kernel import tessellate
-from drawstring.cad.tiles import apply_transform, face_planes
+from drawstring.cad.paths import face_planes
+from drawstring.cad.tiles import apply_transform
 from drawstring.geometry.tolerances import (
     CAD_INTERFERENCE_ANGLE_RAD,
     CAD_INTERFERENCE_DEFLECTION_MM,

@@ -23,7 +23,6 @@ from numpy.typing import NDArray
 
 from drawstring.cad.features import (
     BEND_RADIUS_SLACK_MM,
-    SIDE_TOP_FACE,
     Footprint,
     HingePins,
     HingeSide,
@@ -33,7 +32,6 @@ from drawstring.cad.features import (
     StripNeighbours,
     build_tile,
     channel_keep_out,
-    channel_path,
     feature_wall_mm,
     hinge_face_footprints,
     hinge_pad,
@@ -41,7 +39,6 @@ from drawstring.cad.features import (
     label_engraving,
     lift_bore,
     lift_chamfer,
-    lift_path,
     magnet_pockets,
     pin_keep_out,
     plan_pins,
@@ -50,6 +47,7 @@ from drawstring.cad.features import (
     trim_tool,
 )
 from drawstring.cad.features import channel_radius as _channel_radius
+from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path
 from drawstring.cad.tiles import move_solid, rigid_transforms, tile_solid
 from drawstring.geometry.errors import InputError
 

@@ -21,7 +21,20 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.cad.kernel import bounding_box, clean_solid, cut, fuse, polyhedron_solid
-from drawstring.cad.tiles import FACE_BOTTOM, FACE_TOP, convex_solid, face_planes, tile_solid
+from drawstring.cad.paths import (
+    FACE_BOTTOM,
+    FACE_TOP,
+    SIDE_TOP_FACE,
+    ChannelPath,
+    LiftPath,
+    arc_samples,
+    channel_path,
+    check_side,
+    face_planes,
+    lift_path,
+    unit_vector,
+)
+from drawstring.cad.tiles import convex_solid, tile_solid
 from drawstring.geometry.errors import InputError
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
@@ -30,14 +43,11 @@ if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fiel
 log = logging.getLogger(__name__)
 
 HingeSide = Literal["top", "bottom"]
-SIDE_TOP_FACE = FACE_TOP
 
 #: Length (mm) by which a cutting tool extends past the face it opens.
 TOOL_OVERSHOOT_MM = 0.3
 #: A bend this little (mm) below the profile's minimum radius is not reported (rounding).
 BEND_RADIUS_SLACK_MM = 1e-6
-#: Handle lengths tried for the channel's cubic Bezier, as fractions of the chord.
-_HANDLE_FRACTIONS = np.linspace(0.15, 0.85, 15)
 #: Labels: text fits inside this fraction of the bottom face's inscribed radius.
 LABEL_FILL = 0.6
 #: Labels: digit width and spacing over digit height; stroke over height.
@@ -53,24 +63,12 @@ MIN_PIN_LENGTH_RADII = 1.0
 # small geometry helpers
 
 
-def _unit(vector: NDArray[np.float64]) -> NDArray[np.float64]:
-    length = float(np.linalg.norm(vector))
-    if length < 1e-12:
-        raise InputError("degenerate feature geometry (zero-length direction); check the tiles")
-    return np.asarray(vector / length)
-
-
 def _vec(point: NDArray[np.float64]) -> bd.Vector:
     return bd.Vector(float(point[0]), float(point[1]), float(point[2]))
 
 
 def _plane(origin: NDArray[np.float64], normal: NDArray[np.float64]) -> bd.Plane:
-    return bd.Plane(origin=_vec(origin), z_dir=_vec(_unit(normal)))
-
-
-def _check_side(side: int, name: str) -> None:
-    if side not in (0, 1, 2, 3):
-        raise InputError(f"{name} = {side} is not a side index; use 0, 1, 2 or 3")
+    return bd.Plane(origin=_vec(origin), z_dir=_vec(unit_vector(normal)))
 
 
 def channel_radius(profile: Profile) -> float:
@@ -110,92 +108,6 @@ def channel_min_thickness_mm(profile: Profile) -> float:
     return 2.0 * (channel_radius(profile) + feature_wall_mm(profile) + sunk)
 
 
-def _bezier_points(control: NDArray[np.float64], samples: int = 65) -> NDArray[np.float64]:
-    s = np.linspace(0.0, 1.0, samples)[:, None]
-    basis = np.hstack([(1 - s) ** 3, 3 * s * (1 - s) ** 2, 3 * s**2 * (1 - s), s**3])
-    return np.asarray(basis @ control)
-
-
-def _bezier_min_radius(control: NDArray[np.float64], samples: int = 65) -> float:
-    """Smallest radius of curvature (mm) of a cubic Bezier; ``inf`` for a straight one."""
-    s = np.linspace(0.0, 1.0, samples)[:, None]
-    d1 = 3 * (
-        (1 - s) ** 2 * (control[1] - control[0])
-        + 2 * s * (1 - s) * (control[2] - control[1])
-        + s**2 * (control[3] - control[2])
-    )
-    d2 = 6 * (
-        (1 - s) * (control[2] - 2 * control[1] + control[0])
-        + s * (control[3] - 2 * control[2] + control[1])
-    )
-    speed = np.linalg.norm(d1, axis=1)
-    curvature = np.linalg.norm(np.cross(d1, d2), axis=1) / np.maximum(speed, 1e-300) ** 3
-    peak = float(curvature.max())
-    return float("inf") if peak < 1e-12 else 1.0 / peak
-
-
-@dataclass(frozen=True)
-class ChannelPath:
-    """Centre line of a string channel inside one tile.
-
-    Attributes
-    ----------
-    control : (4, 3) float, mm, cubic Bezier control points from the entry to the exit opening.
-    start_tangent, end_tangent : (3,) float, unit directions at the openings (into the tile at
-        the entry, out of the tile at the exit).
-    min_radius : float, mm, smallest radius of curvature (``inf`` when straight).
-    """
-
-    control: NDArray[np.float64]
-    start_tangent: NDArray[np.float64]
-    end_tangent: NDArray[np.float64]
-    min_radius: float
-
-    def points(self, samples: int = 65) -> NDArray[np.float64]:
-        """(samples, 3) float, mm, points along the centre line."""
-        return _bezier_points(self.control, samples)
-
-
-def smooth_path(
-    start: NDArray[np.float64],
-    start_tangent: NDArray[np.float64],
-    end: NDArray[np.float64],
-    end_tangent: NDArray[np.float64],
-) -> ChannelPath:
-    """The cubic Bezier from ``start`` to ``end`` with the given end tangents whose smallest
-    radius of curvature is largest among a few handle lengths."""
-    chord = float(np.linalg.norm(end - start))
-    if chord < 1e-9:
-        raise InputError("channel entry and exit coincide; check the route sides")
-    best: ChannelPath | None = None
-    for fraction in _HANDLE_FRACTIONS:
-        handle = fraction * chord
-        control = np.stack([start, start + handle * start_tangent, end - handle * end_tangent, end])
-        radius = _bezier_min_radius(control)
-        if best is None or radius > best.min_radius:
-            best = ChannelPath(control, start_tangent, end_tangent, radius)
-    assert best is not None
-    return best
-
-
-def channel_path(tile: NDArray[np.float64], enter_side: int, leave_side: int) -> ChannelPath:
-    """Centre line of the channel from side ``enter_side`` to ``leave_side`` (or the top face).
-
-    Openings sit at the face centroids (mid-thickness on a side face), and the line meets each
-    face along its normal, so the channels of two tiles whose faces touch line up across the
-    contact.
-    """
-    if enter_side == leave_side:
-        raise InputError(f"route enters and leaves tile through the same side {enter_side}")
-    for side, name in ((enter_side, "enter_side"), (leave_side, "leave_side")):
-        if side not in (0, 1, 2, 3, SIDE_TOP_FACE):
-            raise InputError(f"{name} = {side} must be a side 0..3 or {SIDE_TOP_FACE} (top face)")
-    centroids, normals = face_planes(np.asarray(tile, dtype=np.float64))
-    return smooth_path(
-        centroids[enter_side], -normals[enter_side], centroids[leave_side], normals[leave_side]
-    )
-
-
 def _tube(path: ChannelPath, radius: float) -> bd.Solid:
     """Circular tube of ``radius`` around ``path``, extended straight past both openings."""
     overshoot = radius + TOOL_OVERSHOOT_MM
@@ -203,7 +115,7 @@ def _tube(path: ChannelPath, radius: float) -> bd.Solid:
     outer_start = start - overshoot * path.start_tangent
     outer_end = end + overshoot * path.end_tangent
     offsets = path.control - start
-    chord = _unit(end - start)
+    chord = unit_vector(end - start)
     if np.abs(offsets - np.outer(offsets @ chord, chord)).max() < 1e-9:
         # Straight: a plain cylinder (sweeping along a straight line has no defined frame).
         length = float(np.linalg.norm(outer_end - outer_start))
@@ -234,8 +146,8 @@ def string_channel(
     Solid tube of diameter ``string + clearance`` swept along :func:`channel_path`; a bend
     tighter than ``profile.min_bend_radius_mm`` is logged (the tile is too small for it).
     """
-    _check_side(enter_side, "enter_side")
-    _check_side(leave_side, "leave_side")
+    check_side(enter_side, "enter_side")
+    check_side(leave_side, "leave_side")
     path = channel_path(tile, enter_side, leave_side)
     if path.min_radius < profile.min_bend_radius_mm - BEND_RADIUS_SLACK_MM:
         log.debug(
@@ -244,64 +156,6 @@ def string_channel(
             profile.min_bend_radius_mm,
         )
     return _tube(path, channel_radius(profile))
-
-
-@dataclass(frozen=True)
-class LiftPath:
-    """Centre line of a lift bore: straight in from a side face, one circular arc, up and out.
-
-    Attributes
-    ----------
-    entry : (3,) float, mm, centroid of the side face.
-    arc : (3, 3) float, mm, start, middle and end of the arc; the arc ends on the top face.
-    start_tangent, end_tangent : (3,) unit directions (into the tile; out of the top face).
-    radius : float, mm, the arc radius (the tightest bend of the bore).
-    """
-
-    entry: NDArray[np.float64]
-    arc: NDArray[np.float64]
-    start_tangent: NDArray[np.float64]
-    end_tangent: NDArray[np.float64]
-    radius: float
-
-
-def lift_path(tile: NDArray[np.float64], side: int) -> LiftPath:
-    """The lift bore's centre line from side ``side`` to the top face.
-
-    The arc turns from the side's inward normal to the top's outward normal with the largest
-    radius that still ends on the top face; a straight run before it brings the exit near the
-    top face's centroid.
-    """
-    _check_side(side, "side")
-    centroids, normals = face_planes(np.asarray(tile, dtype=np.float64))
-    entry, inward = centroids[side], -normals[side]
-    up = normals[FACE_TOP]
-    cos_turn = float(np.clip(inward @ up, -1.0, 1.0))
-    across = _unit(up - cos_turn * inward)
-    sin_turn = float(np.sqrt(1.0 - cos_turn**2))
-    height = float((centroids[FACE_TOP] - entry) @ up)
-    reach = float((centroids[FACE_TOP] - entry) @ inward)
-    # A run along an inward direction that rises (a side face leaning out) climbs too: stop it
-    # where half the rise is left for the bend, or on a large tile it would pass the top face.
-    longest = 0.5 * height / cos_turn if cos_turn > 1e-9 else np.inf
-    run = 0.0
-    radius = height / sin_turn
-    for _ in range(3):
-        radius = (height - run * cos_turn) / sin_turn
-        run = max(0.0, reach - radius * (1.0 - cos_turn * cos_turn) / sin_turn * sin_turn)
-        run = min(run, longest)
-    radius = (height - run * cos_turn) / sin_turn
-    if radius <= 0.0:
-        raise InputError("tile too thin for a lift bore; check the tile vertices")
-    start = entry + run * inward
-    centre = start + radius * across
-
-    def on_arc(angle: float) -> NDArray[np.float64]:
-        return np.asarray(centre + radius * (np.sin(angle) * inward - np.cos(angle) * across))
-
-    turn = float(np.arccos(cos_turn))
-    arc = np.stack([on_arc(0.0), on_arc(0.5 * turn), on_arc(turn)])
-    return LiftPath(entry, arc, inward, up, radius)
 
 
 def lift_bore_depth_mm(
@@ -318,7 +172,7 @@ def lift_bore_depth_mm(
     tile = np.asarray(tile, dtype=np.float64)
     path = lift_path(tile, side)
     centroids, normals = face_planes(tile)
-    points = np.vstack([path.entry[None], _arc_samples(path.arc)])
+    points = np.vstack([path.entry[None], arc_samples(path.arc)])
     others = [k for k in range(4) if k != side]
     beyond = np.einsum("pd,kd->pk", points, normals[others]) - np.einsum(
         "kd,kd->k", centroids[others], normals[others]
@@ -467,7 +321,7 @@ def _pocket_fits(quad: NDArray[np.float64], u: float, v: float, radius: float) -
         (_bilinear(quad, 1, 0), _bilinear(quad, 1, 1)),
     )
     for a, b in edges:
-        direction = _unit(b - a)
+        direction = unit_vector(b - a)
         offset = centre - a
         distance = np.linalg.norm(offset - (offset @ direction) * direction)
         if distance < radius:
@@ -505,8 +359,8 @@ def magnet_pockets(
     tool_a, tool_b : pocket cylinders for tile a and tile b.
     record : the pair, its assembled centre and polarity (tile a north out, tile b south out).
     """
-    _check_side(side_a, "side_a")
-    _check_side(side_b, "side_b")
+    check_side(side_a, "side_a")
+    check_side(side_b, "side_b")
     tile_a = np.asarray(tile_a, dtype=np.float64)
     tile_b = np.asarray(tile_b, dtype=np.float64)
     quad_a, quad_b = _side_quad(tile_a, side_a), _side_quad(tile_b, side_b)
@@ -738,8 +592,8 @@ def label_engraving(
     tile = np.asarray(tile, dtype=np.float64)
     centroids, normals = face_planes(tile)
     centre, outward = centroids[FACE_BOTTOM], normals[FACE_BOTTOM]
-    axis_x = _unit(tile[5] - tile[4])
-    axis_x = _unit(axis_x - (axis_x @ outward) * outward)
+    axis_x = unit_vector(tile[5] - tile[4])
+    axis_x = unit_vector(axis_x - (axis_x @ outward) * outward)
     axis_y = np.cross(outward, axis_x)
     corners = tile[4:8] - centre
     corners2d = np.stack([corners @ axis_x, corners @ axis_y], axis=1)
@@ -897,7 +751,7 @@ def _hinge_frame(
             raise InputError(f"{name} = {corner} must be a corner index 0..3")
     face = FACE_TOP if side == "top" else FACE_BOTTOM
     shift = 0 if side == "top" else 4
-    normal = _unit(face_planes(tile_a)[1][face] + face_planes(tile_b)[1][face])
+    normal = unit_vector(face_planes(tile_a)[1][face] + face_planes(tile_b)[1][face])
     point_a, point_b = tile_a[shift + corner_a], tile_b[shift + corner_b]
     level = 0.5 * (point_a + point_b) @ normal
     half_length = 0.5 * profile.hinge_pad_length_mm
@@ -910,7 +764,7 @@ def _hinge_frame(
         ring = tile[shift : shift + 4]
         towards = ring.mean(axis=0) - point
         towards = towards - (towards @ normal) * normal
-        halves.append((point, _unit(towards)))
+        halves.append((point, unit_vector(towards)))
         reach = float(np.linalg.norm(towards)) - strip_room(profile, ring, corner, others)
         lengths.append(max(min(half_length, reach), 0.5 * profile.hinge_width_mm))
     (pa, da), (pb, db) = halves
@@ -920,7 +774,7 @@ def _hinge_frame(
             points.append(candidate)
     kept = [points[0]]  # drop interior points where the polyline runs straight on
     for i in range(1, len(points) - 1):
-        turn = np.cross(_unit(points[i] - kept[-1]), _unit(points[i + 1] - points[i]))
+        turn = np.cross(unit_vector(points[i] - kept[-1]), unit_vector(points[i + 1] - points[i]))
         if np.linalg.norm(turn) > 1e-6:
             kept.append(points[i])
     kept.append(points[-1])
@@ -958,8 +812,8 @@ def _stadium(
     a: NDArray[np.float64], b: NDArray[np.float64], width: float, normal: NDArray[np.float64]
 ) -> bd.Face:
     """Planar face: segment ``a``-``b`` thickened to ``width`` with round ends."""
-    along = _unit(b - a)
-    across = 0.5 * width * _unit(np.cross(normal, along))
+    along = unit_vector(b - a)
+    across = 0.5 * width * unit_vector(np.cross(normal, along))
     cap = 0.5 * width * along
     edges = [
         bd.Edge.make_line(_vec(a - across), _vec(b - across)),
@@ -984,7 +838,7 @@ def _footprint_margin(
     """Smallest signed distance (mm) from the line through ``point`` along ``normal`` to the
     edges of the tile's top and bottom faces (negative: outside a face)."""
     helper = [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0]
-    axis_u = _unit(np.cross(normal, helper))
+    axis_u = unit_vector(np.cross(normal, helper))
     axis_v = np.cross(normal, axis_u)
     margins = []
     for ring in (tile[0:4], tile[4:8]):
@@ -1090,22 +944,6 @@ def _tube_keep_out(points: NDArray[np.float64], radius: float) -> KeepOut:
     return KeepOut(centres, np.full(len(centres), radius))
 
 
-def _arc_samples(arc: NDArray[np.float64], count: int = 33) -> NDArray[np.float64]:
-    """Points along the circular arc through start, middle and end (``arc`` (3, 3), mm)."""
-    a, m, b = arc
-    u, v = m - a, b - a
-    w = np.cross(u, v)
-    if np.linalg.norm(w) < 1e-12:
-        return np.linspace(a, b, count)
-    centre = a + (u @ u * np.cross(v, w) + v @ v * np.cross(w, u)) / (2.0 * (w @ w))
-    radius = float(np.linalg.norm(a - centre))
-    e1 = (a - centre) / radius
-    e2 = _unit((m - centre) - ((m - centre) @ e1) * e1)
-    turn = 2.0 * float(np.arctan2((m - centre) @ e2, (m - centre) @ e1))
-    angles = np.linspace(0.0, turn, count)[:, None]
-    return np.asarray(centre + radius * (np.cos(angles) * e1 + np.sin(angles) * e2))
-
-
 def channel_keep_out(
     tile: NDArray[np.float64], enter_side: int, leave_side: int, profile: Profile
 ) -> KeepOut:
@@ -1121,7 +959,7 @@ def channel_keep_out(
     chamfer = lift_chamfer(tile, path, profile)
     exit_point = path.arc[2]
     bore = _tube_keep_out(
-        np.vstack([path.entry[None], _arc_samples(path.arc), exit_point[None]]), radius
+        np.vstack([path.entry[None], arc_samples(path.arc), exit_point[None]]), radius
     )
     top = exit_point + (radius + TOOL_OVERSHOOT_MM) * path.end_tangent
     flare = _tube_keep_out(np.stack([exit_point - chamfer * path.end_tangent, top]), radius)
@@ -1407,7 +1245,7 @@ def strip_holes(
             )
         else:
             radius = 0.5
-            across = 0.25 * width * _unit(np.cross(frame.normal, direction))
+            across = 0.25 * width * unit_vector(np.cross(frame.normal, direction))
             points = []
             missing = []
             for shift in (across, -across):

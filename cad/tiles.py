@@ -19,52 +19,18 @@ from OCP.gp import gp_Trsf
 from scipy.spatial import ConvexHull
 
 from drawstring.cad.kernel import polyhedron_solid
+from drawstring.cad.paths import FACE_BOTTOM, FACE_INDICES, FACE_TOP, TILE_FACES, face_planes
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.rigid import apply_rigid, rigid_fit
 from drawstring.geometry.tolerances import CAD_MAX_FACE_DEVIATION_MM, CAD_PLANAR_EXACT_MM
 
 log = logging.getLogger(__name__)
 
-FACE_TOP = 4
-FACE_BOTTOM = 5
-#: Faces of a tile as vertex indices: sides 0..3, then top (index 4) and bottom (index 5).
-TILE_FACES: tuple[tuple[int, int, int, int], ...] = (
-    (0, 4, 5, 1),
-    (1, 5, 6, 2),
-    (2, 6, 7, 3),
-    (3, 7, 4, 0),
-    (0, 1, 2, 3),
-    (4, 7, 6, 5),
-)
-_FACES = np.array(TILE_FACES, dtype=np.int64)
-
-
-def face_planes(vertices: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Best-fit plane of each of the six faces.
-
-    Parameters
-    ----------
-    vertices : (8, 3) float, mm.
-
-    Returns
-    -------
-    centroids : (6, 3) float, mm, mean of each face's four vertices.
-    normals : (6, 3) float, unit outward normals (Newell's method, exact for planar faces).
-    """
-    quads = np.asarray(vertices, dtype=np.float64)[_FACES]  # (6, 4, 3)
-    centroids = quads.mean(axis=1)
-    following = np.roll(quads, -1, axis=1)
-    normals = np.cross(quads, following).sum(axis=1)
-    lengths = np.linalg.norm(normals, axis=1, keepdims=True)
-    if np.any(lengths < 1e-300):
-        raise InputError("a tile has a face of zero area; check the tile vertices")
-    return centroids, normals / lengths
-
 
 def face_deviation(vertices: NDArray[np.float64]) -> float:
     """Largest distance (mm) of a vertex from the best-fit plane of a face it belongs to."""
     centroids, normals = face_planes(vertices)
-    quads = np.asarray(vertices, dtype=np.float64)[_FACES]
+    quads = np.asarray(vertices, dtype=np.float64)[FACE_INDICES]
     return float(np.abs(np.einsum("fkd,fd->fk", quads - centroids[:, None], normals)).max())
 
 
@@ -94,7 +60,7 @@ def snap_to_planes(vertices: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def mesh_volume(vertices: NDArray[np.float64]) -> float:
     """Signed volume (mm^3) of the tile mesh, quads split along their 0-2 diagonal."""
-    quads = np.asarray(vertices, dtype=np.float64)[_FACES]
+    quads = np.asarray(vertices, dtype=np.float64)[FACE_INDICES]
     first = np.einsum("fd,fd->f", quads[:, 0], np.cross(quads[:, 1], quads[:, 2]))
     second = np.einsum("fd,fd->f", quads[:, 0], np.cross(quads[:, 2], quads[:, 3]))
     return float((first + second).sum() / 6.0)

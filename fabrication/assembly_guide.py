@@ -17,12 +17,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.cad.features import SIDE_TOP_FACE
-from drawstring.fabrication.exports_panels import Panel
-from drawstring.fabrication.exports_parts import route_openings
+from drawstring.cad.paths import SIDE_TOP_FACE, lift_path, route_openings
 
 if TYPE_CHECKING:
     from drawstring.fabrication.exports import _Record
+    from drawstring.fabrication.exports_panels import Panel
     from drawstring.fabrication.profiles import Profile
 
 # --------------------------------------------------------------------------------------------
@@ -133,8 +132,6 @@ def _stop_points(
     tiles: NDArray[np.float64], steps: NDArray[np.int64], guide: _Guide, stop: _Stop
 ) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None]:
     """(3,) float, mm: where the string comes up at ``stop`` and where it goes back down."""
-    from drawstring.cad.features import lift_path
-
     points: list[NDArray[np.float64] | None] = []
     for index, side, column in ((stop.out_step, stop.out_side, 2), (stop.in_step, stop.in_side, 3)):
         if index is None:

@@ -120,9 +120,9 @@ def print_tiles(result: Design) -> NDArray[np.float64]:
 
 def route_lengths(result: Design) -> tuple[float, float]:
     """(flat, assembled) string route length of a design, mm: along the channels of the tiles
-    as printed and as assembled (:func:`~.exports_parts.route_lengths`, the value every output
+    as printed and as assembled (:func:`~drawstring.cad.paths.route_lengths`, the value every output
     reports; it needs no solids)."""
-    from .exports_parts import route_lengths as measured
+    from drawstring.cad.paths import route_lengths as measured
 
     return measured(
         print_tiles(result),

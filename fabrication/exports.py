@@ -41,6 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.cad.design import normalize_route
+from drawstring.cad.paths import route_lengths
 from drawstring.fabrication import exports_3mf as m3f
 from drawstring.fabrication.assembly_guide import _write_assembly, write_pictures
 from drawstring.fabrication.exports_dxf import (
@@ -49,11 +50,7 @@ from drawstring.fabrication.exports_dxf import (
     write_sheets_dxf,
 )
 from drawstring.fabrication.exports_panels import CableRun, Panel, cable_runs, tile_panels
-from drawstring.fabrication.exports_parts import (
-    route_lengths,
-    strip_part,
-    write_placement,
-)
+from drawstring.fabrication.exports_parts import strip_part, write_placement
 
 if TYPE_CHECKING:
     from drawstring.cad.design import CadResult
@@ -96,7 +93,7 @@ class Measures:
     ----------
     route_flat_mm, route_assembled_mm : string route along the channels of the printed tiles,
         straight across the gaps and up, over and down the lift bores at lift points
-        (:func:`~.exports_parts.route_lengths`), 0.1 mm.
+        (:func:`~drawstring.cad.paths.route_lengths`), 0.1 mm.
     string_mm : string to cut, ``route_flat_mm x (1 + STRING_MARGIN) + 2 x tail_mm``, 0.1 mm.
     tail_mm : each of the two ends to hold while pulling, 0.1 mm.
     tile_volume_mm3, hinge_volume_mm3 : volumes of the tile and hinge-part solids, 0.1 mm^3.

@@ -25,8 +25,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.cad.features import SIDE_TOP_FACE, channel_path, channel_radius, lift_path
-from drawstring.cad.tiles import TILE_FACES, face_planes
+from drawstring.cad.features import channel_radius
+from drawstring.cad.paths import SIDE_TOP_FACE, TILE_FACES, channel_path, face_planes, lift_path
 from drawstring.fabrication.exports_dxf import Part2D, text_strokes, text_width
 
 if TYPE_CHECKING:

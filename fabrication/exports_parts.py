@@ -14,8 +14,7 @@ from OCP.BRepTools import BRepTools, BRepTools_WireExplorer
 from OCP.GCPnts import GCPnts_QuasiUniformDeflection
 from OCP.TopAbs import TopAbs_REVERSED
 
-from drawstring.cad.features import SIDE_TOP_FACE, channel_path, lift_path
-from drawstring.cad.tiles import face_planes
+from drawstring.cad.paths import face_planes
 from drawstring.fabrication.exports_dxf import (
     Part2D,
     new_dxf,
@@ -276,96 +275,6 @@ def write_placement(
         svg = svg[:end] + "<g>\n" + "\n".join(svg_markers) + "\n</g>\n" + svg[end:]
     svg_path.write_text(svg, encoding="utf-8")
     return size
-
-
-def route_openings(
-    tiles: NDArray[np.float64], steps: NDArray[np.int64]
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Entry and exit points of the string in each route step and the length inside the tile.
-
-    Returns
-    -------
-    entry, exit : (S, 3) float, mm.
-    inside : (S,) float, mm.
-    """
-    entries, exits, inside = [], [], []
-    for _, tile, enter, leave in steps:
-        vertices = tiles[tile]
-        if SIDE_TOP_FACE in (enter, leave):
-            side = int(leave if enter == SIDE_TOP_FACE else enter)
-            length, side_point, top_point = _bore(vertices, side)
-            a, b = (top_point, side_point) if enter == SIDE_TOP_FACE else (side_point, top_point)
-        else:
-            channel = channel_path(vertices, int(enter), int(leave))
-            samples = channel.points()
-            length = float(np.linalg.norm(np.diff(samples, axis=0), axis=1).sum())
-            a, b = channel.control[0], channel.control[3]
-        entries.append(a)
-        exits.append(b)
-        inside.append(length)
-    return np.array(entries).reshape(-1, 3), np.array(exits).reshape(-1, 3), np.array(inside)
-
-
-def _bore(
-    vertices: NDArray[np.float64], side: int
-) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
-    """Length (mm) of a tile's lift bore from side ``side`` to the top face, and its ends
-    there: (length, side point, top point)."""
-    path = lift_path(vertices, side)
-    turn = float(np.arccos(np.clip(path.start_tangent @ path.end_tangent, -1.0, 1.0)))
-    length = float(np.linalg.norm(path.arc[0] - path.entry)) + path.radius * turn
-    return length, path.entry, path.arc[2]
-
-
-def route_length(
-    tiles: NDArray[np.float64],
-    steps: NDArray[np.int64],
-    bores: NDArray[np.int64] | Sequence[Sequence[int]] = (),
-) -> float:
-    """Length (mm) of the closed string route in the given pose: inside the tiles plus the
-    straight runs between consecutive openings.
-
-    ``bores`` (L, 2) ``(tile, side)`` are the lift bores
-    (:func:`~drawstring.fabrication.cad_stage.lift_bores`): where both tiles of a crossing
-    have one on the contact face between them, the string comes up one bore, runs over the
-    gap from top face to top face and goes down the other instead of straight across.  (A
-    route passes each tile once, ``Route.tiles_passed_once``, so a contact face is crossed at
-    most once and its two bores name one crossing.)
-    """
-    if len(steps) == 0:
-        return 0.0
-    entry, exit_, inside = route_openings(tiles, steps)
-    between = np.linalg.norm(np.roll(entry, -1, axis=0) - exit_, axis=1)
-    lifted = {(int(t), int(s)) for t, s in np.asarray(bores, dtype=np.int64).reshape(-1, 2)}
-    count = len(steps)
-    for k in range(count):
-        before = (k - 1) % count
-        out = (int(steps[before, 1]), int(steps[before, 3]))
-        into = (int(steps[k, 1]), int(steps[k, 2]))
-        if out in lifted and into in lifted and SIDE_TOP_FACE not in (out[1], into[1]):
-            up, _, top_out = _bore(tiles[out[0]], out[1])
-            down, _, top_in = _bore(tiles[into[0]], into[1])
-            between[before] = up + float(np.linalg.norm(top_in - top_out)) + down
-    return float(inside.sum() + between.sum())
-
-
-def route_lengths(
-    tiles_flat: NDArray[np.float64],
-    tiles_assembled: NDArray[np.float64],
-    steps: NDArray[np.int64],
-    bores: NDArray[np.int64] | Sequence[Sequence[int]],
-) -> tuple[float, float]:
-    """(flat, assembled) length of the string route, mm rounded to 0.1 mm: the length every
-    output reports (route.json, design.json, bom.csv, manifest.json, assembly.md).
-
-    Measured along the string's centre line on the fabricated geometry (:func:`route_length`:
-    through the channels and the lift bores ``bores`` the solids are cut with, straight across
-    the other gaps), with ``tiles_flat`` the tiles as printed (the pose of ``flat.step``).
-    """
-    return (
-        round(route_length(tiles_flat, steps, bores), 1),
-        round(route_length(tiles_assembled, steps, bores), 1),
-    )
 
 
 def top_face_centres(tiles: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -824,8 +824,9 @@ def measure_design(
     )
     # the string's length along its channels on the fabricated tiles, as every other output
     # reports it (not the planning polyline through the gap centres)
+    from drawstring.cad.paths import route_lengths
+
     from .cad_stage import lift_exits, route_steps
-    from .exports_parts import route_lengths
 
     flat_length, assembled_length = route_lengths(
         fabricated, assembled.tiles, route_steps(route), lift_exits(route, lift.lift_gaps)

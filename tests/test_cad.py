@@ -21,24 +21,22 @@ from drawstring.cad.design import (  # noqa: E402
     route_links,
 )
 from drawstring.cad.features import (  # noqa: E402
-    SIDE_TOP_FACE,
     KeepOut,
     build_tile,
     channel_keep_out,
-    channel_path,
     feature_wall_mm,
     hinge_face_footprints,
     hinge_pad,
     hinge_strip_lengths,
     label_engraving,
     lift_bore_depth_mm,
-    lift_path,
     magnet_pockets,
     pin_radius,
     plan_pins,
     string_channel,
     trim_tool,
 )
+from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path  # noqa: E402
 from drawstring.cad.samples import SampleDesign, cylinder_design  # noqa: E402
 from drawstring.cad.tiles import (  # noqa: E402
     convex_solid,

@@ -25,6 +25,23 @@ def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+def test_a_design_without_cad_loads_no_cad_kernel(tmp_path: Path) -> None:
+    """``--no-cad`` runs (and the report they write) measure the string's channels with plain
+    geometry: build123d and ezdxf, seconds to import, stay unloaded."""
+    out = tmp_path / "plain"
+    script = (
+        "import sys\n"
+        "from drawstring.fabrication.cli import main\n"
+        f"code = main(['design', 'saddle', *{SMALL!r}, '--out', {str(out)!r}])\n"
+        "print(code, sorted(m for m in ('build123d', 'OCP', 'ezdxf') if m in sys.modules))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, check=False
+    )
+    assert done.stdout.split("\n")[-2] == "0 []", done.stdout + done.stderr
+    assert (out / "report.html").is_file()
+
+
 def test_design_writes_the_output_contract(tmp_path: Path) -> None:
     out = tmp_path / "saddle"
     assert main(["design", "saddle", *SMALL, "--out", str(out)]) == 0

@@ -424,8 +424,8 @@ def test_outputs_state_the_measured_mass_and_route(built: Built) -> None:
     from drawstring.cad.checks import _opening
     from drawstring.cad.design import route_links
     from drawstring.cad.features import channel_radius
+    from drawstring.cad.paths import route_openings
     from drawstring.fabrication.exports import measure_fabrication, plywood_panels
-    from drawstring.fabrication.exports_parts import route_openings
 
     d, profile, cad = built.design, built.profile, built.flat
     measures = measure_fabrication(
@@ -748,8 +748,7 @@ def test_stops_past_z_get_two_letters() -> None:
 
 
 def test_the_route_length_goes_up_over_and_down_the_lift_bores() -> None:
-    from drawstring.cad.features import lift_path
-    from drawstring.fabrication.exports_parts import route_length
+    from drawstring.cad.paths import lift_path, route_length
 
     # a 2 x 2 block of 10 mm boxes, 3 mm thick, touching; the loop 0 -> 1 -> 3 -> 2 -> 0
     offsets = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)
