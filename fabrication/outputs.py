@@ -14,9 +14,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.geometry.linkage import gap_centroids
+from drawstring.geometry.linkage import TILE_FACES, gap_centroids
 from drawstring.geometry.route import route_to_json
-from drawstring.geometry.verify import TILE_FACES
 
 from . import pictures
 

@@ -16,6 +16,8 @@ from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
+from drawstring.geometry.linkage import TILE_FACES  # noqa: E402
+
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
@@ -121,10 +123,6 @@ def save_lifted(target: Target, tiling: Tiling, path: Path) -> None:
     save(fig, path)
 
 
-# Faces of an 8-vertex tile (top, bottom, four sides), outward.
-_TILE_FACES = ((0, 1, 2, 3), (4, 7, 6, 5), (0, 4, 5, 1), (1, 5, 6, 2), (2, 6, 7, 3), (3, 7, 4, 0))
-
-
 def _shade(normals: NDArray[np.float64], base: NDArray[np.float64]) -> NDArray[np.float64]:
     """Lambert shading of RGB colours ``base`` (k, 3) by unit face normals (k, 3)."""
     light = np.array([0.35, -0.45, 0.82])
@@ -137,13 +135,12 @@ def draw_tiles_3d(ax: Axes, tiles: NDArray[np.float64], component: NDArray[np.in
     """Shaded frustum tiles on a 3D axes, coloured by component."""
     from matplotlib.colors import to_rgb
 
-    faces = np.array(_TILE_FACES)
-    polys = tiles[:, faces].reshape(-1, 4, 3)
+    polys = tiles[:, TILE_FACES].reshape(-1, 4, 3)
     normal = np.cross(polys[:, 2] - polys[:, 0], polys[:, 3] - polys[:, 1])
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
     base = np.array(
         [to_rgb(COMPONENT_COLOURS[c % len(COMPONENT_COLOURS)]) for c in component]
-    ).repeat(len(faces), axis=0)
+    ).repeat(len(TILE_FACES), axis=0)
     coll = Poly3DCollection(
         list(polys), facecolors=_shade(normal, base), edgecolors="k", linewidths=0.15
     )

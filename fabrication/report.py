@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.errors import InputError
+from drawstring.geometry.linkage import TILE_FACES
 from drawstring.geometry.tolerances import (
     CAD_PAD_INTERFERENCE_REL,
     FLAT_EDGE_ERROR_TOL_MM,
@@ -56,10 +57,6 @@ COINCIDENT_CORNER_REL = 0.02
 
 SIDE_NAMES = ("bottom", "right", "top", "left")
 
-#: Vertex ids of the six faces of a tile, wound outwards (top, bottom, side 0..3).
-TILE_FACES = np.array(
-    [[0, 1, 2, 3], [4, 7, 6, 5]] + [[k, 4 + k, 4 + (k + 1) % 4, (k + 1) % 4] for k in range(4)]
-)
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

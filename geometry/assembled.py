@@ -47,6 +47,7 @@ import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 
 from drawstring.geometry.errors import InputError, ThicknessError
+from drawstring.geometry.linkage import TILE_FACES
 from drawstring.geometry.solver import (
     ClosenessToPoints,
     ClosenessToSurface,
@@ -109,18 +110,6 @@ ANDERSON_HISTORY: int = 8
 #: every quad that is convex with the margin, so it does not change the paper's energy there).
 CONVEX_WEIGHT_REL: float = 1.0
 
-#: The six faces of a tile (indices into its 8 vertices), counter-clockwise seen from outside.
-TILE_FACES: IntArray = np.array(
-    [
-        [0, 1, 2, 3],
-        [4, 7, 6, 5],
-        [0, 4, 5, 1],
-        [1, 5, 6, 2],
-        [2, 6, 7, 3],
-        [3, 7, 4, 0],
-    ],
-    dtype=np.int64,
-)
 
 #: Side faces in the order of the top edges ``k -> k+1`` (rows 2.. of :data:`TILE_FACES`).
 TILE_SIDE_FACES: IntArray = TILE_FACES[2:]

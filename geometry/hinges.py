@@ -57,7 +57,7 @@ from numpy.typing import ArrayLike, NDArray
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.flat import FlatResult
 from drawstring.geometry.flatpose import HingeFaces, free_openings, hinge_faces, lay_flat
-from drawstring.geometry.linkage import Linkage, SlitEnds, slit_ends
+from drawstring.geometry.linkage import TILE_FACES, Linkage, SlitEnds, slit_ends
 from drawstring.geometry.rigidlayout import HingeStrategy, RigidLayoutResult, rigid_layout
 from drawstring.geometry.tolerances import (
     HINGE_ANGLE_MARGIN_DEG,
@@ -67,11 +67,7 @@ from drawstring.geometry.tolerances import (
     HINGE_LAYOUT_TOUCH_MM,
     HINGE_TRIM_GROW_MM,
 )
-from drawstring.geometry.verify import (
-    TILE_FACES,
-    hinge_gaps,
-    polygon_in_convex_polyhedron_area,
-)
+from drawstring.geometry.verify import hinge_gaps, polygon_in_convex_polyhedron_area
 
 logger = logging.getLogger(__name__)
 

@@ -29,6 +29,14 @@ GAP_KINDS: tuple[GapKind, ...] = ("vertical", "horizontal", "boundary", "split")
 BL, BR, TR, TL = 0, 1, 2, 3
 SIDE_BOTTOM, SIDE_RIGHT, SIDE_TOP, SIDE_LEFT = 0, 1, 2, 3
 
+#: The six faces of a tile's eight vertices (top corners 0..3 counter-clockwise seen from
+#: above, bottom corners 4..7 under them), each counter-clockwise seen from outside: top,
+#: bottom, then side ``k`` under the top edge ``k -> k + 1``.
+TILE_FACES: NDArray[np.int64] = np.array(
+    [[0, 1, 2, 3], [4, 7, 6, 5]] + [[k, 4 + k, 4 + (k + 1) % 4, (k + 1) % 4] for k in range(4)],
+    dtype=np.int64,
+)
+
 
 @dataclass(frozen=True)
 class Split:

@@ -38,16 +38,11 @@ from scipy.spatial import ConvexHull, cKDTree
 
 from drawstring.geometry.constraints import quad_overlap_mtv
 from drawstring.geometry.errors import InputError
-from drawstring.geometry.linkage import Linkage, slit_ends
+from drawstring.geometry.linkage import TILE_FACES, Linkage, slit_ends
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-#: Faces of a tile (8 vertices: top BL, BR, TR, TL, then bottom under them), outward-oriented.
-TILE_FACES: IntArray = np.array(
-    [[0, 1, 2, 3], [4, 7, 6, 5], [0, 4, 5, 1], [1, 5, 6, 2], [2, 6, 7, 3], [3, 7, 4, 0]],
-    dtype=np.int64,
-)
 
 #: The 18 rigidity edges of a tile (3 * 8 - 6, Maxwell): 4 top, 4 bottom, 4 vertical edges and
 #: one diagonal on each of the 6 faces.
@@ -63,7 +58,6 @@ RIGID_EDGES: IntArray = np.array(
 
 __all__ = [
     "RIGID_EDGES",
-    "TILE_FACES",
     "AssembledOverlap",
     "FlatMetrics",
     "assembled_overlap",

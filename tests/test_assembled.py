@@ -9,7 +9,6 @@ import pytest
 
 from drawstring.geometry.assembled import (
     CLOSE_FIT_WEIGHTS,
-    TILE_FACES,
     measure_assembled,
     optimize_assembled,
     quad_mesh_edges,
@@ -17,6 +16,7 @@ from drawstring.geometry.assembled import (
     thickness_advice,
 )
 from drawstring.geometry.errors import DesignError, InputError
+from drawstring.geometry.linkage import TILE_FACES
 
 
 def grid_mesh(nx: int, ny: int, x0: float, y0: float, step: float) -> tuple[np.ndarray, np.ndarray]:

@@ -16,8 +16,8 @@ from drawstring.geometry.hinges import (
     layout_hinges,
     write_flat_obj,
 )
-from drawstring.geometry.linkage import build_linkage
-from drawstring.geometry.verify import TILE_FACES, heightfield_tiles, hinge_gaps, interpenetration
+from drawstring.geometry.linkage import TILE_FACES, build_linkage
+from drawstring.geometry.verify import heightfield_tiles, hinge_gaps, interpenetration
 
 
 def _grid(n: int, size: float = 100.0):
