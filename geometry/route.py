@@ -851,19 +851,30 @@ def _splice_lift(
     time_limit: float,
     half_window: int,
     corridor: float,
+    component: NDArray[np.int64] | None = None,
 ) -> list[Step]:
     """Re-route a window of the loop so that it passes ``lift``, solving the window exactly.
 
     The window is the loop stretch of ``2 half_window + 1`` gaps around the loop gap nearest to
     the lift gap plus every gap within ``corridor`` gap spacings of the segment from that gap to
-    the lift gap.  The rest of the loop is fixed: the window's path joins it at the same two
+    the lift gap.  With ``component`` (each tile's split part), that loop gap is the nearest
+    one where the loop runs through a tile of the lift gap's part: a detour from another part
+    would have to cross the cut, which the rules forbid in the interior.
+
+    The rest of the loop is fixed: the window's path joins it at the same two
     gaps ``p0``, ``q1`` (contact partners of the fixed tiles there, paying the turns there), uses
     none of its gaps or tiles, crosses none of its segments, and passes every boundary tile that
     the removed stretch passed.  Raises DesignError when the window holds no such path.
     """
     r = len(steps)
     cycle = [g for g, _ in steps]
-    m = int(np.argmin(np.linalg.norm(pos[cycle] - pos[lift], axis=1)))
+    distance = np.linalg.norm(pos[cycle] - pos[lift], axis=1)
+    if component is not None:
+        parts = {int(component[t]) for t in rules.gap_tiles.get(lift, ())}
+        same = np.array([int(component[t]) in parts for _, t in steps])
+        if same.any():
+            distance = np.where(same, distance, np.inf)
+    m = int(np.argmin(distance))
     span = min(half_window, (r - 3) // 2)
     idx = [(m + k) % r for k in range(-span - 1, span + 2)]
     p0, q1 = cycle[idx[0]], cycle[idx[-1]]
@@ -1131,6 +1142,7 @@ def plan_route(
                     min(time_limit_s, limit),
                     half_window,
                     corridor,
+                    linkage.tile_component,
                 )
                 break
             except DesignError as err:

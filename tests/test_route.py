@@ -296,6 +296,22 @@ def test_metrics_json_and_the_partner_check() -> None:
     assert channel_partner_faults(bad, linkage).size == len(route.gaps)
 
 
+def test_a_lift_beside_a_cut_is_reached_from_its_own_part() -> None:
+    # The cut runs the full height 5 cells from the left edge; the lift gap sits just right of
+    # it, nearer the left boundary (part 0) than any loop gap of its own part (1).  A detour
+    # from the left would have to cross the cut in the interior: the splice starts from the
+    # nearest loop gap in the lift's part instead.
+    linkage = build_linkage(np.ones((16, 16), dtype=bool), (Split("x", 5, 0, 16),))
+    pos = _centroids(linkage)
+    lift = _gap_at(linkage, 6, 8)
+    tiles = linkage.gap_sides[lift][:, 0]
+    assert set(linkage.tile_component[tiles[tiles >= 0]].tolist()) == {1}
+    route = plan_route(linkage, pos, [lift], exact_limit=0)
+    _check_valid(linkage, pos, route)
+    assert route.lifts_missed.size == 0 and lift in route.gaps.tolist()
+    assert route.channel_partners_ok and route.tiles_passed_once and route.crossings == 0
+
+
 def test_a_lift_in_a_narrow_split_strip_needs_the_same_component_rule() -> None:
     # A 3-wide middle strip between two cuts: every other vertical crossing along its edge
     # columns is a split gap, so under the default rule no detour reaches its middle.
