@@ -29,6 +29,7 @@ from drawstring.cad.features import (
     KeepOut,
     MagnetPair,
     PinPlan,
+    StripHoles,
     StripNeighbours,
     build_tile,
     channel_keep_out,
@@ -43,6 +44,7 @@ from drawstring.cad.features import (
     pin_keep_out,
     plan_pins,
     string_channel,
+    strip_hole_plan,
     strip_keep_outs,
     trim_tool,
 )
@@ -80,6 +82,9 @@ class CadResult:
     failed : ``(tile, feature)`` for each feature (or hinge part) left out because the CAD
         kernel failed on it (:func:`build_design_solids`); the solid checks count those tiles
         as faults.
+    fasteners : screws or staples that hold the plywood hinge strips, one per pilot hole or
+        pair of holes made (:func:`~drawstring.cad.features.strip_hole_plan`; 0 for other
+        interlocks).
     """
 
     pose: Pose
@@ -91,6 +96,7 @@ class CadResult:
     transforms: NDArray[np.float64]
     notes: tuple[str, ...] = field(default=())
     failed: tuple[tuple[int, str], ...] = field(default=())
+    fasteners: int = 0
 
     def records(self) -> dict[str, object]:
         """JSON-ready summary: magnet pairs with polarity, pads per hinge, notes."""
@@ -525,6 +531,14 @@ def build_design_solids(
     if profile.hinge_interlock == "through-holes":
         plans = list(_plan_all_pins(flat, hinge_rows, sides, steps, lifts, profile, crowds))
         notes.extend(_pin_notes(plans))
+    fasteners = 0
+    if profile.hinge_interlock in ("screws", "staples"):
+        holes = [
+            strip_hole_plan(flat[a], int(ca), flat[b], int(cb), side, profile, crowd)
+            for (a, ca, b, cb), side, crowd in zip(hinge_rows, sides, crowds, strict=True)
+        ]
+        fasteners = sum(h.fasteners for h in holes)
+        notes.extend(_hole_notes(holes, profile))
     hinge_data = tuple(
         (flat[a], int(ca), flat[b], int(cb), side, None if plan is None else plan.pins, crowd)
         for (a, ca, b, cb), side, plan, crowd in zip(hinge_rows, sides, plans, crowds, strict=True)
@@ -580,6 +594,7 @@ def build_design_solids(
         transforms,
         tuple(notes),
         tuple(failed),
+        fasteners,
     )
 
 
@@ -640,6 +655,32 @@ def _strip_notes(
         f"than the profile's {half:g} mm into their tiles (down to {lengths.min():.2f} mm), so "
         f"that the strips of a tile's corners keep a wall apart (hinges {_id_ranges(short)})"
     ]
+
+
+def _hole_notes(holes: Sequence[StripHoles], profile: Profile) -> list[str]:
+    """One note for the screw or staple holes of the hinge strips that found no room."""
+    missing = [h for h, plan in enumerate(holes) if any(plan.missing)]
+    if not missing:
+        return []
+    count = sum(sum(plan.missing) for plan in holes)
+    total = count + sum(plan.made for plan in holes)
+    bare = sum(
+        not points and lost > 0
+        for plan in holes
+        for points, lost in zip(plan.points, plan.missing, strict=True)
+    )
+    kind = holes[missing[0]].kind
+    note = (
+        f"{count} of {total} {kind} holes left out: no room for them "
+        f"{max(profile.tool_diameter_mm, 1.0):g} mm from their tiles' edges (hinges "
+        f"{_id_ranges(missing)})"
+    )
+    if bare:
+        note += (
+            f"; {bare} strip halves have none left: glue those, or use fewer, larger tiles "
+            "(--tiles)"
+        )
+    return [note]
 
 
 def _pin_notes(plans: Sequence[PinPlan]) -> list[str]:

@@ -833,15 +833,30 @@ def _slab(
 
 
 def _footprint_margin(
-    tile: NDArray[np.float64], point: NDArray[np.float64], normal: NDArray[np.float64]
+    tile: NDArray[np.float64],
+    point: NDArray[np.float64],
+    normal: NDArray[np.float64],
+    depth: float | None = None,
 ) -> float:
     """Smallest signed distance (mm) from the line through ``point`` along ``normal`` to the
-    edges of the tile's top and bottom faces (negative: outside a face)."""
+    edges of the tile's top and bottom faces (negative: outside a face).
+
+    With ``depth``, only the part of the tile within ``depth`` mm under the face that
+    ``point`` lies on counts (a blind hole): the edges of that face and of the tile's section
+    ``depth`` below it (the side faces are planar, so the margin in between is no smaller).
+    """
     helper = [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0]
     axis_u = unit_vector(np.cross(normal, helper))
     axis_v = np.cross(normal, axis_u)
+    rings = [tile[0:4], tile[4:8]]
+    if depth is not None:
+        heights = [abs(float((ring.mean(axis=0) - point) @ normal)) for ring in rings]
+        face = int(np.argmin(heights))
+        span = abs(float((rings[1 - face].mean(axis=0) - rings[face].mean(axis=0)) @ normal))
+        share = min(1.0, depth / span) if span > 0 else 1.0
+        rings = [rings[face], rings[face] + share * (rings[1 - face] - rings[face])]
     margins = []
-    for ring in (tile[0:4], tile[4:8]):
+    for ring in rings:
         rel = ring - point
         poly = np.stack([rel @ axis_u, rel @ axis_v], axis=1)
         edge = np.roll(poly, -1, axis=0) - poly
@@ -871,21 +886,22 @@ def _place_holes(
     radius: float,
     wall: float,
     limit: float = np.inf,
-) -> tuple[list[NDArray[np.float64]], list[str]]:
+    depth: float | None = None,
+) -> tuple[list[NDArray[np.float64]], int]:
     """Hole axes along one half of a strip, each slid inward (up to ``limit`` mm from the
-    corner) until it keeps ``wall`` from the tile's side faces; stations that never fit are
-    reported."""
-    placed, notes = [], []
+    corner) until it keeps ``wall`` from the tile's side faces (within ``depth`` of the face
+    for a blind hole, see :func:`_footprint_margin`), and how many stations never fit."""
+    placed, missing = [], 0
     for station in stations:
         candidates = np.linspace(station, station + 4.0 * radius, 17)
         for distance in candidates[candidates <= limit + 1e-9]:
             point = corner + distance * direction
-            if _footprint_margin(tile, point, normal) >= radius + wall:
+            if _footprint_margin(tile, point, normal, depth) >= radius + wall:
                 placed.append(point)
                 break
         else:
-            notes.append(f"hole {station:.2f} mm from the hinge corner does not fit the tile")
-    return placed, notes
+            missing += 1
+    return placed, missing
 
 
 def _cylinder_between(
@@ -1101,7 +1117,8 @@ def plan_pins(
         points, missing = _place_holes(
             tile, corner, direction, frame.normal, (length - radius,), radius, wall, length
         )
-        notes += missing
+        if missing:
+            notes.append(f"pin in tile {name} left out: it does not fit under the strip")
         if not points:
             pins.append(None)
             continue
@@ -1212,6 +1229,101 @@ def glue_recess(
     return HingeParts(pad, recess, recess)
 
 
+@dataclass(frozen=True)
+class StripHoles:
+    """Pilot holes of a plywood hinge strip (:func:`strip_hole_plan`).
+
+    Attributes
+    ----------
+    points : per tile (a, b), where each hole's axis meets the hinge face (mm).
+    missing : per tile, how many of its holes found no room (they are left out).
+    normal : (3,) float, the hinge face's outward normal (the holes run along ``-normal``).
+    radius, depth : float, mm.
+    kind : ``"screw"`` (one per hole) or ``"staple"`` (one per pair of holes across the strip).
+    """
+
+    points: tuple[tuple[NDArray[np.float64], ...], tuple[NDArray[np.float64], ...]]
+    missing: tuple[int, int]
+    normal: NDArray[np.float64]
+    radius: float
+    depth: float
+    kind: Literal["screw", "staple"]
+
+    @property
+    def made(self) -> int:
+        """How many holes the strip gets."""
+        return len(self.points[0]) + len(self.points[1])
+
+    @property
+    def fasteners(self) -> int:
+        """Screws, or staples (a staple needs both holes of its pair), the strip takes."""
+        if self.kind == "screw":
+            return self.made
+        return sum(len(points) == 2 for points in self.points)
+
+
+def _strip_holes_on(
+    tiles: tuple[NDArray[np.float64], NDArray[np.float64]], frame: _HingeFrame, profile: Profile
+) -> StripHoles:
+    """The pilot holes of the strip laid out by ``frame`` (see :func:`strip_hole_plan`)."""
+    width = profile.hinge_width_mm
+    wall = max(profile.tool_diameter_mm, 1.0)
+    depth = 0.25 * profile.thickness_mm
+    screws = profile.hinge_interlock == "screws"
+    radius = 0.5 * float(np.clip(0.12 * width, 2.0, 5.0)) if screws else 0.5
+    points: list[tuple[NDArray[np.float64], ...]] = []
+    missing: list[int] = []
+    for tile, (corner, direction), half in zip(tiles, frame.halves, frame.lengths, strict=True):
+        # every hole stays under the strip: one beyond its end would hold nothing
+        if screws:
+            found, lost = _place_holes(
+                tile, corner, direction, frame.normal, (half / 3, 2 * half / 3), radius, wall,
+                half - radius, depth,
+            )  # fmt: skip
+        else:
+            across = 0.25 * width * unit_vector(np.cross(frame.normal, direction))
+            found, lost = [], 0
+            for shift in (across, -across):
+                hole, miss = _place_holes(
+                    tile, corner + shift, direction, frame.normal, (half / 2,), radius, wall,
+                    half - radius, depth,
+                )  # fmt: skip
+                found += hole
+                lost += miss
+        points.append(tuple(found))
+        missing.append(lost)
+    return StripHoles(
+        (points[0], points[1]),
+        (missing[0], missing[1]),
+        frame.normal,
+        radius,
+        depth,
+        "screw" if screws else "staple",
+    )
+
+
+def strip_hole_plan(
+    tile_a: NDArray[np.float64],
+    corner_a: int,
+    tile_b: NDArray[np.float64],
+    corner_b: int,
+    side: HingeSide,
+    profile: Profile,
+    neighbours: StripNeighbours = (None, None),
+) -> StripHoles:
+    """Where a plywood hinge strip is screwed or stapled to its two tiles.
+
+    Screws: two holes per tile at a third and two thirds of the half strip, diameter
+    ``clip(0.12 width, 2, 5) mm``; staples: one pair of 1 mm holes per tile across the strip.
+    Holes are a quarter of the tile thickness deep; each slides inward along the strip (staying
+    under it) until it keeps ``max(tool diameter, 1 mm)`` from the tile's side faces down to
+    that depth, and one that finds no room is left out (counted in ``missing``).
+    """
+    tiles = (np.asarray(tile_a, dtype=float), np.asarray(tile_b, dtype=float))
+    frame = _hinge_frame(tiles[0], corner_a, tiles[1], corner_b, side, profile, neighbours)
+    return _strip_holes_on(tiles, frame, profile)
+
+
 def strip_holes(
     tile_a: NDArray[np.float64],
     corner_a: int,
@@ -1222,45 +1334,22 @@ def strip_holes(
     build_pad: bool = True,
     neighbours: StripNeighbours = (None, None),
 ) -> HingeParts:
-    """Plywood hinge: the rubber strip lying on the face and pilot holes for screws or staples.
-
-    Screws: two holes per tile at a third and two thirds of the half strip, diameter
-    ``clip(0.12 width, 2, 5) mm``; staples: one pair of 1 mm holes per tile across the strip.
-    Holes are a quarter of the tile thickness deep.  ``pad`` is the strip, touching the face.
-    """
-    tile_a, tile_b = np.asarray(tile_a, dtype=float), np.asarray(tile_b, dtype=float)
+    """Plywood hinge: the rubber strip lying on the face and the pilot holes of
+    :func:`strip_hole_plan` for screws or staples.  ``pad`` is the strip, touching the face.
+    Holes left out are not noted here: the design counts them for all hinges at once."""
+    tiles = (np.asarray(tile_a, dtype=float), np.asarray(tile_b, dtype=float))
+    frame = _hinge_frame(tiles[0], corner_a, tiles[1], corner_b, side, profile, neighbours)
+    holes = _strip_holes_on(tiles, frame, profile)
+    tools = tuple(
+        tuple(
+            _cylinder_between(point, frame.normal, holes.radius, -TOOL_OVERSHOOT_MM, holes.depth)
+            for point in points
+        )
+        for points in holes.points
+    )
     thickness, width = profile.hinge_thickness_mm, profile.hinge_width_mm
-    frame = _hinge_frame(tile_a, corner_a, tile_b, corner_b, side, profile, neighbours)
-    wall = max(profile.tool_diameter_mm, 1.0)
-    depth = 0.25 * profile.thickness_mm
-    tools: tuple[list[bd.Solid], list[bd.Solid]] = ([], [])
-    notes: list[str] = []
-    for index, (tile, (corner, direction), half) in enumerate(
-        zip((tile_a, tile_b), frame.halves, frame.lengths, strict=True)
-    ):
-        if profile.hinge_interlock == "screws":
-            radius = 0.5 * float(np.clip(0.12 * width, 2.0, 5.0))
-            points, missing = _place_holes(
-                tile, corner, direction, frame.normal, (half / 3, 2 * half / 3), radius, wall
-            )
-        else:
-            radius = 0.5
-            across = 0.25 * width * unit_vector(np.cross(frame.normal, direction))
-            points = []
-            missing = []
-            for shift in (across, -across):
-                found, lost = _place_holes(
-                    tile, corner + shift, direction, frame.normal, (half / 2,), radius, wall
-                )
-                points += found
-                missing += lost
-        notes += missing
-        for point in points:
-            tools[index].append(
-                _cylinder_between(point, frame.normal, radius, -TOOL_OVERSHOOT_MM, depth)
-            )
     pad = _slab(frame, frame.points, width, -thickness, 0.0) if build_pad else None
-    return HingeParts(pad, tuple(tools[0]), tuple(tools[1]), tuple(notes))
+    return HingeParts(pad, tools[0], tools[1])
 
 
 def hinge_pad(

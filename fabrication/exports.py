@@ -806,16 +806,29 @@ def write_fabrication(
                 )
             )
             record.estimates["channel_tubes_mm"] = [round(r.tube_length_mm, 1) for r in runs]
-            screws = 4 * n_pads if profile.hinge_interlock == "screws" else 0
-            if screws:
+            # one screw per pilot hole, one staple per pair (as cut: holes that found no
+            # room on a small tile are left out and not counted)
+            fasteners = cad_flat.fasteners
+            if fasteners and profile.hinge_interlock == "screws":
                 record.bom.append(
                     _row(
                         "screw",
                         "wood screw through the rubber strip",
-                        screws,
+                        fasteners,
                         "steel",
                         0.0,
-                        "2 per tile per hinge",
+                        "one per pilot hole: up to 2 per tile per hinge",
+                    )
+                )
+            elif fasteners:
+                record.bom.append(
+                    _row(
+                        "staple",
+                        "staple through the rubber strip",
+                        fasteners,
+                        "steel",
+                        0.0,
+                        "one per pair of pilot holes: up to 1 per tile per hinge",
                     )
                 )
             record.bom.append(_row("glue", "wood glue for the panel joints", 1, "", 0.0, ""))

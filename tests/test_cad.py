@@ -16,6 +16,7 @@ bd = pytest.importorskip("build123d")
 from drawstring.cad import checks  # noqa: E402
 from drawstring.cad.design import (  # noqa: E402
     CadResult,
+    _hole_notes,
     build_design_solids,
     normalize_route,
     route_links,
@@ -34,6 +35,8 @@ from drawstring.cad.features import (  # noqa: E402
     pin_radius,
     plan_pins,
     string_channel,
+    strip_hole_plan,
+    strip_holes,
     trim_tool,
 )
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path  # noqa: E402
@@ -198,7 +201,11 @@ def test_hinge_parts_do_not_overlap_their_tiles(profile: Profile, interlock: str
     # Two 12 mm tiles touching only at one corner (a straight strip: the stadium outline).
     tile_a = _box(12.0)
     tile_b = _box(12.0) + [12.0, 12.0, 0.0]
-    hinge_profile = dataclasses.replace(profile, hinge_interlock=interlock, hinge_pad_length_mm=6.0)
+    # screws: a strip long enough that its pilot holes fit under it 1 mm from the edges
+    length = 10.0 if interlock == "screws" else 6.0
+    hinge_profile = dataclasses.replace(
+        profile, hinge_interlock=interlock, hinge_pad_length_mm=length
+    )
     corner_a, corner_b = 2, 0
     parts = hinge_pad(tile_a, corner_a, tile_b, corner_b, "bottom", hinge_profile)
     assert parts.pad is not None and parts.pad.is_valid
@@ -622,3 +629,44 @@ def test_lift_path_on_a_large_tile_with_leaning_sides() -> None:
     assert path.radius >= 1.5  # half of the 3 mm rise, over the sine of the turn
     assert path.arc[2][2] == pytest.approx(6.0)  # leaves through the top face
     assert 0.0 < path.arc[2][1] < 40.0
+
+
+def _frustum(width: float, thickness: float, shrink: float, at: tuple[float, float]) -> np.ndarray:
+    """A ``width`` square top face at z = ``thickness`` over a bottom face ``shrink`` times as
+    wide about the same centre (side faces leaning in)."""
+    top = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=float) * width
+    top += [at[0], at[1], thickness]
+    centre = top.mean(axis=0)
+    bottom = centre + shrink * (top - centre) - [0.0, 0.0, thickness]
+    return np.vstack([top, bottom])
+
+
+def test_screw_holes_need_room_only_as_deep_as_they_go() -> None:
+    # Plywood profile: 3 mm pilot holes 15 mm deep (a quarter of 60 mm), 6 mm from the edges.
+    # The tiles' bottom faces are 0.8 as wide as their tops: a hole 10 mm along the strip from
+    # the hinge corner (7.1 mm in from both top edges) lies outside the bottom face, but 15 mm
+    # down the section still keeps it 8.8 mm from the side faces.
+    ply = load_profile("plywood-cnc")
+    tile_a = _frustum(100.0, 60.0, 0.8, (0.0, 0.0))
+    tile_b = _frustum(100.0, 60.0, 0.8, (100.0, 100.0))
+    plan = strip_hole_plan(tile_a, 2, tile_b, 0, "top", ply)
+    assert plan.missing == (0, 0) and plan.made == 4 and plan.fasteners == 4
+    assert plan.depth == pytest.approx(15.0) and plan.radius == pytest.approx(1.5)
+    for points, corner in zip(plan.points, (tile_a[2], tile_b[0]), strict=True):
+        reach = sorted(float(np.linalg.norm(p - corner)) for p in points)
+        assert reach[1] <= 0.5 * ply.hinge_pad_length_mm - plan.radius + 1e-9  # under the strip
+    parts = strip_holes(tile_a, 2, tile_b, 0, "top", ply)
+    assert len(parts.tools_a) == len(parts.tools_b) == 2 and not parts.notes
+    # 20 mm tiles leave no hole 7.5 mm in from the edges under their strips: all left out,
+    # and the design says so once, with the count.
+    small = strip_hole_plan(
+        _frustum(20.0, 60.0, 0.8, (0.0, 0.0)), 2, _frustum(20.0, 60.0, 0.8, (20.0, 20.0)), 0,
+        "top", ply,
+    )  # fmt: skip
+    assert small.made == 0 and small.missing == (2, 2)
+    notes = _hole_notes([plan, small, small], ply)
+    assert notes == [
+        "8 of 12 screw holes left out: no room for them 6 mm from their tiles' edges "
+        "(hinges 1-2); 4 strip halves have none left: glue those, or use fewer, larger tiles "
+        "(--tiles)"
+    ]

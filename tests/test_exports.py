@@ -477,6 +477,23 @@ def test_outputs_state_the_measured_mass_and_route(built: Built) -> None:
     assert f"**{measures.string_mm / 1000:.2f} m**" in guide
 
 
+def test_bom_counts_the_screws_of_the_holes_cut(built: Built) -> None:
+    """One screw per pilot hole: counted on the tile solids (blind cylinders of the screw
+    radius), not assumed two per tile per hinge."""
+    if built.profile.hinge_interlock != "screws":
+        pytest.skip("plywood screws only")
+    radius = 0.5 * float(np.clip(0.12 * built.profile.hinge_width_mm, 2.0, 5.0))
+    holes = sum(
+        face.geom_type == bd.GeomType.CYLINDER
+        and face.radius is not None
+        and abs(face.radius - radius) < 1e-6
+        for solid in built.flat.tiles
+        for face in solid.faces()
+    )
+    rows = {r["item"]: r for r in csv.DictReader((built.folder / "fabrication/bom.csv").open())}
+    assert holes > 0 and int(rows["screw"]["count"]) == holes == built.flat.fasteners
+
+
 def test_bom_string_and_magnets(built: Built) -> None:
     rows = list(csv.DictReader((built.folder / "fabrication" / "bom.csv").open()))
     items = {row["item"]: row for row in rows}
