@@ -175,14 +175,36 @@ def face_openings(
     return found
 
 
+#: Depth (mm) under a side face's centroid at which :func:`_opening` probes for a channel whose
+#: opening a trim cut away.
+_OPEN_PROBE_MM = 0.05
+
+
 def _opening(
-    solid: bd.Shape, tile: NDArray[np.float64], side: int, radius: float
+    solid: bd.Shape,
+    tile: NDArray[np.float64],
+    side: int,
+    radius: float,
+    trimmed_open: bool = False,
 ) -> NDArray[np.float64] | None:
     """Centre of the hole in side face ``side`` whose radius is closest to ``radius`` (None
-    where there is none, or the kernel raises while looking)."""
+    where there is none, or the kernel raises while looking).
+
+    With ``trimmed_open`` (string channels, which start at the face's centroid): only holes
+    within a quarter of ``radius`` of it count, and where none is left in the face because a
+    trim (``--hinges top``) cut the face away around it, the
+    centroid counts as the opening when the solid is open just under it; the channel runs on
+    from the trimmed pocket, and the string passes.
+    """
     centroids, normals = face_planes(tile)
     try:
         holes = face_openings(solid, centroids[side], normals[side])
+        if trimmed_open:  # only a hole of the channel's size is the channel's
+            holes = [h for h in holes if abs(h[1] - radius) <= 0.25 * radius]
+        if not holes and trimmed_open:
+            probe = centroids[side] - _OPEN_PROBE_MM * normals[side]
+            if not solid.is_inside(bd.Vector(*(float(c) for c in probe))):
+                return np.asarray(centroids[side])
     except Exception:  # the kernel failing on the solid: the opening counts as missing
         return None
     if not holes:
@@ -213,11 +235,12 @@ def _match(
     transforms: NDArray[np.float64],
     links: NDArray[np.int64],
     radius: float,
+    trimmed_open: bool = False,
 ) -> OpeningMatch:
     distances = np.full(len(links), np.inf)
     for index, (tile_a, side_a, tile_b, side_b) in enumerate(links):
-        centre_a = _opening(tile_solids[tile_a], tiles_flat[tile_a], side_a, radius)
-        centre_b = _opening(tile_solids[tile_b], tiles_flat[tile_b], side_b, radius)
+        centre_a = _opening(tile_solids[tile_a], tiles_flat[tile_a], side_a, radius, trimmed_open)
+        centre_b = _opening(tile_solids[tile_b], tiles_flat[tile_b], side_b, radius, trimmed_open)
         if centre_a is None or centre_b is None:
             continue
         placed_a = apply_transform(transforms[tile_a], centre_a)
@@ -235,11 +258,12 @@ def channel_continuity(
 ) -> OpeningMatch:
     """Distance between each channel exit and the next tile's entry in the assembled pose.
 
-    Openings are measured on the flat solids (the hole in the side face) and moved by the
+    Openings are measured on the flat solids (the hole in the side face, or where a trim cut
+    the face away around it the face's centroid, see :func:`_opening`) and moved by the
     tiles' rigid flat-to-assembled transforms (``CadResult.transforms``).
     """
     links = route_links(route_steps)
-    return _match(tile_solids, tiles_flat, transforms, links, channel_radius(profile))
+    return _match(tile_solids, tiles_flat, transforms, links, channel_radius(profile), True)
 
 
 def pockets_paired(

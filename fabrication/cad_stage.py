@@ -425,6 +425,7 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
         "interference_tiles_pads_max_rel": round(_sunk_fraction(tiles_vs_pads, meshed_pads), 6),
         "channel_opening_distance_max_mm": round(_max(channels.distances), 6),
         "channel_openings_missing": int(np.count_nonzero(~np.isfinite(channels.distances))),
+        "channel_worst_links": _worst_links(channels.links, channels.distances),
         "magnet_pairs": len(cad_flat.magnets),
         "magnet_pocket_distance_max_mm": round(_max(pockets.distances), 6),
         "magnet_pockets_missing": int(np.count_nonzero(~np.isfinite(pockets.distances))),
@@ -432,6 +433,21 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
         **fabrication_measures(result, cad_flat).to_json(),
         "notes": list(cad_flat.notes),
     }
+
+
+def _worst_links(
+    links: NDArray[np.int64], distances: NDArray[np.float64], count: int = 5
+) -> list[dict[str, Any]]:
+    """The ``count`` links whose openings lie farthest apart (missing ones first): tiles and
+    distance in mm (None: an opening was not found on the solid)."""
+    order = np.argsort(-np.where(np.isfinite(distances), distances, np.inf), kind="stable")
+    return [
+        {
+            "tiles": [int(links[k, 0]), int(links[k, 2])],
+            "distance_mm": round(float(distances[k]), 6) if np.isfinite(distances[k]) else None,
+        }
+        for k in order[:count]
+    ]
 
 
 def _max(values: NDArray[np.float64]) -> float:

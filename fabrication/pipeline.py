@@ -661,9 +661,24 @@ def cad_problems(measured: dict[str, Any]) -> list[str]:
     apart = measured["channel_opening_distance_max_mm"]
     missing = measured["channel_openings_missing"]
     if missing or apart > CHANNEL_MATCH_TOL_MM:
+        faults = [
+            link
+            for link in measured.get("channel_worst_links", [])
+            if link["distance_mm"] is None or link["distance_mm"] > CHANNEL_MATCH_TOL_MM
+        ]
+        where = "; ".join(
+            f"tiles {a} -> {b}: "
+            + ("an opening is missing on the solids" if d is None else f"{d:.3g} mm apart")
+            for (a, b), d in ((link["tiles"], link["distance_mm"]) for link in faults)
+        )
+        counts = []
+        if missing:
+            counts.append(f"{missing} opening(s) missing")
+        if apart > CHANNEL_MATCH_TOL_MM:
+            counts.append(f"up to {apart} mm apart")
         problems.append(
             "string channels do not line up between consecutive tiles in the assembled pose "
-            f"({apart} mm apart, {missing} openings missing)"
+            f"({', '.join(counts)}; {where}; metrics.cad.channel_worst_links)"
         )
     return problems
 
@@ -938,8 +953,17 @@ def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
     probe = parent
     while not probe.exists():
         probe = probe.parent
-    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
-        raise InputError(f"cannot write into {probe}; choose a writable --out folder")
+    if not probe.is_dir():
+        raise InputError(f"cannot write into {probe}: not a folder; choose another --out")
+    # Make and remove a folder there rather than ask os.access, which answers yes to root
+    # everywhere (on /proc, on a read-only mount) and the run would fail only at the end.
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".drawstring-probe-", dir=probe))
+    except OSError as exc:
+        raise InputError(
+            f"cannot write into {probe} ({exc.strerror or type(exc).__name__}); choose a "
+            "writable --out folder"
+        ) from None
     if out.is_dir():
         _probe_rename(out)
     return out

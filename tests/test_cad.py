@@ -670,3 +670,23 @@ def test_screw_holes_need_room_only_as_deep_as_they_go() -> None:
         "(hinges 1-2); 4 strip halves have none left: glue those, or use fewer, larger tiles "
         "(--tiles)"
     ]
+
+
+def test_a_channel_opening_cut_away_by_a_trim_still_lines_up(profile: Profile) -> None:
+    # Two 12 mm boxes side by side; the string runs from a's side 1 into b's side 3.  A trim
+    # (--hinges top) cuts a corner off b's side face with the opening: no hole is left in it,
+    # but the channel runs on from the pocket, so the link lines up.  Without the channel
+    # and the trim, b's opening is missing.
+    tile_a, tile_b = _box(12.0), _box(12.0) + [12.0, 0.0, 0.0]
+    steps = np.array([[0, 0, SIDE_TOP_FACE, 1], [1, 1, 3, SIDE_TOP_FACE]])
+    solid_a = build_tile(tile_a, [string_channel(tile_a, 3, 1, profile)])
+    pocket = np.array([[x, y, z] for x in (11.7, 14.0) for y in (-1.0, 9.0) for z in (3.0, 13.0)])
+    trimmed = build_tile(tile_b, [string_channel(tile_b, 3, 1, profile), trim_tool(pocket)])
+    plain = build_tile(tile_b, [])
+    identity = np.tile(np.eye(4), (2, 1, 1))
+    tiles = np.stack([tile_a, tile_b])
+    match = checks.channel_continuity([solid_a, trimmed], tiles, identity, steps, profile)
+    assert match.links.tolist() == [[0, 1, 1, 3]]
+    assert match.max_distance < CAD_OPENING_MATCH_MM
+    blocked = checks.channel_continuity([solid_a, plain], tiles, identity, steps, profile)
+    assert np.isinf(blocked.distances).all()

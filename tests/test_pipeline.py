@@ -56,9 +56,19 @@ def test_cad_problems_name_each_fault_of_the_solids() -> None:
         "interference_tiles_pads_max_rel": 0.4,  # an uncut pin hole
         "channel_opening_distance_max_mm": 0.2,
         "channel_openings_missing": 1,
+        "channel_worst_links": [
+            {"tiles": [10, 11], "distance_mm": None},
+            {"tiles": [3, 4], "distance_mm": 0.2},
+            {"tiles": [4, 5], "distance_mm": 0.01},
+        ],
     }
     found = cad_problems(faults)
     assert len(found) == 4
+    assert any(
+        "(1 opening(s) missing, up to 0.2 mm apart; tiles 10 -> 11: an opening is missing on "
+        "the solids; tiles 3 -> 4: 0.2 mm apart;" in p
+        for p in found
+    )
     assert any("40 % of its volume inside a tile" in p for p in found)
     assert any("interfere in the print pose (0.000234" in p for p in found)
 
