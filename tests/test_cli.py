@@ -249,6 +249,23 @@ def test_output_path_that_is_a_file_is_refused(tmp_path: Path) -> None:
     assert "cannot write" in done.stderr
 
 
+def test_an_output_folder_that_cannot_be_made_is_refused_before_any_work(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # /proc takes no new folders, not even from root (whom os.access lets write anywhere).
+    if not Path("/proc/self").is_dir():
+        pytest.skip("needs Linux /proc")
+    import drawstring.fabrication.pipeline as pipeline
+
+    def no_work(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the design ran before its output folder was checked")
+
+    monkeypatch.setattr(pipeline, "design", no_work)
+    assert main(["design", "saddle", *SMALL, "--out", "/proc/drawstring-out"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "cannot write into /proc" in err
+
+
 def test_bad_profile_file_is_refused(tmp_path: Path) -> None:
     shown = run_cli("profiles", "--show", "fdm-dual").stdout
     bad = write(tmp_path / "mine.toml", shown.replace("thickness_mm = 6.0", "thickness_mm = -6.0"))
