@@ -509,11 +509,14 @@ def build_design_solids(
         jobs[tile_a].tools.append(tool_a)
         jobs[tile_b].tools.append(tool_b)
         magnets.append(record)
-        if not record.fits:
-            notes.append(
-                f"magnet pocket between tiles {tile_a} and {tile_b} breaks out of the face "
-                f"(pocket diameter {record.diameter_mm:.2f} mm)"
-            )
+    broken = [m for m in magnets if not m.fits]
+    if broken:
+        broken_pairs = ", ".join(f"{m.tile_a}/{m.tile_b}" for m in broken[:_MAX_RUNS])
+        more = f" and {len(broken) - _MAX_RUNS} more" if len(broken) > _MAX_RUNS else ""
+        notes.append(
+            f"{len(broken)} of {len(magnets)} magnet pockets ({broken[0].diameter_mm:.2f} mm) "
+            f"break out of their side faces (tiles {broken_pairs}{more})"
+        )
 
     for tile, polyhedra in (trims or {}).items():
         if not 0 <= tile < n_tiles:

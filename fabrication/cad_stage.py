@@ -429,6 +429,7 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
         "magnet_pairs": len(cad_flat.magnets),
         "magnet_pocket_distance_max_mm": round(_max(pockets.distances), 6),
         "magnet_pockets_missing": int(np.count_nonzero(~np.isfinite(pockets.distances))),
+        "magnet_pockets_breaking_out": sum(not m.fits for m in cad_flat.magnets),
         "magnet_pockets_facing": bool(np.all(facing < -0.999)) if len(facing) else True,
         **fabrication_measures(result, cad_flat).to_json(),
         "notes": list(cad_flat.notes),

@@ -623,6 +623,7 @@ def with_cad(result: Design, progress: Progress) -> Design:
         cad_flat, cad_assembled = build_cad(result)
         measured = measure_cad(result, cad_flat)
     problems = [*result.problems, *cad_problems(measured)]
+    warnings = [*result.warnings, *cad_warnings(measured, result.profile)]
     notes = [*result.notes, *(f"cad: {n}" for n in cad_flat.notes)]
     return replace(
         result,
@@ -631,9 +632,24 @@ def with_cad(result: Design, progress: Progress) -> Design:
         # the mass of the tiles as cut plus the hinge parts replaces the uncut tiles' estimate
         measured={**result.measured, "cad": measured, "mass_g": measured["mass_g"]},
         problems=tuple(problems),
+        warnings=tuple(warnings),
         notes=tuple(notes),
         timings_s=progress.ordered_timings(),
     )
+
+
+def cad_warnings(measured: dict[str, Any], profile: Profile) -> list[str]:
+    """What the solids lack without failing (:func:`~.cad_stage.measure_cad`)."""
+    warnings = []
+    broken = measured.get("magnet_pockets_breaking_out", 0)
+    if broken:
+        warnings.append(
+            f"{broken} of {measured['magnet_pairs']} magnet pockets break out of their side "
+            "faces, so those magnets show and sit loose (the cad notes list the tiles); use "
+            f"smaller magnets than {profile.magnet_diameter_mm:g} mm (magnet.diameter_mm in a "
+            "profile of your own) or thicker tiles (--thickness)"
+        )
+    return warnings
 
 
 def cad_problems(measured: dict[str, Any]) -> list[str]:

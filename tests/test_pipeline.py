@@ -11,10 +11,12 @@ from drawstring.fabrication import layout_stage
 from drawstring.fabrication.pipeline import (
     DesignOptions,
     cad_problems,
+    cad_warnings,
     channel_turn_assembled,
     design,
     split_bound,
 )
+from drawstring.fabrication.profiles import load_profile
 from drawstring.geometry.linkage import build_linkage, gap_centroids, rotating_squares_layout
 from drawstring.geometry.route import plan_route
 
@@ -71,6 +73,14 @@ def test_cad_problems_name_each_fault_of_the_solids() -> None:
     )
     assert any("40 % of its volume inside a tile" in p for p in found)
     assert any("interfere in the print pose (0.000234" in p for p in found)
+
+
+def test_magnet_pockets_breaking_out_are_a_warning() -> None:
+    profile = load_profile("fdm-dual")
+    assert cad_warnings({"magnet_pairs": 12, "magnet_pockets_breaking_out": 0}, profile) == []
+    (warning,) = cad_warnings({"magnet_pairs": 12, "magnet_pockets_breaking_out": 2}, profile)
+    assert warning.startswith("2 of 12 magnet pockets break out of their side faces")
+    assert f"smaller magnets than {profile.magnet_diameter_mm:g} mm" in warning
 
 
 def test_a_part_whose_flat_layout_misses_is_split_further() -> None:
