@@ -52,6 +52,7 @@ from drawstring.cad.features import channel_radius as _channel_radius
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path
 from drawstring.cad.tiles import move_solid, rigid_transforms, tile_solid
 from drawstring.geometry.errors import InputError
+from drawstring.geometry.linkage import id_runs
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile
@@ -607,15 +608,7 @@ _MAX_RUNS = 12
 
 def _id_ranges(ids: Iterable[int]) -> str:
     """Sorted ids as runs, ``0-3, 7, 9-10``, the first :data:`_MAX_RUNS` of them."""
-    runs: list[list[int]] = []
-    for i in sorted(int(x) for x in ids):
-        if runs and i == runs[-1][1] + 1:
-            runs[-1][1] = i
-        else:
-            runs.append([i, i])
-    shown = ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs[:_MAX_RUNS])
-    rest = sum(b - a + 1 for a, b in runs[_MAX_RUNS:])
-    return shown + (f" and {rest} more" if rest else "")
+    return id_runs(ids, _MAX_RUNS)
 
 
 def _bend_notes(

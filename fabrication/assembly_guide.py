@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.cad.paths import SIDE_TOP_FACE, lift_path, route_openings
+from drawstring.geometry.linkage import id_runs
 
 if TYPE_CHECKING:
     from drawstring.fabrication.exports import _Record
@@ -528,7 +529,16 @@ def _write_assembly(
         lines.append("")
     else:
         lines += [f"## {next(section)}. Make the parts", ""]
-        if profile.process == "laser-epdm":
+        if profile.process == "laser-epdm" and len(record.jobs) > 1:
+            lines.append(
+                f"Print the tiles from `tiles.3mf` (single material). The flat layout is larger "
+                f"than the {profile.bed_x_mm:g} x {profile.bed_y_mm:g} mm bed, so the file holds "
+                f"{len(record.jobs)} objects side by side, one per print job: print one job at "
+                "a time (delete the other objects, or move each onto the plate in turn)."
+            )
+            lines.append("")
+            lines += [f"- job {job['job']}: tiles {id_runs(job['tiles'])}" for job in record.jobs]
+        elif profile.process == "laser-epdm":
             lines.append("Print the tiles from `tiles.3mf` (single material).")
         else:
             lines.append(

@@ -17,6 +17,7 @@ Conventions (see ARCHITECTURE.md section 3 and ``linkage-topology.png``):
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -36,6 +37,21 @@ TILE_FACES: NDArray[np.int64] = np.array(
     [[0, 1, 2, 3], [4, 7, 6, 5]] + [[k, 4 + k, 4 + (k + 1) % 4, (k + 1) % 4] for k in range(4)],
     dtype=np.int64,
 )
+
+
+def id_runs(ids: Iterable[int], most: int | None = None) -> str:
+    """Sorted tile (or hinge, gap) ids written as runs, ``0-3, 7, 9-10``; with ``most``, only
+    the first ``most`` runs and how many ids are left (``... and 12 more``)."""
+    runs: list[list[int]] = []
+    for i in sorted(int(x) for x in ids):
+        if runs and i == runs[-1][1] + 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    shown = runs if most is None else runs[:most]
+    text = ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in shown)
+    rest = sum(b - a + 1 for a, b in runs[len(shown) :])
+    return text + (f" and {rest} more" if rest else "")
 
 
 @dataclass(frozen=True)

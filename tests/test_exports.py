@@ -35,6 +35,7 @@ from drawstring.fabrication.exports_dxf import (  # noqa: E402
 )
 from drawstring.fabrication.profiles import Profile, load_profile  # noqa: E402
 from drawstring.geometry.errors import InputError  # noqa: E402
+from drawstring.geometry.linkage import id_runs  # noqa: E402
 
 PROFILES = ("fdm-dual", "laser-epdm", "plywood-cnc")
 EXPECTED = {
@@ -515,6 +516,28 @@ def test_print_jobs_split_along_rows_or_refuse() -> None:
         assert job.size[0] <= 0.6 * span[0] and job.size[1] <= span[1] + 10
     with pytest.raises(InputError, match="does not fit the bed"):
         plan_print_jobs(tiles, design.linkage.hinges, (12.0, 12.0))
+
+
+def test_the_guide_names_the_print_jobs_of_loose_tiles(built: Built, tmp_path: Path) -> None:
+    """laser-epdm on a bed smaller than the layout: tiles.3mf holds one object per job, and
+    assembly.md says which tiles each job prints."""
+    if built.profile.process != "laser-epdm":
+        pytest.skip("laser-epdm only")
+    span = np.ptp(built.design.tiles_2d[:, :, :2].reshape(-1, 2), axis=0)
+    small = dataclasses.replace(
+        built.profile, bed_x_mm=float(0.6 * span[0] + 10), bed_y_mm=float(span[1] + 20)
+    )
+    _write(dataclasses.replace(built, profile=small), tmp_path)
+    manifest = json.loads((tmp_path / "fabrication/manifest.json").read_text())
+    jobs = manifest["print_jobs"]
+    assert len(jobs) >= 2
+    guide = (tmp_path / "fabrication/assembly.md").read_text()
+    assert f"holds {len(jobs)} objects side by side, one per print job" in guide
+    for job in jobs:
+        assert f"- job {job['job']}: tiles {id_runs(job['tiles'])}" in guide
+    with zipfile.ZipFile(tmp_path / "fabrication/tiles.3mf") as archive:
+        model = archive.read("3D/3dmodel.model").decode()
+    assert model.count("<object ") >= len(jobs)
 
 
 def test_offset_and_shelf_pack_known_answers() -> None:
