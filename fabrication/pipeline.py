@@ -922,6 +922,13 @@ def measure_design(
             f"scale factor {tiling.scale_factor_max:.2f} exceeds {split_bound(options):.3g}"
         )
     problems.extend(route_problems(route, linkage))
+    if not profile.size_min_mm <= options.size_mm <= profile.size_max_mm:
+        warnings.append(
+            f"--size {options.size_mm:g} mm is outside the {profile.size_min_mm:g}-"
+            f"{profile.size_max_mm:g} mm that the {profile.name} profile suits (its tile "
+            "thickness, hinge parts and machine are made for that range); choose a profile "
+            "for this size (drawstring profiles --size ...) or a size within it"
+        )
     if len(route.lifts_missed):
         warnings.append(
             f"the string route cannot reach lift gap(s) {route.lifts_missed.tolist()} under the "

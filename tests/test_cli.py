@@ -461,6 +461,14 @@ def test_a_failed_rename_into_place_is_one_line_and_leaves_nothing_behind(
         assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
+def test_a_size_outside_the_profiles_range_is_a_warning(tmp_path: Path) -> None:
+    out = tmp_path / "big"
+    args = ["design", "saddle", *SMALL, "--no-simulate", "--size", "600", "--out", str(out)]
+    assert main(args) == 0
+    warnings = json.loads((out / "design.json").read_text())["warnings"]
+    assert any(w.startswith("--size 600 mm is outside the 80-450 mm") for w in warnings)
+
+
 def test_a_size_too_small_for_the_thickness_is_refused_with_both_fixes(tmp_path: Path) -> None:
     # Tiles thicker than the target's curvature radius turn inside out; found in the assembled
     # stage, refused in one line naming --size and --thickness, with no folder written.
