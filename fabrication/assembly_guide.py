@@ -25,6 +25,12 @@ if TYPE_CHECKING:
     from drawstring.fabrication.exports_panels import Panel
     from drawstring.fabrication.profiles import Profile
 
+
+def _count(number: int, noun: str) -> str:
+    """``1 sheet``, ``3 sheets``."""
+    return f"{number} {noun}" if number == 1 else f"{number} {noun}s"
+
+
 # --------------------------------------------------------------------------------------------
 # pictures
 
@@ -541,8 +547,9 @@ def _write_assembly(
         elif profile.process == "laser-epdm":
             lines.append("Print the tiles from `tiles.3mf` (single material).")
         else:
+            panel_sheets = _count(record.sheets["panels"]["sheets"], "sheet")
             lines.append(
-                f"Cut the panels from `panels.dxf` ({record.sheets['panels']['sheets']} sheets) "
+                f"Cut the panels from `panels.dxf` ({panel_sheets}) "
                 "with "
                 "the inner face up: engraved labels (tile number + face: S0..S3 sides, T top, "
                 "B bottom) end up inside the box. Glue each tile's six panels together; "
@@ -550,17 +557,20 @@ def _write_assembly(
                 "edges flush). Glue a channel tube through each pair of cable holes (lengths in "
                 "`manifest.json`)."
             )
+        strip_sheets = _count(record.sheets["hinges"]["sheets"], "sheet")
         lines.append(
-            f"Cut the hinge strips from `hinges.dxf` ({record.sheets['hinges']['sheets']} sheets; "
+            f"Cut the hinge strips from `hinges.dxf` ({strip_sheets}; "
             "layers: ENGRAVE green first, CUT_INNER blue, CUT_OUTER black; SHEET red is only the "
             "sheet outline). Each half of a strip is engraved with the number of the tile it "
             "joins."
         )
         lines.append("")
+        width, height = est.get("placement_size_mm", (0.0, 0.0))
         lines.append(
-            "Print `placement.svg` at 100 % (1:1), lay the tiles on it by number, and fix each "
-            "strip where the template shows it (blue, marked with a circle: on the top faces; "
-            "orange, marked with a square: on the bottom faces)."
+            f"Print `placement.svg` at 100 % (1:1; it is {width:g} x {height:g} mm: on a large-"
+            "format printer, or tiled over several sheets taped together), lay the tiles on it "
+            "by number, and fix each strip where the template shows it (blue, marked with a "
+            "circle: on the top faces; orange, marked with a square: on the bottom faces)."
         )
         lines.append("")
     lines += [

@@ -722,7 +722,8 @@ def write_fabrication(
         )
         write_sheets_dxf(out / "hinges.dxf", strip_nesting, "H#")
         record.sheets["hinges"] = _nesting_record("hinges.dxf", strip_nesting)
-        write_placement(out / "placement.dxf", out / "placement.svg", tiles_flat, placed)
+        template = write_placement(out / "placement.dxf", out / "placement.svg", tiles_flat, placed)
+        record.estimates["placement_size_mm"] = [round(float(v), 1) for v in template]
         written += ["hinges.dxf", "placement.dxf", "placement.svg"]
         cut, engrave = _cut_length(strip_nesting)
         strip_length = profile.hinge_pad_length_mm + profile.hinge_width_mm

@@ -777,6 +777,9 @@ def test_placement_marks_hinges_as_every_picture_does(built: Built) -> None:
         assert kinds == ({"LWPOLYLINE", "CIRCLE"} if style is top else {"LWPOLYLINE"})
     guide = (built.folder / "fabrication" / "assembly.md").read_text()
     assert "orange, marked with a square: on the bottom faces" in guide and "pink" not in guide
+    # the guide gives the template's printed size, as the SVG states it in mm
+    width, height = (float(root.get(k, "0").removesuffix("mm")) for k in ("width", "height"))
+    assert f"it is {round(width, 1):g} x {round(height, 1):g} mm" in guide
 
 
 def test_stops_past_z_get_two_letters() -> None:
