@@ -41,22 +41,38 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--profile",
         default="fdm-dual",
-        help="fabrication profile: fdm-dual, laser-epdm, plywood-cnc or a .toml file",
+        help="fabrication profile: fdm-dual (default), laser-epdm, plywood-cnc or a .toml "
+        "file; it gives the defaults of --tiles, --size, --thickness and --min-gap-angle",
     )
     p.add_argument("--out", type=Path, help="output folder (default ./TARGET-drawstring)")
     size = p.add_mutually_exclusive_group()
-    size.add_argument("--tiles", type=int, help="approximate number of tiles")
+    size.add_argument(
+        "--tiles", type=int, help="approximate number of tiles (default: the profile's)"
+    )
     size.add_argument("--grid", type=int, nargs=2, metavar=("I", "J"), help="grid columns rows")
-    p.add_argument("--size", type=float, dest="size_mm", help="longest side of the shape in mm")
+    p.add_argument(
+        "--size",
+        type=float,
+        dest="size_mm",
+        help="longest side of the shape in mm (default: the profile's)",
+    )
     p.add_argument(
         "--resolution",
         type=int,
         default=10_000,
-        help="triangles of a built-in target (default 10000)",
+        help="triangles of a built-in target (default 10000; a mesh file is used as it is)",
     )
-    p.add_argument("--thickness", type=float, dest="thickness_mm", help="tile thickness in mm")
     p.add_argument(
-        "--min-gap-angle", type=float, dest="min_gap_angle_deg", help="degrees, flat layout"
+        "--thickness",
+        type=float,
+        dest="thickness_mm",
+        help="tile thickness in mm (default: the profile's)",
+    )
+    p.add_argument(
+        "--min-gap-angle",
+        type=float,
+        dest="min_gap_angle_deg",
+        help="least opening of every gap in the flat layout, degrees (default: the profile's)",
     )
     p.add_argument(
         "--max-scale-factor",

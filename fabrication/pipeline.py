@@ -114,9 +114,13 @@ class DesignOptions:
     def validate(self) -> None:
         """Refuse values out of range with a one-line :class:`InputError`."""
         if self.tiles is not None and not MIN_TILES <= self.tiles <= MAX_TILES:
+            why = (
+                f"the string route needs a grid of at least {MIN_GRID_SIDE} x {MIN_GRID_SIDE} tiles"
+                if self.tiles < MIN_TILES
+                else "designs that large are not supported (1600 tiles already take minutes)"
+            )
             raise InputError(
-                f"--tiles must be between {MIN_TILES} and {MAX_TILES} (got {self.tiles}); the "
-                f"string route needs a grid of at least {MIN_GRID_SIDE} x {MIN_GRID_SIDE} tiles"
+                f"--tiles must be between {MIN_TILES} and {MAX_TILES} (got {self.tiles}); {why}"
             )
         if self.grid is not None and (
             len(self.grid) != 2

@@ -203,6 +203,7 @@ def test_bad_meshes_exit_2_with_one_line_and_no_folder(case: str, tmp_path: Path
         (["saddle", "--tiles", "1"], "--tiles must be between 7 and 20000"),
         (["saddle", "--tiles", "3"], "--tiles must be between 7 and 20000"),
         (["saddle", "--tiles", "6"], "--tiles must be between 7 and 20000"),
+        (["saddle", "--tiles", "100000"], "(got 100000); designs that large are not supported"),
         (["saddle", "--grid", "2", "8"], "--grid I J needs two whole numbers >= 3"),
         (["saddle", "--weights", "0", "0", "0"], "--weights: at least one of PLANAR SQUARE"),
         (["saddle", "--weights", "1", "nan", "2"], "--weights"),
