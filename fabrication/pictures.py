@@ -411,7 +411,9 @@ def save_flat(result: Design, path: Path) -> None:
         result.lift.lift_gaps,
         trimmed,
     )
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=4, fontsize=7)
+    # below the axes in figure space, so that it clears the x label at any aspect ratio
+    handles, labels = ax.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=7)
     m = result.metrics()
     parts = linkage.n_components
     ax.set_title(
@@ -426,7 +428,7 @@ def save_flat(result: Design, path: Path) -> None:
         ),
         fontsize=9,
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.6 / height, 1.0, 1.0))
     save(fig, path)
 
 
