@@ -477,7 +477,9 @@ def select_lift_points(
     up : (3,) resting up axis of the assembled shape.
     tau0, tau_step : threshold sweep: ``tau0, tau0 + tau_step, ...`` up to 1.0 inclusive; if
         the check still fails every peak becomes its own lift point (``tau = inf``) and the
-        result reports whether that passed.
+        result reports whether that passed.  A split linkage that fails even then tries the
+        peaks of each part on its own (no ascent through seam gaps), every one lifted; that
+        set is kept only if it passes.
     deploy_check : ``check(lift_gaps) -> bool``; default ``geometric_deploy_check`` (a stand-in).
     gap_positions : (G, 3) float, mm, optional lift-point positions (e.g. mean of the tiles'
         top-face centroids); default: mean of the surrounding tiles' centroids.
@@ -515,6 +517,28 @@ def select_lift_points(
         log.info("lift points: tau=%s -> %d lift points, check passed=%s", tau, len(roots), passed)
         if passed:
             break
+    if not passed and linkage.n_components > 1:
+        # Split parts share no hinge, so each must rise on its own; but one peak's basin can
+        # reach across a seam (the 1600-tile dome: its one peak lies just right of the cut
+        # and drains the left part too).  Last try: peaks part by part, every one lifted.
+        seam = np.asarray(linkage.gap_kind) == "split"
+        field = energy.copy()
+        field[seam] = energy.min() - 1.0  # nothing climbs through a seam gap
+        part_peaks, part_basin = morse_smale_basins(field, edges)
+        part_lifts = interior_lift_gaps(linkage, energy, edges, part_peaks)
+        if set(part_lifts.tolist()) != set(lift_gaps.tolist()):
+            part_passed = bool(check(part_lifts))
+            sweep.append((float("inf"), int(len(part_lifts)), part_passed))
+            log.info(
+                "lift points: peaks part by part -> %d lift points, check passed=%s",
+                len(part_lifts),
+                part_passed,
+            )
+            if part_passed:
+                passed, lift_gaps, peaks, basin = True, part_lifts, part_peaks, part_basin
+                coupling = np.zeros((len(peaks), len(peaks)))
+                clusters = np.arange(len(peaks), dtype=np.int64)
+                tau = float("inf")
     if not passed:
         # returned in ``sweep``; the pipeline lists it where the user reads it
         log.info("lift points: deployment check '%s' failed for every threshold", name)

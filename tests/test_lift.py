@@ -210,3 +210,32 @@ def test_peak_on_a_split_is_lifted_at_the_next_interior_gap() -> None:
     # It is next to the apex: its grid vertex is one step from (4, 4).
     i, j = link.vertex_ij[link.gap_vertex[gap]]
     assert abs(int(i) - 4) + abs(int(j) - 4) == 1
+
+
+def test_a_split_dome_that_fails_every_threshold_is_lifted_part_by_part() -> None:
+    """The seam through the apex leaves one peak, lifted on one side only; a check that wants
+    every part lifted fails every threshold, and the last try, peaks part by part, passes."""
+    from drawstring.geometry.linkage import Split, build_linkage
+
+    link = build_linkage(np.ones((8, 8), dtype=bool), (Split("y", 4, 0, 8),))
+    centres = (link.tile_cells + 0.5).astype(float)
+    z = 20.0 - ((centres - 4.0) ** 2).sum(axis=1)
+    tiles = np.c_[centres * 10.0, z]
+    sides = link.gap_sides[:, :, 0]
+
+    def parts_of(gaps: NDArray[np.int64]) -> set[int]:
+        tiles_of = sides[np.asarray(gaps)]
+        return {int(link.tile_component[t]) for t in tiles_of[tiles_of >= 0]}
+
+    def every_part_lifted(gaps: NDArray[np.int64]) -> bool:
+        return parts_of(gaps) == {0, 1}
+
+    lift = select_lift_points(link, tiles, np.ones(link.n_tiles), deploy_check=every_part_lifted)
+    assert lift.check_passed and parts_of(lift.lift_gaps) == {0, 1}
+    assert [n for _, n, ok in lift.sweep] == [1, 1, 1, 1, 2]
+    assert [ok for _, _, ok in lift.sweep] == [False] * 4 + [True]
+    assert all(link.gap_kind[g] in ("horizontal", "vertical") for g in lift.lift_gaps)
+    assert len(lift.peaks) == 2 and len(lift.clusters) == 2 and not np.isfinite(lift.tau)
+    # a check that passes at the first threshold never gets there
+    plain = select_lift_points(link, tiles, np.ones(link.n_tiles), deploy_check=lambda g: True)
+    assert len(plain.lift_gaps) == 1 and len(plain.sweep) == 1
