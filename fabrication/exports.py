@@ -83,6 +83,9 @@ def _colour(material: str) -> bd.Color:
     return bd.Color(0.7, 0.7, 0.7)
 
 
+#: Density of sintered NdFeB magnets, g/mm^3 (7.5 g/cm^3), for the magnets' mass in bom.csv.
+NDFEB_DENSITY_G_MM3 = 7.5e-3
+
 @dataclass(frozen=True)
 class Measures:
     """Quantities of a design measured on its fabricated geometry, rounded once: every output
@@ -864,13 +867,14 @@ def write_fabrication(
             f"tile {m.tile_b} side {m.side_b} {m.polarity_b} out"
             for m in magnets
         )
+        disc_mm3 = math.pi * (0.5 * profile.magnet_diameter_mm) ** 2 * profile.magnet_height_mm
         record.bom.append(
             _row(
                 "magnet",
                 f"disc magnet {profile.magnet_diameter_mm:g} x {profile.magnet_height_mm:g} mm",
                 2 * len(magnets),
                 "NdFeB",
-                0.0,
+                round(2 * len(magnets) * disc_mm3 * NDFEB_DENSITY_G_MM3, 1),
                 polarity,
             )
         )

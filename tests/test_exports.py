@@ -6,6 +6,7 @@ import csv
 import dataclasses
 import itertools
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -503,6 +504,12 @@ def test_bom_string_and_magnets(built: Built) -> None:
     if built.flat.magnets:
         assert int(items["magnet"]["count"]) == 2 * len(built.flat.magnets)
         assert " N out" in items["magnet"]["note"] and " S out" in items["magnet"]["note"]
+        # discs of NdFeB at 7.5 g/cm^3
+        disc = (
+            math.pi * (built.profile.magnet_diameter_mm / 2) ** 2 * built.profile.magnet_height_mm
+        )
+        expected = 2 * len(built.flat.magnets) * disc * 7.5e-3
+        assert float(items["magnet"]["mass_g"]) == pytest.approx(expected, abs=0.05)
 
 
 def test_print_jobs_split_along_rows_or_refuse() -> None:
