@@ -924,7 +924,10 @@ def _pictures(folder: Path) -> str:
 
 def _files(folder: Path) -> str:
     rows = []
-    entries = sorted(p for p in folder.iterdir() if not p.name.startswith("."))
+    # this page is listed as such, without the size of the one it replaces (simulate rewrites it)
+    entries = sorted(
+        p for p in folder.iterdir() if not p.name.startswith(".") and p.name != "report.html"
+    )
     for path in entries:
         name = path.name + ("/" if path.is_dir() else "")
         purpose = FILE_PURPOSES.get(path.name, "")
@@ -939,8 +942,7 @@ def _files(folder: Path) -> str:
             f"<tr><td class=mono><a href='{_e(path.name)}'>{_e(name)}</a></td>"
             f"<td class=num>{size}</td><td>{_e(purpose)}</td></tr>"
         )
-    if not any(p.name == "report.html" for p in entries):
-        rows.append("<tr><td class=mono>report.html</td><td></td><td>this page</td></tr>")
+    rows.append("<tr><td class=mono>report.html</td><td></td><td>this page</td></tr>")
     head = "<tr><th>file</th><th>size</th><th>what it is for</th></tr>"
     return f"<table>{head}{''.join(rows)}</table>"
 

@@ -326,6 +326,10 @@ def test_simulate_repeats_the_designs_own_run_exactly(tmp_path: Path) -> None:
     assert (out / "deploy.npz").read_bytes() == frames
     again = json.loads((out / "design.json").read_text())["metrics"]["simulation"]
     assert again == block
+    # the rewritten report lists itself as "this page", not with the size of the old one
+    page = (out / "report.html").read_text()
+    assert page.count("<td class=mono>report.html</td><td></td><td>this page</td>") == 1
+    assert "href='report.html'" not in page
 
 
 def test_simulate_refuses_a_folder_that_is_not_a_design(tmp_path: Path) -> None:
