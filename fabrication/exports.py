@@ -86,6 +86,7 @@ def _colour(material: str) -> bd.Color:
 #: Density of sintered NdFeB magnets, g/mm^3 (7.5 g/cm^3), for the magnets' mass in bom.csv.
 NDFEB_DENSITY_G_MM3 = 7.5e-3
 
+
 @dataclass(frozen=True)
 class Measures:
     """Quantities of a design measured on its fabricated geometry, rounded once: every output

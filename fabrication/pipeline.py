@@ -254,7 +254,12 @@ class Design:
                 "bbox_diagonal_mm": _round(target.bbox_diagonal_mm),
                 "notes": list(target.notes),
             },
-            "options": _jsonable(asdict(self.options)),
+            # --resolution makes the built-ins' triangles; a mesh file is used as it is
+            "options": _jsonable(
+                asdict(self.options)
+                if target.source == "builtin"
+                else {**asdict(self.options), "resolution": None}
+            ),
             "profile": self.profile.name,
             "linkage": {
                 **self.tiling.linkage.counts(),

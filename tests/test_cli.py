@@ -75,6 +75,15 @@ def test_design_writes_the_output_contract(tmp_path: Path) -> None:
     assert rigidity["joints"] == doc["linkage"]["hinges"]
 
 
+def test_a_mesh_file_is_designed_and_recorded_as_given(tmp_path: Path) -> None:
+    mesh = Path(__file__).parent / "data" / "hemisphere.obj"
+    out = tmp_path / "hemisphere"
+    assert main(["design", str(mesh), *SMALL, "--no-simulate", "--out", str(out)]) == 0
+    doc = json.loads((out / "design.json").read_text())
+    assert doc["target"]["name"] == "hemisphere" and doc["target"]["source"] != "builtin"
+    assert doc["options"]["resolution"] is None  # --resolution only makes built-ins
+
+
 def test_outputs_are_deterministic(tmp_path: Path) -> None:
     a, b = tmp_path / "a", tmp_path / "b"
     assert main(["design", "saddle", *SMALL, "--out", str(a)]) == 0
