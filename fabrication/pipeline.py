@@ -146,9 +146,14 @@ class DesignOptions:
             raise InputError(
                 f"--thickness must be a positive number of millimetres (got {self.thickness_mm})"
             )
-        if self.min_gap_angle_deg is not None and not 0 <= self.min_gap_angle_deg < 90:
+        if self.min_gap_angle_deg is not None and not 0 <= self.min_gap_angle_deg <= 60:
+            # as a profile's tile.min_gap_angle_deg: gaps that open at least theta absorb a tile
+            # area ratio of at most 2 / (1 + sin theta), 1.07 at 60 deg, so past that the
+            # design falls apart into ever more split parts
             raise InputError(
-                f"--min-gap-angle must be in [0, 90) degrees (got {self.min_gap_angle_deg})"
+                f"--min-gap-angle must be in [0, 60] degrees (got {self.min_gap_angle_deg}); "
+                "wider gaps leave the flat layout almost no room to absorb the surface's "
+                "curvature"
             )
         if len(self.weights) != 3 or not all(math.isfinite(w) and w >= 0 for w in self.weights):
             shown = " ".join(f"{w:g}" for w in self.weights)

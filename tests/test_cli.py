@@ -198,6 +198,7 @@ def test_bad_meshes_exit_2_with_one_line_and_no_folder(case: str, tmp_path: Path
         (["saddle", "--size", "nan"], "--size"),
         (["saddle", "--profile", "resin"], "unknown profile"),
         (["saddle", "--min-gap-angle", "120"], "--min-gap-angle"),
+        (["saddle", "--min-gap-angle", "89"], "--min-gap-angle must be in [0, 60] degrees"),
         (["saddle", "--max-scale-factor", "3"], "--max-scale-factor"),
         (["no-such-target"], "no-such-target"),
         (["saddle", "--tiles", "abc"], "invalid int"),
