@@ -411,9 +411,6 @@ def save_flat(result: Design, path: Path) -> None:
         result.lift.lift_gaps,
         trimmed,
     )
-    # below the axes in figure space, so that it clears the x label at any aspect ratio
-    handles, labels = ax.get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=7)
     m = result.metrics()
     parts = linkage.n_components
     ax.set_title(
@@ -429,6 +426,21 @@ def save_flat(result: Design, path: Path) -> None:
         fontsize=9,
     )
     fig.tight_layout(rect=(0.0, 0.6 / height, 1.0, 1.0))
+    # The legend goes just under the x label, placed in figure space once the equal aspect
+    # has shrunk the axes (an axes-relative offset covered the label on wide layouts).
+    ax.apply_aspect()
+    tight = ax.get_tightbbox()
+    bottom = 0.0 if tight is None else tight.transformed(fig.transFigure.inverted()).y0
+    handles, labels = ax.get_legend_handles_labels()
+    fig.legend(
+        handles,
+        labels,
+        loc="upper center",
+        bbox_to_anchor=(0.5, bottom - 0.005),
+        bbox_transform=fig.transFigure,
+        ncol=4,
+        fontsize=7,
+    )
     save(fig, path)
 
 
