@@ -1096,9 +1096,11 @@ def plan_pins(
 
     Each pin sits at the inner end of the strip, slid inward until it keeps a wall from the
     tile's side faces, and runs from the recess floor to the opposite face (blind, one diameter
-    short of it, when that face is tilted).  ``keep_out`` per tile (channels, lift bores, other
-    hinges' strips and pins, see :class:`KeepOut`) cuts a pin short to keep a wall from them; a
-    pin shorter than ``MIN_PIN_LENGTH_RADII`` radii is left out.
+    short of it, when that face is tilted).  Where side faces leaning in leave no such room
+    through the whole tile, the pin is blind: half the tile deep, or the shortest that keys
+    the pad, whichever keeps its wall down to its end.  ``keep_out`` per tile (channels, lift
+    bores, other hinges' strips and pins, see :class:`KeepOut`) cuts a pin short to keep a wall
+    from them; a pin shorter than ``MIN_PIN_LENGTH_RADII`` radii is left out.
 
     ``keep_out`` entries are None for no other features (only the tile's edges limit the pin).
     """
@@ -1114,18 +1116,33 @@ def plan_pins(
         zip(tiles, frame.halves, frame.lengths, keep_out, ("a", "b"), strict=True)
     ):
         # the axis stays under the strip: a pin beyond its end would not hold it
-        points, missing = _place_holes(
+        points, _ = _place_holes(
             tile, corner, direction, frame.normal, (length - radius,), radius, wall, length
         )
-        if missing:
-            notes.append(f"pin in tile {name} left out: it does not fit under the strip")
+        blind = None
         if not points:
+            # Side faces leaning in under the hinge corner (a curved design's tiles) leave no
+            # room for a pin through the whole tile; a blind one keeps its wall only as deep
+            # as it goes: half the tile, else the shortest pin that still keys the pad.
+            span = abs(float((tile[4:8].mean(axis=0) - tile[0:4].mean(axis=0)) @ frame.normal))
+            for tried in (0.5 * span, floor + 2.0 * MIN_PIN_LENGTH_RADII * radius):
+                points, _ = _place_holes(
+                    tile, corner, direction, frame.normal, (length - radius,), radius, wall,
+                    length, tried,
+                )  # fmt: skip
+                if points:
+                    blind = tried
+                    break
+        if not points:
+            notes.append(f"pin in tile {name} left out: it does not fit under the strip")
             pins.append(None)
             continue
         point = points[0]
         depth, through = _depth_to_opposite(tile, side, point, frame.normal)
         if not through:
             depth -= radius * 2.0  # tilted opposite face: keep the hole blind
+        if blind is not None and blind < depth:
+            depth, through = blind, False
         if keep is not None:
             clear = _clear_depth(point, -frame.normal, radius, floor, depth, keep, wall)
             if clear < depth:

@@ -690,3 +690,27 @@ def test_a_channel_opening_cut_away_by_a_trim_still_lines_up(profile: Profile) -
     assert match.max_distance < CAD_OPENING_MATCH_MM
     blocked = checks.channel_continuity([solid_a, plain], tiles, identity, steps, profile)
     assert np.isinf(blocked.distances).all()
+
+
+def test_a_pin_too_near_leaning_side_faces_goes_in_blind(profile: Profile) -> None:
+    # 6 mm tiles whose bottom faces are 0.8 as wide as their tops: under the strip's end, a
+    # pin through the whole tile would come within 0.8 mm of the side faces on the way down
+    # (a 0.4 mm wall needs 1 mm for its 0.6 mm radius); half the tile deep it keeps its wall,
+    # so it is planned blind, 3 mm deep.  Leaning further (0.6), only the shortest pin that
+    # keys the pad fits: from the 0.6 mm recess floor, 2 radii long.
+    for shrink, deep in ((0.8, 3.0), (0.6, 0.6 + 2 * 0.6)):
+        tile_a = _frustum(6.0, 6.0, shrink, (0.0, 0.0))
+        tile_b = _frustum(6.0, 6.0, shrink, (6.0, 6.0))
+        plan = plan_pins(tile_a, 2, tile_b, 0, "top", profile)
+        assert not plan.notes
+        for pin in plan.pins:
+            assert pin is not None and not pin.through
+            assert pin.depth == pytest.approx(deep)
+    # straight side faces: through the whole tile, as before
+    boxes = plan_pins(_frustum(6.0, 6.0, 1.0, (0, 0)), 2, _frustum(6.0, 6.0, 1.0, (6, 6)), 0,
+                      "top", profile)  # fmt: skip
+    assert all(pin is not None and pin.through for pin in boxes.pins)
+    # and the blind pin's hole stays inside its tile: the tile loses exactly the hole
+    parts = hinge_pad(tile_a, 2, tile_b, 0, "top", profile, pins=plan.pins)
+    solid = build_tile(tile_a, list(parts.tools_a))
+    assert solid.is_valid
