@@ -43,7 +43,12 @@ from drawstring.geometry.hinges import (
     HingeLayout,
     HingeStrategy,
 )
-from drawstring.geometry.lift import LiftPoints, select_lift_points, tile_masses_from_volumes
+from drawstring.geometry.lift import (
+    LiftPoints,
+    nearby_lift_gaps,
+    select_lift_points,
+    tile_masses_from_volumes,
+)
 from drawstring.geometry.linkage import Linkage, gap_centroids
 from drawstring.geometry.rigidity import rigidity_report
 from drawstring.geometry.route import Route, plan_route, route_metrics
@@ -521,10 +526,12 @@ def _design(
         linkage, parts_in_place(linkage, hinge_layout.tiles[:, :4, :2], tiling.uv)
     )
     fabricated = fabricated_tiles(hinge_layout, assembled.tiles)
-    routes: dict[tuple[int, ...], tuple[Route, str | None]] = {}
+    routes: dict[tuple[int, ...], tuple[Route, str | None, NDArray[np.int64]]] = {}
     runs: dict[tuple[int, ...], SimulationResult] = {}
 
-    def route_for(lift_gaps: NDArray[np.int64]) -> tuple[Route, str | None]:
+    def route_for(
+        lift_gaps: NDArray[np.int64],
+    ) -> tuple[Route, str | None, NDArray[np.int64]]:
         key = tuple(int(g) for g in lift_gaps)
         if key not in routes:
             with progress.stage("route"):
@@ -534,7 +541,7 @@ def _design(
     def simulated(lift_gaps: NDArray[np.int64]) -> SimulationResult:
         key = tuple(int(g) for g in lift_gaps)
         if key not in runs:
-            route_steps = route_for(lift_gaps)[0]
+            route_steps, _, served = route_for(lift_gaps)
             with progress.stage("simulate"):
                 runs[key] = simulate_stage(
                     linkage,
@@ -542,7 +549,7 @@ def _design(
                     assembled.tiles,
                     hinge_layout.hinge_vertices,
                     route_steps,
-                    lift_gaps,
+                    served,
                     resolved.thickness_mm,
                 )
         return runs[key]
@@ -555,13 +562,14 @@ def _design(
             "projective-dynamics deployment simulation",
             lambda gaps: simulated(gaps).deployed,
         )
+    assembled_gap_xyz = gap_centroids(linkage, assembled.tiles[:, :4])
     with progress.stage("lift"):
         lift = select_lift_points(
             linkage,
             assembled.tiles.mean(axis=1),
             masses,
             up=resolved.up,
-            gap_positions=gap_centroids(linkage, assembled.tiles[:, :4]),
+            gap_positions=assembled_gap_xyz,
             deploy_check=deploy_check,
         )
     if not resolved.simulate and lift.sweep and not any(ok for _, _, ok in lift.sweep):
@@ -569,9 +577,11 @@ def _design(
             f"lift points: the check '{lift.check_name}' failed for every threshold, so every "
             "energy peak is a lift point (run with the deployment simulation to check the pull)"
         )
-    route, route_note = route_for(lift.lift_gaps)
+    route, route_note, served = route_for(lift.lift_gaps)
     if route_note:
         notes.append(route_note)
+    if not np.array_equal(served, lift.lift_gaps):
+        lift = replace(lift, lift_gaps=served, positions=assembled_gap_xyz[served])
     measured, problems, warnings = measure_design(
         resolved, profile, tiling, assembled, flat, hinge_layout, lift, route, masses
     )
@@ -724,11 +734,17 @@ class NamedCheck:
         return bool(self.check(lift_gaps))
 
 
-def plan_lift_route(
+#: Hops (between gaps that share a tile) a lift point the string cannot reach may move to a
+#: gap it can reach.
+LIFT_MOVE_HOPS = 2
+
+#: Candidate gaps tried with a new route each (gaps the route already passes cost nothing).
+LIFT_MOVE_TRIES = 3
+
+
+def _route_relaxing_splits(
     linkage: Linkage, flat_gap_xy: NDArray[np.float64], lift_gaps: NDArray[np.int64]
 ) -> tuple[Route, str | None]:
-    """The string route through the boundary and the lift gaps, and a note if it had to
-    relax the split rule to reach them."""
     route = plan_route(linkage, flat_gap_xy, lift_gaps)
     if len(route.lifts_missed):
         # The paper's rule keeps the string off split gaps except between boundary tiles; in a
@@ -739,8 +755,59 @@ def plan_lift_route(
             return relaxed, (
                 "route: reached every lift point by letting the string pass split gaps "
                 "between tiles on the same side of a cut"
+                if not len(relaxed.lifts_missed)
+                else "route: reached more lift points by letting the string pass split gaps "
+                "between tiles on the same side of a cut"
             )
     return route, None
+
+
+def plan_lift_route(
+    linkage: Linkage, flat_gap_xy: NDArray[np.float64], lift_gaps: NDArray[np.int64]
+) -> tuple[Route, str | None, NDArray[np.int64]]:
+    """The string route through the boundary and the lift gaps, a note on what it had to
+    relax, and the lift gaps it serves.
+
+    A lift gap the route cannot reach (a narrow part, where a detour to it would need a gap or
+    tile twice) moves to the nearest interior gap of its part within ``LIFT_MOVE_HOPS`` that
+    the route passes anyway, or else that a new route reaches: a lift point next to the energy
+    peak lifts nearly as well, one the string misses does not lift at all.
+    """
+    lifts = np.asarray(lift_gaps, dtype=np.int64)
+    route, note = _route_relaxing_splits(linkage, flat_gap_xy, lifts)
+    moves: list[str] = []
+    for gap in route.lifts_missed.tolist():
+        used = lifts.tolist()
+        options = [
+            int(c)
+            for c in nearby_lift_gaps(linkage, gap, flat_gap_xy, LIFT_MOVE_HOPS)
+            if int(c) not in used
+        ]
+        passed = set(route.gaps.tolist())
+        pick = next((c for c in options if c in passed), None)
+        if pick is not None:
+            route = replace(route, lifts_missed=route.lifts_missed[route.lifts_missed != gap])
+        else:
+            for option in options[:LIFT_MOVE_TRIES]:
+                trial = np.array([option if g == gap else g for g in used], dtype=np.int64)
+                new_route, new_note = _route_relaxing_splits(linkage, flat_gap_xy, trial)
+                if option not in new_route.lifts_missed.tolist() and len(
+                    new_route.lifts_missed
+                ) < len(route.lifts_missed):
+                    route, note, pick = new_route, new_note, option
+                    break
+        if pick is None:
+            continue
+        lifts = np.array([pick if g == gap else g for g in lifts.tolist()], dtype=np.int64)
+        hops = "one tile" if pick in nearby_lift_gaps(linkage, gap, flat_gap_xy, 1) else "two tiles"
+        moves.append(f"gap {gap} to gap {pick} ({hops} away)")
+    if moves:
+        moved = (
+            "lift points: the string cannot reach the energy peak's gap under the routing rules, "
+            f"so the lift point moved: {'; '.join(moves)}"
+        )
+        note = f"{note}; {moved}" if note else moved
+    return route, note, lifts
 
 
 def design_rigidity(

@@ -601,6 +601,44 @@ def interior_lift_gaps(
     return np.array(moved, dtype=np.int64)
 
 
+def nearby_lift_gaps(
+    linkage: Linkage, gap: int, positions: ArrayLike, steps: int = 2
+) -> NDArray[np.int64]:
+    """Interior gaps of ``gap``'s part within ``steps`` hops of it (a hop joins two gaps that
+    share a tile), nearest first: where a lift point may move when the string cannot reach it.
+
+    Parameters
+    ----------
+    linkage : topology.
+    gap : the lift gap.
+    positions : (G, d) float, gap positions that decide "nearest" (ties: lower gap id).
+    steps : largest number of hops.
+
+    Returns
+    -------
+    (c,) int, without ``gap`` itself.
+    """
+    pos = np.asarray(positions, dtype=np.float64)
+    interior = np.array([k in ("horizontal", "vertical") for k in linkage.gap_kind], dtype=bool)
+    parts = {int(linkage.tile_component[t]) for t in linkage.gap_tiles(gap)}
+    neighbours: dict[int, set[int]] = {}
+    for a, b in gap_adjacency(linkage).tolist():
+        neighbours.setdefault(a, set()).add(b)
+        neighbours.setdefault(b, set()).add(a)
+    seen, frontier = {int(gap)}, {int(gap)}
+    for _ in range(steps):
+        frontier = {n for f in frontier for n in neighbours.get(f, ())} - seen
+        seen |= frontier
+    found = [
+        g
+        for g in seen - {int(gap)}
+        if interior[g] and {int(linkage.tile_component[t]) for t in linkage.gap_tiles(g)} <= parts
+    ]
+    dist = [float(np.linalg.norm(pos[g] - pos[gap])) for g in found]
+    order = sorted(range(len(found)), key=lambda i: (dist[i], found[i]))
+    return np.array([found[i] for i in order], dtype=np.int64)
+
+
 # --------------------------------------------------------------------------------------------
 # picture
 

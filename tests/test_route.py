@@ -203,6 +203,46 @@ def test_an_unreachable_lift_gap_is_reported_not_faked() -> None:
     _check_valid(linkage, pos, route)
 
 
+def test_an_unreachable_lift_moves_to_the_nearest_gap_the_string_passes() -> None:
+    from drawstring.fabrication.pipeline import plan_lift_route
+    from drawstring.geometry.lift import nearby_lift_gaps
+
+    linkage = build_linkage(np.ones((4, 4), dtype=bool))
+    pos = _centroids(linkage)
+    lift = _gap_at(linkage, 2, 2)
+    route, note, served = plan_lift_route(linkage, pos, np.array([lift]))
+    _check_valid(linkage, pos, route)
+    assert route.lifts_missed.size == 0
+    (moved,) = served.tolist()
+    assert moved != lift and moved in route.gaps.tolist()
+    # it is the nearest interior gap one tile away that the route passes
+    one_hop = nearby_lift_gaps(linkage, lift, pos, 1).tolist()
+    assert moved in one_hop
+    passed = [g for g in one_hop if g in route.gaps.tolist()]
+    assert moved == passed[0]
+    assert note is not None and f"gap {lift} to gap {moved} (one tile away)" in note
+    # a reachable lift stays where it is
+    route2, note2, served2 = plan_lift_route(linkage, pos, np.array([moved]))
+    assert served2.tolist() == [moved] and note2 is None and route2.lifts_missed.size == 0
+
+
+def test_nearby_lift_gaps_stay_in_the_part_and_are_sorted_by_distance() -> None:
+    from drawstring.geometry.lift import nearby_lift_gaps
+
+    linkage = build_linkage(np.ones((8, 8), dtype=bool), (Split("x", 4, 0, 8),))
+    pos = _centroids(linkage)
+    lift = _gap_at(linkage, 5, 4)
+    near = nearby_lift_gaps(linkage, lift, pos, 2)
+    assert near.size and lift not in near.tolist()
+    dist = np.linalg.norm(pos[near] - pos[lift], axis=1)
+    assert np.all(np.diff(dist) >= 0)
+    kinds = {linkage.gap_kind[g] for g in near.tolist()}
+    assert kinds <= {"horizontal", "vertical"}
+    parts = {int(linkage.tile_component[t]) for g in near.tolist() for t in linkage.gap_tiles(g)}
+    assert parts == {int(linkage.tile_component[linkage.gap_tiles(lift)[0]])}
+    assert set(nearby_lift_gaps(linkage, lift, pos, 1).tolist()) < set(near.tolist())
+
+
 @pytest.mark.parametrize("exact_limit", [200, 0])
 def test_rectangle_route_is_closed_and_covers_every_boundary_tile(exact_limit: int) -> None:
     linkage = build_linkage(np.ones((7, 5), dtype=bool))
