@@ -27,6 +27,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
+from drawstring.geometry.assembled import CLOSE_FIT_WEIGHTS  # noqa: E402
 from drawstring.geometry.builtins import BUILTIN_TARGETS  # noqa: E402
 from drawstring.geometry.flatten import flatten  # noqa: E402
 from drawstring.geometry.target import load_target  # noqa: E402
@@ -77,9 +78,14 @@ def foundation_rows(tile_counts: tuple[int, ...], names: list[str]) -> list[dict
 
 
 def pipeline_rows(
-    names: list[str], tiles: int, hinges: str = "dual", simulate: bool = True
+    names: list[str],
+    tiles: int,
+    hinges: str = "dual",
+    simulate: bool = True,
+    weights: tuple[float, float, float] | None = None,
 ) -> list[dict[str, Any]]:
-    """Every stage of ``design`` on each built-in at about ``tiles`` tiles, with its quality."""
+    """Every stage of ``design`` on each built-in at about ``tiles`` tiles, with its quality
+    (``weights``: paper eq. 1 weights other than the default)."""
     from drawstring.fabrication.pipeline import DesignOptions, design
 
     rows: list[dict[str, Any]] = []
@@ -91,6 +97,7 @@ def pipeline_rows(
             cad=False,
             hinges=hinges,
             simulate=simulate,  # type: ignore[arg-type]
+            **({"weights": weights} if weights else {}),
         )
         result = design(name, options)
         cpu = time.process_time() - cpu
@@ -170,6 +177,12 @@ def main() -> None:
         help="also run every per-stage benchmark (benchmarks/bench_*.py; several minutes)",
     )
     parser.add_argument(
+        "--close-fit",
+        action="store_true",
+        help="also the 200-tile pipeline with the close-fit eq. 1 weights (issue 3's surface "
+        "distance against issue 4's flat layout; about 8 min)",
+    )
+    parser.add_argument(
         "--fine",
         action="store_true",
         help="also the whole pipeline at 1600 tiles on saddle, dome and wave (about 2 min each)",
@@ -189,6 +202,10 @@ def main() -> None:
     if fine:
         print("\npipeline at about 1600 tiles, 200 mm")
         print_table(fine)
+    close_fit = pipeline_rows(names, 200, weights=CLOSE_FIT_WEIGHTS) if args.close_fit else []
+    if close_fit:
+        print(f"\npipeline at about 200 tiles, 200 mm, --weights {CLOSE_FIT_WEIGHTS}")
+        print_table(close_fit)
     extras = extra_rows() if args.stages else {}
     for name, stage_rows in extras.items():
         print(f"\n{name}")
@@ -208,6 +225,7 @@ def main() -> None:
             "pipeline_200": stages,
             "pipeline_200_top": top_rows,
             **({"pipeline_1600": fine} if fine else {}),
+            **({"pipeline_200_close_fit": close_fit} if close_fit else {}),
             **extras,
         }
     )

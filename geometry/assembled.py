@@ -666,6 +666,70 @@ def _initial_bottom(top: FloatArray, quads: IntArray, thickness: float) -> Float
     return np.asarray(top - normals * (thickness / mean_cos)[:, None])
 
 
+def _eq1_groups(
+    vertices: FloatArray,
+    quads: IntArray,
+    target_vertices: FloatArray,
+    target_faces: IntArray,
+    weights: tuple[float, float, float],
+    *,
+    requery_rel: float = SURFACE_REQUERY_REL,
+) -> tuple[list[ConstraintGroup], FloatArray]:
+    """The constraint groups of paper eq. 1 (planar, square length and shape, surface) for the
+    quad mesh ``vertices`` (whose edges and quads set the square targets), and the edge
+    targets."""
+    w_planar, w_square, w_surface = weights
+    edges = quad_mesh_edges(quads)
+    targets = square_edge_targets(vertices, quads, edges)
+    groups: list[ConstraintGroup] = [
+        Plane(quads, w_planar, name="planar"),
+        EdgeLength(edges.edges, targets, w_square, name="square_length"),
+        SimilarityToSquare(
+            quads,
+            w_square,
+            name="square_shape",
+            reference_normals=quad_vector_areas(vertices, quads),
+        ),
+        ClosenessToSurface(
+            np.arange(len(vertices)),
+            target_vertices,
+            target_faces,
+            w_surface,
+            name="surface",
+            requery_rel=requery_rel,
+        ),
+    ]
+    return groups, targets
+
+
+def eq1_energy(
+    start: ArrayLike,
+    quads: ArrayLike,
+    target_vertices: ArrayLike,
+    target_faces: ArrayLike,
+    positions: ArrayLike,
+    weights: tuple[float, float, float] = PAPER_WEIGHTS,
+) -> dict[str, float]:
+    """Weighted paper eq. 1 energy of every term at ``positions``, with the square targets of
+    the lifted mesh ``start`` (as :func:`optimize_top` sets them), and their ``total``.
+
+    Compares K3D solutions found under different weights on one energy: when a closer fit has
+    the higher energy, the weights themselves, not the solver, keep K3D off the target.
+    """
+    verts = np.asarray(start, dtype=np.float64)
+    groups, _ = _eq1_groups(
+        verts,
+        np.asarray(quads, dtype=np.int64),
+        np.asarray(target_vertices, dtype=np.float64),
+        np.asarray(target_faces, dtype=np.int64),
+        weights,
+        requery_rel=0.0,
+    )
+    energies = LocalGlobalSolver(len(verts), groups).energies(positions)
+    energies["total"] = float(sum(energies.values()))
+    return energies
+
+
 def optimize_top(
     vertices: FloatArray,
     quads: IntArray,
@@ -709,24 +773,15 @@ def optimize_top(
     targets : (e,) float, mm
         Edge-length targets used.
     """
-    edges = quad_mesh_edges(quads)
-    targets = square_edge_targets(vertices, quads, edges)
+    groups, targets = _eq1_groups(
+        vertices,
+        quads,
+        target_vertices,
+        target_faces,
+        (w_planar, w_square, w_surface),
+        requery_rel=requery_rel,
+    )
     reference_normals = quad_vector_areas(vertices, quads)
-    groups: list[ConstraintGroup] = [
-        Plane(quads, w_planar, name="planar"),
-        EdgeLength(edges.edges, targets, w_square, name="square_length"),
-        SimilarityToSquare(
-            quads, w_square, name="square_shape", reference_normals=reference_normals
-        ),
-        ClosenessToSurface(
-            np.arange(len(vertices)),
-            target_vertices,
-            target_faces,
-            w_surface,
-            name="surface",
-            requery_rel=requery_rel,
-        ),
-    ]
     if w_convex > 0:
         groups.append(
             ConvexCorners(quads, reference_normals, w_convex, name="convex", margin=convex_margin)

@@ -9,6 +9,8 @@ import pytest
 
 from drawstring.geometry.assembled import (
     CLOSE_FIT_WEIGHTS,
+    PAPER_WEIGHTS,
+    eq1_energy,
     measure_assembled,
     optimize_assembled,
     quad_mesh_edges,
@@ -242,6 +244,30 @@ def test_square_edge_targets_average_neighbouring_quads() -> None:
     assert targets[shared[0]] == pytest.approx((mean_a + mean_b) / 2)
     boundary_of_a = edges.quads[:, 0] == 0
     assert np.allclose(targets[boundary_of_a & ~edges.interior], mean_a)
+
+
+def test_eq1_energy_is_zero_on_a_square_grid_on_its_target_and_counts_a_lifted_vertex() -> None:
+    points, quads = grid_mesh(4, 4, 0.0, 0.0, 10.0)
+    vertices = np.c_[points, np.zeros(len(points))]
+    # the target: the plane z = 0, larger than the grid
+    target_v = np.array([[-50.0, -50, 0], [100, -50, 0], [100, 100, 0], [-50, 100, 0]])
+    target_f = np.array([[0, 1, 2], [0, 2, 3]])
+    zero = eq1_energy(vertices, quads, target_v, target_f, vertices)
+    assert zero["total"] == pytest.approx(0.0, abs=1e-18)
+    moved = vertices.copy()
+    centre = int(np.flatnonzero((points == [20.0, 20.0]).all(axis=1))[0])
+    moved[centre, 2] = 0.5
+    energy = eq1_energy(vertices, quads, target_v, target_f, moved)
+    w_planar, w_square, w_surface = PAPER_WEIGHTS
+    assert energy["surface"] == pytest.approx(w_surface * 0.5**2)
+    # each of the 4 quads at the vertex is twisted by h = 0.5 at one corner: the best plane
+    # leaves +-h/4 at every corner (the bilinear term's part off the linear fit), h^2/4 per
+    # quad measured vertically, a hair less orthogonally (the plane tilts by about 1 deg)
+    assert energy["planar"] == pytest.approx(w_planar * 4 * 0.5**2 / 4, rel=2e-3)
+    assert energy["square_length"] > 0 and energy["square_shape"] > 0
+    assert energy["total"] == pytest.approx(sum(v for k, v in energy.items() if k != "total"))
+    halved = eq1_energy(vertices, quads, target_v, target_f, moved, (w_planar, w_square, 0.05))
+    assert halved["surface"] == pytest.approx(0.5 * energy["surface"])
 
 
 def test_bad_inputs_raise() -> None:
