@@ -807,6 +807,7 @@ def extrude_tiles(
     w_slab: float = 1.0,
     w_keep_top: float = 1.0,
     w_keep_bottom: float = 1e-2,
+    fix_top: bool = False,
     rel_tol: float,
     max_iter: int,
     anderson: int,
@@ -825,6 +826,9 @@ def extrude_tiles(
         Bottom parallel to top at ``thickness``.
     w_keep_top, w_keep_bottom : float
         Closeness of the top to K3D and of the bottom to its normal offset.
+    fix_top : bool
+        Hold the top exactly where it is (its quads must be planar already): only the bottom
+        vertices are unknowns, the top faces' planarity and ``w_keep_top`` drop out.
     rel_tol, max_iter, anderson : solver options
 
     Returns
@@ -836,14 +840,16 @@ def extrude_tiles(
     n = len(top)
     edges = quad_mesh_edges(quads)
     bottom0 = _initial_bottom(top, quads, thickness)
-    faces = np.vstack([quads, quads + n, side_quads(quads, edges, n)])
-    groups = [
-        Plane(faces, w_planar, name="planar"),
+    faces = np.vstack([quads + n, side_quads(quads, edges, n)])
+    groups: list[ConstraintGroup] = [
+        Plane(faces if fix_top else np.vstack([quads, faces]), w_planar, name="planar"),
         Slab(quads, quads + n, thickness, w_slab, name="slab"),
         ClosenessToPoints(np.arange(n), top, w_keep_top, name="keep_top"),
         ClosenessToPoints(np.arange(n, 2 * n), bottom0, w_keep_bottom, name="keep_bottom"),
     ]
-    solver = LocalGlobalSolver(2 * n, groups)
+    if fix_top:
+        del groups[2]
+    solver = LocalGlobalSolver(2 * n, groups, fixed=np.arange(n) if fix_top else None)
     result = solver.solve(
         np.vstack([top, bottom0]),
         rel_tol=rel_tol,
@@ -1065,10 +1071,6 @@ def optimize_assembled(
     )
 
 
-#: Closeness weight that holds the top in place while :func:`reextrude` extrudes it.
-REEXTRUDE_KEEP_TOP = 1e6
-
-
 def reextrude(
     result: AssembledResult,
     top: ArrayLike,
@@ -1082,8 +1084,9 @@ def reextrude(
     """T3D extruded again under a new K3D that must not move (its quads already planar).
 
     Used after the flat layout moved K3D (:func:`~drawstring.geometry.flat.co_optimize_top`):
-    the extrusion holds the top in place (``REEXTRUDE_KEEP_TOP``) and the exact planarity polish
-    moves only bottom vertices, so the flat tiles stay congruent to the new top faces.
+    the extrusion holds the top fixed (only the bottom vertices are unknowns) and the exact
+    planarity polish moves only bottom vertices, so the flat tiles stay congruent to the new top
+    faces.
 
     Returns
     -------
@@ -1098,8 +1101,8 @@ def reextrude(
     top_polish = planarize_quads(new_top, faces, tol_mm=0.1 * polish_tol)
     new_top = top_polish.X
     ext, _, bottom = extrude_tiles(
-        new_top, faces, result.thickness, w_keep_top=REEXTRUDE_KEEP_TOP, rel_tol=rel_tol,
-        max_iter=max_iter, anderson=anderson,
+        new_top, faces, result.thickness, fix_top=True, rel_tol=rel_tol, max_iter=max_iter,
+        anderson=anderson,
     )  # fmt: skip
     all_faces = np.vstack([faces, faces + n, side_quads(faces, edges, n)])
     polish = planarize_quads(

@@ -11,6 +11,7 @@ from drawstring.geometry.assembled import (
     CLOSE_FIT_WEIGHTS,
     PAPER_WEIGHTS,
     eq1_energy,
+    extrude_tiles,
     measure_assembled,
     optimize_assembled,
     quad_mesh_edges,
@@ -125,6 +126,25 @@ def test_cylinder_dihedral_and_radial_contact_faces() -> None:
     assert np.allclose(result.bottom[interior], expected, atol=1e-8)
     assert result.metrics["thickness_min_mm"] == pytest.approx(thickness, abs=1e-8)
     assert result.metrics["thickness_max_mm"] == pytest.approx(thickness, abs=1e-8)
+
+
+def test_extrusion_with_the_top_fixed_keeps_it_bit_for_bit() -> None:
+    # on the cylinder the frustums are known (see above); holding the top fixed reaches them
+    # with the top untouched, as the re-extrusion after the co-optimization needs
+    radius, phi, thickness = 60.0, np.radians(15.0), 3.0
+    vertices, quads, *_ = cylinder_case(radius, phi, 6, 4)
+    free = extrude_tiles(vertices, quads, thickness, rel_tol=1e-12, max_iter=2000, anderson=8)
+    fixed = extrude_tiles(
+        vertices, quads, thickness, fix_top=True, rel_tol=1e-12, max_iter=2000, anderson=8
+    )
+    assert np.array_equal(fixed[1], vertices)
+    assert set(fixed[0].energy_after) == {"planar", "slab", "keep_bottom"}
+    assert np.abs(fixed[2] - free[2]).max() < 1e-6
+    plane_radius = radius * np.cos(phi / 2)
+    scale = (plane_radius - thickness) / plane_radius
+    theta = np.arctan2(vertices[:, 1], vertices[:, 0])
+    interior = (theta > 1e-9) & (theta < 6 * phi - 1e-9)
+    assert np.allclose(fixed[2][interior], vertices[interior] * [scale, scale, 1.0], atol=1e-6)
 
 
 FIELDS: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {
