@@ -48,6 +48,11 @@ stretch of the loop plus a corridor to the lift gap) with the rest of the loop f
 window until it succeeds.  If the dynamic program's loop reuses a gap or a tile (a ring two
 tiles wide), the integer program is solved on the band of tiles next to the boundary instead.
 The heuristic's lower bound is ``2 pi`` (a simple closed polygon turns at least once around).
+
+This module holds the public side: the route rules (contact partners, gap graph), the solver
+entry point :func:`plan_route`, the route's assembly and measurement, JSON and picture.  The
+integer program is in :mod:`.route_milp` and the loop builders that call it (boundary DP, band
+program, lift splicing, whole-instance solve) are in :mod:`.route_heuristics`.
 """
 
 from __future__ import annotations
@@ -61,15 +66,53 @@ from typing import Any, Literal
 
 import networkx as nx
 import numpy as np
-import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import Bounds, LinearConstraint, milp
 from scipy.spatial import cKDTree
 
 from .errors import DesignError, InputError
 from .linkage import Linkage
+from .route_heuristics import (
+    _band_loop_any,
+    _boundary_loop_dp,
+    _exact,
+    _splice_lift,
+    boundary_tile_order,
+)
+from .route_milp import (
+    Step,
+    _Rules,
+    _segments_cross,
+    crossing_edge_pairs,
+    turn_angle,
+)
 
 log = logging.getLogger(__name__)
+
+__all__ = [
+    "EXACT_LIMIT_DEFAULT",
+    "MILP_TIME_LIMIT_S",
+    "NODE_ENTRANCE",
+    "NODE_HORIZONTAL",
+    "NODE_SPLIT",
+    "NODE_VERTICAL",
+    "SPLICE_WINDOWS",
+    "Route",
+    "SplitRule",
+    "Step",
+    "boundary_tile_order",
+    "channel_partner_faults",
+    "channel_partners_ok",
+    "contact_partners",
+    "count_crossings",
+    "crossing_edge_pairs",
+    "draw_route",
+    "gap_graph",
+    "node_labels",
+    "plan_route",
+    "route_metrics",
+    "route_to_json",
+    "turn_angle",
+]
 
 NODE_VERTICAL, NODE_HORIZONTAL, NODE_ENTRANCE, NODE_SPLIT = 0, 1, -1, -2
 _LABEL = {
@@ -94,8 +137,6 @@ SPLICE_WINDOWS: tuple[tuple[int, float, float], ...] = (
     (8, 4.5, 5.0),
     (12, 6.5, 5.0),
 )
-
-Step = tuple[int, int]  # (gap the string crosses into the tile, tile)
 
 
 @dataclass(frozen=True)
@@ -195,16 +236,6 @@ def contact_partners(linkage: Linkage) -> NDArray[np.int64]:
     return out.reshape(-1, 5)
 
 
-@dataclass(frozen=True)
-class _Rules:
-    """Contact partners and the split rule, indexed for the solvers."""
-
-    sides: dict[tuple[int, int, int], tuple[int, int]]  # (gap, a, b) -> (side of a, side of b)
-    allowed: frozenset[tuple[int, int, int]]  # (gap, a, b): the string may pass a -> b at gap
-    tile_gaps: dict[int, tuple[int, ...]]  # tile -> gaps where it has an allowed partner
-    gap_tiles: dict[int, tuple[int, ...]]  # gap -> tiles with an allowed partner there
-
-
 SplitRule = Literal["boundary", "same-component"]
 
 
@@ -285,655 +316,6 @@ def _check_positions(linkage: Linkage, positions: ArrayLike) -> NDArray[np.float
             f"gap centroids have shape {pos.shape}; pass ({linkage.n_gaps}, 2) flat positions in mm"
         )
     return pos[:, :2]
-
-
-# --------------------------------------------------------------------------------------------
-# geometry helpers
-
-
-def turn_angle(a: NDArray[np.float64], b: NDArray[np.float64], c: NDArray[np.float64]) -> Any:
-    """Angle (rad) between directions ``b - a`` and ``c - b``; broadcasts over leading axes."""
-    d1, d2 = b - a, c - b
-    cross = d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]
-    dot = (d1 * d2).sum(-1)
-    return np.abs(np.arctan2(cross, dot))
-
-
-def _segments_cross(
-    p1: NDArray[np.float64],
-    p2: NDArray[np.float64],
-    q1: NDArray[np.float64],
-    q2: NDArray[np.float64],
-    eps: float = 1e-9,
-) -> NDArray[np.bool_]:
-    """Proper intersection of segment pairs (shared endpoints and touching do not count)."""
-
-    def orient(a: Any, b: Any, c: Any) -> Any:
-        return (b[..., 0] - a[..., 0]) * (c[..., 1] - a[..., 1]) - (b[..., 1] - a[..., 1]) * (
-            c[..., 0] - a[..., 0]
-        )
-
-    scale = np.maximum(np.linalg.norm(p2 - p1, axis=-1), np.linalg.norm(q2 - q1, axis=-1)) ** 2
-    d1, d2 = orient(q1, q2, p1), orient(q1, q2, p2)
-    d3, d4 = orient(p1, p2, q1), orient(p1, p2, q2)
-    tol = eps * scale
-    return np.asarray(
-        (((d1 > tol) & (d2 < -tol)) | ((d1 < -tol) & (d2 > tol)))
-        & (((d3 > tol) & (d4 < -tol)) | ((d3 < -tol) & (d4 > tol)))
-    )
-
-
-def crossing_edge_pairs(edges: NDArray[np.int64], pos: NDArray[np.float64]) -> NDArray[np.int64]:
-    """(c, 2) indices of edge pairs whose straight segments cross properly."""
-    if len(edges) < 2:
-        return np.zeros((0, 2), dtype=np.int64)
-    a, b = pos[edges[:, 0]], pos[edges[:, 1]]
-    mid = 0.5 * (a + b)
-    reach = float(np.linalg.norm(b - a, axis=1).max())
-    pairs = cKDTree(mid).query_pairs(reach, output_type="ndarray")
-    if len(pairs) == 0:
-        return np.zeros((0, 2), dtype=np.int64)
-    i, j = pairs[:, 0], pairs[:, 1]
-    share = (
-        (edges[i, 0] == edges[j, 0])
-        | (edges[i, 0] == edges[j, 1])
-        | (edges[i, 1] == edges[j, 0])
-        | (edges[i, 1] == edges[j, 1])
-    )
-    hit = ~share & _segments_cross(a[i], b[i], a[j], b[j])
-    return np.asarray(pairs[hit], dtype=np.int64)
-
-
-# --------------------------------------------------------------------------------------------
-# the integer program
-
-
-@dataclass
-class _Problem:
-    """An instance of the cycle program: gap nodes, tile-carrying edges (global ids)."""
-
-    nodes: list[int]
-    edges: list[tuple[int, int]]  # (u, v) with u < v
-    edge_tile: list[int]  # tile the step passes; -1 for the virtual edge
-    required: set[int]  # gaps that must be visited
-    cover: set[int]  # tiles that must be passed
-    groups: list[set[int]] = field(default_factory=list)  # tile sets passed at least once
-    fixed: set[int] = field(default_factory=set)  # edge indices forced into the cycle
-    banned: set[int] = field(default_factory=set)  # edge indices forced out
-    forbid_pairs: list[tuple[int, int]] = field(default_factory=list)  # crossing edge pairs
-    edge_cost: dict[int, float] = field(default_factory=dict)  # extra linear cost per edge
-    virtual_tile: dict[int, int] = field(default_factory=dict)  # node -> tile beyond the virtual
-    flow: bool = False  # add a single-commodity flow keeping the visited gaps connected
-
-
-def _build_problem(
-    rules: _Rules,
-    pos: NDArray[np.float64],
-    nodes: Iterable[int],
-    required: set[int],
-    cover: set[int],
-    tiles: set[int] | None = None,
-    groups: Sequence[set[int]] = (),
-) -> _Problem:
-    """Every step ``(u, v, tile)`` between two of ``nodes`` through an allowed tile."""
-    node_set = {int(g) for g in nodes}
-    cand: set[int] = set()
-    for g in node_set:
-        cand.update(rules.gap_tiles.get(g, ()))
-    if tiles is not None:
-        cand &= tiles
-    edges: list[tuple[int, int]] = []
-    edge_tile: list[int] = []
-    for t in sorted(cand):
-        gs = [g for g in rules.tile_gaps[t] if g in node_set]
-        for a in range(len(gs)):
-            for b in range(a + 1, len(gs)):
-                edges.append((gs[a], gs[b]))
-                edge_tile.append(t)
-    problem = _Problem(
-        nodes=sorted(node_set),
-        edges=edges,
-        edge_tile=edge_tile,
-        required=set(required),
-        cover=set(cover),
-        groups=[set(s) for s in groups],
-    )
-    problem.forbid_pairs = _crossing_pairs(edges, pos)
-    return problem
-
-
-def _crossing_pairs(
-    edges: list[tuple[int, int]], pos: NDArray[np.float64]
-) -> list[tuple[int, int]]:
-    """Pairs of edge indices whose segments cross (parallel edges share their geometry)."""
-    if len(edges) < 2:
-        return []
-    geo, inverse = np.unique(np.array(edges, dtype=np.int64), axis=0, return_inverse=True)
-    inverse = inverse.ravel()
-    members: dict[int, list[int]] = {}
-    for e, k in enumerate(inverse.tolist()):
-        members.setdefault(k, []).append(e)
-    out: list[tuple[int, int]] = []
-    for a, b in crossing_edge_pairs(geo, pos).tolist():
-        out.extend((x, y) for x in members[a] for y in members[b])
-    return out
-
-
-def _solve_cycle(
-    problem: _Problem, rules: _Rules, pos: NDArray[np.float64], time_limit: float
-) -> tuple[list[int], float, bool]:
-    """Minimum-turn single cycle of the program.
-
-    Returns the cycle's edge indices in order, its cost and whether HiGHS proved optimality.
-    Raises DesignError when no valid cycle exists.
-    """
-    edges, edge_tile = problem.edges, problem.edge_tile
-    n_e = len(edges)
-    node_index = {v: k for k, v in enumerate(problem.nodes)}
-    n_v = len(problem.nodes)
-    incident: list[list[int]] = [[] for _ in range(n_v)]
-    for e, (u, v) in enumerate(edges):
-        incident[node_index[u]].append(e)
-        incident[node_index[v]].append(e)
-    turns: list[tuple[int, int, int]] = []
-    cost: list[float] = []
-    for k, v in enumerate(problem.nodes):
-        inc = incident[k]
-        for a in range(len(inc)):
-            for b in range(a + 1, len(inc)):
-                e1, e2 = inc[a], inc[b]
-                t1 = edge_tile[e1] if edge_tile[e1] >= 0 else problem.virtual_tile.get(v, -1)
-                t2 = edge_tile[e2] if edge_tile[e2] >= 0 else problem.virtual_tile.get(v, -1)
-                if (v, t1, t2) not in rules.allowed:
-                    continue  # not contact partners here (or the same tile)
-                turns.append((k, e1, e2))
-                if edge_tile[e1] < 0 or edge_tile[e2] < 0:
-                    cost.append(0.0)
-                else:
-                    u = edges[e1][0] if edges[e1][1] == v else edges[e1][1]
-                    w = edges[e2][0] if edges[e2][1] == v else edges[e2][1]
-                    cost.append(float(turn_angle(pos[u], pos[v], pos[w])))
-    n_t = len(turns)
-    off_y, off_x = n_e, n_e + n_t
-    n_var = off_x + n_v
-    rows: list[tuple[dict[int, float], float, float]] = []
-
-    def add(coefs: dict[int, float], lo: float, hi: float) -> None:
-        rows.append((coefs, lo, hi))
-
-    turns_at_edge: list[dict[int, list[int]]] = [dict() for _ in range(n_v)]
-    for t, (k, e1, e2) in enumerate(turns):
-        turns_at_edge[k].setdefault(e1, []).append(t)
-        turns_at_edge[k].setdefault(e2, []).append(t)
-    for k in range(n_v):
-        coefs = {e: 1.0 for e in incident[k]}
-        coefs[off_x + k] = -2.0
-        add(coefs, 0.0, 0.0)
-        for e in incident[k]:
-            c = {off_y + t: 1.0 for t in turns_at_edge[k].get(e, [])}
-            c[e] = -1.0
-            add(c, 0.0, 0.0)
-    passing: dict[int, dict[int, float]] = {}
-    for e, t in enumerate(edge_tile):
-        if t >= 0:
-            passing.setdefault(t, {})[e] = 1.0
-    for t, coefs in passing.items():
-        add(coefs, 1.0 if t in problem.cover else 0.0, 1.0)  # every tile at most once
-    for t in problem.cover:
-        if t not in passing:
-            raise DesignError(f"tile {t} cannot be passed by any step allowed by the route rules")
-    for group in problem.groups:
-        coefs = {e: 1.0 for t in group for e in passing.get(t, {})}
-        if not coefs:
-            raise DesignError(f"no allowed step passes any of tiles {sorted(group)[:5]}...")
-        add(coefs, 1.0, np.inf)
-    for e1, e2 in problem.forbid_pairs:
-        add({e1: 1.0, e2: 1.0}, -np.inf, 1.0)
-    integrality = np.ones(n_var)
-    upper = np.ones(n_var)
-    if problem.flow and problem.required:
-        # single-commodity flow from a required gap to every visited gap: one cycle at once
-        off_f, source, cap = n_var, node_index[min(problem.required)], float(n_v - 1)
-        n_var += 2 * n_e
-        integrality = np.concatenate([integrality, np.zeros(2 * n_e)])
-        upper = np.concatenate([upper, np.full(2 * n_e, cap)])
-        net: list[dict[int, float]] = [dict() for _ in range(n_v)]
-        for e, (u, v) in enumerate(edges):
-            add({off_f + 2 * e: 1.0, off_f + 2 * e + 1: 1.0, e: -cap}, -np.inf, 0.0)
-            iu, iv = node_index[u], node_index[v]
-            net[iv][off_f + 2 * e] = 1.0  # u -> v flows into v
-            net[iu][off_f + 2 * e] = -1.0
-            net[iu][off_f + 2 * e + 1] = 1.0  # v -> u flows into u
-            net[iv][off_f + 2 * e + 1] = -1.0
-        for k in range(n_v):
-            if k != source:
-                coefs = dict(net[k])
-                coefs[off_x + k] = -1.0
-                add(coefs, 0.0, 0.0)
-
-    lb = np.zeros(n_var)
-    ub = upper
-    for e in problem.fixed:
-        lb[e] = 1.0
-    for e in problem.banned:
-        ub[e] = 0.0
-    for v in problem.required:
-        lb[off_x + node_index[v]] = 1.0
-    objective = np.zeros(n_var)
-    objective[off_y : off_y + n_t] = cost
-    for e, c_e in problem.edge_cost.items():
-        objective[e] += c_e
-
-    def matrix(rs: list[tuple[dict[int, float], float, float]]) -> LinearConstraint:
-        r_idx, c_idx, vals = [], [], []
-        for r, (coefs, _lo, _hi) in enumerate(rs):
-            for c, v in coefs.items():
-                r_idx.append(r)
-                c_idx.append(c)
-                vals.append(v)
-        mat = sp.csr_matrix((vals, (r_idx, c_idx)), shape=(len(rs), n_var))
-        return LinearConstraint(mat, np.array([r[1] for r in rs]), np.array([r[2] for r in rs]))
-
-    optimal = True
-    for _round in range(500):
-        res = milp(
-            objective,
-            constraints=[matrix(rows)],
-            integrality=integrality,
-            bounds=Bounds(lb, ub),
-            options={"time_limit": time_limit, "disp": False},
-        )
-        if res.x is None:
-            # milp status 2: proved infeasible; otherwise a time or iteration limit was hit
-            rule = (
-                "that passes every boundary tile and each tile and gap at most once between "
-                "contact partners without crossing itself"
-            )
-            if res.status == 2:
-                raise DesignError(
-                    f"no closed string route exists {rule}; a shape part only one or two tiles "
-                    "wide has none: use more tiles (--tiles or --grid)"
-                )
-            raise DesignError(
-                f"no closed string route was found within {time_limit:g} s {rule}; the route "
-                "program is too large for its time limit: use fewer tiles (--tiles or --grid)"
-            )
-        if res.status != 0:
-            optimal = False
-        z = res.x[:n_e] > 0.5
-        cycles = _cycles_of(edges, np.nonzero(z)[0])
-        if len(cycles) == 1:
-            log.debug("route program: %d rounds, %d variables", _round + 1, n_var)
-            return cycles[0], float(res.fun), optimal
-        sets = [{u for e in cyc for u in edges[e]} for cyc in cycles]
-        for a, s_a in enumerate(sets):
-            cut = {e: 1.0 for e, (u, v) in enumerate(edges) if (u in s_a) != (v in s_a)}
-            inside_tiles = {edge_tile[e] for e, (u, v) in enumerate(edges) if u in s_a and v in s_a}
-            must_leave = (
-                bool(problem.required - s_a)
-                or any(not set(edges[e]) <= s_a for e in problem.fixed)
-                or bool(problem.cover - inside_tiles)
-                or any(not (g & inside_tiles) for g in problem.groups)
-            )
-            if must_leave:
-                for v in s_a:
-                    c = dict(cut)
-                    c[off_x + node_index[v]] = -2.0
-                    add(c, 0.0, np.inf)
-            else:
-                v0 = min(s_a)
-                for b, s_b in enumerate(sets):
-                    if b != a:
-                        c = dict(cut)
-                        c[off_x + node_index[v0]] = -2.0
-                        c[off_x + node_index[min(s_b)]] = -2.0
-                        add(c, -2.0, np.inf)
-    raise DesignError("string route program did not converge to one cycle")
-
-
-def _cycles_of(edges: list[tuple[int, int]], chosen: NDArray[np.int64]) -> list[list[int]]:
-    """Split a 2-regular edge set into cycles, each as an ordered list of edge indices."""
-    at: dict[int, list[int]] = {}
-    for e in chosen:
-        for v in edges[e]:
-            at.setdefault(v, []).append(int(e))
-    seen: set[int] = set()
-    cycles: list[list[int]] = []
-    for e0 in chosen:
-        if int(e0) in seen:
-            continue
-        cyc = [int(e0)]
-        seen.add(int(e0))
-        start, cur = edges[e0]
-        while cur != start:
-            nxt = [e for e in at[cur] if e not in seen]
-            if not nxt:
-                break
-            e = nxt[0]
-            seen.add(e)
-            cyc.append(e)
-            u, v = edges[e]
-            cur = v if u == cur else u
-        cycles.append(cyc)
-    return cycles
-
-
-def _cycle_steps(problem: _Problem, cyc: list[int]) -> list[Step]:
-    """Steps ``(gap, tile)`` of a cycle given as ordered edges (virtual edge tile -1)."""
-    edges = problem.edges
-    u0, v0 = edges[cyc[0]]
-    start = u0
-    if len(cyc) > 1 and u0 in edges[cyc[1]] and v0 not in edges[cyc[1]]:
-        start = v0
-    steps: list[Step] = []
-    cur = start
-    for e in cyc:
-        u, v = edges[e]
-        steps.append((cur, problem.edge_tile[e]))
-        cur = v if u == cur else u
-    return steps
-
-
-def _reverse_steps(steps: list[Step]) -> list[Step]:
-    """The same cycle run backwards, starting at the same gap."""
-    gaps = [g for g, _ in steps]
-    tiles = [t for _, t in steps]
-    r = len(steps)
-    return [(gaps[-k % r], tiles[(-k - 1) % r]) for k in range(r)]
-
-
-# --------------------------------------------------------------------------------------------
-# heuristic: boundary loop by dynamic programming
-
-
-def boundary_tile_order(linkage: Linkage) -> list[int]:
-    """Boundary tiles in counter-clockwise order along the longest outer boundary loop."""
-    corners = linkage.tile_corners
-    edge_owner: dict[tuple[int, int], int] = {}
-    for t in range(linkage.n_tiles):
-        for k in range(4):
-            a, b = int(corners[t, k]), int(corners[t, (k + 1) % 4])
-            edge_owner[(a, b)] = t
-    boundary = {e: t for e, t in edge_owner.items() if (e[1], e[0]) not in edge_owner}
-    succ: dict[int, list[tuple[int, int]]] = {}
-    for (a, b), t in boundary.items():
-        succ.setdefault(a, []).append((b, t))
-    tiles_at: dict[int, list[int]] = {}
-    for t in range(linkage.n_tiles):
-        for k in range(4):
-            tiles_at.setdefault(int(corners[t, k]), []).append(t)
-    used: set[tuple[int, int]] = set()
-    best: list[int] = []
-    for a0 in sorted(succ):
-        for b0, _t in succ[a0]:
-            if (a0, b0) in used:
-                continue
-            loop: list[tuple[int, int]] = []
-            a, b = a0, b0
-            while (a, b) not in used:
-                used.add((a, b))
-                loop.append((a, b))
-                nxt = [x for x in succ.get(b, []) if (b, x[0]) not in used]
-                if not nxt:
-                    break
-                a, b = b, nxt[0][0]
-            order: list[int] = []
-            ij = linkage.vertex_ij
-            for a, b in loop:
-                t_in = boundary[(a, b)]
-                # tiles around vertex a that are not on the incoming or outgoing edge (reflex
-                # corners) come before the edge's own tile, ordered by angle about the vertex
-                extra = [t for t in tiles_at[a] if t != t_in]
-                centre = ij[a].astype(float)
-                d = ij[b] - ij[a]
-                base = math.atan2(float(d[1]), float(d[0]))
-
-                def key(t: int, base: float = base, centre: NDArray[np.float64] = centre) -> float:
-                    c = linkage.tile_cells[t] + 0.5 - centre
-                    return (math.atan2(float(c[1]), float(c[0])) - base) % (2 * math.pi)
-
-                for t in sorted(extra, key=key, reverse=True):
-                    if linkage.boundary_tile[t] and t not in order[-3:]:
-                        order.append(t)
-                if not order or order[-1] != t_in:
-                    order.append(t_in)
-            seen: set[int] = set()
-            dedup = [t for t in order if not (t in seen or seen.add(t))]  # type: ignore[func-returns-value]
-            if len(dedup) > len(best):
-                best = dedup
-    return best
-
-
-def _turn(pos: NDArray[np.float64], a: int, b: int, c: int) -> float:
-    """Turn angle (rad) at gap ``b`` between gaps ``a`` and ``c``."""
-    d1x, d1y = pos[b, 0] - pos[a, 0], pos[b, 1] - pos[a, 1]
-    d2x, d2y = pos[c, 0] - pos[b, 0], pos[c, 1] - pos[b, 1]
-    return abs(math.atan2(d1x * d2y - d1y * d2x, d1x * d2x + d1y * d2y))
-
-
-def _bridges(
-    rules: _Rules,
-    pos: NDArray[np.float64],
-    boundary: NDArray[np.bool_],
-    tile: int,
-    target: int,
-    a: int,
-    b: int,
-) -> list[tuple[list[Step], int, int, float]]:
-    """Paths from the step ``a -> b`` through ``tile`` on through one or two interior tiles.
-
-    Returns ``(steps, previous gap, last gap, turn cost so far)`` for every such path whose last
-    tile is a contact partner of ``target`` at the last gap (the turn there is not included).
-    """
-    out: list[tuple[list[Step], int, int, float]] = []
-    for x in rules.gap_tiles.get(b, ()):
-        if boundary[x] or (b, tile, x) not in rules.allowed:
-            continue
-        for c in rules.tile_gaps[x]:
-            if c in (a, b):
-                continue
-            cost = _turn(pos, a, b, c)
-            if (c, x, target) in rules.allowed:
-                out.append(([(b, x)], b, c, cost))
-            for y in rules.gap_tiles.get(c, ()):
-                if boundary[y] or y == x or (c, x, y) not in rules.allowed:
-                    continue
-                for d in rules.tile_gaps[y]:
-                    if d not in (a, b, c) and (d, y, target) in rules.allowed:
-                        out.append(([(b, x), (c, y)], c, d, cost + _turn(pos, b, c, d)))
-    return out
-
-
-def _boundary_loop_dp(
-    rules: _Rules, pos: NDArray[np.float64], order: list[int], boundary: NDArray[np.bool_]
-) -> list[Step]:
-    """Minimum-turn closed loop passing the boundary tiles once each, in ``order``.
-
-    Layer ``k`` holds the directed steps ``a -> b`` through tile ``order[k]``; a step of layer
-    ``k`` moves on to a step of layer ``k + 1`` that starts where it ends when the two tiles are
-    contact partners there (paying the turn at that gap), or else through a bridge of one or two
-    interior tiles.  The cyclic chain is a min-plus matrix product over the layers, for all
-    starting steps at once.  Returns the loop's steps ``(gap, tile)``.
-    """
-    n_b = len(order)
-    if n_b < 3:
-        raise DesignError(f"only {n_b} boundary tiles: too few for a boundary loop")
-    states: list[list[tuple[int, int]]] = []
-    for t in order:
-        gs = rules.tile_gaps.get(t, ())
-        if len(gs) < 2:
-            raise DesignError(f"boundary tile {t} has fewer than two gaps the string may use")
-        states.append([(a, b) for a in gs for b in gs if a != b])
-    mats: list[NDArray[np.float64]] = []
-    bridges: list[dict[tuple[int, int], list[Step]]] = []
-    for k in range(n_b):
-        tile, nxt = order[k], order[(k + 1) % n_b]
-        here, there = states[k], states[(k + 1) % n_b]
-        by_entry: dict[int, list[tuple[int, int]]] = {}
-        for j, (c, d) in enumerate(there):
-            by_entry.setdefault(c, []).append((j, d))
-        mat = np.full((len(here), len(there)), np.inf)
-        for i, (a, b) in enumerate(here):
-            if (b, tile, nxt) in rules.allowed:
-                for j, d in by_entry.get(b, []):
-                    if d != a:
-                        mat[i, j] = _turn(pos, a, b, d)
-        bridge: dict[tuple[int, int], list[Step]] = {}
-        if not np.isfinite(mat).any():
-            for i, (a, b) in enumerate(here):
-                for steps, prev, c, cost in _bridges(rules, pos, boundary, tile, nxt, a, b):
-                    used = {a, b} | {g for g, _ in steps}
-                    for j, d in by_entry.get(c, []):
-                        if d in used:
-                            continue
-                        total = cost + _turn(pos, prev, c, d)
-                        if total < mat[i, j]:
-                            mat[i, j] = total
-                            bridge[(i, j)] = steps
-            if not bridge:
-                raise DesignError(
-                    f"boundary tiles {tile} and {nxt} are not joined by contact partners"
-                    " within two interior tiles"
-                )
-        mats.append(mat)
-        bridges.append(bridge)
-    n0 = len(states[0])
-    dist = np.full((n0, n0), np.inf)
-    np.fill_diagonal(dist, 0.0)
-    back: list[NDArray[np.int64]] = []
-    for mat in mats:
-        chain = dist[:, :, None] + mat[None, :, :]
-        back.append(np.asarray(chain.argmin(axis=1), dtype=np.int64))
-        dist = chain.min(axis=1)
-    closing = np.diag(dist)
-    s = int(np.argmin(closing))
-    if not np.isfinite(closing[s]):
-        raise DesignError("no closed string loop passes the boundary tiles in order")
-    chosen = [0] * (n_b + 1)
-    chosen[n_b] = s
-    for k in range(n_b - 1, -1, -1):
-        chosen[k] = int(back[k][s, chosen[k + 1]])
-    out: list[Step] = []
-    for k in range(n_b):
-        a, _b = states[k][chosen[k]]
-        out.append((a, order[k]))
-        out.extend(bridges[k].get((chosen[k], chosen[k + 1]), []))
-    return out
-
-
-def _band_loop(
-    rules: _Rules,
-    pos: NDArray[np.float64],
-    cover: set[int],
-    groups: Sequence[set[int]],
-    layers: int,
-    time_limit: float,
-) -> tuple[list[Step], float, bool]:
-    """The exact program on the boundary tiles and the tiles within ``layers`` steps of them."""
-    band = set(cover)
-    for _ in range(layers):
-        band |= {u for t in band for g in rules.tile_gaps.get(t, ()) for u in rules.gap_tiles[g]}
-    nodes = {g for t in band for g in rules.tile_gaps.get(t, ())}
-    touched = [grp for grp in groups if grp & band]
-    problem = _build_problem(rules, pos, nodes, set(), cover, tiles=band, groups=touched)
-    cyc, cost, optimal = _solve_cycle(problem, rules, pos, time_limit)
-    return _cycle_steps(problem, cyc), cost, optimal
-
-
-def _splice_lift(
-    rules: _Rules,
-    pos: NDArray[np.float64],
-    steps: list[Step],
-    lift: int,
-    cover: set[int],
-    lifts: set[int],
-    spacing: float,
-    time_limit: float,
-    half_window: int,
-    corridor: float,
-    component: NDArray[np.int64] | None = None,
-) -> list[Step]:
-    """Re-route a window of the loop so that it passes ``lift``, solving the window exactly.
-
-    The window is the loop stretch of ``2 half_window + 1`` gaps around the loop gap nearest to
-    the lift gap plus every gap within ``corridor`` gap spacings of the segment from that gap to
-    the lift gap.  With ``component`` (each tile's split part), that loop gap is the nearest
-    one where the loop runs through a tile of the lift gap's part: a detour from another part
-    would have to cross the cut, which the rules forbid in the interior.
-
-    The rest of the loop is fixed: the window's path joins it at the same two
-    gaps ``p0``, ``q1`` (contact partners of the fixed tiles there, paying the turns there), uses
-    none of its gaps or tiles, crosses none of its segments, and passes every boundary tile that
-    the removed stretch passed.  Raises DesignError when the window holds no such path.
-    """
-    r = len(steps)
-    cycle = [g for g, _ in steps]
-    distance = np.linalg.norm(pos[cycle] - pos[lift], axis=1)
-    if component is not None:
-        parts = {int(component[t]) for t in rules.gap_tiles.get(lift, ())}
-        same = np.array([int(component[t]) in parts for _, t in steps])
-        if same.any():
-            distance = np.where(same, distance, np.inf)
-    m = int(np.argmin(distance))
-    span = min(half_window, (r - 3) // 2)
-    idx = [(m + k) % r for k in range(-span - 1, span + 2)]
-    p0, q1 = cycle[idx[0]], cycle[idx[-1]]
-    inner = [cycle[i] for i in idx[1:-1]]
-    fixed_steps = [steps[(idx[-1] + k) % r] for k in range(r - len(idx) + 1)]
-    fixed_gaps = {g for g, _ in fixed_steps} | {p0}
-    fixed_tiles = {t for _, t in fixed_steps}
-    pre, t_pre = fixed_steps[-1]
-    t_post = fixed_steps[0][1]
-    post = fixed_steps[1][0] if len(fixed_steps) > 1 else p0
-    a, seg = pos[cycle[m]], pos[lift] - pos[cycle[m]]
-    rel = pos - a
-    along = np.clip((rel @ seg) / max(float(seg @ seg), 1e-12), 0.0, 1.0)
-    near = np.linalg.norm(rel - along[:, None] * seg, axis=1) <= corridor * spacing
-    window = ({int(g) for g in np.nonzero(near)[0]} | set(inner) | {lift}) - fixed_gaps
-    nodes = window | {p0, q1}
-    allowed_tiles = set(rules.tile_gaps) - fixed_tiles
-    need = cover - fixed_tiles
-    required = {lift, p0, q1} | (lifts & set(inner))
-    problem = _build_problem(rules, pos, nodes, required, need, tiles=allowed_tiles)
-    keep = [e for e, (u, v) in enumerate(problem.edges) if {u, v} != {p0, q1}]
-    edges = [problem.edges[e] for e in keep]
-    problem.edge_tile = [problem.edge_tile[e] for e in keep]
-    remap = {e: k for k, e in enumerate(keep)}
-    problem.forbid_pairs = [
-        (remap[x], remap[y]) for x, y in problem.forbid_pairs if x in remap and y in remap
-    ]
-    fixed_path = [g for g, _ in fixed_steps] + [p0]
-    if edges:
-        ea = np.array(edges, dtype=np.int64)
-        fa = np.array(fixed_path[:-1], dtype=np.int64)
-        fb = np.array(fixed_path[1:], dtype=np.int64)
-        hit = _segments_cross(
-            pos[ea[:, 0]][:, None], pos[ea[:, 1]][:, None], pos[fa][None], pos[fb][None]
-        ).any(axis=1)
-        problem.banned = {int(e) for e in np.nonzero(hit)[0]}
-    extra: dict[int, float] = {}
-    for e, (u, v) in enumerate(edges):
-        if p0 in (u, v):
-            extra[e] = extra.get(e, 0.0) + _turn(pos, pre, p0, v if u == p0 else u)
-        if q1 in (u, v):
-            extra[e] = extra.get(e, 0.0) + _turn(pos, v if u == q1 else u, q1, post)
-    edges.append((min(p0, q1), max(p0, q1)))
-    problem.edge_tile.append(-1)
-    problem.edges = edges
-    problem.fixed = {len(edges) - 1}
-    problem.virtual_tile = {p0: t_pre, q1: t_post}
-    problem.edge_cost = extra
-    problem.flow = True
-    cyc, _cost, _optimal = _solve_cycle(problem, rules, pos, time_limit)
-    loop = _cycle_steps(problem, cyc)
-    k = next(i for i, (_g, t) in enumerate(loop) if t < 0)
-    if loop[k][0] == p0:  # runs q1 ... p0 -> q1: turn it round
-        loop = _reverse_steps(loop)
-        k = next(i for i, (_g, t) in enumerate(loop) if t < 0)
-    path = loop[k + 1 :] + loop[:k]
-    if not path or path[0][0] != p0 or loop[k][0] != q1:
-        raise DesignError(f"could not splice lift gap {lift} into the string route")
-    return path + fixed_steps
 
 
 # --------------------------------------------------------------------------------------------
@@ -1157,64 +539,6 @@ def plan_route(
     if len(comps) < linkage.n_components:
         notes.append(f"route visits {len(comps)} of {linkage.n_components} split components")
     return _finish(linkage, rules, pos, steps, method, 2 * math.pi, notes, missed)
-
-
-def _band_loop_any(
-    rules: _Rules,
-    pos: NDArray[np.float64],
-    cover: set[int],
-    groups: Sequence[set[int]],
-    time_limit: float,
-) -> list[Step]:
-    """The band program with one, then two, then three layers of interior tiles."""
-    err: DesignError | None = None
-    for layers in (1, 2, 3):
-        try:
-            return _band_loop(rules, pos, cover, groups, layers, time_limit)[0]
-        except DesignError as e:
-            err = e
-    raise DesignError(
-        "no closed string route passes every boundary tile once under the contact-partner"
-        f" rules ({err}); is part of the shape only two tiles wide?"
-    )
-
-
-def _exact(
-    rules: _Rules,
-    pos: NDArray[np.float64],
-    n_gaps: int,
-    lifts: set[int],
-    cover: set[int],
-    groups: Sequence[set[int]],
-    time_limit: float,
-    missed: list[int],
-    notes: list[str],
-) -> tuple[list[Step], float, bool]:
-    """Whole-instance program; lift gaps that make it infeasible are dropped one by one."""
-
-    def solve(required: set[int]) -> tuple[list[Step], float, bool]:
-        problem = _build_problem(rules, pos, range(n_gaps), required, cover, groups=groups)
-        cyc, cost, optimal = _solve_cycle(problem, rules, pos, time_limit)
-        return _cycle_steps(problem, cyc), cost, optimal
-
-    try:
-        return solve(lifts)
-    except DesignError:
-        if not lifts:
-            raise
-    base = solve(set())  # raises when even the boundary loop is impossible
-    kept: set[int] = set()
-    for g in sorted(lifts):
-        try:
-            base = solve(kept | {g})
-            kept.add(g)
-        except DesignError:
-            missed.append(g)
-            notes.append(
-                f"lift gap {g} cannot be reached: no valid closed route passes it together with"
-                " every boundary tile (contact partners, each gap and tile once, no crossing)"
-            )
-    return base
 
 
 # --------------------------------------------------------------------------------------------
