@@ -55,16 +55,14 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
-from pathlib import Path
+from dataclasses import dataclass, replace
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from drawstring.geometry.errors import InputError
-from drawstring.geometry.linkage import Linkage, build_linkage, rotating_squares_layout
-from drawstring.geometry.npz import save_npz
+from drawstring.geometry.linkage import Linkage
 from drawstring.geometry.rigid import rigid_copies
 from drawstring.geometry.simgroups import (  # noqa: F401 (re-exported)
     SIDE_FACES,
@@ -94,18 +92,19 @@ from drawstring.geometry.simgroups import (  # noqa: F401 (re-exported)
     split_contact_pairs,
     tile_edge_lengths,
 )
+from drawstring.geometry.simresult import (
+    THOROUGH_SETTINGS,
+    SimulationResult,
+    SimulationSettings,
+    SimulationTolerances,
+    save_deploy_npz,
+)
+from drawstring.geometry.simscene import DeploymentScene, boundary_loop_route, cylinder_scene
 from drawstring.geometry.solver import (
     ConstraintGroup,
     LocalGlobalSolver,
 )
-from drawstring.geometry.tolerances import (
-    SIM_DEVIATION_REL,
-    SIM_EDGE_LENGTH_REL,
-    SIM_GAP_CLOSED_REL,
-    SIM_PENETRATION_REL,
-    SIM_STALL_PROGRESS,
-    SIM_STILL_REL,
-)
+from drawstring.geometry.tolerances import SIM_STALL_PROGRESS
 
 logger = logging.getLogger(__name__)
 
@@ -150,173 +149,6 @@ _FREE = 1e30
 # --------------------------------------------------------------------------------------------
 # Simulation
 # --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class SimulationTolerances:
-    """Success thresholds, relative to the mean top-face side ``s`` of the assembled tiles.
-
-    Attributes
-    ----------
-    gap_closed_rel : route pair midpoints at most this times ``s`` apart.
-    deviation_rel : every tile within this times ``s`` of T3D after rigid alignment.
-    penetration_rel : conservative overlap depth at most this times ``s``.
-    edge_length_rel : rigid edges within this times ``s`` of their rest length, every frame.
-    settle_rel : the run stops (stuck) when no vertex moved more than this times ``s`` in five
-        consecutive steps.
-    """
-
-    gap_closed_rel: float = SIM_GAP_CLOSED_REL
-    deviation_rel: float = SIM_DEVIATION_REL
-    penetration_rel: float = SIM_PENETRATION_REL
-    edge_length_rel: float = SIM_EDGE_LENGTH_REL
-    settle_rel: float = SIM_STILL_REL
-
-
-@dataclass(frozen=True)
-class SimulationSettings:
-    """Time stepping and weights (weights are multiples of the inertia weight ``m / h^2``).
-
-    Attributes
-    ----------
-    time_step_s : h, s.
-    max_steps : step budget.
-    ramp_steps : steps over which the string is reeled in (snap radius -> 0, lift -> target).
-    lock_levels : after the ramp, every ``lock_every`` steps all constraint weights are
-        multiplied by the next level (one refactorization each): the string tension rises until
-        the structure is locked against gravity, and the step becomes quasi-static.
-    lock_every : steps between lock levels.
-    check_every : after the last lock level, the success criteria are measured every this many
-        steps and the run stops as soon as they all hold.
-    stall_checks : the run stops as stuck when the largest tile deviation did not shrink by
-        ``SIM_STALL_PROGRESS`` over this many checks (or when nothing moves for five steps).
-    iterations : local-global iterations per step (Anderson accelerated) while the string is
-        reeled in.
-    settle_iterations : local-global iterations per step from the first lock level on (the
-        quasi-static settling, where slow global modes need more iterations per step).
-    anderson : Anderson history length.
-    damping : fraction of the velocity removed every step.
-    rigid, hinge, contact, snap, lift : weights / (m / h^2).
-    snap_mode : ``"face"`` (the four corner pairs of the contact faces) or ``"midpoint"``.
-    lift_height_only : lift targets prescribe only the height (the string pulls up, the
-        tiles find their own place sideways); else the whole assembled position on the table.
-    hinge_close_steps : hinges that are open in the flat layout close linearly over this many
-        steps.
-    table : keep every tile above the table (the lowest level of the flat pose) while the string
-        is reeled in (position-based: vertices clamped, tiles re-rigidified, a few rounds);
-        the settle after the ramp is quasi-static, with neither table nor gravity (the string
-        holds the structure; a table there pins a corner that the lift heights may disagree
-        with, which jammed corner tiles).
-    split_contact : side faces that touch across a split (:func:`split_contact_pairs`) do not
-        pass through each other once they came within half a tile side (weight ``contact``).
-    magnets : weight of the magnets across splits: once a split contact engaged, its two faces
-        are pulled together corner by corner (0: no magnets).
-    magnet_rate : how fast an engaged magnet reels its faces in, tile sides per step.
-    rigid_projection : after every step each tile is replaced by the closest rigid copy of its
-        rest shape, so the rigid edges hold exactly in every frame (not just up to the soft
-        rigid weight's residual).
-    stick : weight of static friction in the settle: a hinged neighbour pair whose contact
-        faces came within ``stick_rel`` tile sides of lying face on face (every corner next to
-        its assembled partner corner) sticks -- its corners are held together from then on
-        (0: no sticking).
-    stick_rel : how close (tile sides, largest corner distance) two contact faces must come
-        before they stick.
-    """
-
-    time_step_s: float = 0.002
-    max_steps: int = 600
-    ramp_steps: int = 150
-    lock_levels: tuple[float, ...] = (10.0, 100.0, 1000.0)
-    lock_every: int = 20
-    check_every: int = 10
-    stall_checks: int = 10
-    iterations: int = 10
-    settle_iterations: int = 20
-    anderson: int = 5
-    damping: float = 0.1
-    rigid: float = 3e4
-    hinge: float = 3e4
-    contact: float = 3e3
-    snap: float = 3e3
-    lift: float = 3e3
-    snap_mode: SnapMode = "face"
-    lift_height_only: bool = True
-    hinge_close_steps: int = 80
-    table: bool = True
-    split_contact: bool = True
-    magnets: float = 3e3
-    magnet_rate: float = 0.1
-    rigid_projection: bool = True
-    stick: float = 3e4
-    stick_rel: float = 0.03
-
-
-#: Slower, better converged settings: twice the local-global iterations per step, one more
-#: lock level and a larger step budget (used by :func:`simulate_stage` when the default run
-#: gets stuck).
-THOROUGH_SETTINGS = SimulationSettings(
-    iterations=20, settle_iterations=20, lock_levels=(10.0, 100.0, 1000.0), max_steps=1000
-)
-
-
-@dataclass(frozen=True)
-class SimulationResult:
-    """Outcome of :func:`simulate_deployment`.
-
-    Attributes
-    ----------
-    deployed : bool, every success criterion met.
-    steps : time steps taken.
-    final_max_deviation_mm : max over tiles of the vertex distance to T3D after alignment.
-    max_penetration_mm : conservative overlap depth between neighbouring tiles, final state.
-    time_s : wall time.
-    open_gaps : route gaps whose pair is still open (``-1`` for virtual entrances), sorted.
-    frames : (F, T, 8, 3) float32, mm, from the flat pose to the final state.
-    max_edge_error_mm : largest rigid-edge length error over all frames.
-    gap_distance_mm : (P,) final midpoint distance of every snap pair.
-    per_step_ms : mean wall time of one step.
-    iterations : local-global iterations over the whole run.
-    factorizations : sparse factorizations over the whole run.
-    tile_deviation_mm : (T,) final per-tile deviation.
-    reasons : why ``deployed`` is False (empty when it is True).
-    """
-
-    deployed: bool
-    steps: int
-    final_max_deviation_mm: float
-    max_penetration_mm: float
-    time_s: float
-    open_gaps: tuple[int, ...]
-    frames: NDArray[np.float32]
-    max_edge_error_mm: float = 0.0
-    gap_distance_mm: FloatArray = field(default_factory=lambda: np.zeros(0))
-    per_step_ms: float = 0.0
-    iterations: int = 0
-    factorizations: int = 0
-    tile_deviation_mm: FloatArray = field(default_factory=lambda: np.zeros(0))
-    reasons: tuple[str, ...] = ()
-
-    def to_json(self) -> dict[str, object]:
-        """The ``design.json`` ``simulation`` block."""
-        return {
-            "deployed": self.deployed,
-            "steps": self.steps,
-            "final_max_deviation_mm": self.final_max_deviation_mm,
-            "max_penetration_mm": self.max_penetration_mm,
-            "time_s": self.time_s,
-            "open_gaps": list(self.open_gaps),
-            "max_edge_error_mm": self.max_edge_error_mm,
-            "per_step_ms": self.per_step_ms,
-            "reasons": list(self.reasons),
-            "worst_tiles": self.worst_tiles(),
-        }
-
-    def worst_tiles(self, count: int = 5) -> list[dict[str, float | int]]:
-        """Where the run ended farthest from the assembled shape: the ``count`` tiles with the
-        largest deviation (tile id, mm), largest first."""
-        dev = np.asarray(self.tile_deviation_mm, dtype=np.float64)
-        order = np.argsort(-dev, kind="stable")[:count]
-        return [{"tile": int(t), "deviation_mm": float(dev[t])} for t in order]
 
 
 def _check_inputs(
@@ -767,22 +599,6 @@ def simulate_stage(
     return replace(result, time_s=total)
 
 
-def save_deploy_npz(result: SimulationResult, path: str | Path) -> Path:
-    """Write ``deploy.npz`` (key ``frames``: (F, T, 8, 3) float32, mm) byte-identically
-    (:func:`~drawstring.geometry.npz.save_npz`).
-
-    Parameters
-    ----------
-    result : the simulation (only ``frames`` is written).
-    path : output file.
-
-    Returns
-    -------
-    The path written.
-    """
-    return save_npz(path, {"frames": np.asarray(result.frames, dtype=np.float32)})
-
-
 def _lift_above(x: FloatArray, level: float, n_tiles: int) -> FloatArray:
     """Translate every tile that dips below ``level`` straight up until it touches it (rigid).
 
@@ -983,136 +799,4 @@ def deploy_check_from_simulation(
         hinge_vertices=np.asarray(hinge_vertices, dtype=np.int64).reshape(-1, 2),
         route_for=fn,
         options=dict(options),
-    )
-
-
-# --------------------------------------------------------------------------------------------
-# Known-answer scene: a cylinder patch with exact planar frustums
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class DeploymentScene:
-    """A linkage with exactly congruent flat and assembled tiles, for tests and benchmarks.
-
-    Attributes
-    ----------
-    linkage : topology of the full grid.
-    tiles_flat : (T, 8, 3) float, mm, rotating-squares layout, tops at ``z = thickness``.
-    tiles_assembled : (T, 8, 3) float, mm, frustums on a cylinder patch.
-    hinge_vertices : (H, 2) int, top hinges.
-    route : closed boundary loop, steps ``(gap, tile, enter_side, leave_side)``.
-    thickness : float, mm.
-    """
-
-    linkage: Linkage
-    tiles_flat: FloatArray
-    tiles_assembled: FloatArray
-    hinge_vertices: IntArray
-    route: tuple[tuple[int, int, int, int], ...]
-    thickness: float
-
-
-def boundary_loop_route(linkage: Linkage) -> tuple[tuple[int, int, int, int], ...]:
-    """Counter-clockwise loop through the boundary tiles of a full rectangular grid.
-
-    Each step is ``(gap, tile, enter_side, leave_side)``; ``gap`` is the gap between the
-    previous tile's leaving side and this tile's entering side (``-1`` if none).
-    """
-    n_i, n_j = linkage.grid_shape
-    if n_i < 2 or n_j < 2:
-        raise InputError("the boundary loop needs a grid of at least 2 x 2 tiles")
-    cells = (
-        [(i, 0) for i in range(n_i)]
-        + [(n_i - 1, j) for j in range(1, n_j)]
-        + [(i, n_j - 1) for i in range(n_i - 2, -1, -1)]
-        + [(0, j) for j in range(n_j - 2, 0, -1)]
-    )
-    index = {(int(i), int(j)): t for t, (i, j) in enumerate(linkage.tile_cells)}
-    tiles = [index[c] for c in cells]
-    side_of = {(1, 0): (1, 3), (0, 1): (2, 0), (-1, 0): (3, 1), (0, -1): (0, 2)}
-    m = len(cells)
-    leave = []
-    enter = [0] * m
-    for k in range(m):
-        a, b = cells[k], cells[(k + 1) % m]
-        s_leave, s_enter = side_of[(b[0] - a[0], b[1] - a[1])]
-        leave.append(s_leave)
-        enter[(k + 1) % m] = s_enter
-    gap_of_side: dict[tuple[int, int], set[int]] = {}
-    for g in range(linkage.n_gaps):
-        for t, s in linkage.gap_sides[g]:
-            if t >= 0:
-                gap_of_side.setdefault((int(t), int(s)), set()).add(g)
-    steps = []
-    for k in range(m):
-        prev = (k - 1) % m
-        common = gap_of_side.get((tiles[prev], leave[prev]), set()) & gap_of_side.get(
-            (tiles[k], enter[k]), set()
-        )
-        gap = min(common) if common else -1
-        steps.append((gap, tiles[k], enter[k], leave[k]))
-    return tuple(steps)
-
-
-def cylinder_scene(
-    n_i: int,
-    n_j: int,
-    *,
-    side: float = 10.0,
-    depth: float = 3.0,
-    radius: float | None = None,
-    opening: float = 0.5,
-) -> DeploymentScene:
-    """Frustum tiles on a cylinder patch and their flat rotating-squares layout.
-
-    The cylinder axis is y; tile ``(i, j)`` spans angles ``theta_i .. theta_{i+1}`` (top chord
-    ``side``) and ``y_j .. y_{j+1}`` (length ``side``), so every top face is an exact square of
-    side ``side`` and every face of every tile is exactly planar; bottom faces lie on the
-    cylinder of radius ``radius - depth``.  Neighbouring tiles share whole side faces.  The flat
-    tiles are the same solids moved rigidly so that their top squares form the rotating-squares
-    layout (``opening`` rad) at ``z = thickness``.
-
-    Parameters
-    ----------
-    n_i, n_j : tiles along the curved and the straight direction.
-    side : float, mm
-    depth : float, mm, radial extrusion depth.
-    radius : float, mm, default ``1.2 * n_i * side / (pi / 2)`` (about a 75 degree arc).
-    opening : float, rad, gap angle of the flat layout.
-    """
-    if n_i < 2 or n_j < 2:
-        raise InputError("a cylinder scene needs at least 2 x 2 tiles")
-    link = build_linkage(np.ones((n_i, n_j), dtype=bool))
-    r_out = radius if radius is not None else 1.2 * n_i * side / (0.5 * np.pi)
-    dtheta = 2.0 * np.arcsin(side / (2.0 * r_out))
-    theta = (np.arange(n_i + 1) - 0.5 * n_i) * dtheta
-    ys = (np.arange(n_j + 1) - 0.5 * n_j) * side
-
-    def point(i: IntArray, j: IntArray, r: float) -> FloatArray:
-        return np.stack([r * np.sin(theta[i]), ys[j], r * np.cos(theta[i])], axis=-1)
-
-    ci, cj = link.tile_cells[:, 0], link.tile_cells[:, 1]
-    corner_i = np.stack([ci, ci + 1, ci + 1, ci], axis=1)
-    corner_j = np.stack([cj, cj, cj + 1, cj + 1], axis=1)
-    top = point(corner_i, corner_j, r_out)
-    bottom = point(corner_i, corner_j, r_out - depth)
-    assembled = np.concatenate([top, bottom], axis=1)
-    assembled[..., 2] -= assembled[..., 2].min()
-    thickness = float(depth * np.cos(0.5 * dtheta))
-
-    squares = rotating_squares_layout(link, opening, side)  # (T, 4, 2)
-    flat = np.empty_like(assembled)
-    for t in range(link.n_tiles):
-        target = np.concatenate([squares[t], np.full((4, 1), thickness)], axis=1)
-        rot, shift = _kabsch(assembled[t, :4], target)
-        flat[t] = assembled[t] @ rot.T + shift
-    flat[..., 2] -= flat[..., 2].min()
-    return DeploymentScene(
-        linkage=link,
-        tiles_flat=flat,
-        tiles_assembled=assembled,
-        hinge_vertices=hinge_vertex_pairs(link),
-        route=boundary_loop_route(link),
-        thickness=thickness,
     )
