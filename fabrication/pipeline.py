@@ -11,16 +11,11 @@ and the Python API both go through these two functions::
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
-import shutil
 import sys
-import tempfile
 import time
-import zipfile
-import zlib
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
@@ -32,7 +27,6 @@ import numpy as np
 from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
-from drawstring.geometry import verify
 from drawstring.geometry.assembled import (
     AssembledResult,
 )
@@ -50,40 +44,36 @@ from drawstring.geometry.lift import (
     tile_masses_from_volumes,
 )
 from drawstring.geometry.linkage import Linkage, gap_centroids
-from drawstring.geometry.rigidity import rigidity_report
-from drawstring.geometry.route import Route, plan_route, route_metrics
-from drawstring.geometry.simulate import (
-    SimulationResult,
-    route_snap_pairs,
-    route_steps,
-    simulate_stage,
-    split_contact_pairs,
-)
+from drawstring.geometry.route import Route, plan_route
+from drawstring.geometry.simulate import SimulationResult, simulate_stage
 from drawstring.geometry.target import Target, load_target
 from drawstring.geometry.tiling import Tiling, grid_shape_for, parts_in_place
-from drawstring.geometry.tolerances import (
-    CAD_PAD_INTERFERENCE_REL,
-    FLAT_EDGE_ERROR_TOL_MM,
-    FLAT_GAP_ANGLE_TOL_DEG,
-    FLAT_INTERPENETRATION_TOL_MM3,
-    FLAT_OVERLAP_TOL_MM2,
-    HINGE_GAP_TOL_MM,
-    MAX_SCALE_FACTOR,
-)
+from drawstring.geometry.tolerances import MAX_SCALE_FACTOR
 
 from .layout_stage import (
     fabricated_tiles,
     shape_and_layout,
-    split_bound,
+    split_bound,  # noqa: F401 (re-exported)
+)
+from .measure import (
+    CHANNEL_MATCH_TOL_MM,  # noqa: F401 (re-exported)
+    SURFACE_MEAN_REL,  # noqa: F401 (re-exported)
+    _jsonable,
+    _round,
+    cad_problems,
+    cad_warnings,
+    channel_turn_assembled,  # noqa: F401 (re-exported)
+    design_rigidity,
+    measure_design,
+    route_problems,  # noqa: F401 (re-exported)
+)
+from .out_folder import (  # noqa: F401 (re-exported)
+    check_out_dir,
+    default_out_dir,
+    simulate_folder,
+    write_design,
 )
 from .profiles import MAX_TILES, MIN_GRID_SIDE, MIN_TILES, Profile, load_profile
-
-#: Mean distance of K3D to the target, as a fraction of the mean tile side, above which the
-#: design is flagged (issue 3 quality target).
-SURFACE_MEAN_REL = 0.02
-
-#: Largest distance (mm) between a channel's exit and the next tile's entry, assembled pose.
-CHANNEL_MATCH_TOL_MM = 0.05
 
 log = logging.getLogger(__name__)
 
@@ -286,23 +276,7 @@ class Design:
         }
 
 
-def _round(value: float, digits: int = 6) -> float:
-    return float(round(value, digits))
-
-
-def _jsonable(value: Any) -> Any:
-    """Plain JSON values: numpy scalars and arrays become Python numbers and lists."""
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple | np.ndarray):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.bool_ | bool):
-        return bool(value)
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.floating | float):
-        return float(value) if math.isfinite(value) else None
-    return value
+Writer = Callable[[Design, Path], list[str]]
 
 
 def _version() -> str:
@@ -430,33 +404,6 @@ def size_refusal(exc: ThicknessError, options: ResolvedOptions) -> InputError | 
         f"{exc.inverted} tile(s) turn inside out where this target curves tightly; use "
         f"--size {size:g} or more, --thickness {advice:g} or less, or {fewer}"
     )
-
-
-def channel_turn_assembled(route: Route, tiles_3d: NDArray[np.float64]) -> float:
-    """Total turn (rad) of the string along its channels in the assembled state.
-
-    The string runs from the centre of each route tile's entry side face to the centre of its
-    exit side face, and on into the next tile through the coinciding face; the turn is summed
-    at every such point of the closed polyline.  This is the friction-relevant bend of the
-    channels (the issue's ``turn_angle_total_rad`` is measured through the flat gap centroids,
-    which zigzag across the boundary ring).
-    """
-    side = np.array([[0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])
-    tiles = route.tiles
-    entry = tiles_3d[tiles[:, None], side[route.enter_side]].mean(axis=1)
-    exit_ = tiles_3d[tiles[:, None], side[route.leave_side]].mean(axis=1)
-    points = np.stack([entry, exit_], axis=1).reshape(-1, 3)
-    keep = np.ones(len(points), dtype=bool)
-    keep[1:] = np.linalg.norm(np.diff(points, axis=0), axis=1) > 1e-9  # shared faces
-    points = points[keep]
-    if len(points) > 1 and np.linalg.norm(points[-1] - points[0]) <= 1e-9:
-        points = points[:-1]  # the loop closes on its first point
-    incoming = points - np.roll(points, 1, axis=0)
-    outgoing = np.roll(points, -1, axis=0) - points
-    norms = np.linalg.norm(incoming, axis=1) * np.linalg.norm(outgoing, axis=1)
-    valid = norms > 1e-12
-    cosine = np.einsum("ki,ki->k", incoming, outgoing)[valid] / norms[valid]
-    return float(np.arccos(np.clip(cosine, -1.0, 1.0)).sum())
 
 
 #: BLAS threads while designing.  A multi-threaded BLAS sums in an order that depends on its
@@ -662,67 +609,6 @@ def with_cad(result: Design, progress: Progress) -> Design:
     )
 
 
-def cad_warnings(measured: dict[str, Any], profile: Profile) -> list[str]:
-    """What the solids lack without failing (:func:`~.cad_stage.measure_cad`)."""
-    warnings = []
-    broken = measured.get("magnet_pockets_breaking_out", 0)
-    if broken:
-        warnings.append(
-            f"{broken} of {measured['magnet_pairs']} magnet pockets break out of their side "
-            "faces, so those magnets show and sit loose (the cad notes list the tiles); use "
-            f"smaller magnets than {profile.magnet_diameter_mm:g} mm (magnet.diameter_mm in a "
-            "profile of your own) or thicker tiles (--thickness)"
-        )
-    return warnings
-
-
-def cad_problems(measured: dict[str, Any]) -> list[str]:
-    """Hard faults of the solids, from their measures (:func:`~.cad_stage.measure_cad`)."""
-    problems = []
-    if not measured["solids_valid"]:
-        bad = measured.get("tiles_not_valid", [])
-        which = f": tiles {', '.join(str(t) for t in bad)}" if bad else ""
-        problems.append(
-            "some tile or hinge solids are not valid B-rep solids or miss a feature the CAD "
-            f"kernel failed on{which} (metrics.cad.tiles_not_valid and the notes)"
-        )
-    pockets = measured.get("magnet_pockets_missing", 0)
-    if pockets:
-        problems.append(f"{pockets} magnet pocket(s) were not cut (metrics.cad)")
-    overlap = measured["interference_tiles_max_mm3"]
-    if overlap > FLAT_INTERPENETRATION_TOL_MM3:
-        problems.append(f"tile solids interfere in the print pose ({overlap} mm^3)")
-    sunk = measured["interference_tiles_pads_max_rel"]
-    if sunk > CAD_PAD_INTERFERENCE_REL:
-        problems.append(
-            f"a hinge part has {100 * sunk:.3g} % of its volume inside a tile in the print pose "
-            "(a recess or pin hole was not cut)"
-        )
-    apart = measured["channel_opening_distance_max_mm"]
-    missing = measured["channel_openings_missing"]
-    if missing or apart > CHANNEL_MATCH_TOL_MM:
-        faults = [
-            link
-            for link in measured.get("channel_worst_links", [])
-            if link["distance_mm"] is None or link["distance_mm"] > CHANNEL_MATCH_TOL_MM
-        ]
-        where = "; ".join(
-            f"tiles {a} -> {b}: "
-            + ("an opening is missing on the solids" if d is None else f"{d:.3g} mm apart")
-            for (a, b), d in ((link["tiles"], link["distance_mm"]) for link in faults)
-        )
-        counts = []
-        if missing:
-            counts.append(f"{missing} opening(s) missing")
-        if apart > CHANNEL_MATCH_TOL_MM:
-            counts.append(f"up to {apart} mm apart")
-        problems.append(
-            "string channels do not line up between consecutive tiles in the assembled pose "
-            f"({', '.join(counts)}; {where}; metrics.cad.channel_worst_links)"
-        )
-    return problems
-
-
 @dataclass(frozen=True)
 class NamedCheck:
     """A deployment check ``check(lift_gaps) -> bool`` with the name design.json reports."""
@@ -810,517 +696,6 @@ def plan_lift_route(
     return route, note, lifts
 
 
-def design_rigidity(
-    linkage: Linkage,
-    tiles_3d: NDArray[np.float64],
-    hinge_vertices: NDArray[np.int64],
-    route: Route,
-) -> dict[str, Any]:
-    """Infinitesimal rigidity of the assembled linkage held by its string (paper Theorem 5.1).
-
-    Joints: the hinges (ball joints).  Contacts: consecutive tiles along the route touch at
-    their shared side faces, and tiles across a split are held by their magnets.  A null space
-    of dimension 6 (rigid-body motions only) means the tight string locks the shape.
-    """
-    string_pairs, _ = route_snap_pairs(route_steps(route))
-    magnet_pairs = split_contact_pairs(linkage)
-    report = rigidity_report(
-        tiles_3d, hinge_vertices, np.vstack([string_pairs, magnet_pairs]), contact="midpoint"
-    )
-    block: dict[str, Any] = {
-        "null_dimension": report.null_dimension,
-        "internal_flexes": report.internal_flexes,
-        "isostatic": report.isostatic,
-        "contacts": {"string": len(string_pairs), "magnets": len(magnet_pairs)},
-        "joints": len(hinge_vertices),
-        "smallest_nonzero_singular_value": _round(
-            float(report.to_json()["smallest_nonzero_singular_value"]),
-            12,
-        ),
-    }
-    if report.internal_flexes:
-        # Per flex, the tiles that move most (twist magnitude), so a person can find them.
-        twists = report.flexes.reshape(len(tiles_3d), 6, -1)
-        motion = np.linalg.norm(twists, axis=1)  # (T, flexes)
-        block["flex_tiles"] = [
-            np.argsort(-motion[:, k], kind="stable")[:5].tolist()
-            for k in range(min(report.internal_flexes, 5))
-        ]
-    return block
-
-
-def measure_design(
-    options: ResolvedOptions,
-    profile: Profile,
-    tiling: Tiling,
-    assembled: AssembledResult,
-    flat: FlatResult,
-    hinge_layout: HingeLayout,
-    lift: LiftPoints,
-    route: Route,
-    masses: NDArray[np.float64],
-) -> tuple[dict[str, Any], list[str], list[str]]:
-    """Measure the output geometry (not the optimizers' beliefs) and list unmet targets.
-
-    Returns the ``metrics`` entries of design.json, the *problems* (targets whose failure makes
-    the part unbuildable: overlapping tiles, gaps outside their angle bounds, an invalid route,
-    a scale range no layout can absorb) and the *warnings* (accuracy targets not met: the flat
-    edge error and the hinge gap, which rigid tiles cannot in general bring to zero because the
-    flat linkage is over-determined: 3 degrees of freedom per tile against about 4 hinge
-    equations per tile).
-    """
-    linkage = tiling.linkage
-    a = assembled.metrics
-    metrics: dict[str, Any] = {
-        key: _round(float(a[key]), 9)
-        for key in (
-            "planarity_max_mm",
-            "planarity_max_before_mm",
-            "contact_gap_max_mm",
-            "contact_angle_max_deg",
-            "surface_distance_max_mm",
-            "surface_distance_mean_mm",
-            "tile_side_mean_mm",
-            "tile_side_spread",
-            "thickness_min_mm",
-            "thickness_max_mm",
-        )
-        if key in a
-    }
-    clash = verify.assembled_overlap(assembled.tiles, linkage)
-    metrics.update(
-        {k: _round(v, 9) if isinstance(v, float) else v for k, v in clash.to_json().items()}
-    )
-    tiles_2d = hinge_layout.tiles
-    top_2d = tiles_2d[:, :4, :2]
-    _, overlapping, areas = verify.flat_overlap(top_2d)
-    # A trimmed pair's top faces overlap only inside its trim (the tops are coplanar in the
-    # flat pose and the trim is the pair's whole 3D overlap); the interpenetration after the
-    # trims below checks that independently.
-    trimmed_pairs = {
-        tuple(sorted(int(t) for t in linkage.hinges[trim.hinge, [0, 2]]))
-        for trim in hinge_layout.trims
-    }
-    kept = [k for k, (a, b) in enumerate(overlapping.tolist()) if (a, b) not in trimmed_pairs]
-    overlap_area = float(areas[kept].sum())
-    trims = [(trim.tile, trim.vertices) for trim in hinge_layout.trims]
-    volume, _, _ = verify.interpenetration(tiles_2d, trims=trims)
-    edge_error = float(verify.flat_edge_errors(top_2d, assembled.tiles[:, :4]).max(initial=0.0))
-    # Each slit end measured on the face that carries its hinge (top or bottom).
-    angles = verify.gap_opening_angles_deg(linkage, tiles_2d, hinge_layout.bottom)
-    # Hinge gap measured on the tiles as fabricated (rigid copies of T3D, before merging).
-    fabricated = fabricated_tiles(hinge_layout, assembled.tiles)
-    gaps = verify.hinge_gaps(fabricated, hinge_layout.hinge_vertices)
-    hinge_gap = float(gaps.max(initial=0.0))
-    in_plane = verify.hinge_gaps(fabricated, hinge_layout.hinge_vertices, in_plane=True)
-    metrics.update(
-        {
-            "flat_overlap_area_mm2": _round(overlap_area, 9),
-            "flat_interpenetration_mm3": _round(volume, 9),
-            "flat_edge_error_max_mm": _round(edge_error, 9),
-            "flat_gap_angle_min_deg": _round(float(angles.min(initial=90.0)), 6),
-            "flat_gap_angle_max_deg": _round(float(angles.max(initial=0.0)), 6),
-            "hinge_gap_max_mm": _round(hinge_gap, 9),
-            "hinge_gap_in_plane_max_mm": _round(float(in_plane.max(initial=0.0)), 9),
-            "hinges_bottom": int(np.count_nonzero(hinge_layout.bottom)),
-            "mass_g": _round(float(masses.sum()) * 1000.0, 3),
-        }
-    )
-    # top hinges trim every overlapping pair; dual ones only pairs that clear on neither face
-    metrics["contact_area_lost_mm2"] = _round(hinge_layout.contact_area_lost_mm2, 6)
-    metrics["lift_points"] = lift.to_json()
-    assembled_gaps = gap_centroids(linkage, assembled.tiles[:, :4])
-    flat_gaps = gap_centroids(linkage, parts_in_place(linkage, top_2d, tiling.uv))
-    metrics["route"] = _jsonable(
-        route_metrics(route, linkage, flat_gaps, assembled_gaps, profile.friction_coefficient)
-    )
-    # the string's length along its channels on the fabricated tiles, as every other output
-    # reports it (not the planning polyline through the gap centres)
-    from drawstring.cad.paths import route_lengths
-
-    from .cad_stage import lift_exits, route_steps
-
-    flat_length, assembled_length = route_lengths(
-        fabricated, assembled.tiles, route_steps(route), lift_exits(route, lift.lift_gaps)
-    )
-    metrics["route"]["length_mm"] = {"flat": flat_length, "assembled": assembled_length}
-    channel_turn = channel_turn_assembled(route, assembled.tiles)
-    metrics["route"]["turn_angle_channels_assembled_rad"] = _round(channel_turn, 6)
-    metrics["route"]["capstan_factor_channels_assembled"] = _round(
-        math.exp(profile.friction_coefficient * channel_turn), 6
-    )
-    problems: list[str] = []
-    warnings: list[str] = []
-    folded = len(clash.nonconvex_top) + len(clash.nonconvex_bottom)
-    if folded:
-        problems.append(f"{folded} assembled tile faces are folded (non-convex)")
-    if clash.depth_max_mm > verify.ASSEMBLED_OVERLAP_DEPTH_TOL_MM:
-        problems.append(
-            f"assembled tiles interpenetrate up to {clash.depth_max_mm:.3g} mm "
-            f"({len(clash.pairs)} pairs)"
-        )
-    if overlap_area > FLAT_OVERLAP_TOL_MM2:
-        problems.append(f"flat tiles overlap by {overlap_area:.3g} mm^2")
-    if volume > FLAT_INTERPENETRATION_TOL_MM3:
-        problems.append(f"flat tiles interpenetrate by {volume:.3g} mm^3")
-    if edge_error > FLAT_EDGE_ERROR_TOL_MM:
-        warnings.append(
-            f"flat edge error {edge_error:.2g} mm exceeds {FLAT_EDGE_ERROR_TOL_MM:g} mm: a "
-            "curved target's tiles cannot all keep their assembled shape with every hinge "
-            "meeting in the plane; the printed tiles are exact copies of the assembled ones, "
-            "and more tiles shrink the error"
-        )
-    low = options.min_gap_angle_deg - FLAT_GAP_ANGLE_TOL_DEG
-    if angles.size and (angles.min() < low or angles.max() > 90 + FLAT_GAP_ANGLE_TOL_DEG):
-        problems.append(
-            f"gap angles {angles.min():.2f}..{angles.max():.2f} deg leave "
-            f"[{options.min_gap_angle_deg:g}, 90]"
-        )
-    side = float(a.get("tile_side_mean_mm", 0.0))
-    mean_distance = float(a.get("surface_distance_mean_mm", 0.0))
-    if side > 0 and mean_distance > SURFACE_MEAN_REL * side:
-        warnings.append(
-            f"tiles sit {mean_distance:.2f} mm from the target on average, more than "
-            f"{100 * SURFACE_MEAN_REL:g} % of the mean tile side; raise the surface weight "
-            "(--weights 1e4 1 100 fits closely) or use more tiles"
-        )
-    in_plane_gap = float(in_plane.max(initial=0.0))
-    if hinge_gap > HINGE_GAP_TOL_MM:
-        if in_plane_gap <= HINGE_GAP_TOL_MM:
-            cause = (
-                f"seen from above the hinges meet to {in_plane_gap:.2g} mm; the rest is the "
-                "tiles' thickness difference (the quad mesh is not conical), which the hinge "
-                "parts bridge"
-            )
-        else:
-            cause = (
-                "the hinge parts bridge it; more tiles shrink it, and --hinges top reaches "
-                "1e-3 mm on most built-ins"
-            )
-        warnings.append(f"hinge gap {hinge_gap:.2g} mm exceeds {HINGE_GAP_TOL_MM:g} mm: {cause}")
-    if tiling.scale_factor_max > split_bound(options):
-        problems.append(
-            f"scale factor {tiling.scale_factor_max:.2f} exceeds {split_bound(options):.3g}"
-        )
-    problems.extend(route_problems(route, linkage))
-    if not profile.size_min_mm <= options.size_mm <= profile.size_max_mm:
-        warnings.append(
-            f"--size {options.size_mm:g} mm is outside the {profile.size_min_mm:g}-"
-            f"{profile.size_max_mm:g} mm that the {profile.name} profile suits (its tile "
-            "thickness, hinge parts and machine are made for that range); choose a profile "
-            "for this size (drawstring profiles --size ...) or a size within it"
-        )
-    if len(route.lifts_missed):
-        warnings.append(
-            f"the string route cannot reach lift gap(s) {route.lifts_missed.tolist()} under the "
-            "routing rules; pull at the other lift points"
-        )
-    return metrics, problems, warnings
-
-
-def route_problems(route: Route, linkage: Linkage) -> list[str]:
-    """Hard faults of a string route, measured on the route itself: it crosses itself, misses
-    boundary tiles, or leaves a split part unvisited (that part would never be pulled)."""
-    problems = []
-    if route.crossings:
-        problems.append(f"the string route crosses itself {route.crossings} time(s)")
-    if not route.boundary_tiles_covered:
-        problems.append("the string route misses some boundary tiles")
-    visited = np.unique(linkage.tile_component[route.tiles])
-    missed = np.setdiff1d(np.arange(linkage.n_components), visited)
-    if missed.size:
-        first = [int(np.flatnonzero(linkage.tile_component == c)[0]) for c in missed]
-        problems.append(
-            f"the string route reaches {visited.size} of {linkage.n_components} split parts; "
-            f"the {missed.size} part(s) holding tiles {first} would not be pulled into shape "
-            "(the string reaches only parts that touch the outer boundary; other --corners "
-            "or --tiles give other splits)"
-        )
-    return problems
-
-
-def default_out_dir(target: str | os.PathLike[str]) -> Path:
-    """``./NAME-drawstring`` for a built-in name or a mesh file's stem."""
-    return Path.cwd() / f"{Path(str(target)).stem}-drawstring"
-
-
-def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
-    """Refuse an output path that cannot become the design folder, before any work is done."""
-    out = Path(out_dir).absolute()
-    if out.exists() and not out.is_dir():
-        raise InputError(f"output path {out} exists and is a file; choose another --out")
-    if out.is_dir() and any(out.iterdir()) and not (out / "design.json").is_file():
-        raise InputError(
-            f"output folder {out} exists and is not a drawstring design; choose another --out"
-        )
-    parent = out.parent
-    probe = parent
-    while not probe.exists():
-        probe = probe.parent
-    if not probe.is_dir():
-        raise InputError(f"cannot write into {probe}: not a folder; choose another --out")
-    # Make and remove a folder there rather than ask os.access, which answers yes to root
-    # everywhere (on /proc, on a read-only mount) and the run would fail only at the end.
-    try:
-        os.rmdir(tempfile.mkdtemp(prefix=".drawstring-probe-", dir=probe))
-    except OSError as exc:
-        raise InputError(
-            f"cannot write into {probe} ({exc.strerror or type(exc).__name__}); choose a "
-            "writable --out folder"
-        ) from None
-    if out.is_dir():
-        _probe_rename(out)
-    return out
-
-
-def _probe_rename(out: Path) -> None:
-    """Refuse a folder that cannot be renamed (immutable, a mount point, a sticky parent owned
-    by someone else): :func:`write_design` renames it aside to replace it, at the very end.
-    The probe renames it to a unique sibling name and straight back."""
-    aside = out.parent / f".{out.name}.{os.getpid()}.{time.monotonic_ns()}.probe"
-    try:
-        os.rename(out, aside)
-    except OSError as exc:
-        raise _placement_error(out, exc) from None
-    try:
-        os.rename(aside, out)
-    except OSError as exc:
-        raise InputError(
-            f"cannot rename {aside} back to {out} ({exc.strerror or exc}); rename it by hand"
-        ) from None
-
-
-def _placement_error(out: Path, exc: OSError) -> InputError:
-    """The one-line refusal for an OSError while writing or placing the output folder."""
-    reason = exc.strerror or type(exc).__name__
-    if exc.filename is not None and Path(exc.filename) != out:
-        reason = f"{reason}: {exc.filename}"
-    return InputError(
-        f"cannot write the design to {out} ({reason}); choose another --out, or make {out} "
-        "and its parent folder writable"
-    )
-
-
-Writer = Callable[[Design, Path], list[str]]
-
-
-def write_design(
-    result: Design,
-    out_dir: str | os.PathLike[str],
-    writers: tuple[Writer, ...] | None = None,
-) -> Path:
-    """Write the output folder atomically.
-
-    Everything is written into a temporary sibling folder, which replaces ``out_dir`` only when
-    every file was written.  On any failure the temporary folder is removed and ``out_dir`` is
-    left as it was.
-    """
-    from .outputs import DEFAULT_WRITERS
-    from .report import write_report
-
-    out = check_out_dir(out_dir)
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
-    except OSError as exc:
-        raise _placement_error(out, exc) from None
-    try:
-        files: list[str] = []
-        for writer in writers or DEFAULT_WRITERS:
-            files.extend(writer(result, staging))
-        document = result.to_json()
-        document["files"] = sorted([*files, "design.json", "report.html"])
-        (staging / "design.json").write_text(
-            json.dumps(document, indent=2, allow_nan=False) + "\n", encoding="utf-8"
-        )
-        write_report(staging)  # last: it reads every other file of the folder
-        os.chmod(staging, 0o755)
-        _place(staging, out)
-    except OSError as exc:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise _placement_error(out, exc) from None
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    return out
-
-
-def _place(staging: Path, out: Path) -> None:
-    """Rename the finished ``staging`` folder to ``out``, replacing an earlier folder there.
-
-    The earlier folder is first renamed into a temporary sibling, removed only once the new
-    one is in place; when a rename fails it is renamed back and the temporary sibling removed,
-    so an :class:`OSError` leaves ``out`` as it was (the caller removes ``staging``).
-    """
-    if not out.exists():
-        os.rename(staging, out)
-        return
-    retired = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
-    aside = retired / out.name
-    try:
-        os.rename(out, aside)
-    except OSError:
-        shutil.rmtree(retired, ignore_errors=True)
-        raise
-    try:
-        os.rename(staging, out)
-    except OSError as exc:
-        try:
-            os.rename(aside, out)
-        except OSError:
-            raise InputError(
-                f"cannot write the design to {out} ({exc.strerror or exc}), nor put the earlier "
-                f"folder back: it is now {aside}; rename it by hand"
-            ) from None
-        shutil.rmtree(retired, ignore_errors=True)
-        raise
-    shutil.rmtree(retired, ignore_errors=True)
-
-
 def with_options(options: DesignOptions, **changes: Any) -> DesignOptions:
     """A copy of ``options`` with some fields changed (for scripts and tests)."""
     return replace(options, **changes)
-
-
-def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Path:
-    """Run the deployment simulation on a design folder written by :func:`write_design`.
-
-    Reads ``design.json`` (options, linkage cells and splits, lift points), ``tiles.npz`` (the
-    tiles at full precision), ``hinges.json`` and ``route.json``, so that a design's own run is
-    repeated exactly; writes ``deploy.npz`` and ``deploy.gif``,
-    the ``simulation`` metrics and timing into ``design.json``, and rewrites ``report.html``.
-    Every file is written next to its final name first and renamed into place.
-    """
-    from .outputs import save_deployment
-    from .report import write_report
-
-    root = Path(folder)
-    design_path = root / "design.json"
-    if not design_path.is_file():
-        raise InputError(f"{root} is not a drawstring design folder (no design.json)")
-    needed = ("tiles.npz", "hinges.json", "route.json")
-    missing = [name for name in needed if not (root / name).is_file()]
-    if missing:
-        raise InputError(f"{root} lacks {', '.join(missing)}; run drawstring design again")
-    try:
-        doc, linkage, assembled, fabricated, hinge_vertices, steps, lift_gaps = _read_design(
-            root, design_path
-        )
-        thickness = float(doc["options"]["thickness_mm"])
-    except InputError:
-        raise
-    except (
-        OSError,
-        EOFError,
-        ValueError,
-        KeyError,
-        TypeError,
-        IndexError,
-        zipfile.BadZipFile,
-        zlib.error,
-    ) as exc:
-        what = exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__
-        raise InputError(
-            f"{root}: the design files cannot be read ({what}); run drawstring design again"
-        ) from exc
-    if assembled.shape != (linkage.n_tiles, 8, 3) or fabricated.shape != assembled.shape:
-        raise InputError(f"{root}: tiles.npz does not match design.json; run design again")
-    in_range = (
-        np.all((steps[:, 0] >= 0) & (steps[:, 0] < linkage.n_gaps))
-        and np.all((steps[:, 1] >= 0) & (steps[:, 1] < linkage.n_tiles))
-        and np.all((steps[:, 2:] >= 0) & (steps[:, 2:] <= 4))
-        and np.all((hinge_vertices >= 0) & (hinge_vertices < 8 * linkage.n_tiles))
-        and np.all((lift_gaps >= 0) & (lift_gaps < linkage.n_gaps))
-    )
-    if not in_range:
-        raise InputError(
-            f"{root}: route.json, hinges.json or the lift points do not match design.json; "
-            "run drawstring design again"
-        )
-    progress = Progress(quiet=quiet)
-    with progress.stage("simulate"):
-        simulation = simulate_stage(
-            linkage,
-            fabricated,
-            assembled,
-            hinge_vertices,
-            steps,
-            lift_gaps,
-            thickness,
-        )
-    result_block = _jsonable(simulation.to_json())
-    # the lift sweep's count is the design's; a design made without simulating has run once now
-    runs = doc.get("metrics", {}).get("simulation", {}).get("runs")
-    result_block["runs"] = runs if isinstance(runs, int) else 1
-    result_block.pop("time_s", None)
-    per_step = float(result_block.pop("per_step_ms", 0.0)) / 1000.0
-    doc.setdefault("metrics", {})["simulation"] = result_block
-    doc.setdefault("timings_s", {})["simulate"] = round(progress.timings["simulate"], 3)
-    doc["timings_s"]["simulate_per_step"] = round(per_step, 3)
-    try:
-        staging = Path(tempfile.mkdtemp(prefix=f".{root.name}.", suffix=".tmp", dir=root.parent))
-    except OSError as exc:
-        raise InputError(
-            f"cannot write beside {root} ({exc.strerror}); check the folder's permissions"
-        ) from exc
-    try:
-        written = save_deployment(simulation, steps, staging)
-        doc["files"] = sorted(set(doc.get("files", [])) | set(written))
-        (staging / "design.json").write_text(
-            json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8"
-        )
-        for name in [*written, "design.json"]:
-            os.replace(staging / name, root / name)
-        write_report(root)
-    except OSError as exc:
-        raise InputError(
-            f"cannot write into {root} ({exc.strerror}); check the folder's permissions and "
-            "free space"
-        ) from exc
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-    return root
-
-
-def _read_design(
-    root: Path, design_path: Path
-) -> tuple[
-    dict[str, Any],
-    Linkage,
-    NDArray[np.float64],
-    NDArray[np.float64],
-    NDArray[np.int64],
-    NDArray[np.int64],
-    NDArray[np.int64],
-]:
-    """What :func:`simulate_folder` reads from a design folder (raises what the readers
-    raise on damaged files)."""
-    from drawstring.geometry.linkage import Split, build_linkage
-
-    doc = json.loads(design_path.read_text(encoding="utf-8"))
-    block = doc.get("linkage", {})
-    if "tile_cells" not in block:
-        raise InputError(
-            f"{design_path} predates 'drawstring simulate'; run drawstring design again"
-        )
-    grid = tuple(block["grid"])
-    cells = np.zeros(grid, dtype=bool)
-    tile_cells = np.asarray(block["tile_cells"], dtype=np.int64).reshape(-1, 2)
-    cells[tile_cells[:, 0], tile_cells[:, 1]] = True
-    splits = tuple(
-        Split(s["axis"], int(s["line"]), int(s["lo"]), int(s["hi"]))
-        for s in block.get("split_lines", [])
-    )
-    linkage = build_linkage(cells, splits)
-    with np.load(root / "tiles.npz") as stored:
-        assembled, fabricated = stored["assembled"], stored["fabricated"]
-    hinges = json.loads((root / "hinges.json").read_text(encoding="utf-8"))["hinges"]
-    hinge_vertices = np.array([h["vertices"] for h in hinges], dtype=np.int64).reshape(-1, 2)
-    route_doc = json.loads((root / "route.json").read_text(encoding="utf-8"))
-    steps = np.array(
-        [[s["gap"], s["tile"], s["enter_side"], s["leave_side"]] for s in route_doc["steps"]],
-        dtype=np.int64,
-    ).reshape(-1, 4)
-    points = doc.get("metrics", {}).get("lift_points", {}).get("points", [])
-    lift_gaps = np.array([p["gap"] for p in points], dtype=np.int64)
-    return doc, linkage, assembled, fabricated, hinge_vertices, steps, lift_gaps
