@@ -524,10 +524,12 @@ def _design(
             f"lift points: the check '{lift.check_name}' failed for every threshold, so every "
             "energy peak is a lift point (run with the deployment simulation to check the pull)"
         )
-    route, route_note, served = route_for(lift.lift_gaps)
+    # the lift set the sweep chose; a lift gap the string cannot reach is served next to it
+    chosen = lift.lift_gaps
+    route, route_note, served = route_for(chosen)
     if route_note:
         notes.append(route_note)
-    if not np.array_equal(served, lift.lift_gaps):
+    if not np.array_equal(served, chosen):
         lift = replace(lift, lift_gaps=served, positions=assembled_gap_xyz[served])
     measured, problems, warnings = measure_design(
         resolved, profile, tiling, assembled, flat, hinge_layout, lift, route, masses
@@ -546,7 +548,7 @@ def _design(
         )
     simulation = None
     if resolved.simulate:
-        simulation = simulated(lift.lift_gaps)
+        simulation = simulated(chosen)  # the run of this route, already made by the sweep
         block = _jsonable(simulation.to_json())
         # Wall-clock numbers go to timings_s, so everything else in design.json is reproducible.
         block.pop("time_s", None)
