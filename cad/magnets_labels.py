@@ -1,0 +1,372 @@
+"""Magnet pockets across split contacts (:func:`magnet_pockets`) and the tile numbers
+engraved on the bottom faces (:func:`label_engraving`), each dimensioned from a Profile."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
+
+import build123d as bd
+import numpy as np
+from numpy.typing import NDArray
+
+from drawstring.cad.feature_common import (
+    TOOL_OVERSHOOT_MM,
+    Footprint,
+    _cross2,
+    _plane,
+    _signed_area,
+    feature_wall_mm,
+)
+from drawstring.cad.kernel import polyhedron_solid
+from drawstring.cad.paths import FACE_BOTTOM, check_side, face_planes, unit_vector
+from drawstring.geometry.errors import InputError
+
+if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
+    from drawstring.cad.dimensions import FeatureDimensions as Profile
+
+log = logging.getLogger(__name__)
+
+
+#: Labels: text fits inside this fraction of the bottom face's inscribed radius.
+LABEL_FILL = 0.6
+#: Labels: digit width and spacing over digit height; stroke over height.
+_DIGIT_WIDTH, _DIGIT_SPACING, _DIGIT_STROKE = 0.55, 0.22, 0.18
+
+
+# --------------------------------------------------------------------------------------------
+# magnets
+
+
+@dataclass(frozen=True)
+class MagnetPair:
+    """Two pockets facing each other across a split contact in the assembled pose.
+
+    ``polarity_a`` is the pole of tile a's magnet that faces out of its face; tile b's magnet
+    shows the other pole, so the pair attracts.
+    """
+
+    tile_a: int
+    side_a: int
+    tile_b: int
+    side_b: int
+    centre: NDArray[np.float64]
+    diameter_mm: float
+    depth_mm: float
+    polarity_a: Literal["N", "S"]
+    polarity_b: Literal["N", "S"]
+    fits: bool
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "tile_a": self.tile_a,
+            "side_a": self.side_a,
+            "tile_b": self.tile_b,
+            "side_b": self.side_b,
+            "centre_mm": [round(float(c), 6) for c in self.centre],
+            "diameter_mm": self.diameter_mm,
+            "depth_mm": self.depth_mm,
+            "polarity_a": self.polarity_a,
+            "polarity_b": self.polarity_b,
+            "fits": self.fits,
+        }
+
+
+def _side_quad(tile: NDArray[np.float64], side: int) -> NDArray[np.float64]:
+    """(4, 3): top k, top k+1, bottom k, bottom k+1 of side ``side``."""
+    nxt = (side + 1) % 4
+    return np.asarray(tile[[side, nxt, 4 + side, 4 + nxt]])
+
+
+def _bilinear(quad: NDArray[np.float64], u: float, v: float) -> NDArray[np.float64]:
+    """Point at (u along the top edge, v from top to bottom) of a side quad."""
+    top = (1 - u) * quad[0] + u * quad[1]
+    bottom = (1 - u) * quad[2] + u * quad[3]
+    return np.asarray((1 - v) * top + v * bottom)
+
+
+def _invert_bilinear(quad: NDArray[np.float64], point: NDArray[np.float64], u: float, v: float):
+    """(u, v) of the point of a side quad nearest ``point`` (Gauss-Newton from a guess)."""
+    for _ in range(20):
+        residual = _bilinear(quad, u, v) - point
+        du = (1 - v) * (quad[1] - quad[0]) + v * (quad[3] - quad[2])
+        dv = ((1 - u) * quad[2] + u * quad[3]) - ((1 - u) * quad[0] + u * quad[1])
+        jac = np.stack([du, dv], axis=1)
+        step = np.linalg.lstsq(jac, -residual, rcond=None)[0]
+        u, v = u + float(step[0]), v + float(step[1])
+        if np.linalg.norm(step) < 1e-14:
+            break
+    return u, v
+
+
+def _pocket(
+    centre: NDArray[np.float64], outward: NDArray[np.float64], radius: float, depth: float
+) -> bd.Solid:
+    origin = centre + TOOL_OVERSHOOT_MM * outward
+    return bd.Solid.make_cylinder(radius, depth + TOOL_OVERSHOOT_MM, _plane(origin, -outward))
+
+
+def _pocket_fits(quad: NDArray[np.float64], u: float, v: float, radius: float) -> bool:
+    """Whether a pocket circle at (u, v) stays inside the side face (mid-lines test)."""
+    centre = _bilinear(quad, u, v)
+    edges = (
+        (_bilinear(quad, 0, 0), _bilinear(quad, 1, 0)),
+        (_bilinear(quad, 0, 1), _bilinear(quad, 1, 1)),
+        (_bilinear(quad, 0, 0), _bilinear(quad, 0, 1)),
+        (_bilinear(quad, 1, 0), _bilinear(quad, 1, 1)),
+    )
+    for a, b in edges:
+        direction = unit_vector(b - a)
+        offset = centre - a
+        distance = np.linalg.norm(offset - (offset @ direction) * direction)
+        if distance < radius:
+            return False
+    return True
+
+
+def magnet_pockets(
+    tile_a: NDArray[np.float64],
+    side_a: int,
+    tile_b: NDArray[np.float64],
+    side_b: int,
+    profile: Profile,
+    *,
+    flat_a: NDArray[np.float64] | None = None,
+    flat_b: NDArray[np.float64] | None = None,
+    offset_mm: float = 0.0,
+    tile_ids: tuple[int, int] = (-1, -1),
+) -> tuple[bd.Solid, bd.Solid, MagnetPair]:
+    """Tools: one cylindrical magnet pocket in each of two faces that touch across a split.
+
+    Parameters
+    ----------
+    tile_a, tile_b : (8, 3) float, mm, the two tiles in the assembled pose (faces touching).
+    side_a, side_b : the touching side faces.
+    profile : magnet diameter and height; pocket diameter ``d + 2 clearance``, depth
+        ``height + clearance``.
+    flat_a, flat_b : (8, 3) float, mm, the same tiles in the pose to cut (default: assembled).
+        The pocket keeps its place on the face (bilinear face coordinates).
+    offset_mm : shift of the pocket along the face from its centre (to clear a channel).
+    tile_ids : tile numbers written into the record.
+
+    Returns
+    -------
+    tool_a, tool_b : pocket cylinders for tile a and tile b.
+    record : the pair, its assembled centre and polarity (tile a north out, tile b south out).
+    """
+    check_side(side_a, "side_a")
+    check_side(side_b, "side_b")
+    tile_a = np.asarray(tile_a, dtype=np.float64)
+    tile_b = np.asarray(tile_b, dtype=np.float64)
+    quad_a, quad_b = _side_quad(tile_a, side_a), _side_quad(tile_b, side_b)
+    width = float(np.linalg.norm(_bilinear(quad_a, 1, 0.5) - _bilinear(quad_a, 0, 0.5)))
+    u_a, v_a = 0.5 + offset_mm / width, 0.5
+    centre = _bilinear(quad_a, u_a, v_a)
+    u_b, v_b = _invert_bilinear(quad_b, centre, 1.0 - u_a, v_a)
+    radius = 0.5 * profile.magnet_diameter_mm + profile.magnet_clearance_mm
+    depth = profile.magnet_height_mm + profile.magnet_clearance_mm
+    fits = _pocket_fits(quad_a, u_a, v_a, radius) and _pocket_fits(quad_b, u_b, v_b, radius)
+    tools = []
+    for flat, side, u, v in (
+        (flat_a if flat_a is not None else tile_a, side_a, u_a, v_a),
+        (flat_b if flat_b is not None else tile_b, side_b, u_b, v_b),
+    ):
+        flat = np.asarray(flat, dtype=np.float64)
+        _, normals = face_planes(flat)
+        tools.append(_pocket(_bilinear(_side_quad(flat, side), u, v), normals[side], radius, depth))
+    record = MagnetPair(
+        tile_ids[0], side_a, tile_ids[1], side_b, centre, 2 * radius, depth, "N", "S", fits
+    )
+    return tools[0], tools[1], record
+
+
+# --------------------------------------------------------------------------------------------
+# labels
+
+_SEGMENTS_OF_DIGIT = {
+    "0": "abcdef",
+    "1": "bc",
+    "2": "abged",
+    "3": "abgcd",
+    "4": "fgbc",
+    "5": "afgcd",
+    "6": "afgedc",
+    "7": "abc",
+    "8": "abcdefg",
+    "9": "abcdfg",
+}
+
+
+def _segment_rectangles(text: str, height: float) -> list[NDArray[np.float64]]:
+    """Seven-segment outlines of ``text`` ((4, 2) rectangles, mm), centred on the origin.
+
+    Segments of a digit are separated by small gaps, so the rectangles never touch.
+    """
+    width, stroke = _DIGIT_WIDTH * height, _DIGIT_STROKE * height
+    gap = 0.2 * stroke
+    spacing = _DIGIT_SPACING * height
+    total = len(text) * width + (len(text) - 1) * spacing
+    half = 0.5 * height
+    boxes = {
+        "a": (stroke + gap, width - stroke - gap, height - stroke, height),
+        "g": (stroke + gap, width - stroke - gap, half - stroke / 2, half + stroke / 2),
+        "d": (stroke + gap, width - stroke - gap, 0.0, stroke),
+        "f": (0.0, stroke, half + gap, height - gap),
+        "b": (width - stroke, width, half + gap, height - gap),
+        "e": (0.0, stroke, gap, half - gap),
+        "c": (width - stroke, width, gap, half - gap),
+    }
+    rectangles = []
+    for index, char in enumerate(text):
+        x0 = -0.5 * total + index * (width + spacing)
+        for segment in _SEGMENTS_OF_DIGIT[char]:
+            a, b, c, d = boxes[segment]
+            rectangles.append(
+                np.array([[x0 + a, c], [x0 + b, c], [x0 + b, d], [x0 + a, d]]) - [0.0, half]
+            )
+    return rectangles
+
+
+def _prism(
+    outline: NDArray[np.float64],
+    origin: NDArray[np.float64],
+    axis_x: NDArray[np.float64],
+    axis_y: NDArray[np.float64],
+    direction: NDArray[np.float64],
+    start: float,
+    stop: float,
+) -> bd.Solid:
+    """Straight prism over a planar convex outline ((k, 2) in the (axis_x, axis_y) frame)."""
+    base = origin + outline[:, :1] * axis_x + outline[:, 1:] * axis_y
+    k = len(outline)
+    points = np.vstack([base + stop * direction, base + start * direction])
+    ring = list(range(k))
+    faces = [ring, [k + i for i in reversed(ring)]]
+    faces += [[i, k + i, k + (i + 1) % k, (i + 1) % k] for i in ring]
+    # Orient: the cap at ``stop`` must be counter-clockwise seen from ``direction``.
+    if np.cross(axis_x, axis_y) @ direction * _signed_area(outline) < 0:
+        faces = [list(reversed(f)) for f in faces]
+    return polyhedron_solid(points, faces)
+
+
+def label_depth(profile: Profile) -> float:
+    """Engraving depth (mm) of tile labels: 7 % of the tile thickness, within 0.3 .. 2 mm."""
+    return float(np.clip(0.07 * profile.thickness_mm, 0.3, 2.0))
+
+
+def _box_point_distance(half: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray:
+    """Distance (mm) from each 2D point ((k, 2)) to the box ``[-half, half]`` (0 inside)."""
+    return np.asarray(np.linalg.norm(np.maximum(np.abs(points) - half, 0.0), axis=-1))
+
+
+def _box_segment_distance(
+    half: NDArray[np.float64], a: NDArray[np.float64], b: NDArray[np.float64]
+) -> float:
+    """Distance (mm) from the 2D segment ``a``-``b`` to the box ``[-half, half]`` (0 where
+    they meet): between disjoint convex shapes it is reached at a vertex of one of them."""
+    direction = b - a
+    low, high = 0.0, 1.0  # Liang-Barsky: the part of the segment inside the box
+    for axis in range(2):
+        if abs(direction[axis]) < 1e-15:
+            if abs(a[axis]) > half[axis]:
+                low, high = 1.0, 0.0
+                break
+            continue
+        t0 = (-half[axis] - a[axis]) / direction[axis]
+        t1 = (half[axis] - a[axis]) / direction[axis]
+        low, high = max(low, min(t0, t1)), min(high, max(t0, t1))
+    if low <= high:
+        return 0.0
+    corners = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]]) * half
+    length2 = float(direction @ direction)
+    t = np.clip((corners - a) @ direction / max(length2, 1e-300), 0.0, 1.0)
+    to_corners = np.linalg.norm(a + t[:, None] * direction - corners, axis=1)
+    ends = _box_point_distance(half, np.stack([a, b]))
+    return float(min(to_corners.min(), ends.min()))
+
+
+def _label_clear_height(
+    height: float,
+    aspect: float,
+    footprints: Sequence[tuple[NDArray[np.float64], float]],
+    wall: float,
+) -> float:
+    """The largest text height (mm, at most ``height``) whose box (``aspect`` times as wide as
+    high, centred on the origin) keeps ``wall`` from every 2D footprint (polyline, radius)."""
+
+    def clear(h: float) -> bool:
+        half = 0.5 * h * np.array([aspect, 1.0])
+        for points, radius in footprints:
+            if len(points) == 1:
+                gap = float(_box_point_distance(half, points)[0])
+            else:
+                gap = min(
+                    _box_segment_distance(half, p, q)
+                    for p, q in zip(points[:-1], points[1:], strict=True)
+                )
+            if gap < radius + wall:
+                return False
+        return True
+
+    if clear(height):
+        return height
+    low, high = 0.0, height
+    for _ in range(40):  # a nanometre on a 10 mm label
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if clear(middle) else (low, middle)
+    return low
+
+
+def label_engraving(
+    tile: NDArray[np.float64],
+    tile_id: int,
+    profile: Profile,
+    keep_out: Sequence[Footprint] = (),
+) -> bd.Compound | None:
+    """Tool: the tile number engraved in seven-segment digits on the bottom face.
+
+    The text reads correctly when the bottom face is seen from outside, runs along side 0, is
+    centred on the face and fits inside ``LABEL_FILL`` of the face's inscribed radius.  It is
+    made smaller where it would come within :func:`feature_wall_mm` of a ``keep_out`` footprint
+    on the bottom face (:func:`hinge_face_footprints`: hinge strips and pin holes, which would
+    cover or cut the digits, and whose recesses overlapping an engraving made OCCT's cut fail).
+    Returns ``None`` (and logs) when the strokes would be thinner than the machine can make
+    (:func:`feature_wall_mm`: ``max(nozzle, 2 kerf, 0.3 mm)``).
+    """
+    if tile_id < 0:
+        raise InputError(f"tile_id = {tile_id} must be >= 0")
+    tile = np.asarray(tile, dtype=np.float64)
+    centroids, normals = face_planes(tile)
+    centre, outward = centroids[FACE_BOTTOM], normals[FACE_BOTTOM]
+    axis_x = unit_vector(tile[5] - tile[4])
+    axis_x = unit_vector(axis_x - (axis_x @ outward) * outward)
+    axis_y = np.cross(outward, axis_x)
+    corners = tile[4:8] - centre
+    corners2d = np.stack([corners @ axis_x, corners @ axis_y], axis=1)
+    nxt = np.roll(corners2d, -1, axis=0)
+    edge = nxt - corners2d
+    inradius = float(np.min(np.abs(_cross2(edge, -corners2d)) / np.linalg.norm(edge, axis=1)))
+    text = str(tile_id)
+    width_over_height = len(text) * _DIGIT_WIDTH + (len(text) - 1) * _DIGIT_SPACING
+    height = LABEL_FILL * inradius / float(np.hypot(0.5 * width_over_height, 0.5))
+    min_stroke = feature_wall_mm(profile)
+    if keep_out:
+        footprints = []
+        for points, radius in keep_out:
+            rel = np.asarray(points, dtype=np.float64).reshape(-1, 3) - centre
+            footprints.append((np.stack([rel @ axis_x, rel @ axis_y], axis=1), float(radius)))
+        height = _label_clear_height(height, width_over_height, footprints, min_stroke)
+    if _DIGIT_STROKE * height < min_stroke:
+        # debug: the design lists the tiles without numbers in one note
+        log.debug(
+            "tile %d: label strokes %.2f mm too thin; no label", tile_id, _DIGIT_STROKE * height
+        )
+        return None
+    depth = label_depth(profile)
+    solids = [
+        _prism(rect, centre, axis_x, axis_y, -outward, -TOOL_OVERSHOOT_MM, depth)
+        for rect in _segment_rectangles(text, height)
+    ]
+    return bd.Compound(solids)
