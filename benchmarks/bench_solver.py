@@ -34,7 +34,12 @@ import time
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.fabrication.pipeline import DesignOptions, resolve_options, split_bound
+from drawstring.fabrication.pipeline import (
+    DesignOptions,
+    ResolvedOptions,
+    resolve_options,
+    split_bound,
+)
 from drawstring.fabrication.profiles import load_profile
 from drawstring.geometry.assembled import (
     ANDERSON_HISTORY,
@@ -44,7 +49,7 @@ from drawstring.geometry.assembled import (
     optimize_assembled,
 )
 from drawstring.geometry.builtins import BUILTIN_TARGETS
-from drawstring.geometry.flatten import flatten, principal_misalignment
+from drawstring.geometry.flatten import Flattening, flatten, principal_misalignment
 from drawstring.geometry.solver import (
     ClosenessToPoints,
     LocalGlobalSolver,
@@ -52,8 +57,8 @@ from drawstring.geometry.solver import (
     planarize_quads,
     quad_planarity,
 )
-from drawstring.geometry.target import load_target
-from drawstring.geometry.tiling import tile_surface
+from drawstring.geometry.target import Target, load_target
+from drawstring.geometry.tiling import Tiling, tile_surface
 
 PATCH_MM = 200.0
 
@@ -118,12 +123,14 @@ def warped_grid_row(anderson: int, cores_note: str) -> dict[str, object]:
     }
 
 
-def assembled_row(name: str, tiles: int, anderson: int, cores_note: str) -> dict[str, object]:
-    """The assembled stage (K3D + extrusion) of a built-in through the real flatten and tiling."""
+def _front(name: str, tiles: int) -> tuple[ResolvedOptions, Target, Flattening, Tiling, float]:
+    """The real front of the pipeline for a built-in at the default profile: its options, the
+    loaded target, the rectangle flattening, the tiling, and the seconds flattening and tiling
+    took."""
     options = DesignOptions(tiles=tiles)
     resolved = resolve_options(options, load_profile(options.profile))
     loaded = load_target(name, size_mm=resolved.size_mm, resolution=resolved.resolution)
-    front = time.perf_counter()
+    start = time.perf_counter()
     flat = flatten(loaded.vertices, loaded.faces, mode="rectangle", corners=resolved.corners)
     tiling = tile_surface(
         loaded.vertices,
@@ -133,7 +140,12 @@ def assembled_row(name: str, tiles: int, anderson: int, cores_note: str) -> dict
         grid=resolved.grid,
         max_scale_factor=split_bound(resolved),
     )
-    front = time.perf_counter() - front
+    return resolved, loaded, flat, tiling, time.perf_counter() - start
+
+
+def assembled_row(name: str, tiles: int, anderson: int, cores_note: str) -> dict[str, object]:
+    """The assembled stage (K3D + extrusion) of a built-in through the real flatten and tiling."""
+    resolved, loaded, flat, tiling, front = _front(name, tiles)
     angle, _ = principal_misalignment(loaded.vertices, loaded.faces, flat.uv)
     cpu_start = time.process_time()
     result = optimize_assembled(
@@ -209,18 +221,7 @@ def weights_row(name: str, tiles: int = 200) -> dict[str, object]:
     scores higher, no better solve of eq. 1 with the paper's weights brings K3D closer: the
     weights, not the solver, set the distance.
     """
-    options = DesignOptions(tiles=tiles)
-    resolved = resolve_options(options, load_profile(options.profile))
-    loaded = load_target(name, size_mm=resolved.size_mm, resolution=resolved.resolution)
-    flat = flatten(loaded.vertices, loaded.faces, mode="rectangle", corners=resolved.corners)
-    tiling = tile_surface(
-        loaded.vertices,
-        loaded.faces,
-        flat.uv,
-        tiles=tiles,
-        grid=resolved.grid,
-        max_scale_factor=split_bound(resolved),
-    )
+    resolved, loaded, _, tiling, _ = _front(name, tiles)
     row: dict[str, object] = {"stage": "weights", "case": name, "tiles": len(tiling.quads)}
     for label, weights in (("paper", PAPER_WEIGHTS), ("close_fit", CLOSE_FIT_WEIGHTS)):
         result = optimize_assembled(
