@@ -84,7 +84,7 @@ class CadResult:
         kernel failed on it (:func:`build_design_solids`); the solid checks count those tiles
         as faults.
     fasteners : screws or staples that hold the plywood hinge strips, one per pilot hole or
-        pair of holes made (:func:`~drawstring.cad.features.strip_hole_plan`; 0 for other
+        pair of holes made (:func:`~drawstring.cad.hinge_parts.strip_hole_plan`; 0 for other
         interlocks).
     """
 
@@ -309,7 +309,7 @@ def strip_neighbours(
 ) -> list[StripNeighbours]:
     """Per hinge ``(tile_a, corner_a, tile_b, corner_b)``, the other corners of tile a's and of
     tile b's hinge face that hold strips too (hinges on the same face of the same tile), which
-    the strip keeps a wall from (:func:`~drawstring.cad.features.strip_room`)."""
+    the strip keeps a wall from (:func:`~drawstring.cad.hinge_parts.strip_room`)."""
     rows = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
     held: dict[tuple[int, str], set[int]] = {}
     for (a, ca, b, cb), side in zip(rows.tolist(), hinge_side, strict=True):
@@ -635,7 +635,7 @@ def _strip_notes(
     crowds: Sequence[StripNeighbours],
 ) -> list[str]:
     """One note for the hinge strips shortened to keep a wall from the other strips of their
-    tiles (:func:`~drawstring.cad.features.hinge_strip_lengths`)."""
+    tiles (:func:`~drawstring.cad.hinge_parts.hinge_strip_lengths`)."""
     half = 0.5 * profile.hinge_pad_length_mm
     lengths = np.array(
         [

@@ -273,12 +273,12 @@ def feature_fit_refusal(result: Design) -> InputError | None:
     against :func:`~drawstring.cad.features.channel_min_face_mm`; each lift-point tile's depth
     against :func:`~drawstring.cad.features.lift_bore_depth_mm`; and each hinged corner's
     distance from its face's centre against
-    :func:`~drawstring.cad.features.strip_min_reach_mm`.  Every other feature gives way on a
+    :func:`~drawstring.cad.hinge_parts.strip_min_reach_mm`.  Every other feature gives way on a
     small tile (pins cut short or left out, strips shortened, chamfers and numbers dropped, each
     with a note).  The size suggested scales the tiles up to the worst shortfall, plus
     :data:`SIZE_MARGIN`.
 
-    The bounds keep a :func:`~drawstring.cad.features.feature_wall_mm` (one nozzle) of
+    The bounds keep a :func:`~drawstring.cad.feature_common.feature_wall_mm` (one nozzle) of
     material around each feature.  Measured on the saddle, fdm-dual, 200 tiles, with the full
     CLI: the lift bores decide (their bend rises 3 mm, half the 6 mm thickness, so it needs
     3.83 mm of tile whatever the size).  ``--size 46`` (lift tiles 3.81 mm deep) is refused;
