@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -441,3 +442,42 @@ def test_a_part_held_by_one_cut_hinge_is_placed_by_the_grid() -> None:
     placed = parts_in_place(linkage, spread, grid_uv)
     np.testing.assert_allclose(placed[~lone], spread[~lone])
     np.testing.assert_allclose(placed[lone], in_place[lone] + [-20.0, 5.0], atol=1e-9)
+
+
+def test_an_unreachable_lift_moves_to_a_gap_a_new_route_reaches(monkeypatch: Any) -> None:
+    # When no nearby gap lies on the first route, nearby gaps are tried with a new route each.
+    # The candidates on the first route are hidden here so that this branch runs; in a 4 x 6
+    # grid this lift gap is unreachable and some of its neighbours off the route are not.
+    import drawstring.fabrication.pipeline as pipeline
+    from drawstring.geometry.lift import nearby_lift_gaps
+
+    linkage = build_linkage(np.ones((4, 6), dtype=bool))
+    pos = _centroids(linkage)
+    lift = _gap_at(linkage, 2, 2)
+    first = plan_route(linkage, pos, [lift])
+    assert first.lifts_missed.tolist() == [lift]
+    on_first = set(first.gaps.tolist())
+
+    def off_first_route(lk: Linkage, gap: int, p: Any, steps: int) -> NDArray[np.int64]:
+        near = nearby_lift_gaps(lk, gap, p, steps).tolist()
+        return np.array([g for g in near if g not in on_first], dtype=np.int64)
+
+    monkeypatch.setattr(pipeline, "nearby_lift_gaps", off_first_route)
+    route, note, served = pipeline.plan_lift_route(linkage, pos, np.array([lift]))
+    (moved,) = served.tolist()
+    assert moved != lift and moved not in on_first
+    assert moved in off_first_route(linkage, lift, pos, 2)[: pipeline.LIFT_MOVE_TRIES].tolist()
+    assert moved in route.gaps.tolist() and route.lifts_missed.size == 0
+    _check_valid(linkage, pos, route)
+    assert note is not None and f"gap {lift} to gap {moved}" in note
+
+
+def test_a_lift_no_nearby_gap_serves_stays_missed(monkeypatch: Any) -> None:
+    import drawstring.fabrication.pipeline as pipeline
+
+    linkage = build_linkage(np.ones((4, 4), dtype=bool))
+    pos = _centroids(linkage)
+    lift = _gap_at(linkage, 2, 2)
+    monkeypatch.setattr(pipeline, "nearby_lift_gaps", lambda *_: np.zeros(0, dtype=np.int64))
+    route, note, served = pipeline.plan_lift_route(linkage, pos, np.array([lift]))
+    assert served.tolist() == [lift] and route.lifts_missed.tolist() == [lift] and note is None
