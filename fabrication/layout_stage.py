@@ -334,10 +334,15 @@ def co_optimized(
     the one kept.  The new design is used only when its flat edge error is lower and the flat
     layout keeps every hard bound; otherwise the inputs come back unchanged with the reason."""
 
+    last: list[tuple[NDArray[np.float64], HingeFaces]] = []
+
     def openings(tiles: NDArray[np.float64]) -> HingeFaces | None:
         if faces is None or not track_openings:
             return faces
-        return hinge_faces(linkage, tiles, faces.bottom)
+        # a round's joint solve starts on the tiles the previous re-solve was given
+        if not (last and np.array_equal(last[0][0], tiles)):
+            last[:] = [(tiles.copy(), hinge_faces(linkage, tiles, faces.bottom))]
+        return last[0][1]
 
     # Round 1 runs the whole continuation. The bottom faces decide the bottom-face angle bounds,
     # so round 2 repeats the last stage with T3D moved along with the new top (a translation of

@@ -143,6 +143,8 @@ class _JointTopLeastSquares:
         else:
             sh = np.asarray(corner_shift, dtype=np.float64)
             self.edge_shift = (sh[:, TILE_EDGES[:, 1]] - sh[:, TILE_EDGES[:, 0]]).reshape(-1, 3)
+        #: CSR order of the Jacobian's entries, its column indices and row pointers
+        self._pattern: tuple[IntArray, NDArray[np.int32], NDArray[np.int32]] | None = None
 
     def pack(self, nodes: FloatArray, top: FloatArray) -> FloatArray:
         z = np.zeros((self.rows, 2))
@@ -243,9 +245,16 @@ class _JointTopLeastSquares:
         out = np.concatenate(res)
         if not with_jacobian:
             return out, None
+        if self._pattern is None:
+            # The pattern never changes and no row repeats a column: sort the coordinates
+            # into CSR order once; every later Jacobian only reorders its values.
+            r_all, c_all = np.concatenate(rows), np.concatenate(cols)
+            order = np.lexsort((c_all, r_all))
+            indptr = np.concatenate([[0], np.cumsum(np.bincount(r_all, minlength=row0))])
+            self._pattern = (order, c_all[order].astype(np.int32), indptr.astype(np.int32))
+        order, indices, indptr = self._pattern
         jac = sp.csr_matrix(
-            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-            shape=(row0, 2 * self.rows),
+            (np.concatenate(vals)[order], indices, indptr), shape=(row0, 2 * self.rows)
         )
         return out, jac
 

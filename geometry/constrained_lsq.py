@@ -36,6 +36,21 @@ __all__ = [
 ]
 
 
+def _csr_rows(cols: IntArray, vals: FloatArray, n_cols: int) -> sp.csr_matrix:
+    """The sparse matrix with ``cols.shape[1]`` entries per row (columns ``cols``, values
+    ``vals``), built directly in canonical CSR form: the matrix ``csr_matrix((vals, (rows,
+    cols)))`` would give, without its coordinate sorting, when no row repeats a column."""
+    k, width = cols.shape
+    order = np.argsort(cols, axis=1, kind="stable")
+    c = np.take_along_axis(cols, order, axis=1)
+    if width > 1 and np.any(c[:, 1:] == c[:, :-1]):
+        rows = np.repeat(np.arange(k), width)
+        return sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(k, n_cols))
+    v = np.take_along_axis(vals, order, axis=1)
+    indptr = np.arange(0, k * width + 1, width, dtype=np.int32)
+    return sp.csr_matrix((v.ravel(), c.ravel().astype(np.int32), indptr), shape=(k, n_cols))
+
+
 @dataclass(frozen=True)
 class AngleRows:
     """Inequalities ``lo <= angle(apex, q, p) + offset <= hi`` (rad) at junctions.
@@ -78,8 +93,7 @@ class AngleRows:
         dv = np.stack([-v[:, 1], v[:, 0]], axis=1) / np.einsum("ki,ki->k", v, v)[:, None]
         vals = sign[:, None] * np.concatenate([-(du + dv), du, dv], axis=1)
         cols = np.stack([2 * el, 2 * el + 1], axis=2).reshape(-1, 6)
-        r = np.repeat(np.arange(len(rows)), 6)
-        return sp.csr_matrix((vals.ravel(), (r, cols.ravel())), shape=(len(rows), 2 * len(x)))
+        return _csr_rows(cols, vals, 2 * len(x))
 
 
 @dataclass(frozen=True)
@@ -102,8 +116,7 @@ class SeparationRows:
         a, b, nrm = self.a[rows], self.b[rows], self.normal[rows]
         cols = np.stack([2 * a, 2 * a + 1, 2 * b, 2 * b + 1], axis=1)
         vals = np.concatenate([-nrm, nrm], axis=1)
-        r = np.repeat(np.arange(len(rows)), 4)
-        return sp.csr_matrix((vals.ravel(), (r, cols.ravel())), shape=(len(rows), 2 * len(x)))
+        return _csr_rows(cols, vals, 2 * len(x))
 
 
 def separation_rows(
@@ -142,8 +155,7 @@ class EdgeLeastSquares:
         unit = d / np.maximum(length, 1e-300)[:, None]
         cols = np.stack([2 * e[:, 0], 2 * e[:, 0] + 1, 2 * e[:, 1], 2 * e[:, 1] + 1], axis=1)
         vals = self.sqrt_w[:, None] * np.concatenate([-unit, unit], axis=1)
-        rows = np.repeat(np.arange(len(e)), 4)
-        jac = sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(len(e), 2 * len(x)))
+        jac = _csr_rows(cols, vals, 2 * len(x))
         return self.sqrt_w * (length - self.targets), jac
 
     def residual(self, x: FloatArray) -> FloatArray:
@@ -236,17 +248,32 @@ def constrained_least_squares(
             pen, act = penalty_rows(values(x), lam, rho)
             blocks = [jac]
             if act.size:
-                blocks += [-np.sqrt(0.5 * rho) * j for j in jac_rows(x, act)]
+                blocks += jac_rows(x, act)
+                for block in blocks[1:]:
+                    block.data *= -np.sqrt(0.5 * rho)
             jr = sp.vstack(blocks, format="csr")
             res = np.concatenate([r, pen])
             jtj = (jr.T @ jr).tocsc()
             grad = jr.T @ res
             diag = jtj.diagonal()
             scale = float(diag.mean()) if diag.size else 1.0
+            # the upper triangle once per step; the damping changes only its diagonal (the
+            # last entry of every column when every diagonal entry is stored)
+            upper = sp.csc_matrix(sp.triu(jtj, format="csc"))
+            upper.sum_duplicates()
+            at = upper.indptr[1:] - 1
+            has_diagonal = bool(np.all(np.diff(upper.indptr) > 0)) and bool(
+                np.array_equal(upper.indices[at], np.arange(len(at)))
+            )
+            base = upper.data[at].copy() if has_diagonal else None
             improved = False
             for _try in range(8):
-                mat = jtj + sp.diags(mu * diag + 1e-10 * scale, format="csc")
-                step = factor.solve(mat, -grad)
+                if base is not None:
+                    upper.data[at] = base + (mu * diag + 1e-10 * scale)
+                    step = factor.solve_upper(upper, -grad)
+                else:
+                    mat = jtj + sp.diags(mu * diag + 1e-10 * scale, format="csc")
+                    step = factor.solve(mat, -grad)
                 steps += 1
                 trial = x + step.reshape(n, 2)
                 c1 = cost(trial, lam, rho)

@@ -38,18 +38,27 @@ def _upper_keys(upper: sp.csc_matrix) -> IntArray:
     return cols * n + upper.indices.astype(np.int64)
 
 
-def _backward_error(upper: sp.csc_matrix, x: FloatArray, b: FloatArray) -> float:
+def _backward_error(
+    upper: sp.csc_matrix,
+    cols: IntArray,
+    on_diagonal: NDArray[np.bool_],
+    x: FloatArray,
+    b: FloatArray,
+) -> float:
     """Normwise backward error of ``x`` as a solution of ``A x = b``, ``A`` the symmetric
-    matrix of which ``upper`` is the upper triangle (inf: not finite)."""
+    matrix of which ``upper`` is the upper triangle (inf: not finite); ``cols`` is the column
+    of every stored entry and ``on_diagonal`` marks the diagonal ones."""
     if not np.all(np.isfinite(x)):
         return float("inf")
-    diagonal = upper.diagonal()
-    product = upper @ x + upper.T @ x - diagonal * x
-    magnitude = abs(upper)
-    row_sums = (
-        np.asarray(magnitude.sum(axis=1)).ravel()
-        + np.asarray(magnitude.sum(axis=0)).ravel()
-        - np.abs(diagonal)
+    n = upper.shape[0]
+    rows, data = upper.indices, upper.data
+    off = np.where(on_diagonal, 0.0, data)
+    product = np.bincount(rows, data * x[cols], minlength=n) + np.bincount(
+        cols, off * x[rows], minlength=n
+    )
+    magnitude = np.abs(data)
+    row_sums = np.bincount(rows, magnitude, minlength=n) + np.bincount(
+        cols, np.abs(off), minlength=n
     )
     scale = float(row_sums.max(initial=0.0)) * float(np.abs(x).max(initial=0.0))
     scale += float(np.abs(b).max(initial=0.0))
@@ -76,6 +85,9 @@ class SpdSolver:
         # the last matrix's own pattern and where its entries sit in the union
         self._last: tuple[NDArray[np.int32], NDArray[np.int32]] | None = None
         self._pos: IntArray = np.zeros(0, dtype=np.int64)
+        self._cols: IntArray = np.zeros(0, dtype=np.int64)
+        self._on_diagonal: NDArray[np.bool_] = np.zeros(0, dtype=bool)
+        self._union = sp.csc_matrix((0, 0))  # the union pattern, refilled for every matrix
         #: numeric refactorizations in a known pattern, and symbolic analyses
         self.reused = 0
         self.analysed = 0
@@ -85,6 +97,11 @@ class SpdSolver:
         (only its upper triangle is read)."""
         upper = sp.csc_matrix(sp.triu(matrix, format="csc"))
         upper.sum_duplicates()  # canonical: sorted, no duplicates
+        return self.solve_upper(upper, rhs)
+
+    def solve_upper(self, upper: sp.csc_matrix, rhs: FloatArray) -> FloatArray:
+        """:meth:`solve` given the matrix's upper triangle as a canonical CSC matrix (sorted
+        indices, no duplicates), e.g. one whose diagonal the caller changes between solves."""
         n = upper.shape[0]
         last = self._last
         if not (
@@ -101,9 +118,11 @@ class SpdSolver:
                 self._set_union(merged, n)
                 pos = np.searchsorted(self._keys, keys)
             self._last, self._pos = (upper.indptr.copy(), upper.indices.copy()), pos
-        values = np.zeros(len(self._keys))
-        values[self._pos] = upper.data
-        union = sp.csc_matrix((values, self._indices, self._indptr), shape=(n, n))
+            self._cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(upper.indptr))
+            self._on_diagonal = self._cols == upper.indices
+        union = self._union
+        union.data[:] = 0.0
+        union.data[self._pos] = upper.data
         b = np.asarray(rhs, dtype=np.float64)
         x: FloatArray | None = None
         try:
@@ -116,7 +135,10 @@ class SpdSolver:
             x = np.asarray(self._solver.solve(b))
         except RuntimeError:  # qdldl refuses a zero pivot it meets while analysing
             pass
-        if x is not None and _backward_error(upper, x, b) <= BACKWARD_ERROR_TOL:
+        if (
+            x is not None
+            and _backward_error(upper, self._cols, self._on_diagonal, x, b) <= BACKWARD_ERROR_TOL
+        ):
             return x
         # not numerically positive definite: a pivoting factorization; analyse afresh next time
         self._solver, self._last = None, None
@@ -129,4 +151,7 @@ class SpdSolver:
         self._keys = keys
         self._indices = rows.astype(np.int32)
         self._indptr = np.searchsorted(cols, np.arange(n + 1)).astype(np.int32)
+        self._union = sp.csc_matrix(
+            (np.zeros(len(keys)), self._indices, self._indptr), shape=(n, n)
+        )
         self._solver = None

@@ -262,3 +262,24 @@ def test_split_parts_are_laid_out_in_the_order_in_which_they_meet() -> None:
         xs = moved[linkage.corner_node[linkage.tile_component == part]][..., 0]
         spans.append((xs.min(), xs.max()))
     assert spans[0][1] < spans[1][0] and spans[1][1] < spans[2][0]
+
+
+def test_direct_csr_rows_match_the_coordinate_build() -> None:
+    from scipy import sparse
+
+    from drawstring.geometry.constrained_lsq import _csr_rows
+
+    rng = np.random.default_rng(5)
+    cols = np.array([[7, 2, 9, 0], [1, 3, 5, 4], [8, 6, 2, 1]])
+    vals = rng.normal(size=cols.shape)
+    rows = np.repeat(np.arange(3), 4)
+    direct = _csr_rows(cols, vals, 10)
+    reference = sparse.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(3, 10))
+    assert direct.has_canonical_format
+    np.testing.assert_array_equal(direct.indptr, reference.indptr)
+    np.testing.assert_array_equal(direct.indices, reference.indices)
+    np.testing.assert_array_equal(direct.data, reference.data)
+    # a row naming one column twice sums its entries, as the coordinate build does
+    cols[1, 3] = 1
+    summed = _csr_rows(cols, vals, 10).toarray()
+    assert summed[1, 1] == pytest.approx(vals[1, 0] + vals[1, 3])

@@ -63,3 +63,22 @@ def test_the_pivoting_fallback_reads_only_the_upper_triangle_too() -> None:
     matrix = sp.csc_matrix(np.array([[0.0, 1.0], [1.0, 0.0]]))
     x = SpdSolver().solve(sp.triu(matrix), np.array([2.0, 3.0]))
     np.testing.assert_allclose(x, [3.0, 2.0])
+
+
+def test_an_upper_triangle_whose_diagonal_changes_in_place_is_solved_afresh() -> None:
+    # The Levenberg-Marquardt loop keeps one upper triangle per step and rewrites only its
+    # diagonal (the damping) between tries: every try must see its own matrix.
+    n = 40
+    matrix = spd(n, 0.1, 3)
+    upper = sp.csc_matrix(sp.triu(matrix, format="csc"))
+    upper.sum_duplicates()
+    at = upper.indptr[1:] - 1  # the diagonal closes every column of an upper triangle
+    base = upper.data[at].copy()
+    rhs = np.cos(np.arange(n, dtype=float))
+    solver = SpdSolver()
+    for damping in (0.0, 1.0, 1e3, 1e-3):
+        upper.data[at] = base * (1.0 + damping)
+        full = matrix + sp.diags(damping * base)
+        x = solver.solve_upper(upper, rhs)
+        np.testing.assert_allclose(x, np.linalg.solve(full.toarray(), rhs), rtol=1e-10)
+    assert solver.analysed == 1
