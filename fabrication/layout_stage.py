@@ -95,7 +95,8 @@ class ShapedLayout:
     hinge_layout: HingeLayout
     split_bound: float
     notes: tuple[str, ...]
-    #: the co-optimization was refused and its held-openings run skipped (``fallback=False``)
+    #: the co-optimization was refused and its held-openings run skipped, or cut short for
+    #: slow progress (``fallback=False``): a full run is owed if this tiling is kept
     fallback_skipped: bool = False
 
     @property
@@ -162,6 +163,7 @@ def shape_and_layout(
             break  # splitting does not help this design (e.g. errors at split-line ends)
         best, best_accuracy = trial, accuracy
     if best is first and first.fallback_skipped and first_accuracy > target:
+        # kept after all: co-optimized in full, with the held-openings fallback
         best = first = _shaped(first_tiling, first.split_bound, loaded, options, progress, shapes)
     if not tried:
         return first
@@ -238,10 +240,10 @@ def _shaped(
         with progress.stage("co-optimize"):
             plain = (assembled, flat)
             assembled, flat, co_block = co_optimized(
-                linkage, tiling, *plain, loaded, options, faces
+                linkage, tiling, *plain, loaded, options, faces, give_up_slow=not fallback
             )
             refused = not co_block["accepted"] and faces is not None
-            skipped = refused and not fallback
+            skipped = (refused and not fallback) or bool(co_block.get("cut_short"))
             if refused and fallback:
                 # On the moved tiles some slit ends no longer clear where they did, and the
                 # windows that shift between rounds can leave the re-solve stranded (1600-tile
@@ -285,11 +287,28 @@ CO_REFINEMENTS = 4
 #: of the tolerance, or within the tolerance and this ratio of the joint solve's.
 CO_STOP_SHARE = 0.1
 CO_STOP_RATIO = 10.0
+#: A tiling that may still be split (``give_up_slow``) stops co-optimizing when, shrinking at
+#: the rate of its last round for the rounds left, its re-solved error would stay above this
+#: many times the tolerance (the rigid hinge layout takes off about 4x: 200-tile seashell
+#: 2e-3 -> 4.9e-4 mm).  The 200-tile seashell's first tiling (0.052, 0.039, 0.032, 0.012,
+#: 0.025 mm) and the one-part chair's (0.29, 0.42, 2.9 mm) were split in the end; the peanut's
+#: (0.031, 0.010, 3.1e-3, 1.1e-3, 3.4e-4 mm) goes on.
+CO_SLOW_REACH = 4.0
 #: ... and gives up after its first round when that re-solve is this many times worse than
 #: the plain layout.  Runs that never recovered: 200-tile wave 130x (1.55 mm against 0.012),
 #: one-part chair 6.5x, 1600-tile wave 9x; one that did: the 200-tile wave holding the eq.-1
 #: openings, 2.8x (0.032 mm, then 2.3e-3, 2e-4, 9e-5).
 CO_GIVE_UP_RATIO = 5.0
+
+
+def too_slow(previous_mm: float, error_mm: float, rounds_left: int) -> bool:
+    """Whether co-optimization rounds that took the re-solved edge error from ``previous_mm``
+    to ``error_mm`` would, at that rate for ``rounds_left`` more rounds, still end above
+    :data:`CO_SLOW_REACH` times the tolerance."""
+    if rounds_left <= 0 or error_mm <= 0:
+        return False
+    rate = max(previous_mm / error_mm, 1.0)
+    return bool(error_mm / rate**rounds_left > CO_SLOW_REACH * FLAT_EDGE_ERROR_TOL_MM)
 
 
 def flat_layout(
@@ -325,6 +344,7 @@ def co_optimized(
     faces: HingeFaces | None,
     *,
     track_openings: bool = True,
+    give_up_slow: bool = False,
 ) -> tuple[AssembledResult, FlatResult, dict[str, Any]]:
     """K3D and K2D moved together so the flat tiles are congruent to the assembled ones
     (:func:`~drawstring.geometry.coflat.co_optimize_top`; with ``faces``, at their hinge points
@@ -332,7 +352,9 @@ def co_optimized(
     ``faces`` throughout), T3D extruded again under the new K3D and the flat layout solved
     again from the joint one.  The round whose re-solved layout has the smallest edge error is
     the one kept.  The new design is used only when its flat edge error is lower and the flat
-    layout keeps every hard bound; otherwise the inputs come back unchanged with the reason."""
+    layout keeps every hard bound; otherwise the inputs come back unchanged with the reason.
+    With ``give_up_slow`` the rounds stop early when they converge too slowly to reach the
+    tolerance (:data:`CO_SLOW_REACH`; the block then says ``cut_short``)."""
 
     last: list[tuple[NDArray[np.float64], HingeFaces]] = []
 
@@ -355,7 +377,8 @@ def co_optimized(
     rounds: list[tuple[tuple[float, float], ...]] = [CO_STAGES, CO_STAGES[-1:]]
     best: tuple[AssembledResult, FlatResult] | None = None
     worse = 0  # rounds in a row below neither the best round nor the plain layout
-    for _ in range(CO_REFINEMENTS + 1):
+    previous = flat.edge_error_max_mm
+    for done in range(1, CO_REFINEMENTS + 2):
         for stages in rounds:
             co = co_optimize_top(
                 linkage,
@@ -392,6 +415,9 @@ def co_optimized(
         # do not come down in later rounds (the 200-tile chair in one part: 4.5, 2.7, 2.0,
         # 1.9 mm against a plain 0.69 mm).
         error = new_flat.edge_error_max_mm
+        logger.info(
+            "co-optimization round: joint %.3g mm, re-solved %.3g mm", co.edge_error_max_mm, error
+        )
         first_round = best is None
         progress_made = best is None or error < best[1].edge_error_max_mm
         if progress_made:
@@ -412,6 +438,10 @@ def co_optimized(
             or error <= min(FLAT_EDGE_ERROR_TOL_MM, CO_STOP_RATIO * co.edge_error_max_mm)
         ):
             break
+        if give_up_slow and too_slow(previous, error, CO_REFINEMENTS + 1 - done):
+            block["cut_short"] = True
+            break
+        previous = error
         rounds = [CO_STAGES[-1:]]
     # a refinement round can lose (its re-solve may settle elsewhere): keep the best round
     assert best is not None

@@ -287,3 +287,40 @@ def test_co_optimization_gives_up_when_its_first_re_solve_is_far_worse(monkeypat
     assert len(resolves) == 1
     assert not block["accepted"] and "did not drop" in block["reason"]
     assert flat is plain
+
+
+def test_slow_rounds_are_projected_from_their_last_gain() -> None:
+    # Re-solved errors (mm) of real runs at 200 tiles: the seashell's first tiling shrank 1.3x
+    # a round and was split in the end; the peanut's shrinks 3x a round and meets 1e-3 mm.
+    left = layout_stage.CO_REFINEMENTS + 1
+    assert layout_stage.too_slow(0.0516, 0.0386, left - 2)
+    assert not layout_stage.too_slow(0.0306, 0.0102, left - 2)
+    assert not layout_stage.too_slow(0.0102, 0.00306, left - 3)
+    # no gain at all projects no shrinking; no rounds left is never "too slow"
+    assert layout_stage.too_slow(0.01, 0.02, 1)
+    assert not layout_stage.too_slow(0.0516, 0.0386, 0)
+
+
+def test_a_tiling_that_may_be_split_again_stops_slow_co_optimization(monkeypatch) -> None:
+    # Re-solves that shrink only 1.25x a round from the plain layout cannot reach the
+    # tolerance in the rounds left: a tiling that may be split again stops after one round
+    # (and says so); one that is final runs every round.
+    shaped, eq1, faces, plain = _saddle_before_co_optimization()
+    flat_layout = layout_stage.flat_layout
+    resolves: list[float] = []
+
+    def slow(*args: object, **kwargs: object):
+        out = flat_layout(*args, **kwargs)
+        error = plain.edge_error_max_mm * 0.8 ** (len(resolves) + 1)
+        resolves.append(error)
+        return replace(out, edge_error_max_mm=error)
+
+    monkeypatch.setattr(layout_stage, "flat_layout", slow)
+    args = (shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options)
+    _, flat, block = layout_stage.co_optimized(*args, faces, give_up_slow=True)
+    assert len(resolves) == 1 and block["cut_short"]
+    assert block["accepted"] and flat.edge_error_max_mm == resolves[0]
+    resolves.clear()
+    _, flat, block = layout_stage.co_optimized(*args, faces)
+    assert len(resolves) == layout_stage.CO_REFINEMENTS + 1 and "cut_short" not in block
+    assert flat.edge_error_max_mm == resolves[-1]
