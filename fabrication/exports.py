@@ -849,13 +849,14 @@ def write_fabrication(
             )
 
     flat_route, string_mm, tail = measures.route_flat_mm, measures.string_mm, measures.tail_mm
+    string_section_mm2 = math.pi * (0.5 * profile.string_diameter_mm) ** 2
     record.bom.append(
         _row(
             "string",
             profile.string_material,
             1,
             profile.string_material,
-            0.0,
+            string_section_mm2 * string_mm * profile.string_density_kg_m3 * 1e-6,  # g
             f"{string_mm / 1000:.3f} m = flat route {flat_route / 1000:.3f} m x "
             f"{1 + STRING_MARGIN:g} + 2 tails of {tail:.0f} mm",
             length_mm=string_mm,

@@ -33,6 +33,8 @@ class Field:
     high: float | None = None
     unit: str = ""
     choices: tuple[str, ...] = ()
+    #: value of a key that profiles written before it existed leave out (None: required)
+    default: float | str | None = None
 
 
 #: Fewest grid cells each way a design can have: the closed string route must pass every
@@ -73,6 +75,9 @@ SCHEMA: dict[str, Field] = {
     "min_bend_radius_mm": Field("string", "min_bend_radius_mm", float, 0.0, 1000.0, "mm"),
     "friction_coefficient": Field("string", "friction_coefficient", float, 0.0, 2.0, ""),
     "string_material": Field("string", "material", str),
+    "string_density_kg_m3": Field(
+        "string", "density_kg_m3", float, 10.0, 20_000.0, "kg/m^3", default=1000.0
+    ),
     "hinge_material": Field("hinge", "material", str),
     "hinge_thickness_mm": Field("hinge", "thickness_mm", float, 0.05, 50.0, "mm"),
     "hinge_width_mm": Field("hinge", "width_mm", float, 0.1, 200.0, "mm"),
@@ -120,6 +125,7 @@ class Profile:
     min_bend_radius_mm: float
     friction_coefficient: float
     string_material: str
+    string_density_kg_m3: float
     hinge_material: str
     hinge_thickness_mm: float
     hinge_width_mm: float
@@ -219,6 +225,8 @@ def parse_profile(data: dict[str, Any], source: str) -> Profile:
             values[attr] = value
     for attr, spec in SCHEMA.items():
         where = f"{spec.section}.{spec.key}" if spec.section else spec.key
+        if attr not in values and spec.default is not None:
+            values[attr] = spec.default
         if attr not in values:
             raise InputError(f"{source}: missing key {where} ({_describe_range(spec)})")
         value = values[attr]

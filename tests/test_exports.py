@@ -467,6 +467,11 @@ def test_outputs_state_the_measured_mass_and_route(built: Built) -> None:
     assert float(rows[hinge_item]["mass_g"]) == measures.hinge_mass_g
     assert rows["mass"]["description"] == f"{measures.mass_g} g"
     assert float(rows["string"]["length_mm"]) == measures.string_mm
+    # string mass: its round section times its length times its density (kg/m^3 = 1e-6 g/mm^3)
+    section = np.pi * (0.5 * profile.string_diameter_mm) ** 2
+    string_g = section * measures.string_mm * profile.string_density_kg_m3 * 1e-6
+    assert float(rows["string"]["mass_g"]) == pytest.approx(string_g, abs=0.051)
+    assert float(rows["string"]["mass_g"]) > 0
     assert f"flat route {measures.route_flat_mm / 1000:.3f} m" in rows["string"]["note"]
     manifest = json.loads((built.folder / "fabrication/manifest.json").read_text())
     estimates = manifest["estimates"]

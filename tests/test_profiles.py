@@ -124,3 +124,16 @@ def test_smallest_size_gives_tiles_the_cad_features_fit(name: str) -> None:
     result = design("saddle", options)
     assert result.options.tiles == profile.default_tiles
     assert feature_fit_refusal(result) is None
+
+
+def test_a_profile_written_before_the_string_density_existed_still_loads() -> None:
+    # Keys added later carry a default, so users' saved profiles keep loading.
+    table = shipped_table()
+    assert table["string"]["density_kg_m3"] == 970.0
+    del table["string"]["density_kg_m3"]
+    profile = parse_profile(table, "old.toml")
+    assert profile.string_density_kg_m3 == 1000.0
+    # a required key stays required
+    del table["string"]["diameter_mm"]
+    with pytest.raises(InputError, match="missing key string.diameter_mm"):
+        parse_profile(table, "old.toml")
