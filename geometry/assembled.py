@@ -58,6 +58,7 @@ from drawstring.geometry.frustums import (
     vertex_normals,
 )
 from drawstring.geometry.solver import (
+    ClosenessToPlanes,
     ClosenessToPoints,
     ClosenessToSurface,
     ConstraintGroup,
@@ -514,7 +515,10 @@ def extrude_tiles(
         Closeness of the top to K3D and of the bottom to its normal offset.
     fix_top : bool
         Hold the top exactly where it is (its quads must be planar already): only the bottom
-        vertices are unknowns, the top faces' planarity and ``w_keep_top`` drop out.
+        vertices are unknowns, the top faces' planarity and ``w_keep_top`` drop out, and the
+        slab pulls each bottom corner onto the plane parallel to its tile's top face
+        ``thickness`` below it (:class:`ClosenessToPlanes`: the top's planes are known, so the
+        common normal the free slab fits is not needed; a third of the time per iteration).
     rel_tol, max_iter, anderson : solver options
 
     Returns
@@ -527,14 +531,30 @@ def extrude_tiles(
     edges = quad_mesh_edges(quads)
     bottom0 = _initial_bottom(top, quads, thickness)
     faces = np.vstack([quads + n, side_quads(quads, edges, n)])
-    groups: list[ConstraintGroup] = [
-        Plane(faces if fix_top else np.vstack([quads, faces]), w_planar, name="planar"),
-        Slab(quads, quads + n, thickness, w_slab, name="slab"),
-        ClosenessToPoints(np.arange(n), top, w_keep_top, name="keep_top"),
-        ClosenessToPoints(np.arange(n, 2 * n), bottom0, w_keep_bottom, name="keep_bottom"),
-    ]
+    keep_bottom = ClosenessToPoints(np.arange(n, 2 * n), bottom0, w_keep_bottom, name="keep_bottom")
+    groups: list[ConstraintGroup]
     if fix_top:
-        del groups[2]
+        areas = quad_vector_areas(top, quads)
+        normals = areas / np.linalg.norm(areas, axis=1, keepdims=True)
+        levels = np.einsum("ki,ki->k", top[quads].mean(axis=1), normals) - thickness
+        groups = [
+            Plane(faces, w_planar, name="planar"),
+            ClosenessToPlanes(
+                (quads + n).reshape(-1),
+                np.repeat(normals, 4, axis=0),
+                np.repeat(levels, 4),
+                w_slab,
+                name="slab",
+            ),
+            keep_bottom,
+        ]
+    else:
+        groups = [
+            Plane(np.vstack([quads, faces]), w_planar, name="planar"),
+            Slab(quads, quads + n, thickness, w_slab, name="slab"),
+            ClosenessToPoints(np.arange(n), top, w_keep_top, name="keep_top"),
+            keep_bottom,
+        ]
     solver = LocalGlobalSolver(2 * n, groups, fixed=np.arange(n) if fix_top else None)
     result = solver.solve(
         np.vstack([top, bottom0]),

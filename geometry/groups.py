@@ -365,6 +365,50 @@ class ClosenessToPoints(ConstraintGroup):
         return self.targets
 
 
+class ClosenessToPlanes(ConstraintGroup):
+    """Keep vertices near fixed planes, one plane per row (a vertex may have several rows).
+
+    The projection is the exact closest point ``x - (n . x - level) n``; the group's energy is
+    quadratic, so the solver converges on it as on :class:`ClosenessToPoints`.
+
+    Parameters
+    ----------
+    indices : (k,) int
+    normals : (k, dim) float, unit
+    levels : (k,) float, mm
+        Row ``r`` pulls vertex ``indices[r]`` onto ``{x : normals[r] . x = levels[r]}``.
+    """
+
+    def __init__(
+        self,
+        indices: ArrayLike,
+        normals: ArrayLike,
+        levels: ArrayLike,
+        weight: float = 1.0,
+        name: str = "planes",
+    ) -> None:
+        super().__init__(name, weight)
+        self.indices = np.asarray(indices, dtype=np.int64).reshape(-1)
+        self.normals = np.asarray(normals, dtype=np.float64)
+        self.levels = np.asarray(levels, dtype=np.float64).reshape(-1)
+        k = len(self.indices)
+        if self.normals.ndim != 2 or self.normals.shape[0] != k or self.levels.shape != (k,):
+            raise InputError(
+                f"group {self.name!r}: give one normal and one level per index ({k}), got "
+                f"normals {self.normals.shape} and levels {self.levels.shape}"
+            )
+        norms = np.linalg.norm(self.normals, axis=1)
+        if not (np.all(np.isfinite(self.levels)) and np.allclose(norms, 1.0, atol=1e-9)):
+            raise InputError(f"group {self.name!r}: normals must be unit and levels finite")
+
+    def matrix(self, n_vertices: int) -> sp.csr_matrix:
+        return selection_matrix(self.indices, n_vertices)
+
+    def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
+        height = np.einsum("ki,ki->k", ax, self.normals) - self.levels
+        return ax - height[:, None] * self.normals
+
+
 def closest_points_on_triangles(
     points: FloatArray, a: FloatArray, b: FloatArray, c: FloatArray
 ) -> tuple[FloatArray, IntArray]:

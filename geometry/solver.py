@@ -74,6 +74,7 @@ from drawstring.geometry.errors import InputError
 
 # The groups live in their own module; they are re-exported here, where every stage imports them.
 from drawstring.geometry.groups import (
+    ClosenessToPlanes,
     ClosenessToPoints,
     ClosenessToSurface,
     ConstraintGroup,
@@ -113,6 +114,7 @@ __all__ = [
     "cross3",
     "difference_matrix",
     "selection_matrix",
+    "ClosenessToPlanes",
     "ClosenessToPoints",
     "ClosenessToSurface",
     "ConstraintGroup",

@@ -7,6 +7,7 @@ import pytest
 
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.solver import (
+    ClosenessToPlanes,
     ClosenessToPoints,
     ClosenessToSurface,
     EdgeLength,
@@ -267,6 +268,28 @@ def test_closeness_to_surface_projects_onto_plane() -> None:
     result = LocalGlobalSolver(2, [group]).solve(points, max_iter=200, rel_tol=0.0, abs_tol=1e-20)
     assert np.allclose(result.X[:, 2], 0.0, atol=1e-9)
     assert np.allclose(result.X[:, :2], points[:, :2], atol=1e-9)
+
+
+def test_closeness_to_planes_meets_at_the_planes_intersection() -> None:
+    # one vertex pulled onto x = 1 and onto y = 2 (two rows) settles on their common line,
+    # where it started along it (z); another onto a slanted plane lands on its closest point
+    normal = np.array([1.0, 1.0, 1.0]) / np.sqrt(3.0)
+    group = ClosenessToPlanes(
+        [0, 0, 1], [[1.0, 0, 0], [0, 1.0, 0], normal], [1.0, 2.0, 3.0], weight=2.0
+    )
+    points = np.array([[5.0, -4.0, 7.0], [0.0, 0.0, 0.0]])
+    projected = group.project(group.matrix(2) @ points, points)
+    assert np.allclose(projected, [[1.0, -4.0, 7.0], [5.0, 2.0, 7.0], 3.0 * normal])
+    result = LocalGlobalSolver(2, [group]).solve(points, max_iter=500, rel_tol=0.0, abs_tol=1e-24)
+    assert np.allclose(result.X, [[1.0, 2.0, 7.0], 3.0 * normal], atol=1e-9)
+    assert_monotone(result.energy_history)
+
+
+def test_closeness_to_planes_refuses_bad_planes() -> None:
+    with pytest.raises(InputError, match="one normal and one level per index"):
+        ClosenessToPlanes([0, 1], [[0, 0, 1.0]], [0.0, 1.0])
+    with pytest.raises(InputError, match="unit"):
+        ClosenessToPlanes([0], [[0, 0, 2.0]], [0.0])
 
 
 def test_slab_projects_to_parallel_planes_at_thickness() -> None:
