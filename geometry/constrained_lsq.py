@@ -19,7 +19,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from drawstring.geometry.constraints import signed_angles
-from drawstring.geometry.spd import SpdSolver
+from drawstring.geometry.spd import SpdSolver, upper_triangle
 
 logger = logging.getLogger(__name__)
 
@@ -259,8 +259,8 @@ def constrained_least_squares(
             scale = float(diag.mean()) if diag.size else 1.0
             # the upper triangle once per step; the damping changes only its diagonal (the
             # last entry of every column when every diagonal entry is stored)
-            upper = sp.csc_matrix(sp.triu(jtj, format="csc"))
-            upper.sum_duplicates()
+            jtj.sum_duplicates()  # a no-op: the product sums duplicates and tocsc sorts
+            upper = upper_triangle(jtj)
             at = upper.indptr[1:] - 1
             has_diagonal = bool(np.all(np.diff(upper.indptr) > 0)) and bool(
                 np.array_equal(upper.indices[at], np.arange(len(at)))

@@ -23,12 +23,26 @@ from numpy.typing import NDArray
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-__all__ = ["BACKWARD_ERROR_TOL", "SpdSolver"]
+__all__ = ["BACKWARD_ERROR_TOL", "SpdSolver", "upper_triangle"]
 
 #: Largest accepted normwise backward error ``|A x - b| / (|A| |x| + |b|)`` (infinity norms) of
 #: a qdldl answer; a stable ``LDL^T`` of a positive definite matrix stays near machine
 #: precision, a stale or broken factor is off by order one.
 BACKWARD_ERROR_TOL = 1e-8
+
+
+def upper_triangle(matrix: sp.csc_matrix) -> sp.csc_matrix:
+    """The upper triangle (diagonal included) of a canonical CSC matrix (sorted indices, no
+    duplicates), canonical too: what ``sp.triu(matrix, format="csc")`` gives, entry for entry,
+    without its round trip through coordinates (a third of its time)."""
+    n = matrix.shape[1]
+    cols = np.repeat(np.arange(n, dtype=matrix.indices.dtype), np.diff(matrix.indptr))
+    keep = matrix.indices <= cols
+    indptr = np.zeros(n + 1, dtype=matrix.indptr.dtype)
+    np.cumsum(np.bincount(cols[keep], minlength=n), out=indptr[1:])
+    upper = sp.csc_matrix((matrix.data[keep], matrix.indices[keep], indptr), shape=matrix.shape)
+    upper.has_canonical_format = True
+    return upper
 
 
 def _upper_keys(upper: sp.csc_matrix) -> IntArray:
@@ -95,9 +109,9 @@ class SpdSolver:
     def solve(self, matrix: sp.spmatrix | sp.sparray, rhs: FloatArray) -> FloatArray:
         """``x`` with ``matrix @ x = rhs``; ``matrix`` ``(n, n)`` symmetric positive definite
         (only its upper triangle is read)."""
-        upper = sp.csc_matrix(sp.triu(matrix, format="csc"))
-        upper.sum_duplicates()  # canonical: sorted, no duplicates
-        return self.solve_upper(upper, rhs)
+        canonical = sp.csc_matrix(matrix, copy=True)
+        canonical.sum_duplicates()  # sorted, no duplicates
+        return self.solve_upper(upper_triangle(canonical), rhs)
 
     def solve_upper(self, upper: sp.csc_matrix, rhs: FloatArray) -> FloatArray:
         """:meth:`solve` given the matrix's upper triangle as a canonical CSC matrix (sorted

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from drawstring.geometry.spd import SpdSolver
+from drawstring.geometry.spd import SpdSolver, upper_triangle
 
 
 def spd(n: int, density: float, seed: int) -> sp.csc_matrix:
@@ -38,6 +38,20 @@ def test_a_full_symmetric_matrix_and_its_upper_triangle_give_the_same_answer() -
     full = SpdSolver().solve(matrix, rhs)
     upper = SpdSolver().solve(sp.triu(matrix), rhs)
     np.testing.assert_allclose(full, upper, rtol=1e-12)
+
+
+def test_upper_triangle_is_scipys_entry_for_entry() -> None:
+    # explicit zeros included (scipy keeps them too), and a non-square case
+    matrix = spd(50, 0.08, 3)
+    matrix.data[::7] = 0.0
+    wide = sp.csc_matrix(sp.random(30, 45, density=0.2, random_state=4, format="csc"))
+    for case in (matrix, wide):
+        case.sum_duplicates()
+        expected = sp.csc_matrix(sp.triu(case, format="csc"))
+        got = upper_triangle(case)
+        assert got.shape == expected.shape
+        for name in ("indptr", "indices", "data"):
+            assert np.array_equal(getattr(got, name), getattr(expected, name)), name
 
 
 def test_an_indefinite_matrix_falls_back_to_a_pivoting_solve() -> None:
