@@ -324,3 +324,35 @@ def test_a_tiling_that_may_be_split_again_stops_slow_co_optimization(monkeypatch
     _, flat, block = layout_stage.co_optimized(*args, faces)
     assert len(resolves) == layout_stage.CO_REFINEMENTS + 1 and "cut_short" not in block
     assert flat.edge_error_max_mm == resolves[-1]
+
+
+def test_refinement_rounds_start_from_the_re_solved_layout(monkeypatch) -> None:
+    # each refinement round's joint solve starts from the layout re-solved on the extruded
+    # tiles (which holds their bounds), not from the previous joint solve's nodes
+    shaped, eq1, faces, plain = _saddle_before_co_optimization()
+    co_optimize_top = layout_stage.co_optimize_top
+    flat_layout = layout_stage.flat_layout
+    starts: list[np.ndarray | None] = []
+    resolved: list[np.ndarray] = []
+
+    def recording_joint(*args: object, **kwargs: object):
+        start = kwargs.get("start_nodes")
+        starts.append(None if start is None else np.array(start))
+        return co_optimize_top(*args, **kwargs)
+
+    def slow(*args: object, **kwargs: object):
+        out = flat_layout(*args, **kwargs)
+        resolved.append(np.array(out.nodes))
+        # shrinking slowly: every round runs
+        return replace(out, edge_error_max_mm=plain.edge_error_max_mm * 0.8 ** len(resolved))
+
+    monkeypatch.setattr(layout_stage, "co_optimize_top", recording_joint)
+    monkeypatch.setattr(layout_stage, "flat_layout", slow)
+    args = (shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options)
+    layout_stage.co_optimized(*args, faces)
+    # round 1 runs every stage, then its last one again; each later round one stage
+    assert starts[0] is None
+    assert len(starts) == 2 + layout_stage.CO_REFINEMENTS
+    assert len(resolved) == 1 + layout_stage.CO_REFINEMENTS
+    for start, before in zip(starts[2:], resolved[:-1], strict=True):
+        assert start is not None and np.array_equal(start, before)
