@@ -338,9 +338,15 @@ def hinge_trims(
         normals = np.cross(p1 - p0, p2 - p0)
         keep = np.linalg.norm(normals, axis=1) > 0
         normals = normals[keep] / np.linalg.norm(normals[keep], axis=1, keepdims=True)
+        points = p0[keep]
+        # one clipping plane per face of the overlap, not per triangle of its mesh (the
+        # triangles of one face give the same plane to round-off; a plane kept twice only
+        # costs time, so rounding that splits a pair is harmless)
+        key = np.round(np.c_[normals, np.einsum("ki,ki->k", normals, points)], 9)
+        first = np.sort(np.unique(key, axis=0, return_index=True)[1])
         trimmed = max(a, b)
         lost = sum(
-            polygon_in_convex_polyhedron_area(tiles[trimmed][face], p0[keep], normals)
+            polygon_in_convex_polyhedron_area(tiles[trimmed][face], points[first], normals[first])
             for face in TILE_FACES[2:]
         )
         # Record the trim grown by a small cube (Minkowski sum) so that subtracting it leaves no
