@@ -131,13 +131,17 @@ class GapJunctions:
 
 
 def gap_junctions(linkage: Linkage) -> GapJunctions:
-    """All hinge junctions of all gaps.
+    """All hinge junctions of all gaps (computed once per linkage).
 
     Side ``(tile, k)`` runs from corner ``k`` to ``k + 1`` counter-clockwise around the tile, so
     counter-clockwise around the void it runs from corner ``k + 1`` to corner ``k``.  Consecutive
     sides that share a node form a junction; it is a slit end when its node is not at the gap's
     own grid vertex.
     """
+    return linkage.derived("gap_junctions", _gap_junctions)
+
+
+def _gap_junctions(linkage: Linkage) -> GapJunctions:
     elements: list[tuple[int, int, int]] = []
     gaps: list[int] = []
     ends: list[bool] = []

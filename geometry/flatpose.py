@@ -173,18 +173,27 @@ def _separable(
         return np.stack([c * p[..., 0] - s * p[..., 1], s * p[..., 0] + c * p[..., 1]], axis=-1)
 
     bh, bo = turned(b_hinge), turned(b_other)
-    lo_a = need_a[:, :, None]
+    lo_a = need_a[:, :, None]  # (E, v, 1)
     lo_b = need_b[:, :, None]
 
     def margins(az: FloatArray) -> FloatArray:
-        cx, sy = np.cos(az)[:, None, :], np.sin(az)[:, None, :]  # (E, 1, K)
+        cx, sy = np.cos(az), np.sin(az)  # (E, K)
 
-        def along(p: FloatArray) -> FloatArray:
-            return np.asarray(p[..., 0, None] * cx + p[..., 1, None] * sy)  # (E, v, K)
+        def extreme(p: FloatArray, pick: np.ufunc, shift: FloatArray | None = None) -> FloatArray:
+            # the smallest or largest of ``p``'s vertices (plus ``shift``) along each direction,
+            # vertex by vertex: (E, K) slabs instead of a strided reduction over (E, v, K)
+            out: FloatArray | None = None
+            for v in range(p.shape[1]):
+                d = p[:, v, 0, None] * cx + p[:, v, 1, None] * sy
+                if shift is not None:
+                    d = d + shift[:, v]
+                out = d if out is None else pick(out, d)
+            assert out is not None
+            return out
 
-        hinge_b = along(bh).min(axis=1) - clearance
-        hinge_a = -along(a_hinge).max(axis=1) - clearance
-        other = (along(bo) - lo_b).min(axis=1) - (along(a_other) + lo_a).max(axis=1)
+        hinge_b = extreme(bh, np.minimum) - clearance
+        hinge_a = -extreme(a_hinge, np.maximum) - clearance
+        other = extreme(bo, np.minimum, -lo_b) - extreme(a_other, np.maximum, lo_a)
         return np.asarray(np.minimum(np.minimum(hinge_b, hinge_a), 0.5 * other))
 
     start = np.arctan2(bh[:, 2, 1], bh[:, 2, 0])  # b's side leaving H

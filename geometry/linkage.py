@@ -17,9 +17,9 @@ Conventions (see ARCHITECTURE.md section 3 and ``linkage-topology.png``):
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal, TypeVar, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -85,6 +85,9 @@ class Split:
         return {"axis": self.axis, "line": self.line, "lo": self.lo, "hi": self.hi}
 
 
+_Derived = TypeVar("_Derived")
+
+
 @dataclass(frozen=True)
 class Linkage:
     """Topology of a quad auxetic linkage.
@@ -148,6 +151,21 @@ class Linkage:
     def hinge_edges(self) -> NDArray[np.int64]:
         """(H, 2) tile pairs joined by a hinge."""
         return self.hinges[:, [0, 2]]
+
+    def derived(self, key: str, build: Callable[[Linkage], _Derived]) -> _Derived:
+        """``build(self)``, computed once per linkage and kept with it (tables that follow
+        from the topology alone, e.g. :func:`slit_ends`; their arrays come back read-only)."""
+        cache: dict[str, Any] | None = self.__dict__.get("_derived")
+        if cache is None:
+            cache = {}
+            object.__setattr__(self, "_derived", cache)  # frozen: not a field, not compared
+        if key not in cache:
+            value = build(self)
+            for item in vars(value).values() if hasattr(value, "__dict__") else ():
+                if isinstance(item, np.ndarray):
+                    item.setflags(write=False)
+            cache[key] = value
+        return cast("_Derived", cache[key])
 
     def counts(self) -> dict[str, int]:
         return {
@@ -411,7 +429,12 @@ class SlitEnds:
 
 
 def slit_ends(linkage: Linkage) -> SlitEnds:
-    """Every slit end of ``linkage``, gap by gap, in the order of ``gap_sides``."""
+    """Every slit end of ``linkage``, gap by gap, in the order of ``gap_sides`` (computed once
+    per linkage)."""
+    return linkage.derived("slit_ends", _slit_ends)
+
+
+def _slit_ends(linkage: Linkage) -> SlitEnds:
     nodes = linkage.corner_node
     hinge_at = -np.ones((linkage.n_tiles, 4), dtype=np.int64)
     h = linkage.hinges

@@ -145,3 +145,27 @@ def test_cropped_grid_has_three_tile_gap() -> None:
     assert len(three) == 1
     assert link.gap_kind[three[0]] == "boundary"
     assert tuple(link.vertex_ij[link.gap_vertex[three[0]]]) == (2, 2)
+
+
+def test_derived_tables_are_built_once_per_linkage_and_read_only() -> None:
+    from drawstring.geometry.flat import gap_junctions
+    from drawstring.geometry.linkage import slit_ends
+
+    linkage = build_linkage(np.ones((4, 3), dtype=bool))
+    calls: list[int] = []
+
+    def build(lk: object) -> int:
+        calls.append(1)
+        return 7
+
+    assert linkage.derived("probe", build) == 7
+    assert linkage.derived("probe", build) == 7
+    assert len(calls) == 1
+    ends = slit_ends(linkage)
+    assert slit_ends(linkage) is ends
+    with pytest.raises(ValueError):
+        ends.hinge[0] = 0  # a caller cannot corrupt the kept table
+    # a linkage with other tiles gets its own tables
+    other = build_linkage(np.ones((3, 3), dtype=bool))
+    assert len(slit_ends(other).hinge) != len(ends.hinge)
+    assert gap_junctions(linkage) is gap_junctions(linkage)
