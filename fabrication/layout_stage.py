@@ -22,6 +22,7 @@ from drawstring.geometry.assembled import (
     optimize_assembled,
     quad_vector_areas,
     reextrude,
+    remeasured,
     tile_vertices,
 )
 from drawstring.geometry.coflat import CO_STAGES, co_optimize_top
@@ -407,7 +408,8 @@ def co_optimized(
                 tiles=tile_vertices(co.top, moved_bottom, current.quads),
             )
             nodes = co.nodes
-        extruded = reextrude(assembled, current.top, target.vertices, target.faces)
+        # measured only for the round that is kept (below)
+        extruded = reextrude(assembled, current.top, target.vertices, target.faces, measure=False)
         if extruded is None:
             block["reason"] = "the new assembled shape would turn a tile inside out"
             return assembled, flat, block
@@ -491,4 +493,4 @@ def co_optimized(
         )
         return assembled, flat, block
     block["accepted"] = True
-    return new_assembled, new_flat, block
+    return remeasured(new_assembled, target.vertices, target.faces), new_flat, block

@@ -786,13 +786,15 @@ def reextrude(
     rel_tol: float = ASSEMBLED_SOLVER_REL_TOL,
     max_iter: int = 1000,
     anderson: int = ANDERSON_HISTORY,
+    measure: bool = True,
 ) -> AssembledResult | None:
     """T3D extruded again under a new K3D that must not move (its quads already planar).
 
     Used after the flat layout moved K3D (:func:`~drawstring.geometry.flat.co_optimize_top`):
     the extrusion holds the top fixed (only the bottom vertices are unknowns) and the exact
     planarity polish moves only bottom vertices, so the flat tiles stay congruent to the new top
-    faces.
+    faces.  With ``measure=False`` the :func:`measure_assembled` metrics are left as ``result``
+    had them (rounds that may be thrown away skip them; :func:`remeasured` adds them later).
 
     Returns
     -------
@@ -820,14 +822,8 @@ def reextrude(
         return None
     tiles = tile_vertices(new_top, bottom, faces)
     metrics = dict(result.metrics)
-    metrics.update(
-        measure_assembled(
-            tiles,
-            faces,
-            np.asarray(target_vertices, dtype=np.float64),
-            np.asarray(target_faces, dtype=np.int64),
-        )
-    )
+    if measure:
+        metrics.update(_measured_metrics(tiles, faces, target_vertices, target_faces))
     metrics["corner_margin_min"] = float(
         corner_margins(new_top, faces, quad_vector_areas(result.top, faces)).min()
     )
@@ -844,3 +840,24 @@ def reextrude(
         top_polish=top_polish,
         extrusion_polish=polish,
     )
+
+
+def _measured_metrics(
+    tiles: FloatArray, quads: IntArray, target_vertices: ArrayLike, target_faces: ArrayLike
+) -> dict[str, float]:
+    return measure_assembled(
+        tiles,
+        quads,
+        np.asarray(target_vertices, dtype=np.float64),
+        np.asarray(target_faces, dtype=np.int64),
+    )
+
+
+def remeasured(
+    result: AssembledResult, target_vertices: ArrayLike, target_faces: ArrayLike
+) -> AssembledResult:
+    """``result`` with its :func:`measure_assembled` metrics taken on its own tiles (after
+    ``reextrude(..., measure=False)``)."""
+    metrics = dict(result.metrics)
+    metrics.update(_measured_metrics(result.tiles, result.quads, target_vertices, target_faces))
+    return dataclasses.replace(result, metrics=metrics)

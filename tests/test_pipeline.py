@@ -149,17 +149,25 @@ def test_co_optimization_is_judged_by_its_own_tiles_not_the_target_normals(monke
     # (``flipped_tiles``); that said nothing about the co-optimization and refused it on the
     # scanned face.  A tile is turned over only when its top turned by more than 90 deg.
     shaped, eq1, faces, plain = _saddle_before_co_optimization()
-    reextrude = layout_stage.reextrude
+    reextrude, remeasured = layout_stage.reextrude, layout_stage.remeasured
+    seen: list[int] = []
 
-    def noisy(*args: object, **kwargs: object):
+    def noisy_extrusion(*args: object, **kwargs: object):
         out = reextrude(*args, **kwargs)
         return None if out is None else replace(out, metrics={**out.metrics, "flipped_tiles": 3})
 
-    monkeypatch.setattr(layout_stage, "reextrude", noisy)
+    def noisy_measure(*args: object, **kwargs: object):
+        out = remeasured(*args, **kwargs)
+        seen.append(1)
+        return replace(out, metrics={**out.metrics, "flipped_tiles": 3})
+
+    monkeypatch.setattr(layout_stage, "reextrude", noisy_extrusion)
+    monkeypatch.setattr(layout_stage, "remeasured", noisy_measure)
     new, flat, block = layout_stage.co_optimized(
         shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces
     )
     assert block["accepted"], block["reason"]
+    assert seen and new.metrics["flipped_tiles"] == 3  # the kept round was measured so
     assert flat.edge_error_max_mm < plain.edge_error_max_mm
     # every top face kept its orientation
     before = layout_stage.quad_vector_areas(eq1.top, eq1.quads)
