@@ -93,18 +93,23 @@ class ShapedLayout:
     assembled: AssembledResult
     flat: FlatResult
     co_block: dict[str, Any]
-    hinge_layout: HingeLayout
+    #: None when the hinge stage was skipped (``fallback=False`` and a hopeless flat layout)
+    hinge_layout: HingeLayout | None
     split_bound: float
     notes: tuple[str, ...]
     #: the co-optimization was refused and its held-openings run skipped, or cut short for
-    #: slow progress (``fallback=False``): a full run is owed if this tiling is kept
+    #: slow progress, or the hinge stage skipped (``fallback=False``): a full run is owed if
+    #: this tiling is kept
     fallback_skipped: bool = False
 
     @property
     def accuracy_mm(self) -> float:
         """The larger of the flat edge error and the in-plane hinge gap, mm, as measured on
         the output (:func:`~drawstring.fabrication.pipeline.measure_design`): how far the flat
-        tiles are from meeting at their hinges with their assembled shapes."""
+        tiles are from meeting at their hinges with their assembled shapes (the flat layout's
+        edge error where the hinge stage was skipped)."""
+        if self.hinge_layout is None:
+            return self.flat.edge_error_max_mm
         tiles = self.assembled.tiles
         edge = verify.flat_edge_errors(self.hinge_layout.tiles[:, :4, :2], tiles[:, :4])
         fabricated = fabricated_tiles(self.hinge_layout, tiles)
@@ -201,9 +206,10 @@ def _shaped(
 ) -> ShapedLayout:
     """Stages assembled to hinges on one tiling (see :func:`shape_and_layout`); with
     ``fallback=False`` a refused co-optimization is not run again holding the eq.-1
-    openings.  ``shapes`` holds the assembled configurations already solved, by quad mesh;
-    their arrays are read-only, as they may be shared between tilings (and so are those of a
-    design that keeps the eq.-1 tiles, e.g. with ``--no-co-optimize``)."""
+    openings, and the hinge stage is skipped when the flat layout is too far off.
+    ``shapes`` holds the assembled configurations already solved, by quad mesh; their arrays
+    are read-only, as they may be shared between tilings (and so are those of a design that
+    keeps the eq.-1 tiles, e.g. with ``--no-co-optimize``)."""
     notes = list(tiling.notes)
     linkage = tiling.linkage
     skipped = False
@@ -261,6 +267,21 @@ def _shaped(
             notes.append(f"co-optimization not used: {co_block['reason']}")
     else:
         co_block = {"accepted": False, "reason": "off (--no-co-optimize)"}
+    if not fallback and flat.edge_error_max_mm > CO_SLOW_REACH * FLAT_EDGE_ERROR_TOL_MM:
+        # A tiling that may still be split skips the hinge stage when its flat layout is too
+        # far off for the rigid hinge layout to reach the targets (it takes off about 4x, see
+        # CO_SLOW_REACH; on a layout this far off it can add: 200-tile seashell in one part,
+        # 0.052 mm flat, 0.082 mm hinged): it is tiled again, and laid out in full if kept.
+        return ShapedLayout(
+            tiling=tiling,
+            assembled=assembled,
+            flat=flat,
+            co_block=co_block,
+            hinge_layout=None,
+            split_bound=bound,
+            notes=tuple(notes),
+            fallback_skipped=True,
+        )
     tiles_2d = extrude_flat(flat, assembled.tiles, options.thickness_mm)
     with progress.stage("hinges"):
         # dual: the sides and clear openings the kept flat layout was made for

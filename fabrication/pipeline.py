@@ -465,6 +465,7 @@ def _design(
     notes.extend(shaped.notes)
     tiling, assembled, flat = shaped.tiling, shaped.assembled, shaped.flat
     co_block, hinge_layout, linkage = shaped.co_block, shaped.hinge_layout, shaped.tiling.linkage
+    assert hinge_layout is not None  # only a tiling that was tiled again goes without
     masses = tile_masses_from_volumes(
         assembled.tiles, profile.density_kg_m3 * profile.infill_fraction
     )

@@ -274,6 +274,42 @@ def test_a_tiling_that_may_be_split_again_skips_the_held_openings_run(monkeypatc
     assert held == [2, 1]  # the first tiling, kept, ran it after all
 
 
+def test_a_first_tiling_far_off_skips_the_hinge_stage_unless_kept(monkeypatch) -> None:
+    # The rigid hinge layout cannot bring a flat layout many times the tolerance off within it,
+    # so a tiling that may be split again skips it; kept after all, it is laid out in full.
+    co_optimized = layout_stage.co_optimized
+
+    def far_off_in_one_part(linkage, *args, **kwargs):
+        new, flat, block = co_optimized(linkage, *args, **kwargs)
+        if linkage.n_components == 1:
+            flat = replace(flat, edge_error_max_mm=1.0)
+        return new, flat, block
+
+    hinged: list[int] = []  # parts of each tiling laid out by the hinge stage
+    layout_hinges = layout_stage.layout_hinges
+
+    def counted(linkage, *args, **kwargs):
+        hinged.append(linkage.n_components)
+        return layout_hinges(linkage, *args, **kwargs)
+
+    monkeypatch.setattr(layout_stage, "co_optimized", far_off_in_one_part)
+    monkeypatch.setattr(layout_stage, "layout_hinges", counted)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    result = design("saddle", options)
+    assert result.tiling.linkage.n_components == 2
+    assert hinged == [2]
+    note = next(n for n in result.notes if n.startswith("tiling:"))
+    assert (
+        "(1 part) the flat tiles met their hinges with their assembled shapes only to 1 mm" in note
+    )
+    hinged.clear()
+    monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(lambda _s: 1.0))
+    result = design("saddle", options)
+    assert result.tiling.linkage.n_components == 1
+    assert hinged == [2, 1]  # the first tiling, kept, got its hinge stage after all
+    assert result.hinge_layout.tiles.shape == (result.tiling.linkage.n_tiles, 8, 3)
+
+
 def test_co_optimization_gives_up_when_its_first_re_solve_is_far_worse(monkeypatch) -> None:
     # A first re-solve many times worse than the plain layout has never recovered: the run
     # stops after one round and is refused.
