@@ -267,27 +267,20 @@ def _shaped(
             notes.append(f"co-optimization not used: {co_block['reason']}")
     else:
         co_block = {"accepted": False, "reason": "off (--no-co-optimize)"}
+    hinge_layout: HingeLayout | None = None
     if not fallback and flat.edge_error_max_mm > CO_SLOW_REACH * FLAT_EDGE_ERROR_TOL_MM:
         # A tiling that may still be split skips the hinge stage when its flat layout is too
         # far off for the rigid hinge layout to reach the targets (it takes off about 4x, see
         # CO_SLOW_REACH; on a layout this far off it can add: 200-tile seashell in one part,
         # 0.052 mm flat, 0.082 mm hinged): it is tiled again, and laid out in full if kept.
-        return ShapedLayout(
-            tiling=tiling,
-            assembled=assembled,
-            flat=flat,
-            co_block=co_block,
-            hinge_layout=None,
-            split_bound=bound,
-            notes=tuple(notes),
-            fallback_skipped=True,
-        )
-    tiles_2d = extrude_flat(flat, assembled.tiles, options.thickness_mm)
-    with progress.stage("hinges"):
-        # dual: the sides and clear openings the kept flat layout was made for
-        hinge_layout = layout_hinges(
-            linkage, flat, tiles_2d, assembled.tiles, strategy=options.hinges
-        )
+        skipped = True
+    else:
+        tiles_2d = extrude_flat(flat, assembled.tiles, options.thickness_mm)
+        with progress.stage("hinges"):
+            # dual: the sides and clear openings the kept flat layout was made for
+            hinge_layout = layout_hinges(
+                linkage, flat, tiles_2d, assembled.tiles, strategy=options.hinges
+            )
     return ShapedLayout(
         tiling=tiling,
         assembled=assembled,
