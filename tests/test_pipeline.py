@@ -333,6 +333,36 @@ def test_co_optimization_gives_up_when_its_first_re_solve_is_far_worse(monkeypat
     assert flat is plain
 
 
+def test_co_optimization_stops_once_a_re_solve_is_well_inside_the_tolerance(monkeypatch) -> None:
+    # A re-solve at a quarter of the tolerance is kept without further rounds, even when the
+    # joint solve reached far less (the rigid hinge layout has room to spare; the rounds that
+    # followed only moved the bottom corners again: 1600-tile wave).
+    shaped, eq1, faces, plain = _saddle_before_co_optimization()
+    flat_layout = layout_stage.flat_layout
+    resolves: list[float] = []
+
+    def well_inside(*args: object, **kwargs: object):
+        out = flat_layout(*args, **kwargs)
+        error = 0.25 * layout_stage.FLAT_EDGE_ERROR_TOL_MM
+        resolves.append(error)
+        return replace(out, edge_error_max_mm=error)
+
+    joint = layout_stage.co_optimize_top
+
+    def exact_joint(*args: object, **kwargs: object):
+        return replace(joint(*args, **kwargs), edge_error_max_mm=1e-9)
+
+    assert layout_stage.CO_STOP_SHARE > 0.25
+    monkeypatch.setattr(layout_stage, "flat_layout", well_inside)
+    monkeypatch.setattr(layout_stage, "co_optimize_top", exact_joint)
+    _, flat, block = layout_stage.co_optimized(
+        shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces
+    )
+    assert len(resolves) == 1
+    assert block["accepted"], block["reason"]
+    assert flat.edge_error_max_mm == resolves[0]
+
+
 def test_slow_rounds_are_projected_from_their_last_gain() -> None:
     # Re-solved errors (mm) of real runs at 200 tiles: the seashell's first tiling shrank 1.3x
     # a round and was split in the end; the peanut's shrinks 3x a round and meets 1e-3 mm.
