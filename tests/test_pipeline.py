@@ -310,21 +310,26 @@ def test_a_first_tiling_far_off_skips_the_hinge_stage_unless_kept(monkeypatch) -
     assert result.hinge_layout.tiles.shape == (result.tiling.linkage.n_tiles, 8, 3)
 
 
+def _re_solves_reporting(monkeypatch, error: float) -> list[float]:
+    """Make every flat re-solve of the co-optimization report ``error`` as its edge error;
+    the list returned collects one entry per re-solve."""
+    flat_layout = layout_stage.flat_layout
+    resolves: list[float] = []
+
+    def reporting(*args: object, **kwargs: object):
+        resolves.append(error)
+        return replace(flat_layout(*args, **kwargs), edge_error_max_mm=error)
+
+    monkeypatch.setattr(layout_stage, "flat_layout", reporting)
+    return resolves
+
+
 def test_co_optimization_gives_up_when_its_first_re_solve_is_far_worse(monkeypatch) -> None:
     # A first re-solve many times worse than the plain layout has never recovered: the run
     # stops after one round and is refused.
     shaped, eq1, faces, plain = _saddle_before_co_optimization()
-    flat_layout = layout_stage.flat_layout
-    resolves: list[float] = []
-
-    def far_worse(*args: object, **kwargs: object):
-        out = flat_layout(*args, **kwargs)
-        error = 100.0 * plain.edge_error_max_mm
-        resolves.append(error)
-        return replace(out, edge_error_max_mm=error)
-
     assert layout_stage.CO_GIVE_UP_RATIO < 100.0
-    monkeypatch.setattr(layout_stage, "flat_layout", far_worse)
+    resolves = _re_solves_reporting(monkeypatch, 100.0 * plain.edge_error_max_mm)
     _, flat, block = layout_stage.co_optimized(
         shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces
     )
@@ -338,22 +343,13 @@ def test_co_optimization_stops_once_a_re_solve_is_well_inside_the_tolerance(monk
     # joint solve reached far less (the rigid hinge layout has room to spare; the rounds that
     # followed only moved the bottom corners again: 1600-tile wave).
     shaped, eq1, faces, plain = _saddle_before_co_optimization()
-    flat_layout = layout_stage.flat_layout
-    resolves: list[float] = []
-
-    def well_inside(*args: object, **kwargs: object):
-        out = flat_layout(*args, **kwargs)
-        error = 0.25 * layout_stage.FLAT_EDGE_ERROR_TOL_MM
-        resolves.append(error)
-        return replace(out, edge_error_max_mm=error)
-
+    resolves = _re_solves_reporting(monkeypatch, 0.25 * layout_stage.FLAT_EDGE_ERROR_TOL_MM)
     joint = layout_stage.co_optimize_top
 
     def exact_joint(*args: object, **kwargs: object):
         return replace(joint(*args, **kwargs), edge_error_max_mm=1e-9)
 
     assert layout_stage.CO_STOP_SHARE > 0.25
-    monkeypatch.setattr(layout_stage, "flat_layout", well_inside)
     monkeypatch.setattr(layout_stage, "co_optimize_top", exact_joint)
     _, flat, block = layout_stage.co_optimized(
         shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces
