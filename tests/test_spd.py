@@ -4,8 +4,10 @@ solves while the sparsity pattern repeats, shrinks, grows and returns."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import scipy.sparse as sp
 
+from drawstring.geometry import spd as spd_module
 from drawstring.geometry.spd import SpdSolver, upper_triangle
 
 
@@ -96,3 +98,33 @@ def test_an_upper_triangle_whose_diagonal_changes_in_place_is_solved_afresh() ->
         x = solver.solve_upper(upper, rhs)
         np.testing.assert_allclose(x, np.linalg.solve(full.toarray(), rhs), rtol=1e-10)
     assert solver.analysed == 1
+
+
+def test_large_patterns_go_to_the_supernodal_factor_with_the_same_answers(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # the CHOLMOD path, taken here at a low threshold: answers against dense solves while the
+    # pattern repeats (numeric refactorizations only), grows (a new analysis) and the
+    # diagonal changes in place; an indefinite matrix still falls back to SuperLU
+    monkeypatch.setattr(spd_module, "SUPERNODAL_MIN_ENTRIES", 50)
+    n = 60
+    rhs = np.sin(np.arange(n, dtype=float))
+    base = spd(n, 0.05, 0)
+    extra = spd(n, 0.05, 1)
+    solver = SpdSolver()
+    for matrix in (base, 2.0 * base, base + extra, base, 3.0 * base + extra):
+        x = solver.solve(matrix, rhs)
+        np.testing.assert_allclose(x, np.linalg.solve(matrix.toarray(), rhs), rtol=1e-10)
+    assert solver._cholmod is not None  # the path under test was taken
+    assert solver.analysed == 2 and solver.reused == 3
+    indefinite = base - 50.0 * sp.identity(n, format="csc")
+    x = solver.solve(indefinite, rhs)
+    np.testing.assert_allclose(x, np.linalg.solve(indefinite.toarray(), rhs), rtol=1e-8)
+    x = solver.solve(base, rhs)
+    np.testing.assert_allclose(x, np.linalg.solve(base.toarray(), rhs), rtol=1e-10)
+
+
+def test_small_patterns_stay_with_qdldl() -> None:
+    solver = SpdSolver()
+    solver.solve(spd(60, 0.05, 0), np.ones(60))
+    assert solver._cholmod is None
