@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from drawstring.geometry.linkage import Linkage, slit_ends
+from drawstring.geometry.parallel import map_blocks
 from drawstring.geometry.rigid import apply_rigid, rigid_fit
 from drawstring.geometry.tolerances import (
     FLAT_FREE_MARGIN_DEG,
@@ -277,8 +278,10 @@ def free_openings(
             clearance, current[sel] - opening,
         )  # fmt: skip
 
+    # the openings on the grid, and each bisection's lower and upper midpoints, are checked
+    # independently of each other: the checks are spread over the cores (:func:`map_blocks`)
     grid = np.radians(np.linspace(0.0, 90.0, _GRID + 1))
-    on_grid = np.stack([ok(np.full(n_ends, g)) for g in grid], axis=1)  # (E, G)
+    on_grid = np.stack(map_blocks(lambda g: ok(np.full(n_ends, g)), list(grid)), axis=1)  # (E, G)
     anywhere = on_grid.any(axis=1)
     first = np.argmax(on_grid, axis=1)
     # end of the first separable run
@@ -290,14 +293,13 @@ def free_openings(
     lo_sel = np.flatnonzero(anywhere & (first > 0))
     hi_sel = np.flatnonzero(anywhere & (stop < len(grid) - 1))
     for _ in range(_BISECTIONS):
-        mid = 0.5 * (lo_out[lo_sel] + lo_in[lo_sel])
-        good = ok(mid, lo_sel)
-        lo_in[lo_sel] = np.where(good, mid, lo_in[lo_sel])
-        lo_out[lo_sel] = np.where(good, lo_out[lo_sel], mid)
-        mid = 0.5 * (hi_in[hi_sel] + hi_out[hi_sel])
-        good = ok(mid, hi_sel)
-        hi_in[hi_sel] = np.where(good, mid, hi_in[hi_sel])
-        hi_out[hi_sel] = np.where(good, hi_out[hi_sel], mid)
+        lo_mid = 0.5 * (lo_out[lo_sel] + lo_in[lo_sel])
+        hi_mid = 0.5 * (hi_in[hi_sel] + hi_out[hi_sel])
+        lo_good, hi_good = map_blocks(lambda job: ok(*job), [(lo_mid, lo_sel), (hi_mid, hi_sel)])
+        lo_in[lo_sel] = np.where(lo_good, lo_mid, lo_in[lo_sel])
+        lo_out[lo_sel] = np.where(lo_good, lo_out[lo_sel], lo_mid)
+        hi_in[hi_sel] = np.where(hi_good, hi_mid, hi_in[hi_sel])
+        hi_out[hi_sel] = np.where(hi_good, hi_out[hi_sel], hi_mid)
     lo = np.where(first == 0, 0.0, lo_in)
     hi = np.where(stop == len(grid) - 1, 0.5 * np.pi, hi_in)
     return np.where(anywhere, lo, 0.5 * np.pi), np.where(anywhere, hi, 0.0)

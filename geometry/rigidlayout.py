@@ -22,6 +22,7 @@ import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from drawstring.geometry import parallel
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import Linkage, SlitEnds, slit_ends
 from drawstring.geometry.spd import SpdSolver
@@ -64,6 +65,11 @@ class _Planes:
     piece_a: IntArray
     piece_b: IntArray
 
+
+#: Most rows searched at once for separating planes (their (rows, 8, 120, 5) heights bound the
+#: memory), and fewest worth a block of their own on another core.
+_SEARCH_BLOCK_ROWS = 512
+_SEARCH_MIN_BLOCK_ROWS = 64
 
 #: Weight of a violation on the side of the tile that carries a plane (the layout cannot repair
 #: it: the plane moves with that tile) against one on the other side when choosing planes.
@@ -314,18 +320,29 @@ def _select_planes(
     normal = np.zeros((n_p, 3))
     score = np.full(n_p, -np.inf)
     offset = np.zeros(n_p)
-    chunk = 512
 
     def run(sel: IntArray, guess: FloatArray | None) -> None:
-        for start in range(0, len(sel), chunk):
-            part = sel[start : start + chunk]
+        # Rows are searched independently, in blocks of at most 512 (memory) spread over the
+        # cores (:func:`map_blocks`; the result does not depend on the blocks).
+        count = -(-len(sel) // _SEARCH_BLOCK_ROWS)
+        count = max(count, min(parallel.thread_count(), -(-len(sel) // _SEARCH_MIN_BLOCK_ROWS)))
+        bounds = [int(v) for v in np.linspace(0, len(sel), count + 1)] if len(sel) else [0]
+        spans = list(zip(bounds[:-1], bounds[1:], strict=True))
+
+        def block(span: tuple[int, int]) -> tuple[FloatArray, FloatArray, FloatArray]:
+            part = sel[span[0] : span[1]]
             if guess is None:
                 az = np.broadcast_to(np.radians(np.arange(0.0, 360.0, 3.0)), (len(part), 120))
                 spread = np.array([0.0, 0.15, -0.15, 0.35, -0.35])
                 g, _, _ = search(part, az, spread, np.zeros(len(part)))
             else:
-                g = guess[start : start + chunk]
-            n_new, s_new, o_new = refine(part, g)
+                g = guess[span[0] : span[1]]
+            return refine(part, g)
+
+        for span, (n_new, s_new, o_new) in zip(
+            spans, parallel.map_blocks(block, spans), strict=True
+        ):
+            part = sel[span[0] : span[1]]
             better = s_new > score[part]
             part = part[better]
             normal[part], score[part], offset[part] = n_new[better], s_new[better], o_new[better]

@@ -1,0 +1,45 @@
+"""Independent blocks of large numpy work spread over the machine's cores.
+
+NumPy releases the GIL inside its array loops, so blocks of rows whose arithmetic is
+independent (each row's result depends on that row alone) run side by side on threads.  The
+blocks' results come back in order and each row is computed by the same operations whatever
+the number of threads or blocks, so results are bitwise the same on any machine.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
+
+__all__ = ["MAX_THREADS", "map_blocks", "thread_count"]
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+#: Most worker threads used (the pipeline targets two cores; more gain little on these sizes).
+MAX_THREADS = 4
+
+_pool: ThreadPoolExecutor | None = None
+
+
+def thread_count() -> int:
+    """Threads the blocks are spread over: the cores this process may run on, at most
+    :data:`MAX_THREADS`."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, MAX_THREADS))
+
+
+def map_blocks(work: Callable[[T], R], blocks: Sequence[T]) -> list[R]:
+    """``[work(b) for b in blocks]``, the blocks run on worker threads when there are several
+    blocks and cores."""
+    global _pool
+    if len(blocks) < 2 or thread_count() < 2:
+        return [work(block) for block in blocks]
+    if _pool is None:
+        _pool = ThreadPoolExecutor(max_workers=thread_count(), thread_name_prefix="drawstring")
+    return list(_pool.map(work, blocks))
