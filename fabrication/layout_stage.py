@@ -10,13 +10,18 @@ from __future__ import annotations
 
 import logging
 import math
+import multiprocessing
+import sys
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any
+from multiprocessing.connection import Connection
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.geometry import verify
+from drawstring.geometry import parallel, verify
 from drawstring.geometry.assembled import (
     AssembledResult,
     optimize_assembled,
@@ -151,23 +156,48 @@ def shape_and_layout(
     # co-optimization is refused for its area scale, which more splits mend (the 200-tile
     # chair in one part: the fallback took 4.5 s and still missed by 0.2 mm).  It runs after
     # all if the first tiling is the one kept.
-    first = best = _shaped(first_tiling, bound, loaded, options, progress, shapes, fallback=False)
-    first_accuracy = best_accuracy = first.accuracy_mm
-    target = min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
-    tried: list[str] = []
-    for _ in range(RETILE_ATTEMPTS):
-        if best_accuracy <= target:
-            break
-        bound = 1.0 + RETILE_SHRINK * (min(bound, best.tiling.scale_factor_max) - 1.0)
-        tiling = tiled(bound)
-        if _same_parts(tiling, best.tiling):
-            break  # no further split keeps enough cells on each side
-        trial = _shaped(tiling, bound, loaded, options, progress, shapes)
-        accuracy = trial.accuracy_mm
-        tried.append(f"{_parts(tiling)} at bound {bound:.3g}: {accuracy:.2g} mm")
-        if not (accuracy < RETILE_GAIN * best_accuracy or accuracy <= target):
-            break  # splitting does not help this design (e.g. errors at split-line ends)
-        best, best_accuracy = trial, accuracy
+    ahead: _Ahead | None = None
+    if _can_fork() and RETILE_ATTEMPTS > 0:
+        # The first tighter tiling, which the loop below lays out if the first tiling misses,
+        # is laid out meanwhile in a second process (the 200-tile seashell and chair).
+        next_bound = _tighter(bound, first_tiling)
+        next_tiling = tiled(next_bound)
+        if not _same_parts(next_tiling, first_tiling):
+            _assembled_shape(first_tiling, loaded, options, progress, shapes)  # shared by both
+
+            def work(child_progress: Progress) -> ShapedLayout:
+                return _shaped(next_tiling, next_bound, loaded, options, child_progress, shapes)
+
+            ahead = _Ahead(next_tiling, work)
+    try:
+        first = best = _shaped(
+            first_tiling, bound, loaded, options, progress, shapes, fallback=False
+        )
+        first_accuracy = best_accuracy = first.accuracy_mm
+        target = min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
+        tried: list[str] = []
+        for _ in range(RETILE_ATTEMPTS):
+            if best_accuracy <= target:
+                break
+            bound = _tighter(bound, best.tiling)
+            trial: ShapedLayout | None = None
+            if ahead is not None:
+                tiling = ahead.tiling  # the ahead tiling is the first tighter one
+                trial, ahead = ahead.result(progress), None
+            else:
+                tiling = tiled(bound)
+            if _same_parts(tiling, best.tiling):
+                break  # no further split keeps enough cells on each side
+            if trial is None:
+                trial = _shaped(tiling, bound, loaded, options, progress, shapes)
+            accuracy = trial.accuracy_mm
+            tried.append(f"{_parts(tiling)} at bound {bound:.3g}: {accuracy:.2g} mm")
+            if not (accuracy < RETILE_GAIN * best_accuracy or accuracy <= target):
+                break  # splitting does not help this design (e.g. errors at split-line ends)
+            best, best_accuracy = trial, accuracy
+    finally:
+        if ahead is not None:
+            ahead.cancel()  # the first tiling met the targets: its result is not needed
     if best is first and first.fallback_skipped and first_accuracy > target:
         # kept after all: co-optimized in full, with the held-openings fallback
         best = first = _shaped(first_tiling, first.split_bound, loaded, options, progress, shapes)
@@ -180,6 +210,11 @@ def shape_and_layout(
         f"tighter splits gave {'; '.join(tried)}; {outcome}"
     )
     return replace(best, notes=(*best.notes, note))
+
+
+def _tighter(bound: float, tiling: Tiling) -> float:
+    """The split bound of the tiling tried after ``tiling`` (split with ``bound``)."""
+    return 1.0 + RETILE_SHRINK * (min(bound, tiling.scale_factor_max) - 1.0)
 
 
 def _parts(tiling: Tiling) -> str:
@@ -213,27 +248,7 @@ def _shaped(
     notes = list(tiling.notes)
     linkage = tiling.linkage
     skipped = False
-    key = (
-        tiling.vertices.shape,
-        tiling.vertices.tobytes(),
-        tiling.quads.shape,
-        tiling.quads.tobytes(),
-    )
-    with progress.stage("assembled"):
-        if key not in shapes:
-            shapes[key] = optimize_assembled(
-                tiling.vertices,
-                tiling.quads,
-                loaded.vertices,
-                loaded.faces,
-                thickness=options.thickness_mm,
-                w_planar=options.weights[0],
-                w_square=options.weights[1],
-                w_surface=options.weights[2],
-            )
-            for array in (shapes[key].top, shapes[key].bottom, shapes[key].tiles):
-                array.flags.writeable = False  # shared between tilings: nothing may edit it
-        assembled = shapes[key]
+    assembled = _assembled_shape(tiling, loaded, options, progress, shapes)
     # Hinge sides are decided once, on the eq.-1 tiles; the flat layout makes the hinged
     # corners meet on the face that carries each hinge.
     faces = (
@@ -290,6 +305,112 @@ def _shaped(
         split_bound=bound,
         notes=tuple(notes),
         fallback_skipped=skipped,
+    )
+
+
+def _assembled_shape(
+    tiling: Tiling,
+    loaded: Target,
+    options: ResolvedOptions,
+    progress: Progress,
+    shapes: dict[MeshKey, AssembledResult],
+) -> AssembledResult:
+    """The assembled configuration of ``tiling``'s quad mesh (paper eq. 1 and extrusion),
+    solved once per mesh and kept in ``shapes`` with read-only arrays."""
+    key = (
+        tiling.vertices.shape,
+        tiling.vertices.tobytes(),
+        tiling.quads.shape,
+        tiling.quads.tobytes(),
+    )
+    with progress.stage("assembled"):
+        if key not in shapes:
+            shapes[key] = optimize_assembled(
+                tiling.vertices,
+                tiling.quads,
+                loaded.vertices,
+                loaded.faces,
+                thickness=options.thickness_mm,
+                w_planar=options.weights[0],
+                w_square=options.weights[1],
+                w_surface=options.weights[2],
+            )
+            for array in (shapes[key].top, shapes[key].bottom, shapes[key].tiles):
+                array.flags.writeable = False  # shared between tilings: nothing may edit it
+        return shapes[key]
+
+
+#: Lay out the first tighter tiling in a second process while the first tiling is laid out
+#: (:class:`_Ahead`), where the machine has two cores or more and processes can be forked.
+#: Its result is the one the serial run would compute: it is used only if the first tiling
+#: misses the targets, and thrown away otherwise.
+RETILE_AHEAD = True
+
+
+class _Ahead:
+    """One tiling laid out by :func:`_shaped` in a forked child process.
+
+    The child starts from a copy of this process (fork), so it computes what :func:`_shaped`
+    would compute here; it sends back the layout and its stage times through a pipe.  If the
+    child fails or dies, :meth:`result` gives None and the caller lays the tiling out itself.
+    """
+
+    def __init__(self, tiling: Tiling, work: Callable[[Progress], ShapedLayout]) -> None:
+        self.tiling = tiling
+        context = multiprocessing.get_context("fork")
+        self._receive, send = context.Pipe(duplex=False)
+        self._process = context.Process(target=_lay_out_ahead, args=(work, send), daemon=True)
+        self._process.start()
+        send.close()
+
+    def result(self, progress: Progress) -> ShapedLayout | None:
+        """The child's layout; the time spent waiting for it is added to ``progress``'s
+        stages in proportion to the child's own stage times."""
+        start = time.perf_counter()
+        try:
+            status, payload, timings = self._receive.recv()
+        except (EOFError, OSError):
+            status, payload, timings = "died", "no result", {}
+        self._process.join()
+        self._receive.close()
+        if status != "ok":
+            logger.warning("the tiling laid out ahead failed (%s); laying it out again", payload)
+            return None
+        progress.absorb(timings, time.perf_counter() - start)
+        return cast(ShapedLayout, payload)
+
+    def cancel(self) -> None:
+        """Stop the child (its layout is not needed)."""
+        if self._process.is_alive():
+            self._process.terminate()
+        self._process.join()
+        self._receive.close()
+
+
+def _lay_out_ahead(work: Callable[[Progress], ShapedLayout], send: Connection) -> None:
+    """Body of :class:`_Ahead`'s child process."""
+    from .pipeline import Progress  # the child only: pipeline imports this module
+
+    progress = Progress(quiet=True)
+    try:
+        shaped = work(progress)
+        send.send(("ok", shaped, progress.timings))
+    except Exception as exc:  # reported to the parent, which lays the tiling out itself
+        send.send(("error", f"{type(exc).__name__}: {exc}", {}))
+    finally:
+        send.close()
+
+
+def _can_fork() -> bool:
+    """Whether a tiling may be laid out ahead (:data:`RETILE_AHEAD`): two cores or more,
+    Linux (forking a process that has loaded macOS system frameworks is unsafe), and not
+    inside a daemonic process (e.g. a ``multiprocessing`` pool worker: it may not fork)."""
+    return (
+        RETILE_AHEAD
+        and sys.platform.startswith("linux")
+        and parallel.thread_count() >= 2
+        and "fork" in multiprocessing.get_all_start_methods()
+        and not multiprocessing.current_process().daemon
     )
 
 

@@ -323,6 +323,19 @@ class Progress:
             self._line_open = False
         log.info("stage %s took %.3f s", name, elapsed)
 
+    def absorb(self, timings: dict[str, float], waited: float) -> None:
+        """Account for stages that ran in another process (``timings``, its own stage times)
+        while this one waited ``waited`` seconds for them: the wait is shared among those
+        stages in proportion to their times, so the timings add up to this process's wall
+        clock."""
+        total = sum(timings.values())
+        for name, seconds in timings.items():
+            share = waited * seconds / total if total > 0 else 0.0
+            self.timings[name] = self.timings.get(name, 0.0) + share
+        if self._open:  # the wait happened inside an open stage: not its own time
+            self._open[-1][0] += waited
+        log.info("waited %.3f s for stages run in another process", waited)
+
     def ordered_timings(self) -> dict[str, float]:
         """Timings with the stages in pipeline order, then any others."""
         rank = {name: i for i, name in enumerate(STAGES)}

@@ -34,6 +34,16 @@ def thread_count() -> int:
     return max(1, min(cores, MAX_THREADS))
 
 
+def _forget_pool() -> None:
+    """In a forked child: the parent's pool threads do not exist there, so start a new pool."""
+    global _pool
+    _pool = None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
+
+
 def map_blocks(work: Callable[[T], R], blocks: Sequence[T]) -> list[R]:
     """``[work(b) for b in blocks]``, the blocks run on worker threads when there are several
     blocks and cores."""

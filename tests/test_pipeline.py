@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import replace
 
 import numpy as np
@@ -17,6 +18,7 @@ from drawstring.fabrication.pipeline import (
     split_bound,
 )
 from drawstring.fabrication.profiles import load_profile
+from drawstring.geometry import parallel
 from drawstring.geometry.linkage import build_linkage, gap_centroids, rotating_squares_layout
 from drawstring.geometry.route import plan_route
 
@@ -236,6 +238,63 @@ def test_a_tighter_tiling_that_meets_the_targets_is_kept_without_halving_the_mis
     assert any(n.startswith("tiling:") and "kept 2 parts" in n for n in result.notes)
 
 
+def _two_parts_meet(shaped: layout_stage.ShapedLayout) -> float:
+    return 1.4e-3 if shaped.tiling.linkage.n_components == 1 else 9.5e-4
+
+
+def _design_arrays(result) -> list[np.ndarray]:
+    layout = result.hinge_layout
+    return [result.assembled.tiles, result.flat.nodes, layout.tiles, layout.hinge_vertices]
+
+
+def test_the_tighter_tiling_laid_out_ahead_gives_the_design_laid_out_in_turn(
+    monkeypatch,
+) -> None:
+    # The first tighter tiling is laid out in a forked process while the first tiling is; the
+    # design must be the one the serial run gives, bitwise, and the child's stage times are
+    # counted in this process's.
+    monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(_two_parts_meet))
+    monkeypatch.setattr(parallel, "thread_count", lambda: 2)  # ahead even on one core
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)
+    serial = design("saddle", options)
+    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", True)
+    taken: list[bool] = []
+    result_of = layout_stage._Ahead.result
+
+    def result(self, progress):
+        out = result_of(self, progress)
+        taken.append(out is not None)
+        return out
+
+    monkeypatch.setattr(layout_stage._Ahead, "result", result)
+    ahead = design("saddle", options)
+    assert taken == [True]
+    assert ahead.tiling.linkage.n_components == serial.tiling.linkage.n_components == 2
+    assert ahead.notes == serial.notes
+    for a, b in zip(_design_arrays(ahead), _design_arrays(serial), strict=True):
+        assert np.array_equal(a, b)
+    assert ahead.timings_s["hinges"] > 0 and ahead.timings_s["co-optimize"] > 0
+
+
+def test_a_failed_layout_ahead_is_laid_out_again_in_this_process(monkeypatch, caplog) -> None:
+    monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(_two_parts_meet))
+    monkeypatch.setattr(parallel, "thread_count", lambda: 2)
+    parent = os.getpid()
+    shaped = layout_stage._shaped
+
+    def fails_in_a_child(*args, **kwargs):
+        if os.getpid() != parent:
+            raise RuntimeError("out of memory")
+        return shaped(*args, **kwargs)
+
+    monkeypatch.setattr(layout_stage, "_shaped", fails_in_a_child)
+    result = design("saddle", DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False))
+    assert "laid out ahead failed (RuntimeError: out of memory)" in caplog.text
+    assert result.tiling.linkage.n_components == 2
+    assert any(n.startswith("tiling:") and "kept 2 parts" in n for n in result.notes)
+
+
 def test_a_tiling_that_may_be_split_again_skips_the_held_openings_run(monkeypatch) -> None:
     # A refused co-optimization of a tiling that may be split again is not run again holding
     # the eq.-1 openings (more splits are its cure); if that tiling is kept after all, it is.
@@ -247,6 +306,7 @@ def test_a_tiling_that_may_be_split_again_skips_the_held_openings_run(monkeypatc
         return assembled, flat, {"accepted": False, "reason": "refused", "steps": 0}
 
     monkeypatch.setattr(layout_stage, "co_optimized", refused)
+    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)  # calls are counted here
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
 
     def split_wins(shaped: layout_stage.ShapedLayout) -> float:
@@ -294,6 +354,7 @@ def test_a_first_tiling_far_off_skips_the_hinge_stage_unless_kept(monkeypatch) -
 
     monkeypatch.setattr(layout_stage, "co_optimized", far_off_in_one_part)
     monkeypatch.setattr(layout_stage, "layout_hinges", counted)
+    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)  # calls are counted here
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
     result = design("saddle", options)
     assert result.tiling.linkage.n_components == 2
