@@ -19,7 +19,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from drawstring.geometry.constraints import signed_angles
-from drawstring.geometry.spd import SpdSolver, upper_triangle
+from drawstring.geometry.spd import SpdSolver, upper_triangle, with_diagonal
 
 logger = logging.getLogger(__name__)
 
@@ -257,23 +257,18 @@ def constrained_least_squares(
             grad = jr.T @ res
             diag = jtj.diagonal()
             scale = float(diag.mean()) if diag.size else 1.0
-            # the upper triangle once per step; the damping changes only its diagonal (the
-            # last entry of every column when every diagonal entry is stored)
+            # The upper triangle once per step; the damping changes only its diagonal, the
+            # last entry of every column once every diagonal entry is stored (a variable no
+            # residual touches, e.g. the joint solve's padding, has none in J^T J: it gets an
+            # explicit zero, the same matrix as adding the damping as a diagonal matrix).
             jtj.sum_duplicates()  # a no-op: the product sums duplicates and tocsc sorts
-            upper = upper_triangle(jtj)
+            upper = with_diagonal(upper_triangle(jtj))
             at = upper.indptr[1:] - 1
-            has_diagonal = bool(np.all(np.diff(upper.indptr) > 0)) and bool(
-                np.array_equal(upper.indices[at], np.arange(len(at)))
-            )
-            base = upper.data[at].copy() if has_diagonal else None
+            base = upper.data[at].copy()
             improved = False
             for _try in range(8):
-                if base is not None:
-                    upper.data[at] = base + (mu * diag + 1e-10 * scale)
-                    step = factor.solve_upper(upper, -grad)
-                else:
-                    mat = jtj + sp.diags(mu * diag + 1e-10 * scale, format="csc")
-                    step = factor.solve(mat, -grad)
+                upper.data[at] = base + (mu * diag + 1e-10 * scale)
+                step = factor.solve_upper(upper, -grad)
                 steps += 1
                 trial = x + step.reshape(n, 2)
                 c1 = cost(trial, lam, rho)

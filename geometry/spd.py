@@ -34,7 +34,13 @@ from numpy.typing import NDArray
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-__all__ = ["BACKWARD_ERROR_TOL", "SUPERNODAL_MIN_ENTRIES", "SpdSolver", "upper_triangle"]
+__all__ = [
+    "BACKWARD_ERROR_TOL",
+    "SUPERNODAL_MIN_ENTRIES",
+    "SpdSolver",
+    "upper_triangle",
+    "with_diagonal",
+]
 
 #: Largest accepted normwise backward error ``|A x - b| / (|A| |x| + |b|)`` (infinity norms) of
 #: a qdldl answer; a stable ``LDL^T`` of a positive definite matrix stays near machine
@@ -60,6 +66,33 @@ def upper_triangle(matrix: sp.csc_matrix) -> sp.csc_matrix:
     upper = sp.csc_matrix((matrix.data[keep], matrix.indices[keep], indptr), shape=matrix.shape)
     upper.has_canonical_format = True
     return upper
+
+
+def with_diagonal(upper: sp.csc_matrix) -> sp.csc_matrix:
+    """A canonical upper triangle (:func:`upper_triangle`) with every diagonal entry stored,
+    the missing ones as explicit zeros, so that each column ends with its diagonal entry."""
+    n = upper.shape[1]
+    ends = upper.indptr[1:]
+    filled = ends > upper.indptr[:-1]
+    last = np.where(filled, upper.indices[np.maximum(ends - 1, 0)], -1)
+    missing = np.flatnonzero(last != np.arange(n))
+    if missing.size == 0:
+        return upper
+    at = ends[missing]  # the end of each such column
+    added = np.zeros(n, dtype=upper.indptr.dtype)
+    added[missing] = 1
+    indptr = upper.indptr.copy()
+    indptr[1:] += np.cumsum(added)
+    out = sp.csc_matrix(
+        (
+            np.insert(upper.data, at, 0.0),
+            np.insert(upper.indices, at, missing.astype(upper.indices.dtype)),
+            indptr,
+        ),
+        shape=upper.shape,
+    )
+    out.has_canonical_format = True
+    return out
 
 
 def _upper_keys(upper: sp.csc_matrix) -> IntArray:

@@ -8,7 +8,7 @@ import pytest
 import scipy.sparse as sp
 
 from drawstring.geometry import spd as spd_module
-from drawstring.geometry.spd import SpdSolver, upper_triangle
+from drawstring.geometry.spd import SpdSolver, upper_triangle, with_diagonal
 
 
 def spd(n: int, density: float, seed: int) -> sp.csc_matrix:
@@ -128,3 +128,30 @@ def test_small_patterns_stay_with_qdldl() -> None:
     solver = SpdSolver()
     solver.solve(spd(60, 0.05, 0), np.ones(60))
     assert solver._cholmod is None
+
+
+def test_with_diagonal_stores_every_diagonal_entry_as_adding_a_diagonal_matrix_would() -> None:
+    # Columns 0 and 3 have no diagonal entry (column 3 none at all) and column 5 no entries;
+    # damping added on the stored diagonal must give what adding a diagonal matrix gives.
+    n = 6
+    matrix = spd(n, 0.3, 5).tolil()
+    matrix[0, 0] = 0.0
+    matrix[3, :] = 0.0
+    matrix[:, 3] = 0.0
+    matrix[5, :] = 0.0
+    matrix[:, 5] = 0.0
+    matrix = sp.csc_matrix(matrix)
+    matrix.eliminate_zeros()
+    upper = with_diagonal(upper_triangle(matrix))
+    at = upper.indptr[1:] - 1
+    assert np.array_equal(upper.indices[at], np.arange(n))
+    damping = np.linspace(1.0, 2.0, n)
+    upper.data[at] += damping
+    expected = sp.csc_matrix(sp.triu(matrix + sp.diags(damping), format="csc"))
+    expected.sum_duplicates()
+    for name in ("indptr", "indices", "data"):
+        assert np.array_equal(getattr(upper, name), getattr(expected, name)), name
+    whole = sp.csc_matrix(spd(n, 0.5, 6))
+    whole.sum_duplicates()  # canonical: sorted indices
+    full = upper_triangle(whole)
+    assert with_diagonal(full) is full  # nothing missing: unchanged
