@@ -487,3 +487,33 @@ def test_refinement_rounds_start_from_the_re_solved_layout(monkeypatch) -> None:
     assert len(resolved) == 1 + layout_stage.CO_REFINEMENTS
     for start, before in zip(starts[2:], resolved[:-1], strict=True):
         assert start is not None and np.array_equal(start, before)
+
+
+def test_the_flat_seed_of_a_refused_co_optimization_is_finished(monkeypatch) -> None:
+    # The flat layout that seeds the co-optimization stops after FLAT_SEED_STEPS; where the
+    # co-optimization is not used, that seed would be the design's layout, so it is finished.
+    calls: list[tuple[int | None, bool, object]] = []
+    flat_layout = layout_stage.flat_layout
+
+    def recorded(*args, initial_nodes=None, max_steps=None, **kwargs):
+        out = flat_layout(*args, initial_nodes=initial_nodes, max_steps=max_steps, **kwargs)
+        calls.append((max_steps, initial_nodes is not None, out))
+        return out
+
+    def refused(linkage, tiling, assembled, flat, *_args, **_kwargs):
+        return assembled, flat, {"accepted": False, "reason": "refused", "steps": 0}
+
+    monkeypatch.setattr(layout_stage, "flat_layout", recorded)
+    monkeypatch.setattr(layout_stage, "co_optimized", refused)
+    monkeypatch.setattr(layout_stage, "FLAT_SEED_STEPS", 5)
+    result = design("saddle", DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False))
+    # every layout (the first tiling is laid out twice: see the held-openings test) is a seed
+    # and then its finish
+    assert len(calls) % 2 == 0
+    for (seed_steps, seeded, seed), (finish_steps, from_seed, finished) in zip(
+        calls[::2], calls[1::2], strict=True
+    ):
+        assert seed_steps == 5 and not seeded and seed.iterations == 5
+        # finished: stopped by convergence, not by optimize_flat's 400-step cap
+        assert finish_steps is None and from_seed and 0 < finished.iterations < 400
+    assert result.flat is calls[-1][2]
