@@ -334,7 +334,13 @@ class Progress:
             self.timings[name] = self.timings.get(name, 0.0) + share
         if self._open:  # the wait happened inside an open stage: not its own time
             self._open[-1][0] += waited
-        log.info("waited %.3f s for stages run in another process", waited)
+        stages = ", ".join(name for name in timings if timings[name] > 0)
+        if self.enabled:
+            if self._line_open:
+                print(file=sys.stderr)
+                self._line_open = False
+            print(f"  {stages} (second process) {waited:.1f} s", file=sys.stderr, flush=True)
+        log.info("waited %.3f s for stages run in another process (%s)", waited, stages)
 
     def ordered_timings(self) -> dict[str, float]:
         """Timings with the stages in pipeline order, then any others."""

@@ -7,10 +7,12 @@ import os
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from drawstring.fabrication import layout_stage
 from drawstring.fabrication.pipeline import (
     DesignOptions,
+    Progress,
     cad_problems,
     cad_warnings,
     channel_turn_assembled,
@@ -517,3 +519,16 @@ def test_the_flat_seed_of_a_refused_co_optimization_is_finished(monkeypatch) -> 
         # finished: stopped by convergence, not by optimize_flat's 400-step cap
         assert finish_steps is None and from_seed and 0 < finished.iterations < 400
     assert result.flat is calls[-1][2]
+
+
+def test_time_waited_for_another_process_is_shared_among_its_stages() -> None:
+    # The child's stage times give the shares; the wait is what this process spent, so the
+    # stages add up to its wall clock, and an enclosing stage does not count it again.
+    progress = Progress(quiet=True)
+    progress.timings["flat"] = 1.0
+    with progress.stage("outer"):
+        progress.absorb({"flat": 1.0, "co-optimize": 3.0, "hinges": 0.0}, 2.0)
+    assert progress.timings["flat"] == pytest.approx(1.5)
+    assert progress.timings["co-optimize"] == pytest.approx(1.5)
+    assert progress.timings["hinges"] == 0.0
+    assert progress.timings["outer"] < 0.1
