@@ -172,6 +172,7 @@ def constrained_least_squares(
     angle_tol: float,
     length_tol: float,
     rho0: float = 10.0,
+    feasible_stop: int | None = None,
 ) -> tuple[FloatArray, int, float]:
     """Minimize the edge energy subject to ``values >= 0`` of every constraint block.
 
@@ -181,7 +182,10 @@ def constrained_least_squares(
     ordering while the pattern repeats: :class:`~drawstring.geometry.spd.SpdSolver`).  Gauge freedom
     (rigid motions) is removed by a tiny diagonal term.  Stops when every row holds to within
     its tolerance (``angle_tol`` rad for angle rows, ``length_tol`` mm for separation rows) and
-    the positions have settled, or after ``max_steps`` factorizations.
+    the positions have settled, or after ``max_steps`` factorizations.  With
+    ``feasible_stop``, once that many factorizations are used it also stops at the end of the
+    first multiplier round whose rows all hold, settled or not (a feasible start for another
+    solver, e.g. the co-optimization's).
 
     Returns
     -------
@@ -297,6 +301,8 @@ def constrained_least_squares(
         if steps >= max_steps:
             break
         if violation <= 1.0 and moved < 1e-7:
+            break
+        if feasible_stop is not None and steps >= feasible_stop and violation <= 1.0:
             break
         if violation > 0.25 * prev_viol:
             rho = min(rho * 10.0, 1e8 * rho0)

@@ -587,6 +587,7 @@ def optimize_flat(
     w_collision: float = 1.0,
     w_fab: float = 0.001,
     max_iter: int = 400,
+    seed_steps: int | None = None,
     separate_components: bool = True,
     initial_nodes: ArrayLike | None = None,
     hinges: HingeFaces | None = None,
@@ -617,6 +618,9 @@ def optimize_flat(
         soft weight 0.001 cannot guarantee the bounds).
     max_iter : int
         Most Gauss-Newton steps (each one sparse factorization).
+    seed_steps : int, optional
+        After this many steps, stop as soon as every bound holds, even before the positions
+        settle (a layout that only seeds another solver).
     separate_components : bool
         Move components apart after the solve.
     initial_nodes : (n_nodes, 2) float, mm, optional
@@ -682,7 +686,7 @@ def optimize_flat(
     angle_tol = np.radians(FLAT_SOLVER_ANGLE_TOL_DEG)
     nodes, iterations, violation = constrained_least_squares(
         nodes0, objective, constraints, max_steps=max_iter, angle_tol=angle_tol,
-        length_tol=angle_tol * side,
+        length_tol=angle_tol * side, feasible_stop=seed_steps,
     )  # fmt: skip
     cn = linkage.corner_node
     for round_ in range(4):
@@ -699,6 +703,7 @@ def optimize_flat(
         nodes, steps, violation = constrained_least_squares(
             nodes, objective, constraints, max_steps=max(max_iter - iterations, 1),
             angle_tol=angle_tol, length_tol=angle_tol * side,
+            feasible_stop=None if seed_steps is None else max(seed_steps - iterations, 0),
         )  # fmt: skip
         iterations += steps
     if separate_components:

@@ -8,6 +8,7 @@ import pytest
 import drawstring.geometry.flat as flat_module
 from drawstring.geometry.flat import extrude_flat, gap_junctions, optimize_flat
 from drawstring.geometry.linkage import Split, build_linkage
+from drawstring.geometry.tolerances import FLAT_GAP_ANGLE_TOL_DEG
 from drawstring.geometry.verify import (
     convex_polygon_overlap,
     flat_edge_errors,
@@ -283,3 +284,19 @@ def test_direct_csr_rows_match_the_coordinate_build() -> None:
     cols[1, 3] = 1
     summed = _csr_rows(cols, vals, 10).toarray()
     assert summed[1, 1] == pytest.approx(vals[1, 0] + vals[1, 3])
+
+
+def test_a_seed_layout_stops_once_its_bounds_hold() -> None:
+    # With seed_steps the solve stops at the first multiplier round, past that many steps,
+    # whose rows all hold: fewer steps, every hard bound kept (only the least-squares edge
+    # error is reported), the same optimum to well below the tolerance.
+    linkage = build_linkage(np.ones((10, 10), dtype=bool))
+    uv = linkage.vertex_ij * 10.0 - 50.0
+    top, _ = heightfield_tiles(uv, linkage.tile_corners, "saddle", 6.0, 0.008)
+    full = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=12.0)
+    seed = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=12.0, seed_steps=1)
+    assert seed.iterations < full.iterations
+    assert all(p.startswith("flat edge error") for p in seed.problems)
+    tol = FLAT_GAP_ANGLE_TOL_DEG
+    assert seed.opening_deg.min() >= 12.0 - tol and seed.opening_deg.max() <= 90.0 + tol
+    assert abs(seed.edge_error_max_mm - full.edge_error_max_mm) < 1e-6

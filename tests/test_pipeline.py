@@ -492,14 +492,15 @@ def test_refinement_rounds_start_from_the_re_solved_layout(monkeypatch) -> None:
 
 
 def test_the_flat_seed_of_a_refused_co_optimization_is_finished(monkeypatch) -> None:
-    # The flat layout that seeds the co-optimization stops after FLAT_SEED_STEPS; where the
-    # co-optimization is not used, that seed would be the design's layout, so it is finished.
+    # The flat layout that seeds the co-optimization stops once its bounds hold after
+    # FLAT_SEED_STEPS; where the co-optimization is not used, that seed would be the design's
+    # layout, so it is finished.
     calls: list[tuple[int | None, bool, object]] = []
     flat_layout = layout_stage.flat_layout
 
-    def recorded(*args, initial_nodes=None, max_steps=None, **kwargs):
-        out = flat_layout(*args, initial_nodes=initial_nodes, max_steps=max_steps, **kwargs)
-        calls.append((max_steps, initial_nodes is not None, out))
+    def recorded(*args, initial_nodes=None, seed_steps=None, **kwargs):
+        out = flat_layout(*args, initial_nodes=initial_nodes, seed_steps=seed_steps, **kwargs)
+        calls.append((seed_steps, initial_nodes is not None, out))
         return out
 
     def refused(linkage, tiling, assembled, flat, *_args, **_kwargs):
@@ -515,7 +516,7 @@ def test_the_flat_seed_of_a_refused_co_optimization_is_finished(monkeypatch) -> 
     for (seed_steps, seeded, seed), (finish_steps, from_seed, finished) in zip(
         calls[::2], calls[1::2], strict=True
     ):
-        assert seed_steps == 5 and not seeded and seed.iterations == 5
+        assert seed_steps == 5 and not seeded and seed.iterations >= 5
         # finished: stopped by convergence, not by optimize_flat's 400-step cap
         assert finish_steps is None and from_seed and 0 < finished.iterations < 400
     assert result.flat is calls[-1][2]
