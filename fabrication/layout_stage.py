@@ -157,18 +157,19 @@ def shape_and_layout(
     # chair in one part: the fallback took 4.5 s and still missed by 0.2 mm).  It runs after
     # all if the first tiling is the one kept.
     ahead: _Ahead | None = None
+    prepared: Tiling | None = None  # the first tighter tiling, when tiled ahead of the loop
     if _can_fork() and RETILE_ATTEMPTS > 0:
         # The first tighter tiling, which the loop below lays out if the first tiling misses,
         # is laid out meanwhile in a second process (the 200-tile seashell and chair).
         next_bound = _tighter(bound, first_tiling)
-        next_tiling = tiled(next_bound)
+        prepared = next_tiling = tiled(next_bound)
         if not _same_parts(next_tiling, first_tiling):
             _assembled_shape(first_tiling, loaded, options, progress, shapes)  # shared by both
 
             def work(child_progress: Progress) -> ShapedLayout:
                 return _shaped(next_tiling, next_bound, loaded, options, child_progress, shapes)
 
-            ahead = _Ahead(next_tiling, work)
+            ahead = _Ahead(work)
     try:
         first = best = _shaped(
             first_tiling, bound, loaded, options, progress, shapes, fallback=False
@@ -180,12 +181,11 @@ def shape_and_layout(
             if best_accuracy <= target:
                 break
             bound = _tighter(bound, best.tiling)
+            tiling = prepared if prepared is not None else tiled(bound)
+            prepared = None
             trial: ShapedLayout | None = None
-            if ahead is not None:
-                tiling = ahead.tiling  # the ahead tiling is the first tighter one
+            if ahead is not None:  # laid out meanwhile (its tiling is ``prepared``)
                 trial, ahead = ahead.result(progress), None
-            else:
-                tiling = tiled(bound)
             if _same_parts(tiling, best.tiling):
                 break  # no further split keeps enough cells on each side
             if trial is None:
@@ -362,8 +362,7 @@ class _Ahead:
     child fails or dies, :meth:`result` gives None and the caller lays the tiling out itself.
     """
 
-    def __init__(self, tiling: Tiling, work: Callable[[Progress], ShapedLayout]) -> None:
-        self.tiling = tiling
+    def __init__(self, work: Callable[[Progress], ShapedLayout]) -> None:
         context = multiprocessing.get_context("fork")
         self._receive, send = context.Pipe(duplex=False)
         self._process = context.Process(target=_lay_out_ahead, args=(work, send), daemon=True)
