@@ -401,6 +401,86 @@ def test_co_optimization_gives_up_when_its_first_re_solve_is_far_worse(monkeypat
     assert flat is plain
 
 
+def test_co_optimization_stops_when_its_first_joint_solve_ends_above_the_plain_layout(
+    monkeypatch,
+) -> None:
+    # A first joint solve that, in its own model, ends no lower than the plain layout is not
+    # re-extruded and re-solved (that re-solve did no better on the 1600-tile wave): the run
+    # is refused at once with the two errors.
+    shaped, eq1, faces, plain = _saddle_before_co_optimization()
+    resolves = _re_solves_reporting(monkeypatch, 1e-9)
+    joint = layout_stage.co_optimize_top
+    solves: list[int] = []
+
+    def no_better(*args: object, **kwargs: object):
+        solves.append(1)
+        return replace(joint(*args, **kwargs), edge_error_max_mm=2.0 * plain.edge_error_max_mm)
+
+    def no_extrusion(*_args: object, **_kwargs: object) -> None:
+        raise AssertionError("re-extruded")
+
+    monkeypatch.setattr(layout_stage, "co_optimize_top", no_better)
+    monkeypatch.setattr(layout_stage, "reextrude", no_extrusion)
+    new, flat, block = layout_stage.co_optimized(
+        shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces
+    )
+    assert resolves == [] and len(solves) == 2  # round 1's two joint solves, nothing after
+    assert not block["accepted"] and "joint solve did not lower" in block["reason"]
+    assert f"{2.0 * plain.edge_error_max_mm:.3g} mm" in block["reason"]
+    assert new is eq1 and flat is plain
+
+
+def test_the_held_openings_run_reuses_the_first_joint_solve(monkeypatch) -> None:
+    # Round 1's first joint solve runs on the eq.-1 tiles and their openings whether the
+    # openings are tracked or held: the held-openings run takes it from the tracked run and
+    # comes out bitwise as it would on its own, with one joint solve fewer.
+    shaped, eq1, faces, plain = _saddle_before_co_optimization()
+    joint = layout_stage.co_optimize_top
+    solves: list[int] = []
+
+    def counted(*args: object, **kwargs: object):
+        solves.append(1)
+        return joint(*args, **kwargs)
+
+    monkeypatch.setattr(layout_stage, "co_optimize_top", counted)
+    args = (shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options)
+    first: dict = {}
+    layout_stage.co_optimized(*args, faces, first_solves=first)
+    assert set(first) == {"eq1"}
+    solves.clear()
+    new, flat, block = layout_stage.co_optimized(
+        *args, faces, track_openings=False, first_solves=first
+    )
+    reused = len(solves)
+    solves.clear()
+    new_alone, flat_alone, block_alone = layout_stage.co_optimized(
+        *args, faces, track_openings=False
+    )
+    assert reused == len(solves) - 1
+    assert np.array_equal(flat.nodes, flat_alone.nodes)
+    assert np.array_equal(new.tiles, new_alone.tiles)
+    assert block == block_alone
+
+
+def test_the_design_hands_the_first_joint_solve_to_the_held_openings_run(monkeypatch) -> None:
+    memos: list[tuple[bool, object]] = []
+
+    def refused(linkage, tiling, assembled, flat, *_args, track_openings=True, **kwargs):
+        memos.append((track_openings, kwargs.get("first_solves")))
+        return assembled, flat, {"accepted": False, "reason": "refused", "steps": 0}
+
+    monkeypatch.setattr(layout_stage, "co_optimized", refused)
+    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)
+    design("saddle", DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False))
+    # per laid-out tiling: the tracked run, then (where held openings are tried) the held one
+    # with the same dictionary
+    tracked = [k for k, (track, _) in enumerate(memos) if track]
+    assert any(k + 1 < len(memos) and not memos[k + 1][0] for k in tracked)
+    for k in tracked:
+        if k + 1 < len(memos) and not memos[k + 1][0]:
+            assert memos[k + 1][1] is memos[k][1] and isinstance(memos[k][1], dict)
+
+
 def test_co_optimization_stops_once_a_re_solve_is_well_inside_the_tolerance(monkeypatch) -> None:
     # A re-solve at a quarter of the tolerance is kept without further rounds, even when the
     # joint solve reached far less (the rigid hinge layout has room to spare; the rounds that
