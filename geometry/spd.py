@@ -14,11 +14,11 @@ solved again with SuperLU.
 qdldl factors column by column.  On large matrices (the co-optimization's joint K2D + K3D
 normal matrix at 1600 tiles: 11604 unknowns, 233k stored entries, 1.1M in the factor) that
 costs 0.13 s per factorization, where CHOLMOD's supernodal Cholesky, which works on dense
-blocks with BLAS, takes 0.04 s on one thread.  Patterns of at least
+blocks with BLAS, takes 0.03 s on one thread.  Patterns of at least
 :data:`SUPERNODAL_MIN_ENTRIES` stored entries are therefore factored by CHOLMOD (through
 cvxopt, whose wheels bundle SuiteSparse): its symbolic analysis is kept with the union
 pattern, and each matrix is only refactored numerically.  Smaller ones (every matrix of a
-200-tile design) stay with qdldl, which is as fast there and has no conversion to pay.
+200-tile design) stay with qdldl.
 """
 
 from __future__ import annotations
@@ -48,10 +48,13 @@ __all__ = [
 BACKWARD_ERROR_TOL = 1e-8
 
 #: Union patterns with at least this many stored upper-triangle entries are factored by
-#: CHOLMOD's supernodal Cholesky instead of qdldl.  Measured on one thread (factorization,
-#: CHOLMOD's including the values' copy into cvxopt): 11604 unknowns and 233k entries, qdldl
-#: 0.128 s, CHOLMOD 0.042 s; 6560 and 49k (the 1600-tile flat layout), 0.008 s against 0.010 s.
-SUPERNODAL_MIN_ENTRIES = 100_000
+#: CHOLMOD's supernodal Cholesky instead of qdldl.  Measured on one thread (numeric
+#: factorization of a kept analysis): 11604 unknowns and 233k entries (the 1600-tile joint
+#: solve), qdldl 134 ms, CHOLMOD 31 ms; 6560 and 49k (the 1600-tile flat layout), 10.1 ms
+#: against 6.9 ms (1600-tile saddle layout 22 -> 20 s); 1628 and 31k (a 200-tile joint
+#: solve), 3.3 ms against 1.7 ms, but the other ordering changes the last bits and with them
+#: every 200-tile design for a few hundredths of a second, so those stay with qdldl.
+SUPERNODAL_MIN_ENTRIES = 40_000
 
 
 def upper_triangle(matrix: sp.csc_matrix) -> sp.csc_matrix:
@@ -102,28 +105,16 @@ def _upper_keys(upper: sp.csc_matrix) -> IntArray:
     return cols * n + upper.indices.astype(np.int64)
 
 
-def _backward_error(
-    upper: sp.csc_matrix,
-    cols: IntArray,
-    on_diagonal: NDArray[np.bool_],
-    x: FloatArray,
-    b: FloatArray,
-) -> float:
+def _backward_error(upper: sp.csc_matrix, x: FloatArray, b: FloatArray) -> float:
     """Normwise backward error of ``x`` as a solution of ``A x = b``, ``A`` the symmetric
-    matrix of which ``upper`` is the upper triangle (inf: not finite); ``cols`` is the column
-    of every stored entry and ``on_diagonal`` marks the diagonal ones."""
+    matrix of which ``upper`` is the upper triangle (inf: not finite)."""
     if not np.all(np.isfinite(x)):
         return float("inf")
-    n = upper.shape[0]
-    rows, data = upper.indices, upper.data
-    off = np.where(on_diagonal, 0.0, data)
-    product = np.bincount(rows, data * x[cols], minlength=n) + np.bincount(
-        cols, off * x[rows], minlength=n
-    )
-    magnitude = np.abs(data)
-    row_sums = np.bincount(rows, magnitude, minlength=n) + np.bincount(
-        cols, np.abs(off), minlength=n
-    )
+    diagonal = upper.diagonal()
+    product = upper @ x + upper.T @ x - diagonal * x
+    magnitude = abs(upper)
+    ones = np.ones(upper.shape[0])
+    row_sums = magnitude @ ones + magnitude.T @ ones - np.abs(diagonal)
     scale = float(row_sums.max(initial=0.0)) * float(np.abs(x).max(initial=0.0))
     scale += float(np.abs(b).max(initial=0.0))
     residual = float(np.abs(product - b).max(initial=0.0))
@@ -149,8 +140,6 @@ class SpdSolver:
         # the last matrix's own pattern and where its entries sit in the union
         self._last: tuple[NDArray[np.int32], NDArray[np.int32]] | None = None
         self._pos: IntArray = np.zeros(0, dtype=np.int64)
-        self._cols: IntArray = np.zeros(0, dtype=np.int64)
-        self._on_diagonal: NDArray[np.bool_] = np.zeros(0, dtype=bool)
         self._union = sp.csc_matrix((0, 0))  # the union pattern, refilled for every matrix
         #: the union pattern as a cvxopt matrix and CHOLMOD's symbolic factor of it, when it
         #: is large enough (:data:`SUPERNODAL_MIN_ENTRIES`)
@@ -185,8 +174,6 @@ class SpdSolver:
                 self._set_union(merged, n)
                 pos = np.searchsorted(self._keys, keys)
             self._last, self._pos = (upper.indptr.copy(), upper.indices.copy()), pos
-            self._cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(upper.indptr))
-            self._on_diagonal = self._cols == upper.indices
         union = self._union
         union.data[:] = 0.0
         union.data[self._pos] = upper.data
@@ -205,10 +192,7 @@ class SpdSolver:
                 x = np.asarray(self._solver.solve(b))
             except RuntimeError:  # qdldl refuses a zero pivot it meets while analysing
                 pass
-        if (
-            x is not None
-            and _backward_error(upper, self._cols, self._on_diagonal, x, b) <= BACKWARD_ERROR_TOL
-        ):
+        if x is not None and _backward_error(upper, x, b) <= BACKWARD_ERROR_TOL:
             return x
         # not numerically positive definite: a pivoting factorization; analyse afresh next time
         # (CHOLMOD's symbolic factor depends on the pattern alone and is kept)
