@@ -229,9 +229,19 @@ def constrained_least_squares(
                 out.append(c.jacobian(x, sel))
         return out
 
+    # The residuals and row values of the last point evaluated: a trial that is accepted
+    # becomes the next step's point, whose row values (and, at a multiplier update, residuals)
+    # are then not computed again.  Points are never changed in place.
+    last: list[tuple[FloatArray, FloatArray, FloatArray]] = []
+
+    def evaluated(x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        if not (last and last[0][0] is x):
+            last[:] = [(x, objective.residual(x), values(x))]
+        return last[0][1], last[0][2]
+
     def cost(x: FloatArray, lam: FloatArray, rho: float) -> float:
-        r = objective.residual(x)
-        pen, _ = penalty_rows(values(x), lam, rho)
+        r, g = evaluated(x)
+        pen, _ = penalty_rows(g, lam, rho)
         return float(r @ r + pen @ pen)
 
     lam = np.zeros(m)
@@ -249,7 +259,7 @@ def constrained_least_squares(
             if steps >= max_steps:
                 break
             r, jac = objective.residual_jacobian(x)
-            pen, act = penalty_rows(values(x), lam, rho)
+            pen, act = penalty_rows(evaluated(x)[1], lam, rho)
             blocks = [jac]
             if act.size:
                 blocks += jac_rows(x, act)
@@ -287,7 +297,7 @@ def constrained_least_squares(
             if not improved or decrease <= 1e-14 * max(c0, 1e-30) or np.abs(step).max() < 1e-10:
                 break
         # --- multiplier update ------------------------------------------------------------
-        g = values(x)
+        g = evaluated(x)[1]
         viol_rows = np.maximum(-g, 0.0) / row_tol if m else np.zeros(0)
         violation = float(viol_rows.max(initial=0.0))  # in units of the tolerance
         lam = np.maximum(0.0, lam - rho * g)
