@@ -275,7 +275,7 @@ def constrained_least_squares(
             # last entry of every column once every diagonal entry is stored (a variable no
             # residual touches, e.g. the joint solve's padding, has none in J^T J: it gets an
             # explicit zero, the same matrix as adding the damping as a diagonal matrix).
-            jtj.sum_duplicates()  # a no-op: the product sums duplicates and tocsc sorts
+            jtj.sum_duplicates()  # sorted for upper_triangle: the product may leave them unsorted
             upper = with_diagonal(upper_triangle(jtj))
             at = upper.indptr[1:] - 1
             base = upper.data[at].copy()
