@@ -519,7 +519,8 @@ def co_optimized(
     ``faces`` throughout), T3D extruded again under the new K3D and the flat layout solved
     again from the joint one.  The round whose re-solved layout has the smallest edge error is
     the one kept.  The new design is used only when its flat edge error is lower and the flat
-    layout keeps every hard bound; otherwise the inputs come back unchanged with the reason.
+    layout keeps every hard bound; otherwise the inputs come back unchanged with the reason
+    (at once when round 1's joint solve ends no lower than the plain layout).
     With ``give_up_slow`` the rounds stop early when they converge too slowly to reach the
     tolerance (:data:`CO_SLOW_REACH`; the block then says ``cut_short``).  ``first_solves``
     keeps the first joint solve, which runs on the eq.-1 tiles and openings either way, for
