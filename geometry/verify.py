@@ -442,19 +442,23 @@ def polygon_in_convex_polyhedron_area(
     """
     out = np.asarray(polygon, dtype=np.float64)
     for p, n in zip(plane_points, plane_normals, strict=True):
-        if len(out) == 0:
-            break
         side = tol - (out - p) @ n  # >= 0 inside
-        nxt = np.roll(out, -1, axis=0)
-        side_n = np.roll(side, -1)
-        pts3: list[FloatArray] = []
-        for i in range(len(out)):
-            if side[i] >= 0:
-                pts3.append(out[i])
-            if (side[i] >= 0) != (side_n[i] >= 0):
-                t = side[i] / (side[i] - side_n[i])
-                pts3.append(out[i] + t * (nxt[i] - out[i]))
-        out = np.array(pts3).reshape(-1, 3)
+        inside = side >= 0
+        if inside.all():
+            continue  # this plane cuts nothing off
+        if not inside.any():
+            return 0.0
+        # Sutherland-Hodgman step: keep the inside corners, add a point where an edge crosses
+        kept: list[FloatArray] = []
+        count = len(out)
+        for i in range(count):
+            j = i + 1 if i + 1 < count else 0
+            if inside[i]:
+                kept.append(out[i])
+            if inside[i] != inside[j]:
+                t = side[i] / (side[i] - side[j])
+                kept.append(out[i] + t * (out[j] - out[i]))
+        out = np.array(kept)
     if len(out) < 3:
         return 0.0
     cross = np.cross(out - out[0], np.roll(out, -1, axis=0) - out[0]).sum(axis=0)

@@ -8,6 +8,7 @@ import pytest
 from drawstring.geometry.verify import (
     assembled_overlap,
     convex_penetration_depth,
+    polygon_in_convex_polyhedron_area,
     reflex_corners,
 )
 
@@ -75,3 +76,42 @@ def test_dart_tile_is_counted_and_measured_as_its_pieces() -> None:
     moved = assembled_overlap(pushed)
     assert moved.volume_mm3 > 0.1
     assert moved.depth_max_mm > 0.1
+
+
+def _cube_planes(lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
+    """The cube ``[lo, hi]^3`` as half-spaces: points on its faces and outward normals."""
+    normals = np.vstack([np.eye(3), -np.eye(3)])
+    points = np.vstack([np.full((3, 3), hi), np.full((3, 3), lo)])
+    return points, normals
+
+
+@pytest.mark.parametrize(
+    ("corners", "expected"),
+    [
+        # a 4 x 4 square at z = 0 cut by the cube [-1, 1]^3 (a 2 x 2 square is inside)
+        ([[-2.0, -2.0], [2.0, -2.0], [2.0, 2.0], [-2.0, 2.0]], 4.0),
+        # a triangle whose corner pokes out of one face: 0.5 - 0.5 * 0.5^2 inside
+        ([[0.0, 0.0], [1.5, 0.0], [0.0, 1.0]], 0.75 - 0.5 * 0.5 * (0.5 / 1.5)),
+        # wholly inside, and wholly outside
+        ([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5]], 0.5),
+        ([[3.0, 3.0], [4.0, 3.0], [4.0, 4.0]], 0.0),
+    ],
+)
+def test_polygon_in_convex_polyhedron_area_known(corners: list, expected: float) -> None:
+    polygon = np.c_[np.asarray(corners), np.zeros(len(corners))]
+    points, normals = _cube_planes(-1.0, 1.0)
+    tilted = rotate(polygon[None], np.array([1.0, -2.0, 0.3]), 0.4)[0]
+    area = polygon_in_convex_polyhedron_area(
+        tilted,
+        rotate(points[None], np.array([1.0, -2.0, 0.3]), 0.4)[0],
+        rotate(normals[None], np.array([1.0, -2.0, 0.3]), 0.4)[0],
+    )
+    # the half-spaces are grown by the default tolerance, 1e-9 mm
+    assert area == pytest.approx(expected, rel=1e-8, abs=1e-12)
+
+
+def test_polygon_on_the_polyhedrons_face_counts_as_inside() -> None:
+    # the cube's own top face: on the boundary, kept whole within the tolerance
+    face = np.array([[-1.0, -1.0, 1.0], [1.0, -1.0, 1.0], [1.0, 1.0, 1.0], [-1.0, 1.0, 1.0]])
+    points, normals = _cube_planes(-1.0, 1.0)
+    assert polygon_in_convex_polyhedron_area(face, points, normals) == pytest.approx(4.0)
