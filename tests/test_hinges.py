@@ -10,6 +10,7 @@ import pytest
 
 from drawstring.geometry.flat import extrude_flat, optimize_flat
 from drawstring.geometry.hinges import (
+    _held_apart,
     hinge_sides,
     hinge_trims,
     hinge_vertex_json,
@@ -268,3 +269,33 @@ def test_dual_layout_with_a_dart_tile_is_valid() -> None:
     assert flat_overlap(layout.tiles[:, :4, :2])[0] == 0.0
     assert interpenetration(layout.tiles)[0] == 0.0
     assert not any("could not be separated" in p for p in layout.problems)
+
+
+def test_pairs_held_apart_near_the_tolerance_are_laid_out_again_only_where_they_matter() -> None:
+    # four hinge pairs: tile 2k's vertex 0 with tile 2k+1's vertex 0; in T2D pair k is
+    # ``start[k]`` mm apart
+    start = np.array([2e-6, 8e-4, 1e-6, 3e-4])
+    tiles = np.zeros((8, 8, 3))
+    tiles[1::2, 0, 0] = start
+    ids = np.array([[8 * (2 * k), 8 * (2 * k + 1)] for k in range(4)])
+    assert np.allclose(hinge_gaps(tiles, ids, in_plane=True), start)
+    free = np.ones(4, dtype=bool)
+    # pair 0 is held 9e-4 mm apart from 2e-6 and is the widest: laid out again; pair 1 is
+    # only as far apart as the flat layout left it, pair 3 not near the tolerance
+    gaps = np.array([9e-4, 8.5e-4, 1e-5, 3.2e-4])
+    assert _held_apart(gaps, tiles, ids, free).tolist() == [True, False, False, False]
+    # ... unless a pair the flat layout left apart is wider: another layout gains nothing
+    gaps[1] = 9.5e-4
+    assert not _held_apart(gaps, tiles, ids, free).any()
+    # pairs beyond the tolerance always count, and near ones join them where they are wider
+    # than every other pair
+    gaps = np.array([9e-4, 8.5e-4, 1.5e-3, 3.2e-4])
+    assert _held_apart(gaps, tiles, ids, free).tolist() == [True, False, True, False]
+    # pairs that are not free (trimmed: separated on their hinge face only) never count, but
+    # one that is wider still leaves nothing to gain
+    free[2] = False
+    assert not _held_apart(gaps, tiles, ids, free).any()
+    gaps[2] = 5e-4
+    assert _held_apart(gaps, tiles, ids, free).tolist() == [True, False, False, False]
+    free[0] = False
+    assert not _held_apart(gaps, tiles, ids, free).any()
