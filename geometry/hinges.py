@@ -507,7 +507,7 @@ def _pairs(count: int, kind: str = "", verb: str = "") -> str:
 #: A hinge pair of the rigid layout counts as held apart by its separating plane when it is
 #: more than the tolerance apart, or more than this share of it and :data:`HELD_APART_RATIO`
 #: times as far apart as its two tiles were in T2D (where the flat layout left them), provided
-#: such pairs set the largest gap (:func:`_held_apart`).  On the 1600-tile wave one pair was
+#: no pair below the tolerance is wider (:func:`_held_apart`).  On the 1600-tile wave one pair was
 #: held 9.4e-4 mm apart (2e-6 mm in T2D): just inside the tolerance, it was not laid out again
 #: and a last-bit change elsewhere put it at 1.5e-3 mm; laid out again it meets within 2e-4 mm.
 HELD_APART_SHARE = 0.5
@@ -520,7 +520,7 @@ def _held_apart(
     """Hinge pairs ``(H,)`` among ``free`` ones whose rigid-layout ``gaps`` (in-plane, mm) a
     separating plane holds open: those above the tolerance, and those near it
     (:data:`HELD_APART_SHARE`) and much wider than in T2D (:data:`HELD_APART_RATIO`) where no
-    other pair is wider.  (A pair that only matches the flat layout's own misfit elsewhere
+    pair outside these is wider.  (A pair that only matches the flat layout's own misfit elsewhere
     gains nothing from another layout: the 200-tile peanut's largest gaps, 6e-4 mm, are its
     flat layout's.)"""
     over = free & (gaps > HINGE_GAP_TOL_MM)
