@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -117,14 +118,17 @@ def test_a_layout_that_meets_its_targets_keeps_the_default_split_bound() -> None
 def test_hinged_pairs_that_planes_through_the_hinge_hold_apart_are_laid_out_again() -> None:
     # At the ends of the three-shell's split lines three hinged pairs do not collide, yet no
     # plane through their hinge separates the two whole tiles: held to such planes they stay
-    # 0.01 mm apart.  Separated on the hinge face only, they meet and nothing interpenetrates.
+    # 0.01 mm apart (two more stay just inside the tolerance, where T2D had them much closer:
+    # laid out again too).  Separated on the hinge face only, they meet and nothing interpenetrates.
     options = DesignOptions(tiles=200, size_mm=200.0, simulate=False, cad=False)
     result = design("three-shell", options)
     metrics = result.metrics()
     assert metrics["hinge_gap_in_plane_max_mm"] <= 1e-3
     assert metrics["flat_interpenetration_mm3"] <= 1e-6
     assert metrics["flat_overlap_area_mm2"] == 0.0
-    assert any("laid out 3 pairs again" in n for n in result.notes)
+    again = [re.search(r"laid out (\d+) pairs again", n) for n in result.notes]
+    counts = [int(m.group(1)) for m in again if m]
+    assert len(counts) == 1 and counts[0] >= 3
     assert result.problems == ()
 
 
