@@ -48,7 +48,11 @@ from drawstring.geometry.route import Route, plan_route
 from drawstring.geometry.simulate import SimulationResult, simulate_stage
 from drawstring.geometry.target import Target, load_target
 from drawstring.geometry.tiling import Tiling, grid_shape_for, parts_in_place
-from drawstring.geometry.tolerances import MAX_SCALE_FACTOR
+from drawstring.geometry.tolerances import (
+    FLAT_EDGE_ERROR_TOL_MM,
+    HINGE_GAP_TOL_MM,
+    MAX_SCALE_FACTOR,
+)
 
 from .layout_stage import (
     fabricated_tiles,
@@ -232,6 +236,26 @@ class Design:
     def tiles_flat(self) -> NDArray[np.float64]:
         """(T, 8, 3) T2D tiles after the hinge layout, mm (fabrication pose)."""
         return self.hinge_layout.tiles
+
+    def layout_misses(self) -> list[str]:
+        """The flat-layout accuracy targets of issue 4 this design misses, one line each.
+
+        These are the flat edge error and the hinge gap seen from above, both at most
+        ``1e-3`` mm: what the flat layout and the hinge layout control, and what the CLI turns
+        into exit status 4 (:data:`~drawstring.fabrication.cli.EXIT_WARNINGS`) even without
+        ``--strict``.  The vertical part of the hinge gap (the thickness difference of two
+        tiles on a mesh that is not conical) and the surface distance stay plain warnings:
+        no layout changes them.
+        """
+        misses = []
+        for key, label, tol in (
+            ("flat_edge_error_max_mm", "flat edge error", FLAT_EDGE_ERROR_TOL_MM),
+            ("hinge_gap_in_plane_max_mm", "hinge gap seen from above", HINGE_GAP_TOL_MM),
+        ):
+            value = self.measured.get(key)
+            if isinstance(value, int | float) and value > tol:
+                misses.append(f"{label} {value:.2g} mm exceeds {tol:g} mm")
+        return misses
 
     def metrics(self) -> dict[str, Any]:
         """Numbers measured on the output geometry (ARCHITECTURE.md section 4)."""

@@ -361,6 +361,34 @@ def test_strict_exits_4_on_warnings_and_still_writes_the_design(tmp_path: Path) 
     assert len(lines) == 1 and "--strict" in lines[0] and doc["warnings"][0][:40] in lines[0]
 
 
+def test_a_missed_flat_layout_target_exits_4_without_strict(tmp_path: Path) -> None:
+    # Issue 4: a design whose flat layout misses the 1e-3 mm edge error or in-plane hinge gap
+    # says so in its exit status, not only in a warning.  With the co-optimization off the
+    # small saddle's flat tiles are tens of microns off: written in full, exit status 4, one
+    # line on stderr naming both numbers and the fix; the same design with the co-optimization
+    # meets them and exits 0 although it lists other warnings (surface distance).
+    out = tmp_path / "off"
+    done = run_cli(
+        "design", "saddle", *SMALL, "--no-simulate", "--no-co-optimize", "--out", str(out)
+    )
+    assert done.returncode == 4, done.stderr
+    doc = json.loads((out / "design.json").read_text())
+    metrics = doc["metrics"]
+    assert metrics["flat_edge_error_max_mm"] > 1e-3 and metrics["hinge_gap_in_plane_max_mm"] > 1e-3
+    assert not doc["problems"] and (out / "flat.obj").is_file()
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("drawstring: accuracy target missed: ")
+    shown = f"flat edge error {metrics['flat_edge_error_max_mm']:.2g} mm exceeds 0.001 mm"
+    assert shown in lines[0] and "hinge gap seen from above" in lines[0]
+    assert "drop --no-co-optimize" in lines[0] and str(out) in lines[0]
+    on = tmp_path / "on"
+    done = run_cli("design", "saddle", *SMALL, "--no-simulate", "--out", str(on))
+    assert done.returncode == 0, done.stderr
+    doc = json.loads((on / "design.json").read_text())
+    assert doc["warnings"] and doc["metrics"]["flat_edge_error_max_mm"] <= 1e-3
+    assert "accuracy target missed" not in done.stderr
+
+
 def test_strict_exits_0_without_warnings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import dataclasses
 
@@ -381,7 +409,8 @@ def test_co_optimization_is_reported_and_can_be_turned_off(tmp_path: Path) -> No
     on, off = tmp_path / "on", tmp_path / "off"
     args = ["design", "saddle", *SMALL, "--no-simulate", "--hinges", "top"]
     assert main([*args, "--out", str(on)]) == 0
-    assert main([*args, "--no-co-optimize", "--out", str(off)]) == 0
+    # without the co-optimization the flat layout misses its 1e-3 mm targets: exit status 4
+    assert main([*args, "--no-co-optimize", "--out", str(off)]) == 4
     m_on = json.loads((on / "design.json").read_text())
     m_off = json.loads((off / "design.json").read_text())
     assert m_on["options"]["co_optimize"] is True and m_off["options"]["co_optimize"] is False
@@ -406,7 +435,8 @@ def test_dual_hinges_meet_on_their_own_faces(tmp_path: Path) -> None:
     on, off = tmp_path / "on", tmp_path / "off"
     args = ["design", "saddle", *SMALL, "--no-simulate"]
     assert main([*args, "--out", str(on)]) == 0
-    assert main([*args, "--no-co-optimize", "--out", str(off)]) == 0
+    # without the co-optimization the flat layout misses its 1e-3 mm targets: exit status 4
+    assert main([*args, "--no-co-optimize", "--out", str(off)]) == 4
     m_on = json.loads((on / "design.json").read_text())["metrics"]
     m_off = json.loads((off / "design.json").read_text())["metrics"]
     assert m_on["hinges_bottom"] > 0 and m_on["hinges_bottom"] == m_off["hinges_bottom"]
