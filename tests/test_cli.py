@@ -389,6 +389,23 @@ def test_a_missed_flat_layout_target_exits_4_without_strict(tmp_path: Path) -> N
     assert "accuracy target missed" not in done.stderr
 
 
+def test_layout_misses_name_only_the_flat_layout_targets_above_their_tolerance() -> None:
+    from types import SimpleNamespace
+
+    from drawstring.fabrication.pipeline import Design
+
+    def misses(**measured: object) -> list[str]:
+        return Design.layout_misses(SimpleNamespace(measured=measured))  # type: ignore[arg-type]
+
+    # at the tolerance is a pass; the 3D hinge gap and the surface distance never count
+    assert misses(flat_edge_error_max_mm=1e-3, hinge_gap_in_plane_max_mm=1e-3) == []
+    assert misses(hinge_gap_max_mm=0.2, surface_distance_mean_mm=9.0) == []
+    assert misses(flat_edge_error_max_mm=0.0123, hinge_gap_in_plane_max_mm=2e-3) == [
+        "flat edge error 0.012 mm exceeds 0.001 mm",
+        "hinge gap seen from above 0.002 mm exceeds 0.001 mm",
+    ]
+
+
 def test_strict_exits_0_without_warnings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import dataclasses
 
