@@ -36,6 +36,15 @@ __all__ = [
 ]
 
 
+#: Largest Levenberg-Marquardt damping (relative to the diagonal of ``J^T J``).  Its steps are
+#: already 1e-12 of a gradient step; without the bound, a subproblem that cannot descend (the
+#: three-shell's joint solve at the CLI's default size) multiplied it by 8 for every refused
+#: trial of every multiplier round until it overflowed, and each round then spent eight
+#: factorizations on an infinite matrix.  The largest damping a built-in reaches otherwise is
+#: about 5e10 (the CLI's saddle), so no other design changes.
+LM_DAMPING_MAX = 1e12
+
+
 def _csr_rows(cols: IntArray, vals: FloatArray, n_cols: int) -> sp.csr_matrix:
     """The sparse matrix with ``cols.shape[1]`` entries per row (columns ``cols``, values
     ``vals``), built directly in canonical CSR form: the matrix ``csr_matrix((vals, (rows,
@@ -293,7 +302,9 @@ def constrained_least_squares(
                     mu = max(mu / 3.0, 1e-12)
                     moved = max(moved, float(np.abs(step).max()))
                     break
-                mu *= 8.0
+                if mu >= LM_DAMPING_MAX:
+                    break  # stalled: a larger damping only repeats a vanishing step
+                mu = min(mu * 8.0, LM_DAMPING_MAX)
             if not improved or decrease <= 1e-14 * max(c0, 1e-30) or np.abs(step).max() < 1e-10:
                 break
         # --- multiplier update ------------------------------------------------------------
