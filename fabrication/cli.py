@@ -19,9 +19,12 @@ import logging  # noqa: E402
 import sys  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
 from pathlib import Path  # noqa: E402
-from typing import NoReturn  # noqa: E402
+from typing import TYPE_CHECKING, NoReturn  # noqa: E402
 
 from drawstring.geometry.errors import DesignError, InputError  # noqa: E402
+
+if TYPE_CHECKING:
+    from .pipeline import Design
 
 EXIT_INPUT = 2
 EXIT_DESIGN = 3
@@ -210,12 +213,7 @@ def _run_design(args: argparse.Namespace) -> int:
         return EXIT_DESIGN
     misses = result.layout_misses()
     if misses:
-        fix = (
-            "drop --no-co-optimize"
-            if not result.options.co_optimize
-            else "a lower --max-scale-factor splits the target into parts whose flat tiles "
-            "fit more closely"
-        )
+        fix = "drop --no-co-optimize" if not result.options.co_optimize else _closer_fit(result)
         print(
             f"drawstring: accuracy target missed: {'; '.join(misses)} (the design was written "
             f"to {folder}; see design.json 'warnings'; {fix})",
@@ -324,6 +322,20 @@ def _run_view(args: argparse.Namespace) -> int:
         raise InputError(f"{folder} is not a drawstring design folder (no design.json)")
     print(open_report(folder))
     return 0
+
+
+def _closer_fit(result: Design) -> str:
+    """What to try when the flat layout misses its accuracy targets: more, smaller tiles, or a
+    split bound below the largest part's area-scale ratio (which cuts the target into parts)."""
+    tiles = result.tiling.linkage.n_tiles
+    ratio = result.tiling.scale_factor_max
+    fix = f"try more tiles (e.g. --tiles {2 * tiles})"
+    if ratio > 1.005:
+        fix += (
+            f" or a --max-scale-factor below {ratio:.3g}, this design's largest area-scale "
+            "ratio, to split it into parts"
+        )
+    return fix
 
 
 def main(argv: Sequence[str] | None = None) -> int:

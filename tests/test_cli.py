@@ -406,6 +406,25 @@ def test_layout_misses_name_only_the_flat_layout_targets_above_their_tolerance()
     ]
 
 
+def test_the_fix_for_a_missed_layout_target_names_tiles_and_a_split_bound_that_splits() -> None:
+    # Seen on the wave with the plywood-cnc profile (150 tiles, largest area-scale ratio 1.034,
+    # flat edge error 4.2e-3 mm): --tiles 300 and --max-scale-factor 1.02 each meet the targets.
+    from types import SimpleNamespace
+
+    from drawstring.fabrication.cli import _closer_fit
+
+    def fix(tiles: int, ratio: float) -> str:
+        tiling = SimpleNamespace(linkage=SimpleNamespace(n_tiles=tiles), scale_factor_max=ratio)
+        return _closer_fit(SimpleNamespace(tiling=tiling))  # type: ignore[arg-type]
+
+    assert fix(150, 1.034009) == (
+        "try more tiles (e.g. --tiles 300) or a --max-scale-factor below 1.03, this design's "
+        "largest area-scale ratio, to split it into parts"
+    )
+    # a part whose area scale hardly varies is not split by any allowed bound
+    assert fix(196, 1.002) == "try more tiles (e.g. --tiles 392)"
+
+
 def test_strict_exits_0_without_warnings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import dataclasses
 
