@@ -15,9 +15,11 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import contextlib  # noqa: E402
 import logging  # noqa: E402
 import sys  # noqa: E402
-from collections.abc import Sequence  # noqa: E402
+import warnings  # noqa: E402
+from collections.abc import Iterator, Sequence  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import TYPE_CHECKING, NoReturn  # noqa: E402
 
@@ -132,7 +134,7 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-VERBOSE_HELP = "log what each stage does, and every library warning"
+VERBOSE_HELP = "log what each stage does, and every warning a library raises"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -338,6 +340,38 @@ def _closer_fit(result: Design) -> str:
     return fix
 
 
+#: Logger that Python warnings raised inside the libraries (numpy, scipy, OCP) go to with -v.
+LIBRARY_LOGGER = "drawstring.library"
+
+
+@contextlib.contextmanager
+def _library_warnings(verbose: bool) -> Iterator[None]:
+    """Python warnings raised while a command runs: one log line each with ``-v``, none
+    without.  What a user needs to know about a design is in its own ``warnings`` and
+    ``problems``; a library's numerical warning (an overflow in a trial step the solver then
+    refuses, a deprecation) is a detail for whoever debugs it.  The previous warning state
+    comes back on return (``main`` may be called from a script or a test)."""
+    log = logging.getLogger(LIBRARY_LOGGER)
+
+    def show(
+        message: Warning | str,
+        category: type[Warning],
+        filename: str,
+        lineno: int,
+        file: object = None,
+        line: str | None = None,
+    ) -> None:
+        log.warning("%s: %s (%s:%d)", category.__name__, message, filename, lineno)
+
+    with warnings.catch_warnings():
+        if verbose:
+            warnings.simplefilter("default")  # once per place, as Python shows them
+            warnings.showwarning = show
+        else:
+            warnings.simplefilter("ignore")
+        yield
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -346,6 +380,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.INFO if args.verbose else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
+    with _library_warnings(args.verbose):
+        return _run_command(parser, args)
+
+
+def _run_command(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     try:
         if args.command == "design":
             return _run_design(args)

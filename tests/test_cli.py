@@ -633,3 +633,30 @@ def test_facts_the_design_lists_are_not_repeated_as_log_lines(
             assert any("failed for every threshold" in n for n in doc["notes"])
         else:
             assert any("simulation got stuck" in w for w in doc["warnings"])
+
+
+def test_library_warnings_are_logged_with_verbose_and_kept_off_the_terminal_without(
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+    recwarn: pytest.WarningsRecorder,
+) -> None:
+    import warnings
+
+    from drawstring.fabrication import cli
+
+    def noisy() -> int:
+        warnings.warn("overflow encountered in multiply", RuntimeWarning, stacklevel=1)
+        return 0
+
+    monkeypatch.setattr(cli, "_run_targets", noisy)
+    assert main(["targets"]) == 0
+    assert "overflow" not in capsys.readouterr().err
+    assert not [r for r in caplog.records if r.name == cli.LIBRARY_LOGGER]
+    assert len(recwarn) == 0  # not passed on to Python's own display either
+    assert main(["-v", "targets"]) == 0
+    logged = [r.getMessage() for r in caplog.records if r.name == cli.LIBRARY_LOGGER]
+    assert len(logged) == 1 and logged[0].startswith("RuntimeWarning: overflow encountered")
+    # the caller's warning state is back: a warning after main reaches the caller again
+    warnings.warn("after", UserWarning, stacklevel=1)
+    assert [str(w.message) for w in recwarn] == ["after"]
