@@ -385,7 +385,8 @@ def tile_surface(
         if unmet:
             notes.append(
                 f"{unmet} part(s) still exceed the scale-factor bound {max_scale_factor:g}: no "
-                f"split leaves {MIN_PART_CELLS} or more cells on each side; use more tiles, "
+                f"split leaves {MIN_PART_CELLS} or more cells on each side and every piece on the "
+                "outer boundary (the string enters a part only from there); use more tiles, "
                 "other --corners or a flatter target"
             )
     linkage = build_linkage(cells, splits) if splits else base
@@ -433,13 +434,18 @@ def _choose_splits(
     Each part that exceeds the bound is cut along the grid line (vertical or horizontal) through
     its interior grid vertex of highest absolute Gaussian curvature, choosing the direction whose
     worse half has the smaller ratio.  When neither line through that point helps, every grid line
-    across the part is tried.  Returns the splits and how many parts still exceed the bound.
+    across the part is tried.  Only cuts that leave every piece with a tile on the outer boundary
+    count: the string never enters a part through a cut (paper, "Connecting splits"), so a piece
+    enclosed by other parts could not be pulled into shape.  Returns the splits and how many
+    parts still exceed the bound.
     """
     n_i, n_j = cells.shape
     tile_of_cell = -np.ones((n_i, n_j), dtype=np.int64)
     tile_of_cell[base.tile_cells[:, 0], base.tile_cells[:, 1]] = np.arange(base.n_tiles)
     vertex_of_ij = {(int(a), int(b)): k for k, (a, b) in enumerate(base.vertex_ij)}
 
+    outer = np.zeros_like(cells)
+    outer[base.tile_cells[base.boundary_tile, 0], base.tile_cells[base.boundary_tile, 1]] = True
     cache: dict[bytes, float] = {}
 
     def ratio_of(mask: NDArray[np.bool_]) -> float:
@@ -481,12 +487,15 @@ def _choose_splits(
         lines += [
             ("y", int(y)) for y in range(jj.min() + MIN_PART_CELLS, jj.max() + 2 - MIN_PART_CELLS)
         ]
-        # Keep only lines that actually separate cells of the part.
+        # Keep only lines that actually separate cells of the part, into pieces that each
+        # reach the outer boundary.
         valid = []
         for axis, line in lines:
-            if axis == "x" and np.any(mask[line - 1, :] & mask[line, :]):
-                valid.append((axis, line))
-            if axis == "y" and np.any(mask[:, line - 1] & mask[:, line]):
+            if axis == "x":
+                across = mask[line - 1, :] & mask[line, :]
+            else:
+                across = mask[:, line - 1] & mask[:, line]
+            if np.any(across) and all((p & outer).any() for p in halves(mask, axis, line)):
                 valid.append((axis, line))
         return valid
 

@@ -107,3 +107,24 @@ def test_no_split_when_disabled_reports_ratio() -> None:
     )
     assert not tiling.linkage.splits
     assert tiling.scale_factor_max == pytest.approx(tiling.scale_factor_max_unsplit)
+
+
+def test_every_split_part_keeps_a_tile_on_the_outer_boundary() -> None:
+    """The string enters a part only from the outer boundary, never through a cut, so no split
+    may enclose a part.  The 1600-tile three-shell's cuts once enclosed one of its seven parts
+    (its string route then missed it); now another cut serves, with the same largest ratio."""
+    import math
+
+    from drawstring.geometry.flatten import flatten
+    from drawstring.geometry.target import load_target
+
+    target = load_target("three-shell", size_mm=200.0)
+    uv = flatten(target.vertices, target.faces).uv
+    bound = 2.0 / (1.0 + math.sin(math.radians(12.0)))  # the fdm-dual default
+    tiling = tile_surface(target.vertices, target.faces, uv, tiles=1600, max_scale_factor=bound)
+    link = tiling.linkage
+    assert link.n_components == 7
+    for c in range(link.n_components):
+        assert link.boundary_tile[link.tile_component == c].any(), f"part {c} is enclosed"
+    assert tiling.scale_factor_max == pytest.approx(1.573, abs=1e-3)
+    assert not tiling.notes
