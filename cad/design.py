@@ -51,6 +51,7 @@ from drawstring.cad.features import (
 from drawstring.cad.features import channel_radius as _channel_radius
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path
 from drawstring.cad.tiles import move_solid, rigid_transforms, tile_solid
+from drawstring.geometry import parallel
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import id_runs
 
@@ -715,7 +716,9 @@ def _run_jobs(
     methods = multiprocessing.get_all_start_methods()
     context = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
     results: list[_JobResult] = []
-    with ProcessPoolExecutor(max_workers=count, mp_context=context) as pool:
+    with ProcessPoolExecutor(
+        max_workers=count, mp_context=context, initializer=parallel.exit_quietly_on_interrupt
+    ) as pool:
         futures = [pool.submit(_build_chunk, chunk, profile, hinge_data) for chunk in chunks]
         for future in futures:
             results.extend(future.result())

@@ -35,6 +35,8 @@ EXIT_DESIGN = 3
 #: with ``--strict`` also any other warning (the surface distance, the hinge gap's vertical
 #: part, a stuck simulation, an unreachable lift point, a loose linkage).
 EXIT_WARNINGS = 4
+#: Ctrl-C: 128 + SIGINT, as a shell reports a process that SIGINT ended.
+EXIT_INTERRUPTED = 130
 
 
 class _Parser(argparse.ArgumentParser):
@@ -381,7 +383,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(levelname)s %(name)s: %(message)s",
     )
     with _library_warnings(args.verbose):
-        return _run_command(parser, args)
+        try:
+            return _run_command(parser, args)
+        except KeyboardInterrupt:
+            # the output folder is written all at once at the end, so nothing is half-written
+            print("drawstring: interrupted; no output was written", file=sys.stderr)
+            return EXIT_INTERRUPTED
 
 
 def _run_command(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:

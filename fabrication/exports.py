@@ -51,6 +51,7 @@ from drawstring.fabrication.exports_dxf import (
 )
 from drawstring.fabrication.exports_panels import CableRun, Panel, cable_runs, tile_panels
 from drawstring.fabrication.exports_parts import strip_part, write_placement
+from drawstring.geometry import parallel
 
 if TYPE_CHECKING:
     from drawstring.cad.design import CadResult
@@ -959,10 +960,16 @@ def _start_step_writers(
             write_step(path, parts, label)
         return []
     context = multiprocessing.get_context("fork")
-    processes = [context.Process(target=write_step, args=job) for job in jobs]
+    processes = [context.Process(target=_step_writer, args=job) for job in jobs]
     for process in processes:
         process.start()
     return processes
+
+
+def _step_writer(path: Path, parts: Sequence[tuple[str, bd.Shape, str]], label: str) -> None:
+    """Body of a STEP-writing process."""
+    parallel.exit_quietly_on_interrupt()
+    write_step(path, parts, label)
 
 
 def _finish_step_writers(processes: Sequence[Any]) -> None:

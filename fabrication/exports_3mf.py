@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 from OCP.BRepMesh import BRepMesh_IncrementalMesh
 from OCP.StlAPI import StlAPI_Writer
 
+from drawstring.geometry import parallel
 from drawstring.geometry.errors import InputError
 
 #: Fixed zip member timestamp (the earliest a zip can hold) for byte-identical files.
@@ -138,7 +139,9 @@ def mesh_solids(
     chunks = [list(items[i::n_chunks]) for i in range(n_chunks)]
     methods = multiprocessing.get_all_start_methods()
     context = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
-    with ProcessPoolExecutor(max_workers=count, mp_context=context) as pool:
+    with ProcessPoolExecutor(
+        max_workers=count, mp_context=context, initializer=parallel.exit_quietly_on_interrupt
+    ) as pool:
         done = list(pool.map(_mesh_chunk, chunks, [tolerance] * n_chunks))
     meshes: list[PartMesh | None] = [None] * len(items)
     for chunk_index, chunk in enumerate(done):

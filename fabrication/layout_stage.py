@@ -400,6 +400,7 @@ def _lay_out_ahead(work: Callable[[Progress], ShapedLayout], send: Connection) -
     """Body of :class:`_Ahead`'s child process."""
     from .pipeline import Progress  # the child only: pipeline imports this module
 
+    parallel.exit_quietly_on_interrupt()
     progress = Progress(quiet=True)
     try:
         shaped = work(progress)

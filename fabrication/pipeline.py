@@ -77,7 +77,15 @@ from .out_folder import (  # noqa: F401 (re-exported)
     simulate_folder,
     write_design,
 )
-from .profiles import MAX_TILES, MIN_GRID_SIDE, MIN_TILES, Profile, load_profile
+from .profiles import (
+    MAX_SIZE_MM,
+    MAX_TILES,
+    MAX_WEIGHT,
+    MIN_GRID_SIDE,
+    MIN_TILES,
+    Profile,
+    load_profile,
+)
 
 log = logging.getLogger(__name__)
 
@@ -135,6 +143,12 @@ class DesignOptions:
             raise InputError(
                 f"--size must be a positive number of millimetres (got {self.size_mm})"
             )
+        if self.size_mm is not None and self.size_mm > MAX_SIZE_MM:
+            raise InputError(
+                f"--size {self.size_mm:g} mm is above the {MAX_SIZE_MM:g} mm that drawstring's "
+                "1e-3 mm accuracy checks hold for; design a part of at most that size, or split "
+                "the structure into several designs"
+            )
         if not 100 <= self.resolution <= 1_000_000:
             raise InputError(
                 f"--resolution must be between 100 and 1000000 triangles (got {self.resolution})"
@@ -149,16 +163,21 @@ class DesignOptions:
             # as a profile's tile.min_gap_angle_deg: gaps that open at least theta absorb a tile
             # area ratio of at most 2 / (1 + sin theta), 1.07 at 60 deg, so past that the
             # design falls apart into ever more split parts
+            if self.min_gap_angle_deg > 60:
+                why = "wider gaps leave the flat layout almost no room to absorb the curvature"
+            elif self.min_gap_angle_deg < 0:
+                why = "it is the least angle a gap opens to, so it cannot be negative"
+            else:
+                why = "give a number of degrees; the profiles use 12"
             raise InputError(
-                f"--min-gap-angle must be in [0, 60] degrees (got {self.min_gap_angle_deg}); "
-                "wider gaps leave the flat layout almost no room to absorb the surface's "
-                "curvature"
+                f"--min-gap-angle must be in [0, 60] degrees (got {self.min_gap_angle_deg}); {why}"
             )
-        if len(self.weights) != 3 or not all(math.isfinite(w) and w >= 0 for w in self.weights):
+        if len(self.weights) != 3 or not all(0 <= w <= MAX_WEIGHT for w in self.weights):
             shown = " ".join(f"{w:g}" for w in self.weights)
+            most = f"{MAX_WEIGHT:.0e}".replace("e+0", "e")
             raise InputError(
-                f"--weights PLANAR SQUARE SURFACE must be three finite numbers >= 0 (got {shown}); "
-                "the paper uses 10000 10 0.1"
+                f"--weights PLANAR SQUARE SURFACE must be three numbers from 0 to {most} "
+                f"(got {shown}); the paper uses 10000 10 0.1"
             )
         if not any(w > 0 for w in self.weights):
             raise InputError(

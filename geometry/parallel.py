@@ -9,11 +9,12 @@ the number of threads or blocks, so results are bitwise the same on any machine.
 from __future__ import annotations
 
 import os
+import signal
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
-__all__ = ["MAX_THREADS", "map_blocks", "thread_count"]
+__all__ = ["MAX_THREADS", "exit_quietly_on_interrupt", "map_blocks", "thread_count"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -53,3 +54,14 @@ def map_blocks(work: Callable[[T], R], blocks: Sequence[T]) -> list[R]:
     if _pool is None:
         _pool = ThreadPoolExecutor(max_workers=thread_count(), thread_name_prefix="drawstring")
     return list(_pool.map(work, blocks))
+
+
+def _exit_interrupted(signum: int, frame: object) -> None:
+    os._exit(130)
+
+
+def exit_quietly_on_interrupt() -> None:
+    """Call first in a worker process: Ctrl-C (SIGINT, sent to the whole process group) ends it
+    at once and without a traceback.  The parent gets the same signal and reports the
+    interruption in one line."""
+    signal.signal(signal.SIGINT, _exit_interrupted)

@@ -223,8 +223,12 @@ def test_bad_meshes_exit_2_with_one_line_and_no_folder(case: str, tmp_path: Path
         (["saddle", "--thickness", "-1"], "--thickness"),
         (["saddle", "--thickness", "nan"], "--thickness"),
         (["saddle", "--thickness", "inf"], "--thickness"),
-        (["saddle", "--min-gap-angle", "-1"], "--min-gap-angle"),
-        (["saddle", "--min-gap-angle", "nan"], "--min-gap-angle"),
+        (["saddle", "--min-gap-angle", "-1"], "so it cannot be negative"),
+        (["saddle", "--min-gap-angle", "nan"], "give a number of degrees"),
+        (["saddle", "--min-gap-angle", "61"], "almost no room to absorb"),
+        # once a traceback: the solver's matrix overflowed to singular
+        (["saddle", "--weights", "1e308", "1e308", "1e308"], "numbers from 0 to 1e8 (got 1e+308"),
+        (["saddle", "--size", "20000"], "above the 10000 mm"),
         (["saddle", "--min-gap-angle", "inf"], "--min-gap-angle"),
         (["saddle", "--max-scale-factor", "nan"], "--max-scale-factor"),
         (["saddle", "--max-scale-factor", "-inf"], "--max-scale-factor"),
@@ -660,3 +664,25 @@ def test_library_warnings_are_logged_with_verbose_and_kept_off_the_terminal_with
     # the caller's warning state is back: a warning after main reaches the caller again
     warnings.warn("after", UserWarning, stacklevel=1)
     assert [str(w.message) for w in recwarn] == ["after"]
+
+
+def test_ctrl_c_is_one_line_exit_130_and_leaves_no_folder(tmp_path: Path) -> None:
+    """SIGINT to the whole process group, as a terminal sends it on Ctrl-C, while the layout
+    stages run (the second tiling laid out ahead in a forked child included)."""
+    import os
+    import signal
+    import time
+
+    out = tmp_path / "out"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "drawstring.fabrication.cli", "design", "seashell", "--tiles",
+         "400", "--no-cad", "--no-simulate", "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )  # fmt: skip
+    time.sleep(6.0)  # imports and the first stages; the whole design takes far longer
+    os.killpg(process.pid, signal.SIGINT)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 130, err
+    assert err.strip().splitlines() == ["drawstring: interrupted; no output was written"]
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name != "out"]  # no staging folder left
