@@ -516,6 +516,13 @@ def _design(
         flat_map = flatten(
             loaded.vertices, loaded.faces, mode="rectangle", corners=resolved.corners
         )
+    if flat_map.flipped:
+        notes.append(
+            f"flattening: the conformal map turns {flat_map.flipped} of the target's "
+            f"{len(loaded.faces)} triangles over (slivers or a coarse mesh where the surface "
+            "bends sharply); the tiles are lifted from this map and checked as measured, and "
+            "a finer, cleaner target mesh or other --corners avoids it"
+        )
     check_grid(resolved, flat_map, from_profile=options.tiles is None and options.grid is None)
     try:
         shaped = shape_and_layout(loaded, flat_map, resolved, progress)

@@ -108,6 +108,8 @@ class Flattening:
     corners : (4,) int or None, vertex ids of the rectangle corners in boundary order; None in
         ``"free"`` mode.
     mode : which domain was produced.
+    flipped : how many triangles the map turns over (0 for a fine mesh; the pipeline reports
+        any as a note).
     """
 
     uv: NDArray[np.float64]
@@ -115,6 +117,7 @@ class Flattening:
     boundary: NDArray[np.int64]
     corners: NDArray[np.int64] | None
     mode: Mode
+    flipped: int = 0
 
     @property
     def width(self) -> float:
@@ -198,13 +201,13 @@ def flatten(
         "flatten %s: %d vertices, setup+factor %.3f s, solve %.3f s", mode, len(V), t1 - t0, t2 - t1
     )
     flips = int(np.count_nonzero(flipped_faces(F, uv)))
-    if flips:
-        log.warning("flattening has %d flipped triangles; the mesh may be too coarse", flips)
     for array in (uv, u, loop):
         array.flags.writeable = False
     if corner_ids is not None:
         corner_ids.flags.writeable = False
-    return Flattening(uv=uv, log_scale=u, boundary=loop, corners=corner_ids, mode=mode)
+    return Flattening(
+        uv=uv, log_scale=u, boundary=loop, corners=corner_ids, mode=mode, flipped=flips
+    )
 
 
 def quasi_conformal_distortion(

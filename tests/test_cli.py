@@ -686,3 +686,26 @@ def test_ctrl_c_is_one_line_exit_130_and_leaves_no_folder(tmp_path: Path) -> Non
     assert err.strip().splitlines() == ["drawstring: interrupted; no output was written"]
     assert not out.exists()
     assert not [p for p in tmp_path.iterdir() if p.name != "out"]  # no staging folder left
+
+
+def test_a_folded_flattening_is_a_note_in_the_design_not_a_log_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import igl
+
+    uv, faces = igl.triangulated_grid(11, 11)
+    lines = [f"v {100 * x:.6f} {100 * y:.6f} {10 * (x - 0.5) * (y - 0.5):.6f}" for x, y in uv]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
+    mesh = tmp_path / "sheet.obj"
+    mesh.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "sheet"
+    # corner 119 is one vertex off the sheet's own corner 120: the map folds a triangle there
+    args = ["design", str(mesh), "--corners", "0", "10", "119", "110", "--grid", "6", "6"]
+    status = main([*args, "--no-cad", "--no-simulate", "--out", str(out)])
+    captured = capsys.readouterr()
+    assert status in (0, 4)
+    notes = json.loads((out / "design.json").read_text())["notes"]
+    folded = [n for n in notes if n.startswith("flattening: the conformal map turns 1 of")]
+    assert len(folded) == 1 and "other --corners" in folded[0]
+    assert "note: flattening: the conformal map turns 1 of" in captured.out
+    assert "WARNING" not in captured.err

@@ -294,6 +294,18 @@ def test_smooth_patches_do_not_flip(mode: str) -> None:
             assert_rectangle(flat, vertices, faces)
 
 
+def test_a_map_that_turns_triangles_over_counts_them() -> None:
+    """Corners one vertex off a flat square's own fold the triangle at the misplaced corner;
+    the count is returned (the pipeline reports it as a note) rather than logged."""
+    uv, faces = igl.triangulated_grid(11, 11)
+    vertices = np.c_[100.0 * uv, np.zeros(len(uv))]
+    faces = faces.astype(np.int64)
+    own = flatten(vertices, faces, mode="rectangle", corners=[0, 10, 120, 110])
+    assert own.flipped == 0
+    off = flatten(vertices, faces, mode="rectangle", corners=[0, 10, 119, 110])
+    assert off.flipped == int(np.count_nonzero(flipped_faces(faces, off.uv))) == 1
+
+
 # ------------------------------------------------------------------------------- real meshes
 
 
