@@ -12,7 +12,6 @@ import json
 import os
 import shutil
 import tempfile
-import time
 import zipfile
 import zlib
 from pathlib import Path
@@ -45,6 +44,8 @@ def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
         raise InputError(
             f"output folder {out} exists and is not a drawstring design; choose another --out"
         )
+    if out.is_dir():
+        _refuse_foreign_files(out)
     parent = out.parent
     probe = parent
     while not probe.exists():
@@ -65,14 +66,45 @@ def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
     return out
 
 
+def _refuse_foreign_files(out: Path) -> None:
+    """Refuse a design folder holding files its ``design.json`` does not list (a user's notes,
+    a slicer project): replacing the folder would delete them.  Hidden files (``.DS_Store``)
+    do not count; with an unreadable ``design.json`` every other file but ``report.html``
+    does."""
+    try:
+        listed = set(json.loads((out / "design.json").read_text(encoding="utf-8"))["files"])
+    except (OSError, ValueError, KeyError, TypeError):
+        listed = set()
+    listed |= {"design.json", "report.html"}
+    foreign = sorted(
+        path.relative_to(out).as_posix()
+        for path in out.rglob("*")
+        if not path.is_dir()
+        and not any(part.startswith(".") for part in path.relative_to(out).parts)
+        and path.relative_to(out).as_posix() not in listed
+    )
+    if foreign:
+        more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
+        raise InputError(
+            f"output folder {out} holds files drawstring did not write ({foreign[0]}{more}), "
+            "which replacing the design would delete; move them out or choose another --out"
+        )
+
+
 def _probe_rename(out: Path) -> None:
-    """Refuse a folder that cannot be renamed (immutable, a mount point, a sticky parent owned
-    by someone else): :func:`write_design` renames it aside to replace it, at the very end.
-    The probe renames it to a unique sibling name and straight back."""
-    aside = out.parent / f".{out.name}.{os.getpid()}.{time.monotonic_ns()}.probe"
+    """Refuse a folder that cannot be moved aside (immutable, a mount point, a sticky parent
+    owned by someone else, a folder without write permission, which a move into another
+    folder needs for its ``..`` entry): :func:`write_design` moves it into a temporary sibling
+    folder to replace it, at the very end.  The probe makes the same move and straight back."""
+    try:
+        retired = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".probe", dir=out.parent))
+    except OSError as exc:
+        raise _placement_error(out, exc) from None
+    aside = retired / out.name
     try:
         os.rename(out, aside)
     except OSError as exc:
+        os.rmdir(retired)
         raise _placement_error(out, exc) from None
     try:
         os.rename(aside, out)
@@ -80,6 +112,7 @@ def _probe_rename(out: Path) -> None:
         raise InputError(
             f"cannot rename {aside} back to {out} ({exc.strerror or exc}); rename it by hand"
         ) from None
+    os.rmdir(retired)
 
 
 def _placement_error(out: Path, exc: OSError) -> InputError:
@@ -222,6 +255,16 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
             f"{root}: route.json, hinges.json or the lift points do not match design.json; "
             "run drawstring design again"
         )
+    # the files are written beside the folder's own and renamed into it: check both places
+    # now rather than after the simulation
+    for place in (root.parent, root):
+        try:
+            os.rmdir(tempfile.mkdtemp(prefix=f".{root.name}.", suffix=".probe", dir=place))
+        except OSError as exc:
+            raise InputError(
+                f"cannot write into {place} ({exc.strerror or type(exc).__name__}); make it "
+                "writable, or copy the design folder somewhere writable and simulate that"
+            ) from None
     progress = Progress(quiet=quiet)
     with progress.stage("simulate"):
         simulation = simulate_stage(

@@ -709,3 +709,81 @@ def test_a_folded_flattening_is_a_note_in_the_design_not_a_log_line(
     assert len(folded) == 1 and "other --corners" in folded[0]
     assert "note: flattening: the conformal map turns 1 of" in captured.out
     assert "WARNING" not in captured.err
+
+
+def test_a_design_folder_holding_a_users_own_file_is_not_replaced(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "d"
+    args = ["design", "saddle", *SMALL, "--no-simulate", "--out", str(out)]
+    assert main(args) == 0
+    (out / ".DS_Store").write_bytes(b"")  # hidden files do not count
+    assert main(args) == 0
+    (out / "my notes.txt").write_text("glue the left part first\n")
+    before = sorted(p.name for p in out.iterdir())
+    capsys.readouterr()
+    assert main(args) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "holds files drawstring did not write (my notes.txt)" in lines[0]
+    assert sorted(p.name for p in out.iterdir()) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
+
+
+def test_a_design_folder_that_cannot_be_moved_aside_is_refused_up_front(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Moving a folder into another one needs write permission on the folder itself (for its
+    # ".." entry), renaming it in place does not: a design folder without it (chmod 555) was
+    # refused only after the whole run.  Root bypasses permissions, so the refusal is mocked.
+    import os
+
+    out = tmp_path / "d"
+    args = ["design", "saddle", *SMALL, "--no-simulate", "--out", str(out)]
+    assert main(args) == 0
+    real_rename = os.rename
+
+    def no_move(src: object, dst: object) -> None:
+        if Path(str(src)) == out and Path(str(dst)).parent != out.parent:
+            raise PermissionError(13, "Permission denied", str(src))
+        real_rename(src, dst)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(os, "rename", no_move)
+    ran = []
+    from drawstring.fabrication import pipeline
+
+    monkeypatch.setattr(pipeline, "design", lambda *a, **k: ran.append(1))
+    capsys.readouterr()
+    assert main(args) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "Permission denied" in lines[0] and "--out" in lines[0]
+    assert not ran  # refused before any work
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
+
+
+def test_simulate_refuses_a_folder_it_cannot_write_before_simulating(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import tempfile
+
+    from drawstring.fabrication import out_folder
+
+    out = tmp_path / "d"
+    args = ["design", "saddle", "--grid", "6", "5", "--resolution", "1500", "--no-cad"]
+    assert main([*args, "--no-simulate", "--quiet", "--out", str(out)]) == 0
+    before = (out / "design.json").read_bytes()
+    real_mkdtemp = tempfile.mkdtemp
+
+    def read_only(*a: object, dir: object = None, **k: object) -> str:
+        if dir is not None and Path(str(dir)) == out:
+            raise PermissionError(13, "Permission denied", str(dir))
+        return real_mkdtemp(*a, dir=dir, **k)  # type: ignore[arg-type, call-overload, no-any-return]
+
+    ran = []
+    monkeypatch.setattr(tempfile, "mkdtemp", read_only)
+    monkeypatch.setattr(out_folder, "simulate_stage", lambda *a, **k: ran.append(1))
+    capsys.readouterr()
+    assert main(["simulate", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"cannot write into {out} (Permission denied)" in err[0]
+    assert not ran and (out / "design.json").read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
