@@ -23,6 +23,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import igl
 import numpy as np
 from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
@@ -475,6 +476,43 @@ def size_refusal(exc: ThicknessError, options: ResolvedOptions) -> InputError | 
 BLAS_THREADS = 1
 
 
+def mesh_corners(target: Target, options: ResolvedOptions) -> tuple[int, ...] | None:
+    """``--corners`` (vertex ids of the mesh as read, counting from 0) as ids of the loaded
+    target, whose repairs may have dropped or merged vertices."""
+    if options.corners is None:
+        return None
+    ids = [int(v) for v in options.corners]
+    where = target.vertex_of_input
+    if where is None:
+        return tuple(ids)
+    outside = [v for v in ids if not 0 <= v < len(where)]
+    if outside:
+        raise InputError(
+            f"--corners {outside[0]} is not a vertex of the mesh, which has {len(where)} "
+            f"(ids 0 to {len(where) - 1}, in the file's order)"
+        )
+    dropped = [v for v in ids if where[v] < 0]
+    if dropped:
+        raise InputError(
+            f"--corners {dropped[0]} names a vertex that no face of the mesh uses; pick four "
+            "boundary vertices of the surface"
+        )
+    mapped = [int(where[v]) for v in ids]
+    boundary = set(igl.boundary_loop(np.asarray(target.faces)).tolist())
+    inside = [v for v, m in zip(ids, mapped, strict=True) if m not in boundary]
+    if inside:
+        raise InputError(
+            f"--corners vertices {inside} are not on the mesh boundary; pick four boundary "
+            "vertex ids (counting from 0, in the file's order)"
+        )
+    if len(set(mapped)) < len(set(ids)):
+        raise InputError(
+            f"--corners {' '.join(map(str, ids))} name coincident vertices, which loading "
+            "merged into one; pick four distinct corners"
+        )
+    return tuple(mapped)
+
+
 def design(
     target: str | os.PathLike[str],
     options: DesignOptions | None = None,
@@ -514,7 +552,7 @@ def _design(
         loaded = load_target(target, size_mm=resolved.size_mm, resolution=resolved.resolution)
     with progress.stage("flatten"):
         flat_map = flatten(
-            loaded.vertices, loaded.faces, mode="rectangle", corners=resolved.corners
+            loaded.vertices, loaded.faces, mode="rectangle", corners=mesh_corners(loaded, resolved)
         )
     if flat_map.flipped:
         notes.append(

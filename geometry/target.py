@@ -18,6 +18,7 @@ import logging
 import math
 import os
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -61,6 +62,10 @@ class Target:
         ``"builtin"`` or the file path as given.
     notes : tuple of str
         Repairs done while loading, e.g. ``"removed 3 zero-area faces"``.
+    vertex_of_input : (n_input,) int or None
+        For each vertex as read (the file's order, counting from 0), its index in
+        ``vertices``, or -1 where the repairs dropped it (unused by any face, or only by
+        removed ones); coincident vertices map to the one they were merged into.
     """
 
     name: str
@@ -68,6 +73,7 @@ class Target:
     faces: NDArray[np.int64]
     source: str
     notes: tuple[str, ...]
+    vertex_of_input: NDArray[np.int64] | None = None
 
     @property
     def bbox_diagonal_mm(self) -> float:
@@ -105,7 +111,7 @@ def load_target(spec: str | os.PathLike[str], size_mm: float, resolution: int = 
     if builtin is not None:
         _check_resolution(resolution)
         raw_vertices, raw_faces = builtin.make(int(resolution))
-        vertices, faces, notes = validate_disk_mesh(raw_vertices, raw_faces)
+        vertices, faces, notes, vertex_of_input = _clean_disk_mesh(raw_vertices, raw_faces)
         name, source = builtin.name, "builtin"
     else:
         path = Path(spec)
@@ -117,7 +123,7 @@ def load_target(spec: str | os.PathLike[str], size_mm: float, resolution: int = 
             )
         raw_vertices, raw_faces = read_mesh(path)
         try:
-            vertices, faces, notes = validate_disk_mesh(raw_vertices, raw_faces)
+            vertices, faces, notes, vertex_of_input = _clean_disk_mesh(raw_vertices, raw_faces)
         except InputError as error:
             raise InputError(f"{path}: {error}") from None
         name, source = path.stem, os.fspath(spec)
@@ -126,7 +132,15 @@ def load_target(spec: str | os.PathLike[str], size_mm: float, resolution: int = 
         logger.info("%s: %s", name, note)
     scaled.setflags(write=False)
     faces.setflags(write=False)
-    return Target(name=name, vertices=scaled, faces=faces, source=source, notes=notes)
+    vertex_of_input.setflags(write=False)
+    return Target(
+        name=name,
+        vertices=scaled,
+        faces=faces,
+        source=source,
+        notes=notes,
+        vertex_of_input=vertex_of_input,
+    )
 
 
 def _check_size(size_mm: object) -> None:
@@ -206,6 +220,8 @@ def read_mesh(path: str | os.PathLike[str]) -> tuple[NDArray[np.float64], NDArra
     """
     path = Path(path)
     extension = path.suffix.lower()
+    if path.is_dir():
+        raise InputError(f"{path} is a folder, not a file; give a mesh file or a built-in name")
     if extension not in SUPPORTED_EXTENSIONS:
         shown = f"'{path.suffix}'" if path.suffix else "(no extension)"
         raise InputError(
@@ -596,13 +612,24 @@ def merge_coincident_vertices(
     merged : int
         ``n - k``.
     """
+    keep, remap = _coincident_remap(vertices, rel_distance)
+    if remap is None:
+        return vertices, faces, 0
+    return vertices[keep], remap[faces], len(vertices) - len(keep)
+
+
+def _coincident_remap(
+    vertices: NDArray[np.float64], rel_distance: float = COINCIDENT_VERTEX_REL_DIST
+) -> tuple[NDArray[np.int64], NDArray[np.int64] | None]:
+    """The vertices :func:`merge_coincident_vertices` keeps ``(k,)`` and the new index of
+    every vertex ``(n,)`` (None when none merge)."""
     n = len(vertices)
     if n == 0:
-        return vertices, faces, 0
+        return np.arange(0), None
     diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
     pairs = cKDTree(vertices).query_pairs(rel_distance * diagonal, output_type="ndarray")
     if len(pairs) == 0:
-        return vertices, faces, 0
+        return np.arange(n), None
     graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     _, labels = connected_components(graph, directed=False)
     # representative = first vertex of each cluster, in order of first appearance
@@ -610,8 +637,7 @@ def merge_coincident_vertices(
     keep = np.sort(first)
     new_index_of_label = np.empty(labels.max() + 1, dtype=np.int64)
     new_index_of_label[labels[keep]] = np.arange(len(keep))
-    remap = new_index_of_label[labels]
-    return vertices[keep], remap[faces], n - len(keep)
+    return keep, new_index_of_label[labels]
 
 
 def _count(n: int, singular: str, plural: str | None = None) -> str:
@@ -650,6 +676,15 @@ def validate_disk_mesh(
     InputError
         One line naming the first defect found and how to fix it.
     """
+    V, F, notes, _ = _clean_disk_mesh(vertices, faces)
+    return V, F, notes
+
+
+def _clean_disk_mesh(
+    vertices: NDArray[np.float64], faces: NDArray[np.int64]
+) -> tuple[NDArray[np.float64], NDArray[np.int64], tuple[str, ...], NDArray[np.int64]]:
+    """:func:`validate_disk_mesh`, and where each input vertex went (``vertex_of_input`` of
+    :class:`Target`)."""
     V = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces)
     if V.ndim != 2 or V.shape[1] != 3:
@@ -662,6 +697,10 @@ def validate_disk_mesh(
         raise InputError(f"faces must be an (m, 3) integer array of triangles, got {F.shape}")
     F = F.astype(np.int64)
     notes: list[str] = []
+    where = np.arange(len(V))  # input vertex -> current index, -1 once dropped
+
+    def follow(new_index: NDArray[np.int64]) -> None:
+        where[where >= 0] = new_index[where[where >= 0]]
 
     out_of_range = np.any((F < 0) | (F >= len(V)), axis=1)
     if out_of_range.any():
@@ -670,7 +709,7 @@ def validate_disk_mesh(
             f"has {len(V)} vertices, indices 0..{len(V) - 1}); the file is truncated or corrupt, "
             "re-export it"
         )
-    V, F, dropped = _drop_unreferenced(V, F)
+    V, F, dropped = _drop_unreferenced(V, F, follow)
     if dropped:
         notes.append(f"dropped {_count(dropped, 'unreferenced vertex', 'unreferenced vertices')}")
     non_finite = ~np.isfinite(V).all(axis=1)
@@ -680,7 +719,11 @@ def validate_disk_mesh(
             f"{_count(int(non_finite.sum()), 'vertex', 'vertices')}; fix or remove them and "
             "export again"
         )
-    V, F, merged = merge_coincident_vertices(V, F)
+    keep, remap = _coincident_remap(V)
+    merged = 0
+    if remap is not None:
+        V, F, merged = V[keep], remap[F], len(V) - len(keep)
+        follow(remap)
     if merged:
         notes.append(f"merged {_count(merged, 'coincident vertex', 'coincident vertices')}")
 
@@ -699,7 +742,7 @@ def validate_disk_mesh(
         notes.append(f"removed {_count(n_degenerate, 'zero-area face')}")
     if duplicated.any():
         notes.append(f"removed {_count(int(duplicated.sum()), 'duplicated face')}")
-    V, F, dropped = _drop_unreferenced(V, F)
+    V, F, dropped = _drop_unreferenced(V, F, follow)
     if dropped and (n_degenerate or duplicated.any()):
         notes.append(f"dropped {_count(dropped, 'vertex', 'vertices')} used only by removed faces")
 
@@ -712,18 +755,22 @@ def validate_disk_mesh(
                 f"removing {removed} leaves a surface that is not a disk ({error})"
             ) from None
         raise
-    return np.ascontiguousarray(V), np.ascontiguousarray(F), tuple(notes)
+    return np.ascontiguousarray(V), np.ascontiguousarray(F), tuple(notes), where
 
 
 def _drop_unreferenced(
-    vertices: NDArray[np.float64], faces: NDArray[np.int64]
+    vertices: NDArray[np.float64],
+    faces: NDArray[np.int64],
+    follow: Callable[[NDArray[np.int64]], None],
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], int]:
-    """Remove vertices no face uses; keep the order of the rest."""
+    """Remove vertices no face uses; keep the order of the rest.  ``follow`` gets each old
+    vertex's new index (-1: removed)."""
     used = np.zeros(len(vertices), dtype=bool)
     used[faces.ravel()] = True
     if used.all():
         return vertices, faces, 0
-    new_index = np.cumsum(used) - 1
+    new_index = np.where(used, np.cumsum(used) - 1, -1)
+    follow(new_index)
     return vertices[used], new_index[faces], int((~used).sum())
 
 

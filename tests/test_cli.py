@@ -787,3 +787,40 @@ def test_simulate_refuses_a_folder_it_cannot_write_before_simulating(
     assert len(err) == 1 and f"cannot write into {out} (Permission denied)" in err[0]
     assert not ran and (out / "design.json").read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
+
+
+def test_corners_are_the_files_own_vertex_ids_whatever_loading_repairs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The same sheet written plainly and with an unused vertex first (which loading drops,
+    shifting every later index) gives the same design when --corners name the same points by
+    their ids in each file."""
+    import igl
+
+    uv, faces = igl.triangulated_grid(11, 11)
+    vs = [f"v {100 * x:.6f} {100 * y:.6f} {10 * (x - 0.5) * (y - 0.5):.6f}" for x, y in uv]
+    plain = tmp_path / "plain.obj"
+    plain.write_text("\n".join(vs + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]) + "\n")
+    shifted = tmp_path / "shifted.obj"
+    shifted.write_text(
+        "\n".join(["v 500 500 500", *vs] + [f"f {a + 2} {b + 2} {c + 2}" for a, b, c in faces])
+        + "\n"
+    )
+    common = ["--grid", "6", "6", "--no-cad", "--no-simulate", "--quiet"]
+    assert main(["design", str(plain), "--corners", "10", "120", "110", "0", *common,
+                 "--out", str(tmp_path / "a")]) == 0  # fmt: skip
+    assert main(["design", str(shifted), "--corners", "11", "121", "111", "1", *common,
+                 "--out", str(tmp_path / "b")]) == 0  # fmt: skip
+    assert (tmp_path / "a" / "flat.obj").read_bytes() == (tmp_path / "b" / "flat.obj").read_bytes()
+    capsys.readouterr()
+    for corners, words in (
+        (["0", "11", "121", "111"], "--corners 0 names a vertex that no face of the mesh uses"),
+        (["1", "11", "60", "111"], "--corners vertices [60] are not on the mesh boundary"),
+        (["1", "11", "122", "111"], "--corners 122 is not a vertex of the mesh, which has 122"),
+    ):
+        out = tmp_path / "bad"
+        args = ["design", str(shifted), "--corners", *corners, *common, "--out", str(out)]
+        assert main(args) == 2
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and words in lines[0], lines
+        assert not out.exists()

@@ -339,6 +339,26 @@ def test_unreferenced_vertices_are_dropped_with_a_note():
     assert notes == ("dropped 2 unreferenced vertices",)
 
 
+def test_every_input_vertex_is_followed_through_the_repairs(tmp_path):
+    V, F = grid_disk()
+    # an unused vertex first, a copy of face 0's first vertex (which face 0 uses instead) last
+    v = int(F[0, 0])
+    V2 = np.vstack([[9.0, 9.0, 9.0], V, V[v]])
+    F2 = F + 1
+    copy = len(V2) - 1
+    F2[0, 0] = copy
+    lines = [f"v {float(x)!r} {float(y)!r} {float(z)!r}" for x, y, z in V2]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in F2]
+    (tmp_path / "m.obj").write_text("\n".join(lines) + "\n")
+    target = load_target(tmp_path / "m.obj", 100.0)
+    where = target.vertex_of_input
+    assert where is not None and where.shape == (len(V2),)
+    assert where[0] == -1  # dropped
+    np.testing.assert_array_equal(where[1 : len(V) + 1], np.arange(len(V)))
+    assert where[copy] == v  # merged into the vertex it copies
+    np.testing.assert_array_equal(target.faces, F)
+
+
 def test_zero_area_faces_on_the_boundary_are_removed():
     V, F = grid_disk()
     # a sliver hanging on boundary edge 0 -> 1: midpoint vertex, opposite orientation
