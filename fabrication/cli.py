@@ -203,6 +203,8 @@ def _run_design(args: argparse.Namespace) -> int:
     folder = write(result, out)
     if not args.quiet:
         print(f"wrote {folder}")
+        for repair in result.target.notes:  # a mesh file's repairs (design.json target.notes)
+            print(f"note: target: {repair}")
         for note in result.notes:
             print(f"note: {note}")
         for warning in result.warnings:

@@ -824,3 +824,21 @@ def test_corners_are_the_files_own_vertex_ids_whatever_loading_repairs(
         lines = capsys.readouterr().err.strip().splitlines()
         assert len(lines) == 1 and words in lines[0], lines
         assert not out.exists()
+
+
+def test_a_mesh_files_repairs_are_shown_not_only_recorded(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import igl
+
+    uv, faces = igl.triangulated_grid(11, 11)
+    lines = [f"v {100 * x:.6f} {100 * y:.6f} {10 * (x - 0.5) * (y - 0.5):.6f}" for x, y in uv]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces] + ["f 1 1 2"]
+    mesh = tmp_path / "sheet.obj"
+    mesh.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "sheet"
+    assert main(["design", str(mesh), "--grid", "5", "5", "--no-cad", "--no-simulate",
+                 "--out", str(out)]) in (0, 4)  # fmt: skip
+    assert "note: target: removed 1 zero-area face\n" in capsys.readouterr().out
+    doc = json.loads((out / "design.json").read_text())
+    assert doc["target"]["notes"] == ["removed 1 zero-area face"]
