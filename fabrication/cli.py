@@ -127,7 +127,12 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
         help="keep the assembled shape as eq. 1 gives it (do not move it with the flat layout)",
     )
     p.add_argument("--seed", type=int, default=0, help="seed for any randomized step")
-    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument(
+        "--quiet",
+        action="store_true",
+        help="print only errors and the one-line reason for a non-zero exit status (no "
+        "progress, notes, warnings or folder line; design.json keeps them all)",
+    )
     p.add_argument(
         "--strict",
         action="store_true",
@@ -161,7 +166,9 @@ def build_parser() -> argparse.ArgumentParser:
         "simulate", parents=[verbose], help="simulate the deployment of an existing design"
     )
     sim.add_argument("folder", type=Path, help="a design folder written by `drawstring design`")
-    sim.add_argument("--quiet", action="store_true", help="no progress output")
+    sim.add_argument(
+        "--quiet", action="store_true", help="print only errors (no progress or verdict line)"
+    )
     view = sub.add_parser(
         "view", parents=[verbose], help="open a design's report.html in the browser"
     )
