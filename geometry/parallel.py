@@ -63,5 +63,7 @@ def _exit_interrupted(signum: int, frame: object) -> None:
 def exit_quietly_on_interrupt() -> None:
     """Call first in a worker process: Ctrl-C (SIGINT, sent to the whole process group) ends it
     at once and without a traceback.  The parent gets the same signal and reports the
-    interruption in one line."""
-    signal.signal(signal.SIGINT, _exit_interrupted)
+    interruption in one line.  Where SIGINT is ignored (a job started in the background by a
+    non-interactive shell, ``nohup``), it stays ignored, as in the parent."""
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        signal.signal(signal.SIGINT, _exit_interrupted)

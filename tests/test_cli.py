@@ -674,9 +674,14 @@ def test_ctrl_c_is_one_line_exit_130_and_leaves_no_folder(tmp_path: Path) -> Non
     import time
 
     out = tmp_path / "out"
+    # Python ignores SIGINT where its parent did (a CI job run in the background): take it back
+    run = (
+        "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+        "from drawstring.fabrication.cli import main; sys.exit(main(sys.argv[1:]))"
+    )
     process = subprocess.Popen(
-        [sys.executable, "-m", "drawstring.fabrication.cli", "design", "seashell", "--tiles",
-         "400", "--no-cad", "--no-simulate", "--out", str(out)],
+        [sys.executable, "-c", run, "design", "seashell", "--tiles", "400", "--no-cad",
+         "--no-simulate", "--out", str(out)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
     )  # fmt: skip
     time.sleep(6.0)  # imports and the first stages; the whole design takes far longer
