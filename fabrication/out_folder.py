@@ -31,8 +31,14 @@ if TYPE_CHECKING:
 
 
 def default_out_dir(target: str | os.PathLike[str]) -> Path:
-    """``./NAME-drawstring`` for a built-in name or a mesh file's stem."""
-    return Path.cwd() / f"{Path(str(target)).stem}-drawstring"
+    """``./NAME-drawstring`` for a built-in name (as ``design.json`` spells it: ``SADDLE`` is
+    ``saddle``) or a mesh file's stem."""
+    from drawstring.geometry.builtins import BUILTIN_TARGETS
+
+    name = str(target)
+    if name.strip().lower() in BUILTIN_TARGETS and not Path(name).suffix:
+        return Path.cwd() / f"{name.strip().lower()}-drawstring"
+    return Path.cwd() / f"{Path(name).stem}-drawstring"
 
 
 def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:

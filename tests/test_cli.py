@@ -847,3 +847,14 @@ def test_a_mesh_files_repairs_are_shown_not_only_recorded(
     assert "note: target: removed 1 zero-area face\n" in capsys.readouterr().out
     doc = json.loads((out / "design.json").read_text())
     assert doc["target"]["notes"] == ["removed 1 zero-area face"]
+
+
+def test_the_default_folder_spells_a_built_in_as_design_json_does(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from drawstring.fabrication.out_folder import default_out_dir
+
+    monkeypatch.chdir(tmp_path)
+    assert default_out_dir("SADDLE") == tmp_path / "saddle-drawstring"
+    assert default_out_dir("Three-Shell") == tmp_path / "three-shell-drawstring"
+    assert default_out_dir("scans/Face.obj") == tmp_path / "Face-drawstring"
