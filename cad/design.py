@@ -12,7 +12,6 @@ import logging
 import multiprocessing
 import os
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
 from typing import TYPE_CHECKING, Literal
@@ -716,9 +715,7 @@ def _run_jobs(
     methods = multiprocessing.get_all_start_methods()
     context = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
     results: list[_JobResult] = []
-    with ProcessPoolExecutor(
-        max_workers=count, mp_context=context, initializer=parallel.exit_quietly_on_interrupt
-    ) as pool:
+    with parallel.process_pool(count, context) as pool:
         futures = [pool.submit(_build_chunk, chunk, profile, hinge_data) for chunk in chunks]
         for future in futures:
             results.extend(future.result())

@@ -387,16 +387,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.verbose = getattr(args, "verbose", False)
+    quiet = getattr(args, "quiet", False) and not args.verbose
     logging.basicConfig(
-        level=logging.INFO if args.verbose else logging.WARNING,
+        level=logging.INFO if args.verbose else logging.ERROR if quiet else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
     with _library_warnings(args.verbose):
         try:
             return _run_command(parser, args)
         except KeyboardInterrupt:
-            # the output folder is written all at once at the end, so nothing is half-written
-            print("drawstring: interrupted; no output was written", file=sys.stderr)
+            # design folders are replaced whole, and simulate's files with their report, with
+            # Ctrl-C held back meanwhile: an interrupt leaves the old state or the new one
+            print("drawstring: interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED
 
 

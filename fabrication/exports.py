@@ -671,82 +671,23 @@ def write_fabrication(
     # OCCT's STEP writer is serial and the slowest export: write both files in forked
     # processes (they inherit the solids, nothing is pickled) while the rest is made here.
     step_processes = _start_step_writers(step_jobs, workers)
-    written += ["flat.step", "assembled.step"]
+    try:
+        written += ["flat.step", "assembled.step"]
 
-    panels: list[Panel] = []
-    runs: list[CableRun] = []
-    if profile.process == "plywood-cnc":
-        panels, runs = plywood_panels(profile, tiles_flat, steps, lifts)
-    measures = measure_fabrication(
-        profile, tiles_flat, tiles_assembled, steps, lifts, cad_flat, panels
-    )
-    record.estimates["_tile_volume"] = measures.tile_volume_mm3
-    record.estimates["_pad_volume"] = measures.hinge_volume_mm3
-    n_tiles, n_pads = len(cad_flat.tiles), len(cad_flat.pads)
-    hinge_mass = measures.hinge_mass_g
-    tile_mass = measures.tile_mass_g
+        panels: list[Panel] = []
+        runs: list[CableRun] = []
+        if profile.process == "plywood-cnc":
+            panels, runs = plywood_panels(profile, tiles_flat, steps, lifts)
+        measures = measure_fabrication(
+            profile, tiles_flat, tiles_assembled, steps, lifts, cad_flat, panels
+        )
+        record.estimates["_tile_volume"] = measures.tile_volume_mm3
+        record.estimates["_pad_volume"] = measures.hinge_volume_mm3
+        n_tiles, n_pads = len(cad_flat.tiles), len(cad_flat.pads)
+        hinge_mass = measures.hinge_mass_g
+        tile_mass = measures.tile_mass_g
 
-    if profile.process == "fdm-dual":
-        written += _fdm_exports(
-            out,
-            profile,
-            tiles_flat,
-            hinges,
-            cad_flat,
-            design_name,
-            record,
-            workers,
-            True,
-            "print.3mf",
-        )
-        record.bom.append(
-            _row(
-                "tile",
-                "printed tile",
-                n_tiles,
-                profile.tile_material,
-                tile_mass,
-                "tile_<id> in print.3mf, extruder 1",
-            )
-        )
-        record.bom.append(
-            _row(
-                "hinge pad",
-                "printed hinge pad",
-                n_pads,
-                profile.hinge_material,
-                hinge_mass,
-                "hinge_<id> in print.3mf, extruder 2",
-            )
-        )
-    else:
-        strips, placed = _strip_parts(profile, tiles_flat, hinges, sides, cad_flat, record)
-        spacing = max(2.0, 2.0 * profile.kerf_mm, profile.tool_diameter_mm + 2.0)
-        strip_nesting = nest_parts(
-            strips, (profile.bed_x_mm, profile.bed_y_mm), profile.kerf_mm, spacing
-        )
-        write_sheets_dxf(out / "hinges.dxf", strip_nesting, "H#")
-        record.sheets["hinges"] = _nesting_record("hinges.dxf", strip_nesting)
-        template = write_placement(out / "placement.dxf", out / "placement.svg", tiles_flat, placed)
-        record.estimates["placement_size_mm"] = [round(float(v), 1) for v in template]
-        written += ["hinges.dxf", "placement.dxf", "placement.svg"]
-        cut, engrave = _cut_length(strip_nesting)
-        strip_length = profile.hinge_pad_length_mm + profile.hinge_width_mm
-        strip_size = (
-            f"{profile.hinge_width_mm:g} x {strip_length:g} x {profile.hinge_thickness_mm:g} mm"
-        )
-        record.bom.append(
-            _row(
-                "hinge strip",
-                f"laser/CNC-cut strip {strip_size}",
-                n_pads,
-                profile.hinge_material,
-                hinge_mass,
-                "hinges.dxf; glue/screw as placement.svg shows",
-            )
-        )
-        cut_total, engrave_total = cut, engrave
-        if profile.process == "laser-epdm":
+        if profile.process == "fdm-dual":
             written += _fdm_exports(
                 out,
                 profile,
@@ -756,8 +697,8 @@ def write_fabrication(
                 design_name,
                 record,
                 workers,
-                False,
-                "tiles.3mf",
+                True,
+                "print.3mf",
             )
             record.bom.append(
                 _row(
@@ -766,144 +707,211 @@ def write_fabrication(
                     n_tiles,
                     profile.tile_material,
                     tile_mass,
-                    "tile_<id> in tiles.3mf",
+                    "tile_<id> in print.3mf, extruder 1",
                 )
             )
             record.bom.append(
-                _row("glue", "contact glue for rubber to PLA", 1, "", 0.0, "one small tube")
+                _row(
+                    "hinge pad",
+                    "printed hinge pad",
+                    n_pads,
+                    profile.hinge_material,
+                    hinge_mass,
+                    "hinge_<id> in print.3mf, extruder 2",
+                )
             )
         else:
-            panel_spacing = max(5.0, 2.0 * profile.tool_diameter_mm)
-            panel_nesting = nest_parts(
-                [p.part for p in panels],
-                (profile.bed_x_mm, profile.bed_y_mm),
-                profile.kerf_mm,
-                panel_spacing,
+            strips, placed = _strip_parts(profile, tiles_flat, hinges, sides, cad_flat, record)
+            spacing = max(2.0, 2.0 * profile.kerf_mm, profile.tool_diameter_mm + 2.0)
+            strip_nesting = nest_parts(
+                strips, (profile.bed_x_mm, profile.bed_y_mm), profile.kerf_mm, spacing
             )
-            write_sheets_dxf(out / "panels.dxf", panel_nesting, "P#")
-            record.sheets["panels"] = _nesting_record("panels.dxf", panel_nesting)
-            sheet_of = {
-                part.name: k + 1 for k, sheet in enumerate(panel_nesting.sheets) for part in sheet
-            }
-            _write_cutlist(out / "cutlist.csv", panels, sheet_of)
-            written += ["panels.dxf", "cutlist.csv"]
+            write_sheets_dxf(out / "hinges.dxf", strip_nesting, "H#")
+            record.sheets["hinges"] = _nesting_record("hinges.dxf", strip_nesting)
+            template = write_placement(
+                out / "placement.dxf", out / "placement.svg", tiles_flat, placed
+            )
+            record.estimates["placement_size_mm"] = [round(float(v), 1) for v in template]
+            written += ["hinges.dxf", "placement.dxf", "placement.svg"]
+            cut, engrave = _cut_length(strip_nesting)
+            strip_length = profile.hinge_pad_length_mm + profile.hinge_width_mm
+            strip_size = (
+                f"{profile.hinge_width_mm:g} x {strip_length:g} x {profile.hinge_thickness_mm:g} mm"
+            )
             record.bom.append(
                 _row(
-                    "panel",
-                    f"plywood panel {profile.panel_thickness_mm:g} mm ({profile.joint} joints)",
-                    len(panels),
-                    profile.tile_material,
-                    tile_mass,
-                    f"panels.dxf on {len(panel_nesting.sheets)} sheets of "
-                    f"{profile.bed_x_mm:g} x {profile.bed_y_mm:g} mm; cutlist.csv",
+                    "hinge strip",
+                    f"laser/CNC-cut strip {strip_size}",
+                    n_pads,
+                    profile.hinge_material,
+                    hinge_mass,
+                    "hinges.dxf; glue/screw as placement.svg shows",
                 )
             )
-            tube_total = sum(r.tube_length_mm for r in runs)
-            record.bom.append(
-                _row(
-                    "channel tube",
-                    "plastic tube, outer diameter "
-                    f"{profile.string_diameter_mm + profile.channel_clearance_mm:g} mm",
-                    len(runs),
-                    "plastic",
-                    0.0,
-                    f"total {tube_total / 1000:.2f} m; one per route step, lengths in "
-                    "manifest.json",
+            cut_total, engrave_total = cut, engrave
+            if profile.process == "laser-epdm":
+                written += _fdm_exports(
+                    out,
+                    profile,
+                    tiles_flat,
+                    hinges,
+                    cad_flat,
+                    design_name,
+                    record,
+                    workers,
+                    False,
+                    "tiles.3mf",
                 )
-            )
-            record.estimates["channel_tubes_mm"] = [round(r.tube_length_mm, 1) for r in runs]
-            # one screw per pilot hole, one staple per pair (as cut: holes that found no
-            # room on a small tile are left out and not counted)
-            fasteners = cad_flat.fasteners
-            if fasteners and profile.hinge_interlock == "screws":
                 record.bom.append(
                     _row(
-                        "screw",
-                        "wood screw through the rubber strip",
-                        fasteners,
-                        "steel",
-                        0.0,
-                        "one per pilot hole: up to 2 per tile per hinge",
+                        "tile",
+                        "printed tile",
+                        n_tiles,
+                        profile.tile_material,
+                        tile_mass,
+                        "tile_<id> in tiles.3mf",
                     )
                 )
-            elif fasteners:
+                record.bom.append(
+                    _row("glue", "contact glue for rubber to PLA", 1, "", 0.0, "one small tube")
+                )
+            else:
+                panel_spacing = max(5.0, 2.0 * profile.tool_diameter_mm)
+                panel_nesting = nest_parts(
+                    [p.part for p in panels],
+                    (profile.bed_x_mm, profile.bed_y_mm),
+                    profile.kerf_mm,
+                    panel_spacing,
+                )
+                write_sheets_dxf(out / "panels.dxf", panel_nesting, "P#")
+                record.sheets["panels"] = _nesting_record("panels.dxf", panel_nesting)
+                sheet_of = {
+                    part.name: k + 1
+                    for k, sheet in enumerate(panel_nesting.sheets)
+                    for part in sheet
+                }
+                _write_cutlist(out / "cutlist.csv", panels, sheet_of)
+                written += ["panels.dxf", "cutlist.csv"]
                 record.bom.append(
                     _row(
-                        "staple",
-                        "staple through the rubber strip",
-                        fasteners,
-                        "steel",
-                        0.0,
-                        "one per pair of pilot holes: up to 1 per tile per hinge",
+                        "panel",
+                        f"plywood panel {profile.panel_thickness_mm:g} mm ({profile.joint} joints)",
+                        len(panels),
+                        profile.tile_material,
+                        tile_mass,
+                        f"panels.dxf on {len(panel_nesting.sheets)} sheets of "
+                        f"{profile.bed_x_mm:g} x {profile.bed_y_mm:g} mm; cutlist.csv",
                     )
                 )
-            record.bom.append(_row("glue", "wood glue for the panel joints", 1, "", 0.0, ""))
-            pc, pe = _cut_length(panel_nesting)
-            cut_total += pc
-            engrave_total += pe
-        if profile.cut_speed_mm_s > 0:
-            seconds = (cut_total + engrave_total) / profile.cut_speed_mm_s
-            record.estimates["cut_time_h"] = round(seconds / 3600.0, 2)
-            record.estimates["cut_time_basis"] = (
-                f"{cut_total / 1000:.1f} m cut + {engrave_total / 1000:.1f} m engraved at "
-                f"{profile.cut_speed_mm_s:g} mm/s, one pass"
-            )
+                tube_total = sum(r.tube_length_mm for r in runs)
+                record.bom.append(
+                    _row(
+                        "channel tube",
+                        "plastic tube, outer diameter "
+                        f"{profile.string_diameter_mm + profile.channel_clearance_mm:g} mm",
+                        len(runs),
+                        "plastic",
+                        0.0,
+                        f"total {tube_total / 1000:.2f} m; one per route step, lengths in "
+                        "manifest.json",
+                    )
+                )
+                record.estimates["channel_tubes_mm"] = [round(r.tube_length_mm, 1) for r in runs]
+                # one screw per pilot hole, one staple per pair (as cut: holes that found no
+                # room on a small tile are left out and not counted)
+                fasteners = cad_flat.fasteners
+                if fasteners and profile.hinge_interlock == "screws":
+                    record.bom.append(
+                        _row(
+                            "screw",
+                            "wood screw through the rubber strip",
+                            fasteners,
+                            "steel",
+                            0.0,
+                            "one per pilot hole: up to 2 per tile per hinge",
+                        )
+                    )
+                elif fasteners:
+                    record.bom.append(
+                        _row(
+                            "staple",
+                            "staple through the rubber strip",
+                            fasteners,
+                            "steel",
+                            0.0,
+                            "one per pair of pilot holes: up to 1 per tile per hinge",
+                        )
+                    )
+                record.bom.append(_row("glue", "wood glue for the panel joints", 1, "", 0.0, ""))
+                pc, pe = _cut_length(panel_nesting)
+                cut_total += pc
+                engrave_total += pe
+            if profile.cut_speed_mm_s > 0:
+                seconds = (cut_total + engrave_total) / profile.cut_speed_mm_s
+                record.estimates["cut_time_h"] = round(seconds / 3600.0, 2)
+                record.estimates["cut_time_basis"] = (
+                    f"{cut_total / 1000:.1f} m cut + {engrave_total / 1000:.1f} m engraved at "
+                    f"{profile.cut_speed_mm_s:g} mm/s, one pass"
+                )
 
-    flat_route, string_mm, tail = measures.route_flat_mm, measures.string_mm, measures.tail_mm
-    string_section_mm2 = math.pi * (0.5 * profile.string_diameter_mm) ** 2
-    record.bom.append(
-        _row(
-            "string",
-            profile.string_material,
-            1,
-            profile.string_material,
-            string_section_mm2 * string_mm * profile.string_density_kg_m3 * 1e-6,  # g
-            f"{string_mm / 1000:.3f} m = flat route {flat_route / 1000:.3f} m x "
-            f"{1 + STRING_MARGIN:g} + 2 tails of {tail:.0f} mm",
-            length_mm=string_mm,
-        )
-    )
-    magnets = cad_flat.magnets
-    if magnets:
-        polarity = "; ".join(
-            f"tile {m.tile_a} side {m.side_a} {m.polarity_a} out / "
-            f"tile {m.tile_b} side {m.side_b} {m.polarity_b} out"
-            for m in magnets
-        )
-        disc_mm3 = math.pi * (0.5 * profile.magnet_diameter_mm) ** 2 * profile.magnet_height_mm
+        flat_route, string_mm, tail = measures.route_flat_mm, measures.string_mm, measures.tail_mm
+        string_section_mm2 = math.pi * (0.5 * profile.string_diameter_mm) ** 2
         record.bom.append(
             _row(
-                "magnet",
-                f"disc magnet {profile.magnet_diameter_mm:g} x {profile.magnet_height_mm:g} mm",
-                2 * len(magnets),
-                "NdFeB",
-                round(2 * len(magnets) * disc_mm3 * NDFEB_DENSITY_G_MM3, 1),
-                polarity,
+                "string",
+                profile.string_material,
+                1,
+                profile.string_material,
+                string_section_mm2 * string_mm * profile.string_density_kg_m3 * 1e-6,  # g
+                f"{string_mm / 1000:.3f} m = flat route {flat_route / 1000:.3f} m x "
+                f"{1 + STRING_MARGIN:g} + 2 tails of {tail:.0f} mm",
+                length_mm=string_mm,
             )
         )
-    cost = (
-        tile_mass / 1000 * profile.tile_price_per_kg
-        + hinge_mass / 1000 * profile.hinge_price_per_kg
-        + string_mm / 1000 * profile.string_price_per_m
-        + 2 * len(magnets) * profile.magnet_price_each
-    )
-    del record.estimates["_tile_volume"], record.estimates["_pad_volume"]
-    record.estimates.update(
-        {
-            "tile_volume_mm3": measures.tile_volume_mm3,
-            "hinge_volume_mm3": measures.hinge_volume_mm3,
-            "tile_mass_g": tile_mass,
-            "hinge_mass_g": hinge_mass,
-            "mass_g": measures.mass_g,
-            "string_length_mm": string_mm,
-            "flat_route_length_mm": flat_route,
-            "string_tail_mm": tail,
-            "string_rule": f"flat route x {1 + STRING_MARGIN:g} + 2 x "
-            f"max({STRING_TAIL_MIN_MM:g} mm, 10 % of the route)",
-            "material_cost": round(cost, 2),
-            "currency": profile.currency,
-        }
-    )
+        magnets = cad_flat.magnets
+        if magnets:
+            polarity = "; ".join(
+                f"tile {m.tile_a} side {m.side_a} {m.polarity_a} out / "
+                f"tile {m.tile_b} side {m.side_b} {m.polarity_b} out"
+                for m in magnets
+            )
+            disc_mm3 = math.pi * (0.5 * profile.magnet_diameter_mm) ** 2 * profile.magnet_height_mm
+            record.bom.append(
+                _row(
+                    "magnet",
+                    f"disc magnet {profile.magnet_diameter_mm:g} x {profile.magnet_height_mm:g} mm",
+                    2 * len(magnets),
+                    "NdFeB",
+                    round(2 * len(magnets) * disc_mm3 * NDFEB_DENSITY_G_MM3, 1),
+                    polarity,
+                )
+            )
+        cost = (
+            tile_mass / 1000 * profile.tile_price_per_kg
+            + hinge_mass / 1000 * profile.hinge_price_per_kg
+            + string_mm / 1000 * profile.string_price_per_m
+            + 2 * len(magnets) * profile.magnet_price_each
+        )
+        del record.estimates["_tile_volume"], record.estimates["_pad_volume"]
+        record.estimates.update(
+            {
+                "tile_volume_mm3": measures.tile_volume_mm3,
+                "hinge_volume_mm3": measures.hinge_volume_mm3,
+                "tile_mass_g": tile_mass,
+                "hinge_mass_g": hinge_mass,
+                "mass_g": measures.mass_g,
+                "string_length_mm": string_mm,
+                "flat_route_length_mm": flat_route,
+                "string_tail_mm": tail,
+                "string_rule": f"flat route x {1 + STRING_MARGIN:g} + 2 x "
+                f"max({STRING_TAIL_MIN_MM:g} mm, 10 % of the route)",
+                "material_cost": round(cost, 2),
+                "currency": profile.currency,
+            }
+        )
+    except BaseException:
+        _stop_step_writers(step_processes)  # an error or Ctrl-C: they write into the staging
+        raise
     _finish_step_writers(step_processes)
     pictures = write_pictures(out, tiles_flat, tiles_assembled, hinges, sides, steps, lifts)
     written += pictures
@@ -961,8 +969,9 @@ def _start_step_writers(
         return []
     context = multiprocessing.get_context("fork")
     processes = [context.Process(target=_step_writer, args=job) for job in jobs]
-    for process in processes:
-        process.start()
+    with parallel.sigint_held():  # each takes Ctrl-C once its quiet exit is set
+        for process in processes:
+            process.start()
     return processes
 
 
@@ -970,6 +979,15 @@ def _step_writer(path: Path, parts: Sequence[tuple[str, bd.Shape, str]], label: 
     """Body of a STEP-writing process."""
     parallel.exit_quietly_on_interrupt()
     write_step(path, parts, label)
+
+
+def _stop_step_writers(processes: Sequence[Any]) -> None:
+    """End STEP-writing processes still running (their folder is about to be removed)."""
+    for process in processes:
+        if process.is_alive():
+            process.terminate()
+    for process in processes:
+        process.join()
 
 
 def _finish_step_writers(processes: Sequence[Any]) -> None:

@@ -18,7 +18,6 @@ import os
 import tempfile
 import zipfile
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -139,9 +138,7 @@ def mesh_solids(
     chunks = [list(items[i::n_chunks]) for i in range(n_chunks)]
     methods = multiprocessing.get_all_start_methods()
     context = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
-    with ProcessPoolExecutor(
-        max_workers=count, mp_context=context, initializer=parallel.exit_quietly_on_interrupt
-    ) as pool:
+    with parallel.process_pool(count, context) as pool:
         done = list(pool.map(_mesh_chunk, chunks, [tolerance] * n_chunks))
     meshes: list[PartMesh | None] = [None] * len(items)
     for chunk_index, chunk in enumerate(done):

@@ -369,7 +369,8 @@ class _Ahead:
         context = multiprocessing.get_context("fork")
         self._receive, send = context.Pipe(duplex=False)
         self._process = context.Process(target=_lay_out_ahead, args=(work, send), daemon=True)
-        self._process.start()
+        with parallel.sigint_held():  # the child takes Ctrl-C once its quiet exit is set
+            self._process.start()
         send.close()
 
     def result(self, progress: Progress) -> ShapedLayout | None:
@@ -398,9 +399,9 @@ class _Ahead:
 
 def _lay_out_ahead(work: Callable[[Progress], ShapedLayout], send: Connection) -> None:
     """Body of :class:`_Ahead`'s child process."""
+    parallel.exit_quietly_on_interrupt()
     from .pipeline import Progress  # the child only: pipeline imports this module
 
-    parallel.exit_quietly_on_interrupt()
     progress = Progress(quiet=True)
     try:
         shaped = work(progress)

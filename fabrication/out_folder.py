@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from drawstring.geometry import parallel
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import Linkage
 from drawstring.geometry.simulate import simulate_stage
@@ -74,9 +75,9 @@ def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
 
 def _refuse_foreign_files(out: Path) -> None:
     """Refuse a design folder holding files its ``design.json`` does not list (a user's notes,
-    a slicer project): replacing the folder would delete them.  Hidden files (``.DS_Store``)
-    do not count; with an unreadable ``design.json`` every other file but ``report.html``
-    does."""
+    a slicer project): replacing the folder would delete them.  The clutter macOS leaves
+    (``.DS_Store``, ``._*``) does not count; with an unreadable ``design.json`` every other file
+    but ``report.html`` does."""
     try:
         listed = set(json.loads((out / "design.json").read_text(encoding="utf-8"))["files"])
     except (OSError, ValueError, KeyError, TypeError):
@@ -86,7 +87,7 @@ def _refuse_foreign_files(out: Path) -> None:
         path.relative_to(out).as_posix()
         for path in out.rglob("*")
         if not path.is_dir()
-        and not any(part.startswith(".") for part in path.relative_to(out).parts)
+        and not (path.name == ".DS_Store" or path.name.startswith("._"))
         and path.relative_to(out).as_posix() not in listed
     )
     if foreign:
@@ -107,18 +108,19 @@ def _probe_rename(out: Path) -> None:
     except OSError as exc:
         raise _placement_error(out, exc) from None
     aside = retired / out.name
-    try:
-        os.rename(out, aside)
-    except OSError as exc:
+    with parallel.sigint_held():
+        try:
+            os.rename(out, aside)
+        except OSError as exc:
+            os.rmdir(retired)
+            raise _placement_error(out, exc) from None
+        try:
+            os.rename(aside, out)
+        except OSError as exc:
+            raise InputError(
+                f"cannot rename {aside} back to {out} ({exc.strerror or exc}); rename it by hand"
+            ) from None
         os.rmdir(retired)
-        raise _placement_error(out, exc) from None
-    try:
-        os.rename(aside, out)
-    except OSError as exc:
-        raise InputError(
-            f"cannot rename {aside} back to {out} ({exc.strerror or exc}); rename it by hand"
-        ) from None
-    os.rmdir(retired)
 
 
 def _placement_error(out: Path, exc: OSError) -> InputError:
@@ -185,23 +187,24 @@ def _place(staging: Path, out: Path) -> None:
         return
     retired = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
     aside = retired / out.name
-    try:
-        os.rename(out, aside)
-    except OSError:
-        shutil.rmtree(retired, ignore_errors=True)
-        raise
-    try:
-        os.rename(staging, out)
-    except OSError as exc:
+    with parallel.sigint_held():
         try:
-            os.rename(aside, out)
+            os.rename(out, aside)
         except OSError:
-            raise InputError(
-                f"cannot write the design to {out} ({exc.strerror or exc}), nor put the earlier "
-                f"folder back: it is now {aside}; rename it by hand"
-            ) from None
-        shutil.rmtree(retired, ignore_errors=True)
-        raise
+            shutil.rmtree(retired, ignore_errors=True)
+            raise
+        try:
+            os.rename(staging, out)
+        except OSError as exc:
+            try:
+                os.rename(aside, out)
+            except OSError:
+                raise InputError(
+                    f"cannot write the design to {out} ({exc.strerror or exc}), nor put the "
+                    f"earlier folder back: it is now {aside}; rename it by hand"
+                ) from None
+            shutil.rmtree(retired, ignore_errors=True)
+            raise
     shutil.rmtree(retired, ignore_errors=True)
 
 
@@ -303,9 +306,10 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
         (staging / "design.json").write_text(
             json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8"
         )
-        for name in [*written, "design.json"]:
-            os.replace(staging / name, root / name)
-        write_report(root)
+        with parallel.sigint_held():  # the folder's files and its report change together
+            for name in [*written, "design.json"]:
+                os.replace(staging / name, root / name)
+            write_report(root)
     except OSError as exc:
         raise InputError(
             f"cannot write into {root} ({exc.strerror}); check the folder's permissions and "

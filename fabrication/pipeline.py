@@ -169,7 +169,7 @@ class DesignOptions:
             elif self.min_gap_angle_deg < 0:
                 why = "it is the least angle a gap opens to, so it cannot be negative"
             else:
-                why = "give a number of degrees; the profiles use 12"
+                why = "give a number of degrees; the shipped profiles use 12 to 15"
             raise InputError(
                 f"--min-gap-angle must be in [0, 60] degrees (got {self.min_gap_angle_deg}); {why}"
             )
@@ -354,6 +354,11 @@ class Progress:
         self._open.append([0.0])
         try:
             yield
+        except BaseException:
+            if self.enabled and self._line_open:  # an error or Ctrl-C starts on its own line
+                print(file=sys.stderr, flush=True)
+                self._line_open = False
+            raise
         finally:
             nested = self._open.pop()[0]
             elapsed = time.perf_counter() - start
@@ -491,11 +496,17 @@ def mesh_corners(target: Target, options: ResolvedOptions) -> tuple[int, ...] | 
             f"--corners {outside[0]} is not a vertex of the mesh, which has {len(where)} "
             f"(ids 0 to {len(where) - 1}, in the file's order)"
         )
+    if len(set(ids)) != len(ids):
+        raise InputError(
+            f"--corners {' '.join(map(str, ids))} repeat a vertex; name four distinct boundary "
+            "vertices"
+        )
     dropped = [v for v in ids if where[v] < 0]
     if dropped:
         raise InputError(
-            f"--corners {dropped[0]} names a vertex that no face of the mesh uses; pick four "
-            "boundary vertices of the surface"
+            f"--corners {dropped[0]} names a vertex that no face of the mesh uses (or only "
+            "faces that loading removed, zero-area or duplicated); pick four boundary vertices "
+            "of the surface"
         )
     mapped = [int(where[v]) for v in ids]
     boundary = set(igl.boundary_loop(np.asarray(target.faces)).tolist())

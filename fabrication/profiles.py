@@ -54,8 +54,10 @@ MIN_TILES = 7
 #: Most tiles (or grid cells) a design may have.
 MAX_TILES = 20_000
 #: Largest design (``--size`` or a profile's sizes), mm.  The accuracy checks are absolute
-#: (1e-3 mm), and the solvers' residuals grow with the size: the 60-tile saddle meets them at
-#: 5 m, and at 10 m its assembled tiles interpenetrate by 1.02e-3 mm in fdm-dual's 6 mm tiles.
+#: (1e-3 mm) while the solvers' residuals grow with the size, so the checks are at their edge
+#: here: the 60-tile saddle meets them at 5 m, and at 10 m in fdm-dual's 6 mm tiles (far
+#: outside that profile's 80-450 mm, which the design warns about) its assembled tiles
+#: interpenetrate by 1.02e-3 mm, a problem; at 20 m they miss by more.
 MAX_SIZE_MM = 10_000.0
 #: Largest of ``--weights``.  The weights are absolute, not only relative: the surface weight
 #: also sets closeness against the flat edge lengths in the co-optimization.  The 60-tile

@@ -8,13 +8,22 @@ the number of threads or blocks, so results are bitwise the same on any machine.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
-from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from multiprocessing.context import BaseContext
 from typing import TypeVar
 
-__all__ = ["MAX_THREADS", "exit_quietly_on_interrupt", "map_blocks", "thread_count"]
+__all__ = [
+    "MAX_THREADS",
+    "exit_quietly_on_interrupt",
+    "map_blocks",
+    "process_pool",
+    "sigint_held",
+    "thread_count",
+]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -64,6 +73,39 @@ def exit_quietly_on_interrupt() -> None:
     """Call first in a worker process: Ctrl-C (SIGINT, sent to the whole process group) ends it
     at once and without a traceback.  The parent gets the same signal and reports the
     interruption in one line.  Where SIGINT is ignored (a job started in the background by a
-    non-interactive shell, ``nohup``), it stays ignored, as in the parent."""
+    non-interactive shell), it stays ignored, as in the parent."""
     if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
         signal.signal(signal.SIGINT, _exit_interrupted)
+    if hasattr(signal, "pthread_sigmask"):  # forked under sigint_held(): take it now
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+@contextlib.contextmanager
+def sigint_held() -> Iterator[None]:
+    """Hold Ctrl-C (SIGINT) back in this thread meanwhile; it takes effect right after.  For
+    steps that must not be cut in two (folders renamed in pairs), and around starting a worker
+    process, which inherits the mask until :func:`exit_quietly_on_interrupt` unblocks it."""
+    if not hasattr(signal, "pthread_sigmask"):  # not POSIX
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+@contextlib.contextmanager
+def process_pool(workers: int, context: BaseContext) -> Iterator[ProcessPoolExecutor]:
+    """A process pool whose workers exit quietly on Ctrl-C (:func:`exit_quietly_on_interrupt`);
+    on an error or an interrupt in the caller the jobs not yet started are dropped rather than
+    run to the end."""
+    pool = ProcessPoolExecutor(
+        max_workers=workers, mp_context=context, initializer=exit_quietly_on_interrupt
+    )
+    try:
+        yield pool
+    except BaseException:
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
