@@ -617,3 +617,18 @@ def test_time_waited_for_another_process_is_shared_among_its_stages() -> None:
     assert progress.timings["co-optimize"] == pytest.approx(1.5)
     assert progress.timings["hinges"] == 0.0
     assert progress.timings["outer"] < 0.1
+
+
+def test_an_error_inside_a_stage_starts_on_its_own_line(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """On a terminal a stage's line stays open while it runs; an error or Ctrl-C inside it
+    must not print its message on the end of that line."""
+    progress = Progress()
+    progress.enabled = True  # as on a terminal
+    with pytest.raises(KeyboardInterrupt), progress.stage("assembled"):
+        raise KeyboardInterrupt
+    assert capsys.readouterr().err == "  assembled ...\n"
+    with progress.stage("flat"):
+        pass
+    assert capsys.readouterr().err.startswith("  flat ... ")
