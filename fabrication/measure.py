@@ -344,7 +344,7 @@ def measure_design(
         warnings.append(f"hinge gap {hinge_gap:.2g} mm exceeds {HINGE_GAP_TOL_MM:g} mm: {cause}")
     if tiling.scale_factor_max > split_bound(options):
         problems.append(
-            f"scale factor {tiling.scale_factor_max:.2f} exceeds {split_bound(options):.3g}"
+            f"scale factor {tiling.scale_factor_max:.3f} exceeds {split_bound(options):.6g}"
         )
     problems.extend(route_problems(route, linkage))
     if not profile.size_min_mm <= options.size_mm <= profile.size_max_mm:

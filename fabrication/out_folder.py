@@ -223,6 +223,8 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
 
     root = Path(folder)
     design_path = root / "design.json"
+    if not root.exists():
+        raise InputError(f"{root} does not exist; give the folder drawstring design wrote")
     if not design_path.is_file():
         raise InputError(f"{root} is not a drawstring design folder (no design.json)")
     needed = ("tiles.npz", "hinges.json", "route.json")

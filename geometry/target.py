@@ -578,7 +578,10 @@ def _read_stl(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
             vertices = table["corners"].reshape(-1, 3).astype(np.float64)
             return vertices, np.arange(3 * n_triangles, dtype=np.int64).reshape(-1, 3)
     if not data.lstrip().lower().startswith(b"solid"):
-        raise InputError("neither binary STL (size does not match) nor ASCII STL ('solid')")
+        raise InputError(
+            "neither binary STL (its size does not match its triangle count: truncated?) nor "
+            "ASCII STL (no 'solid' header); export the mesh again"
+        )
     coordinates = _STL_VERTEX.findall(data)
     if len(coordinates) % 3:
         raise InputError("ASCII STL facets must have exactly three vertices")

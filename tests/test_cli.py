@@ -350,6 +350,10 @@ def test_simulate_refuses_a_folder_that_is_not_a_design(tmp_path: Path) -> None:
     done = run_cli("simulate", str(tmp_path))
     assert done.returncode == 2
     assert "not a drawstring design folder" in done.stderr
+    done = run_cli("simulate", str(tmp_path / "missing"))
+    assert done.returncode == 2
+    assert done.stderr.strip().endswith("missing does not exist; give the folder drawstring "
+                                        "design wrote")  # fmt: skip
 
 
 def test_strict_exits_4_on_warnings_and_still_writes_the_design(tmp_path: Path) -> None:
