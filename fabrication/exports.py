@@ -687,19 +687,14 @@ def write_fabrication(
         hinge_mass = measures.hinge_mass_g
         tile_mass = measures.tile_mass_g
 
+        def print_job(with_pads: bool, file_name: str) -> list[str]:
+            return _fdm_exports(
+                out, profile, tiles_flat, hinges, cad_flat, design_name, record, workers,
+                with_pads, file_name,
+            )  # fmt: skip
+
         if profile.process == "fdm-dual":
-            written += _fdm_exports(
-                out,
-                profile,
-                tiles_flat,
-                hinges,
-                cad_flat,
-                design_name,
-                record,
-                workers,
-                True,
-                "print.3mf",
-            )
+            written += print_job(True, "print.3mf")
             record.bom.append(
                 _row(
                     "tile",
@@ -750,18 +745,7 @@ def write_fabrication(
             )
             cut_total, engrave_total = cut, engrave
             if profile.process == "laser-epdm":
-                written += _fdm_exports(
-                    out,
-                    profile,
-                    tiles_flat,
-                    hinges,
-                    cad_flat,
-                    design_name,
-                    record,
-                    workers,
-                    False,
-                    "tiles.3mf",
-                )
+                written += print_job(False, "tiles.3mf")
                 record.bom.append(
                     _row(
                         "tile",
