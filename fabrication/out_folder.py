@@ -59,18 +59,23 @@ def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
         probe = probe.parent
     if not probe.is_dir():
         raise InputError(f"cannot write into {probe}: not a folder; choose another --out")
-    # Make and remove a folder there rather than ask os.access, which answers yes to root
-    # everywhere (on /proc, on a read-only mount) and the run would fail only at the end.
-    try:
-        os.rmdir(tempfile.mkdtemp(prefix=".drawstring-probe-", dir=probe))
-    except OSError as exc:
-        raise InputError(
-            f"cannot write into {probe} ({exc.strerror or type(exc).__name__}); choose a "
-            "writable --out folder"
-        ) from None
+    refused = _write_refused(probe)
+    if refused:
+        raise InputError(f"cannot write into {probe} ({refused}); choose a writable --out folder")
     if out.is_dir():
         _probe_rename(out)
     return out
+
+
+def _write_refused(folder: Path) -> str | None:
+    """Why a file cannot be made in ``folder``, or None.  A folder is made and removed there
+    rather than os.access asked, which answers yes to root everywhere (on /proc, on a read-only
+    mount), so that a run fails now rather than after its work."""
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".drawstring-probe-", dir=folder))
+    except OSError as exc:
+        return exc.strerror or type(exc).__name__
+    return None
 
 
 def _refuse_foreign_files(out: Path) -> None:
@@ -269,13 +274,12 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
     # the files are written beside the folder's own and renamed into it: check both places
     # now rather than after the simulation
     for place in (root.parent, root):
-        try:
-            os.rmdir(tempfile.mkdtemp(prefix=f".{root.name}.", suffix=".probe", dir=place))
-        except OSError as exc:
+        refused = _write_refused(place)
+        if refused:
             raise InputError(
-                f"cannot write into {place} ({exc.strerror or type(exc).__name__}); make it "
-                "writable, or copy the design folder somewhere writable and simulate that"
-            ) from None
+                f"cannot write into {place} ({refused}); make it writable, or copy the design "
+                "folder somewhere writable and simulate that"
+            )
     progress = Progress(quiet=quiet)
     with progress.stage("simulate"):
         simulation = simulate_stage(
