@@ -159,5 +159,5 @@ def save_deploy_gif(
     out = Path(path)
     anim.save(out, writer=PillowWriter(fps=fps))
     plt.close(fig)
-    logger.info("wrote %s (%d frames)", out, len(pick))
+    logger.info("wrote %s (%d frames)", out.name, len(pick))
     return out

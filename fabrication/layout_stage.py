@@ -397,10 +397,20 @@ class _Ahead:
         self._receive.close()
 
 
+def _tag_ahead(record: logging.LogRecord) -> bool:
+    """Log filter of :class:`_Ahead`'s child: its lines start with ``(ahead)``."""
+    if not str(record.msg).startswith("(ahead) "):  # once, however many handlers
+        record.msg = f"(ahead) {record.msg}"
+    return True
+
+
 def _lay_out_ahead(work: Callable[[Progress], ShapedLayout], send: Connection) -> None:
     """Body of :class:`_Ahead`'s child process."""
     parallel.exit_quietly_on_interrupt()
     from .pipeline import Progress  # the child only: pipeline imports this module
+
+    for handler in logging.getLogger().handlers:  # -v: tell this process's lines apart
+        handler.addFilter(_tag_ahead)
 
     progress = Progress(quiet=True)
     try:

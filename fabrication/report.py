@@ -677,7 +677,7 @@ def write_report(folder: Path | str) -> Path:
     page = render_report(folder)
     path = folder / "report.html"
     path.write_text(page, encoding="utf-8")
-    log.info("wrote %s (%.1f MB)", path, len(page.encode("utf-8")) / 1e6)
+    log.info("wrote %s (%.1f MB)", path.name, len(page.encode("utf-8")) / 1e6)
     return path
 
 
