@@ -632,3 +632,13 @@ def test_an_error_inside_a_stage_starts_on_its_own_line(
     with progress.stage("flat"):
         pass
     assert capsys.readouterr().err.startswith("  flat ... ")
+
+
+def test_the_ahead_process_tags_its_log_lines_once() -> None:
+    import logging
+
+    record = logging.LogRecord(
+        "drawstring.geometry.flat", logging.INFO, "f.py", 1, "flat: %d", (3,), None
+    )
+    assert layout_stage._tag_ahead(record) and layout_stage._tag_ahead(record)
+    assert record.getMessage() == "(ahead) flat: 3"
