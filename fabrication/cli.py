@@ -255,6 +255,7 @@ def _run_targets() -> int:
 
 def _run_profiles(args: argparse.Namespace) -> int:
     from .profiles import (
+        MAX_SIZE_MM,
         MAX_TILES,
         MIN_TILES,
         PROCESS_GUIDE,
@@ -264,10 +265,18 @@ def _run_profiles(args: argparse.Namespace) -> int:
     )
 
     if args.show:
+        if args.size is not None or args.tiles is not None:
+            raise InputError(
+                "--size and --tiles estimate every profile and do not apply to --show; run "
+                "drawstring profiles --size MM --tiles N for the estimate"
+            )
         print(load_profile(args.show).to_toml(), end="")
         return 0
-    if args.size is not None and not (args.size > 0 and args.size < float("inf")):
-        raise InputError(f"--size must be a positive number of millimetres (got {args.size})")
+    if args.size is not None and not (0 < args.size <= MAX_SIZE_MM):
+        raise InputError(
+            f"--size must be a positive number of millimetres up to {MAX_SIZE_MM:g} (got "
+            f"{args.size})"
+        )
     if args.tiles is not None and not MIN_TILES <= args.tiles <= MAX_TILES:
         raise InputError(
             f"--tiles must be between {MIN_TILES} and {MAX_TILES} (got {args.tiles}), as for "

@@ -129,6 +129,10 @@ def test_targets_and_profiles_listings() -> None:
     assert done.returncode == 2 and "--tiles must be between 7 and 20000" in done.stderr
     done = run_cli("profiles", "--show", "laser-epdm")
     assert done.returncode == 0 and 'process = "laser-epdm"' in done.stdout
+    done = run_cli("profiles", "--show", "laser-epdm", "--size", "100")  # once ignored
+    assert done.returncode == 2 and "do not apply to --show" in done.stderr
+    done = run_cli("profiles", "--size", "20000")
+    assert done.returncode == 2 and "up to 10000" in done.stderr
 
 
 def write(path: Path, text: str) -> Path:
