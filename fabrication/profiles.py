@@ -256,6 +256,11 @@ def parse_profile(data: dict[str, Any], source: str) -> Profile:
                     f"{source}: {where} = {value!r} is out of range ({_describe_range(spec)})"
                 )
         values[attr] = value
+    if values["size_min_mm"] > values["size_max_mm"]:
+        raise InputError(
+            f"{source}: design.size_min_mm ({values['size_min_mm']}) is above "
+            f"design.size_max_mm ({values['size_max_mm']}); swap them"
+        )
     if not values["size_min_mm"] <= values["default_size_mm"] <= values["size_max_mm"]:
         raise InputError(
             f"{source}: design.default_size_mm = {values['default_size_mm']} must lie between "

@@ -137,3 +137,10 @@ def test_a_profile_written_before_the_string_density_existed_still_loads() -> No
     del table["string"]["diameter_mm"]
     with pytest.raises(InputError, match="missing key string.diameter_mm"):
         parse_profile(table, "old.toml")
+
+
+def test_an_inverted_size_range_is_named_as_such() -> None:
+    table = shipped_table()
+    table["design"]["size_min_mm"] = 500.0  # above the size_max_mm of 450
+    with pytest.raises(InputError, match=r"size_min_mm \(500.0\) is above .* swap them"):
+        parse_profile(table, "my.toml")
