@@ -24,13 +24,9 @@ from __future__ import annotations
 import csv
 import hashlib
 import io
-import itertools
 import json
 import logging
 import math
-import multiprocessing
-import re
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,7 +47,11 @@ from drawstring.fabrication.exports_dxf import (
 )
 from drawstring.fabrication.exports_panels import CableRun, Panel, cable_runs, tile_panels
 from drawstring.fabrication.exports_parts import strip_part, write_placement
-from drawstring.geometry import parallel
+from drawstring.fabrication.exports_step import (
+    finish_step_writers,
+    start_step_writers,
+    stop_step_writers,
+)
 
 if TYPE_CHECKING:
     from drawstring.cad.design import CadResult
@@ -65,25 +65,6 @@ STRING_MARGIN = 0.20
 STRING_TAIL_MIN_MM = 150.0
 #: Assumed seconds per tool change (dual extruder); two changes per layer with both materials.
 TOOL_CHANGE_S = 15.0
-#: Fixed timestamp written into STEP headers.
-STEP_TIMESTAMP = "2000-01-01T00:00:00"
-
-_COLOURS = {
-    "PLA": (0.91, 0.64, 0.24),
-    "TPU": (0.16, 0.36, 0.69),
-    "EPDM": (0.12, 0.12, 0.12),
-    "rubber": (0.2, 0.2, 0.2),
-    "plywood": (0.85, 0.70, 0.47),
-}
-
-
-def _colour(material: str) -> bd.Color:
-    for key, rgb in _COLOURS.items():
-        if key.lower() in material.lower():
-            return bd.Color(*rgb)
-    return bd.Color(0.7, 0.7, 0.7)
-
-
 #: Density of sintered NdFeB magnets, g/mm^3 (7.5 g/cm^3), for the magnets' mass in bom.csv.
 NDFEB_DENSITY_G_MM3 = 7.5e-3
 
@@ -212,190 +193,6 @@ class _Record:
 
 # --------------------------------------------------------------------------------------------
 # STEP
-
-
-def write_step(path: Path, parts: Sequence[tuple[str, bd.Shape, str]], label: str) -> None:
-    """An assembly of named, coloured parts; the same bytes for the same parts in any process.
-
-    The header timestamp is fixed, assembly usages are numbered in file order and the colour
-    section is laid out by :func:`canonical_style_tail`.
-
-    parts : (name, solid, material) per part.
-    """
-    children = []
-    for name, solid, material in parts:
-        child = type(solid)(solid.wrapped)
-        child.label = name
-        child.color = _colour(material)
-        children.append(child)
-    assembly = bd.Compound(children=children, label=label)
-    with tempfile.TemporaryDirectory(prefix="drawstring-step-") as folder:
-        scratch = Path(folder) / "out.step"
-        bd.export_step(assembly, scratch)
-        text = scratch.read_text(encoding="utf-8", errors="replace")
-    text = re.sub(
-        r"(FILE_NAME\('[^']*',)'[^']*'",
-        lambda m: f"{m.group(1)}'{STEP_TIMESTAMP}'",
-        text,
-        count=1,
-    )
-    # OCCT numbers assembly usages with a counter that lives as long as the process; number
-    # them from 1 in file order instead.
-    counter = itertools.count(1)
-    text = re.sub(
-        r"NEXT_ASSEMBLY_USAGE_OCCURRENCE\('\d+'(.*?)\);",
-        lambda m: (
-            f"NEXT_ASSEMBLY_USAGE_OCCURRENCE('{next(counter)}'"
-            + re.sub(r"\n\s*", "", m.group(1))
-            + ");"
-        ),
-        text,
-        flags=re.S,
-    )
-    text = canonical_style_tail(text)
-    path.write_bytes(text.encode("utf-8"))
-
-
-#: One DATA entity ``#n = body;`` (the body may span lines; quotes inside strings are doubled).
-_STEP_ENTITY = re.compile(r"#(\d+)\s*=\s*((?:'(?:[^']|'')*'|[^';])*);")
-#: A string literal (kept whole), a reference ``#n`` or a run of white space, in an entity body.
-_STEP_TOKEN = re.compile(r"'(?:[^']|'')*'|#(\d+)|\s+")
-_STYLE_ROOT = "MECHANICAL_DESIGN_GEOMETRIC_PRESENTATION_REPRESENTATION"
-#: Longest line written for a re-laid style entity (OCCT wraps near 80 characters too).
-_STEP_LINE = 78
-
-
-def canonical_style_tail(text: str) -> str:
-    """STEP text whose colour section is laid out in an order fixed by the model's content.
-
-    OCCT's ``STEPCAFControl_Writer`` registers the presentation (colour) graph of every styled
-    part last, from a map keyed by shape whose hash is the shape's memory address
-    (``myMapCompMDGPR``, ``TopTools_ShapeMapHasher``).  The entities are the same every run,
-    but their order and numbers follow the heap layout, which differs between processes.  This
-    re-lays that tail: the ``MECHANICAL_DESIGN_GEOMETRIC_PRESENTATION_REPRESENTATION`` roots
-    sorted by what they style (references into the stable part of the file, then their full
-    content), each followed by the entities it alone brings in, depth first in field order;
-    the tail is numbered on from its first entity.  Nothing before the tail refers into it
-    (checked).  Text without styles is returned unchanged.
-    """
-    root = text.find(f" = {_STYLE_ROOT}(")  # a plain search: the file may be 100 MB
-    if root < 0:
-        return text
-    start = re.compile(r"#(\d+)").match(text, text.rfind("\n", 0, root) + 1, root)
-    if start is None or start.end() != root:
-        raise RuntimeError("STEP style section does not start on a line of its own")
-    end = text.index("ENDSEC;", root)
-    first = int(start.group(1))
-    bodies: dict[int, str] = {}
-    order: list[int] = []
-    for match in _STEP_ENTITY.finditer(text, start.start(), end):
-        number = int(match.group(1))
-        bodies[number] = match.group(2)
-        order.append(number)
-    if order != list(range(first, first + len(order))):
-        raise RuntimeError("STEP style section is not numbered consecutively to its end")
-    refs = {n: [int(r) for r in _STEP_TOKEN.findall(body) if r] for n, body in bodies.items()}
-    # Every reference into the tail must come from the tail (OCCT adds the styles last).  A
-    # quick scan for a large enough number first; strings are told apart only on a hit.
-    if re.search(_at_least(first), text[: start.start()]):
-        for match in _STEP_TOKEN.finditer(text, 0, start.start()):
-            if match.group(1) and int(match.group(1)) >= first:
-                raise RuntimeError(f"STEP entity outside the styles refers to #{match[1]}")
-
-    def content(number: int, depth: int = 0) -> str:
-        """The entity with its tail references replaced by their content (for sorting)."""
-        if depth > 64:
-            raise RuntimeError("STEP style section is nested too deep")
-        return re.sub(
-            r"'(?:[^']|'')*'|#(\d+)",
-            lambda m: (
-                "(" + content(int(m[1]), depth + 1) + ")" if m[1] and int(m[1]) in bodies else m[0]
-            ),
-            bodies[number],
-        )
-
-    def stable_refs(number: int, seen: set[int]) -> list[int]:
-        found: list[int] = []
-        for ref in refs[number]:
-            if ref not in bodies:
-                found.append(ref)
-            elif ref not in seen:
-                seen.add(ref)
-                found += stable_refs(ref, seen)
-        return found
-
-    roots = [n for n in order if bodies[n].lstrip().startswith(_STYLE_ROOT + "(")]
-    roots.sort(key=lambda n: (stable_refs(n, {n}), content(n)))
-    laid: list[int] = []
-    placed: set[int] = set()
-
-    def lay(number: int) -> None:
-        stack = [number]
-        while stack:
-            current = stack.pop()
-            if current in placed:
-                continue
-            placed.add(current)
-            laid.append(current)
-            stack += [r for r in reversed(refs[current]) if r in bodies and r not in placed]
-
-    for root in roots:
-        lay(root)
-    for number in order:  # anything no style root reaches keeps its relative order
-        lay(number)
-    renumber = {old: first + k for k, old in enumerate(laid)}
-
-    def rewrite(body: str) -> str:
-        """The body on one line, tail references renumbered."""
-        out: list[str] = []
-        last = 0
-        for match in _STEP_TOKEN.finditer(body):
-            out.append(body[last : match.start()])
-            last = match.end()
-            token = match.group(0)
-            if match.group(1):
-                token = f"#{renumber.get(int(match.group(1)), int(match.group(1)))}"
-            elif token.isspace():  # a line break or indent: drop it next to punctuation
-                joined = body[: match.start()].rstrip()[-1:] in ",(" or body[last:][:1] in ",)"
-                token = "" if joined else " "
-            out.append(token)
-        out.append(body[last:])
-        return "".join(out).strip()
-
-    lines = [_wrap_step(f"#{renumber[n]} = {rewrite(bodies[n])};") for n in laid]
-    return text[: start.start()] + "\n".join(lines) + "\n" + text[end:]
-
-
-def _at_least(number: int) -> str:
-    """Regular expression for a reference ``#n`` with ``n >= number`` (no leading zeros)."""
-    digits = str(number)
-    size = len(digits)
-    options = [rf"[1-9]\d{{{size},}}", digits]
-    for index, digit in enumerate(digits):
-        if digit != "9":
-            rest = size - index - 1
-            options.append(
-                f"{digits[:index]}[{int(digit) + 1}-9]" + (rf"\d{{{rest}}}" if rest else "")
-            )
-    return "#(?:" + "|".join(options) + r")(?!\d)"
-
-
-def _wrap_step(entity: str) -> str:
-    """One entity on lines of at most ``_STEP_LINE`` characters where it can break after a
-    comma outside strings; continuation lines are indented by two spaces."""
-    if len(entity) <= _STEP_LINE:
-        return entity
-    chunks = [m.group(0) for m in re.finditer(r"(?:'(?:[^']|'')*'|[^',])*,?", entity) if m[0]]
-    lines = [""]
-    for chunk in chunks:
-        if lines[-1].strip() and len(lines[-1]) + len(chunk) > _STEP_LINE:
-            lines.append("  ")
-        lines[-1] += chunk
-    return "\n".join(lines)
-
-
-# --------------------------------------------------------------------------------------------
-# process-specific exports
 
 
 def _tile_mass_g(volume_mm3: float, profile: Profile) -> float:
@@ -670,7 +467,7 @@ def write_fabrication(
     ]
     # OCCT's STEP writer is serial and the slowest export: write both files in forked
     # processes (they inherit the solids, nothing is pickled) while the rest is made here.
-    step_processes = _start_step_writers(step_jobs, workers)
+    step_processes = start_step_writers(step_jobs, workers)
     try:
         written += ["flat.step", "assembled.step"]
 
@@ -894,9 +691,9 @@ def write_fabrication(
             }
         )
     except BaseException:
-        _stop_step_writers(step_processes)  # an error or Ctrl-C: they write into the staging
+        stop_step_writers(step_processes)  # an error or Ctrl-C: they write into the staging
         raise
-    _finish_step_writers(step_processes)
+    finish_step_writers(step_processes)
     pictures = write_pictures(out, tiles_flat, tiles_assembled, hinges, sides, steps, lifts)
     written += pictures
     _write_bom(out / "bom.csv", record, profile)
@@ -940,45 +737,6 @@ def write_fabrication(
     )
     written.append("manifest.json")
     return sorted(f"fabrication/{name}" for name in written)
-
-
-def _start_step_writers(
-    jobs: Sequence[tuple[Path, Sequence[tuple[str, bd.Shape, str]], str]], workers: int | None
-) -> list[Any]:
-    """Write the STEP files in forked processes, or here when fork is unavailable or
-    ``workers == 1``."""
-    if workers == 1 or "fork" not in multiprocessing.get_all_start_methods():
-        for path, parts, label in jobs:
-            write_step(path, parts, label)
-        return []
-    context = multiprocessing.get_context("fork")
-    processes = [context.Process(target=_step_writer, args=job) for job in jobs]
-    with parallel.sigint_held():  # each takes Ctrl-C once its quiet exit is set
-        for process in processes:
-            process.start()
-    return processes
-
-
-def _step_writer(path: Path, parts: Sequence[tuple[str, bd.Shape, str]], label: str) -> None:
-    """Body of a STEP-writing process."""
-    parallel.exit_quietly_on_interrupt()
-    write_step(path, parts, label)
-
-
-def _stop_step_writers(processes: Sequence[Any]) -> None:
-    """End STEP-writing processes still running (their folder is about to be removed)."""
-    for process in processes:
-        if process.is_alive():
-            process.terminate()
-    for process in processes:
-        process.join()
-
-
-def _finish_step_writers(processes: Sequence[Any]) -> None:
-    for process in processes:
-        process.join()
-        if process.exitcode != 0:
-            raise RuntimeError(f"writing a STEP file failed (exit code {process.exitcode})")
 
 
 def _row(

@@ -168,7 +168,7 @@ _BOXES_STEP = """
 import sys
 from pathlib import Path
 import build123d as bd
-from drawstring.fabrication.exports import write_step
+from drawstring.fabrication.exports_step import write_step
 parts = [
     (f"part_{k}", bd.Solid.make_box(1.0 + k, 2.0, 3.0).moved(bd.Location((10.0 * k, 0, 0))),
      "TPU" if k % 3 == 0 else "PLA")
@@ -197,7 +197,7 @@ def test_step_colour_section_is_canonical_in_one_process(tmp_path: Path) -> None
     """Copies of the same solids sit at other addresses: the file must not change."""
     import copy
 
-    from drawstring.fabrication.exports import write_step
+    from drawstring.fabrication.exports_step import write_step
 
     boxes = [
         (f"part_{k}", bd.Solid.make_box(1.0 + k, 2.0, 3.0), "TPU" if k % 2 else "PLA")
