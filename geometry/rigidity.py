@@ -215,7 +215,7 @@ def rigidity_report(
     else:
         s_max = float(np.sqrt(spla.eigsh(mat.T @ mat, k=1, which="LA", v0=_start(cols))[0][0]))
         tol = rel_tol * s_max
-        sing, vecs = _smallest_singular_sparse(mat, tol)
+        sing, vecs = _smallest_singular_sparse(mat, tol, s_max)
     null = vecs[:, sing <= tol]  # (6T, d)
     rigid = rigid_motion_basis(pts)
     # Flexes: the null space with the rigid motions projected out.
@@ -239,6 +239,9 @@ def rigidity_report(
 #: Up to this many columns (6 per tile) the null space comes from a dense SVD; above it from a
 #: sparse shift-invert eigensolve (10x faster at 200 tiles; a dense SVD at 1600 needs ~1 GB).
 DENSE_MAX_COLUMNS = 600
+#: Largest shift of the shift-invert eigensolve, relative to the largest eigenvalue of
+#: ``R^T R`` (tried only when smaller ones leave the factor singular).
+SHIFT_REL = 1e-10
 
 
 def _start(n: int) -> FloatArray:
@@ -257,14 +260,20 @@ def _smallest_singular_dense(mat: sp.csr_matrix) -> tuple[FloatArray, FloatArray
     return np.asarray(sing[order]), np.asarray(vt[order].T)
 
 
-def _smallest_singular_sparse(mat: sp.csr_matrix, tol: float) -> tuple[FloatArray, FloatArray]:
+def _smallest_singular_sparse(
+    mat: sp.csr_matrix, tol: float, s_max: float
+) -> tuple[FloatArray, FloatArray]:
     """The smallest singular values of ``mat`` (ascending) and their right singular vectors.
 
     Shift-invert Lanczos on ``R^T R + shift I`` (positive definite, so it factors) finds the
     subspace of the ``k`` smallest; a Rayleigh-Ritz step on ``R`` itself (SVD of ``R Q``) then
     gives singular values accurate to machine precision times ``|R|`` (squaring in ``R^T R``
     alone would lose half the digits).  ``k`` doubles until the largest value found is above
-    ``tol``, so the null space is complete.
+    ``tol``, so the null space is complete.  The shift starts at ``tol ** 2``; where that
+    vanishes in rounding next to the Gram matrix's entries and a null space leaves the factor
+    exactly singular, it grows a hundredfold per try up to ``SHIFT_REL * s_max ** 2`` (a
+    larger shift than needed is avoided: the null space's eigenvalues then look alike to
+    Lanczos, which can miss some of them).
     """
     cols = mat.shape[1]
     gram = (mat.T @ mat).tocsc()
@@ -272,7 +281,13 @@ def _smallest_singular_sparse(mat: sp.csr_matrix, tol: float) -> tuple[FloatArra
     k = 24
     while True:
         k = min(k, cols - 1)
-        _, vecs = spla.eigsh(gram, k=k, sigma=-shift, which="LM", v0=_start(cols))
+        try:
+            _, vecs = spla.eigsh(gram, k=k, sigma=-shift, which="LM", v0=_start(cols))
+        except RuntimeError:  # "Factor is exactly singular"
+            if shift >= SHIFT_REL * s_max**2:
+                raise
+            shift = min(100.0 * shift, SHIFT_REL * s_max**2)
+            continue
         q, _ = np.linalg.qr(vecs)
         _, sing, wt = np.linalg.svd(np.asarray(mat @ q), full_matrices=False)
         order = np.argsort(sing, kind="stable")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from drawstring.geometry import simulate as S
 from drawstring.geometry.rigidity import rigid_motion_basis, rigidity_matrix, rigidity_report
@@ -88,3 +89,26 @@ def test_sparse_eigensolve_agrees_with_the_dense_svd(
     if dense.internal_flexes:
         proj = sparse.flexes @ (sparse.flexes.T @ dense.flexes)
         assert np.allclose(proj, dense.flexes, atol=1e-6)
+
+
+def test_sparse_eigensolve_factors_a_gram_matrix_whose_shift_vanishes() -> None:
+    """Two equal columns of norm 10 make ``R^T R`` singular, and a shift of ``tol ** 2``
+    vanishes next to its entries (100), so that factor is exactly singular (a 200-tile
+    seashell design crashed in its rigidity check).  A larger shift is tried then, and the
+    null vector is still found."""
+    import scipy.sparse.linalg as spla
+
+    from drawstring.geometry import rigidity
+
+    rng = np.random.default_rng(3)
+    col = np.zeros((40, 1))
+    col[0] = 10.0
+    mat = sp.csr_matrix(np.hstack([rng.standard_normal((40, 30)), col, col]))
+    s_max = float(np.linalg.svd(mat.toarray(), compute_uv=False).max())
+    tol = 1e-10 * s_max
+    gram = (mat.T @ mat).tocsc()
+    with pytest.raises(RuntimeError, match="singular"):
+        spla.splu(gram + tol**2 * sp.identity(32, format="csc"))
+    sing, vecs = rigidity._smallest_singular_sparse(mat, tol, s_max)
+    assert sing[0] <= tol < sing[1]
+    assert abs(abs(vecs[-1, 0]) - np.sqrt(0.5)) < 1e-9 and abs(vecs[-1, 0] + vecs[-2, 0]) < 1e-9
