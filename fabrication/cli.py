@@ -128,6 +128,11 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--seed", type=int, default=0, help="seed for any randomized step")
     p.add_argument(
+        "--repair",
+        action="store_true",
+        help="drop a mesh file's zero-area (degenerate) faces instead of refusing the file",
+    )
+    p.add_argument(
         "--quiet",
         action="store_true",
         help="print only errors and the one-line reason for a non-zero exit status (no "
@@ -200,6 +205,7 @@ def _run_design(args: argparse.Namespace) -> int:
         simulate=not args.no_simulate,
         cad=not args.no_cad,
         co_optimize=not args.no_co_optimize,
+        repair=args.repair,
         seed=args.seed,
     )
     options.validate()

@@ -118,6 +118,7 @@ class DesignOptions:
     cad: bool = True
     co_optimize: bool = True
     seed: int = 0
+    repair: bool = False
 
     def validate(self) -> None:
         """Refuse values out of range with a one-line :class:`InputError`."""
@@ -222,6 +223,7 @@ class ResolvedOptions:
     cad: bool
     co_optimize: bool
     seed: int
+    repair: bool
 
 
 @dataclass(frozen=True)
@@ -424,6 +426,7 @@ def resolve_options(options: DesignOptions, profile: Profile) -> ResolvedOptions
         cad=options.cad,
         co_optimize=options.co_optimize,
         seed=options.seed,
+        repair=options.repair,
     )
 
 
@@ -560,7 +563,10 @@ def _design(
     notes: list[str] = []
 
     with progress.stage("target"):
-        loaded = load_target(target, size_mm=resolved.size_mm, resolution=resolved.resolution)
+        loaded = load_target(
+            target, size_mm=resolved.size_mm, resolution=resolved.resolution,
+            repair=resolved.repair,
+        )  # fmt: skip
     with progress.stage("flatten"):
         flat_map = flatten(
             loaded.vertices, loaded.faces, mode="rectangle", corners=mesh_corners(loaded, resolved)

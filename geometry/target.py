@@ -5,7 +5,11 @@ mesh with exactly one boundary loop and no handles (a topological disk). Anythin
 :class:`~drawstring.geometry.errors.InputError` with one line naming the defect and the fix.
 
 Repairs that cannot change the surface are done and recorded in ``Target.notes``: dropping
-unreferenced vertices, merging coincident vertices, removing zero-area and duplicated faces.
+unreferenced vertices, merging coincident vertices, removing duplicated faces.  A zero-area
+(degenerate) face is refused unless the caller asks for repairs (``repair=True``, the CLI's
+``--repair``): removing one can change what the surface is (it may be all that joins two parts,
+or it may be the trace of a collapsed region of the scan), so the user decides.  Built-in
+targets are always repaired.
 
 Orientation policy: inconsistent face orientation is refused, never guessed. Which side of the
 surface is "outside" decides the side on which tiles are extruded, so the user has to say it
@@ -84,7 +88,9 @@ class Target:
 # --- loading ------------------------------------------------------------------------------
 
 
-def load_target(spec: str | os.PathLike[str], size_mm: float, resolution: int = 10_000) -> Target:
+def load_target(
+    spec: str | os.PathLike[str], size_mm: float, resolution: int = 10_000, *, repair: bool = False
+) -> Target:
     """Load a built-in target or a mesh file, check it is a disk and scale it to size.
 
     Parameters
@@ -96,6 +102,8 @@ def load_target(spec: str | os.PathLike[str], size_mm: float, resolution: int = 
         Longest bounding-box side of the result, mm.
     resolution : int
         Approximate triangle count of a built-in target (ignored for files).
+    repair : bool
+        Remove the zero-area faces of a mesh file instead of refusing it.
 
     Returns
     -------
@@ -111,7 +119,9 @@ def load_target(spec: str | os.PathLike[str], size_mm: float, resolution: int = 
     if builtin is not None:
         _check_resolution(resolution)
         raw_vertices, raw_faces = builtin.make(int(resolution))
-        vertices, faces, notes, vertex_of_input = _clean_disk_mesh(raw_vertices, raw_faces)
+        vertices, faces, notes, vertex_of_input = _clean_disk_mesh(
+            raw_vertices, raw_faces, repair=True
+        )
         name, source = builtin.name, "builtin"
     else:
         path = Path(spec)
@@ -123,7 +133,9 @@ def load_target(spec: str | os.PathLike[str], size_mm: float, resolution: int = 
             )
         raw_vertices, raw_faces = read_mesh(path)
         try:
-            vertices, faces, notes, vertex_of_input = _clean_disk_mesh(raw_vertices, raw_faces)
+            vertices, faces, notes, vertex_of_input = _clean_disk_mesh(
+                raw_vertices, raw_faces, repair=repair
+            )
         except InputError as error:
             raise InputError(f"{path}: {error}") from None
         name, source = path.stem, os.fspath(spec)
@@ -652,13 +664,14 @@ def _count(n: int, singular: str, plural: str | None = None) -> str:
 
 
 def validate_disk_mesh(
-    vertices: NDArray[np.float64], faces: NDArray[np.int64]
+    vertices: NDArray[np.float64], faces: NDArray[np.int64], *, repair: bool = False
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], tuple[str, ...]]:
     """Check that a triangle mesh is a clean topological disk; make safe repairs.
 
     Repairs (each recorded in the notes): drop unreferenced vertices, merge coincident
-    vertices, remove zero-area faces (repeated index or area below ``DEGENERATE_FACE_REL_AREA``
-    times the mean) and duplicated faces, provided the rest is still a disk.
+    vertices, remove duplicated faces, and with ``repair`` zero-area faces (repeated index or
+    area below ``DEGENERATE_FACE_REL_AREA`` times the mean), provided the rest is still a
+    disk.  Without ``repair`` a zero-area face is refused.
 
     Parameters
     ----------
@@ -679,12 +692,12 @@ def validate_disk_mesh(
     InputError
         One line naming the first defect found and how to fix it.
     """
-    V, F, notes, _ = _clean_disk_mesh(vertices, faces)
+    V, F, notes, _ = _clean_disk_mesh(vertices, faces, repair=repair)
     return V, F, notes
 
 
 def _clean_disk_mesh(
-    vertices: NDArray[np.float64], faces: NDArray[np.int64]
+    vertices: NDArray[np.float64], faces: NDArray[np.int64], *, repair: bool
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], tuple[str, ...], NDArray[np.int64]]:
     """:func:`validate_disk_mesh`, and where each input vertex went (``vertex_of_input`` of
     :class:`Target`)."""
@@ -738,6 +751,14 @@ def _clean_disk_mesh(
     n_degenerate = int(degenerate.sum())
     if n_degenerate and _is_closed(F[~_repeats_vertex(F)], len(V)):
         raise InputError(_closed_message())
+    if n_degenerate and not repair:
+        first = V[F[np.flatnonzero(degenerate)[0]]].mean(axis=0)
+        where_first = ", ".join(f"{c:.6g}" for c in first)
+        raise InputError(
+            f"{_count(n_degenerate, 'degenerate (zero-area) face')}, the first at "
+            f"({where_first}); delete them in a mesh editor (MeshLab: Filters > Cleaning and "
+            "Repairing > Remove Zero Area Faces) or pass --repair to drop them"
+        )
     F = F[~degenerate]
     duplicated = _duplicated_faces(F)
     F = F[~duplicated]

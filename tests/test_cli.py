@@ -864,11 +864,17 @@ def test_a_mesh_files_repairs_are_shown_not_only_recorded(
     mesh = tmp_path / "sheet.obj"
     mesh.write_text("\n".join(lines) + "\n")
     out = tmp_path / "sheet"
-    assert main(["design", str(mesh), "--grid", "5", "5", "--no-cad", "--no-simulate",
-                 "--out", str(out)]) in (0, 4)  # fmt: skip
+    common = ["--grid", "5", "5", "--no-cad", "--no-simulate", "--out", str(out)]
+    # refused without --repair: one line naming the fix, exit 2, no folder
+    assert main(["design", str(mesh), *common]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "1 degenerate (zero-area) face" in err[0] and "--repair" in err[0]
+    assert not out.exists()
+    assert main(["design", str(mesh), *common, "--repair"]) in (0, 4)
     assert "note: target: removed 1 zero-area face\n" in capsys.readouterr().out
     doc = json.loads((out / "design.json").read_text())
     assert doc["target"]["notes"] == ["removed 1 zero-area face"]
+    assert doc["options"]["repair"] is True
 
 
 def test_the_default_folder_spells_a_built_in_as_design_json_does(

@@ -366,7 +366,7 @@ def test_zero_area_faces_on_the_boundary_are_removed():
     V2 = np.vstack([V, (V[0] + V[1]) / 2.0])
     repeated = [2, 2, 3]
     F2 = np.vstack([F, [[1, 0, midpoint], repeated]])
-    V3, F3, notes = validate_disk_mesh(V2, F2)
+    V3, F3, notes = validate_disk_mesh(V2, F2, repair=True)
     np.testing.assert_array_equal(F3, F)
     assert len(V3) == len(V)
     assert notes == ("removed 2 zero-area faces", "dropped 1 vertex used only by removed faces")
@@ -379,15 +379,36 @@ def test_duplicated_faces_are_removed():
     assert notes == ("removed 2 duplicated faces",)
 
 
+def test_zero_area_faces_are_refused_unless_repairs_are_asked_for(tmp_path):
+    V, F = grid_disk()
+    midpoint = len(V)
+    V2 = np.vstack([V, (V[0] + V[1]) / 2.0])
+    F2 = np.vstack([F, [[1, 0, midpoint], [2, 2, 3]]])
+    with pytest.raises(InputError) as error:
+        validate_disk_mesh(V2, F2)
+    # the first one is the sliver on edge 0 -> 1; its centre is that edge's midpoint
+    centre = ", ".join(f"{c:.6g}" for c in (V[0] + V[1]) / 2.0)
+    check_message(error, "2 degenerate (zero-area) faces", f"the first at ({centre})", "--repair")
+    lines = [f"v {float(x)!r} {float(y)!r} {float(z)!r}" for x, y, z in V2]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in F2]
+    (tmp_path / "m.obj").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError) as error:
+        load_target(tmp_path / "m.obj", 100.0)
+    check_message(error, "m.obj: 2 degenerate (zero-area) faces", "--repair")
+    repaired = load_target(tmp_path / "m.obj", 100.0, repair=True)
+    np.testing.assert_array_equal(repaired.faces, F)
+    assert repaired.notes[0] == "removed 2 zero-area faces"
+
+
 def test_interior_zero_area_face_is_refused():
     with pytest.raises(InputError) as error:
-        validate_disk_mesh(*split_edge_with_sliver(grid_disk()))
+        validate_disk_mesh(*split_edge_with_sliver(grid_disk()), repair=True)
     check_message(error, "removing 1 zero-area face", "not a disk", "2 boundary loops")
 
 
 def test_zero_area_face_in_a_closed_surface_is_refused():
     with pytest.raises(InputError) as error:
-        validate_disk_mesh(*split_edge_with_sliver(octahedron()))
+        validate_disk_mesh(*split_edge_with_sliver(octahedron()), repair=True)
     check_message(error, "closed", "cut it open")
 
 
