@@ -265,6 +265,55 @@ def test_split_parts_are_laid_out_in_the_order_in_which_they_meet() -> None:
     assert spans[0][1] < spans[1][0] and spans[1][1] < spans[2][0]
 
 
+def test_split_parts_clear_each_other_with_their_bottoms_too() -> None:
+    """Two parts side by side whose tiles' bottoms reach 8 mm beyond their top faces along x
+    (wedge tiles of a strongly curved target): placed by their top faces alone with a 2 mm
+    clearance, the facing columns' bottoms overlapped; given the tiles' outlines seen from
+    above, the parts clear those by the clearance."""
+    from drawstring.geometry.linkage import rotating_squares_layout
+
+    linkage = build_linkage(np.ones((8, 4), dtype=bool), (Split("x", 4, 0, 4),))
+    assert linkage.n_components == 2
+    corners = rotating_squares_layout(linkage, 0.0, side=10.0)
+    nodes = np.zeros((linkage.n_nodes, 2))
+    nodes[linkage.corner_node] = corners
+    cells_uv = (linkage.tile_cells[:, None, :] + [[0, 0], [1, 0], [1, 1], [0, 1]]) * 10.0
+    # every tile's outline: its top corners and bottom corners 8 mm out along x either way
+    bottoms = corners + np.array([[-8.0, 0.0], [8.0, 0.0], [8.0, 0.0], [-8.0, 0.0]])
+    shadows = np.concatenate([corners, bottoms], axis=1)
+    left = linkage.tile_component[linkage.tile_cells[:, 0] == 0][0]
+
+    def gap(moved_shadows: np.ndarray) -> float:
+        on_left = linkage.tile_component == left
+        return float(moved_shadows[~on_left][..., 0].min() - moved_shadows[on_left][..., 0].max())
+
+    tops_only, offsets = flat_module._separate_components(linkage, nodes, cells_uv, 2.0)
+    moved = shadows + offsets[linkage.tile_component][:, None]
+    assert gap(moved) < 0  # placed by their top faces, the bottoms overlap
+    _, offsets = flat_module._separate_components(linkage, nodes, cells_uv, 2.0, shadows)
+    moved = shadows + offsets[linkage.tile_component][:, None]
+    assert gap(moved) >= 2.0
+
+
+def test_tile_outlines_seen_from_above_share_the_top_faces_frame() -> None:
+    """A tilted 10 mm square tile whose bottom lies 3 mm under its top and 2 mm out along its
+    first side: seen from above once laid flat, the top corners are the plane coordinates and
+    the bottom ones are those moved 2 mm along the first side."""
+    from drawstring.geometry.flat import tile_plane_coordinates
+
+    rng = np.random.default_rng(5)
+    q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    square = np.array([[0.0, 0, 0], [10, 0, 0], [10, 10, 0], [0, 10, 0]])
+    top = square @ q.T + [5.0, -2.0, 7.0]
+    bottom = (square + [2.0, 0.0, -3.0]) @ q.T + [5.0, -2.0, 7.0]
+    tile = np.concatenate([top, bottom])[None]
+    outline = flat_module._shadow_coordinates(top[None], tile)
+    plane = tile_plane_coordinates(top[None])
+    np.testing.assert_allclose(outline[0, :4], plane[0], atol=1e-12)
+    side = (plane[0, 1] - plane[0, 0]) / 10.0
+    np.testing.assert_allclose(outline[0, 4:], plane[0] + 2.0 * side, atol=1e-12)
+
+
 def test_direct_csr_rows_match_the_coordinate_build() -> None:
     from scipy import sparse
 
