@@ -145,6 +145,7 @@ class _JobResult:
     notes: list[str]
     labelled: bool
     failed: list[str]
+    dropped_mm3: float = 0.0  # pieces the features cut off the tile (the largest is kept)
 
 
 def normalize_route(route_steps: NDArray[np.int64] | Sequence[Sequence[int]]) -> NDArray[np.int64]:
@@ -271,8 +272,9 @@ def _build_job(job: _TileJob, profile: Profile, hinge_data: tuple[_HingeData, ..
             f"({type(exc).__name__}); check the tile vertices"
         ) from exc
     failed_tools: list[int] = []
+    dropped: list[float] = []
     try:
-        solid = build_tile(block, tools, failed=failed_tools)
+        solid = build_tile(block, tools, failed=failed_tools, dropped=dropped)
     except Exception as exc:
         _kernel_failure(f"tile {job.tile}: cut", exc)
         solid, failed_tools = block, list(range(len(tools)))
@@ -301,7 +303,7 @@ def _build_job(job: _TileJob, profile: Profile, hinge_data: tuple[_HingeData, ..
                 continue
             built_pads[hinge] = pad
         pads.append((hinge, built_pads[hinge]))
-    return _JobResult(job.tile, solid, pads, notes, labelled, failed)
+    return _JobResult(job.tile, solid, pads, notes, labelled, failed, sum(dropped))
 
 
 def strip_neighbours(
@@ -566,6 +568,13 @@ def build_design_solids(
         f"tile {tile}: its {name} failed in the CAD kernel and was left out"
         for tile, name in failed
     )
+    split = sorted((r.tile, r.dropped_mm3) for r in results if r.dropped_mm3 > 0)
+    if split:
+        notes.append(
+            f"features cut {len(split)} of {n_tiles} tiles into pieces; each keeps its largest "
+            f"piece, dropping up to {max(v for _, v in split):.3g} mm^3: "
+            f"{_id_ranges([t for t, _ in split])}"
+        )
     if labels:
         unlabelled = [r.tile for r in results if not r.labelled]
         if unlabelled:

@@ -357,11 +357,13 @@ def build_tile(
     tools: list[bd.Shape],
     *,
     failed: list[int] | None = None,
+    dropped: list[float] | None = None,
 ) -> bd.Solid:
     """The tile minus the tools that touch it, in one boolean operation.
 
     Tools whose bounding box misses the tile's are skipped.  If the cut splits the tile, the
-    largest piece is kept and a warning is logged.  Where the batched cut fails (or raises),
+    largest piece is kept and the volumes (mm^3) of the others are appended to ``dropped``
+    (logged when no list is given).  Where the batched cut fails (or raises),
     the tools are cut one at a time; a tool whose cut fails even on its own and slightly
     shifted raises ``RuntimeError``, or, given a ``failed`` list, is left uncut and its index
     in ``tools`` appended there.
@@ -396,6 +398,11 @@ def build_tile(
                 failed.append(index)
     if not pieces:
         raise RuntimeError("cutting the features removed the whole tile")
+    kept = pieces[0] if len(pieces) == 1 else max(pieces, key=lambda s: s.volume)
     if len(pieces) > 1:
-        log.warning("features split a tile into %d pieces; keeping the largest", len(pieces))
-    return clean_solid(pieces[0] if len(pieces) == 1 else max(pieces, key=lambda s: s.volume))
+        rest = [float(p.volume) for p in pieces if p is not kept]
+        if dropped is None:
+            log.warning("features split a tile into %d pieces; keeping the largest", len(pieces))
+        else:
+            dropped.extend(rest)
+    return clean_solid(kept)

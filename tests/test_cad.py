@@ -511,6 +511,16 @@ def test_a_failed_cut_is_listed_when_asked(monkeypatch: pytest.MonkeyPatch) -> N
     assert solid.volume == pytest.approx(8.0 - 1.0)
 
 
+def test_a_cut_that_splits_a_tile_keeps_the_largest_piece_and_reports_the_rest() -> None:
+    # a 2 mm cube with a 0.2 mm slab cut through it at x = 1.5..1.7: pieces of 6 and 1.2 mm^3
+    slab = _box(2.0) * [0.1, 1.0, 1.0] + [1.5, 0.0, 0.0]
+    slab[:, 1:] = slab[:, 1:] * 1.5 - 0.5  # reaching past the cube in y and z
+    dropped: list[float] = []
+    solid = build_tile(_box(2.0), [trim_tool(slab)], dropped=dropped)
+    assert solid.volume == pytest.approx(6.0, rel=1e-6)
+    assert dropped == [pytest.approx(1.2, rel=1e-6)]
+
+
 def test_a_kernel_exception_in_a_cut_is_listed(monkeypatch: pytest.MonkeyPatch) -> None:
     from OCP.Standard import Standard_Failure
 
