@@ -241,10 +241,7 @@ def measure_design(
     # A trimmed pair's top faces overlap only inside its trim (the tops are coplanar in the
     # flat pose and the trim is the pair's whole 3D overlap); the interpenetration after the
     # trims below checks that independently.
-    trimmed_pairs = {
-        tuple(sorted(int(t) for t in linkage.hinges[trim.hinge, [0, 2]]))
-        for trim in hinge_layout.trims
-    }
+    trimmed_pairs = {(trim.other, trim.tile) for trim in hinge_layout.trims}
     kept = [k for k, (a, b) in enumerate(overlapping.tolist()) if (a, b) not in trimmed_pairs]
     overlap_area = float(areas[kept].sum())
     trims = [(trim.tile, trim.vertices) for trim in hinge_layout.trims]

@@ -399,7 +399,9 @@ def save_flat(result: Design, path: Path) -> None:
     width = 9.0
     height = float(np.clip(width * extent[1] / max(extent[0], 1e-9), 4.0, 12.0)) + 0.8
     fig, ax = plt.subplots(figsize=(width, height))
-    trimmed = [tr.hinge for tr in layout.trims] if layout.strategy == "dual" else []
+    trimmed = (
+        [tr.hinge for tr in layout.trims if tr.hinge >= 0] if layout.strategy == "dual" else []
+    )
     draw_flat_layout(
         ax,
         linkage,

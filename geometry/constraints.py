@@ -32,6 +32,7 @@ __all__ = [
     "HalfPlane3D",
     "HingeConnection",
     "QuadSeparation2D",
+    "convex_overlap_mtv",
     "signed_angles",
     "quad_overlap_mtv",
 ]
@@ -151,6 +152,29 @@ def quad_overlap_mtv(qa: FloatArray, qb: FloatArray) -> tuple[FloatArray, FloatA
     depth = overlap[k, best]
     direction = axes[k, best] * np.where(use_pos[k, best], 1.0, -1.0)[:, None]
     return np.asarray(depth), np.asarray(direction)
+
+
+def convex_overlap_mtv(pa: FloatArray, pb: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Penetration depth and direction (from ``pa`` towards ``pb``) of the convex hulls of
+    point sets ``(k, m, 2)``: separating-axis test over the normals of every segment between
+    two points of one set, which include the hulls' edges."""
+    m = pa.shape[1]
+    i, j = np.triu_indices(m, 1)
+    axes = np.concatenate([pa[:, j] - pa[:, i], pb[:, j] - pb[:, i]], axis=1)
+    axes = np.stack([-axes[..., 1], axes[..., 0]], axis=-1)
+    length = np.linalg.norm(axes, axis=2, keepdims=True)
+    axes = np.where(length > 1e-12, axes / np.maximum(length, 1e-300), 0.0)
+    proj_a = np.einsum("kai,kvi->kav", axes, pa)
+    proj_b = np.einsum("kai,kvi->kav", axes, pb)
+    overlap_pos = proj_a.max(axis=2) - proj_b.min(axis=2)
+    overlap_neg = proj_b.max(axis=2) - proj_a.min(axis=2)
+    use_pos = overlap_pos <= overlap_neg
+    overlap = np.where(use_pos, overlap_pos, overlap_neg)
+    overlap = np.where(length[..., 0] > 1e-12, overlap, np.inf)  # coincident points: no axis
+    best = np.argmin(overlap, axis=1)
+    k = np.arange(len(pa))
+    direction = axes[k, best] * np.where(use_pos[k, best], 1.0, -1.0)[:, None]
+    return np.asarray(overlap[k, best]), np.asarray(direction)
 
 
 class QuadSeparation2D(ConstraintGroup):

@@ -63,7 +63,7 @@ from drawstring.geometry.constrained_lsq import (
     constrained_least_squares,
     separation_rows,
 )
-from drawstring.geometry.constraints import quad_overlap_mtv, signed_angles
+from drawstring.geometry.constraints import convex_overlap_mtv, quad_overlap_mtv, signed_angles
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.flatpose import HingeFaces, hinge_points
 from drawstring.geometry.linkage import Linkage, slit_ends
@@ -410,29 +410,6 @@ def _shadow_coordinates(corners_3d: FloatArray, tiles_3d: FloatArray) -> FloatAr
     return np.stack([np.einsum("kvi,ki->kv", rel, ex), np.einsum("kvi,ki->kv", rel, ey)], axis=-1)
 
 
-def _convex_overlap_mtv(pa: FloatArray, pb: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Penetration depth and direction (from ``pa`` towards ``pb``) of the convex hulls of
-    point sets ``(k, m, 2)``: separating-axis test over the normals of every segment between
-    two points of one set, which include the hulls' edges."""
-    m = pa.shape[1]
-    i, j = np.triu_indices(m, 1)
-    axes = np.concatenate([pa[:, j] - pa[:, i], pb[:, j] - pb[:, i]], axis=1)
-    axes = np.stack([-axes[..., 1], axes[..., 0]], axis=-1)
-    length = np.linalg.norm(axes, axis=2, keepdims=True)
-    axes = np.where(length > 1e-12, axes / np.maximum(length, 1e-300), 0.0)
-    proj_a = np.einsum("kai,kvi->kav", axes, pa)
-    proj_b = np.einsum("kai,kvi->kav", axes, pb)
-    overlap_pos = proj_a.max(axis=2) - proj_b.min(axis=2)
-    overlap_neg = proj_b.max(axis=2) - proj_a.min(axis=2)
-    use_pos = overlap_pos <= overlap_neg
-    overlap = np.where(use_pos, overlap_pos, overlap_neg)
-    overlap = np.where(length[..., 0] > 1e-12, overlap, np.inf)  # coincident points: no axis
-    best = np.argmin(overlap, axis=1)
-    k = np.arange(len(pa))
-    direction = axes[k, best] * np.where(use_pos[k, best], 1.0, -1.0)[:, None]
-    return np.asarray(overlap[k, best]), np.asarray(direction)
-
-
 def _separate_components(
     linkage: Linkage,
     nodes: FloatArray,
@@ -475,7 +452,7 @@ def _separate_components(
             return np.asarray(out[linkage.corner_node[tiles]] + shift)
         return np.asarray(shadows[tiles] + (moved[tiles] + shift)[:, None])
 
-    overlap = quad_overlap_mtv if shadows is None else _convex_overlap_mtv
+    overlap = quad_overlap_mtv if shadows is None else convex_overlap_mtv
     placed: list[int] = [int(order[0])]
     for c in order[1:]:
         c = int(c)

@@ -31,7 +31,9 @@ Strategies
 ----------
 ``top``: all hinges at the top.  The region where two hinged tiles overlap in the flat pose is
 computed exactly (convex hulls intersected with manifold3d); it is to be removed from the tile
-with the larger id, and the side-face (contact) area it takes away is reported.
+with the larger id, and the side-face (contact) area it takes away is reported.  Unhinged
+neighbours are kept apart on their top faces only and any 3D overlap left (bottoms reaching
+past the top faces on thick, strongly curved tiles) is trimmed the same way.
 ``dual``: sides as above (decided once, on the eq.-1 tiles, and passed through the flat layout,
 which makes the hinge points meet), then the rigid-tile layout ``w_rigid E_rigid +
 w_collision E_collision + w_conn E_conn`` (tiles exactly rigid; separating planes between close
@@ -53,7 +55,9 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
 
+from drawstring.geometry.constraints import convex_overlap_mtv
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.flat import FlatResult
 from drawstring.geometry.flatpose import HingeFaces, free_openings, hinge_faces, lay_flat
@@ -221,13 +225,16 @@ def dual_hinge_faces(
 
 @dataclass(frozen=True)
 class HingeTrim:
-    """Overlap of two hinged tiles in the flat pose, removed from ``tile``.
+    """Overlap of two tiles in the flat pose, removed from ``tile``.
 
     Attributes
     ----------
     hinge : int
+        The hinge joining the two tiles, or -1 for an unhinged pair (``top`` strategy).
     tile : int
         The tile trimmed (the larger id of the pair).
+    other : int
+        The tile it overlapped.
     vertices : (p, 3) float, mm
         Points whose hull is the convex overlap polyhedron grown by a cube of half-side
         ``HINGE_TRIM_GROW_MM`` (CAD subtracts their hull; the growth leaves no numerical sliver
@@ -242,6 +249,7 @@ class HingeTrim:
     vertices: FloatArray
     volume_mm3: float
     contact_area_lost_mm2: float
+    other: int
 
 
 @dataclass(frozen=True)
@@ -320,13 +328,28 @@ def hinge_trims(
     tuple of HingeTrim
         Only hinges whose tiles overlap with positive volume.
     """
+    which = np.arange(linkage.n_hinges) if hinges is None else np.asarray(hinges, dtype=np.int64)
+    pairs = linkage.hinges[which][:, [0, 2]]
+    return pair_trims(tiles_2d, pairs, which)
+
+
+def pair_trims(
+    tiles_2d: ArrayLike, pairs: ArrayLike, hinges: ArrayLike | None = None
+) -> tuple[HingeTrim, ...]:
+    """Exact overlap of tile pairs ``(k, 2)`` in the flat pose, each to be removed from the
+    pair's larger tile id; ``hinges`` names the hinge of each pair (default -1: unhinged).
+    Only pairs that overlap with positive volume are returned."""
     import manifold3d as m3d
 
     tiles = np.asarray(tiles_2d, dtype=np.float64)
+    pair_arr = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    labels = (
+        np.full(len(pair_arr), -1, dtype=np.int64)
+        if hinges is None
+        else np.asarray(hinges, dtype=np.int64)
+    )
     trims: list[HingeTrim] = []
-    which = np.arange(linkage.n_hinges) if hinges is None else np.asarray(hinges, dtype=np.int64)
-    for index in which.tolist():
-        a, b = int(linkage.hinges[index, 0]), int(linkage.hinges[index, 2])
+    for (a, b), index in zip(pair_arr.tolist(), labels.tolist(), strict=True):
         overlap = m3d.Manifold.hull_points(tiles[a]) ^ m3d.Manifold.hull_points(tiles[b])
         volume = float(overlap.volume())
         if volume <= 0:
@@ -344,7 +367,7 @@ def hinge_trims(
         # costs time, so rounding that splits a pair is harmless)
         key = np.round(np.c_[normals, np.einsum("ki,ki->k", normals, points)], 9)
         first = np.sort(np.unique(key, axis=0, return_index=True)[1])
-        trimmed = max(a, b)
+        trimmed, other = max(a, b), min(a, b)
         lost = sum(
             polygon_in_convex_polyhedron_area(tiles[trimmed][face], points[first], normals[first])
             for face in TILE_FACES[2:]
@@ -352,7 +375,7 @@ def hinge_trims(
         # Record the trim grown by a small cube (Minkowski sum) so that subtracting it leaves no
         # numerical sliver, and so that a needle-thin overlap becomes a tool a B-rep cut can take.
         grown = (verts[:, None, :] + _TRIM_GROWTH[None]).reshape(-1, 3)
-        trims.append(HingeTrim(index, trimmed, grown, volume, float(lost)))
+        trims.append(HingeTrim(index, trimmed, grown, volume, float(lost), other))
     return tuple(trims)
 
 
@@ -470,7 +493,18 @@ def layout_hinges(
             "overlap tiles or break a gap-angle bound"
         )
     trims = hinge_trims(linkage, result.merged, np.flatnonzero(trim))
-    lost = float(sum(tr.contact_area_lost_mm2 for tr in trims))
+    unhinged: tuple[HingeTrim, ...] = ()
+    if strategy == "top":
+        # the layout kept unhinged pairs apart on their top faces only
+        unhinged = pair_trims(result.merged, _unhinged_close_pairs(linkage, result.merged))
+        if unhinged:
+            problems.append(
+                f"top hinges: {_pairs(len(unhinged), 'unhinged ', 'overlap')} in the flat pose "
+                f"(bottoms reaching past the top faces); trimmed "
+                f"{sum(tr.volume_mm3 for tr in unhinged):.3g} mm^3, losing "
+                f"{sum(tr.contact_area_lost_mm2 for tr in unhinged):.3g} mm^2 of contact"
+            )
+    lost = float(sum(tr.contact_area_lost_mm2 for tr in trims + unhinged))
     if trims:
         which = f"{strategy} hinges: "
         if never_clear and strategy == "dual":
@@ -483,9 +517,29 @@ def layout_hinges(
             f"{sum(tr.volume_mm3 for tr in trims):.3g} mm^3, losing {lost:.3g} mm^2 of contact"
         )
     return HingeLayout(
-        strategy, result.merged, sides, ids, result.points, gap_max, trims, lost,
+        strategy, result.merged, sides, ids, result.points, gap_max, trims + unhinged, lost,
         result.iterations, time.perf_counter() - start, tuple(problems), result.tiles,
     )  # fmt: skip
+
+
+def _unhinged_close_pairs(linkage: Linkage, tiles: FloatArray) -> IntArray:
+    """Unhinged tile pairs ``(k, 2)`` of one part whose whole flat tiles, seen from above,
+    come closer than a thousandth of a millimetre (candidates for a 3D overlap)."""
+    outline = tiles[:, :, :2]
+    centres = outline.mean(axis=1)
+    radius = float(np.max(np.linalg.norm(outline - centres[:, None], axis=2), initial=0.0))
+    pairs = cKDTree(centres).query_pairs(2.0 * radius + 1e-9, output_type="ndarray")
+    pairs = np.sort(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), axis=1)
+    hinged = set(map(tuple, np.sort(linkage.hinges[:, [0, 2]], axis=1).tolist()))
+    comp = linkage.tile_component
+    keep = [
+        k for k, (a, b) in enumerate(pairs.tolist()) if (a, b) not in hinged and comp[a] == comp[b]
+    ]
+    pairs = pairs[keep]
+    if not len(pairs):
+        return pairs
+    depth, _ = convex_overlap_mtv(outline[pairs[:, 0]], outline[pairs[:, 1]])
+    return pairs[depth > -1e-3]
 
 
 #: The second layout (pairs held apart laid out on their hinge face only) runs only when at
@@ -577,6 +631,7 @@ def hinge_vertex_json(layout: HingeLayout, linkage: Linkage) -> dict[str, Any]:
             {
                 "hinge": tr.hinge,
                 "tile": tr.tile,
+                "other": tr.other,
                 "volume_mm3": tr.volume_mm3,
                 "contact_area_lost_mm2": tr.contact_area_lost_mm2,
                 "vertices_mm": tr.vertices.tolist(),
