@@ -341,7 +341,9 @@ def measure_design(
         warnings.append(f"hinge gap {hinge_gap:.2g} mm exceeds {HINGE_GAP_TOL_MM:g} mm: {cause}")
     if tiling.scale_factor_max > split_bound(options):
         problems.append(
-            f"scale factor {tiling.scale_factor_max:.3f} exceeds {split_bound(options):.6g}"
+            f"scale factor {tiling.scale_factor_max:.3f} exceeds {split_bound(options):.6g} "
+            "in a part no split can divide (see the notes); use more tiles, which gives "
+            "splits more places to go, other --corners or a flatter target"
         )
     problems.extend(route_problems(route, linkage))
     if not profile.size_min_mm <= options.size_mm <= profile.size_max_mm:

@@ -853,6 +853,22 @@ def test_corners_are_the_files_own_vertex_ids_whatever_loading_repairs(
         assert not out.exists()
 
 
+def test_a_scale_factor_no_split_can_mend_exits_3_naming_the_fixes(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the scanned head: no cut that keeps every piece on the outer boundary brings its
+    # largest part's area-scale ratio (3.30) under the bound
+    out = tmp_path / "spot"
+    mesh = Path(__file__).parent / "data" / "spothead.obj"
+    args = ["design", str(mesh), "--no-cad", "--no-simulate", "--quiet", "--out", str(out)]
+    assert main(args) == 3
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "scale factor 3.301 exceeds" in line and "use more tiles" in line
+    assert "--corners" in line and str(out) in line
+    doc = json.loads((out / "design.json").read_text())
+    assert any(p.startswith("scale factor 3.301 exceeds") for p in doc["problems"])
+
+
 def test_a_mesh_files_repairs_are_shown_not_only_recorded(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
