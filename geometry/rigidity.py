@@ -269,9 +269,9 @@ def _smallest_singular_sparse(
     subspace of the ``k`` smallest; a Rayleigh-Ritz step on ``R`` itself (SVD of ``R Q``) then
     gives singular values accurate to machine precision times ``|R|`` (squaring in ``R^T R``
     alone would lose half the digits).  ``k`` doubles until the largest value found is above
-    ``tol``, so the null space is complete.  The shift starts at ``tol ** 2``; where that
-    vanishes in rounding next to the Gram matrix's entries and a null space leaves the factor
-    exactly singular, it grows a hundredfold per try up to ``SHIFT_REL * s_max ** 2`` (a
+    ``tol``, so the null space is complete.  The shift starts at ``max(tol, 1e-12) ** 2``;
+    where that vanishes in rounding next to the Gram matrix's entries and a null space leaves
+    the factor exactly singular, it grows a hundredfold per try up to ``SHIFT_REL * s_max ** 2`` (a
     larger shift than needed is avoided: the null space's eigenvalues then look alike to
     Lanczos, which can miss some of them).
     """
@@ -283,7 +283,9 @@ def _smallest_singular_sparse(
         k = min(k, cols - 1)
         try:
             _, vecs = spla.eigsh(gram, k=k, sigma=-shift, which="LM", v0=_start(cols))
-        except RuntimeError:  # "Factor is exactly singular"
+        except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
+            if isinstance(exc, spla.ArpackError) or "singular" not in str(exc):
+                raise
             if shift >= SHIFT_REL * s_max**2:
                 raise
             shift = min(100.0 * shift, SHIFT_REL * s_max**2)
