@@ -278,6 +278,7 @@ def _build_job(job: _TileJob, profile: Profile, hinge_data: tuple[_HingeData, ..
     except Exception as exc:
         _kernel_failure(f"tile {job.tile}: cut", exc)
         solid, failed_tools = block, list(range(len(tools)))
+        dropped.clear()  # the uncut block is kept
     failed += [names[i] for i in failed_tools]
     pads = []
     for hinge in job.pads:

@@ -390,6 +390,8 @@ def build_tile(
                 moved = tool if not any(nudge) else tool.moved(bd.Location(nudge))
                 attempt = _try_cut(current, [moved])
                 if attempt is not None and _plausible(attempt, current):
+                    if dropped is not None:  # an earlier tool's cut split the tile
+                        dropped.extend(float(p.volume) for p in pieces if p is not current)
                     pieces = attempt
                     break
             else:
