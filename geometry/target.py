@@ -753,11 +753,19 @@ def _clean_disk_mesh(
         raise InputError(_closed_message())
     if n_degenerate and not repair:
         first = V[F[np.flatnonzero(degenerate)[0]]].mean(axis=0)
-        where_first = ", ".join(f"{c:.6g}" for c in first)
-        raise InputError(
+        found = (
             f"{_count(n_degenerate, 'degenerate (zero-area) face')}, the first at "
-            f"({where_first}); delete them in a mesh editor (MeshLab: Filters > Cleaning and "
-            "Repairing > Remove Zero Area Faces) or pass --repair to drop them"
+            f"({', '.join(f'{c:.6g}' for c in first)})"
+        )
+        try:  # offer --repair only where it would give a disk
+            _clean_disk_mesh(vertices, faces, repair=True)
+        except InputError as error:
+            raise InputError(
+                f"{found}; {error}: mend the mesh around them in a mesh editor"
+            ) from None
+        raise InputError(
+            f"{found}; delete them in a mesh editor (MeshLab: Filters > Cleaning and Repairing > "
+            "Remove Zero Area Faces) or pass --repair to drop them"
         )
     F = F[~degenerate]
     duplicated = _duplicated_faces(F)

@@ -404,6 +404,11 @@ def test_interior_zero_area_face_is_refused():
     with pytest.raises(InputError) as error:
         validate_disk_mesh(*split_edge_with_sliver(grid_disk()), repair=True)
     check_message(error, "removing 1 zero-area face", "not a disk", "2 boundary loops")
+    # without --repair the refusal does not offer a repair that would fail
+    with pytest.raises(InputError) as error:
+        validate_disk_mesh(*split_edge_with_sliver(grid_disk()))
+    check_message(error, "1 degenerate (zero-area) face", "not a disk", "mend the mesh")
+    assert "--repair" not in str(error.value)
 
 
 def test_zero_area_face_in_a_closed_surface_is_refused():
