@@ -64,8 +64,13 @@ def split_bound(options: ResolvedOptions) -> float:
     linkage can absorb with every gap opening between ``--min-gap-angle`` and 90 degrees: a gap
     opened by theta expands the layout by ``1 + sin(theta)``, so the ratio is at most
     ``2 / (1 + sin(theta_min))``."""
-    absorbable = 2.0 / (1.0 + math.sin(math.radians(options.min_gap_angle_deg)))
-    return min(options.max_scale_factor, absorbable)
+    return min(options.max_scale_factor, absorbable_ratio(options.min_gap_angle_deg))
+
+
+def absorbable_ratio(min_gap_angle_deg: float) -> float:
+    """``2 / (1 + sin(theta_min))``: the largest tile area ratio gaps opening between
+    ``min_gap_angle_deg`` and 90 degrees can absorb (see :func:`split_bound`)."""
+    return 2.0 / (1.0 + math.sin(math.radians(min_gap_angle_deg)))
 
 
 #: Extra tilings tried, each with a tighter split bound, when the flat layout misses its

@@ -33,7 +33,7 @@ from drawstring.geometry.tolerances import (
     HINGE_GAP_TOL_MM,
 )
 
-from .layout_stage import fabricated_tiles, split_bound
+from .layout_stage import absorbable_ratio, fabricated_tiles, split_bound
 from .profiles import Profile
 
 if TYPE_CHECKING:
@@ -340,10 +340,15 @@ def measure_design(
             )
         warnings.append(f"hinge gap {hinge_gap:.2g} mm exceeds {HINGE_GAP_TOL_MM:g} mm: {cause}")
     if tiling.scale_factor_max > split_bound(options):
+        absorbable = absorbable_ratio(options.min_gap_angle_deg)
+        if options.max_scale_factor < absorbable:
+            bound_fix = f"a --max-scale-factor up to {absorbable:.3g}"
+        else:
+            bound_fix = "a smaller --min-gap-angle (the bound is 2 / (1 + sin of it))"
         problems.append(
             f"scale factor {tiling.scale_factor_max:.3f} exceeds {split_bound(options):.6g} "
             "in a part no split can divide (see the notes); use more tiles, which gives "
-            "splits more places to go, other --corners or a flatter target"
+            f"splits more places to go, other --corners, {bound_fix} or a flatter target"
         )
     problems.extend(route_problems(route, linkage))
     if not profile.size_min_mm <= options.size_mm <= profile.size_max_mm:
