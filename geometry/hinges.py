@@ -71,7 +71,11 @@ from drawstring.geometry.tolerances import (
     HINGE_LAYOUT_TOUCH_MM,
     HINGE_TRIM_GROW_MM,
 )
-from drawstring.geometry.verify import hinge_gaps, polygon_in_convex_polyhedron_area
+from drawstring.geometry.verify import (
+    convex_pieces,
+    hinge_gaps,
+    polygon_in_convex_polyhedron_area,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -99,6 +103,7 @@ __all__ = [
     "SlitEnds",
     "slit_ends",
     "hinge_trims",
+    "pair_trims",
     "write_flat_obj",
 ]
 
@@ -270,7 +275,8 @@ class HingeLayout:
     hinge_gap_max_mm : float
         Max paired-vertex distance before merging.
     trims : tuple of HingeTrim
-        ``top`` strategy only.
+        Flat-pose overlaps to cut: every overlapping ``top`` hinged pair, ``dual`` pairs laid
+        out on their hinge face only, and (``top``) unhinged neighbours (``hinge == -1``).
     contact_area_lost_mm2 : float
     iterations : int
     time_s : float
@@ -342,6 +348,10 @@ def pair_trims(
     import manifold3d as m3d
 
     tiles = np.asarray(tiles_2d, dtype=np.float64)
+    # a dart-shaped tile is the union of its convex pieces; its hull would fill the notch where
+    # a neighbour may sit, so overlaps are taken piece by piece (one trim per overlapping pair
+    # of pieces, as verify.interpenetration measures them)
+    pieces = convex_pieces(tiles)
     pair_arr = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     labels = (
         np.full(len(pair_arr), -1, dtype=np.int64)
@@ -350,33 +360,45 @@ def pair_trims(
     )
     trims: list[HingeTrim] = []
     for (a, b), index in zip(pair_arr.tolist(), labels.tolist(), strict=True):
-        overlap = m3d.Manifold.hull_points(tiles[a]) ^ m3d.Manifold.hull_points(tiles[b])
-        volume = float(overlap.volume())
-        if volume <= 0:
-            continue
-        mesh = overlap.to_mesh64()
-        verts = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
-        tris = np.asarray(mesh.tri_verts, dtype=np.int64)
-        p0, p1, p2 = verts[tris[:, 0]], verts[tris[:, 1]], verts[tris[:, 2]]
-        normals = np.cross(p1 - p0, p2 - p0)
-        keep = np.linalg.norm(normals, axis=1) > 0
-        normals = normals[keep] / np.linalg.norm(normals[keep], axis=1, keepdims=True)
-        points = p0[keep]
-        # one clipping plane per face of the overlap, not per triangle of its mesh (the
-        # triangles of one face give the same plane to round-off; a plane kept twice only
-        # costs time, so rounding that splits a pair is harmless)
-        key = np.round(np.c_[normals, np.einsum("ki,ki->k", normals, points)], 9)
-        first = np.sort(np.unique(key, axis=0, return_index=True)[1])
-        trimmed, other = max(a, b), min(a, b)
-        lost = sum(
-            polygon_in_convex_polyhedron_area(tiles[trimmed][face], points[first], normals[first])
-            for face in TILE_FACES[2:]
-        )
-        # Record the trim grown by a small cube (Minkowski sum) so that subtracting it leaves no
-        # numerical sliver, and so that a needle-thin overlap becomes a tool a B-rep cut can take.
-        grown = (verts[:, None, :] + _TRIM_GROWTH[None]).reshape(-1, 3)
-        trims.append(HingeTrim(index, trimmed, grown, volume, float(lost), other))
+        for mask_a in pieces[a][pieces[a].any(axis=1)]:
+            for mask_b in pieces[b][pieces[b].any(axis=1)]:
+                overlap = m3d.Manifold.hull_points(tiles[a][mask_a]) ^ m3d.Manifold.hull_points(
+                    tiles[b][mask_b]
+                )
+                trim = _trim_of(overlap, tiles, a, b, index)
+                if trim is not None:
+                    trims.append(trim)
     return tuple(trims)
+
+
+def _trim_of(overlap: Any, tiles: FloatArray, a: int, b: int, index: int) -> HingeTrim | None:
+    """The trim of tiles ``a`` and ``b`` for one convex ``overlap`` (a manifold3d solid), or
+    None when it has no volume."""
+    volume = float(overlap.volume())
+    if volume <= 0:
+        return None
+    mesh = overlap.to_mesh64()
+    verts = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
+    tris = np.asarray(mesh.tri_verts, dtype=np.int64)
+    p0, p1, p2 = verts[tris[:, 0]], verts[tris[:, 1]], verts[tris[:, 2]]
+    normals = np.cross(p1 - p0, p2 - p0)
+    keep = np.linalg.norm(normals, axis=1) > 0
+    normals = normals[keep] / np.linalg.norm(normals[keep], axis=1, keepdims=True)
+    points = p0[keep]
+    # one clipping plane per face of the overlap, not per triangle of its mesh (the
+    # triangles of one face give the same plane to round-off; a plane kept twice only
+    # costs time, so rounding that splits a pair is harmless)
+    key = np.round(np.c_[normals, np.einsum("ki,ki->k", normals, points)], 9)
+    first = np.sort(np.unique(key, axis=0, return_index=True)[1])
+    trimmed, other = max(a, b), min(a, b)
+    lost = sum(
+        polygon_in_convex_polyhedron_area(tiles[trimmed][face], points[first], normals[first])
+        for face in TILE_FACES[2:]
+    )
+    # Record the trim grown by a small cube (Minkowski sum) so that subtracting it leaves no
+    # numerical sliver, and so that a needle-thin overlap becomes a tool a B-rep cut can take.
+    grown = (verts[:, None, :] + _TRIM_GROWTH[None]).reshape(-1, 3)
+    return HingeTrim(index, trimmed, grown, volume, float(lost), other)
 
 
 def layout_hinges(
@@ -398,8 +420,10 @@ def layout_hinges(
     ``E_Hinge`` with ``w_rigid -> infinity``: tiles exactly rigid; ``E_Collision`` as hard
     separating planes; ``E_Conn`` minimized) keeping every gap angle within
     ``[theta_min, 90]`` deg, and merges every hinge pair into one point where that keeps the
-    layout valid.  For ``top`` the 3D overlap of each hinged pair is then computed and recorded
-    as a trim of the tile with the larger id.
+    layout valid.  For ``top`` the 3D overlap of each hinged pair, and of each pair of unhinged
+    neighbours in one part (kept apart on their top faces only), is then computed and recorded
+    as a trim of the tile with the larger id (``dual``: of the pairs laid out on their hinge
+    face only).
 
     Parameters
     ----------
@@ -499,12 +523,14 @@ def layout_hinges(
         unhinged = pair_trims(result.merged, _unhinged_close_pairs(linkage, result.merged))
         if unhinged:
             problems.append(
-                f"top hinges: {_pairs(len(unhinged), 'unhinged ', 'overlap')} in the flat pose "
+                f"top hinges: {_pairs(_pair_count(unhinged), 'unhinged ', 'overlap')} in the "
+                "flat pose "
                 f"(bottoms reaching past the top faces); trimmed "
                 f"{sum(tr.volume_mm3 for tr in unhinged):.3g} mm^3, losing "
                 f"{sum(tr.contact_area_lost_mm2 for tr in unhinged):.3g} mm^2 of contact"
             )
     lost = float(sum(tr.contact_area_lost_mm2 for tr in trims + unhinged))
+    hinged_lost = float(sum(tr.contact_area_lost_mm2 for tr in trims))
     if trims:
         which = f"{strategy} hinges: "
         if never_clear and strategy == "dual":
@@ -513,13 +539,19 @@ def layout_hinges(
                 f"[{theta:g}, 90] deg; "
             )
         problems.append(
-            f"{which}{_pairs(len(trims), 'hinged ', 'overlap')} in the flat pose; trimmed "
-            f"{sum(tr.volume_mm3 for tr in trims):.3g} mm^3, losing {lost:.3g} mm^2 of contact"
+            f"{which}{_pairs(_pair_count(trims), 'hinged ', 'overlap')} in the flat pose; trimmed "
+            f"{sum(tr.volume_mm3 for tr in trims):.3g} mm^3, losing {hinged_lost:.3g} mm^2 of "
+            "contact"
         )
     return HingeLayout(
         strategy, result.merged, sides, ids, result.points, gap_max, trims + unhinged, lost,
         result.iterations, time.perf_counter() - start, tuple(problems), result.tiles,
     )  # fmt: skip
+
+
+def _pair_count(trims: tuple[HingeTrim, ...]) -> int:
+    """Tile pairs among ``trims`` (a dart-shaped tile's pieces may give a pair several)."""
+    return len({(tr.other, tr.tile) for tr in trims})
 
 
 def _unhinged_close_pairs(linkage: Linkage, tiles: FloatArray) -> IntArray:

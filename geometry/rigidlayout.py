@@ -253,7 +253,10 @@ def _select_planes(
     delta_b = np.where(mask_b, clearance, np.inf)
     rows = np.flatnonzero(hinged)
     face_only = hinged & trim[hk]  # separated on the hinge face only
-    loose = ~hinged & layout.unhinged_top_only  # unhinged, separated on the top face only
+    # unhinged neighbours in one part: separated on the top face only (their 3D overlap is
+    # trimmed); tiles of different parts keep whole-tile planes (they are never trimmed)
+    same_part = linkage.tile_component[a] == linkage.tile_component[b]
+    loose = ~hinged & same_part & layout.unhinged_top_only
     delta_a[np.ix_(np.flatnonzero(loose), np.arange(4, 8))] = np.inf
     delta_b[np.ix_(np.flatnonzero(loose), np.arange(4, 8))] = np.inf
     level = face_only | loose  # rows whose plane is vertical

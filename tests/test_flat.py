@@ -295,6 +295,32 @@ def test_split_parts_clear_each_other_with_their_bottoms_too() -> None:
     assert gap(moved) >= 2.0
 
 
+def test_parts_are_separated_by_the_outlines_of_the_tiles_as_laid_out(monkeypatch) -> None:
+    # the outlines optimize_flat hands to the part separation are the flat tiles' own: moved by
+    # their part's offset, they are the T2D tiles seen from above (rotation and translation of
+    # each tile's frame onto its nodes, not just the frame)
+    linkage = build_linkage(np.ones((8, 8), dtype=bool), (Split("y", 4, 0, 8),))
+    uv = linkage.vertex_ij * 10.0 - 40.0
+    top, tiles = heightfield_tiles(uv, linkage.tile_corners, "dome", 3.0, 0.01)
+    cells = uv[linkage.tile_corners].copy()
+    cells[linkage.tile_component == 1] -= [0.0, 20.0]
+    seen = []
+    real = flat_module._separate_components
+
+    def spy(*args, **kwargs):
+        seen.append(args[4] if len(args) > 4 else kwargs["shadows"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(flat_module, "_separate_components", spy)
+    flat = optimize_flat(linkage, top, uv=cells, tiles_3d=tiles, min_gap_angle_deg=12.0)
+    (outlines,) = seen
+    moved = outlines + flat.component_offset[linkage.tile_component][:, None]
+    laid = extrude_flat(flat, tiles)[..., :2]
+    # equal up to how far the flat tiles are from rigid copies (the layout's edge error)
+    assert np.abs(moved - laid).max() < 5 * flat.edge_error_max_mm + 1e-9
+    assert flat.edge_error_max_mm < 0.05
+
+
 def test_tile_outlines_seen_from_above_share_the_top_faces_frame() -> None:
     """A tilted 10 mm square tile whose bottom lies 3 mm under its top and 2 mm out along its
     first side: seen from above once laid flat, the top corners are the plane coordinates and
