@@ -11,11 +11,10 @@ import pytest
 from numpy.typing import NDArray
 
 from drawstring.geometry.errors import InputError
+from drawstring.geometry.meshfiles import merge_coincident_vertices, read_mesh
 from drawstring.geometry.target import (
     Target,
     load_target,
-    merge_coincident_vertices,
-    read_mesh,
     validate_disk_mesh,
 )
 
