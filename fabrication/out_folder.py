@@ -298,6 +298,9 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
     result_block.pop("time_s", None)
     per_step = float(result_block.pop("per_step_ms", 0.0)) / 1000.0
     doc.setdefault("metrics", {})["simulation"] = result_block
+    # the options record what the folder holds: now a simulation
+    if isinstance(doc.get("options"), dict):
+        doc["options"]["simulate"] = True
     doc.setdefault("timings_s", {})["simulate"] = round(progress.timings["simulate"], 3)
     doc["timings_s"]["simulate_per_step"] = round(per_step, 3)
     try:

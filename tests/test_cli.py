@@ -301,8 +301,10 @@ def test_simulate_an_existing_design(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert main([*args, "--no-simulate", "--quiet", "--out", str(out)]) == 0
     assert not (out / "deploy.npz").exists()
     assert "simulation" not in json.loads((out / "design.json").read_text())["metrics"]
+    assert json.loads((out / "design.json").read_text())["options"]["simulate"] is False
     assert main(["simulate", str(out), "--quiet"]) == 0
     doc = json.loads((out / "design.json").read_text())
+    assert doc["options"]["simulate"] is True  # the folder now holds a simulation
     block = doc["metrics"]["simulation"]
     assert {"deployed", "steps", "final_max_deviation_mm", "max_penetration_mm"} <= set(block)
     assert {"deploy.npz", "deploy.gif"} <= set(doc["files"])
