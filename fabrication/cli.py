@@ -353,17 +353,24 @@ def _run_view(args: argparse.Namespace) -> int:
 
 
 def _closer_fit(result: Design) -> str:
-    """What to try when the flat layout misses its accuracy targets: more, smaller tiles, or a
-    split bound below the largest part's area-scale ratio (which cuts the target into parts)."""
+    """What to try when the flat layout misses its accuracy targets: more, smaller tiles, a
+    split bound below the largest part's area-scale ratio (which cuts the target into parts),
+    or with dual hinges top ones (no bottom hinge points to bring together: of the misses in a
+    sweep of 10 targets at 50, 120 and 300 tiles, every dual one met the targets with top
+    hinges)."""
     tiles = result.tiling.linkage.n_tiles
     ratio = result.tiling.scale_factor_max
-    fix = f"try more tiles (e.g. --tiles {2 * tiles})"
+    fixes = [f"more tiles (e.g. --tiles {2 * tiles})"]
     if ratio > 1.005:
-        fix += (
-            f" or a --max-scale-factor below {ratio:.3g}, this design's largest area-scale "
-            "ratio, to split it into parts"
+        fixes.append(
+            f"a --max-scale-factor below {ratio:.3g}, this design's largest area-scale ratio, "
+            "to split it into parts"
         )
-    return fix
+    if result.options.hinges == "dual":
+        fixes.append("--hinges top")
+    if len(fixes) == 1:
+        return f"try {fixes[0]}"
+    return f"try {', '.join(fixes[:-1])} or {fixes[-1]}"
 
 
 #: Logger that Python warnings raised inside the libraries (numpy, scipy, OCP) go to with -v.
