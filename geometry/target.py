@@ -307,15 +307,16 @@ def _clean_disk_mesh(
             f"{_count(n_degenerate, 'degenerate (zero-area) face')}, the first at "
             f"({', '.join(f'{c:.6g}' for c in first)})"
         )
+        them = "it" if n_degenerate == 1 else "them"
         try:  # offer --repair only where it would give a disk
             _clean_disk_mesh(vertices, faces, repair=True)
         except InputError as error:
             raise InputError(
-                f"{found}; {error}: mend the mesh around them in a mesh editor"
+                f"{found}; {error}: mend the mesh around {them} in a mesh editor"
             ) from None
         raise InputError(
-            f"{found}; delete them in a mesh editor (MeshLab: Filters > Cleaning and Repairing > "
-            "Remove Zero Area Faces) or pass --repair to drop them"
+            f"{found}; delete {them} in a mesh editor (MeshLab: Filters > Cleaning and Repairing "
+            f"> Remove Zero Area Faces) or pass --repair to drop {them}"
         )
     F = F[~degenerate]
     duplicated = _duplicated_faces(F)
