@@ -2,7 +2,9 @@
 
 Run with ``.venv/bin/python benchmarks/run.py`` (``--quick`` for a smaller sweep).  Prints a table
 and writes ``benchmarks/results.json`` with the machine's core count (``--fine`` adds the whole
-pipeline at 1600 tiles on three built-ins: the 1600-tile deployment target of issue 6).
+pipeline at 1600 tiles on three built-ins: the 1600-tile deployment target of issue 6;
+``--fine-layout`` the same without the simulation, for issue 4's 1600-tile layout target, in a
+few minutes).
 Targets (2 cores): flattening the 34k-triangle face under 1 s; tiling under 0.5 s at 1600 tiles;
 the per-stage targets of the other issues are listed next to their rows.
 """
@@ -183,6 +185,12 @@ def main() -> None:
         "distance against issue 4's flat layout; about 8 min)",
     )
     parser.add_argument(
+        "--fine-layout",
+        action="store_true",
+        help="also the pipeline without the simulation at 1600 tiles on saddle, dome and wave "
+        "(issue 4's layout time; about 1 min each)",
+    )
+    parser.add_argument(
         "--fine",
         action="store_true",
         help="also the whole pipeline at 1600 tiles on saddle, dome and wave (about 2 min each)",
@@ -202,6 +210,10 @@ def main() -> None:
     if fine:
         print("\npipeline at about 1600 tiles, 200 mm")
         print_table(fine)
+    fine_layout = pipeline_rows(list(FINE_CASES), 1600, simulate=False) if args.fine_layout else []
+    if fine_layout:
+        print("\npipeline at about 1600 tiles, 200 mm, no simulation")
+        print_table(fine_layout)
     close_fit = pipeline_rows(names, 200, weights=CLOSE_FIT_WEIGHTS) if args.close_fit else []
     if close_fit:
         print(f"\npipeline at about 200 tiles, 200 mm, --weights {CLOSE_FIT_WEIGHTS}")
@@ -225,6 +237,7 @@ def main() -> None:
             "pipeline_200": stages,
             "pipeline_200_top": top_rows,
             **({"pipeline_1600": fine} if fine else {}),
+            **({"pipeline_1600_layout": fine_layout} if fine_layout else {}),
             **({"pipeline_200_close_fit": close_fit} if close_fit else {}),
             **extras,
         }
