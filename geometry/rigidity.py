@@ -34,7 +34,13 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 ContactMode = Literal["midpoint", "face"]
 
-__all__ = ["RigidityReport", "rigid_motion_basis", "rigidity_matrix", "rigidity_report"]
+__all__ = [
+    "RigidityReport",
+    "internal_flexes",
+    "rigid_motion_basis",
+    "rigidity_matrix",
+    "rigidity_report",
+]
 
 _SIDE_FACES = np.array([[k, (k + 1) % 4, 4 + (k + 1) % 4, 4 + k] for k in range(4)])
 
@@ -217,14 +223,7 @@ def rigidity_report(
         tol = rel_tol * s_max
         sing, vecs = _smallest_singular_sparse(mat, tol, s_max)
     null = vecs[:, sing <= tol]  # (6T, d)
-    rigid = rigid_motion_basis(pts)
-    # Flexes: the null space with the rigid motions projected out.
-    resid = null - rigid @ (rigid.T @ null)
-    if resid.size:
-        u, s, _ = np.linalg.svd(resid, full_matrices=False)
-        flexes = u[:, s > 1e-6]
-    else:
-        flexes = np.zeros((cols, 0))
+    flexes = internal_flexes(null, rigid_motion_basis(pts))
     return RigidityReport(
         null_dimension=int(null.shape[1]),
         internal_flexes=int(flexes.shape[1]),
@@ -234,6 +233,24 @@ def rigidity_report(
         rows=int(mat.shape[0]),
         cols=int(cols),
     )
+
+
+#: A direction of the null space is a flex where its part orthogonal to the rigid motions has
+#: at least this length (of 1).  A flex's part is of order one; a rigid motion as the sparse
+#: eigensolve returns it keeps 1e-5 of noise outside them (the 1600-tile saddle: the six rigid
+#: motions lie within 1e-5 of its 8-dimensional null space), which a bound of 1e-6 counted as
+#: six more flexes (7 internal flexes in an 8-dimensional null space).
+FLEX_MIN_PART = 1e-2
+
+
+def internal_flexes(null: FloatArray, rigid: FloatArray) -> FloatArray:
+    """Orthonormal basis ``(6T, f)`` of the internal flexes: the part of the null space
+    ``null`` (orthonormal columns) outside the rigid motions ``rigid`` (orthonormal columns)."""
+    resid = null - rigid @ (rigid.T @ null)
+    if not resid.size:
+        return np.zeros((len(null), 0))
+    u, s, _ = np.linalg.svd(resid, full_matrices=False)
+    return np.asarray(u[:, s > FLEX_MIN_PART])
 
 
 #: Up to this many columns (6 per tile) the null space comes from a dense SVD; above it from a

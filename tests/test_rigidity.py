@@ -112,3 +112,24 @@ def test_sparse_eigensolve_factors_a_gram_matrix_whose_shift_vanishes() -> None:
     sing, vecs = rigidity._smallest_singular_sparse(mat, tol, s_max)
     assert sing[0] <= tol < sing[1]
     assert abs(abs(vecs[-1, 0]) - np.sqrt(0.5)) < 1e-9 and abs(vecs[-1, 0] + vecs[-2, 0]) < 1e-9
+
+
+def test_flex_count_ignores_eigensolver_noise_on_the_rigid_motions() -> None:
+    # The sparse eigensolve returns the rigid motions only to about 1e-5 (the 1600-tile saddle);
+    # such a null space with two true flexes has two internal flexes, not eight.
+    from drawstring.geometry.rigidity import internal_flexes
+
+    rng = np.random.default_rng(3)
+    tiles = rng.normal(size=(30, 8, 3))
+    rigid = rigid_motion_basis(tiles)
+    flex = rng.normal(size=(rigid.shape[0], 2))
+    flex -= rigid @ (rigid.T @ flex)
+    mixed = np.hstack([rigid @ np.linalg.qr(rng.normal(size=(6, 6)))[0], flex])
+    null, _ = np.linalg.qr(mixed + 1e-5 * rng.normal(size=mixed.shape))
+    found = internal_flexes(null, rigid)
+    assert found.shape == (rigid.shape[0], 2)
+    # they span the true flexes
+    q, _ = np.linalg.qr(flex)
+    assert np.allclose(np.abs(np.linalg.svd(q.T @ found)[1]), 1.0, atol=1e-6)
+    # without noise or flexes: none
+    assert internal_flexes(rigid, rigid).shape[1] == 0
