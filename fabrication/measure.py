@@ -51,6 +51,17 @@ def _round(value: float, digits: int = 6) -> float:
     return float(round(value, digits))
 
 
+def above(value: float, bound: float) -> str:
+    """``value`` with two significant digits, or as many more (up to six) as it takes to read
+    above ``bound`` (a hinge gap of 0.001005 mm printed as 0.001 did not read as exceeding
+    0.001 mm)."""
+    for digits in range(2, 7):
+        text = f"{value:.{digits}g}"
+        if float(text) > bound:
+            return text
+    return text
+
+
 def _jsonable(value: Any) -> Any:
     """Plain JSON values: numpy scalars and arrays become Python numbers and lists."""
     if isinstance(value, dict):
@@ -306,7 +317,8 @@ def measure_design(
         problems.append(f"flat tiles interpenetrate by {volume:.3g} mm^3")
     if edge_error > FLAT_EDGE_ERROR_TOL_MM:
         warnings.append(
-            f"flat edge error {edge_error:.2g} mm exceeds {FLAT_EDGE_ERROR_TOL_MM:g} mm: a "
+            f"flat edge error {above(edge_error, FLAT_EDGE_ERROR_TOL_MM)} mm exceeds "
+            f"{FLAT_EDGE_ERROR_TOL_MM:g} mm: a "
             "curved target's tiles cannot all keep their assembled shape with every hinge "
             "meeting in the plane; the printed tiles are exact copies of the assembled ones, "
             "and more tiles shrink the error"
@@ -338,7 +350,10 @@ def measure_design(
                 "the hinge parts bridge it; more tiles shrink it, and --hinges top reaches "
                 "1e-3 mm on most built-ins"
             )
-        warnings.append(f"hinge gap {hinge_gap:.2g} mm exceeds {HINGE_GAP_TOL_MM:g} mm: {cause}")
+        warnings.append(
+            f"hinge gap {above(hinge_gap, HINGE_GAP_TOL_MM)} mm exceeds {HINGE_GAP_TOL_MM:g} mm: "
+            f"{cause}"
+        )
     if tiling.scale_factor_max > split_bound(options):
         absorbable = absorbable_ratio(options.min_gap_angle_deg)
         if options.max_scale_factor < absorbable:

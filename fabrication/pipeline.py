@@ -65,6 +65,7 @@ from .measure import (
     SURFACE_MEAN_REL,  # noqa: F401 (re-exported)
     _jsonable,
     _round,
+    above,
     cad_problems,
     cad_warnings,
     channel_turn_assembled,  # noqa: F401 (re-exported)
@@ -276,7 +277,7 @@ class Design:
         ):
             value = self.measured.get(key)
             if isinstance(value, int | float) and value > tol:
-                misses.append(f"{label} {value:.2g} mm exceeds {tol:g} mm")
+                misses.append(f"{label} {above(value, tol)} mm exceeds {tol:g} mm")
         return misses
 
     def metrics(self) -> dict[str, Any]:

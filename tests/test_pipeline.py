@@ -662,3 +662,12 @@ def test_the_ahead_process_tags_its_log_lines_once() -> None:
     )
     assert layout_stage._tag_ahead(record) and layout_stage._tag_ahead(record)
     assert record.getMessage() == "(ahead) flat: 3"
+
+
+def test_a_value_just_above_its_bound_reads_as_above_it() -> None:
+    from drawstring.fabrication.measure import above
+
+    assert above(0.001005479, 0.001) == "0.00101"
+    assert above(0.0010000004, 0.001) == "0.001"  # closer than six digits show
+    assert above(0.0036, 0.001) == "0.0036"
+    assert float(above(0.23, 0.001)) == 0.23
