@@ -274,6 +274,12 @@ def measure_design(
             "flat_gap_angle_max_deg": _round(float(angles.max(initial=0.0)), 6),
             "hinge_gap_max_mm": _round(hinge_gap, 9),
             "hinge_gap_in_plane_max_mm": _round(float(in_plane.max(initial=0.0)), 9),
+            # flat.obj holds the merged tiles: how far merging moved a vertex off its rigid
+            # copy of the assembled tile (at most half the largest hinge gap)
+            "flat_merge_shift_max_mm": _round(
+                float(np.linalg.norm(hinge_layout.tiles - fabricated, axis=2).max(initial=0.0)),
+                9,
+            ),
             "hinges_bottom": int(np.count_nonzero(hinge_layout.bottom)),
             "mass_g": _round(float(masses.sum()) * 1000.0, 3),
         }

@@ -132,6 +132,12 @@ METRIC_RULES: dict[str, MetricRule] = {
         _const(f"≤ {HINGE_GAP_TOL_MM:g} mm"),
         _at_most(HINGE_GAP_TOL_MM),
     ),
+    "flat_merge_shift_max_mm": MetricRule(
+        "largest move of a flat.obj vertex off its tile's rigid copy when the hinge pairs were "
+        "merged (the printed tiles are the rigid copies)",
+        _const("(mm)"),
+        None,
+    ),
     "thickness_min_mm": MetricRule(
         "thinnest tile (bottom corners to the top face's plane)", _const("(mm)"), None
     ),

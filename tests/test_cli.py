@@ -61,6 +61,20 @@ def test_design_writes_the_output_contract(tmp_path: Path) -> None:
     # The lifted mesh has one quad per tile.
     faces = [ln for ln in (out / "lifted.obj").read_text().splitlines() if ln.startswith("f ")]
     assert len(faces) == 24
+    # flat.obj's tiles, hinge pairs merged, sit within flat_merge_shift_max_mm of the rigid
+    # copies (tiles.npz 'fabricated'), which never exceeds half the largest hinge gap.
+    flat_obj = np.array(
+        [
+            [float(v) for v in ln.split()[1:4]]
+            for ln in (out / "flat.obj").read_text().splitlines()
+            if ln.startswith("v ")
+        ]
+    ).reshape(24, 8, 3)
+    rigid = np.load(out / "tiles.npz")["fabricated"]
+    shift = float(np.linalg.norm(flat_obj - rigid, axis=2).max())
+    metrics = doc["metrics"]
+    assert shift == pytest.approx(metrics["flat_merge_shift_max_mm"], abs=2e-6)  # OBJ rounding
+    assert metrics["flat_merge_shift_max_mm"] <= 0.5 * metrics["hinge_gap_max_mm"] + 1e-8
     # No staging folders are left next to the output.
     assert sorted(p.name for p in tmp_path.iterdir()) == ["saddle"]
     # The lift-point sweep is checked by the simulation, which ran once per lift set tried.
