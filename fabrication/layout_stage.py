@@ -615,12 +615,8 @@ def co_optimized(
                 f"({flat.edge_error_max_mm:.3g} -> {co.edge_error_max_mm:.3g} mm)"
             )
             return assembled, flat, block
-        # measured only for the round that is kept (below); the bottoms polished planar from
-        # where they moved with the top, not extruded afresh (see reextrude)
-        extruded = reextrude(
-            assembled, current.top, target.vertices, target.faces, measure=False,
-            start_bottom=current.bottom,
-        )  # fmt: skip
+        # measured only for the round that is kept (below)
+        extruded = reextrude(assembled, current.top, target.vertices, target.faces, measure=False)
         if extruded is None:
             block["reason"] = "the new assembled shape would turn a tile inside out"
             return assembled, flat, block
