@@ -215,7 +215,7 @@ def _run_design(args: argparse.Namespace) -> int:
     result = design(args.target, options, progress=progress)
     folder = write(result, out)
     if not args.quiet:
-        print(f"wrote {folder}")
+        print(f"wrote {folder}: {_summary(result)}")
         for repair in result.target.notes:  # a mesh file's repairs (design.json target.notes)
             print(f"note: target: {repair}")
         for note in result.notes:
@@ -350,6 +350,22 @@ def _run_view(args: argparse.Namespace) -> int:
         raise InputError(f"{folder} is not a drawstring design folder (no design.json)")
     print(open_report(folder))
     return 0
+
+
+def _summary(result: Design) -> str:
+    """What was designed, in a phrase: tiles, parts (and why it was split), hinges."""
+    linkage = result.tiling.linkage
+    parts = linkage.n_components
+    text = f"{linkage.n_tiles} tiles in {parts} part{'s' if parts > 1 else ''}"
+    if parts > 1:
+        bound = float(result.metrics().get("split_bound", 0.0))
+        text += (
+            f" (split along grid lines: the tile area ratio "
+            f"{result.tiling.scale_factor_max_unsplit:.3g} exceeds the {bound:.3g} one part can "
+            "absorb; magnets join the parts)"
+        )
+    bottom = int(result.hinge_layout.bottom.sum())
+    return f"{text}, {linkage.n_hinges} hinges ({bottom} on the bottom faces)"
 
 
 def _closer_fit(result: Design) -> str:

@@ -928,3 +928,20 @@ def test_the_default_folder_spells_a_built_in_as_design_json_does(
     assert default_out_dir("SADDLE") == tmp_path / "saddle-drawstring"
     assert default_out_dir("Three-Shell") == tmp_path / "three-shell-drawstring"
     assert default_out_dir("scans/Face.obj") == tmp_path / "Face-drawstring"
+
+
+def test_the_wrote_line_says_how_many_parts_and_why(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A tight gap-angle bound splits the saddle; the summary line says so, not only the picture.
+    out = tmp_path / "tight"
+    args = ["design", "saddle", "--tiles", "64", "--resolution", "1500", "--no-cad"]
+    assert main([*args, "--no-simulate", "--min-gap-angle", "40", "--out", str(out)]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    linkage = json.loads((out / "design.json").read_text())["linkage"]
+    parts = linkage["components"]
+    assert parts > 1
+    assert first.startswith(
+        f"wrote {out}: {linkage['tiles']} tiles in {parts} parts (split along grid lines"
+    )
+    assert "hinges (" in first and "on the bottom faces)" in first
