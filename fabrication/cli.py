@@ -82,7 +82,8 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
         "--min-gap-angle",
         type=float,
         dest="min_gap_angle_deg",
-        help="least opening of every gap in the flat layout, degrees (default: the profile's)",
+        help="least opening of every gap in the flat layout, degrees, 0 to 60 (default: the "
+        "profile's)",
     )
     p.add_argument(
         "--max-scale-factor",
@@ -101,7 +102,8 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
         "--hinges",
         choices=("dual", "top"),
         default="dual",
-        help="hinges on top or bottom faces as the curvature asks (dual), or all on top (top)",
+        help="hinges on top or bottom faces as the curvature asks (dual, the default), or all "
+        "on top with the tiles' overlaps trimmed (top)",
     )
     p.add_argument(
         "--weights",
