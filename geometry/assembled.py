@@ -787,6 +787,7 @@ def reextrude(
     max_iter: int = 1000,
     anderson: int = ANDERSON_HISTORY,
     measure: bool = True,
+    start_bottom: ArrayLike | None = None,
 ) -> AssembledResult | None:
     """T3D extruded again under a new K3D that must not move (its quads already planar).
 
@@ -795,6 +796,14 @@ def reextrude(
     planarity polish moves only bottom vertices, so the flat tiles stay congruent to the new top
     faces.  With ``measure=False`` the :func:`measure_assembled` metrics are left as ``result``
     had them (rounds that may be thrown away skip them; :func:`remeasured` adds them later).
+
+    With ``start_bottom`` (bottom vertices carried along with the moved top, e.g. each moved
+    by its top vertex's move) the extrusion solve is skipped and only the exact polish runs
+    from them.  The co-optimization's rounds do so: the solve's soft slab and planarity
+    settle 0.2 mm from the polished bottoms whatever it starts from, so every round moved
+    the bottom corners (the bottom hinges' points) by that much and the re-solved layout had
+    to follow; polished from the carried bottoms they move by hundredths of a millimetre
+    (thickness within 0.01 mm of the extruded one).
 
     Returns
     -------
@@ -808,10 +817,13 @@ def reextrude(
     polish_tol = ASSEMBLED_PLANARITY_REL * bbox_diag
     top_polish = planarize_quads(new_top, faces, tol_mm=0.1 * polish_tol)
     new_top = top_polish.X
-    ext, _, bottom = extrude_tiles(
-        new_top, faces, result.thickness, fix_top=True, rel_tol=rel_tol, max_iter=max_iter,
-        anderson=anderson,
-    )  # fmt: skip
+    if start_bottom is None:
+        ext, _, bottom = extrude_tiles(
+            new_top, faces, result.thickness, fix_top=True, rel_tol=rel_tol, max_iter=max_iter,
+            anderson=anderson,
+        )  # fmt: skip
+    else:
+        ext, bottom = result.extrusion_solve, np.asarray(start_bottom, dtype=np.float64)
     all_faces = np.vstack([faces, faces + n, side_quads(faces, edges, n)])
     polish = planarize_quads(
         np.vstack([new_top, bottom]), all_faces, fixed=np.arange(n), tol_mm=0.1 * polish_tol
