@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from drawstring.fabrication.pipeline import Design
+    from drawstring.geometry.hinges import HingeLayout
     from drawstring.geometry.lift import LiftPoints
     from drawstring.geometry.linkage import Linkage
     from drawstring.geometry.route import Route
@@ -184,6 +185,8 @@ def draw_hinges(
     pts = np.asarray(points, dtype=np.float64).reshape(-1, np.shape(points)[-1])[:, :2]
     low = np.asarray(bottom, dtype=bool)
     for mask, style in ((~low, TOP_HINGE), (low, BOTTOM_HINGE)):
+        if not mask.any():  # no legend entry for a kind of hinge the design does not have
+            continue
         ax.plot(
             pts[mask, 0],
             pts[mask, 1],
@@ -391,6 +394,33 @@ def flat_gap_angles(
     return angle
 
 
+def draw_trims(ax: Axes, layout: HingeLayout) -> None:
+    """The overlaps cut away from the tiles (``hinges.json``'s ``trims``), seen from above:
+    each convex piece's outline, hatched."""
+    from matplotlib.collections import PolyCollection
+    from scipy.spatial import ConvexHull, QhullError
+
+    outlines = []
+    for trim in layout.trims:
+        xy = np.asarray(trim.vertices, dtype=np.float64)[:, :2]
+        try:
+            outlines.append(xy[ConvexHull(xy).vertices])
+        except QhullError:  # a piece with no extent seen from above
+            continue
+    if outlines:
+        ax.add_collection(
+            PolyCollection(
+                outlines,
+                facecolors="none",
+                edgecolors="#7a0019",
+                hatch="/////",
+                linewidths=0.5,
+                zorder=5,
+                label="trimmed overlap (cut away)",
+            )
+        )
+
+
 def save_flat(result: Design, path: Path) -> None:
     """Flat layout: tiles by component, gaps by opening, hinges top/bottom, route, lift points."""
     linkage = result.tiling.linkage
@@ -413,6 +443,7 @@ def save_flat(result: Design, path: Path) -> None:
         result.lift.lift_gaps,
         trimmed,
     )
+    draw_trims(ax, layout)
     m = result.metrics()
     parts = linkage.n_components
     ax.set_title(

@@ -631,3 +631,36 @@ def test_threading_starts_where_the_assembly_guide_does(tmp_path: Path) -> None:
     order = " → ".join(str(t) for t in loop[3:] + loop[:3])
     assert f"<p class=mono>{order}</p>" in text
     assert f"A (tile {loop[2]} → tile {loop[3]}): the two string ends" in text
+
+
+def test_flat_picture_legend_lists_only_the_hinges_and_trims_the_design_has() -> None:
+    import matplotlib.pyplot as plt
+
+    from drawstring.fabrication import pictures
+    from drawstring.geometry.hinges import HingeTrim
+
+    points = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
+    fig, ax = plt.subplots()
+    pictures.draw_hinges(ax, points, np.zeros(3, dtype=bool))
+    assert ax.get_legend_handles_labels()[1] == [pictures.TOP_HINGE["label"]]
+    pictures.draw_hinges(ax, points, np.array([False, True, False]))
+    labels = ax.get_legend_handles_labels()[1]
+    assert pictures.BOTTOM_HINGE["label"] in labels
+    plt.close(fig)
+
+    # A trimmed piece is drawn as its outline seen from above; a design without trims adds
+    # nothing.
+    class Layout:
+        trims: tuple[HingeTrim, ...] = ()
+
+    fig, ax = plt.subplots()
+    pictures.draw_trims(ax, Layout())  # type: ignore[arg-type]
+    assert not ax.collections
+    cube = np.array([[x, y, z] for x in (0, 2) for y in (0, 1) for z in (0, 3)], dtype=float)
+    Layout.trims = (HingeTrim(0, 1, cube, 6.0, 2.0, 0),)
+    pictures.draw_trims(ax, Layout())  # type: ignore[arg-type]
+    (outline,) = ax.collections
+    assert outline.get_label() == "trimmed overlap (cut away)"
+    drawn = outline.get_paths()[0].vertices[:-1]
+    assert len(drawn) == 4 and np.allclose(np.ptp(drawn, axis=0), [2.0, 1.0])
+    plt.close(fig)
