@@ -31,7 +31,7 @@ from drawstring.geometry.assembled import (
     tile_vertices,
 )
 from drawstring.geometry.coflat import CO_STAGES, CoOptimizedTop, co_optimize_top
-from drawstring.geometry.flat import FlatResult, extrude_flat, optimize_flat
+from drawstring.geometry.flat import FlatResult, extrude_flat, hinge_face_openings, optimize_flat
 from drawstring.geometry.flatpose import HingeFaces, hinge_faces
 from drawstring.geometry.flatten import Flattening
 from drawstring.geometry.hinges import HingeLayout, dual_hinge_faces, layout_hinges
@@ -553,13 +553,24 @@ def co_optimized(
     another call on the same inputs (the held-openings run after a tracked one)."""
 
     last: list[tuple[NDArray[np.float64], HingeFaces]] = []
+    # the openings of the last re-solved layout on its hinge faces, and the slit ends released
+    # from their clear windows so far (see HingeFaces.closing)
+    held: list[NDArray[np.float64]] = []
+    released = np.zeros(len(faces.clear_lo) if faces is not None else 0, dtype=bool)
 
     def openings(tiles: NDArray[np.float64]) -> HingeFaces | None:
         if faces is None or not track_openings:
             return faces
         # a round's joint solve starts on the tiles the previous re-solve was given
         if not (last and np.array_equal(last[0][0], tiles)):
-            last[:] = [(tiles.copy(), hinge_faces(linkage, tiles, faces.bottom))]
+            fresh = hinge_faces(linkage, tiles, faces.bottom)
+            if last and held:
+                # A window that closed on the opening laid out in it is released: the joint
+                # solve presses the opening against it, its move of K3D closes it further,
+                # and the re-solve has to give way every round.
+                released[:] |= last[0][1].closing(fresh, held[0])
+            fresh = replace(fresh, released=released.copy()) if released.any() else fresh
+            last[:] = [(tiles.copy(), fresh)]
         return last[0][1]
 
     # Round 1 runs the whole continuation. The bottom faces decide the bottom-face angle bounds,
@@ -638,6 +649,8 @@ def co_optimized(
         # 1.9 mm against a plain 0.69 mm).
         error = new_flat.edge_error_max_mm
         nodes = new_flat.nodes
+        if new_flat.hinges is not None and track_openings:
+            held[:] = [hinge_face_openings(linkage, new_flat, current.tiles)]
         logger.info(
             "co-optimization round: joint %.3g mm, re-solved %.3g mm", co.edge_error_max_mm, error
         )
@@ -670,6 +683,8 @@ def co_optimized(
     # a refinement round can lose (its re-solve may settle elsewhere): keep the best round
     assert best is not None
     new_assembled, new_flat = best
+    if best[1].hinges is not None and best[1].hinges.released is not None:
+        block["released_ends"] = int(best[1].hinges.released.sum())
     block["move_max_mm"] = round(
         float(np.linalg.norm(new_assembled.top - assembled.top, axis=1).max()), 6
     )

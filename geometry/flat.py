@@ -91,6 +91,7 @@ __all__ = [
     "TILE_EDGES",
     "extrude_flat",
     "gap_junctions",
+    "hinge_face_openings",
     "initial_flat_layout",
     "optimize_flat",
     "tile_plane_coordinates",
@@ -525,6 +526,20 @@ def _face_offsets(
         v = arm(posed, t0, face + (s0 + 1) % 4, face + s0)
         out.append(signed_angles(v_node, v) - signed_angles(u_node, u))
     return np.asarray(out)
+
+
+def hinge_face_openings(linkage: Linkage, flat: FlatResult, tiles_3d: ArrayLike) -> FloatArray:
+    """Opening ``(E,)`` in rad at every slit end on its hinge face, of a ``dual`` layout
+    (``flat.hinges`` set) made for the T3D ``tiles_3d``: the angles its hard rows bound."""
+    if flat.hinges is None or flat.anchor_3d is None:
+        raise InputError("hinge_face_openings needs a layout made with dual hinge faces")
+    t3 = np.asarray(tiles_3d, dtype=np.float64)
+    off = _face_offsets(tile_plane_coordinates(flat.anchor_3d), t3, flat.junctions, flat.anchor_3d)
+    face = flat.hinges.bottom[slit_ends(linkage).hinge].astype(np.int64)
+    ends = flat.junctions.ends
+    zeros = np.zeros(len(ends))
+    rows = AngleRows(ends, off[face, np.arange(len(ends))], zeros, zeros, np.ones(len(ends)))
+    return rows.angles(flat.nodes)
 
 
 def _clear_bounds(hinges: HingeFaces, ends_hinge: IntArray, lo: FloatArray, hi: FloatArray) -> None:

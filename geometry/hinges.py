@@ -467,6 +467,7 @@ def layout_hinges(
         if sides.shape != (linkage.n_hinges,):
             raise InputError(f"bottom has shape {sides.shape}; pass one flag per hinge")
     ids = _hinge_vertex_ids(linkage, sides)
+    released = np.zeros(linkage.n_hinges, dtype=bool)
     if strategy == "top":
         trim = np.ones(linkage.n_hinges, dtype=bool)
     else:
@@ -480,7 +481,9 @@ def layout_hinges(
         _, _, fits = made_for.window(*bounds)
         trim = np.zeros(linkage.n_hinges, dtype=bool)
         trim[ends.hinge[~fits]] = True
-    never_clear = int(trim.sum())
+        if made_for.released is not None:
+            released[ends.hinge[made_for.released]] = True
+    never_clear = int(np.count_nonzero(trim & ~released))
     result = rigid_layout(
         linkage, t2, ids, strategy=strategy, min_gap_angle_deg=theta,
         clearance_mm=clearance_mm, max_rounds=max_rounds, trim=trim,
@@ -537,6 +540,11 @@ def layout_hinges(
             which += (
                 f"{_pairs(never_clear, verb='collide')} on their hinge face at every opening in "
                 f"[{theta:g}, 90] deg; "
+            )
+        if released.any():
+            which += (
+                f"{_pairs(int(released.sum()), verb='open')} past where they clear on their "
+                "hinge face, to keep the tiles' assembled shapes; "
             )
         problems.append(
             f"{which}{_pairs(_pair_count(trims), 'hinged ', 'overlap')} in the flat pose; trimmed "

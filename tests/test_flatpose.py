@@ -152,3 +152,58 @@ def test_hinge_sides_pick_a_face_that_clears_within_the_bounds() -> None:
     assert 0 < bottom.sum() < linkage.n_hinges
     assert (~on_top).any() or (~on_bottom).any()
     assert len(ends.hinge) == linkage.n_hinges
+
+
+def test_windows_that_close_on_their_opening_are_released() -> None:
+    """``HingeFaces.closing`` flags a slit end only when its opening stands at an end of its
+    clear window and that end moved inwards on the newer tiles; ``window`` then treats a
+    released end like one that never clears."""
+    from drawstring.geometry.flatpose import CLOSING_BIND_DEG, CLOSING_SHIFT_DEG, HingeFaces
+    from drawstring.geometry.tolerances import FLAT_FREE_MARGIN_DEG
+
+    deg = np.radians
+    bottom = np.zeros(4, dtype=bool)
+    lo = deg(np.array([5.0, 5.0, 5.0, 5.0]))
+    hi = deg(np.array([40.0, 40.0, 40.0, 40.0]))
+    faces = HingeFaces(bottom, lo, hi)
+    held = FLAT_FREE_MARGIN_DEG + 0.5 * CLOSING_BIND_DEG  # inside the binding band
+    opening = deg(np.array([40.0 - held, 20.0, 5.0 + held, 40.0 - held]))
+    step = 10 * CLOSING_SHIFT_DEG
+    newer = HingeFaces(
+        bottom,
+        lo + deg(np.array([0.0, step, step, 0.0])),
+        hi - deg(np.array([step, step, 0.0, -step])),  # end 3's window widens
+    )
+    assert faces.closing(newer, opening).tolist() == [True, False, True, False]
+    # a shift within CLOSING_SHIFT_DEG is not a closing window
+    barely = HingeFaces(bottom, lo, hi - deg(0.5 * CLOSING_SHIFT_DEG))
+    assert not faces.closing(barely, opening).any()
+    # an opening further from the end than the band is not held by it
+    free = opening - deg(np.array([2 * CLOSING_BIND_DEG, 0.0, -2 * CLOSING_BIND_DEG, 0.0]))
+    assert faces.closing(newer, free).tolist() == [False, False, False, False]
+    released = HingeFaces(bottom, lo, hi, released=np.array([True, False, False, False]))
+    assert released.window(deg(10.0), deg(90.0))[2].tolist() == [False, True, True, True]
+    assert faces.window(deg(10.0), deg(90.0))[2].all()
+
+
+def test_hinge_face_openings_match_the_extruded_tiles() -> None:
+    """The openings a dual layout's hard rows bound, read back on its rigid flat tiles by the
+    independent measure of ``verify`` (each slit end on its hinge face)."""
+    from drawstring.geometry.flat import extrude_flat, hinge_face_openings, optimize_flat
+    from drawstring.geometry.verify import gap_opening_angles_deg
+
+    linkage, uv = _grid(6, 90.0)
+    top, t3 = heightfield_tiles(uv, linkage.tile_corners, "saddle", 6.0, 0.006)
+    bottom = hinge_sides(linkage, t3, 12.0)
+    assert 0 < bottom.sum() < linkage.n_hinges
+    faces = hinge_faces(linkage, t3, bottom)
+    flat = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=12.0, tiles_3d=t3, hinges=faces)
+    measured = gap_opening_angles_deg(linkage, extrude_flat(flat, t3), bottom)
+    opened = np.degrees(hinge_face_openings(linkage, flat, t3))
+    # they differ only by how far the layout's tiles are from rigid (its edge error)
+    side = float(np.mean(flat.edge_targets[:, :4]))
+    misfit = np.degrees(4.0 * flat.edge_error_max_mm / side)
+    np.testing.assert_allclose(opened, measured, atol=misfit)
+    lo, hi, fits = faces.window(np.radians(12.0), 0.5 * np.pi)
+    assert np.all(opened[fits] >= np.degrees(lo[fits]) - 1e-3)
+    assert np.all(opened[fits] <= np.degrees(hi[fits]) + 1e-3)

@@ -299,3 +299,37 @@ def test_pairs_held_apart_near_the_tolerance_are_laid_out_again_only_where_they_
     assert _held_apart(gaps, tiles, ids, free).tolist() == [True, False, False, False]
     free[0] = False
     assert not _held_apart(gaps, tiles, ids, free).any()
+
+
+def test_released_slit_ends_are_laid_out_like_pairs_that_never_clear(monkeypatch) -> None:
+    """A slit end the co-optimization released from its clear window is separated on its
+    hinge face only (its overlap, if any, trimmed), like an end that never clears."""
+    from dataclasses import replace
+
+    import drawstring.geometry.hinges as hinges_module
+    from drawstring.geometry.flatpose import hinge_faces
+    from drawstring.geometry.linkage import slit_ends
+
+    linkage, uv = _grid(6)
+    top, t3 = heightfield_tiles(uv, linkage.tile_corners, "saddle", 6.0, 0.006)
+    bottom = hinge_sides(linkage, t3, 12.0)
+    faces = hinge_faces(linkage, t3, bottom)
+    _, _, fits = faces.window(np.radians(12.0), 0.5 * np.pi)
+    released = np.zeros(len(fits), dtype=bool)
+    released[np.flatnonzero(fits)[:3]] = True
+    flat = optimize_flat(
+        linkage, top, uv=uv, min_gap_angle_deg=12.0, tiles_3d=t3,
+        hinges=replace(faces, released=released),
+    )  # fmt: skip
+    seen: list[np.ndarray] = []
+    rigid_layout = hinges_module.rigid_layout
+
+    def recording(*args, **kwargs):
+        seen.append(np.array(kwargs["trim"]))
+        return rigid_layout(*args, **kwargs)
+
+    monkeypatch.setattr(hinges_module, "rigid_layout", recording)
+    layout_hinges(linkage, flat, extrude_flat(flat, t3), t3, strategy="dual")
+    ends = slit_ends(linkage)
+    assert seen[0][ends.hinge[released]].all()
+    assert not seen[0][ends.hinge[fits & ~released]].any()

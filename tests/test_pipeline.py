@@ -595,6 +595,49 @@ def test_refinement_rounds_start_from_the_re_solved_layout(monkeypatch) -> None:
         assert start is not None and np.array_equal(start, before)
 
 
+def test_clear_windows_closing_on_their_openings_are_released(monkeypatch) -> None:
+    # A joint solve that presses an opening against its clear window, while its move of K3D
+    # closes that window, strands every re-solve; from the next round on such a slit end is
+    # laid out without its window (the hinge stage trims the pair), and stays released.
+    from drawstring.geometry.flat import hinge_face_openings
+    from drawstring.geometry.tolerances import FLAT_FREE_MARGIN_DEG
+
+    shaped, eq1, faces, plain = _saddle_before_co_optimization()
+    linkage = shaped.tiling.linkage
+    hinge_faces, flat_layout = layout_stage.hinge_faces, layout_stage.flat_layout
+    given: list[tuple[object, np.ndarray]] = []
+    chosen = np.arange(len(faces.clear_hi)) % 2 == 0
+
+    def closing(*args: object, **kwargs: object):
+        out = hinge_faces(*args, **kwargs)
+        if not given:
+            return out
+        # the chosen ends' windows close 0.1 deg past where the last re-solve opened them
+        shut = given[-1][1] + np.radians(FLAT_FREE_MARGIN_DEG - 0.1)
+        return replace(out, clear_hi=np.where(chosen, np.minimum(out.clear_hi, shut), out.clear_hi))
+
+    def slow(*args, **kwargs):
+        out = flat_layout(*args, **kwargs)
+        given.append((args[4], hinge_face_openings(linkage, out, args[2].tiles)))
+        return replace(out, edge_error_max_mm=plain.edge_error_max_mm * 0.8 ** len(given))
+
+    monkeypatch.setattr(layout_stage, "hinge_faces", closing)
+    monkeypatch.setattr(layout_stage, "flat_layout", slow)
+    _, flat, block = layout_stage.co_optimized(
+        linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces
+    )
+    assert block["accepted"], block["reason"]
+    # round 2 lays out in windows just closed on its openings; round 3 releases them
+    assert given[0][0].released is None and given[1][0].released is None
+    released = given[2][0].released
+    assert released is not None and released.any()
+    assert not released[~chosen].any()
+    for later, _ in given[3:]:
+        assert np.all(later.released[released])  # released for good
+    assert flat.hinges is given[-1][0]  # the last round is the best here
+    assert block["released_ends"] == int(flat.hinges.released.sum())
+
+
 def test_the_flat_seed_of_a_refused_co_optimization_is_finished(monkeypatch) -> None:
     # The flat layout that seeds the co-optimization stops once its bounds hold after
     # FLAT_SEED_STEPS; where the co-optimization is not used, that seed would be the design's
