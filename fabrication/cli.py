@@ -21,7 +21,7 @@ import sys  # noqa: E402
 import warnings  # noqa: E402
 from collections.abc import Iterator, Sequence  # noqa: E402
 from pathlib import Path  # noqa: E402
-from typing import TYPE_CHECKING, NoReturn  # noqa: E402
+from typing import TYPE_CHECKING, Any, NoReturn, TextIO  # noqa: E402
 
 from drawstring.geometry.errors import DesignError, InputError  # noqa: E402
 
@@ -423,7 +423,58 @@ def _library_warnings(verbose: bool) -> Iterator[None]:
         yield
 
 
+class _ClosedPipeSafe:
+    """Standard output that goes quiet once its reader has gone (``drawstring profiles |
+    head -1``): the rest is discarded and the command still ends with its own exit status."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self._stream = stream
+        self._gone = False
+
+    def _drop(self) -> None:
+        self._gone = True
+        with contextlib.suppress(OSError, ValueError):
+            # later flushes (also the interpreter's at exit) then write to nowhere
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, self._stream.fileno())
+            os.close(devnull)
+
+    def write(self, text: str) -> int:
+        if not self._gone:
+            try:
+                return self._stream.write(text)
+            except BrokenPipeError:
+                self._drop()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self._gone:
+            try:
+                self._stream.flush()
+            except BrokenPipeError:
+                self._drop()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stream, name)
+
+
+@contextlib.contextmanager
+def _closed_pipe_safe_stdout() -> Iterator[None]:
+    stream = sys.stdout
+    sys.stdout = _ClosedPipeSafe(stream)
+    try:
+        yield
+    finally:
+        sys.stdout.flush()
+        sys.stdout = stream
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    with _closed_pipe_safe_stdout():
+        return _main(argv)
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.verbose = getattr(args, "verbose", False)

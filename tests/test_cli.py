@@ -945,3 +945,29 @@ def test_the_wrote_line_says_how_many_parts_and_why(
         f"wrote {out}: {linkage['tiles']} tiles in {parts} parts (split along grid lines"
     )
     assert "hinges (" in first and "on the bottom faces)" in first
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["profiles"], ["design", "saddle", *SMALL[:-1], "--no-simulate", "--out", "{out}"]],
+)
+def test_a_reader_that_goes_away_ends_the_output_not_the_command(
+    tmp_path: Path, args: list[str]
+) -> None:
+    """``drawstring profiles | head -1``: once the reader has closed the pipe the rest of the
+    output is dropped; no traceback, and the command's own exit status (a design is written
+    whole)."""
+    out = tmp_path / "piped"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "drawstring.fabrication.cli", *(a.format(out=out) for a in args)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()  # the reader is gone before the first line
+    err = proc.stderr.read()
+    assert proc.wait() == 0, err
+    assert "Traceback" not in err and "BrokenPipe" not in err
+    if args[0] == "design":
+        assert (out / "design.json").is_file()
