@@ -543,7 +543,7 @@ def layout_hinges(
             )
         if released.any():
             which += (
-                f"{_pairs(int(released.sum()), verb='open')} past where they clear on their "
+                f"{_pairs(int(released.sum()))} laid out free of their clear openings on the "
                 "hinge face, to keep the tiles' assembled shapes; "
             )
         problems.append(
