@@ -31,6 +31,8 @@ from drawstring.geometry.tolerances import (
     FLAT_INTERPENETRATION_TOL_MM3,
     FLAT_OVERLAP_TOL_MM2,
     HINGE_GAP_TOL_MM,
+    SURFACE_MAX_REL,
+    SURFACE_MEAN_REL,
 )
 
 from .layout_stage import absorbable_ratio, fabricated_tiles, split_bound
@@ -39,9 +41,6 @@ from .profiles import Profile
 if TYPE_CHECKING:
     from .pipeline import ResolvedOptions
 
-#: Mean distance of K3D to the target, as a fraction of the mean tile side, above which the
-#: design is flagged (issue 3 quality target).
-SURFACE_MEAN_REL = 0.02
 
 #: Largest distance (mm) between a channel's exit and the next tile's entry, assembled pose.
 CHANNEL_MATCH_TOL_MM = 0.05
@@ -214,8 +213,11 @@ def measure_design(
     lift: LiftPoints,
     route: Route,
     masses: NDArray[np.float64],
+    *,
+    target_diagonal_mm: float = 0.0,
 ) -> tuple[dict[str, Any], list[str], list[str]]:
-    """Measure the output geometry (not the optimizers' beliefs) and list unmet targets.
+    """Measure the output geometry (not the optimizers' beliefs) and list unmet targets
+    (``target_diagonal_mm``: the target's bounding-box diagonal, for the surface distance).
 
     Returns the ``metrics`` entries of design.json, the *problems* (targets whose failure makes
     the part unbuildable: overlapping tiles, gaps outside their angle bounds, an invalid route,
@@ -337,10 +339,21 @@ def measure_design(
         )
     side = float(a.get("tile_side_mean_mm", 0.0))
     mean_distance = float(a.get("surface_distance_mean_mm", 0.0))
+    max_distance = float(a.get("surface_distance_max_mm", 0.0))
+    far: list[str] = []
     if side > 0 and mean_distance > SURFACE_MEAN_REL * side:
+        far.append(
+            f"{mean_distance:.2f} mm on average (over {100 * SURFACE_MEAN_REL:g} % of the mean "
+            "tile side)"
+        )
+    if target_diagonal_mm > 0 and max_distance > SURFACE_MAX_REL * target_diagonal_mm:
+        far.append(
+            f"up to {max_distance:.2f} mm (over {100 * SURFACE_MAX_REL:g} % of the target's "
+            f"diagonal, {SURFACE_MAX_REL * target_diagonal_mm:.2f} mm)"
+        )
+    if far:
         warnings.append(
-            f"tiles sit {mean_distance:.2f} mm from the target on average, more than "
-            f"{100 * SURFACE_MEAN_REL:g} % of the mean tile side; raise the surface weight "
+            f"tiles sit far from the target: {', '.join(far)}; raise the surface weight "
             "(--weights 1e4 1 100 fits closely) or use more tiles"
         )
     in_plane_gap = float(in_plane.max(initial=0.0))

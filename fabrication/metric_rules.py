@@ -16,6 +16,8 @@ from drawstring.geometry.tolerances import (
     CAD_PAD_INTERFERENCE_REL,
     FLAT_EDGE_ERROR_TOL_MM,
     HINGE_GAP_TOL_MM,
+    SURFACE_MAX_REL,
+    SURFACE_MEAN_REL,
 )
 
 # ----------------------------------------------------------------------------------------------
@@ -94,13 +96,18 @@ METRIC_RULES: dict[str, MetricRule] = {
     ),
     "surface_distance_max_mm": MetricRule(
         "largest distance of a tile corner from the target surface",
-        lambda d: f"≤ 2 % of the diagonal ({0.02 * _diag(d):.2f} mm)",
-        lambda v, d: float(v) <= 0.02 * _diag(d),
+        lambda d: (
+            f"≤ {100 * SURFACE_MAX_REL:g} % of the diagonal ({SURFACE_MAX_REL * _diag(d):.2f} mm)"
+        ),
+        lambda v, d: float(v) <= SURFACE_MAX_REL * _diag(d),
     ),
     "surface_distance_mean_mm": MetricRule(
         "mean distance of the tile corners from the target surface",
-        lambda d: f"≤ 2 % of the mean tile side ({0.02 * _tile_side(d):.2f} mm)",
-        lambda v, d: float(v) <= 0.02 * _tile_side(d) + 1e-9,
+        lambda d: (
+            f"≤ {100 * SURFACE_MEAN_REL:g} % of the mean tile side "
+            f"({SURFACE_MEAN_REL * _tile_side(d):.2f} mm)"
+        ),
+        lambda v, d: float(v) <= SURFACE_MEAN_REL * _tile_side(d) + 1e-9,
     ),
     "flat_edge_error_max_mm": MetricRule(
         "largest edge length difference between the flat and the assembled tiles",

@@ -658,8 +658,9 @@ def _design(
     if not np.array_equal(served, chosen):
         lift = replace(lift, lift_gaps=served, positions=assembled_gap_xyz[served])
     measured, problems, warnings = measure_design(
-        resolved, profile, tiling, assembled, flat, hinge_layout, lift, route, masses
-    )
+        resolved, profile, tiling, assembled, flat, hinge_layout, lift, route, masses,
+        target_diagonal_mm=loaded.bbox_diagonal_mm,
+    )  # fmt: skip
     measured["co_optimization"] = co_block
     measured["split_bound"] = _round(shaped.split_bound, 6)
     notes.extend(f"flat stage: {p}" for p in flat.problems)

@@ -151,3 +151,10 @@ CAD_PAD_INTERFERENCE_REL = 0.02
 #: tiles clear each other (``flatpose.free_openings``), so the rigid hinge layout, which asks
 #: ``HINGE_LAYOUT_CLEARANCE_MM`` along its tilted separating planes, finds them apart already.
 FLAT_FREE_MARGIN_DEG = 0.3
+
+#: Mean distance of K3D to the target, as a fraction of the mean tile side, above which the
+#: design is flagged (issue 3 quality target).
+SURFACE_MEAN_REL = 0.02
+#: Largest distance of a tile corner from the target, as a fraction of the target's
+#: bounding-box diagonal, above which the design is flagged (the report marks both).
+SURFACE_MAX_REL = 0.02
