@@ -47,6 +47,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _add_design_options(p: argparse.ArgumentParser) -> None:
+    from .profiles import MAX_SIZE_MM, MAX_TILES, MIN_GRID_SIDE, MIN_TILES
+
     p.add_argument("target", help="a mesh file (.obj .off .ply .stl) or a built-in target name")
     p.add_argument(
         "--profile",
@@ -57,26 +59,36 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, help="output folder (default ./TARGET-drawstring)")
     size = p.add_mutually_exclusive_group()
     size.add_argument(
-        "--tiles", type=int, help="approximate number of tiles (default: the profile's)"
+        "--tiles",
+        type=int,
+        help=f"approximate number of tiles, {MIN_TILES} to {MAX_TILES} (default: the profile's)",
     )
-    size.add_argument("--grid", type=int, nargs=2, metavar=("I", "J"), help="grid columns rows")
+    size.add_argument(
+        "--grid",
+        type=int,
+        nargs=2,
+        metavar=("I", "J"),
+        help=f"grid columns and rows, each at least {MIN_GRID_SIDE} (instead of --tiles)",
+    )
     p.add_argument(
         "--size",
         type=float,
         dest="size_mm",
-        help="longest side of the shape in mm (default: the profile's)",
+        help=f"longest side of the shape in mm, up to {MAX_SIZE_MM:g} (default: the profile's)",
     )
     p.add_argument(
         "--resolution",
         type=int,
         default=10_000,
-        help="triangles of a built-in target (default 10000; a mesh file is used as it is)",
+        help="triangles of a built-in target, 100 to 1000000 (default 10000; a mesh file is "
+        "used as it is)",
     )
     p.add_argument(
         "--thickness",
         type=float,
         dest="thickness_mm",
-        help="tile thickness in mm (default: the profile's)",
+        help="tile thickness in mm, above 0 (default: the profile's; a thickness the shape's "
+        "curvature cannot take is refused with the largest that fits)",
     )
     p.add_argument(
         "--min-gap-angle",
@@ -89,7 +101,7 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
         "--max-scale-factor",
         type=float,
         default=2.0,
-        help="split parts whose tile area scale ratio exceeds this (default 2)",
+        help="split parts whose tile area scale ratio exceeds this, in (1, 2] (default 2)",
     )
     p.add_argument(
         "--corners",
@@ -128,7 +140,7 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="keep the assembled shape as eq. 1 gives it (do not move it with the flat layout)",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed for any randomized step")
+    p.add_argument("--seed", type=int, default=0, help="seed for any randomized step (default 0)")
     p.add_argument(
         "--repair",
         action="store_true",
@@ -164,6 +176,7 @@ def build_parser() -> argparse.ArgumentParser:
         "-v", "--verbose", action="store_true", default=argparse.SUPPRESS, help=VERBOSE_HELP
     )
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    parser.set_defaults(subparsers=sub.choices)
     design_p = sub.add_parser(
         "design", parents=[verbose], help="design a linkage for a target and write its files"
     )
@@ -476,7 +489,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:
+        # named by the subcommand's parser, whose --help lists what it takes
+        args.subparsers[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
     args.verbose = getattr(args, "verbose", False)
     quiet = getattr(args, "quiet", False) and not args.verbose
     logging.basicConfig(

@@ -971,3 +971,35 @@ def test_a_reader_that_goes_away_ends_the_output_not_the_command(
     assert "Traceback" not in err and "BrokenPipe" not in err
     if args[0] == "design":
         assert (out / "design.json").is_file()
+
+
+def test_an_unknown_option_points_to_its_subcommands_help(capsys) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(["design", "saddle", "--bogus"])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0
+    assert "--bogus" in err and "drawstring design --help" in err
+
+
+def test_design_help_states_every_default_and_range(capsys) -> None:
+    from drawstring.fabrication.profiles import MAX_SIZE_MM, MAX_TILES, MIN_GRID_SIDE, MIN_TILES
+
+    with pytest.raises(SystemExit):
+        main(["design", "--help"])
+    text = " ".join(capsys.readouterr().out.split("options:", 1)[1].split())
+    for option, stated in {
+        "--tiles": f"{MIN_TILES} to {MAX_TILES}",
+        "--grid": f"at least {MIN_GRID_SIDE}",
+        "--size": f"up to {MAX_SIZE_MM:g}",
+        "--resolution": "100 to 1000000",
+        "--min-gap-angle": "0 to 60",
+        "--max-scale-factor": "(1, 2] (default 2)",
+        "--seed": "(default 0)",
+        "--hinges": "the default",
+    }.items():
+        # the option's own entry: its name and metavar, then its help
+        found = re.search(rf"{re.escape(option)} (?:[A-Z_]+|I J|\{{[a-z,]+\}}) (.{{0,200}})", text)
+        assert found, option
+        entry = found.group(1)
+        assert stated in entry, (option, entry)
