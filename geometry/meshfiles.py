@@ -71,7 +71,8 @@ def read_mesh(path: str | os.PathLike[str]) -> tuple[NDArray[np.float64], NDArra
     try:
         vertices, faces = readers[extension](data)
     except InputError as error:
-        raise InputError(f"{path}: {error}") from None
+        fix = "" if ";" in str(error) else "; the file is damaged or not a mesh, export it again"
+        raise InputError(f"{path}: {error}{fix}") from None
     except (ValueError, IndexError, KeyError, UnicodeDecodeError) as error:
         detail = " ".join(str(error).split())
         raise InputError(

@@ -435,6 +435,10 @@ def _closed_message(genus: int = 0) -> str:
     )
 
 
+#: A disk's boundary is mapped onto a rectangle, one boundary vertex per corner.
+MIN_BOUNDARY_VERTICES = 4
+
+
 def check_disk_topology(faces: NDArray[np.int64], n_vertices: int) -> None:
     """Raise InputError unless the faces form an oriented topological disk.
 
@@ -455,10 +459,13 @@ def check_disk_topology(faces: NDArray[np.int64], n_vertices: int) -> None:
             f"surface is not edge-manifold: {_count(crowded, 'edge')} shared by more than two "
             "faces; remove the extra faces (fins, duplicated or intersecting sheets)"
         )
-    face_a = edges.pair_first // 3
-    face_b = edges.pair_second // 3
-    adjacency = sp.coo_matrix((np.ones(len(face_a)), (face_a, face_b)), shape=(n_faces, n_faces))
-    n_pieces, _ = connected_components(adjacency, directed=False)
+    # Pieces that share no vertex are separate; patches that touch at a vertex only (one
+    # piece by vertices, several by edges) are a bow-tie, found with the pinched vertices.
+    faces_at = sp.coo_matrix(
+        (np.ones(faces.size), (np.repeat(np.arange(n_faces), 3), faces.ravel())),
+        shape=(n_faces, n_vertices),
+    ).tocsr()
+    n_pieces, _ = connected_components(faces_at @ faces_at.T, directed=False)
     if n_pieces > 1:
         raise InputError(
             f"mesh has {n_pieces} separate pieces (connected components); keep one patch and "
@@ -491,6 +498,13 @@ def check_disk_topology(faces: NDArray[np.int64], n_vertices: int) -> None:
         raise InputError(
             f"surface has {n_loops} boundary loops ({_count(holes, 'hole')}); "
             "fill all holes but the outer boundary so that one boundary loop remains"
+        )
+    n_boundary = int(boundary.sum())
+    if genus == 0 and n_boundary < MIN_BOUNDARY_VERTICES:
+        raise InputError(
+            f"the boundary has only {n_boundary} vertices, and the flattening maps it onto a "
+            f"rectangle with {MIN_BOUNDARY_VERTICES} corners; subdivide the mesh (e.g. MeshLab "
+            "Filters > Remeshing > Subdivision Surfaces) and export again"
         )
     if genus > 0:
         raise InputError(

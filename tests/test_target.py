@@ -468,7 +468,7 @@ def test_file_without_faces(tmp_path):
         ("bad.off", "hello\n", ["first line should be OFF"]),
         ("bad.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 x\n", ["line 4", "not a vertex index"]),
         ("bad.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", ["start at 1"]),
-        ("bad.obj", "v 0 0\n", ["line 1", "three coordinates"]),
+        ("bad.obj", "v 0 0\n", ["line 1", "three coordinates", "export it again"]),
         ("bad.obj", "v 0 zero 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", ["'zero' is not a number"]),
         ("bad.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n", ["truncated"]),
         ("bad.ply", "ply\nformat ascii 1.0\nelement vertex 3\nend\n", ["not a PLY file"]),
@@ -516,7 +516,27 @@ def test_two_disjoint_triangles():
 def test_teapot_has_several_pieces():
     with pytest.raises(InputError) as error:
         load_target(DATA / "teapot.obj", 100.0)
-    check_message(error, "teapot.obj: ", "4 separate pieces", "keep one patch")
+    # four patches by edges, two of them touching at a vertex: three pieces
+    check_message(error, "teapot.obj: ", "3 separate pieces", "keep one patch")
+
+
+def test_two_patches_touching_at_one_vertex_are_a_bow_tie_not_two_pieces():
+    # two triangles sharing vertex 0 only: one piece by vertices, two by edges
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [-1, 0, 0], [-1, -1, 0]], float)
+    with pytest.raises(InputError) as error:
+        validate_disk_mesh(V, np.array([[0, 1, 2], [0, 3, 4]]))
+    check_message(error, "not vertex-manifold", "1 vertex", "bow-tie")
+
+
+def test_a_boundary_of_three_vertices_cannot_take_four_corners():
+    # a triangle fan round one inner vertex: a disk whose boundary is a triangle
+    V = np.array([[0, 0, 0.1], [1, 0, 0], [-0.5, 0.8, 0], [-0.5, -0.8, 0]], float)
+    with pytest.raises(InputError) as error:
+        validate_disk_mesh(V, np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1]]))
+    check_message(error, "only 3 vertices", "4 corners", "subdivide")
+    with pytest.raises(InputError) as error:
+        validate_disk_mesh(V[1:], np.array([[0, 1, 2]]))
+    check_message(error, "only 3 vertices")
 
 
 def test_non_manifold_fan():
