@@ -26,6 +26,11 @@ if TYPE_CHECKING:
     from drawstring.fabrication.profiles import Profile
 
 
+#: Top of the legends under the flat-layout pictures, in axes heights below the axes: clear of
+#: the x-axis label (at -0.09 the legend covered it).
+LEGEND_BELOW = -0.15
+
+
 def _count(number: int, noun: str) -> str:
     """``1 sheet``, ``3 sheets``."""
     return f"{number} {noun}" if number == 1 else f"{number} {noun}s"
@@ -209,7 +214,7 @@ def write_pictures(
         ax.legend(
             handles=handles,
             loc="upper center",
-            bbox_to_anchor=(0.5, -0.09),
+            bbox_to_anchor=(0.5, LEGEND_BELOW),
             ncol=columns,
             fontsize=7,
             frameon=False,
@@ -229,7 +234,9 @@ def write_pictures(
         ]
     ).reshape(-1, 2)
     pictures.draw_hinges(ax, points, np.array([s != "top" for s in hinge_side], dtype=bool))
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.09), ncol=2, fontsize=7, frameon=False)
+    ax.legend(
+        loc="upper center", bbox_to_anchor=(0.5, LEGEND_BELOW), ncol=2, fontsize=7, frameon=False
+    )
     fig.tight_layout()
     _figure_png(fig, out / "assembly-tiles.png")
     plt.close(fig)
@@ -354,8 +361,13 @@ def write_pictures(
     ax3 = fig.add_subplot(1, 2, 2, projection="3d")
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
+    # drawn in call order, so the arrows stay in front of the tiles wherever they stand
+    # (matplotlib's depth sort hid a lift point behind the chair's back)
+    ax3.computed_zorder = False
     ax3.add_collection3d(
-        Poly3DCollection(list(tiles_assembled[:, :4]), facecolors="#f3d3a0", edgecolors="#444")
+        Poly3DCollection(
+            list(tiles_assembled[:, :4]), facecolors="#f3d3a0", edgecolors="#444", zorder=1
+        )
     )
     lows, highs = (
         tiles_assembled.reshape(-1, 3).min(axis=0),
@@ -365,10 +377,11 @@ def write_pictures(
     for stop in guide.stops:
         known = [p for p in _stop_points(tiles_assembled, steps, guide, stop) if p is not None]
         point = np.mean(known, axis=0)
-        ax3.quiver(*point, 0, 0, 0.3 * span, color=red, arrow_length_ratio=0.2, lw=2)
+        ax3.quiver(*point, 0, 0, 0.3 * span, color=red, arrow_length_ratio=0.2, lw=2, zorder=5)
         ax3.text(
-            *(point + [0, 0, 0.36 * span]), stop.letter, fontsize=11, fontweight="bold", ha="center"
-        )
+            *(point + [0, 0, 0.36 * span]), stop.letter, fontsize=11, fontweight="bold",
+            ha="center", zorder=6,
+        )  # fmt: skip
     centre = 0.5 * (lows + highs)
     ax3.set_xlim(centre[0] - 0.5 * span, centre[0] + 0.5 * span)
     ax3.set_ylim(centre[1] - 0.5 * span, centre[1] + 0.5 * span)

@@ -396,7 +396,8 @@ def flat_gap_angles(
 
 def draw_trims(ax: Axes, layout: HingeLayout) -> None:
     """The overlaps cut away from the tiles (``hinges.json``'s ``trims``), seen from above:
-    each convex piece's outline, hatched."""
+    each convex piece's outline, hatched, and a cross at its centre (a fraction of a square
+    millimetre is a pixel or two in a 200 mm layout)."""
     from matplotlib.collections import PolyCollection
     from scipy.spatial import ConvexHull, QhullError
 
@@ -416,8 +417,18 @@ def draw_trims(ax: Axes, layout: HingeLayout) -> None:
                 hatch="/////",
                 linewidths=0.5,
                 zorder=5,
-                label="trimmed overlap (cut away)",
             )
+        )
+        centres = np.array([outline.mean(axis=0) for outline in outlines])
+        ax.scatter(
+            centres[:, 0],
+            centres[:, 1],
+            marker="x",
+            s=14,
+            linewidths=0.8,
+            color="#7a0019",
+            zorder=6,
+            label="trimmed overlap (cut away; hatched, crossed)",
         )
 
 

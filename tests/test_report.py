@@ -659,8 +659,11 @@ def test_flat_picture_legend_lists_only_the_hinges_and_trims_the_design_has() ->
     cube = np.array([[x, y, z] for x in (0, 2) for y in (0, 1) for z in (0, 3)], dtype=float)
     Layout.trims = (HingeTrim(0, 1, cube, 6.0, 2.0, 0),)
     pictures.draw_trims(ax, Layout())  # type: ignore[arg-type]
-    (outline,) = ax.collections
-    assert outline.get_label() == "trimmed overlap (cut away)"
+    outline, crosses = ax.collections
     drawn = outline.get_paths()[0].vertices[:-1]
     assert len(drawn) == 4 and np.allclose(np.ptp(drawn, axis=0), [2.0, 1.0])
+    # a cross at each piece's centre carries the legend entry: tiny pieces stay visible
+    assert crosses.get_label().startswith("trimmed overlap (cut away")
+    assert np.allclose(crosses.get_offsets(), [[1.0, 0.5]])
+    assert ax.get_legend_handles_labels()[1] == [crosses.get_label()]
     plt.close(fig)
