@@ -31,6 +31,24 @@ if TYPE_CHECKING:
 LEGEND_BELOW = -0.15
 
 
+def _beds_text(stem: str, jobs: Sequence[dict[str, Any]]) -> str:
+    """How the print jobs share the beds, and which file prints each bed."""
+    beds = max((int(job.get("bed", 1)) for job in jobs), default=1)
+    if beds <= 1:
+        return " Print them together: they share one bed." if len(jobs) > 1 else ""
+    return (
+        f" The jobs fill {beds} beds, side by side in that file (the first on the plate); "
+        f"`{stem}-bed1.3mf` to `{stem}-bed{beds}.3mf` hold one bed each, on the plate: "
+        "print them one after the other."
+    )
+
+
+def _on_bed(job: dict[str, Any], jobs: Sequence[dict[str, Any]]) -> str:
+    """`` (bed 2)`` where the jobs fill more than one bed."""
+    several = len({int(j.get("bed", 1)) for j in jobs}) > 1
+    return f" (bed {job['bed']})" if several and "bed" in job else ""
+
+
 def _count(number: int, noun: str) -> str:
     """``1 sheet``, ``3 sheets``."""
     return f"{number} {noun}" if number == 1 else f"{number} {noun}s"
@@ -527,12 +545,14 @@ def _write_assembly(
             f"`print.3mf` holds {len(record.jobs)} object(s), one per print job. Tiles are "
             f"assigned to extruder 1 ({profile.tile_material}), hinge pads to extruder 2 "
             f"({profile.hinge_material}); PrusaSlicer, Bambu Studio and OrcaSlicer read the "
-            "assignment from the file. Print one job at a time (delete the other objects)."
+            "assignment from the file." + _beds_text("print", record.jobs)
         )
         lines.append("")
         for job in record.jobs:
             kind = "loose hinge pads" if job.get("loose") else f"{len(job['tiles'])} tiles"
-            lines.append(f"- job {job['job']}: {kind}, {len(job['pads'])} pads")
+            lines.append(
+                f"- job {job['job']}: {kind}, {len(job['pads'])} pads{_on_bed(job, record.jobs)}"
+            )
         cut = est.get("cut_hinges", [])
         if cut:
             lines += [
@@ -552,11 +572,13 @@ def _write_assembly(
             lines.append(
                 f"Print the tiles from `tiles.3mf` (single material). The flat layout is larger "
                 f"than the {profile.bed_x_mm:g} x {profile.bed_y_mm:g} mm bed, so the file holds "
-                f"{len(record.jobs)} objects side by side, one per print job: print one job at "
-                "a time (delete the other objects, or move each onto the plate in turn)."
+                f"{len(record.jobs)} objects, one per print job." + _beds_text("tiles", record.jobs)
             )
             lines.append("")
-            lines += [f"- job {job['job']}: tiles {id_runs(job['tiles'])}" for job in record.jobs]
+            lines += [
+                f"- job {job['job']}: tiles {id_runs(job['tiles'])}{_on_bed(job, record.jobs)}"
+                for job in record.jobs
+            ]
         elif profile.process == "laser-epdm":
             lines.append("Print the tiles from `tiles.3mf` (single material).")
         else:

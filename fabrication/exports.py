@@ -43,6 +43,7 @@ from drawstring.fabrication.assembly_guide import _write_assembly, write_picture
 from drawstring.fabrication.exports_dxf import (
     Nesting,
     nest_parts,
+    shelf_pack,
     write_sheets_dxf,
 )
 from drawstring.fabrication.exports_panels import CableRun, Panel, cable_runs, tile_panels
@@ -234,64 +235,92 @@ def _fdm_exports(
     jobs, cut = m3f.plan_print_jobs(
         tiles_flat, hinges if with_pads else np.zeros((0, 4), int), bed, pad_boxes
     )
-    objects = []
-    stride = profile.bed_x_mm + 20.0  # jobs side by side beyond the bed, one object each
-    for index, job in enumerate(jobs):
-        shift = job.offset + [index * stride, 0.0, 0.0]
+    # every job's parts moved onto the bed, in the job's own frame (centred on the bed)
+    job_parts: list[list[m3f.PartMesh]] = []
+    for job in jobs:
         parts = [
             m3f.PartMesh(
-                tile_mesh[t].name, "tile", tile_mesh[t].vertices + shift, tile_mesh[t].triangles
+                tile_mesh[t].name, "tile", tile_mesh[t].vertices + job.offset,
+                tile_mesh[t].triangles,
             )
             for t in job.tiles
-        ]
+        ]  # fmt: skip
         parts += [
             m3f.PartMesh(
-                pad_mesh[h].name, "pad", pad_mesh[h].vertices + shift, pad_mesh[h].triangles
+                pad_mesh[h].name, "pad", pad_mesh[h].vertices + job.offset, pad_mesh[h].triangles
             )
             for h in job.pads
             if h in pad_mesh
         ]
-        objects.append(m3f.Object3mf(f"job {index + 1}", tuple(parts)))
+        job_parts.append(parts)
         record.jobs.append(
             {
-                "job": index + 1,
+                "job": len(record.jobs) + 1,
                 "tiles": list(job.tiles),
                 "pads": list(job.pads),
                 "size_mm": [round(float(v), 2) for v in job.size],
             }
         )
-    loose = [pad_mesh[h] for h in cut if h in pad_mesh]
-    if loose:
+    loose_cut = [h for h in cut if h in pad_mesh]
+    if loose_cut:
         flipped = []
-        for h, mesh in zip([h for h in cut if h in pad_mesh], loose, strict=True):
+        for h in loose_cut:
+            mesh = pad_mesh[h]
             side_top = bool(np.mean(mesh.vertices[:, 2]) > 0.5 * profile.thickness_mm)
             flipped.append(m3f.flip_upside_down(mesh) if side_top else mesh)
-            del h
         placed, fits = m3f.arrange_loose(flipped, bed, 3.0)
-        shift = np.array([len(jobs) * stride, 0.0, 0.0])
-        parts = [m3f.PartMesh(m.name, "pad", m.vertices + shift, m.triangles) for m in placed]
-        objects.append(m3f.Object3mf(f"job {len(jobs) + 1} loose hinge pads", tuple(parts)))
+        job_parts.append(list(placed))
         record.jobs.append(
-            {"job": len(jobs) + 1, "tiles": [], "pads": [int(h) for h in cut], "loose": True}
+            {"job": len(record.jobs) + 1, "tiles": [], "pads": [int(h) for h in cut], "loose": True}
         )
         if not fits:
             record.notes.append(
                 "the loose hinge pads do not all fit one bed; print them in two runs"
             )
+    beds = _fill_beds(job_parts, bed)
+    for entry, bed_index in zip(record.jobs, beds, strict=True):
+        entry["bed"] = bed_index + 1
+    n_beds = int(max(beds, default=0)) + 1
+    stride = profile.bed_x_mm + 20.0  # beds side by side, one object per job
+    objects = [
+        m3f.Object3mf(
+            f"job {index + 1}" + (" loose hinge pads" if entry.get("loose") else ""),
+            tuple(
+                m3f.PartMesh(p.name, p.kind, p.vertices + [beds[index] * stride, 0.0, 0.0],
+                             p.triangles)
+                for p in parts
+            ),
+        )
+        for index, (parts, entry) in enumerate(zip(job_parts, record.jobs, strict=True))
+    ]  # fmt: skip
     record.estimates["cut_hinges"] = [int(h) for h in cut]
+    record.estimates["print_beds"] = n_beds
     title = f"{design_name} ({profile.name})"
+    extruders = {"tile": 1, "pad": 2} if with_pads else None
+    materials = {"tile": profile.tile_material}
     if with_pads:
-        m3f.write_3mf(
-            out / file_name,
-            objects,
-            title=title,
-            extruders={"tile": 1, "pad": 2},
-            materials={"tile": profile.tile_material, "pad": profile.hinge_material},
-        )
-    else:
-        m3f.write_3mf(
-            out / file_name, objects, title=title, materials={"tile": profile.tile_material}
-        )
+        materials["pad"] = profile.hinge_material
+    written = [file_name]
+    m3f.write_3mf(out / file_name, objects, title=title, extruders=extruders, materials=materials)
+    if n_beds > 1:
+        # one file per bed, on the bed, for slicers that show one bed at a time
+        stem = Path(file_name).stem
+        for bed_index in range(n_beds):
+            name = f"{stem}-bed{bed_index + 1}.3mf"
+            on_bed = [
+                m3f.Object3mf(obj.name, tuple(
+                    m3f.PartMesh(p.name, p.kind, p.vertices - [bed_index * stride, 0.0, 0.0],
+                                 p.triangles)
+                    for p in obj.parts
+                ))
+                for obj, b in zip(objects, beds, strict=True)
+                if b == bed_index
+            ]  # fmt: skip
+            m3f.write_3mf(
+                out / name, on_bed, title=f"{title}, bed {bed_index + 1} of {n_beds}",
+                extruders=extruders, materials=materials,
+            )  # fmt: skip
+            written.append(name)
     tile_volume = record.estimates["_tile_volume"]
     pad_volume = record.estimates["_pad_volume"] if with_pads else 0.0
     if profile.print_rate_mm3_s > 0:
@@ -299,14 +328,43 @@ def _fdm_exports(
         seconds = printed / profile.print_rate_mm3_s
         layer = max(0.5 * profile.nozzle_mm, 0.1)
         layers = math.ceil(profile.thickness_mm / layer)
-        if with_pads:
-            seconds += len(jobs) * layers * 2 * TOOL_CHANGE_S
+        if with_pads:  # each bed is one print
+            seconds += n_beds * layers * 2 * TOOL_CHANGE_S
         record.estimates["print_time_h"] = round(seconds / 3600.0, 2)
         record.estimates["print_time_basis"] = (
             f"printed volume / {profile.print_rate_mm3_s} mm^3/s"
             + (f" + 2 tool changes of {TOOL_CHANGE_S:.0f} s per layer" if with_pads else "")
         )
-    return [file_name]
+    return written
+
+
+#: Space left between print jobs that share a bed, mm.
+JOB_SPACING_MM = 5.0
+
+
+def _fill_beds(job_parts: list[list[m3f.PartMesh]], bed: tuple[float, float]) -> list[int]:
+    """Put print jobs that fit together on one bed (shelves, as the DXF sheets are packed),
+    moving the parts of each job in place (``job_parts`` lists each job's parts on the bed,
+    centred); returns each job's bed.  A bed that holds one job keeps it where it was."""
+    if not job_parts:
+        return []
+    low = np.array([np.min([p.vertices.min(axis=0) for p in parts], axis=0) for parts in job_parts])
+    high = np.array(
+        [np.max([p.vertices.max(axis=0) for p in parts], axis=0) for parts in job_parts]
+    )
+    sizes = (high - low)[:, :2]
+    sheet, position, _ = shelf_pack(sizes, bed, JOB_SPACING_MM, m3f.BED_MARGIN_MM, turn=False)
+    # beds numbered in the order of their first job (the packing goes tallest first)
+    first_seen = {int(b): None for b in sheet}
+    sheet = np.array([list(first_seen).index(int(b)) for b in sheet], dtype=np.int64)
+    for index in range(len(job_parts)):
+        if np.count_nonzero(sheet == sheet[index]) == 1:
+            continue
+        move = np.array([*(position[index] - low[index, :2]), 0.0])
+        job_parts[index] = [
+            m3f.PartMesh(p.name, p.kind, p.vertices + move, p.triangles) for p in job_parts[index]
+        ]
+    return [int(b) for b in sheet]
 
 
 def _strip_parts(

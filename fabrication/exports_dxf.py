@@ -230,7 +230,11 @@ class Nesting:
 
 
 def shelf_pack(
-    sizes: NDArray[np.float64], sheet: tuple[float, float], spacing: float, margin: float
+    sizes: NDArray[np.float64],
+    sheet: tuple[float, float],
+    spacing: float,
+    margin: float,
+    turn: bool = True,
 ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.bool_]]:
     """Pack rectangles on sheets in shelves (tallest first, left to right, bottom to top).
 
@@ -240,6 +244,7 @@ def shelf_pack(
     sheet : (width, height) of a sheet, mm.
     spacing : gap between rectangles, mm.
     margin : free border of each sheet, mm.
+    turn : whether a rectangle may be turned (laid with its long side along x).
 
     Returns
     -------
@@ -259,7 +264,7 @@ def shelf_pack(
     placed = sizes.copy()
     for i, (w, h) in enumerate(sizes):
         fits_flat = w <= width and h <= height
-        fits_turned = h <= width and w <= height
+        fits_turned = turn and h <= width and w <= height
         if not (fits_flat or fits_turned):
             raise InputError(
                 f"a part of {w:.1f} x {h:.1f} mm does not fit the {sheet[0]:.0f} x {sheet[1]:.0f} "

@@ -305,7 +305,22 @@ def _bed_note(found: _Folder) -> str:
         extent[0] <= bed[1] and extent[1] <= bed[0]
     )
     verdict = "fits" if fits else "does not fit"
-    return f"{text} ({verdict} the {bed[0]:g} × {bed[1]:g} mm bed of {profile.name})"
+    note = f"{text} ({verdict} the {bed[0]:g} × {bed[1]:g} mm bed of {profile.name})"
+    if fits or profile.process == "plywood-cnc":
+        return note
+    jobs: list[Any] = []
+    try:
+        manifest = json.loads((found.folder / "fabrication" / "manifest.json").read_text())
+        jobs = list(manifest.get("print_jobs", []))
+    except (OSError, ValueError, AttributeError):
+        pass
+    if not jobs:
+        return f"{note}; the fabrication files split it into print jobs"
+    beds = len({job.get("bed", 1) for job in jobs if isinstance(job, dict)})
+    return (
+        f"{note}; fabrication/ splits it into {len(jobs)} print jobs on {beds} "
+        f"bed{'s' if beds != 1 else ''} (see fabrication/assembly.md)"
+    )
 
 
 def _summary(found: _Folder, view: dict[str, Any]) -> str:

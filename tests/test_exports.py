@@ -544,7 +544,7 @@ def test_the_guide_names_the_print_jobs_of_loose_tiles(built: Built, tmp_path: P
     jobs = manifest["print_jobs"]
     assert len(jobs) >= 2
     guide = (tmp_path / "fabrication/assembly.md").read_text()
-    assert f"holds {len(jobs)} objects side by side, one per print job" in guide
+    assert f"holds {len(jobs)} objects, one per print job" in guide
     for job in jobs:
         assert f"- job {job['job']}: tiles {id_runs(job['tiles'])}" in guide
     with zipfile.ZipFile(tmp_path / "fabrication/tiles.3mf") as archive:
@@ -826,3 +826,45 @@ def test_the_route_length_goes_up_over_and_down_the_lift_bores() -> None:
     turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     moved = tiles @ turn.T + [5.0, -2.0, 7.0]
     assert route_length(moved, steps, bores) == pytest.approx(lifted, rel=1e-12)
+
+
+@pytest.mark.parametrize("stacked", [False, True])
+def test_print_jobs_share_beds_where_they_fit_and_each_bed_has_a_file(
+    built: Built, tmp_path: Path, stacked: bool
+) -> None:
+    """A layout split into jobs: jobs that fit one bed together share it (apart), and with
+    more than one bed every bed also gets a file of its own with its jobs on the plate."""
+    if built.profile.process not in ("fdm-dual", "laser-epdm"):
+        pytest.skip("3MF profiles only")
+    span = np.ptp(built.design.tiles_2d[:, :, :2].reshape(-1, 2), axis=0)
+    bed = (float(0.6 * span[0] + 10), float((2.4 if stacked else 1.0) * span[1] + 30))
+    small = dataclasses.replace(built.profile, bed_x_mm=bed[0], bed_y_mm=bed[1])
+    files = {Path(f).name for f in _write(dataclasses.replace(built, profile=small), tmp_path)}
+    manifest = json.loads((tmp_path / "fabrication/manifest.json").read_text())
+    jobs = manifest["print_jobs"]
+    beds = sorted({job["bed"] for job in jobs})
+    assert len(jobs) >= 2 and beds == list(range(1, len(beds) + 1))
+    # stacked: two bands of tiles fit the bed's depth, so tile jobs share beds; otherwise each
+    # has its own (the loose pads of fdm-dual may join one)
+    tile_beds = [job["bed"] for job in jobs if not job.get("loose")]
+    assert (len(set(tile_beds)) < len(tile_beds)) == stacked
+    stem = "print" if built.profile.process == "fdm-dual" else "tiles"
+    per_bed = {f"{stem}-bed{b}.3mf" for b in beds} if len(beds) > 1 else set()
+    assert per_bed <= files and not {f for f in files if "-bed" in f} - per_bed
+    combined = _read_3mf(tmp_path / "fabrication" / f"{stem}.3mf")
+    assert len(combined) == len(jobs)
+    for b in beds:
+        on_bed = [job for job in jobs if job["bed"] == b]
+        meshes = _read_3mf(tmp_path / "fabrication" / f"{stem}-bed{b}.3mf") if per_bed else combined
+        assert len(meshes) == len(on_bed)
+        boxes = []
+        for _, vertices, _ in meshes:
+            low, high = vertices.min(axis=0), vertices.max(axis=0)
+            assert np.all(low[:2] >= -1e-6) and np.all(high[:2] <= np.array(bed) + 1e-6)
+            boxes.append((low[:2], high[:2]))
+        for i, (lo_i, hi_i) in enumerate(boxes):  # jobs on one bed do not touch
+            for lo_j, hi_j in boxes[i + 1 :]:
+                assert np.any(hi_i < lo_j) or np.any(hi_j < lo_i)
+    guide = (tmp_path / "fabrication/assembly.md").read_text()
+    if per_bed:
+        assert f"`{stem}-bed1.3mf` to `{stem}-bed{len(beds)}.3mf`" in guide

@@ -667,3 +667,23 @@ def test_flat_picture_legend_lists_only_the_hinges_and_trims_the_design_has() ->
     assert np.allclose(crosses.get_offsets(), [[1.0, 0.5]])
     assert ax.get_legend_handles_labels()[1] == [crosses.get_label()]
     plt.close(fig)
+
+
+def test_a_layout_larger_than_the_bed_names_its_print_jobs(tmp_path: Path) -> None:
+    from drawstring.fabrication.profiles import load_profile
+
+    bed = load_profile("fdm-dual")
+    flat = np.zeros((2, 8, 3))
+    flat[1, :, 0] = 1.5 * bed.bed_x_mm  # wider than the bed either way round
+    flat[1, :, 1] = 1.5 * bed.bed_y_mm
+    found = report._Folder(
+        tmp_path, {"options": {"profile": "fdm-dual"}}, None, flat, None, None, ()
+    )
+    without = report._bed_note(found)
+    assert "does not fit the" in without and "split it into print jobs" in without
+    (tmp_path / "fabrication").mkdir()
+    jobs = [{"job": 1, "bed": 1}, {"job": 2, "bed": 2}, {"job": 3, "bed": 1, "loose": True}]
+    (tmp_path / "fabrication" / "manifest.json").write_text(json.dumps({"print_jobs": jobs}))
+    assert "splits it into 3 print jobs on 2 beds" in report._bed_note(found)
+    flat[1] = 0.1 * flat[1]
+    assert "(fits the" in report._bed_note(found)
