@@ -476,6 +476,10 @@ CO_STOP_RATIO = 10.0
 #: a re-solve that ends near the tolerance; the CLI-default three-shell with dual hinges
 #: stopped at 8.4e-4 mm and ended at 1.1e-3 mm, exit 4; with one more round, 8.3e-5 mm)
 CO_STOP_NEAR = 0.6
+#: ... and once a re-solve within the tolerance gains less than this factor on the best
+#: before it: the 200-tile seashell's one-part tiling went 0.85, 0.68, 0.65, 0.67, 0.67 um
+#: (its joint solves 7e-5 .. 8e-6 mm) where released ends had taken its window drift away.
+CO_STALL_GAIN = 0.9
 #: A tiling that may still be split (``give_up_slow``) stops co-optimizing when, shrinking at
 #: the rate of its last round for the rounds left, its re-solved error would stay above this
 #: many times the tolerance (the rigid hinge layout takes off about 4x: 200-tile seashell
@@ -655,6 +659,7 @@ def co_optimized(
             "co-optimization round: joint %.3g mm, re-solved %.3g mm", co.edge_error_max_mm, error
         )
         first_round = best is None
+        best_before = math.inf if best is None else best[1].edge_error_max_mm
         progress_made = best is None or error < best[1].edge_error_max_mm
         if progress_made:
             best = (current, new_flat)
@@ -673,6 +678,7 @@ def co_optimized(
             or error <= CO_STOP_SHARE * FLAT_EDGE_ERROR_TOL_MM
             or error
             <= min(CO_STOP_NEAR * FLAT_EDGE_ERROR_TOL_MM, CO_STOP_RATIO * co.edge_error_max_mm)
+            or (error <= FLAT_EDGE_ERROR_TOL_MM and error > CO_STALL_GAIN * best_before)
         ):
             break
         if give_up_slow and too_slow(previous, error, CO_REFINEMENTS + 1 - done):

@@ -526,6 +526,35 @@ def test_co_optimization_stops_once_a_re_solve_is_well_inside_the_tolerance(monk
     assert flat.edge_error_max_mm == resolves[0]
 
 
+def test_co_optimization_stops_when_rounds_inside_the_tolerance_stall(monkeypatch) -> None:
+    # Re-solves within the tolerance but above the stop shares: the rounds go on while each
+    # gains more than CO_STALL_GAIN on the best before it, and stop at the first that does not.
+    shaped, eq1, faces, plain = _saddle_before_co_optimization()
+    tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
+    reported = [0.95 * tol, 0.8 * tol, 0.78 * tol, 0.5 * tol]
+    assert reported[2] > layout_stage.CO_STALL_GAIN * reported[1]
+    assert reported[1] < layout_stage.CO_STALL_GAIN * reported[0]
+    assert min(reported[:3]) > max(layout_stage.CO_STOP_SHARE, layout_stage.CO_STOP_NEAR) * tol
+    flat_layout, joint = layout_stage.flat_layout, layout_stage.co_optimize_top
+    resolves: list[float] = []
+
+    def reporting(*args: object, **kwargs: object):
+        resolves.append(reported[len(resolves)])
+        return replace(flat_layout(*args, **kwargs), edge_error_max_mm=resolves[-1])
+
+    def exact_joint(*args: object, **kwargs: object):  # the ratio rule never stops it
+        return replace(joint(*args, **kwargs), edge_error_max_mm=1e-9)
+
+    monkeypatch.setattr(layout_stage, "flat_layout", reporting)
+    monkeypatch.setattr(layout_stage, "co_optimize_top", exact_joint)
+    _, flat, block = layout_stage.co_optimized(
+        shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces
+    )
+    assert resolves == reported[:3]
+    assert block["accepted"], block["reason"]
+    assert flat.edge_error_max_mm == reported[2]  # the best round
+
+
 def test_slow_rounds_are_projected_from_their_last_gain() -> None:
     # Re-solved errors (mm) of real runs at 200 tiles: the seashell's first tiling shrank 1.3x
     # a round and was split in the end; the peanut's shrinks 3x a round and meets 1e-3 mm.
