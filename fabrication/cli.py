@@ -230,7 +230,7 @@ def _run_design(args: argparse.Namespace) -> int:
     result = design(args.target, options, progress=progress)
     folder = write(result, out)
     if not args.quiet:
-        print(f"wrote {folder}: {_summary(result)}")
+        print(f"wrote {folder}: {_summary(result)}{_print_jobs(folder)}")
         for repair in result.target.notes:  # a mesh file's repairs (design.json target.notes)
             print(f"note: target: {repair}")
         for note in result.notes:
@@ -381,6 +381,24 @@ def _summary(result: Design) -> str:
         )
     bottom = int(result.hinge_layout.bottom.sum())
     return f"{text}, {linkage.n_hinges} hinges ({bottom} on the bottom faces)"
+
+
+def _print_jobs(folder: Path) -> str:
+    """``; printed in 7 jobs on 6 beds (...)`` when the fabrication files split the layout."""
+    import json
+
+    try:
+        manifest = json.loads((folder / "fabrication" / "manifest.json").read_text())
+        jobs = [job for job in manifest.get("print_jobs", []) if isinstance(job, dict)]
+    except (OSError, ValueError, AttributeError):
+        return ""
+    if len(jobs) <= 1:
+        return ""
+    beds = len({job.get("bed", 1) for job in jobs})
+    return (
+        f"; larger than the bed: printed in {len(jobs)} jobs on {beds} "
+        f"bed{'s' if beds > 1 else ''} (fabrication/assembly.md)"
+    )
 
 
 def _closer_fit(result: Design) -> str:

@@ -1003,3 +1003,16 @@ def test_design_help_states_every_default_and_range(capsys) -> None:
         assert found, option
         entry = found.group(1)
         assert stated in entry, (option, entry)
+
+
+def test_the_wrote_line_names_the_print_jobs_of_a_layout_larger_than_the_bed(tmp_path) -> None:
+    from drawstring.fabrication.cli import _print_jobs
+
+    assert _print_jobs(tmp_path) == ""  # --no-cad: no fabrication files
+    (tmp_path / "fabrication").mkdir()
+    manifest = tmp_path / "fabrication" / "manifest.json"
+    manifest.write_text(json.dumps({"print_jobs": [{"job": 1, "bed": 1}]}))
+    assert _print_jobs(tmp_path) == ""  # one job: nothing to say
+    jobs = [{"job": 1, "bed": 1}, {"job": 2, "bed": 2}, {"job": 3, "bed": 2, "loose": True}]
+    manifest.write_text(json.dumps({"print_jobs": jobs}))
+    assert "printed in 3 jobs on 2 beds" in _print_jobs(tmp_path)
