@@ -343,26 +343,44 @@ JOB_SPACING_MM = 5.0
 
 
 def _fill_beds(job_parts: list[list[m3f.PartMesh]], bed: tuple[float, float]) -> list[int]:
-    """Put print jobs that fit together on one bed (shelves, as the DXF sheets are packed),
-    moving the parts of each job in place (``job_parts`` lists each job's parts on the bed,
-    centred); returns each job's bed.  A bed that holds one job keeps it where it was."""
+    """Put print jobs that fit together on one bed (shelves, first bed with room, as the DXF
+    sheets are packed), moving the parts of each job in place (``job_parts`` lists each job's
+    parts on the bed, centred) and turning a job by 90 degrees where it fits the bed only so
+    (the job planner may cut its bands along the bed's other side); returns each job's bed.
+    A bed that holds one job keeps it where it was unless it had to turn (then centred)."""
     if not job_parts:
         return []
-    low = np.array([np.min([p.vertices.min(axis=0) for p in parts], axis=0) for parts in job_parts])
-    high = np.array(
-        [np.max([p.vertices.max(axis=0) for p in parts], axis=0) for parts in job_parts]
+
+    def extent(parts: list[m3f.PartMesh]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        low = np.min([p.vertices.min(axis=0) for p in parts], axis=0)
+        high = np.max([p.vertices.max(axis=0) for p in parts], axis=0)
+        return low, high
+
+    boxes = [extent(parts) for parts in job_parts]
+    sizes = np.array([(high - low)[:2] for low, high in boxes])
+    sheet, position, turned = shelf_pack(
+        sizes, bed, JOB_SPACING_MM, m3f.BED_MARGIN_MM, long_side_x=False
     )
-    sizes = (high - low)[:, :2]
-    sheet, position, _ = shelf_pack(sizes, bed, JOB_SPACING_MM, m3f.BED_MARGIN_MM, turn=False)
     # beds numbered in the order of their first job (the packing goes tallest first)
     first_seen = {int(b): None for b in sheet}
     sheet = np.array([list(first_seen).index(int(b)) for b in sheet], dtype=np.int64)
-    for index in range(len(job_parts)):
-        if np.count_nonzero(sheet == sheet[index]) == 1:
+    quarter = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # +90 deg about z
+    for index, parts in enumerate(job_parts):
+        alone = np.count_nonzero(sheet == sheet[index]) == 1
+        if alone and not turned[index]:
             continue
-        move = np.array([*(position[index] - low[index, :2]), 0.0])
+        if turned[index]:
+            parts = [
+                m3f.PartMesh(p.name, p.kind, p.vertices @ quarter.T, p.triangles) for p in parts
+            ]
+        low, high = extent(parts)
+        if alone:
+            target = 0.5 * np.array(bed) - 0.5 * (high - low)[:2]
+        else:
+            target = position[index]
+        move = np.array([*(target - low[:2]), 0.0])
         job_parts[index] = [
-            m3f.PartMesh(p.name, p.kind, p.vertices + move, p.triangles) for p in job_parts[index]
+            m3f.PartMesh(p.name, p.kind, p.vertices + move, p.triangles) for p in parts
         ]
     return [int(b) for b in sheet]
 

@@ -31,10 +31,11 @@ from OCP.StlAPI import StlAPI_Writer
 from drawstring.geometry import parallel
 from drawstring.geometry.errors import InputError
 
+from .profiles import BED_MARGIN_MM
+
 #: Fixed zip member timestamp (the earliest a zip can hold) for byte-identical files.
 ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
-#: Free border (mm) kept between a print job and the edge of the bed.
-BED_MARGIN_MM = 5.0
+
 #: Chordal tessellation tolerance as a fraction of the tile thickness (at least 0.02 mm).
 MESH_TOLERANCE_FRACTION = 0.007
 #: Angular tessellation tolerance (rad).

@@ -235,8 +235,10 @@ def shelf_pack(
     spacing: float,
     margin: float,
     turn: bool = True,
+    long_side_x: bool = True,
 ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.bool_]]:
-    """Pack rectangles on sheets in shelves (tallest first, left to right, bottom to top).
+    """Pack rectangles on sheets in shelves (tallest first, left to right, bottom to top),
+    each into the first sheet with room, on its open shelf or a new shelf above it.
 
     Parameters
     ----------
@@ -244,7 +246,9 @@ def shelf_pack(
     sheet : (width, height) of a sheet, mm.
     spacing : gap between rectangles, mm.
     margin : free border of each sheet, mm.
-    turn : whether a rectangle may be turned (laid with its long side along x).
+    turn : whether a rectangle may be turned by 90 degrees.
+    long_side_x : turn every rectangle that fits so that its long side lies along x; without
+        it a rectangle is turned only when it fits no other way.
 
     Returns
     -------
@@ -270,23 +274,29 @@ def shelf_pack(
                 f"a part of {w:.1f} x {h:.1f} mm does not fit the {sheet[0]:.0f} x {sheet[1]:.0f} "
                 "mm sheet; use larger sheets (machine.bed_x_mm / bed_y_mm)"
             )
-        if (h > w and fits_turned) or not fits_flat:  # lay parts long side along x
+        if not fits_flat or (long_side_x and h > w and fits_turned):
             turned[i] = True
             placed[i] = (h, w)
     order = np.lexsort((-placed[:, 0], -placed[:, 1]))
     sheet_index = np.zeros(n, dtype=np.int64)
     position = np.zeros((n, 2))
-    current, x, y, shelf = 0, 0.0, 0.0, 0.0
+    shelves: list[list[float]] = []  # per sheet: x, y and height of its open shelf
     for i in order:
         w, h = placed[i]
-        if x > 0 and x + w > width:
-            x, y, shelf = 0.0, y + shelf + spacing, 0.0
-        if y + h > height:
-            current, x, y, shelf = current + 1, 0.0, 0.0, 0.0
-        sheet_index[i] = current
+        number = len(shelves)  # a new sheet unless one has room
+        x = y = shelf = 0.0
+        for index, (open_x, open_y, open_h) in enumerate(shelves):
+            if open_x + w <= width and open_y + h <= height:  # beside the others on its shelf
+                number, x, y, shelf = index, open_x, open_y, open_h
+                break
+            if open_y + open_h + spacing + h <= height:  # on a new shelf above
+                number, x, y, shelf = index, 0.0, open_y + open_h + spacing, 0.0
+                break
+        if number == len(shelves):
+            shelves.append([0.0, 0.0, 0.0])
+        sheet_index[i] = number
         position[i] = (margin + x, margin + y)
-        x += w + spacing
-        shelf = max(shelf, h)
+        shelves[number] = [x + w + spacing, y, max(shelf, h)]
     return sheet_index, position, turned
 
 

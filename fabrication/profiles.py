@@ -59,6 +59,10 @@ MAX_TILES = 20_000
 #: outside that profile's 80-450 mm, which the design warns about) its assembled tiles
 #: interpenetrate by 1.02e-3 mm, a problem; at 20 m they miss by more.
 MAX_SIZE_MM = 10_000.0
+#: Free border (mm) the print jobs keep from the edge of a printer's bed: room for a slicer's
+#: skirt (PrusaSlicer's default runs 6 mm from the parts, its line about 0.5 mm wide; at 5 mm
+#: its G-code left a 330 x 240 mm bed by 1.6 mm).
+BED_MARGIN_MM = 8.0
 #: Largest of ``--weights``.  The weights are absolute, not only relative: the surface weight
 #: also sets closeness against the flat edge lengths in the co-optimization.  The 60-tile
 #: saddle with all three at 1e8 meets the targets (flat edge error 5.7e-4 mm), at 1e10 it

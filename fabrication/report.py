@@ -294,18 +294,22 @@ def _bed_note(found: _Folder) -> str:
     profile_name = found.design.get("options", {}).get("profile") or found.design.get("profile")
     if not profile_name:
         return text
-    from .profiles import load_profile
+    from .profiles import BED_MARGIN_MM, load_profile
 
     try:
         profile = load_profile(str(profile_name))
     except (InputError, OSError):
         return text
     bed = (profile.bed_x_mm, profile.bed_y_mm)
-    fits = (extent[0] <= bed[0] and extent[1] <= bed[1]) or (
-        extent[0] <= bed[1] and extent[1] <= bed[0]
+    room = (bed[0] - 2 * BED_MARGIN_MM, bed[1] - 2 * BED_MARGIN_MM)  # as the job planner
+    fits = (extent[0] <= room[0] and extent[1] <= room[1]) or (
+        extent[0] <= room[1] and extent[1] <= room[0]
     )
     verdict = "fits" if fits else "does not fit"
-    note = f"{text} ({verdict} the {bed[0]:g} × {bed[1]:g} mm bed of {profile.name})"
+    note = (
+        f"{text} ({verdict} the {bed[0]:g} × {bed[1]:g} mm bed of {profile.name} with "
+        f"{BED_MARGIN_MM:g} mm free round it)"
+    )
     if fits or profile.process == "plywood-cnc":
         return note
     jobs: list[Any] = []

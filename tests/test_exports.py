@@ -567,6 +567,17 @@ def test_offset_and_shelf_pack_known_answers() -> None:
     assert np.all(position + placed <= [59.0, 44.0])
     with pytest.raises(InputError, match="does not fit"):
         shelf_pack(np.array([[100.0, 100.0]]), (60.0, 45.0), 2.0, 1.0)
+    # a small part goes back to the first sheet that has room for it
+    boxes = np.array([[40.0, 30.0], [40.0, 30.0], [15.0, 10.0]])
+    sheet, position, turned = shelf_pack(boxes, (60.0, 45.0), 2.0, 1.0, long_side_x=False)
+    assert sheet.tolist() == [0, 1, 0] and not turned.any()
+    assert np.allclose(position, [[1.0, 1.0], [1.0, 1.0], [43.0, 1.0]])
+    # turned only where it fits no other way
+    sheet, _, turned = shelf_pack(np.array([[20.0, 40.0], [50.0, 10.0]]), (45.0, 60.0), 2.0, 1.0,
+                                  long_side_x=False)  # fmt: skip
+    assert turned.tolist() == [False, True]
+    with pytest.raises(InputError, match="does not fit"):
+        shelf_pack(np.array([[50.0, 10.0]]), (45.0, 60.0), 2.0, 1.0, turn=False)
 
 
 def test_a_design_states_one_mass_and_route_length_everywhere(tmp_path: Path) -> None:
@@ -868,3 +879,27 @@ def test_print_jobs_share_beds_where_they_fit_and_each_bed_has_a_file(
     guide = (tmp_path / "fabrication/assembly.md").read_text()
     if per_bed:
         assert f"`{stem}-bed1.3mf` to `{stem}-bed{len(beds)}.3mf`" in guide
+
+
+def test_jobs_are_turned_onto_the_bed_where_they_fit_only_so() -> None:
+    """The job planner may cut bands along the bed's other side; such a job is turned by 90
+    degrees onto the bed, and small jobs share one."""
+    from drawstring.fabrication.exports import _fill_beds
+    from drawstring.fabrication.exports_3mf import BED_MARGIN_MM, PartMesh
+
+    def box(name: str, w: float, h: float) -> PartMesh:
+        corners = np.array([[x, y, z] for x in (0, w) for y in (0, h) for z in (0, 3.0)])
+        return PartMesh(name, "tile", corners, np.array([[0, 1, 2]]))
+
+    bed = (100.0 + 2 * BED_MARGIN_MM, 60.0 + 2 * BED_MARGIN_MM)
+    jobs = [[box("tall", 40.0, 90.0)], [box("a", 30.0, 20.0)], [box("b", 30.0, 20.0)]]
+    beds = _fill_beds(jobs, bed)
+    assert beds == [0, 1, 1]
+    turned = jobs[0][0].vertices
+    assert np.allclose(np.ptp(turned[:, :2], axis=0), [90.0, 40.0])  # now 90 wide, 40 deep
+    for parts in jobs:
+        for part in parts:
+            assert np.all(part.vertices[:, :2] >= BED_MARGIN_MM - 1e-9)
+            assert np.all(part.vertices[:, :2] <= np.array(bed) - BED_MARGIN_MM + 1e-9)
+    a, b = jobs[1][0].vertices, jobs[2][0].vertices
+    assert a[:, 0].max() < b[:, 0].min() or b[:, 0].max() < a[:, 0].min()  # side by side

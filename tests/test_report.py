@@ -687,3 +687,9 @@ def test_a_layout_larger_than_the_bed_names_its_print_jobs(tmp_path: Path) -> No
     assert "splits it into 3 print jobs on 2 beds" in report._bed_note(found)
     flat[1] = 0.1 * flat[1]
     assert "(fits the" in report._bed_note(found)
+    # the planner's free border counts: a layout as large as the bed does not fit it
+    from drawstring.fabrication.profiles import BED_MARGIN_MM
+
+    flat[1, :, 0] = bed.bed_x_mm - BED_MARGIN_MM
+    flat[1, :, 1] = 0.5 * bed.bed_y_mm
+    assert "does not fit" in report._bed_note(found)
