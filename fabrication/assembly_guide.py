@@ -549,7 +549,11 @@ def _write_assembly(
         )
         lines.append("")
         for job in record.jobs:
-            kind = "loose hinge pads" if job.get("loose") else f"{len(job['tiles'])} tiles"
+            kind = (
+                "loose hinge pads"
+                if job.get("loose")
+                else f"{len(job['tiles'])} tiles ({id_runs(job['tiles'])})"
+            )
             lines.append(
                 f"- job {job['job']}: {kind}, {len(job['pads'])} pads{_on_bed(job, record.jobs)}"
             )

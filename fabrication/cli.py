@@ -232,11 +232,12 @@ def _run_design(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"wrote {folder}: {_summary(result)}{_print_jobs(folder)}")
         for repair in result.target.notes:  # a mesh file's repairs (design.json target.notes)
-            print(f"note: target: {repair}")
+            print(f"note: target: {repair}", file=sys.stderr)
+        # the "wrote" line is the command's output; notes and warnings are diagnostics
         for note in result.notes:
-            print(f"note: {note}")
+            print(f"note: {note}", file=sys.stderr)
         for warning in result.warnings:
-            print(f"warning: {warning}")
+            print(f"warning: {warning}", file=sys.stderr)
     if result.problems:
         listed = "; ".join(result.problems)
         print(

@@ -626,7 +626,7 @@ def write_fabrication(
                         n_tiles,
                         profile.tile_material,
                         tile_mass,
-                        "tile_<id> in tiles.3mf",
+                        "tiles.3mf, one object per print job (manifest.json print_jobs)",
                     )
                 )
                 record.bom.append(

@@ -344,7 +344,7 @@ def measure_design(
     if side > 0 and mean_distance > SURFACE_MEAN_REL * side:
         far.append(
             f"{mean_distance:.2f} mm on average (over {100 * SURFACE_MEAN_REL:g} % of the mean "
-            "tile side)"
+            f"tile side, {SURFACE_MEAN_REL * side:.2f} mm)"
         )
     if target_diagonal_mm > 0 and max_distance > SURFACE_MAX_REL * target_diagonal_mm:
         far.append(

@@ -760,7 +760,7 @@ def test_a_folded_flattening_is_a_note_in_the_design_not_a_log_line(
     notes = json.loads((out / "design.json").read_text())["notes"]
     folded = [n for n in notes if n.startswith("flattening: the conformal map turns 1 of")]
     assert len(folded) == 1 and "other --corners" in folded[0]
-    assert "note: flattening: the conformal map turns 1 of" in captured.out
+    assert "note: flattening: the conformal map turns 1 of" in captured.err
     assert not [r for r in caplog.records if r.levelno >= 30 and "flip" in r.getMessage()]
 
 
@@ -913,7 +913,7 @@ def test_a_mesh_files_repairs_are_shown_not_only_recorded(
     assert len(err) == 1 and "1 degenerate (zero-area) face" in err[0] and "--repair" in err[0]
     assert not out.exists()
     assert main(["design", str(mesh), *common, "--repair"]) in (0, 4)
-    assert "note: target: removed 1 zero-area face\n" in capsys.readouterr().out
+    assert "note: target: removed 1 zero-area face\n" in capsys.readouterr().err
     doc = json.loads((out / "design.json").read_text())
     assert doc["target"]["notes"] == ["removed 1 zero-area face"]
     assert doc["options"]["repair"] is True
@@ -1016,3 +1016,18 @@ def test_the_wrote_line_names_the_print_jobs_of_a_layout_larger_than_the_bed(tmp
     jobs = [{"job": 1, "bed": 1}, {"job": 2, "bed": 2}, {"job": 3, "bed": 2, "loose": True}]
     manifest.write_text(json.dumps({"print_jobs": jobs}))
     assert "printed in 3 jobs on 2 beds" in _print_jobs(tmp_path)
+
+
+def test_the_wrote_line_goes_to_stdout_and_the_warnings_to_stderr(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "coarse"
+    args = ["design", "saddle", "--grid", "6", "4", "--resolution", "1500", "--no-cad"]
+    assert main([*args, "--no-simulate", "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    warnings = json.loads((out / "design.json").read_text())["warnings"]
+    assert warnings  # the coarse saddle sits far from its target
+    assert captured.out.splitlines() == [captured.out.splitlines()[0]]
+    assert captured.out.startswith(f"wrote {out}: ")
+    for warning in warnings:
+        assert f"warning: {warning}\n" in captured.err
