@@ -68,13 +68,15 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
         type=int,
         nargs=2,
         metavar=("I", "J"),
-        help=f"grid columns and rows, each at least {MIN_GRID_SIDE} (instead of --tiles)",
+        help=f"grid columns and rows, each at least {MIN_GRID_SIDE}, at most {MAX_TILES} tiles "
+        "in all (instead of --tiles)",
     )
     p.add_argument(
         "--size",
         type=float,
         dest="size_mm",
-        help=f"longest side of the shape in mm, up to {MAX_SIZE_MM:g} (default: the profile's)",
+        help=f"longest side of the shape in mm, above 0 and up to {MAX_SIZE_MM:g} (default: the "
+        "profile's)",
     )
     p.add_argument(
         "--resolution",
@@ -123,7 +125,8 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
         nargs=3,
         metavar=("PLANAR", "SQUARE", "SURFACE"),
         default=(1e4, 10.0, 0.1),
-        help="assembled-shape weights (paper: 10000 10 0.1; 10000 1 100 hugs the target)",
+        help="assembled-shape weights, each 0 to 1e8, not all 0 (default and paper: 10000 10 "
+        "0.1; 10000 1 100 hugs the target)",
     )
     p.add_argument(
         "--up",

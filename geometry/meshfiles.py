@@ -96,18 +96,22 @@ def _fan_triangulate(polygons: list[list[int]]) -> NDArray[np.int64]:
     return np.array(triangles, dtype=np.int64).reshape(-1, 3)
 
 
-def _to_vertex_array(rows: list[list[str]], what: str) -> NDArray[np.float64]:
-    """Convert rows of three coordinate strings to an (n, 3) float array."""
+def _to_vertex_array(
+    rows: list[list[str]], what: str, lines: list[int] | None = None
+) -> NDArray[np.float64]:
+    """Convert rows of three coordinate strings to an (n, 3) float array (``lines``: the
+    file line of each row, for the message)."""
     try:
         return np.array(rows, dtype=np.float64).reshape(-1, 3)
     except ValueError:
-        for row in rows:
+        for index, row in enumerate(rows):
             for token in row:
                 try:
                     float(token)
                 except ValueError:
+                    at = f"line {lines[index]}: " if lines is not None else ""
                     raise InputError(
-                        f"{what} coordinate '{token[:20]}' is not a number; fix the file"
+                        f"{at}{what} coordinate '{token[:20]}' is not a number; fix the file"
                     ) from None
         raise
 
@@ -116,6 +120,7 @@ def _read_obj(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Parse Wavefront OBJ text: ``v`` and ``f`` statements; everything else is ignored."""
     text = data.decode("utf-8", errors="replace")
     vertex_rows: list[list[str]] = []
+    vertex_lines: list[int] = []
     polygons: list[list[int]] = []
     for line_number, line in enumerate(text.splitlines(), start=1):
         parts = line.split()
@@ -126,6 +131,7 @@ def _read_obj(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
             if len(parts) < 4:
                 raise InputError(f"line {line_number}: a vertex needs three coordinates")
             vertex_rows.append(parts[1:4])
+            vertex_lines.append(line_number)
         elif keyword == "f":
             polygon = []
             for token in parts[1:]:
@@ -141,7 +147,7 @@ def _read_obj(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
             if len(polygon) < 3:
                 raise InputError(f"line {line_number}: a face needs at least three vertices")
             polygons.append(polygon)
-    return _to_vertex_array(vertex_rows, "vertex"), _fan_triangulate(polygons)
+    return _to_vertex_array(vertex_rows, "vertex", vertex_lines), _fan_triangulate(polygons)
 
 
 def _read_off(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.int64]]:

@@ -272,8 +272,7 @@ def _clean_disk_mesh(
     if out_of_range.any():
         raise InputError(
             f"face indices out of range in {_count(int(out_of_range.sum()), 'face')} (the mesh "
-            f"has {len(V)} vertices, indices 0..{len(V) - 1}); the file is truncated or corrupt, "
-            "re-export it"
+            f"has {len(V)} vertices); the file is truncated or corrupt, re-export it"
         )
     V, F, dropped = _drop_unreferenced(V, F, follow)
     if dropped:

@@ -996,6 +996,7 @@ def test_design_help_states_every_default_and_range(capsys) -> None:
         "--min-gap-angle": "0 to 60",
         "--max-scale-factor": "(1, 2] (default 2)",
         "--seed": "(default 0)",
+        "--weights": "0 to 1e8",
         "--hinges": "the default",
     }.items():
         # the option's own entry: its name and metavar, then its help

@@ -470,6 +470,7 @@ def test_file_without_faces(tmp_path):
         ("bad.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", ["start at 1"]),
         ("bad.obj", "v 0 0\n", ["line 1", "three coordinates", "export it again"]),
         ("bad.obj", "v 0 zero 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", ["'zero' is not a number"]),
+        ("bad.obj", "# c\nv 0 0 0\nv 1 1 zz\nf 1 2 3\n", ["line 3:", "'zz' is not a number"]),
         ("bad.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n", ["truncated"]),
         ("bad.ply", "ply\nformat ascii 1.0\nelement vertex 3\nend\n", ["not a PLY file"]),
         ("bad.stl", "not an stl\n", ["neither binary STL"]),
