@@ -282,17 +282,20 @@ def _fdm_exports(
         entry["bed"] = bed_index + 1
     n_beds = int(max(beds, default=0)) + 1
     stride = profile.bed_x_mm + 20.0  # beds side by side, one object per job
-    objects = [
-        m3f.Object3mf(
-            f"job {index + 1}" + (" loose hinge pads" if entry.get("loose") else ""),
+
+    def job_object(index: int, dx: float) -> m3f.Object3mf:
+        """Job ``index``'s parts as one 3MF object, moved ``dx`` mm along x."""
+        loose = " loose hinge pads" if record.jobs[index].get("loose") else ""
+        move = np.array([dx, 0.0, 0.0])
+        return m3f.Object3mf(
+            f"job {index + 1}{loose}",
             tuple(
-                m3f.PartMesh(p.name, p.kind, p.vertices + [beds[index] * stride, 0.0, 0.0],
-                             p.triangles)
-                for p in parts
+                m3f.PartMesh(p.name, p.kind, p.vertices + move, p.triangles)
+                for p in job_parts[index]
             ),
         )
-        for index, (parts, entry) in enumerate(zip(job_parts, record.jobs, strict=True))
-    ]  # fmt: skip
+
+    objects = [job_object(index, beds[index] * stride) for index in range(len(job_parts))]
     record.estimates["cut_hinges"] = [int(h) for h in cut]
     record.estimates["print_beds"] = n_beds
     title = f"{design_name} ({profile.name})"
@@ -307,15 +310,7 @@ def _fdm_exports(
         stem = Path(file_name).stem
         for bed_index in range(n_beds):
             name = f"{stem}-bed{bed_index + 1}.3mf"
-            on_bed = [
-                m3f.Object3mf(obj.name, tuple(
-                    m3f.PartMesh(p.name, p.kind, p.vertices - [bed_index * stride, 0.0, 0.0],
-                                 p.triangles)
-                    for p in obj.parts
-                ))
-                for obj, b in zip(objects, beds, strict=True)
-                if b == bed_index
-            ]  # fmt: skip
+            on_bed = [job_object(i, 0.0) for i in range(len(job_parts)) if beds[i] == bed_index]
             m3f.write_3mf(
                 out / name, on_bed, title=f"{title}, bed {bed_index + 1} of {n_beds}",
                 extruders=extruders, materials=materials,
