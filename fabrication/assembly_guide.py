@@ -59,7 +59,8 @@ def _count(number: int, noun: str) -> str:
 
 
 def _figure_png(fig: Any, path: Path) -> None:
-    fig.savefig(path, dpi=110, metadata={"Software": None})
+    # "tight": the legends below the axes are kept whole, however many rows they take
+    fig.savefig(path, dpi=110, metadata={"Software": None}, bbox_inches="tight", pad_inches=0.15)
 
 
 @dataclass(frozen=True)
@@ -191,8 +192,10 @@ def write_pictures(
     hinge_side: Sequence[str],
     steps: NDArray[np.int64],
     lifts: NDArray[np.int64],
+    cut_hinges: Sequence[int] = (),
 ) -> list[str]:
-    """Three pictures for assembly.md: numbered tiles with hinges, threading order, pulling.
+    """Three pictures for assembly.md: numbered tiles with hinges (``cut_hinges``, printed
+    loose between print jobs, ringed), threading order, pulling.
 
     ``steps`` (S, 4) is the route, ``lifts`` (L, 2) the lift bores ``(tile, side)``; step numbers
     and lift-point letters are those of :func:`_write_assembly` (:func:`_guide`).
@@ -252,6 +255,12 @@ def write_pictures(
         ]
     ).reshape(-1, 2)
     pictures.draw_hinges(ax, points, np.array([s != "top" for s in hinge_side], dtype=bool))
+    if len(cut_hinges):
+        cut = points[np.asarray(cut_hinges, dtype=np.int64)]
+        ax.scatter(
+            cut[:, 0], cut[:, 1], s=90, facecolors="none", edgecolors="#d62728", linewidths=1.4,
+            zorder=6, label="hinge between print jobs: glue its loose pad in",
+        )  # fmt: skip
     ax.legend(
         loc="upper center", bbox_to_anchor=(0.5, LEGEND_BELOW), ncol=2, fontsize=7, frameon=False
     )
@@ -562,7 +571,9 @@ def _write_assembly(
             lines += [
                 "",
                 "The layout is larger than the bed, so it was split along rows of hinges. "
-                "Join the jobs with the loose pads of the last job: press each pad's pins "
+                "Join the jobs with the loose hinge pads (their job lays them out in rows, "
+                "left to right, then row after row, in the order of this list; "
+                "`assembly-tiles.png` rings these hinges in red): press each pad's pins "
                 "into the holes of both tiles and glue it into the recess (CA glue):",
                 "",
             ]

@@ -765,7 +765,10 @@ def write_fabrication(
         stop_step_writers(step_processes)  # an error or Ctrl-C: they write into the staging
         raise
     finish_step_writers(step_processes)
-    pictures = write_pictures(out, tiles_flat, tiles_assembled, hinges, sides, steps, lifts)
+    pictures = write_pictures(
+        out, tiles_flat, tiles_assembled, hinges, sides, steps, lifts,
+        cut_hinges=[int(h) for h in record.estimates.get("cut_hinges", [])],
+    )  # fmt: skip
     written += pictures
     _write_bom(out / "bom.csv", record, profile)
     written.append("bom.csv")

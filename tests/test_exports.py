@@ -879,6 +879,12 @@ def test_print_jobs_share_beds_where_they_fit_and_each_bed_has_a_file(
     guide = (tmp_path / "fabrication/assembly.md").read_text()
     if per_bed:
         assert f"`{stem}-bed1.3mf` to `{stem}-bed{len(beds)}.3mf`" in guide
+    loose = [job for job in jobs if job.get("loose")]
+    if loose:  # the guide says how to find each loose pad
+        assert "in the order of this list" in guide
+        listed = [int(line.split()[2].rstrip(":")) for line in guide.splitlines()
+                  if line.startswith("- hinge ")]  # fmt: skip
+        assert listed == loose[0]["pads"]
 
 
 def test_jobs_are_turned_onto_the_bed_where_they_fit_only_so() -> None:
