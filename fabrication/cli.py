@@ -389,18 +389,13 @@ def _summary(result: Design) -> str:
 
 def _print_jobs(folder: Path) -> str:
     """``; printed in 7 jobs on 6 beds (...)`` when the fabrication files split the layout."""
-    import json
+    from .report import print_job_counts
 
-    try:
-        manifest = json.loads((folder / "fabrication" / "manifest.json").read_text())
-        jobs = [job for job in manifest.get("print_jobs", []) if isinstance(job, dict)]
-    except (OSError, ValueError, AttributeError):
+    jobs, beds = print_job_counts(folder)
+    if jobs <= 1:
         return ""
-    if len(jobs) <= 1:
-        return ""
-    beds = len({job.get("bed", 1) for job in jobs})
     return (
-        f"; larger than the bed: printed in {len(jobs)} jobs on {beds} "
+        f"; larger than the bed: printed in {jobs} jobs on {beds} "
         f"bed{'s' if beds > 1 else ''} (fabrication/assembly.md)"
     )
 

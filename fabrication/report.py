@@ -312,19 +312,24 @@ def _bed_note(found: _Folder) -> str:
     )
     if fits or profile.process == "plywood-cnc":
         return note
-    jobs: list[Any] = []
-    try:
-        manifest = json.loads((found.folder / "fabrication" / "manifest.json").read_text())
-        jobs = list(manifest.get("print_jobs", []))
-    except (OSError, ValueError, AttributeError):
-        pass
+    jobs, beds = print_job_counts(found.folder)
     if not jobs:
         return f"{note}; the fabrication files split it into print jobs"
-    beds = len({job.get("bed", 1) for job in jobs if isinstance(job, dict)})
     return (
-        f"{note}; fabrication/ splits it into {len(jobs)} print jobs on {beds} "
+        f"{note}; fabrication/ splits it into {jobs} print jobs on {beds} "
         f"bed{'s' if beds != 1 else ''} (see fabrication/assembly.md)"
     )
+
+
+def print_job_counts(folder: Path) -> tuple[int, int]:
+    """Print jobs and beds listed in a design folder's ``fabrication/manifest.json`` (0, 0
+    without one)."""
+    try:
+        manifest = json.loads((folder / "fabrication" / "manifest.json").read_text())
+        jobs = [job for job in manifest.get("print_jobs", []) if isinstance(job, dict)]
+    except (OSError, ValueError, AttributeError):
+        return 0, 0
+    return len(jobs), len({job.get("bed", 1) for job in jobs})
 
 
 def _summary(found: _Folder, view: dict[str, Any]) -> str:
