@@ -20,6 +20,7 @@ from drawstring.geometry.route import Route
 
 if TYPE_CHECKING:
     from drawstring.cad.design import CadResult
+    from drawstring.fabrication.profiles import Profile
 
     from .exports import Measures
     from .pipeline import Design
@@ -264,6 +265,23 @@ def _shortfalls(result: Design) -> list[_Shortfall]:
 SIZE_MARGIN = 1.04
 
 
+def thickness_refusal(profile: Profile, thickness: float) -> InputError | None:
+    """The one-line refusal of tiles too thin for the profile's string channel (the hinge
+    recesses and labels sunk above and below it), or None.  It depends on the profile and the
+    thickness alone, so the pipeline asks it before any stage runs."""
+    from drawstring.cad.features import channel_min_thickness_mm
+
+    need_thickness = channel_min_thickness_mm(profile)
+    if thickness >= need_thickness - 1e-9:
+        return None
+    return InputError(
+        f"{thickness:g} mm thick tiles are too thin for the {profile.name} profile's string "
+        f"channel ({profile.string_diameter_mm + profile.channel_clearance_mm:g} mm bore at "
+        f"mid-thickness, walls and hinge recesses above and below it need "
+        f"{need_thickness:.2f} mm); use --thickness {_round_up(need_thickness):g} or more"
+    )
+
+
 def feature_fit_refusal(result: Design) -> InputError | None:
     """The one-line refusal of tiles too small or too thin for the profile's string channel,
     lift bores or hinge strips, or None when they fit.
@@ -288,18 +306,10 @@ def feature_fit_refusal(result: Design) -> InputError | None:
     between, the wall left is thinner than a nozzle.  The channel faces alone (2.40 mm) would
     refuse only below ``--size 39``.
     """
-    from drawstring.cad.features import channel_min_thickness_mm
-
     profile, options = result.profile, result.options
-    thickness = options.thickness_mm
-    need_thickness = channel_min_thickness_mm(profile)
-    if thickness < need_thickness - 1e-9:
-        return InputError(
-            f"{thickness:g} mm thick tiles are too thin for the {profile.name} profile's string "
-            f"channel ({profile.string_diameter_mm + profile.channel_clearance_mm:g} mm bore at "
-            f"mid-thickness, walls and hinge recesses above and below it need "
-            f"{need_thickness:.2f} mm); use --thickness {_round_up(need_thickness):g} or more"
-        )
+    too_thin = thickness_refusal(profile, options.thickness_mm)
+    if too_thin is not None:
+        return too_thin
     found = _shortfalls(result)
     if not found:
         return None

@@ -89,8 +89,9 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
         "--thickness",
         type=float,
         dest="thickness_mm",
-        help="tile thickness in mm, above 0 (default: the profile's; a thickness the shape's "
-        "curvature cannot take is refused with the largest that fits)",
+        help="tile thickness in mm, above 0 (default: the profile's; with CAD on, a thickness "
+        "below what the profile's string channel needs is refused at once with that minimum; "
+        "one the shape's curvature cannot take is refused with the largest that fits)",
     )
     p.add_argument(
         "--min-gap-angle",

@@ -406,7 +406,7 @@ def resolve_options(options: DesignOptions, profile: Profile) -> ResolvedOptions
     tiles = options.tiles
     if options.grid is None and tiles is None:
         tiles = profile.default_tiles
-    return ResolvedOptions(
+    resolved = ResolvedOptions(
         profile=profile.name if profile.source.endswith("(shipped)") else profile.source,
         tiles=tiles if options.grid is None else None,
         grid=tuple(options.grid) if options.grid is not None else None,  # type: ignore[arg-type]
@@ -429,6 +429,13 @@ def resolve_options(options: DesignOptions, profile: Profile) -> ResolvedOptions
         seed=options.seed,
         repair=options.repair,
     )
+    if resolved.cad:
+        from .cad_stage import thickness_refusal
+
+        too_thin = thickness_refusal(profile, resolved.thickness_mm)
+        if too_thin is not None:
+            raise too_thin
+    return resolved
 
 
 def check_grid(options: ResolvedOptions, flat_map: Flattening, *, from_profile: bool) -> None:

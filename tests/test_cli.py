@@ -242,6 +242,9 @@ def test_bad_meshes_exit_2_with_one_line_and_no_folder(case: str, tmp_path: Path
         (["saddle", "--thickness", "-1"], "--thickness"),
         (["saddle", "--thickness", "nan"], "--thickness"),
         (["saddle", "--thickness", "inf"], "--thickness"),
+        # Too thin for the profile's string channel: refused before any stage runs.
+        (["saddle", "--thickness", "1"], "too thin for the fdm-dual profile's string channel"),
+        (["saddle", "--profile", "laser-epdm", "--thickness", "2"], "use --thickness 3."),
         (["saddle", "--min-gap-angle", "-1"], "so it cannot be negative"),
         (["saddle", "--min-gap-angle", "nan"], "give a number of degrees"),
         (["saddle", "--min-gap-angle", "61"], "almost no room to absorb"),
