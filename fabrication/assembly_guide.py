@@ -583,19 +583,27 @@ def _write_assembly(
         lines.append("")
     else:
         lines += [f"## {next(section)}. Make the parts", ""]
-        if profile.process == "laser-epdm" and len(record.jobs) > 1:
-            lines.append(
-                f"Print the tiles from `tiles.3mf` (single material). The flat layout is larger "
-                f"than the {profile.bed_x_mm:g} x {profile.bed_y_mm:g} mm bed, so the file holds "
-                f"{len(record.jobs)} objects, one per print job." + _beds_text("tiles", record.jobs)
+        if profile.process == "laser-epdm":
+            beds = len(record.jobs)
+            text = (
+                "Print the tiles from `tiles.3mf` (single material). They print loose, each "
+                "turned about the vertical to take the least room, nested on "
+                f"{_count(beds, 'bed')} of {profile.bed_x_mm:g} x {profile.bed_y_mm:g} mm"
             )
-            lines.append("")
-            lines += [
-                f"- job {job['job']}: tiles {id_runs(job['tiles'])}{_on_bed(job, record.jobs)}"
-                for job in record.jobs
-            ]
-        elif profile.process == "laser-epdm":
-            lines.append("Print the tiles from `tiles.3mf` (single material).")
+            if beds > 1:
+                text += (
+                    ", one object per bed, side by side in that file (the first on the plate); "
+                    f"`tiles-bed1.3mf` to `tiles-bed{beds}.3mf` hold one bed each, on the plate"
+                )
+            lines.append(
+                text + ". Each tile carries its number; the placement template (below) shows "
+                "where it goes."
+            )
+            if beds > 1:
+                lines.append("")
+                lines += [
+                    f"- bed {job['bed']}: tiles {id_runs(job['tiles'])}" for job in record.jobs
+                ]
         else:
             panel_sheets = _count(record.sheets["panels"]["sheets"], "sheet")
             lines.append(

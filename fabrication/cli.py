@@ -395,6 +395,8 @@ def _print_jobs(folder: Path) -> str:
     jobs, beds = print_job_counts(folder)
     if jobs <= 1:
         return ""
+    if jobs == beds:  # one job per bed (loose tiles are nested so)
+        return f"; printed on {beds} beds (fabrication/assembly.md)"
     return (
         f"; larger than the bed: printed in {jobs} jobs on {beds} "
         f"bed{'s' if beds > 1 else ''} (fabrication/assembly.md)"

@@ -8,7 +8,8 @@ tile ``tile_<id>`` and per hinge part ``hinge_<id>``), ``bom.csv``, ``manifest.j
   pads for extruder 2, with PrusaSlicer's and Bambu/Orca's configs.  A layout larger than the
   bed is split into jobs along rows of hinges; pads of the hinges between jobs are printed loose
   in a last job and glued in (listed in ``assembly.md``).
-* ``laser-epdm``: ``tiles.3mf`` (single material), ``hinges.dxf`` (kerf-compensated rubber strips
+* ``laser-epdm``: ``tiles.3mf`` (single material; the loose tiles turned and nested on as few
+  beds as shelf packing takes, one object per bed), ``hinges.dxf`` (kerf-compensated rubber strips
   nested on sheets, tile numbers engraved as strokes), ``placement.dxf`` and ``placement.svg``.
 * ``plywood-cnc``: ``panels.dxf`` (six panels per tile, butt or finger joints with dog-bones,
   cable holes, engraved labels, nested on sheets), ``hinges.dxf``, ``cutlist.csv``,
@@ -43,6 +44,8 @@ from drawstring.fabrication.assembly_guide import _write_assembly, write_picture
 from drawstring.fabrication.exports_dxf import (
     Nesting,
     nest_parts,
+    place_outlines,
+    rotate,
     shelf_pack,
     write_sheets_dxf,
 )
@@ -53,6 +56,7 @@ from drawstring.fabrication.exports_step import (
     start_step_writers,
     stop_step_writers,
 )
+from drawstring.geometry.errors import InputError
 
 if TYPE_CHECKING:
     from drawstring.cad.design import CadResult
@@ -232,52 +236,27 @@ def _fdm_exports(
         h: np.stack([m.vertices.min(axis=0), m.vertices.max(axis=0)]) for h, m in pad_mesh.items()
     }
     bed = (profile.bed_x_mm, profile.bed_y_mm)
-    jobs, cut = m3f.plan_print_jobs(
-        tiles_flat, hinges if with_pads else np.zeros((0, 4), int), bed, pad_boxes
-    )
-    # every job's parts moved onto the bed, in the job's own frame (centred on the bed)
-    job_parts: list[list[m3f.PartMesh]] = []
-    for job in jobs:
-        parts = [
-            m3f.PartMesh(
-                tile_mesh[t].name, "tile", tile_mesh[t].vertices + job.offset,
-                tile_mesh[t].triangles,
+    if not with_pads:
+        # loose tiles (their hinges are glued on later, on the placement template): nested
+        job_parts = _nested_tiles([tile_mesh[t] for t in range(len(tile_mesh))], bed)
+        for parts in job_parts:
+            low = np.min([p.vertices.min(axis=0) for p in parts], axis=0)
+            high = np.max([p.vertices.max(axis=0) for p in parts], axis=0)
+            record.jobs.append(
+                {
+                    "job": len(record.jobs) + 1,
+                    "tiles": sorted(int(p.name.split("_")[1]) for p in parts),
+                    "pads": [],
+                    "size_mm": [round(float(v), 2) for v in (high - low)[:2]],
+                    "nested": True,
+                }
             )
-            for t in job.tiles
-        ]  # fmt: skip
-        parts += [
-            m3f.PartMesh(
-                pad_mesh[h].name, "pad", pad_mesh[h].vertices + job.offset, pad_mesh[h].triangles
-            )
-            for h in job.pads
-            if h in pad_mesh
-        ]
-        job_parts.append(parts)
-        record.jobs.append(
-            {
-                "job": len(record.jobs) + 1,
-                "tiles": list(job.tiles),
-                "pads": list(job.pads),
-                "size_mm": [round(float(v), 2) for v in job.size],
-            }
-        )
-    loose_cut = [h for h in cut if h in pad_mesh]
-    if loose_cut:
-        flipped = []
-        for h in loose_cut:
-            mesh = pad_mesh[h]
-            side_top = bool(np.mean(mesh.vertices[:, 2]) > 0.5 * profile.thickness_mm)
-            flipped.append(m3f.flip_upside_down(mesh) if side_top else mesh)
-        placed, fits = m3f.arrange_loose(flipped, bed, 3.0)
-        job_parts.append(list(placed))
-        record.jobs.append(
-            {"job": len(record.jobs) + 1, "tiles": [], "pads": [int(h) for h in cut], "loose": True}
-        )
-        if not fits:
-            record.notes.append(
-                "the loose hinge pads do not all fit one bed; print them in two runs"
-            )
-    beds = _fill_beds(job_parts, bed)
+        beds = list(range(len(job_parts)))
+        cut: list[int] = []
+    else:
+        jobs, cut = m3f.plan_print_jobs(tiles_flat, hinges, bed, pad_boxes)
+        job_parts = _jobs_on_bed(jobs, tile_mesh, pad_mesh, record)
+        beds = _loose_pads_and_beds(cut, pad_mesh, job_parts, bed, profile, record)
     for entry, bed_index in zip(record.jobs, beds, strict=True):
         entry["bed"] = bed_index + 1
     n_beds = int(max(beds, default=0)) + 1
@@ -331,6 +310,98 @@ def _fdm_exports(
             + (f" + 2 tool changes of {TOOL_CHANGE_S:.0f} s per layer" if with_pads else "")
         )
     return written
+
+
+#: Space left between loose tiles nested on a bed, mm (room for a brim of a few lines).
+TILE_SPACING_MM = 4.0
+
+
+def _nested_tiles(meshes: list[m3f.PartMesh], bed: tuple[float, float]) -> list[list[m3f.PartMesh]]:
+    """Tiles turned about the vertical to their smallest bounding rectangles and shelf-packed
+    onto beds (as the DXF parts are), one list of moved meshes per bed."""
+    from scipy.spatial import ConvexHull
+
+    outlines = []
+    for mesh in meshes:
+        xy = mesh.vertices[:, :2]
+        outlines.append(xy[ConvexHull(xy).vertices])
+    try:
+        sheet, angle, shift, _ = place_outlines(outlines, bed, TILE_SPACING_MM, m3f.BED_MARGIN_MM)
+    except InputError as error:
+        raise InputError(
+            f"a tile does not fit the {bed[0]:g} x {bed[1]:g} mm bed with "
+            f"{m3f.BED_MARGIN_MM:g} mm free round it; use a larger bed "
+            "(machine.bed_x_mm / bed_y_mm) or more tiles"
+        ) from error
+    beds: list[list[m3f.PartMesh]] = [[] for _ in range(int(sheet.max(initial=-1)) + 1)]
+    for mesh, b, a, move in zip(meshes, sheet, angle, shift, strict=True):
+        vertices = mesh.vertices.copy()
+        vertices[:, :2] = rotate(vertices[:, :2], float(a)) + move
+        beds[int(b)].append(m3f.PartMesh(mesh.name, mesh.kind, vertices, mesh.triangles))
+    return beds
+
+
+def _jobs_on_bed(
+    jobs: list[m3f.PrintJob],
+    tile_mesh: dict[int, m3f.PartMesh],
+    pad_mesh: dict[int, m3f.PartMesh],
+    record: _Record,
+) -> list[list[m3f.PartMesh]]:
+    """Every job's parts moved onto the bed, in the job's own frame (centred on the bed)."""
+    job_parts: list[list[m3f.PartMesh]] = []
+    for job in jobs:
+        parts = [
+            m3f.PartMesh(
+                tile_mesh[t].name, "tile", tile_mesh[t].vertices + job.offset,
+                tile_mesh[t].triangles,
+            )
+            for t in job.tiles
+        ]  # fmt: skip
+        parts += [
+            m3f.PartMesh(
+                pad_mesh[h].name, "pad", pad_mesh[h].vertices + job.offset, pad_mesh[h].triangles
+            )
+            for h in job.pads
+            if h in pad_mesh
+        ]
+        job_parts.append(parts)
+        record.jobs.append(
+            {
+                "job": len(record.jobs) + 1,
+                "tiles": list(job.tiles),
+                "pads": list(job.pads),
+                "size_mm": [round(float(v), 2) for v in job.size],
+            }
+        )
+    return job_parts
+
+
+def _loose_pads_and_beds(
+    cut: list[int],
+    pad_mesh: dict[int, m3f.PartMesh],
+    job_parts: list[list[m3f.PartMesh]],
+    bed: tuple[float, float],
+    profile: Profile,
+    record: _Record,
+) -> list[int]:
+    """The job of the loose pads of ``cut`` hinges (appended), then every job's bed."""
+    loose_cut = [h for h in cut if h in pad_mesh]
+    if loose_cut:
+        flipped = []
+        for h in loose_cut:
+            mesh = pad_mesh[h]
+            side_top = bool(np.mean(mesh.vertices[:, 2]) > 0.5 * profile.thickness_mm)
+            flipped.append(m3f.flip_upside_down(mesh) if side_top else mesh)
+        placed, fits = m3f.arrange_loose(flipped, bed, 3.0)
+        job_parts.append(list(placed))
+        record.jobs.append(
+            {"job": len(record.jobs) + 1, "tiles": [], "pads": [int(h) for h in cut], "loose": True}
+        )
+        if not fits:
+            record.notes.append(
+                "the loose hinge pads do not all fit one bed; print them in two runs"
+            )
+    return _fill_beds(job_parts, bed)
 
 
 #: Space left between print jobs that share a bed, mm.

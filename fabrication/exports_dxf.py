@@ -300,31 +300,47 @@ def shelf_pack(
     return sheet_index, position, turned
 
 
+def place_outlines(
+    outlines: Sequence[NDArray[np.float64]],
+    sheet: tuple[float, float],
+    spacing: float,
+    margin: float,
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Where each outline goes when it is turned to its smallest bounding rectangle
+    (:func:`min_area_rotation`) and the rectangles are shelf-packed (:func:`shelf_pack`).
+
+    Returns
+    -------
+    sheet_index : (n,) int.
+    angle : (n,) float, rad; the outline's points go to ``rotate(points, angle) + shift``.
+    shift : (n, 2) float, mm, on the sheet.
+    size : (n, 2) float, mm, each placed outline's bounding rectangle.
+    """
+    angles = np.array([min_area_rotation(outline) for outline in outlines], dtype=np.float64)
+    sizes = np.array(
+        [np.ptp(rotate(outline, a), axis=0) for outline, a in zip(outlines, angles, strict=True)]
+    ).reshape(-1, 2)
+    sheet_index, position, turned = shelf_pack(sizes, sheet, spacing, margin)
+    angles = angles + np.where(turned, 0.5 * np.pi, 0.0)
+    shift = np.zeros((len(outlines), 2))
+    for i, (outline, angle) in enumerate(zip(outlines, angles, strict=True)):
+        shift[i] = position[i] - rotate(outline, float(angle)).min(axis=0)
+    return sheet_index, angles, shift, np.where(turned[:, None], sizes[:, ::-1], sizes)
+
+
 def nest_parts(
     parts: Sequence[Part2D], sheet: tuple[float, float], kerf: float, spacing: float
 ) -> Nesting:
-    """Kerf-compensate, orient and shelf-pack parts on sheets (see :func:`shelf_pack`)."""
-    prepared = []
-    sizes = []
-    for part in parts:
-        compensated = part.kerf_compensated(kerf)
-        angle = min_area_rotation(compensated.outline)
-        turned = compensated.moved(angle, np.zeros(2))
-        low = turned.outline.min(axis=0)
-        turned = turned.moved(0.0, -low)
-        prepared.append(turned)
-        sizes.append(np.ptp(turned.outline, axis=0))
-    sheet_index, position, rotated = shelf_pack(
-        np.array(sizes).reshape(-1, 2), sheet, spacing, SHEET_MARGIN_MM
+    """Kerf-compensate, orient and shelf-pack parts on sheets (see :func:`place_outlines`)."""
+    prepared = [part.kerf_compensated(kerf) for part in parts]
+    sheet_index, angles, shift, sizes = place_outlines(
+        [part.outline for part in prepared], sheet, spacing, SHEET_MARGIN_MM
     )
     n_sheets = int(sheet_index.max()) + 1 if len(parts) else 0
     sheets: list[list[Part2D]] = [[] for _ in range(n_sheets)]
     used = np.zeros(n_sheets)
     for i, part in enumerate(prepared):
-        if rotated[i]:
-            part = part.moved(0.5 * np.pi, np.zeros(2))
-            part = part.moved(0.0, -part.outline.min(axis=0))
-        sheets[sheet_index[i]].append(part.moved(0.0, position[i]))
+        sheets[sheet_index[i]].append(part.moved(float(angles[i]), shift[i]))
         used[sheet_index[i]] += float(np.prod(sizes[i]))
     return Nesting(
         np.array(sheet, dtype=np.float64),

@@ -315,6 +315,11 @@ def _bed_note(found: _Folder) -> str:
     jobs, beds = print_job_counts(found.folder)
     if not jobs:
         return f"{note}; the fabrication files split it into print jobs"
+    if profile.process == "laser-epdm":
+        return (
+            f"{note}; the loose tiles print nested on {beds} bed{'s' if beds != 1 else ''} "
+            "(see fabrication/assembly.md)"
+        )
     return (
         f"{note}; fabrication/ splits it into {jobs} print jobs on {beds} "
         f"bed{'s' if beds != 1 else ''} (see fabrication/assembly.md)"

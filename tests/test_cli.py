@@ -1020,6 +1020,9 @@ def test_the_wrote_line_names_the_print_jobs_of_a_layout_larger_than_the_bed(tmp
     jobs = [{"job": 1, "bed": 1}, {"job": 2, "bed": 2}, {"job": 3, "bed": 2, "loose": True}]
     manifest.write_text(json.dumps({"print_jobs": jobs}))
     assert "printed in 3 jobs on 2 beds" in _print_jobs(tmp_path)
+    jobs = [{"job": 1, "bed": 1}, {"job": 2, "bed": 2}]  # nested loose tiles: a job per bed
+    manifest.write_text(json.dumps({"print_jobs": jobs}))
+    assert "; printed on 2 beds (" in _print_jobs(tmp_path)
 
 
 def test_the_wrote_line_goes_to_stdout_and_the_warnings_to_stderr(

@@ -24,8 +24,8 @@ ezdxf = pytest.importorskip("ezdxf")
 from drawstring.cad.design import CadResult, build_design_solids, normalize_route  # noqa: E402
 from drawstring.cad.samples import SampleDesign, cylinder_design  # noqa: E402
 from drawstring.cad.tiles import move_solid  # noqa: E402
-from drawstring.fabrication.exports import write_fabrication  # noqa: E402
-from drawstring.fabrication.exports_3mf import plan_print_jobs  # noqa: E402
+from drawstring.fabrication.exports import TILE_SPACING_MM, write_fabrication  # noqa: E402
+from drawstring.fabrication.exports_3mf import BED_MARGIN_MM, plan_print_jobs  # noqa: E402
 from drawstring.fabrication.exports_dxf import (  # noqa: E402
     CUT_LAYERS,
     LAYER_CUT_OUTER,
@@ -264,6 +264,25 @@ def _read_3mf(path: Path):
         triangles = np.array([t.Indices[0:3] for t in mesh.GetTriangleIndices()])
         meshes.append((mesh.IsManifoldAndOriented(), vertices, triangles))
     return meshes
+
+
+def _components(vertices: np.ndarray, triangles: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The connected pieces of a triangle mesh, each with its own vertices."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(vertices)
+    rows = np.concatenate([triangles[:, 0], triangles[:, 1]])
+    cols = np.concatenate([triangles[:, 1], triangles[:, 2]])
+    _, label = connected_components(sp.coo_matrix((np.ones(len(rows)), (rows, cols)), (n, n)))
+    pieces = []
+    for k in np.unique(label[triangles[:, 0]]):
+        keep = np.flatnonzero(label == k)
+        index = np.full(n, -1)
+        index[keep] = np.arange(len(keep))
+        tris = triangles[label[triangles[:, 0]] == k]
+        pieces.append((vertices[keep], index[tris]))
+    return pieces
 
 
 def _mesh_volume(vertices: np.ndarray, triangles: np.ndarray) -> float:
@@ -530,26 +549,59 @@ def test_print_jobs_split_along_rows_or_refuse() -> None:
         plan_print_jobs(tiles, design.linkage.hinges, (12.0, 12.0))
 
 
-def test_the_guide_names_the_print_jobs_of_loose_tiles(built: Built, tmp_path: Path) -> None:
-    """laser-epdm on a bed smaller than the layout: tiles.3mf holds one object per job, and
-    assembly.md says which tiles each job prints."""
+def test_loose_tiles_are_nested_on_the_beds_and_the_guide_lists_them(
+    built: Built, tmp_path: Path
+) -> None:
+    """laser-epdm on a bed smaller than the layout: the loose tiles are turned and nested, each
+    once, apart from the others, on as few beds as the packing needs; each bed is one object
+    of tiles.3mf and has its own file, and assembly.md lists every bed's tiles."""
     if built.profile.process != "laser-epdm":
         pytest.skip("laser-epdm only")
     span = np.ptp(built.design.tiles_2d[:, :, :2].reshape(-1, 2), axis=0)
-    small = dataclasses.replace(
-        built.profile, bed_x_mm=float(0.6 * span[0] + 10), bed_y_mm=float(span[1] + 20)
-    )
+    bed = (float(0.6 * span[0] + 10), float(span[1] + 20))
+    small = dataclasses.replace(built.profile, bed_x_mm=bed[0], bed_y_mm=bed[1])
     _write(dataclasses.replace(built, profile=small), tmp_path)
     manifest = json.loads((tmp_path / "fabrication/manifest.json").read_text())
     jobs = manifest["print_jobs"]
-    assert len(jobs) >= 2
+    assert [job["bed"] for job in jobs] == list(range(1, len(jobs) + 1))
+    n_tiles = len(built.design.tiles_2d)
+    assert sorted(t for job in jobs for t in job["tiles"]) == list(range(n_tiles))
     guide = (tmp_path / "fabrication/assembly.md").read_text()
-    assert f"holds {len(jobs)} objects, one per print job" in guide
     for job in jobs:
-        assert f"- job {job['job']}: tiles {id_runs(job['tiles'])}" in guide
-    with zipfile.ZipFile(tmp_path / "fabrication/tiles.3mf") as archive:
-        model = archive.read("3D/3dmodel.model").decode()
-    assert model.count("<object ") >= len(jobs)
+        assert f"- bed {job['bed']}: tiles {id_runs(job['tiles'])}" in guide
+    # every tile is on its bed, keeps its volume, and its footprint (convex hull) stays
+    # TILE_SPACING_MM clear of the others': some axis (an edge normal, x or y) separates them
+    from scipy.spatial import ConvexHull
+
+    volumes = []
+    footprint_area = 0.0
+    for job in jobs:
+        name = f"tiles-bed{job['bed']}.3mf" if len(jobs) > 1 else "tiles.3mf"
+        ((_, bed_vertices, bed_triangles),) = _read_3mf(tmp_path / "fabrication" / name)
+        pieces = _components(bed_vertices, bed_triangles)
+        assert len(pieces) == len(job["tiles"])
+        hulls = []
+        for vertices, triangles in pieces:
+            assert np.all(vertices[:, :2] >= BED_MARGIN_MM - 1e-6)
+            assert np.all(vertices[:, :2] <= np.array(bed) - BED_MARGIN_MM + 1e-6)
+            tri = vertices[triangles]
+            volumes.append(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum())
+            hull = ConvexHull(vertices[:, :2])
+            hulls.append(vertices[hull.vertices, :2])
+            footprint_area += hull.volume
+        for i, a in enumerate(hulls):
+            for b in hulls[i + 1 :]:
+                axes = [np.roll(p, -1, axis=0) - p for p in (a, b)]
+                normals = np.vstack([*(e[:, ::-1] * [1.0, -1.0] for e in axes), np.eye(2)])
+                normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+                pa, pb = a @ normals.T, b @ normals.T
+                gap = np.maximum(pb.min(axis=0) - pa.max(axis=0), pa.min(axis=0) - pb.max(axis=0))
+                assert gap.max() >= TILE_SPACING_MM - 1e-6
+    expected = sorted(solid.volume for solid in built.flat.tiles)
+    np.testing.assert_allclose(sorted(np.array(volumes) / 6.0), expected, rtol=0.01)
+    # the tiles take far fewer beds than bands of the flat layout (whose gaps are wasted)
+    usable = (bed[0] - 2 * BED_MARGIN_MM) * (bed[1] - 2 * BED_MARGIN_MM)
+    assert len(jobs) <= math.ceil(2.0 * footprint_area / usable)
 
 
 def test_offset_and_shelf_pack_known_answers() -> None:
@@ -845,8 +897,8 @@ def test_print_jobs_share_beds_where_they_fit_and_each_bed_has_a_file(
 ) -> None:
     """A layout split into jobs: jobs that fit one bed together share it (apart), and with
     more than one bed every bed also gets a file of its own with its jobs on the plate."""
-    if built.profile.process not in ("fdm-dual", "laser-epdm"):
-        pytest.skip("3MF profiles only")
+    if built.profile.process != "fdm-dual":
+        pytest.skip("jobs of hinged tiles only (laser-epdm nests loose tiles)")
     span = np.ptp(built.design.tiles_2d[:, :, :2].reshape(-1, 2), axis=0)
     bed = (float(0.6 * span[0] + 10), float((2.4 if stacked else 1.0) * span[1] + 30))
     small = dataclasses.replace(built.profile, bed_x_mm=bed[0], bed_y_mm=bed[1])
@@ -909,3 +961,24 @@ def test_jobs_are_turned_onto_the_bed_where_they_fit_only_so() -> None:
             assert np.all(part.vertices[:, :2] <= np.array(bed) - BED_MARGIN_MM + 1e-9)
     a, b = jobs[1][0].vertices, jobs[2][0].vertices
     assert a[:, 0].max() < b[:, 0].min() or b[:, 0].max() < a[:, 0].min()  # side by side
+
+
+def test_nested_tiles_turn_to_fit_and_a_tile_too_large_is_refused() -> None:
+    """Loose tiles are turned to their smallest bounding rectangles: a long thin tile lying
+    diagonally fits a bed it would not fit as drawn; one too large for the bed is refused."""
+    from drawstring.fabrication.exports import _nested_tiles
+    from drawstring.fabrication.exports_3mf import PartMesh
+
+    def slab(length: float, width: float, turn_deg: float) -> PartMesh:
+        corners = np.array([[x, y, z] for x in (0, length) for y in (0, width) for z in (0, 3.0)])
+        c, s = np.cos(np.radians(turn_deg)), np.sin(np.radians(turn_deg))
+        corners[:, :2] = corners[:, :2] @ np.array([[c, s], [-s, c]])
+        return PartMesh("tile_0", "tile", corners, np.array([[0, 1, 2]]))
+
+    bed = (100.0 + 2 * BED_MARGIN_MM, 20.0 + 2 * BED_MARGIN_MM)
+    (placed,) = _nested_tiles([slab(90.0, 10.0, 35.0)], bed)
+    xy = placed[0].vertices[:, :2]
+    assert np.allclose(np.ptp(xy, axis=0), [90.0, 10.0])
+    assert np.all(xy >= BED_MARGIN_MM - 1e-9) and np.all(xy <= np.array(bed) - BED_MARGIN_MM + 1e-9)
+    with pytest.raises(InputError, match="a tile does not fit the .* bed .* or more tiles"):
+        _nested_tiles([slab(120.0, 10.0, 0.0)], bed)

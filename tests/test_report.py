@@ -685,6 +685,10 @@ def test_a_layout_larger_than_the_bed_names_its_print_jobs(tmp_path: Path) -> No
     jobs = [{"job": 1, "bed": 1}, {"job": 2, "bed": 2}, {"job": 3, "bed": 1, "loose": True}]
     (tmp_path / "fabrication" / "manifest.json").write_text(json.dumps({"print_jobs": jobs}))
     assert "splits it into 3 print jobs on 2 beds" in report._bed_note(found)
+    laser = report._Folder(
+        tmp_path, {"options": {"profile": "laser-epdm"}}, None, flat, None, None, ()
+    )
+    assert "the loose tiles print nested on 2 beds" in report._bed_note(laser)
     flat[1] = 0.1 * flat[1]
     assert "(fits the" in report._bed_note(found)
     # the planner's free border counts: a layout as large as the bed does not fit it
