@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from drawstring.geometry import parallel, verify
 from drawstring.geometry.assembled import (
     AssembledResult,
+    hinge_depth_pull,
     optimize_assembled,
     quad_vector_areas,
     reextrude,
@@ -46,6 +47,8 @@ from drawstring.geometry.tolerances import (
 )
 
 if TYPE_CHECKING:
+    from drawstring.geometry.solver import LinearPull
+
     from .pipeline import Progress, ResolvedOptions
 
 logger = logging.getLogger(__name__)
@@ -261,6 +264,9 @@ def _shaped(
         if options.hinges == "dual"
         else None
     )
+    if faces is not None and HINGE_DEPTHS and faces.bottom.any():
+        assembled = _bottom_hinge_depths(assembled, linkage, faces.bottom, loaded)
+        faces = dual_hinge_faces(linkage, assembled.tiles, options.min_gap_angle_deg)
     with progress.stage("flat"):
         # only a seed when the co-optimization follows (FLAT_SEED_STEPS)
         seed_steps = FLAT_SEED_STEPS if options.co_optimize else None
@@ -321,6 +327,39 @@ def _shaped(
         notes=tuple(notes),
         fallback_skipped=skipped,
     )
+
+
+HINGE_DEPTHS = True
+
+
+def _bottom_hinge_depths(
+    assembled: AssembledResult, linkage: Linkage, bottom: NDArray[np.bool_], loaded: Target
+) -> AssembledResult:
+    """The assembled tiles with their bottom vertices moved (tops held, every face planar) so
+    that bottom hinges' corners lie as deep under both tiles' top faces as they can
+    (:func:`~drawstring.geometry.assembled.hinge_depth_pull`).  Read-only like the eq.-1
+    tiles it stands for (a design whose co-optimization is refused keeps it)."""
+    moved = reextrude(
+        assembled, assembled.top, loaded.vertices, loaded.faces,
+        start_bottom=assembled.bottom, pull=_depth_pull(assembled, linkage, bottom),
+    )  # fmt: skip
+    if moved is None:
+        return assembled
+    for array in (moved.top, moved.bottom, moved.tiles):
+        array.flags.writeable = False
+    return moved
+
+
+def _depth_pull(
+    assembled: AssembledResult, linkage: Linkage, bottom: NDArray[np.bool_] | None
+) -> LinearPull | None:
+    """:func:`~drawstring.geometry.assembled.hinge_depth_pull` of the ``bottom`` hinges, or
+    None when there are none."""
+    if bottom is None or not bottom.any() or not HINGE_DEPTHS:
+        return None
+    hinges = linkage.hinges[bottom]
+    vertex = assembled.quads[hinges[:, 0], hinges[:, 1]]
+    return hinge_depth_pull(assembled, vertex, hinges[:, 0], hinges[:, 2])
 
 
 def _assembled_shape(

@@ -611,6 +611,43 @@ def quad_planarity(x: FloatArray, quads: IntArray) -> FloatArray:
     return np.max(np.abs(np.einsum("ksi,ki->ks", pts - centroids[:, None], normals)), axis=1)
 
 
+@dataclass(frozen=True)
+class LinearPull:
+    """Conditions ``directions[i] . X[vertices[i]] = targets[i]`` wanted with ``weight`` by
+    :func:`planarize_quads` (each on one vertex, so its metric is block diagonal)."""
+
+    vertices: IntArray
+    directions: FloatArray
+    targets: FloatArray
+    weight: float
+
+    def residuals(self, x: FloatArray) -> FloatArray:
+        return np.asarray(np.einsum("ki,ki->k", self.directions, x[self.vertices]) - self.targets)
+
+    def gradient(self, x: FloatArray) -> FloatArray:
+        """``weight * C^T (C x - targets)``, flattened like ``x``."""
+        out = np.zeros_like(x)
+        np.add.at(out, self.vertices, self.weight * self.residuals(x)[:, None] * self.directions)
+        return out.reshape(-1)
+
+    def metric_inverse(
+        self, n: int, movable: NDArray[np.bool_]
+    ) -> tuple[sp.csr_matrix, NDArray[np.bool_]]:
+        """``(I + weight C^T C)^-1`` over the movable coordinates (block diagonal), and which
+        vertices the pull reaches."""
+        blocks = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+        outer = self.weight * self.directions[:, :, None] * self.directions[:, None, :]
+        np.add.at(blocks, self.vertices, outer)
+        inverse = np.linalg.inv(blocks)
+        rows = (3 * np.arange(n)[:, None, None] + np.arange(3)[None, :, None]).repeat(3, axis=2)
+        cols = (3 * np.arange(n)[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)
+        full = sp.csr_matrix((inverse.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * n, 3 * n))
+        keep = np.flatnonzero(np.repeat(movable, 3))
+        reached = np.zeros(n, dtype=bool)
+        reached[self.vertices] = True
+        return full[keep][:, keep].tocsr(), reached
+
+
 def planarize_quads(
     x: ArrayLike,
     quads: ArrayLike,
@@ -618,6 +655,7 @@ def planarize_quads(
     fixed: ArrayLike | None = None,
     tol_mm: float = 0.0,
     max_iter: int = 8,
+    pull: LinearPull | None = None,
 ) -> PlanarizeResult:
     """Nearest configuration with every quad exactly planar (Gauss-Newton, minimum-norm steps).
 
@@ -636,6 +674,11 @@ def planarize_quads(
     tol_mm : float
         Stop when every quad's planarity (max vertex-to-plane distance) is at most this.
     max_iter : int
+    pull : LinearPull, optional
+        Linear conditions on single vertices, wanted in the least-squares sense: the result is
+        then the planar configuration nearest ``x`` in ``|X - x|^2 + pull.weight *
+        |pull residual|^2`` (each step minimizes that for the linearized constraints, from the
+        current point), and it runs all ``max_iter`` steps unless they stop moving.
 
     Returns
     -------
@@ -658,7 +701,10 @@ def planarize_quads(
     cols = (3 * quad_arr[:, :, None] + np.arange(3)[None, None, :]).reshape(k, 12).reshape(-1)
     iterations = 0
     after = before
-    while iterations < max_iter and after > tol_mm:
+    metric_inv, pulled = None, None
+    if pull is not None:
+        metric_inv, pulled = pull.metric_inverse(n, movable)
+    while iterations < max_iter and (after > tol_mm or pull is not None):
         p0, p1, p2, p3 = (pos[quad_arr[:, a]] for a in range(4))
         e1, e2, e3 = p1 - p0, p2 - p0, p3 - p0
         g1 = cross3(e2, e3)
@@ -668,16 +714,31 @@ def planarize_quads(
         grads = np.stack([-(g1 + g2 + g3), g1, g2, g3], axis=1) * scale[:, None, None]
         jac = sp.csr_matrix((grads.reshape(-1), (rows, cols)), shape=(k, 3 * n))
         jac = jac[:, np.flatnonzero(col_mask)] if not movable.all() else jac
-        normal_eq = (jac @ jac.T).tocsc()
-        delta = 1e-12 * float(normal_eq.diagonal().mean())
-        normal_eq = normal_eq + delta * sp.identity(k, format="csc")
-        lam = spla.splu(normal_eq, permc_spec="MMD_AT_PLUS_A").solve(value)
-        step = jac.T @ lam
+        if metric_inv is None or pull is None or pulled is None:
+            normal_eq = (jac @ jac.T).tocsc()
+            delta = 1e-12 * float(normal_eq.diagonal().mean())
+            normal_eq = normal_eq + delta * sp.identity(k, format="csc")
+            lam = spla.splu(normal_eq, permc_spec="MMD_AT_PLUS_A").solve(value)
+            step = jac.T @ lam
+        else:
+            # min |s|_M^2 + 2 grad.s  subject to  jac s = -value  (M = I + w C^T C)
+            grad = (pos - x_start).reshape(-1)[col_mask] + pull.gradient(pos)[col_mask]
+            scaled_grad = metric_inv @ grad
+            normal_eq = (jac @ metric_inv @ jac.T).tocsc()
+            delta = 1e-12 * float(normal_eq.diagonal().mean())
+            normal_eq = normal_eq + delta * sp.identity(k, format="csc")
+            lam = spla.splu(normal_eq, permc_spec="MMD_AT_PLUS_A").solve(value - jac @ scaled_grad)
+            step = scaled_grad + metric_inv @ (jac.T @ lam)
         flat = pos.reshape(-1)
         flat[col_mask] -= step
         pos = flat.reshape(n, 3)
         iterations += 1
         new_after = float(quad_planarity(pos, quad_arr).max(initial=0.0))
+        if pull is not None:
+            after = new_after
+            if after <= tol_mm and float(np.abs(step).max(initial=0.0)) <= tol_mm:
+                break
+            continue
         if new_after >= after and iterations > 1:
             after = new_after
             break

@@ -375,3 +375,38 @@ def test_a_seed_layout_stops_once_its_bounds_hold() -> None:
     tol = FLAT_GAP_ANGLE_TOL_DEG
     assert seed.opening_deg.min() >= 12.0 - tol and seed.opening_deg.max() <= 90.0 + tol
     assert abs(seed.edge_error_max_mm - full.edge_error_max_mm) < 1e-6
+
+
+def test_bottom_hinges_are_pulled_to_equal_depths_under_both_tiles() -> None:
+    """A bottom hinge's corner meets itself in the flat pose only if it lies as deep under one
+    tile's top face as under the other's; the pull moves the bottoms (tops held, every face
+    still planar) to halve the worst difference on a saddle, by hundredths of a millimetre."""
+    import types
+
+    from drawstring.fabrication.layout_stage import _bottom_hinge_depths
+    from drawstring.geometry.frustums import quad_mesh_edges, side_quads
+    from drawstring.geometry.hinges import dual_hinge_faces
+    from drawstring.geometry.solver import quad_planarity
+
+    linkage, assembled, _, target = _saddle_design()
+    bottom = dual_hinge_faces(linkage, assembled.tiles, 12.0).bottom
+    assert 0 < bottom.sum() < len(bottom)
+    hinges = linkage.hinges[bottom]
+
+    def depth_difference(tiles: np.ndarray) -> float:
+        """Largest difference of a bottom hinge corner's distances to its two top planes."""
+        top = tiles[:, :4] - tiles[:, :4].mean(axis=1, keepdims=True)
+        normal = np.linalg.svd(top)[2][:, -1]
+        corner = tiles[hinges[:, 0], 4 + hinges[:, 1]]
+        depth_a = np.einsum("ki,ki->k", corner - tiles[hinges[:, 0], 0], normal[hinges[:, 0]])
+        depth_b = np.einsum("ki,ki->k", corner - tiles[hinges[:, 2], 0], normal[hinges[:, 2]])
+        return float(np.abs(np.abs(depth_a) - np.abs(depth_b)).max())
+
+    loaded = types.SimpleNamespace(vertices=target[0], faces=target[1])
+    moved = _bottom_hinge_depths(assembled, linkage, bottom, loaded)  # type: ignore[arg-type]
+    assert np.array_equal(moved.top, assembled.top)
+    assert depth_difference(moved.tiles) < 0.5 * depth_difference(assembled.tiles)
+    n = len(moved.top)
+    faces = np.vstack([moved.quads + n, side_quads(moved.quads, quad_mesh_edges(moved.quads), n)])
+    assert quad_planarity(np.vstack([moved.top, moved.bottom]), faces).max() < 1e-6
+    assert 0 < np.abs(moved.bottom - assembled.bottom).max() < 0.05

@@ -418,6 +418,24 @@ def test_planarize_quads_exact_and_respects_fixed() -> None:
     assert np.array_equal(result.X[fixed], vertices[fixed])
 
 
+def test_planarize_quads_pull_trades_a_wanted_move_against_distance() -> None:
+    """A pull the planarity allows is met to w / (1 + w) (nearest point of |s|^2 + w (s - d)^2);
+    one the planarity forbids moves nothing out of the plane."""
+    from drawstring.geometry.solver import LinearPull
+
+    square = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+    quads = np.array([[0, 1, 2, 3]])
+    fixed = np.array([1, 2, 3])
+    weight = 1e3
+    along = LinearPull(np.array([0]), np.array([[1.0, 0.0, 0.0]]), np.array([0.5]), weight)
+    moved = planarize_quads(square, quads, fixed=fixed, pull=along, max_iter=20).X
+    assert moved[0] == pytest.approx([0.5 * weight / (1 + weight), 0.0, 0.0], abs=1e-9)
+    assert np.array_equal(moved[1:], square[1:])
+    up = LinearPull(np.array([0]), np.array([[0.0, 0.0, 1.0]]), np.array([0.3]), weight)
+    held = planarize_quads(square, quads, fixed=fixed, pull=up, max_iter=20)
+    assert held.X[0, 2] == pytest.approx(0.0, abs=1e-9) and held.planarity_after_mm < 1e-9
+
+
 def test_smallest_eigenvectors_match_eigh() -> None:
     rng = np.random.default_rng(7)
     pts = rng.normal(size=(500, 4, 3)) * [1.0, 2.0, 1e-3]
