@@ -540,10 +540,7 @@ def build_design_solids(
         notes.extend(_pin_notes(plans))
     fasteners = 0
     if profile.hinge_interlock in ("screws", "staples"):
-        holes = [
-            strip_hole_plan(flat[a], int(ca), flat[b], int(cb), side, profile, crowd)
-            for (a, ca, b, cb), side, crowd in zip(hinge_rows, sides, crowds, strict=True)
-        ]
+        holes = strip_hole_plans(flat, hinge_rows, sides, profile, crowds)
         fasteners = sum(h.fasteners for h in holes)
         notes.extend(_hole_notes(holes, profile))
     hinge_data = tuple(
@@ -621,6 +618,24 @@ def _id_ranges(ids: Iterable[int]) -> str:
     return id_runs(ids, _MAX_RUNS)
 
 
+def strip_hole_plans(
+    flat: NDArray[np.float64],
+    hinge_rows: NDArray[np.int64],
+    sides: Sequence[HingeSide],
+    profile: Profile,
+    crowds: Sequence[StripNeighbours] | None = None,
+) -> list[StripHoles]:
+    """The pilot holes of every plywood hinge strip (:func:`strip_hole_plan`) on the flat
+    tiles, hinge by hinge; ``crowds`` as :func:`strip_neighbours` gives them (computed when
+    not passed)."""
+    if crowds is None:
+        crowds = strip_neighbours(hinge_rows, sides)
+    return [
+        strip_hole_plan(flat[a], int(ca), flat[b], int(cb), side, profile, crowd)
+        for (a, ca, b, cb), side, crowd in zip(hinge_rows, sides, crowds, strict=True)
+    ]
+
+
 def _bend_notes(
     min_radius: NDArray[np.float64], steps: NDArray[np.int64], profile: Profile
 ) -> list[str]:
@@ -633,7 +648,8 @@ def _bend_notes(
     return [
         f"{len(tight)} of {len(steps)} route steps bend tighter than the profile's "
         f"{profile.min_bend_radius_mm:g} mm: bend radius down to {min_radius[worst]:.2f} mm "
-        f"(route step {worst}, tile {int(steps[worst, 1])}); steps {_id_ranges(tight)}"
+        f"(route step {worst}, tile {int(steps[worst, 1])})"
+        + (f"; steps {_id_ranges(tight)}" if len(tight) > 1 else "")
     ]
 
 

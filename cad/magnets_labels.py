@@ -59,6 +59,17 @@ class MagnetPair:
     polarity_b: Literal["N", "S"]
     fits: bool
 
+    def flat_points(
+        self, assembled: NDArray[np.float64], flat: NDArray[np.float64]
+    ) -> tuple[tuple[int, int, NDArray[np.float64]], tuple[int, int, NDArray[np.float64]]]:
+        """``(tile, side, centre)`` of both pockets on the tiles of another pose (``flat``,
+        (T, 8, 3)): each keeps its place on its face (bilinear face coordinates, as cut)."""
+        ends = []
+        for tile, side in ((self.tile_a, self.side_a), (self.tile_b, self.side_b)):
+            u, v = _invert_bilinear(_side_quad(assembled[tile], side), self.centre, 0.5, 0.5)
+            ends.append((tile, side, _bilinear(_side_quad(flat[tile], side), u, v)))
+        return ends[0], ends[1]
+
     def to_json(self) -> dict[str, object]:
         return {
             "tile_a": self.tile_a,

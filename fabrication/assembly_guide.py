@@ -604,6 +604,7 @@ def _write_assembly(
                 lines += [
                     f"- bed {job['bed']}: tiles {id_runs(job['tiles'])}" for job in record.jobs
                 ]
+            lines.append("")  # the list ends before the next paragraph
         else:
             panel_sheets = _count(record.sheets["panels"]["sheets"], "sheet")
             lines.append(
@@ -613,7 +614,11 @@ def _write_assembly(
                 "B bottom) end up inside the box. Glue each tile's six panels together; "
                 "`cutlist.csv` gives each edge's dihedral and bevel angle (sand or bevel proud "
                 "edges flush). Glue a channel tube through each pair of cable holes (lengths in "
-                "`manifest.json`)."
+                "`manifest.json`). Layers: ENGRAVE green first, CUT_INNER blue (holes, the "
+                "magnet holes in the side panels among them), CUT_OUTER black; DRILL magenta: "
+                "drill these at the diameter drawn (the pilot holes of the hinge strips' "
+                f"screws, and round holes narrower than the {profile.tool_diameter_mm:g} mm "
+                "tool)."
             )
         strip_sheets = _count(record.sheets["hinges"]["sheets"], "sheet")
         lines.append(
@@ -643,7 +648,12 @@ def _write_assembly(
         lines += [
             f"## {next(section)}. Magnets",
             "",
-            "Glue the magnets into their pockets with these poles facing out:",
+            (
+                "Press the magnets into their holes in the side panels, flush with the outer "
+                "face, and glue them from inside, with these poles facing out:"
+                if profile.process == "plywood-cnc"
+                else "Glue the magnets into their pockets with these poles facing out:"
+            ),
             "",
         ]
         for m in magnets:

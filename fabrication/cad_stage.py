@@ -146,6 +146,8 @@ def fabrication_measures(result: Design, cad_flat: CadResult) -> Measures:
         inputs.route_steps,
         inputs.lift_tiles,
         cad_flat,
+        hinges=result.tiling.linkage.hinges,
+        hinge_side=result.hinge_layout.sides,
     )
 
 

@@ -120,16 +120,58 @@ def plywood_panels(
     tiles_flat: NDArray[np.float64],
     steps: NDArray[np.int64],
     lifts: NDArray[np.int64],
+    holes: Sequence[tuple[int, int, NDArray[np.float64], float]] = (),
+    pilots: Sequence[tuple[int, int, NDArray[np.float64], float]] = (),
 ) -> tuple[list[Panel], list[CableRun]]:
-    """The six panels of every tile, with the cable holes of the route drilled, and the runs."""
+    """The six panels of every tile, with the cable holes of the route, and the runs;
+    ``holes`` (magnets) and ``pilots`` (hinge strip screws) are ``(tile, face, point,
+    radius)`` in the pose of ``tiles_flat`` (see :func:`panel_holes`)."""
     drill: dict[int, list[tuple[int, NDArray[np.float64]]]] = {}
     runs = cable_runs(tiles_flat, steps, lifts)
     for run in runs:
         drill.setdefault(run.tile, []).extend(run.drill_points)
     panels: list[Panel] = []
     for tile in range(len(tiles_flat)):
-        panels += tile_panels(tile, tiles_flat[tile], profile, drill.get(tile, []))
+        panels += tile_panels(
+            tile, tiles_flat[tile], profile, drill.get(tile, []),
+            [(f, p, r) for t, f, p, r in holes if t == tile],
+            [(f, p, r) for t, f, p, r in pilots if t == tile],
+        )  # fmt: skip
     return panels, runs
+
+
+def panel_holes(
+    profile: Profile,
+    tiles_flat: NDArray[np.float64],
+    tiles_assembled: NDArray[np.float64],
+    hinges: NDArray[np.int64],
+    hinge_side: Sequence[str],
+    cad_flat: CadResult,
+) -> tuple[
+    list[tuple[int, int, NDArray[np.float64], float]],
+    list[tuple[int, int, NDArray[np.float64], float]],
+]:
+    """Magnet holes (through the side panels, where the solids have their pockets) and the
+    hinge strips' pilot holes (through the top or bottom panels, as
+    :func:`~drawstring.cad.design.strip_hole_plans` places them on the solids), each
+    ``(tile, face, point, radius)`` on the flat tiles."""
+    from drawstring.cad.design import strip_hole_plans
+
+    magnets = []
+    for pair in cad_flat.magnets:
+        for tile, side, point in pair.flat_points(tiles_assembled, tiles_flat):
+            magnets.append((int(tile), int(side), point, 0.5 * pair.diameter_mm))
+    pilots = []
+    if profile.hinge_interlock in ("screws", "staples"):
+        rows = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
+        sides = [str(side) for side in hinge_side]
+        for (a, _, b, _), side, plan in zip(
+            rows, sides, strip_hole_plans(tiles_flat, rows, sides, profile), strict=True
+        ):
+            face = 4 if side == "top" else 5
+            for tile, points in zip((a, b), plan.points, strict=True):
+                pilots += [(int(tile), face, point, plan.radius) for point in points]
+    return magnets, pilots
 
 
 def measure_fabrication(
@@ -140,6 +182,8 @@ def measure_fabrication(
     lift_tiles: NDArray[np.int64] | Sequence[Sequence[int]],
     cad_flat: CadResult,
     panels: Sequence[Panel] | None = None,
+    hinges: NDArray[np.int64] | None = None,
+    hinge_side: Sequence[str] = (),
 ) -> Measures:
     """Route, string and mass of a design, measured on what is fabricated.
 
@@ -150,7 +194,8 @@ def measure_fabrication(
         ``flat.step``) and assembled.
     route_steps, lift_tiles : the route and the extra lift bores (as :func:`write_fabrication`).
     cad_flat : the solids in the print pose (tile and hinge-part volumes).
-    panels : plywood panels when the caller has them (made here otherwise).
+    panels : plywood panels when the caller has them (made here otherwise, with the magnet
+        and pilot holes of :func:`panel_holes` where ``hinges`` and ``hinge_side`` are given).
     """
     steps = normalize_route(route_steps)
     flat_route, assembled_route = route_lengths(
@@ -165,7 +210,14 @@ def measure_fabrication(
     if profile.process == "plywood-cnc":
         if panels is None:
             lifts = np.asarray(lift_tiles, dtype=np.int64).reshape(-1, 2)
-            panels = plywood_panels(profile, np.asarray(tiles_flat, float), steps, lifts)[0]
+            flat = np.asarray(tiles_flat, dtype=np.float64)
+            holes: tuple[list[Any], list[Any]] = ([], [])
+            if hinges is not None:
+                holes = panel_holes(
+                    profile, flat, np.asarray(tiles_assembled, dtype=np.float64), hinges,
+                    hinge_side, cad_flat,
+                )  # fmt: skip
+            panels = plywood_panels(profile, flat, steps, lifts, *holes)[0]
         area = sum(p.area for p in panels)
         tile_mass = area * profile.panel_thickness_mm * 1e-9 * profile.density_kg_m3 * 1e3
     else:
@@ -526,7 +578,7 @@ def _write_cutlist(path: Path, panels: Sequence[Panel], sheet_of: dict[str, int]
             f"{span[1]:.2f}",
             f"{panel.thickness:g}",
             f"{panel.area:.1f}",
-            len(panel.part.circles),
+            len(panel.part.circles) + len(panel.part.drills),
             sheet_of.get(panel.part.name, 0),
         ]
         for edge in panel.edges:
@@ -616,7 +668,12 @@ def write_fabrication(
         panels: list[Panel] = []
         runs: list[CableRun] = []
         if profile.process == "plywood-cnc":
-            panels, runs = plywood_panels(profile, tiles_flat, steps, lifts)
+            magnet_holes, pilot_holes = panel_holes(
+                profile, tiles_flat, tiles_assembled, linkage.hinges, hinge_side, cad_flat
+            )
+            panels, runs = plywood_panels(
+                profile, tiles_flat, steps, lifts, magnet_holes, pilot_holes
+            )
         measures = measure_fabrication(
             profile, tiles_flat, tiles_assembled, steps, lifts, cad_flat, panels
         )

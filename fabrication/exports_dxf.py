@@ -27,8 +27,16 @@ LAYER_ENGRAVE = "ENGRAVE"
 LAYER_CUT_INNER = "CUT_INNER"
 LAYER_CUT_OUTER = "CUT_OUTER"
 LAYER_SHEET = "SHEET"
+#: Round holes narrower than the router's tool, or for screws: drilled, not cut.
+LAYER_DRILL = "DRILL"
 #: ACI colour per layer: engrave green, inner cut blue, outer cut black (7), annotation red.
-LAYER_COLOURS = {LAYER_ENGRAVE: 3, LAYER_CUT_INNER: 5, LAYER_CUT_OUTER: 7, LAYER_SHEET: 1}
+LAYER_COLOURS = {
+    LAYER_ENGRAVE: 3,
+    LAYER_CUT_INNER: 5,
+    LAYER_CUT_OUTER: 7,
+    LAYER_SHEET: 1,
+    LAYER_DRILL: 6,
+}
 #: Layers a cutter cuts through (only closed polylines there).
 CUT_LAYERS = (LAYER_CUT_INNER, LAYER_CUT_OUTER)
 #: Free border (mm) around each sheet and gap between sheets in the DXF.
@@ -177,8 +185,9 @@ class Part2D:
     name : what the part is (``hinge_12``, ``tile_3_top``).
     outline : (k, 2) closed outer contour, counter-clockwise.
     holes : (k, 2) closed inner contours.
-    circles : (c, 3) round holes ``(x, y, radius)``.
+    circles : (c, 3) round holes ``(x, y, radius)``, cut.
     strokes : engraving polylines (k, 2), open.
+    drills : (d, 3) round holes ``(x, y, radius)`` drilled (on the DRILL layer, no kerf).
     """
 
     name: str
@@ -186,18 +195,29 @@ class Part2D:
     holes: list[NDArray[np.float64]] = field(default_factory=list)
     circles: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
     strokes: list[NDArray[np.float64]] = field(default_factory=list)
+    drills: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
+
+    @property
+    def area(self) -> float:
+        """Area (mm^2) of the outline minus its holes and round holes."""
+        holes = sum(abs(signed_area(h)) for h in self.holes)
+        circles = float(np.pi * np.sum(self.circles[:, 2] ** 2))
+        circles += float(np.pi * np.sum(self.drills[:, 2] ** 2))
+        return abs(signed_area(self.outline)) - holes - circles
 
     def moved(self, angle: float, shift: NDArray[np.float64]) -> Part2D:
         """A copy turned by ``angle`` about the origin, then shifted by ``shift``."""
-        circles = self.circles.copy()
-        if len(circles):
-            circles[:, :2] = rotate(circles[:, :2], angle) + shift
+        circles, drills = self.circles.copy(), self.drills.copy()
+        for round_holes in (circles, drills):
+            if len(round_holes):
+                round_holes[:, :2] = rotate(round_holes[:, :2], angle) + shift
         return Part2D(
             self.name,
             rotate(self.outline, angle) + shift,
             [rotate(h, angle) + shift for h in self.holes],
             circles,
             [rotate(s, angle) + shift for s in self.strokes],
+            drills,
         )
 
     def kerf_compensated(self, kerf: float) -> Part2D:
@@ -212,6 +232,7 @@ class Part2D:
             [offset_polygon(h, -half) for h in self.holes],
             circles,
             list(self.strokes),
+            self.drills.copy(),
         )
 
 
@@ -221,7 +242,7 @@ class Nesting:
 
     sheet_size : (2,) float, mm.
     sheets : per sheet, the parts in sheet coordinates (origin at the sheet's lower left).
-    utilisation : (S,) float, part rectangle area over sheet area.
+    utilisation : (S,) float, area of the parts (holes taken out) over the sheet's area.
     """
 
     sheet_size: NDArray[np.float64]
@@ -333,7 +354,7 @@ def nest_parts(
 ) -> Nesting:
     """Kerf-compensate, orient and shelf-pack parts on sheets (see :func:`place_outlines`)."""
     prepared = [part.kerf_compensated(kerf) for part in parts]
-    sheet_index, angles, shift, sizes = place_outlines(
+    sheet_index, angles, shift, _ = place_outlines(
         [part.outline for part in prepared], sheet, spacing, SHEET_MARGIN_MM
     )
     n_sheets = int(sheet_index.max()) + 1 if len(parts) else 0
@@ -341,7 +362,7 @@ def nest_parts(
     used = np.zeros(n_sheets)
     for i, part in enumerate(prepared):
         sheets[sheet_index[i]].append(part.moved(float(angles[i]), shift[i]))
-        used[sheet_index[i]] += float(np.prod(sizes[i]))
+        used[sheet_index[i]] += part.area
     return Nesting(
         np.array(sheet, dtype=np.float64),
         tuple(tuple(s) for s in sheets),
@@ -418,6 +439,8 @@ def add_part(msp, part: Part2D, shift: NDArray[np.float64] | None = None) -> Non
         _polyline(msp, hole, LAYER_CUT_INNER, closed=True)
     for circle in moved.circles:
         _circle_polyline(msp, circle, LAYER_CUT_INNER)
+    for drill in moved.drills:
+        _circle_polyline(msp, drill, LAYER_DRILL)
     _polyline(msp, moved.outline, LAYER_CUT_OUTER, closed=True)
 
 

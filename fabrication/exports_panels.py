@@ -72,11 +72,7 @@ class Panel:
     @property
     def area(self) -> float:
         """Area (mm^2) of the outline minus its holes."""
-        from drawstring.fabrication.exports_dxf import signed_area
-
-        holes = sum(abs(signed_area(h)) for h in self.part.holes)
-        circles = float(np.pi * np.sum(self.part.circles[:, 2] ** 2))
-        return abs(signed_area(self.part.outline)) - holes - circles
+        return self.part.area
 
 
 def _face_edges() -> list[list[tuple[int, int]]]:
@@ -145,6 +141,8 @@ def tile_panels(
     vertices: NDArray[np.float64],
     profile: Profile,
     drill_points: Sequence[tuple[int, NDArray[np.float64]]] = (),
+    holes: Sequence[tuple[int, NDArray[np.float64], float]] = (),
+    pilots: Sequence[tuple[int, NDArray[np.float64], float]] = (),
 ) -> list[Panel]:
     """The six panels of one tile.
 
@@ -154,7 +152,12 @@ def tile_panels(
     vertices : (8, 3) float, mm, the tile (any pose).
     profile : ``panel_thickness_mm``, ``joint``, ``tool_diameter_mm``, string and clearance.
     drill_points : (face, (3,) point) where the cable passes through a panel; a hole of the
-        channel diameter is drilled there, perpendicular to the panel.
+        channel diameter goes through it there, perpendicular to the panel.
+    holes : (face, (3,) point, radius) further round holes through a panel (magnets).
+    pilots : (face, (3,) point, radius) pilot holes of the hinge strips' screws: drilled.
+
+    A round hole at least as wide as the router's tool is cut (CUT_INNER); a narrower one is
+    drilled (the DRILL layer), as the pilot holes are.
     """
     p = profile.panel_thickness_mm
     centroids, normals = face_planes(vertices)
@@ -240,21 +243,25 @@ def tile_panels(
             polygon = polygon[::-1]
         if finger and tool_radius > 0:
             polygon = _dogbones(polygon, tool_radius)
-        circles = np.array(
-            [[*to2d(point), hole_radius] for f, point in drill_points if f == face]
-        ).reshape(-1, 3)
+        round_holes = [(point, hole_radius) for f, point in drill_points if f == face]
+        round_holes += [(point, radius) for f, point, radius in holes if f == face]
+        rows = np.array([[*to2d(point), r] for point, r in round_holes]).reshape(-1, 3)
+        wide = 2 * rows[:, 2] >= profile.tool_diameter_mm
+        circles = rows[wide]
+        screw_rows = [[*to2d(point), r] for f, point, r in pilots if f == face]
+        drills = np.vstack([rows[~wide], np.array(screw_rows).reshape(-1, 3)])
         label = f"{tile_id}{FACE_NAMES[face]}"
         span = np.ptp(polygon, axis=0)
         height = float(min(0.12 * span.min(), 25.0))
         height = min(height, 0.6 * span.max() / max(text_width(label, 1.0), 1e-9))
         centre = polygon.mean(axis=0)
-        for x, y, r in circles:
+        for x, y, r in np.vstack([circles, drills]):
             if np.all(
                 np.abs(centre - [x, y]) < [0.5 * text_width(label, height) + r, 0.5 * height + r]
             ):
                 centre = np.array([centre[0], y - r - height])
         strokes = text_strokes(label, height, centre)
-        part = Part2D(f"tile_{tile_id}_{FACE_NAMES[face]}", polygon, [], circles, strokes)
+        part = Part2D(f"tile_{tile_id}_{FACE_NAMES[face]}", polygon, [], circles, strokes, drills)
         panels.append(Panel(tile_id, FACE_NAMES[face], part, tuple(panel_edges), p))
     return panels
 

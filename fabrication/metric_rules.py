@@ -185,7 +185,14 @@ METRIC_RULES: dict[str, MetricRule] = {
         "places where the string crosses itself", _const("= 0"), _at_most(0)
     ),
     "route.capstan_factor": MetricRule(
-        "pull force over the force at the far end, exp(μ·turning)",
+        "exp(μ·turning) of the planning route through the flat gap centres (it sums every "
+        "turn from gap to gap, so it runs high; the friction of the pull is the channels' "
+        "factor below)",
+        _const("(lower is better)"),
+        None,
+    ),
+    "route.capstan_factor_channels_assembled": MetricRule(
+        "pull force over the force at the far end, exp(μ·bend of the channels), assembled",
         _const("(lower is better)"),
         None,
     ),

@@ -85,6 +85,10 @@ FILE_PURPOSES: dict[str, str] = {
     "assembled.obj": "the tiles in their assembled (curved) pose, closed meshes, mm",
     "flat.obj": "the tiles in their flat (fabrication) pose, closed meshes, mm",
     "route.json": "the string route: the tiles and sides it passes, and the lift points",
+    "hinges.json": "the hinges: the tiles and corners each joins, its face (top or bottom) "
+    "and its point in the flat pose",
+    "tiles.npz": "the tiles' vertex arrays in both poses (assembled; fabricated: as printed or "
+    "cut), for scripts",
     "deploy.npz": "the simulated deployment, flat to assembled (frames of tile corners)",
     "scale_factor.png": "picture: conformal scale factor and splits",
     "lifted.png": "picture: the lifted grid on the target",
@@ -300,6 +304,8 @@ def _bed_note(found: _Folder) -> str:
         profile = load_profile(str(profile_name))
     except (InputError, OSError):
         return text
+    if profile.process == "plywood-cnc":  # cut as panels nested on sheets: no bed to fit
+        return f"{text} (its tiles are cut as panels nested on the sheets)"
     bed = (profile.bed_x_mm, profile.bed_y_mm)
     room = (bed[0] - 2 * BED_MARGIN_MM, bed[1] - 2 * BED_MARGIN_MM)  # as the job planner
     fits = (extent[0] <= room[0] and extent[1] <= room[1]) or (
@@ -310,7 +316,7 @@ def _bed_note(found: _Folder) -> str:
         f"{text} ({verdict} the {bed[0]:g} × {bed[1]:g} mm bed of {profile.name} with "
         f"{BED_MARGIN_MM:g} mm free round it)"
     )
-    if fits or profile.process == "plywood-cnc":
+    if fits:
         return note
     jobs, beds = print_job_counts(found.folder)
     if not jobs:

@@ -724,3 +724,17 @@ def test_a_pin_too_near_leaning_side_faces_goes_in_blind(profile: Profile) -> No
     parts = hinge_pad(tile_a, 2, tile_b, 0, "top", profile, pins=plan.pins)
     solid = build_tile(tile_a, list(parts.tools_a))
     assert solid.is_valid
+
+
+def test_the_bend_note_lists_the_steps_only_when_there_are_several() -> None:
+    from drawstring.cad.design import _bend_notes
+
+    profile = load_profile("fdm-dual")
+    steps = np.array([[0, 10, 0, 2], [1, 11, 1, 3], [2, 12, 0, 2], [3, 13, 1, 3]])
+    radius = np.full(4, 2 * profile.min_bend_radius_mm)
+    radius[2] = 0.5 * profile.min_bend_radius_mm
+    (one,) = _bend_notes(radius, steps, profile)
+    assert one.startswith("1 of 4 route steps") and one.endswith("(route step 2, tile 12)")
+    radius[0] = 0.6 * profile.min_bend_radius_mm
+    (two,) = _bend_notes(radius, steps, profile)
+    assert two.endswith("(route step 2, tile 12); steps 0, 2")

@@ -446,16 +446,18 @@ def test_outputs_state_the_measured_mass_and_route(built: Built) -> None:
     from drawstring.cad.design import route_links
     from drawstring.cad.features import channel_radius
     from drawstring.cad.paths import route_openings
-    from drawstring.fabrication.exports import measure_fabrication, plywood_panels
+    from drawstring.fabrication.exports import measure_fabrication, panel_holes, plywood_panels
 
     d, profile, cad = built.design, built.profile, built.flat
     measures = measure_fabrication(
-        profile, d.tiles_2d, d.tiles_3d, d.route_steps, d.lift_tiles, cad
-    )
-    # The masses: the solids' volumes (plywood: the panels) times the densities.
+        profile, d.tiles_2d, d.tiles_3d, d.route_steps, d.lift_tiles, cad,
+        hinges=d.linkage.hinges, hinge_side=d.hinge_side,
+    )  # fmt: skip
+    # The masses: the solids' volumes (plywood: the panels, with every hole) times the densities.
     if profile.process == "plywood-cnc":
         steps = normalize_route(d.route_steps)
-        panels, _ = plywood_panels(profile, d.tiles_2d, steps, d.lift_tiles)
+        holes = panel_holes(profile, d.tiles_2d, d.tiles_3d, d.linkage.hinges, d.hinge_side, cad)
+        panels, _ = plywood_panels(profile, d.tiles_2d, steps, d.lift_tiles, *holes)
         area = sum(p.area for p in panels)
         tile_g = area * profile.panel_thickness_mm * profile.density_kg_m3 * 1e-6
     else:
@@ -982,3 +984,54 @@ def test_nested_tiles_turn_to_fit_and_a_tile_too_large_is_refused() -> None:
     assert np.all(xy >= BED_MARGIN_MM - 1e-9) and np.all(xy <= np.array(bed) - BED_MARGIN_MM + 1e-9)
     with pytest.raises(InputError, match="a tile does not fit the .* bed .* or more tiles"):
         _nested_tiles([slab(120.0, 10.0, 0.0)], bed)
+
+
+def test_plywood_panels_carry_the_magnet_holes_and_the_strips_pilot_holes(built: Built) -> None:
+    """The box panels get every hole the solids have: the magnets' through the side panels
+    (cut: wider than the tool), the hinge strips' screw pilot holes through the top or bottom
+    panels and the cable holes (drilled: the DRILL layer, narrower than the 6 mm tool)."""
+    if built.profile.process != "plywood-cnc":
+        pytest.skip("plywood only")
+    from drawstring.cad.design import strip_hole_plans
+    from drawstring.fabrication.exports_dxf import LAYER_CUT_INNER, LAYER_DRILL
+
+    d, profile = built.design, built.profile
+    plans = strip_hole_plans(d.tiles_2d, d.linkage.hinges, list(d.hinge_side), profile)
+    pilots = sum(plan.made for plan in plans)
+    cables = 2 * (len(d.route_steps) + len(d.lift_tiles))
+    magnets = 2 * len(built.flat.magnets)
+    assert pilots > 0 and magnets > 0
+    msp = ezdxf.readfile(built.folder / "fabrication" / "panels.dxf").modelspace()
+
+    def radii(layer: str) -> list[float]:
+        found = []
+        for entity in msp.query(f"LWPOLYLINE[layer=='{layer}']"):
+            if len(entity) == 2:  # a circle: two half-circle arcs
+                points = np.array(entity.get_points("xy"))
+                found.append(round(0.5 * float(np.linalg.norm(points[1] - points[0])), 3))
+        return found
+
+    pocket = 0.5 * built.flat.magnets[0].diameter_mm
+    assert 2 * pocket >= profile.tool_diameter_mm
+    # cut holes are drawn on the beam's centre path, half a kerf inside
+    assert radii(LAYER_CUT_INNER).count(round(pocket - 0.5 * profile.kerf_mm, 3)) == magnets
+    drilled = radii(LAYER_DRILL)
+    assert len(drilled) == pilots + cables
+    assert drilled.count(round(plans[0].radius, 3)) >= pilots
+    rows = list(csv.DictReader((built.folder / "fabrication" / "cutlist.csv").open()))
+    assert sum(int(r["holes"]) for r in rows) == pilots + cables + magnets
+
+
+def test_magnet_pockets_keep_their_place_on_the_face_in_another_pose() -> None:
+    from drawstring.cad.magnets_labels import MagnetPair
+
+    design = cylinder_design((3, 3))
+    assembled = design.tiles_3d
+    quad = assembled[4][[1, 2, 5, 6]]  # side 1 of tile 4: top 1, top 2, bottom 1, bottom 2
+    centre = 0.5 * (0.3 * quad[0] + 0.7 * quad[1]) + 0.5 * (0.3 * quad[2] + 0.7 * quad[3])
+    pair = MagnetPair(4, 1, 5, 3, centre, 3.0, 2.0, "N", "S", True)
+    turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    moved = assembled @ turn.T + [10.0, -4.0, 2.0]
+    (tile_a, side_a, point_a), (tile_b, side_b, _) = pair.flat_points(assembled, moved)
+    assert (tile_a, side_a, tile_b, side_b) == (4, 1, 5, 3)
+    np.testing.assert_allclose(point_a, turn @ centre + [10.0, -4.0, 2.0], atol=1e-9)

@@ -689,6 +689,11 @@ def test_a_layout_larger_than_the_bed_names_its_print_jobs(tmp_path: Path) -> No
         tmp_path, {"options": {"profile": "laser-epdm"}}, None, flat, None, None, ()
     )
     assert "the loose tiles print nested on 2 beds" in report._bed_note(laser)
+    plywood = report._Folder(
+        tmp_path, {"options": {"profile": "plywood-cnc"}}, None, flat, None, None, ()
+    )
+    assert "fit" not in report._bed_note(plywood)  # panels on sheets: no bed to fit
+    assert "cut as panels nested on the sheets" in report._bed_note(plywood)
     flat[1] = 0.1 * flat[1]
     assert "(fits the" in report._bed_note(found)
     # the planner's free border counts: a layout as large as the bed does not fit it
