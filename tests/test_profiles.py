@@ -104,7 +104,18 @@ def test_rough_estimate_scales_with_area(name: str) -> None:
         * profile.hinge_pad_length_mm * 1e-6 * profile.hinge_density_kg_m3
     )  # fmt: skip
     assert small.mass_g > hinge_g
-    assert math.isclose(large.mass_g - hinge_g, 4 * (small.mass_g - hinge_g), rel_tol=1e-9)
+    if profile.process == "plywood-cnc":
+        # box tiles: their six panels, top and bottom growing with the area, the sides with
+        # the tile side only (the thickness stays)
+        from drawstring.fabrication.profiles import ESTIMATE_AREA_FACTOR
+
+        for guess, size in ((small, 100.0), (large, 200.0)):
+            side = math.sqrt(ESTIMATE_AREA_FACTOR * size**2 / 200)
+            panels = 200 * (2 * side**2 + 4 * side * profile.thickness_mm)
+            tile_g = panels * profile.panel_thickness_mm * 1e-6 * profile.density_kg_m3
+            assert math.isclose(guess.mass_g - hinge_g, tile_g, rel_tol=1e-9)
+    else:
+        assert math.isclose(large.mass_g - hinge_g, 4 * (small.mass_g - hinge_g), rel_tol=1e-9)
     assert large.cost > small.cost > 0
     assert large.hours >= small.hours > 0
     with pytest.raises(InputError):
