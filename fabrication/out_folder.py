@@ -301,6 +301,13 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
     # the options record what the folder holds: now a simulation
     if isinstance(doc.get("options"), dict):
         doc["options"]["simulate"] = True
+    # lift points chosen without a simulation keep their check, and say what ran since
+    lift = doc.get("metrics", {}).get("lift_points")
+    if isinstance(lift, dict) and "not a simulation" in str(lift.get("check", "")):
+        lift["simulated_later"] = (
+            "the simulation ran afterwards (drawstring simulate) with these lift points: "
+            "see metrics.simulation"
+        )
     doc.setdefault("timings_s", {})["simulate"] = round(progress.timings["simulate"], 3)
     doc["timings_s"]["simulate_per_step"] = round(per_step, 3)
     try:

@@ -323,6 +323,8 @@ def test_simulate_an_existing_design(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert main(["simulate", str(out), "--quiet"]) == 0
     doc = json.loads((out / "design.json").read_text())
     assert doc["options"]["simulate"] is True  # the folder now holds a simulation
+    lift = doc["metrics"]["lift_points"]  # chosen without one, and saying what ran since
+    assert "not a simulation" in lift["check"] and "drawstring simulate" in lift["simulated_later"]
     block = doc["metrics"]["simulation"]
     assert {"deployed", "steps", "final_max_deviation_mm", "max_penetration_mm"} <= set(block)
     assert {"deploy.npz", "deploy.gif"} <= set(doc["files"])
