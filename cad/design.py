@@ -48,6 +48,7 @@ from drawstring.cad.features import (
     trim_tool,
 )
 from drawstring.cad.features import channel_radius as _channel_radius
+from drawstring.cad.hinge_parts import strip_hole_wall_mm
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path
 from drawstring.cad.tiles import move_solid, rigid_transforms, tile_solid
 from drawstring.geometry import parallel
@@ -490,7 +491,10 @@ def build_design_solids(
 
     magnets = []
     clearance = _channel_radius(profile) + 0.5 * profile.magnet_diameter_mm
-    clearance += profile.magnet_clearance_mm + max(profile.nozzle_mm, 0.5)
+    # the web left to the channel: a printed wall, or for plywood half the tool's width of wood
+    clearance += profile.magnet_clearance_mm + max(
+        profile.nozzle_mm, 0.5, 0.5 * profile.tool_diameter_mm
+    )
     failed: list[tuple[int, str]] = []
     for tile_a, side_a, tile_b, side_b in pairs:
         shared = side_a in channel_sides[tile_a] or side_b in channel_sides[tile_b]
@@ -694,7 +698,7 @@ def _hole_notes(holes: Sequence[StripHoles], profile: Profile) -> list[str]:
     kind = holes[missing[0]].kind
     note = (
         f"{count} of {total} {kind} holes left out: no room for them "
-        f"{max(profile.tool_diameter_mm, 1.0):g} mm from their tiles' edges (hinges "
+        f"{strip_hole_wall_mm(profile):g} mm from their tiles' edges (hinges "
         f"{_id_ranges(missing)})"
     )
     if bare:

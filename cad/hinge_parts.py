@@ -645,12 +645,22 @@ class StripHoles:
         return sum(len(points) == 2 for points in self.points)
 
 
+def strip_hole_wall_mm(profile: Profile) -> float:
+    """Wood a strip's pilot hole keeps from the tile's side faces (mm): a tool's width in a
+    solid tile; in a box tile the side panels take the outer panel thickness (their finger
+    joints reach through the top and bottom panels' edges), so half a tool's width (at least
+    1 mm) is kept beyond them."""
+    if profile.panel_thickness_mm > 0:
+        return profile.panel_thickness_mm + max(0.5 * profile.tool_diameter_mm, 1.0)
+    return max(profile.tool_diameter_mm, 1.0)
+
+
 def _strip_holes_on(
     tiles: tuple[NDArray[np.float64], NDArray[np.float64]], frame: _HingeFrame, profile: Profile
 ) -> StripHoles:
     """The pilot holes of the strip laid out by ``frame`` (see :func:`strip_hole_plan`)."""
     width = profile.hinge_width_mm
-    wall = max(profile.tool_diameter_mm, 1.0)
+    wall = strip_hole_wall_mm(profile)
     depth = 0.25 * profile.thickness_mm
     screws = profile.hinge_interlock == "screws"
     radius = 0.5 * float(np.clip(0.12 * width, 2.0, 5.0)) if screws else 0.5
@@ -699,8 +709,8 @@ def strip_hole_plan(
     Screws: two holes per tile at a third and two thirds of the half strip, diameter
     ``clip(0.12 width, 2, 5) mm``; staples: one pair of 1 mm holes per tile across the strip.
     Holes are a quarter of the tile thickness deep; each slides inward along the strip (staying
-    under it) until it keeps ``max(tool diameter, 1 mm)`` from the tile's side faces down to
-    that depth, and one that finds no room is left out (counted in ``missing``).
+    under it) until it keeps :func:`strip_hole_wall_mm` from the tile's side faces down to that
+    depth, and one that finds no room is left out (counted in ``missing``).
     """
     tiles = (np.asarray(tile_a, dtype=float), np.asarray(tile_b, dtype=float))
     frame = _hinge_frame(tiles[0], corner_a, tiles[1], corner_b, side, profile, neighbours)

@@ -144,7 +144,13 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="keep the assembled shape as eq. 1 gives it (do not move it with the flat layout)",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed for any randomized step (default 0)")
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="seed for any randomized step (default 0; no step is randomized at present, so it "
+        "changes nothing: designs are deterministic)",
+    )
     p.add_argument(
         "--repair",
         action="store_true",

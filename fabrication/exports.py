@@ -446,8 +446,16 @@ def _loose_pads_and_beds(
             flipped.append(m3f.flip_upside_down(mesh) if side_top else mesh)
         placed, fits = m3f.arrange_loose(flipped, bed, 3.0)
         job_parts.append(list(placed))
+        low = np.min([p.vertices.min(axis=0) for p in placed], axis=0)
+        high = np.max([p.vertices.max(axis=0) for p in placed], axis=0)
         record.jobs.append(
-            {"job": len(record.jobs) + 1, "tiles": [], "pads": [int(h) for h in cut], "loose": True}
+            {
+                "job": len(record.jobs) + 1,
+                "tiles": [],
+                "pads": [int(h) for h in cut],
+                "size_mm": [round(float(v), 2) for v in (high - low)[:2]],
+                "loose": True,
+            }
         )
         if not fits:
             record.notes.append(

@@ -299,6 +299,8 @@ class Design:
                 "faces": int(len(target.faces)),
                 "size_mm": _round(float(np.ptp(target.vertices, axis=0).max())),
                 "bbox_diagonal_mm": _round(target.bbox_diagonal_mm),
+                # the rectangle's corners as ids of the mesh as read: --corners keeps them
+                "corners": input_vertex_ids(target, self.flattening.corners),
                 "notes": list(target.notes),
             },
             # --resolution makes the built-ins' triangles; a mesh file is used as it is
@@ -490,6 +492,17 @@ def size_refusal(exc: ThicknessError, options: ResolvedOptions) -> InputError | 
 #: assembled tiles 0.019 mm apart, flat edge error 0.0009 mm on two threads against 0.49 mm on
 #: one), and the BLAS calls here are small enough that one thread costs nothing measurable.
 BLAS_THREADS = 1
+
+
+def input_vertex_ids(target: Target, ids: NDArray[np.int64] | None) -> list[int] | None:
+    """Vertex ids of the loaded ``target`` as ids of the mesh as read (the first input vertex
+    each came from), as ``--corners`` takes them; None without ids."""
+    if ids is None:
+        return None
+    where = target.vertex_of_input
+    if where is None:
+        return [int(v) for v in ids]
+    return [int(np.flatnonzero(where == v)[0]) for v in ids]
 
 
 def mesh_corners(target: Target, options: ResolvedOptions) -> tuple[int, ...] | None:

@@ -656,7 +656,8 @@ def test_screw_holes_need_room_only_as_deep_as_they_go() -> None:
     # The tiles' bottom faces are 0.8 as wide as their tops: a hole 10 mm along the strip from
     # the hinge corner (7.1 mm in from both top edges) lies outside the bottom face, but 15 mm
     # down the section still keeps it 8.8 mm from the side faces.
-    ply = load_profile("plywood-cnc")
+    # (A solid tile: box tiles keep the panel thickness more, see the test below.)
+    ply = dataclasses.replace(load_profile("plywood-cnc"), panel_thickness_mm=0.0)
     tile_a = _frustum(100.0, 60.0, 0.8, (0.0, 0.0))
     tile_b = _frustum(100.0, 60.0, 0.8, (100.0, 100.0))
     plan = strip_hole_plan(tile_a, 2, tile_b, 0, "top", ply)
@@ -738,3 +739,20 @@ def test_the_bend_note_lists_the_steps_only_when_there_are_several() -> None:
     radius[0] = 0.6 * profile.min_bend_radius_mm
     (two,) = _bend_notes(radius, steps, profile)
     assert two.endswith("(route step 2, tile 12); steps 0, 2")
+
+
+def test_box_tiles_keep_their_pilot_holes_clear_of_the_side_panels() -> None:
+    """Box tiles: the side panels take the outer 6 mm, so a pilot hole keeps 6 + 3 mm from the
+    side faces; on the 100 mm frustum each strip half keeps one of its two holes."""
+    from drawstring.cad.hinge_parts import _footprint_margin, strip_hole_wall_mm
+
+    ply = load_profile("plywood-cnc")
+    assert strip_hole_wall_mm(ply) == pytest.approx(ply.panel_thickness_mm + 3.0)
+    tile_a = _frustum(100.0, 60.0, 0.8, (0.0, 0.0))
+    tile_b = _frustum(100.0, 60.0, 0.8, (100.0, 100.0))
+    plan = strip_hole_plan(tile_a, 2, tile_b, 0, "top", ply)
+    assert plan.made == 2 and plan.missing == (1, 1)
+    for tile, points in zip((tile_a, tile_b), plan.points, strict=True):
+        for point in points:
+            margin = _footprint_margin(tile, point, plan.normal, plan.depth)
+            assert margin >= plan.radius + strip_hole_wall_mm(ply) - 1e-9

@@ -911,6 +911,7 @@ def test_print_jobs_share_beds_where_they_fit_and_each_bed_has_a_file(
     assert len(jobs) >= 2 and beds == list(range(1, len(beds) + 1))
     # stacked: two bands of tiles fit the bed's depth, so tile jobs share beds; otherwise each
     # has its own (the loose pads of fdm-dual may join one)
+    assert all(len(job["size_mm"]) == 2 for job in jobs)  # the loose pads' job too
     tile_beds = [job["bed"] for job in jobs if not job.get("loose")]
     assert (len(set(tile_beds)) < len(tile_beds)) == stacked
     stem = "print" if built.profile.process == "fdm-dual" else "tiles"
@@ -998,7 +999,14 @@ def test_plywood_panels_carry_the_magnet_holes_and_the_strips_pilot_holes(built:
     d, profile = built.design, built.profile
     plans = strip_hole_plans(d.tiles_2d, d.linkage.hinges, list(d.hinge_side), profile)
     pilots = sum(plan.made for plan in plans)
-    cables = 2 * (len(d.route_steps) + len(d.lift_tiles))
+    # two openings per route step and lift bore; a bore leaving where a channel opens shares
+    # its hole
+    from drawstring.fabrication.exports_panels import cable_runs
+
+    runs = cable_runs(d.tiles_2d, normalize_route(d.route_steps), np.asarray(d.lift_tiles))
+    openings = {(r.tile, f, *np.round(p, 6)) for r in runs for f, p in r.drill_points}
+    cables = len(openings)
+    assert 2 * len(runs) - 2 <= cables <= 2 * len(runs)
     magnets = 2 * len(built.flat.magnets)
     assert pilots > 0 and magnets > 0
     msp = ezdxf.readfile(built.folder / "fabrication" / "panels.dxf").modelspace()
@@ -1035,3 +1043,37 @@ def test_magnet_pockets_keep_their_place_on_the_face_in_another_pose() -> None:
     (tile_a, side_a, point_a), (tile_b, side_b, _) = pair.flat_points(assembled, moved)
     assert (tile_a, side_a, tile_b, side_b) == (4, 1, 5, 3)
     np.testing.assert_allclose(point_a, turn @ centre + [10.0, -4.0, 2.0], atol=1e-9)
+
+
+def test_plywood_pilot_holes_keep_a_wall_from_the_panel_edges(built: Built) -> None:
+    """A screw pilot hole keeps wood round it: the side panels and their finger joints take the
+    outer panel thickness of a top or bottom panel, and the hole stays clear of that."""
+    if built.profile.process != "plywood-cnc":
+        pytest.skip("plywood only")
+    from drawstring.cad.design import strip_hole_plans
+    from drawstring.fabrication.exports_dxf import LAYER_DRILL
+
+    d, profile = built.design, built.profile
+    radius = strip_hole_plans(d.tiles_2d, d.linkage.hinges, list(d.hinge_side), profile)[0].radius
+    msp = ezdxf.readfile(built.folder / "fabrication" / "panels.dxf").modelspace()
+    outlines = [
+        np.array(e.get_points("xy")) for e in msp.query(f"LWPOLYLINE[layer=='{LAYER_CUT_OUTER}']")
+    ]
+    walls = []
+    for entity in msp.query(f"LWPOLYLINE[layer=='{LAYER_DRILL}']"):
+        a, b = np.array(entity.get_points("xy"))
+        centre, r = 0.5 * (a + b), 0.5 * float(np.linalg.norm(b - a))
+        if abs(r - radius) > 1e-6:
+            continue  # a cable hole
+        inside = [
+            o for o in outlines if np.all(centre > o.min(axis=0)) and np.all(centre < o.max(axis=0))
+        ]
+        assert len(inside) == 1
+        ring = inside[0]
+        start, end = ring, np.roll(ring, -1, axis=0)
+        seg = end - start
+        t = np.clip(
+            np.einsum("ij,ij->i", centre - start, seg) / np.einsum("ij,ij->i", seg, seg), 0, 1
+        )
+        walls.append(float(np.linalg.norm(start + t[:, None] * seg - centre, axis=1).min()) - r)
+    assert walls and min(walls) >= 0.5 * profile.tool_diameter_mm
