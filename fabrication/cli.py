@@ -148,8 +148,8 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
         "--seed",
         type=int,
         default=0,
-        help="seed for any randomized step (default 0; no step is randomized at present, so it "
-        "changes nothing: designs are deterministic)",
+        help="seed for any randomized step (default 0); no step is randomized at present, so "
+        "it changes nothing: designs are deterministic",
     )
     p.add_argument(
         "--repair",
