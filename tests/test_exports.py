@@ -24,8 +24,9 @@ ezdxf = pytest.importorskip("ezdxf")
 from drawstring.cad.design import CadResult, build_design_solids, normalize_route  # noqa: E402
 from drawstring.cad.samples import SampleDesign, cylinder_design  # noqa: E402
 from drawstring.cad.tiles import move_solid  # noqa: E402
-from drawstring.fabrication.exports import TILE_SPACING_MM, write_fabrication  # noqa: E402
+from drawstring.fabrication.exports import write_fabrication  # noqa: E402
 from drawstring.fabrication.exports_3mf import BED_MARGIN_MM, plan_print_jobs  # noqa: E402
+from drawstring.fabrication.exports_beds import TILE_SPACING_MM  # noqa: E402
 from drawstring.fabrication.exports_dxf import (  # noqa: E402
     CUT_LAYERS,
     LAYER_CUT_OUTER,
@@ -945,8 +946,8 @@ def test_print_jobs_share_beds_where_they_fit_and_each_bed_has_a_file(
 def test_jobs_are_turned_onto_the_bed_where_they_fit_only_so() -> None:
     """The job planner may cut bands along the bed's other side; such a job is turned by 90
     degrees onto the bed, and small jobs share one."""
-    from drawstring.fabrication.exports import _fill_beds
     from drawstring.fabrication.exports_3mf import BED_MARGIN_MM, PartMesh
+    from drawstring.fabrication.exports_beds import fill_beds
 
     def box(name: str, w: float, h: float) -> PartMesh:
         corners = np.array([[x, y, z] for x in (0, w) for y in (0, h) for z in (0, 3.0)])
@@ -954,7 +955,7 @@ def test_jobs_are_turned_onto_the_bed_where_they_fit_only_so() -> None:
 
     bed = (100.0 + 2 * BED_MARGIN_MM, 60.0 + 2 * BED_MARGIN_MM)
     jobs = [[box("tall", 40.0, 90.0)], [box("a", 30.0, 20.0)], [box("b", 30.0, 20.0)]]
-    beds = _fill_beds(jobs, bed)
+    beds = fill_beds(jobs, bed)
     assert beds == [0, 1, 1]
     turned = jobs[0][0].vertices
     assert np.allclose(np.ptp(turned[:, :2], axis=0), [90.0, 40.0])  # now 90 wide, 40 deep
@@ -969,8 +970,8 @@ def test_jobs_are_turned_onto_the_bed_where_they_fit_only_so() -> None:
 def test_nested_tiles_turn_to_fit_and_a_tile_too_large_is_refused() -> None:
     """Loose tiles are turned to their smallest bounding rectangles: a long thin tile lying
     diagonally fits a bed it would not fit as drawn; one too large for the bed is refused."""
-    from drawstring.fabrication.exports import _nested_tiles
     from drawstring.fabrication.exports_3mf import PartMesh
+    from drawstring.fabrication.exports_beds import nested_tiles
 
     def slab(length: float, width: float, turn_deg: float) -> PartMesh:
         corners = np.array([[x, y, z] for x in (0, length) for y in (0, width) for z in (0, 3.0)])
@@ -979,12 +980,12 @@ def test_nested_tiles_turn_to_fit_and_a_tile_too_large_is_refused() -> None:
         return PartMesh("tile_0", "tile", corners, np.array([[0, 1, 2]]))
 
     bed = (100.0 + 2 * BED_MARGIN_MM, 20.0 + 2 * BED_MARGIN_MM)
-    (placed,) = _nested_tiles([slab(90.0, 10.0, 35.0)], bed)
+    (placed,) = nested_tiles([slab(90.0, 10.0, 35.0)], bed)
     xy = placed[0].vertices[:, :2]
     assert np.allclose(np.ptp(xy, axis=0), [90.0, 10.0])
     assert np.all(xy >= BED_MARGIN_MM - 1e-9) and np.all(xy <= np.array(bed) - BED_MARGIN_MM + 1e-9)
     with pytest.raises(InputError, match="a tile does not fit the .* bed .* or more tiles"):
-        _nested_tiles([slab(120.0, 10.0, 0.0)], bed)
+        nested_tiles([slab(120.0, 10.0, 0.0)], bed)
 
 
 def test_plywood_panels_carry_the_magnet_holes_and_the_strips_pilot_holes(built: Built) -> None:

@@ -1,0 +1,166 @@
+"""Print beds: the fdm-dual print jobs (bands of the flat layout along rows of hinges, the
+loose pads of the hinges between them) and the laser-epdm loose tiles nested, each job moved
+onto a bed and the jobs that fit together sharing one (:mod:`.exports` writes the 3MF files).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drawstring.fabrication import exports_3mf as m3f
+from drawstring.fabrication.exports_dxf import place_outlines, rotate, shelf_pack
+from drawstring.geometry.errors import InputError
+
+if TYPE_CHECKING:
+    from drawstring.fabrication.exports import _Record
+    from drawstring.fabrication.profiles import Profile
+
+
+#: Space left between loose tiles nested on a bed, mm (room for a brim of a few lines).
+TILE_SPACING_MM = 4.0
+
+
+def nested_tiles(meshes: list[m3f.PartMesh], bed: tuple[float, float]) -> list[list[m3f.PartMesh]]:
+    """Tiles turned about the vertical to their smallest bounding rectangles and shelf-packed
+    onto beds (as the DXF parts are), one list of moved meshes per bed."""
+    from scipy.spatial import ConvexHull
+
+    outlines = []
+    for mesh in meshes:
+        xy = mesh.vertices[:, :2]
+        outlines.append(xy[ConvexHull(xy).vertices])
+    try:
+        sheet, angle, shift, _ = place_outlines(outlines, bed, TILE_SPACING_MM, m3f.BED_MARGIN_MM)
+    except InputError as error:
+        raise InputError(
+            f"a tile does not fit the {bed[0]:g} x {bed[1]:g} mm bed with "
+            f"{m3f.BED_MARGIN_MM:g} mm free round it; use a larger bed "
+            "(machine.bed_x_mm / bed_y_mm) or more tiles"
+        ) from error
+    beds: list[list[m3f.PartMesh]] = [[] for _ in range(int(sheet.max(initial=-1)) + 1)]
+    for mesh, b, a, move in zip(meshes, sheet, angle, shift, strict=True):
+        vertices = mesh.vertices.copy()
+        vertices[:, :2] = rotate(vertices[:, :2], float(a)) + move
+        beds[int(b)].append(m3f.PartMesh(mesh.name, mesh.kind, vertices, mesh.triangles))
+    return beds
+
+
+def jobs_on_bed(
+    jobs: list[m3f.PrintJob],
+    tile_mesh: dict[int, m3f.PartMesh],
+    pad_mesh: dict[int, m3f.PartMesh],
+    record: _Record,
+) -> list[list[m3f.PartMesh]]:
+    """Every job's parts moved onto the bed, in the job's own frame (centred on the bed)."""
+    job_parts: list[list[m3f.PartMesh]] = []
+    for job in jobs:
+        parts = [
+            m3f.PartMesh(
+                tile_mesh[t].name, "tile", tile_mesh[t].vertices + job.offset,
+                tile_mesh[t].triangles,
+            )
+            for t in job.tiles
+        ]  # fmt: skip
+        parts += [
+            m3f.PartMesh(
+                pad_mesh[h].name, "pad", pad_mesh[h].vertices + job.offset, pad_mesh[h].triangles
+            )
+            for h in job.pads
+            if h in pad_mesh
+        ]
+        job_parts.append(parts)
+        record.jobs.append(
+            {
+                "job": len(record.jobs) + 1,
+                "tiles": list(job.tiles),
+                "pads": list(job.pads),
+                "size_mm": [round(float(v), 2) for v in job.size],
+            }
+        )
+    return job_parts
+
+
+def loose_pads_and_beds(
+    cut: list[int],
+    pad_mesh: dict[int, m3f.PartMesh],
+    job_parts: list[list[m3f.PartMesh]],
+    bed: tuple[float, float],
+    profile: Profile,
+    record: _Record,
+) -> list[int]:
+    """The job of the loose pads of ``cut`` hinges (appended), then every job's bed."""
+    loose_cut = [h for h in cut if h in pad_mesh]
+    if loose_cut:
+        flipped = []
+        for h in loose_cut:
+            mesh = pad_mesh[h]
+            side_top = bool(np.mean(mesh.vertices[:, 2]) > 0.5 * profile.thickness_mm)
+            flipped.append(m3f.flip_upside_down(mesh) if side_top else mesh)
+        placed, fits = m3f.arrange_loose(flipped, bed, 3.0)
+        job_parts.append(list(placed))
+        low = np.min([p.vertices.min(axis=0) for p in placed], axis=0)
+        high = np.max([p.vertices.max(axis=0) for p in placed], axis=0)
+        record.jobs.append(
+            {
+                "job": len(record.jobs) + 1,
+                "tiles": [],
+                "pads": [int(h) for h in cut],
+                "size_mm": [round(float(v), 2) for v in (high - low)[:2]],
+                "loose": True,
+            }
+        )
+        if not fits:
+            record.notes.append(
+                "the loose hinge pads do not all fit one bed; print them in two runs"
+            )
+    return fill_beds(job_parts, bed)
+
+
+#: Space left between print jobs that share a bed, mm.
+JOB_SPACING_MM = 5.0
+
+
+def fill_beds(job_parts: list[list[m3f.PartMesh]], bed: tuple[float, float]) -> list[int]:
+    """Put print jobs that fit together on one bed (shelves, first bed with room, as the DXF
+    sheets are packed), moving the parts of each job in place (``job_parts`` lists each job's
+    parts on the bed, centred) and turning a job by 90 degrees where it fits the bed only so
+    (the job planner may cut its bands along the bed's other side); returns each job's bed.
+    A bed that holds one job keeps it where it was unless it had to turn (then centred)."""
+    if not job_parts:
+        return []
+
+    def extent(parts: list[m3f.PartMesh]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        low = np.min([p.vertices.min(axis=0) for p in parts], axis=0)
+        high = np.max([p.vertices.max(axis=0) for p in parts], axis=0)
+        return low, high
+
+    boxes = [extent(parts) for parts in job_parts]
+    sizes = np.array([(high - low)[:2] for low, high in boxes])
+    sheet, position, turned = shelf_pack(
+        sizes, bed, JOB_SPACING_MM, m3f.BED_MARGIN_MM, long_side_x=False
+    )
+    # beds numbered in the order of their first job (the packing goes tallest first)
+    first_seen = {int(b): None for b in sheet}
+    sheet = np.array([list(first_seen).index(int(b)) for b in sheet], dtype=np.int64)
+    quarter = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # +90 deg about z
+    for index, parts in enumerate(job_parts):
+        alone = np.count_nonzero(sheet == sheet[index]) == 1
+        if alone and not turned[index]:
+            continue
+        if turned[index]:
+            parts = [
+                m3f.PartMesh(p.name, p.kind, p.vertices @ quarter.T, p.triangles) for p in parts
+            ]
+        low, high = extent(parts)
+        if alone:
+            target = 0.5 * np.array(bed) - 0.5 * (high - low)[:2]
+        else:
+            target = position[index]
+        move = np.array([*(target - low[:2]), 0.0])
+        job_parts[index] = [
+            m3f.PartMesh(p.name, p.kind, p.vertices + move, p.triangles) for p in parts
+        ]
+    return [int(b) for b in sheet]
