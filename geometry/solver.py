@@ -630,11 +630,8 @@ class LinearPull:
         np.add.at(out, self.vertices, self.weight * self.residuals(x)[:, None] * self.directions)
         return out.reshape(-1)
 
-    def metric_inverse(
-        self, n: int, movable: NDArray[np.bool_]
-    ) -> tuple[sp.csr_matrix, NDArray[np.bool_]]:
-        """``(I + weight C^T C)^-1`` over the movable coordinates (block diagonal), and which
-        vertices the pull reaches."""
+    def metric_inverse(self, n: int, movable: NDArray[np.bool_]) -> sp.csr_matrix:
+        """``(I + weight C^T C)^-1`` over the movable coordinates (block diagonal)."""
         blocks = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
         outer = self.weight * self.directions[:, :, None] * self.directions[:, None, :]
         np.add.at(blocks, self.vertices, outer)
@@ -643,9 +640,7 @@ class LinearPull:
         cols = (3 * np.arange(n)[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)
         full = sp.csr_matrix((inverse.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * n, 3 * n))
         keep = np.flatnonzero(np.repeat(movable, 3))
-        reached = np.zeros(n, dtype=bool)
-        reached[self.vertices] = True
-        return full[keep][:, keep].tocsr(), reached
+        return full[keep][:, keep].tocsr()
 
 
 def planarize_quads(
@@ -701,9 +696,7 @@ def planarize_quads(
     cols = (3 * quad_arr[:, :, None] + np.arange(3)[None, None, :]).reshape(k, 12).reshape(-1)
     iterations = 0
     after = before
-    metric_inv, pulled = None, None
-    if pull is not None:
-        metric_inv, pulled = pull.metric_inverse(n, movable)
+    metric_inv = None if pull is None else pull.metric_inverse(n, movable)
     while iterations < max_iter and (after > tol_mm or pull is not None):
         p0, p1, p2, p3 = (pos[quad_arr[:, a]] for a in range(4))
         e1, e2, e3 = p1 - p0, p2 - p0, p3 - p0
@@ -714,7 +707,7 @@ def planarize_quads(
         grads = np.stack([-(g1 + g2 + g3), g1, g2, g3], axis=1) * scale[:, None, None]
         jac = sp.csr_matrix((grads.reshape(-1), (rows, cols)), shape=(k, 3 * n))
         jac = jac[:, np.flatnonzero(col_mask)] if not movable.all() else jac
-        if metric_inv is None or pull is None or pulled is None:
+        if pull is None or metric_inv is None:
             normal_eq = (jac @ jac.T).tocsc()
             delta = 1e-12 * float(normal_eq.diagonal().mean())
             normal_eq = normal_eq + delta * sp.identity(k, format="csc")
