@@ -47,8 +47,6 @@ from drawstring.geometry.tolerances import (
 )
 
 if TYPE_CHECKING:
-    from drawstring.geometry.solver import LinearPull
-
     from .pipeline import Progress, ResolvedOptions
 
 logger = logging.getLogger(__name__)
@@ -329,6 +327,8 @@ def _shaped(
     )
 
 
+#: Pull the bottom hinges' corners to equal depths before the flat layout (dual hinges; see
+#: :func:`_bottom_hinge_depths`).
 HINGE_DEPTHS = True
 
 
@@ -336,30 +336,20 @@ def _bottom_hinge_depths(
     assembled: AssembledResult, linkage: Linkage, bottom: NDArray[np.bool_], loaded: Target
 ) -> AssembledResult:
     """The assembled tiles with their bottom vertices moved (tops held, every face planar) so
-    that bottom hinges' corners lie as deep under both tiles' top faces as they can
+    that the ``bottom`` hinges' corners lie as deep under both tiles' top faces as they can
     (:func:`~drawstring.geometry.assembled.hinge_depth_pull`).  Read-only like the eq.-1
     tiles it stands for (a design whose co-optimization is refused keeps it)."""
+    hinges = linkage.hinges[bottom]
+    vertex = assembled.quads[hinges[:, 0], hinges[:, 1]]
     moved = reextrude(
-        assembled, assembled.top, loaded.vertices, loaded.faces,
-        start_bottom=assembled.bottom, pull=_depth_pull(assembled, linkage, bottom),
+        assembled, assembled.top, loaded.vertices, loaded.faces, start_bottom=assembled.bottom,
+        pull=hinge_depth_pull(assembled, vertex, hinges[:, 0], hinges[:, 2]),
     )  # fmt: skip
     if moved is None:
         return assembled
     for array in (moved.top, moved.bottom, moved.tiles):
         array.flags.writeable = False
     return moved
-
-
-def _depth_pull(
-    assembled: AssembledResult, linkage: Linkage, bottom: NDArray[np.bool_] | None
-) -> LinearPull | None:
-    """:func:`~drawstring.geometry.assembled.hinge_depth_pull` of the ``bottom`` hinges, or
-    None when there are none."""
-    if bottom is None or not bottom.any() or not HINGE_DEPTHS:
-        return None
-    hinges = linkage.hinges[bottom]
-    vertex = assembled.quads[hinges[:, 0], hinges[:, 1]]
-    return hinge_depth_pull(assembled, vertex, hinges[:, 0], hinges[:, 2])
 
 
 def _assembled_shape(
