@@ -246,9 +246,9 @@ def tile_panels(
         round_holes = [(point, hole_radius) for f, point in drill_points if f == face]
         round_holes += [(point, radius) for f, point, radius in holes if f == face]
         rows = np.array([[*to2d(point), r] for point, r in round_holes]).reshape(-1, 3)
-        # a lift bore and the channel it leaves from open at the same place: one hole
+        # a lift bore and the channel it leaves from open at the same place: one hole (the
+        # holes then in the order of their coordinates)
         rows = rows[np.unique(np.round(rows, 6), axis=0, return_index=True)[1]]
-        rows = rows[np.lexsort(rows.T[::-1])] if len(rows) else rows
         wide = 2 * rows[:, 2] >= profile.tool_diameter_mm
         circles = rows[wide]
         screw_rows = [[*to2d(point), r] for f, point, r in pilots if f == face]
