@@ -659,10 +659,14 @@ def write_fabrication(
                 # room on a small tile are left out and not counted)
                 fasteners = cad_flat.fasteners
                 if fasteners and profile.hinge_interlock == "screws":
+                    pilot = 2.0 * max((r for *_, r in pilot_holes), default=0.0)
+                    grip = profile.hinge_thickness_mm + profile.panel_thickness_mm
                     record.bom.append(
                         _row(
                             "screw",
-                            "wood screw through the rubber strip",
+                            f"wood screw for a {pilot:g} mm pilot hole, at least {grip:g} mm "
+                            f"long (the {profile.hinge_thickness_mm:g} mm strip and the "
+                            f"{profile.panel_thickness_mm:g} mm panel)",
                             fasteners,
                             "steel",
                             0.0,

@@ -521,6 +521,12 @@ def test_bom_counts_the_screws_of_the_holes_cut(built: Built) -> None:
     )
     rows = {r["item"]: r for r in csv.DictReader((built.folder / "fabrication/bom.csv").open())}
     assert holes > 0 and int(rows["screw"]["count"]) == holes == built.flat.fasteners
+    # what to buy: a screw for the pilot hole, long enough for the strip and the panel
+    grip = built.profile.hinge_thickness_mm + built.profile.panel_thickness_mm
+    assert (
+        f"for a {2 * radius:g} mm pilot hole, at least {grip:g} mm long"
+        in (rows["screw"]["description"])
+    )
 
 
 def test_bom_string_and_magnets(built: Built) -> None:
