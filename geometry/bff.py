@@ -33,6 +33,10 @@ from .tolerances import (
 SOLVE_BLOCK_COLUMNS = 4
 #: Largest dense block ``Z`` (rows x columns) for the elimination-tree Schur complement solve.
 SCHUR_DENSE_MAX_ENTRIES = 10_000_000
+#: Unit direction (mm-free) that picks where the boundary loop starts: the boundary vertex
+#: farthest along it from the boundary's centroid. Generic on purpose (no symmetry plane of a
+#: built-in target is perpendicular to it), pointing towards -x, -y, -z.
+LOOP_START_DIRECTION = np.array([-0.80, -0.53, -0.27]) / np.linalg.norm([0.80, 0.53, 0.27])
 
 
 @dataclass(frozen=True)
@@ -63,7 +67,9 @@ def _boundary_loop(V: NDArray[np.float64], F: NDArray[np.generic]) -> NDArray[np
     """Check that (V, F) is a disk and return its boundary loop, counter-clockwise.
 
     The loop follows the direction the boundary edges have in their faces, so the surface lies to
-    its left; it starts at the smallest boundary vertex id.
+    its left. It starts at the boundary vertex farthest along ``LOOP_START_DIRECTION`` from the
+    boundary's centroid, so the start (and every choice that walks the loop from it, such as the
+    automatic rectangle corners) depends on the surface, not on how its vertices are numbered.
     """
     if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0 or not np.all(np.isfinite(V)):
         raise InputError(f"vertices must be a finite (n, 3) array, got shape {V.shape}")
@@ -115,7 +121,9 @@ def _boundary_loop(V: NDArray[np.float64], F: NDArray[np.generic]) -> NDArray[np
         raise InputError(
             f"the mesh has Euler characteristic {euler}, not 1: it is not a disk; cut it open"
         )
-    return np.asarray(loop, dtype=np.int64)
+    ring = np.asarray(loop, dtype=np.int64)
+    reach = (V[ring] - V[ring].mean(axis=0)) @ LOOP_START_DIRECTION
+    return np.roll(ring, -int(np.argmax(reach)))
 
 
 def _corner_angles(V: NDArray[np.float64], F: NDArray[np.int64]) -> NDArray[np.float64]:

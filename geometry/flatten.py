@@ -71,7 +71,7 @@ CORNER_MIN_ARC_FRACTION = 1.0 / 48.0
 CORNER_MAX_TRIES = 8
 #: Lowest-variance corner quadruples whose grid alignment with the principal curvature directions
 #: is measured (each costs one boundary curve and one harmonic extension).
-CORNER_ALIGN_CANDIDATES = 12
+CORNER_ALIGN_CANDIDATES = 24
 #: Weight of the grid's squared geodesic torsion ``int tau^2 dA`` (dimensionless) against the
 #: area-weighted variance of ``u`` in the automatic corner score. Measured on the built-ins: large
 #: enough to prefer the principal-aligned corners of the seashell (torsion 4.6 -> 3.3 for a
@@ -86,6 +86,11 @@ CORNER_ALIGN_MIN_ANISOTROPY = 0.05
 #: and not worth more size variation (measured: seashell 11 %, a rotated saddle 80 %; cloud, wave
 #: and strongly curved scanned meshes 1-2 %).
 CORNER_ALIGN_MIN_GAIN = 0.05
+#: Shifting the chosen corners along the boundary must lower ``int tau^2 dA`` by at least this
+#: fraction of the total anisotropy.  Measured: a rotated saddle whose samples missed its axes by
+#: 7 degrees gains 3.2-3.7 %; one-vertex shifts on the seashell and the wave gain 0.2-0.5 % (noise,
+#: and they would break the seashell's mirror symmetry).
+CORNER_SHIFT_MIN_GAIN = 0.01
 
 
 @dataclass(frozen=True)
@@ -670,6 +675,55 @@ def _diverse_candidates(
     return np.asarray(kept, dtype=np.int64)
 
 
+def _shift_corners(
+    system: _System,
+    curvature: _Curvature,
+    a: NDArray[np.float64],
+    best: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]],
+    best_score: float,
+    reference_torsion: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+    """The aligned choice moved along the boundary, all four corners by the same number of
+    vertices, up to half a sample spacing either way, if that scores lower.
+
+    The samples are spaced from wherever the boundary loop starts, so without this step how well
+    the grid can follow the principal directions depends on that start (a rotated saddle: 1 to 17
+    degrees off its axes).  A shift is kept only if it lowers the score, its torsion is
+    ``CORNER_ALIGN_MIN_GAIN`` of the anisotropy below the lowest-variance candidate's (the rule
+    for the candidates) and ``CORNER_SHIFT_MIN_GAIN`` below the unshifted choice's (so a
+    symmetric shape keeps its symmetric corners unless a shift buys real alignment).
+    """
+    k = len(system.boundary)
+    reach = k // CORNER_EVEN_SAMPLES
+    start = best[2]
+    shifts = np.array([s for s in range(-reach, reach + 1) if s], dtype=np.int64)
+    if not len(shifts):
+        return best
+    positions = np.unique((start[None, :] + shifts[:, None]) % k)
+    _, Y = _corner_responses(system, positions)
+    unshifted_torsion = _grid_torsion_integral(system, curvature, best[0])
+    for shift in shifts:
+        columns = np.searchsorted(positions, (start + shift) % k)
+        variance = float(_corner_scores(system, a, Y, columns[None, :])[0])
+        if variance >= best_score:
+            continue  # the torsion term cannot bring it back
+        u = a + 0.5 * math.pi * Y[:, columns].sum(axis=1)
+        corner_pos = _landscape_start(system, u[system.boundary], np.sort(positions[columns]))
+        candidate = _rectangle_candidate(system, u, corner_pos)
+        if candidate is None or np.any(flipped_faces(system.faces, candidate[0])):
+            continue
+        torsion = _grid_torsion_integral(system, curvature, candidate[0])
+        score = variance + CORNER_ALIGN_WEIGHT * torsion
+        log.debug("corners shifted by %d: variance %.4f, torsion %.4f", shift, variance, torsion)
+        if (
+            score < best_score
+            and reference_torsion - torsion >= CORNER_ALIGN_MIN_GAIN * curvature.anisotropy
+            and unshifted_torsion - torsion >= CORNER_SHIFT_MIN_GAIN * curvature.anisotropy
+        ):
+            best, best_score = (candidate[0], candidate[1], corner_pos), score
+    return best
+
+
 def _flatten_rectangle(
     system: _System,
     named: NDArray[np.int64] | None,
@@ -771,6 +825,9 @@ def _flatten_rectangle(
     if best is None and align:
         log.debug("no aligned corner candidate without flipped triangles; variance-only choice")
         return _flatten_rectangle(system, None, None)
+    if align and best is not None:
+        assert curvature is not None
+        best = _shift_corners(system, curvature, a, best, best_score, reference_torsion)
     chosen = best if best is not None else fallback
     if chosen is None:
         raise InputError(

@@ -408,8 +408,17 @@ def rotated_saddle_disk(angle_deg: float, n: int = 20) -> tuple[np.ndarray, np.n
     return np.c_[x, y, z], ccw(flat, faces)
 
 
-def test_corner_choice_follows_principal_directions() -> None:
-    # Principal axes at 35 degrees: corners one sample step apart reach them.
+@pytest.mark.parametrize("start_deg", [0.0, 60.0, 130.0, 213.5, 290.0])
+def test_corner_choice_follows_principal_directions(
+    start_deg: float, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Principal axes at 35 degrees. The corner samples are 15 degrees apart from wherever the
+    # boundary loop starts; shifting the chosen corners along the boundary brings the grid onto
+    # the axes whatever the start (without the shift: 1 to 17 degrees off, as the start varies).
+    import drawstring.geometry.bff as bff
+
+    toward = np.array([np.cos(np.radians(start_deg)), np.sin(np.radians(start_deg)), -0.27])
+    monkeypatch.setattr(bff, "LOOP_START_DIRECTION", toward / np.linalg.norm(toward))
     vertices, faces = rotated_saddle_disk(35.0)
     aligned = flatten(vertices, faces, mode="rectangle")
     assert not flipped_faces(faces, aligned.uv).any()
@@ -417,6 +426,21 @@ def test_corner_choice_follows_principal_directions() -> None:
     angle, torsion = principal_misalignment(vertices, faces, aligned.uv)
     assert np.nanmedian(angle[centre]) < 5.0
     assert np.all(np.isfinite(torsion))
+
+
+def test_automatic_corners_do_not_depend_on_the_vertex_numbering() -> None:
+    # The same surface with its vertices renumbered, its faces shuffled and each face's vertices
+    # rotated (as another file format or exporter writes it) gets the same corners and map.
+    vertices, faces = rotated_saddle_disk(35.0)
+    rng = np.random.default_rng(7)
+    new_id = rng.permutation(len(vertices))
+    moved = np.empty_like(vertices)
+    moved[new_id] = vertices
+    shuffled = np.roll(new_id[faces], 1, axis=1)[rng.permutation(len(faces))]
+    first = flatten(vertices, faces, mode="rectangle")
+    again = flatten(moved, shuffled, mode="rectangle")
+    np.testing.assert_array_equal(new_id[first.corners], again.corners)
+    np.testing.assert_allclose(again.uv[new_id], first.uv, atol=1e-9)
 
 
 @pytest.mark.parametrize("angle_deg", [-25.0, 50.0, 80.0])
