@@ -286,7 +286,8 @@ def thickness_refusal(profile: Profile, thickness: float) -> InputError | None:
 
 def feature_fit_refusal(result: Design) -> InputError | None:
     """The one-line refusal of tiles too small or too thin for the profile's string channel,
-    lift bores or hinge strips, or None when they fit.
+    lift bores or hinge strips, or too large for its print bed (:func:`bed_refusal`), or None
+    when they fit.
 
     Checked before any solid is built: the tile thickness against
     :func:`~drawstring.cad.features.channel_min_thickness_mm`; the side faces the string passes
@@ -314,7 +315,7 @@ def feature_fit_refusal(result: Design) -> InputError | None:
         return too_thin
     found = _shortfalls(result)
     if not found:
-        return None
+        return bed_refusal(result)
     worst = max(found, key=lambda f: f.need / f.have)
     count = (
         f"--grid {options.grid[0]} {options.grid[1]}" if options.grid else f"{options.tiles} tiles"
@@ -325,6 +326,31 @@ def feature_fit_refusal(result: Design) -> InputError | None:
         f"--size {options.size_mm:g} mm with {count} gives tiles too small for the "
         f"{profile.name} profile: {worst.what}; use --size {size:g} or more, or {fewer}"
     )
+
+
+def bed_refusal(result: Design) -> InputError | None:
+    """The one-line refusal of a tile too large for the profile's print bed, or None: asked
+    before any solid is built (the print jobs are planned only after the solids are meshed).
+
+    ``fdm-dual`` prints the tiles as the flat layout places them (the layout may turn a quarter
+    as a whole, :func:`~.exports_3mf.tile_bed_refusal`); ``laser-epdm`` nests them loose, each
+    turned to fit (:func:`~.exports_beds.nest_footprints`).  ``plywood-cnc`` sheets are checked
+    when the panels are laid out.
+    """
+    from .exports_3mf import tile_bed_refusal
+    from .exports_beds import nest_footprints
+
+    profile = result.profile
+    bed = (profile.bed_x_mm, profile.bed_y_mm)
+    tiles = print_tiles(result)
+    if profile.process == "fdm-dual":
+        return tile_bed_refusal(tiles, bed)
+    if profile.process == "laser-epdm":
+        try:
+            nest_footprints(list(tiles), bed)
+        except InputError as error:
+            return error
+    return None
 
 
 def build_cad(result: Design) -> tuple[CadResult, CadResult]:

@@ -174,6 +174,25 @@ def mesh_tolerance(thickness_mm: float) -> float:
     return max(0.02, MESH_TOLERANCE_FRACTION * thickness_mm)
 
 
+def tile_bed_refusal(
+    tiles_flat: NDArray[np.float64], bed: tuple[float, float]
+) -> InputError | None:
+    """The one-line refusal of a tile, printed as it lies in the flat layout (the layout may
+    turn a quarter as a whole), that does not fit the bed inside its margins, or None."""
+    usable = np.array(bed, dtype=np.float64) - 2 * BED_MARGIN_MM
+    tile_size = tiles_flat.max(axis=1)[:, :2] - tiles_flat.min(axis=1)[:, :2]
+    if np.all(tile_size.max(axis=1) <= usable.max()) and np.all(
+        tile_size.min(axis=1) <= usable.min()
+    ):
+        return None
+    need = tile_size.max(axis=0)
+    return InputError(
+        f"a tile ({need[0]:.0f} x {need[1]:.0f} mm) does not fit the {bed[0]:g} x {bed[1]:g} mm "
+        f"bed with {BED_MARGIN_MM:g} mm free round it; use a larger bed (machine.bed_x_mm / "
+        "bed_y_mm) or more tiles"
+    )
+
+
 def plan_print_jobs(
     tiles_flat: NDArray[np.float64],
     hinges: NDArray[np.int64],
@@ -204,16 +223,12 @@ def plan_print_jobs(
     InputError
         When a single tile is larger than the bed.
     """
+    too_big = tile_bed_refusal(tiles_flat, bed)
+    if too_big is not None:
+        raise too_big
     usable = np.array(bed, dtype=np.float64) - 2 * BED_MARGIN_MM
     lo = tiles_flat.min(axis=1)[:, :2]
     hi = tiles_flat.max(axis=1)[:, :2]
-    tile_size = hi - lo
-    if np.any(tile_size.max(axis=1) > usable.max()) or np.any(tile_size.min(axis=1) > usable.min()):
-        need = tile_size.max(axis=0)
-        raise InputError(
-            f"a tile ({need[0]:.0f} x {need[1]:.0f} mm) does not fit the bed "
-            f"{bed[0]:.0f} x {bed[1]:.0f} mm; use a larger bed or more tiles"
-        )
     best: list[list[int]] | None = None
     best_rotated = False
     for rotated in (False, True):

@@ -5,6 +5,7 @@ onto a bed and the jobs that fit together sharing one (:mod:`.exports` writes th
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -23,23 +24,35 @@ if TYPE_CHECKING:
 TILE_SPACING_MM = 4.0
 
 
-def nested_tiles(meshes: list[m3f.PartMesh], bed: tuple[float, float]) -> list[list[m3f.PartMesh]]:
-    """Tiles turned about the vertical to their smallest bounding rectangles and shelf-packed
-    onto beds (as the DXF parts are), one list of moved meshes per bed."""
+def nest_footprints(
+    points: Sequence[NDArray[np.float64]], bed: tuple[float, float]
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """Bed, turn (rad) and shift of each tile nested by the convex hull of its points' x, y
+    (:func:`~.exports_dxf.place_outlines`).
+
+    Raises
+    ------
+    InputError
+        When a tile does not fit an empty bed inside its margins, turned any way.
+    """
     from scipy.spatial import ConvexHull
 
-    outlines = []
-    for mesh in meshes:
-        xy = mesh.vertices[:, :2]
-        outlines.append(xy[ConvexHull(xy).vertices])
+    outlines = [p[:, :2][ConvexHull(p[:, :2]).vertices] for p in points]
     try:
         sheet, angle, shift, _ = place_outlines(outlines, bed, TILE_SPACING_MM, m3f.BED_MARGIN_MM)
     except InputError as error:
         raise InputError(
             f"a tile does not fit the {bed[0]:g} x {bed[1]:g} mm bed with "
-            f"{m3f.BED_MARGIN_MM:g} mm free round it; use a larger bed "
+            f"{m3f.BED_MARGIN_MM:g} mm free round it, turned any way; use a larger bed "
             "(machine.bed_x_mm / bed_y_mm) or more tiles"
         ) from error
+    return sheet, angle, shift
+
+
+def nested_tiles(meshes: list[m3f.PartMesh], bed: tuple[float, float]) -> list[list[m3f.PartMesh]]:
+    """Tiles turned about the vertical to their smallest bounding rectangles and shelf-packed
+    onto beds (as the DXF parts are), one list of moved meshes per bed."""
+    sheet, angle, shift = nest_footprints([mesh.vertices for mesh in meshes], bed)
     beds: list[list[m3f.PartMesh]] = [[] for _ in range(int(sheet.max(initial=-1)) + 1)]
     for mesh, b, a, move in zip(meshes, sheet, angle, shift, strict=True):
         vertices = mesh.vertices.copy()

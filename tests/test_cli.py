@@ -1055,3 +1055,30 @@ def test_the_wrote_line_goes_to_stdout_and_the_warnings_to_stderr(
     assert captured.out.startswith(f"wrote {out}: ")
     for warning in warnings:
         assert f"warning: {warning}\n" in captured.err
+
+
+@pytest.mark.parametrize("profile", ["fdm-dual", "laser-epdm"])
+def test_a_tile_larger_than_the_bed_is_refused_before_any_solid(
+    profile: str,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    import drawstring.cad.design as cad_design
+
+    def no_solids(*args: object, **kwargs: object) -> None:
+        raise AssertionError("solids were built before the bed was checked")
+
+    monkeypatch.setattr(cad_design, "build_design_solids", no_solids)
+    assert main(["profiles", "--show", profile]) == 0
+    shown = capsys.readouterr().out
+    small = write(
+        tmp_path / "small.toml",
+        re.sub(r"bed_([xy])_mm = [0-9.]+", r"bed_\1_mm = 30.0", shown),
+    )
+    out = tmp_path / "out"
+    args = ["design", "saddle", "--grid", "6", "4", "--resolution", "1500", "--size", "150"]
+    assert main([*args, "--no-simulate", "--profile", str(small), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "does not fit the 30 x 30 mm bed" in err[-1] and "or more tiles" in err[-1]
+    assert not out.exists()

@@ -554,7 +554,7 @@ def test_print_jobs_split_along_rows_or_refuse() -> None:
     assert sorted(t for job in jobs for t in job.tiles) == list(range(len(tiles)))
     for job in jobs:
         assert job.size[0] <= 0.6 * span[0] and job.size[1] <= span[1] + 10
-    with pytest.raises(InputError, match="does not fit the bed"):
+    with pytest.raises(InputError, match="does not fit the 12 x 12 mm bed"):
         plan_print_jobs(tiles, design.linkage.hinges, (12.0, 12.0))
 
 
