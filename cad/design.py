@@ -522,8 +522,9 @@ def build_design_solids(
         broken_pairs = ", ".join(f"{m.tile_a}/{m.tile_b}" for m in broken[:_MAX_RUNS])
         more = f" and {len(broken) - _MAX_RUNS} more" if len(broken) > _MAX_RUNS else ""
         notes.append(
-            f"{len(broken)} of {len(magnets)} magnet pockets ({broken[0].diameter_mm:.2f} mm) "
-            f"break out of their side faces (tiles {broken_pairs}{more})"
+            f"{len(broken)} of {len(magnets)} magnet pairs have pockets "
+            f"({broken[0].diameter_mm:.2f} mm) breaking out of their side faces (tiles "
+            f"{broken_pairs}{more})"
         )
 
     for tile, polyhedra in (trims or {}).items():

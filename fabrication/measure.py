@@ -109,8 +109,9 @@ def cad_warnings(measured: dict[str, Any], profile: Profile) -> list[str]:
     broken = measured.get("magnet_pockets_breaking_out", 0)
     if broken:
         warnings.append(
-            f"{broken} of {measured['magnet_pairs']} magnet pockets break out of their side "
-            "faces, so those magnets show and sit loose (the cad notes list the tiles); use "
+            f"{broken} of {measured['magnet_pairs']} magnet pairs have pockets breaking out of "
+            "their side faces, so those magnets show and sit loose (the cad notes list the "
+            "tiles); use "
             f"smaller magnets than {profile.magnet_diameter_mm:g} mm (magnet.diameter_mm in a "
             "profile of your own) or thicker tiles (--thickness)"
         )

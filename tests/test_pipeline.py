@@ -84,7 +84,7 @@ def test_magnet_pockets_breaking_out_are_a_warning() -> None:
     profile = load_profile("fdm-dual")
     assert cad_warnings({"magnet_pairs": 12, "magnet_pockets_breaking_out": 0}, profile) == []
     (warning,) = cad_warnings({"magnet_pairs": 12, "magnet_pockets_breaking_out": 2}, profile)
-    assert warning.startswith("2 of 12 magnet pockets break out of their side faces")
+    assert warning.startswith("2 of 12 magnet pairs have pockets breaking out of their side faces")
     assert f"smaller magnets than {profile.magnet_diameter_mm:g} mm" in warning
 
 
