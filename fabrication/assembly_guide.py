@@ -554,7 +554,10 @@ def _write_assembly(
             f"`print.3mf` holds {len(record.jobs)} object(s), one per print job. Tiles are "
             f"assigned to extruder 1 ({profile.tile_material}), hinge pads to extruder 2 "
             f"({profile.hinge_material}); PrusaSlicer, Bambu Studio and OrcaSlicer read the "
-            "assignment from the file." + _beds_text("print", record.jobs)
+            "assignment from the file. Each job lies top faces down (the tops share one plane, "
+            "the bottoms follow each tile's thickness), so every tile starts on the first "
+            "layer; turn the printed sheet over before you thread it."
+            + _beds_text("print", record.jobs)
         )
         lines.append("")
         for job in record.jobs:
@@ -623,9 +626,9 @@ def _write_assembly(
         strip_sheets = _count(record.sheets["hinges"]["sheets"], "sheet")
         lines.append(
             f"Cut the hinge strips from `hinges.dxf` ({strip_sheets}; "
-            "layers: ENGRAVE green first, CUT_INNER blue, CUT_OUTER black; SHEET red is only the "
-            "sheet outline). Each half of a strip is engraved with the number of the tile it "
-            "joins."
+            "layers: ENGRAVE green first, CUT_INNER blue, CUT_OUTER black; SHEET red holds only "
+            "each sheet's outline and its name below it, not to be cut). Each half of a strip "
+            "is engraved with the number of the tile it joins."
         )
         lines.append("")
         width, height = est.get("placement_size_mm", (0.0, 0.0))

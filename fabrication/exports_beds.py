@@ -67,22 +67,39 @@ def jobs_on_bed(
     pad_mesh: dict[int, m3f.PartMesh],
     record: _Record,
 ) -> list[list[m3f.PartMesh]]:
-    """Every job's parts moved onto the bed, in the job's own frame (centred on the bed)."""
+    """Every job's parts moved onto the bed, in the job's own frame (centred on the bed), top
+    faces down.
+
+    The flat layout's top faces lie in one plane, its bottoms do not: a tile is as thick as its
+    assembled frustum (up to a few tenths of a millimetre more or less than the profile's
+    thickness where the quad mesh is not conical).  Printed on their bottoms, thinner tiles
+    would start above the first layer; turned over (about the job's centre line along x) every
+    tile rests on the bed.
+    """
     job_parts: list[list[m3f.PartMesh]] = []
     for job in jobs:
         parts = [
-            m3f.PartMesh(
-                tile_mesh[t].name, "tile", tile_mesh[t].vertices + job.offset,
-                tile_mesh[t].triangles,
-            )
+            m3f.PartMesh(tile_mesh[t].name, "tile", tile_mesh[t].vertices, tile_mesh[t].triangles)
             for t in job.tiles
-        ]  # fmt: skip
+        ]
         parts += [
-            m3f.PartMesh(
-                pad_mesh[h].name, "pad", pad_mesh[h].vertices + job.offset, pad_mesh[h].triangles
-            )
+            m3f.PartMesh(pad_mesh[h].name, "pad", pad_mesh[h].vertices, pad_mesh[h].triangles)
             for h in job.pads
             if h in pad_mesh
+        ]
+        top = max(float(p.vertices[:, 2].max()) for p in parts)
+        mirror_y = job.offset[1] + (
+            min(float(p.vertices[:, 1].min()) for p in parts)
+            + max(float(p.vertices[:, 1].max()) for p in parts)
+        )
+        parts = [
+            m3f.PartMesh(
+                p.name,
+                p.kind,
+                m3f.flip_upside_down(p).vertices + np.array([job.offset[0], mirror_y, top]),
+                p.triangles,
+            )
+            for p in parts
         ]
         job_parts.append(parts)
         record.jobs.append(

@@ -328,6 +328,57 @@ def test_3mf_meshes_and_extruders(built: Built) -> None:
     assert len(parts) == len(extruders)
 
 
+def test_every_printed_tile_rests_on_the_bed(built: Built) -> None:
+    """fdm-dual jobs print top faces down: the tops lie in one plane, the bottoms do not (a
+    tile is as thick as its frustum), so every tile volume of print.3mf (read back with lib3mf,
+    split by the slicer's volume ranges) reaches down to z = 0 and nothing goes below."""
+    if built.profile.process != "fdm-dual":
+        pytest.skip("dual extrusion only")
+    path = built.folder / "fabrication" / "print.3mf"
+    with zipfile.ZipFile(path) as archive:
+        config = ET.fromstring(archive.read("Metadata/Slic3r_PE_model.config"))
+    lowest = []
+    for obj, (_, vertices, triangles) in zip(
+        config.findall("object"), _read_3mf(path), strict=True
+    ):
+        assert vertices[:, 2].min() >= -1e-6
+        for volume_el in obj.findall("volume"):
+            keys = {m.get("key"): m.get("value") for m in volume_el.findall("metadata")}
+            if keys["name"].startswith("tile"):
+                first, last = int(volume_el.get("firstid")), int(volume_el.get("lastid"))
+                lowest.append(vertices[triangles[first : last + 1]][:, :, 2].min())
+    assert len(lowest) == len(built.flat.tiles)
+    assert np.max(lowest) <= 1e-4
+
+
+def test_print_jobs_turn_tiles_of_different_thickness_onto_their_common_top_plane() -> None:
+    # Two boxes side by side, tops at z = 6, one 6 mm and one 5.7 mm thick (as tiles of a quad
+    # mesh that is not conical are), and a pad sunk 1 mm into both tops: on the bed both
+    # tiles touch z = 0, the pad lies on it, and the job keeps its footprint on the bed.
+    from types import SimpleNamespace
+
+    from drawstring.fabrication.exports_3mf import PartMesh, PrintJob
+    from drawstring.fabrication.exports_beds import jobs_on_bed
+
+    def box(x0: float, x1: float, z0: float, z1: float, name: str, kind: str) -> PartMesh:
+        corners = np.array([[x, y, z] for x in (x0, x1) for y in (0.0, 10.0) for z in (z0, z1)])
+        return PartMesh(name, kind, corners, np.array([[0, 1, 2]]))  # type: ignore[arg-type]
+
+    tiles = {0: box(0, 10, 0.0, 6.0, "tile_0", "tile"), 1: box(11, 21, 0.3, 6.0, "tile_1", "tile")}
+    pads = {0: box(8, 13, 5.0, 6.0, "hinge_0", "pad")}
+    offset = np.array([100.0, 50.0, 0.0])
+    job = PrintJob((0, 1), (0,), offset, np.array([21.0, 10.0]))
+    record = SimpleNamespace(jobs=[])
+    (parts,) = jobs_on_bed([job], tiles, pads, record)  # type: ignore[arg-type]
+    low = {p.name: p.vertices.min(axis=0) for p in parts}
+    high = {p.name: p.vertices.max(axis=0) for p in parts}
+    assert low["tile_0"][2] == pytest.approx(0.0) and low["tile_1"][2] == pytest.approx(0.0)
+    assert high["tile_1"][2] == pytest.approx(5.7) and low["hinge_0"][2] == pytest.approx(0.0)
+    every = np.vstack([p.vertices for p in parts])
+    np.testing.assert_allclose(every.min(axis=0)[:2], [100.0, 50.0])
+    np.testing.assert_allclose(every.max(axis=0)[:2], [121.0, 60.0])
+
+
 @pytest.mark.skipif(shutil.which("prusa-slicer") is None, reason="prusa-slicer not installed")
 def test_prusaslicer_slices_with_both_extruders(built: Built, tmp_path: Path) -> None:
     if built.profile.process != "fdm-dual":
