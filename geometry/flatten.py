@@ -834,4 +834,8 @@ def _flatten_rectangle(
             "these corners give no closed rectangle boundary; pick corners farther apart"
         )
     uv, u, corner_pos = chosen
+    if named is None:
+        # The map of the chosen corners computed as named corners are (their four responses
+        # alone), so that --corners with the recorded corners gives the same map to the bit.
+        return _flatten_rectangle(system, corner_pos)
     return uv, u, np.roll(system.boundary, -corner_pos[0]), system.boundary[corner_pos]

@@ -139,6 +139,7 @@ def load_target(
             )
         except InputError as error:
             raise InputError(f"{path}: {error}") from None
+        vertices, faces, vertex_of_input = canonical_order(vertices, faces, vertex_of_input)
         name, source = path.stem, os.fspath(spec)
     scaled = scale_to_size(vertices, size_mm)
     for note in notes:
@@ -338,6 +339,28 @@ def _clean_disk_mesh(
             ) from None
         raise
     return np.ascontiguousarray(V), np.ascontiguousarray(F), tuple(notes), where
+
+
+def canonical_order(
+    vertices: NDArray[np.float64], faces: NDArray[np.int64], vertex_of_input: NDArray[np.int64]
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """The mesh renumbered by its geometry alone: vertices sorted by x, then y, then z; each
+    face turned (keeping its orientation) to start at its smallest vertex; faces sorted.
+
+    Every later step sums, solves and breaks ties in vertex and face order, and a conformal map
+    of a few thousand vertices carries last-bit differences through to a different tiling; so
+    the same surface written by another exporter, as STL instead of OBJ or with its vertices
+    renumbered, would give another design.  ``vertex_of_input`` follows the renumbering.
+    """
+    order = np.lexsort((vertices[:, 2], vertices[:, 1], vertices[:, 0]))
+    new_index = np.empty(len(order), dtype=np.int64)
+    new_index[order] = np.arange(len(order))
+    F = new_index[faces]
+    start = np.argmin(F, axis=1)
+    F = F[np.arange(len(F))[:, None], (start[:, None] + np.arange(3)) % 3]
+    F = F[np.lexsort((F[:, 2], F[:, 1], F[:, 0]))]
+    where = np.where(vertex_of_input >= 0, new_index[np.maximum(vertex_of_input, 0)], -1)
+    return np.ascontiguousarray(vertices[order]), np.ascontiguousarray(F), where
 
 
 def _drop_unreferenced(

@@ -1082,3 +1082,34 @@ def test_a_tile_larger_than_the_bed_is_refused_before_any_solid(
     err = capsys.readouterr().err.strip().splitlines()
     assert "does not fit the 30 x 30 mm bed" in err[-1] and "or more tiles" in err[-1]
     assert not out.exists()
+
+
+def test_the_same_surface_renumbered_or_with_its_recorded_corners_gives_the_same_design(
+    tmp_path: Path,
+) -> None:
+    # A renumbered copy of a mesh file (vertices permuted, faces shuffled), and the file again
+    # with --corners set to the corners design.json recorded, write the same files to the byte.
+    import igl
+
+    source = Path(__file__).parent / "data" / "hemisphere.obj"
+    vertices, faces = igl.read_triangle_mesh(str(source))[:2]
+    rng = np.random.default_rng(11)
+    new_id = rng.permutation(len(vertices))
+    moved = np.empty_like(vertices)
+    moved[new_id] = vertices
+    shuffled = np.roll(new_id[faces], 2, axis=1)[rng.permutation(len(faces))]
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in moved.tolist()]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in shuffled.tolist()]
+    renumbered = write(tmp_path / "hemisphere.obj", "\n".join(lines) + "\n")
+    runs = {"given": source, "renumbered": renumbered}
+    for name, mesh in runs.items():
+        out = tmp_path / name
+        assert main(["design", str(mesh), *SMALL, "--no-simulate", "--out", str(out)]) == 0
+    corners = json.loads((tmp_path / "given" / "design.json").read_text())["target"]["corners"]
+    args = ["--corners", *map(str, corners), "--no-simulate", "--out", str(tmp_path / "named")]
+    assert main(["design", str(source), *SMALL, *args]) == 0
+    for name in ("assembled.obj", "flat.obj", "hinges.json", "route.json", "tiles.npz"):
+        given = (tmp_path / "given" / name).read_bytes()
+        assert (tmp_path / "renumbered" / name).read_bytes() == given, name
+        assert (tmp_path / "named" / name).read_bytes() == given, name
+
