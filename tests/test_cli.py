@@ -1113,3 +1113,20 @@ def test_the_same_surface_renumbered_or_with_its_recorded_corners_gives_the_same
         assert (tmp_path / "renumbered" / name).read_bytes() == given, name
         assert (tmp_path / "named" / name).read_bytes() == given, name
 
+
+def test_a_scale_factor_over_the_bound_is_a_warning_when_the_flat_layout_meets_its_targets(
+    tmp_path: Path,
+) -> None:
+    # The bound is read off the target's conformal map.  A 6 x 4 saddle asked to keep parts
+    # under 1.05 cannot be split that far, but its flat layout, measured, keeps every gap
+    # within [12, 90] deg and meets its accuracy targets: a warning (exit 0), not a problem.
+    out = tmp_path / "bounded"
+    args = ["design", "saddle", *SMALL, "--no-simulate", "--max-scale-factor", "1.05"]
+    assert main([*args, "--out", str(out)]) == 0
+    doc = json.loads((out / "design.json").read_text())
+    assert not any("scale factor" in p for p in doc["problems"])
+    (warning,) = [w for w in doc["warnings"] if w.startswith("scale factor")]
+    assert "exceeds 1.05 in a part no split can divide" in warning
+    assert "keeps every gap within [12, 90] deg" in warning
+    metrics = doc["metrics"]
+    assert 12.0 <= metrics["flat_gap_angle_min_deg"] <= metrics["flat_gap_angle_max_deg"] <= 90.0
