@@ -173,12 +173,23 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
 VERBOSE_HELP = "log what each stage does, and every warning a library raises"
 
 
+def _version() -> str:
+    """The installed package's version (``unknown`` when run from an uninstalled tree)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("drawstring")
+    except PackageNotFoundError:
+        return "unknown"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="drawstring",
         description="Turn a curved surface into a flat auxetic linkage pulled shut by one string.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help=VERBOSE_HELP)
+    parser.add_argument("--version", action="version", version=f"drawstring {_version()}")
     # -v also after the subcommand.  SUPPRESS: a subcommand that does not see -v must not
     # overwrite the main parser's value with a default of its own.
     verbose = _Parser(add_help=False)
@@ -362,7 +373,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(
             f"{verdict} after {block['steps']} steps; tiles within "
-            f"{block['final_max_deviation_mm']:.3f} mm of the assembled shape; wrote "
+            f"{block['final_max_deviation_mm']:.2g} mm of the assembled shape; wrote "
             f"{folder / 'deploy.gif'}"
         )
     return 0

@@ -1130,3 +1130,12 @@ def test_a_scale_factor_over_the_bound_is_a_warning_when_the_flat_layout_meets_i
     assert "keeps every gap within [12, 90] deg" in warning
     metrics = doc["metrics"]
     assert 12.0 <= metrics["flat_gap_angle_min_deg"] <= metrics["flat_gap_angle_max_deg"] <= 90.0
+
+
+def test_version_names_the_installed_package(capsys: pytest.CaptureFixture[str]) -> None:
+    from importlib.metadata import version
+
+    with pytest.raises(SystemExit) as done:
+        main(["--version"])
+    assert done.value.code == 0
+    assert capsys.readouterr().out.strip() == f"drawstring {version('drawstring')}"
