@@ -740,7 +740,18 @@ def with_cad(result: Design, progress: Progress) -> Design:
     from .cad_stage import build_cad, measure_cad
 
     with progress.stage("cad"):
-        cad_flat, cad_assembled = build_cad(result)
+        try:
+            cad_flat, cad_assembled = build_cad(result)
+        except InputError as refusal:
+            if not result.problems:
+                raise
+            # Tiles too small (or too large) for the profile: a new size alone may not give a
+            # design, so the refusal names what else is wrong (found before any solid).
+            more = f" and {len(result.problems) - 1} more" if len(result.problems) > 1 else ""
+            raise InputError(
+                f"{refusal}; the design has problems besides, which --no-cad writes out to "
+                f"look at: {result.problems[0]}{more}"
+            ) from None
         measured = measure_cad(result, cad_flat)
     problems = [*result.problems, *cad_problems(measured)]
     warnings = [*result.warnings, *cad_warnings(measured, result.profile)]

@@ -767,3 +767,23 @@ def test_surface_distance_warnings_agree_with_the_report(weights) -> None:
     # the coarse saddle with the paper's weights misses both; fitted closely it meets both
     assert ("surface_distance_max_mm" in failed) == (weights is None)
     assert ("surface_distance_mean_mm" in failed) == (weights is None)
+
+
+def test_a_tile_size_refusal_names_the_problems_a_new_size_may_not_mend() -> None:
+    # Tiles too small for the lift bores are refused before any solid; where the design has a
+    # problem besides, the one line names it (a new --size alone may not give a design).
+    from drawstring.fabrication.pipeline import with_cad
+    from drawstring.geometry.errors import InputError
+
+    options = DesignOptions(grid=(10, 8), resolution=1500, size_mm=30.0, simulate=False, cad=False)
+    result = design("saddle", options)
+    with pytest.raises(InputError, match=r"use --size \d+ or more, or a smaller --grid$"):
+        with_cad(result, Progress(quiet=True))
+    troubled = replace(result, problems=("flat tiles overlap by 2 mm^2", "another"))
+    with pytest.raises(InputError) as refused:
+        with_cad(troubled, Progress(quiet=True))
+    line = str(refused.value)
+    assert "\n" not in line and "tiles too small" in line
+    assert line.endswith(
+        "which --no-cad writes out to look at: flat tiles overlap by 2 mm^2 and 1 more"
+    )
