@@ -494,23 +494,46 @@ def _turning_peaks(system: _System, arc: NDArray[np.float64], window: float) -> 
     return np.asarray(chosen, dtype=np.int64)
 
 
+def _corner_allowed(system: _System) -> NDArray[np.bool_]:
+    """(k,) bool per loop position: may be a corner.
+
+    A boundary vertex in one triangle only (an ear) has its two loop neighbours in that same
+    triangle; a corner at either neighbour puts all three on one side of the rectangle, and the
+    triangle collapses to a segment (zero area, counted as flipped).
+    """
+    k = len(system.boundary)
+    ear = np.bincount(system.faces.ravel(), minlength=system.n)[system.boundary] == 1
+    allowed = np.ones(k, dtype=bool)
+    at = np.flatnonzero(ear)
+    allowed[(at - 1) % k] = False
+    allowed[(at + 1) % k] = False
+    allowed[at] = True  # the ear itself: its triangle gets the right angle
+    return allowed
+
+
 def _corner_samples(system: _System) -> NDArray[np.int64]:
     """Sorted loop positions sampled as corner candidates (equal arc length + turning peaks).
 
     Short boundaries use every vertex. Turning is summed over windows of half-width
     ``perimeter * CORNER_MIN_ARC_FRACTION / 2``, so two peaks are at least one minimum arc apart.
+    Positions :func:`_corner_allowed` rules out are left out (an even sample moves to the
+    nearest allowed one).
     """
     k = len(system.boundary)
+    allowed = _corner_allowed(system)
     if k <= CORNER_EVEN_SAMPLES + CORNER_TURNING_PEAKS:
-        return np.arange(k, dtype=np.int64)
+        return np.flatnonzero(allowed).astype(np.int64)
     arc = np.concatenate([[0.0], np.cumsum(system.edge_length[:-1])])
     perimeter = float(system.edge_length.sum())
     targets = np.arange(CORNER_EVEN_SAMPLES) * perimeter / CORNER_EVEN_SAMPLES
     even = np.clip(np.searchsorted(arc, targets), 0, k - 1)
     before = np.clip(even - 1, 0, k - 1)
     even = np.where(np.abs(arc[before] - targets) < np.abs(arc[even] - targets), before, even)
+    ok = np.flatnonzero(allowed)
+    gap = np.abs(ok[None, :] - even[:, None])
+    even = ok[np.argmin(np.minimum(gap, k - gap), axis=1)]
     peaks = _turning_peaks(system, arc, 0.5 * CORNER_MIN_ARC_FRACTION * perimeter)
-    return np.unique(np.concatenate([even, peaks]))
+    return np.unique(np.concatenate([even, peaks[allowed[peaks]]]))
 
 
 def _quadruples(
@@ -696,7 +719,11 @@ def _shift_corners(
     k = len(system.boundary)
     reach = k // CORNER_EVEN_SAMPLES
     start = best[2]
-    shifts = np.array([s for s in range(-reach, reach + 1) if s], dtype=np.int64)
+    allowed = _corner_allowed(system)
+    shifts = np.array(
+        [s for s in range(-reach, reach + 1) if s and allowed[(start + s) % k].all()],
+        dtype=np.int64,
+    )
     if not len(shifts):
         return best
     positions = np.unique((start[None, :] + shifts[:, None]) % k)
@@ -836,6 +863,11 @@ def _flatten_rectangle(
     uv, u, corner_pos = chosen
     if named is None:
         # The map of the chosen corners computed as named corners are (their four responses
-        # alone), so that --corners with the recorded corners gives the same map to the bit.
-        return _flatten_rectangle(system, corner_pos)
+        # alone), so that --corners with the recorded corners gives the same map to the bit;
+        # kept unless that rounding flips a triangle the chosen map did not.
+        final = _flatten_rectangle(system, corner_pos)
+        if not np.any(flipped_faces(system.faces, final[0])) or np.any(
+            flipped_faces(system.faces, uv)
+        ):
+            return final
     return uv, u, np.roll(system.boundary, -corner_pos[0]), system.boundary[corner_pos]

@@ -121,7 +121,16 @@ def lift_points(
         closest, domain[tri[:, 0]], domain[tri[:, 1]], domain[tri[:, 2]]
     )
     bary = np.clip(bary, 0.0, None)
-    bary /= bary.sum(axis=1, keepdims=True)
+    total = bary.sum(axis=1, keepdims=True)
+    # A triangle the flattening shrank to (numerically) nothing gives no barycentric
+    # coordinates (NaN): such a point takes the triangle's nearest corner.
+    bad = ~np.isfinite(total[:, 0]) | (total[:, 0] <= 0.0)
+    if np.any(bad):
+        corners = domain[tri[bad]] - closest[bad][:, None, :]
+        nearest = np.argmin(np.einsum("pkd,pkd->pk", corners, corners), axis=1)
+        bary[bad] = np.eye(3)[nearest]
+        total[bad] = 1.0
+    bary /= total
     lifted = np.einsum("pk,pkd->pd", bary, vertices[tri])
     interpolated = None if values is None else np.einsum("pk,pk->p", bary, values[tri])
     return lifted, np.sqrt(sqr_dist), interpolated

@@ -487,3 +487,33 @@ def test_alignment_keeps_umbilic_choice() -> None:
     b = flatten(vertices, faces, mode="rectangle", align_principal=False)
     np.testing.assert_array_equal(a.corners, b.corners)
     np.testing.assert_allclose(a.uv, b.uv)
+
+
+def test_corners_beside_an_ear_would_collapse_its_triangle_and_are_never_chosen() -> None:
+    # A triangulated grid's corner (8, 0) lies in one triangle only (an ear), with its loop
+    # neighbours (7, 0) and (8, 1).  A corner at (7, 0) puts all three on one rectangle side:
+    # that triangle collapses (zero area, counted as flipped).  The automatic choice rules such
+    # positions out; on the 10000-triangle chair it picked one (single-threaded BLAS: the
+    # triangle's area came out 0 and the tiling lifted NaN points).
+    from threadpoolctl import threadpool_limits
+
+    from drawstring.geometry.flatten import _corner_allowed
+    from drawstring.geometry.target import load_target
+
+    points, faces = grid(8, 6, 80.0, 60.0)
+    vertices = np.c_[points, np.zeros(len(points))]
+    idx = np.arange(9 * 7).reshape(7, 9)
+    system = _build_system(vertices, faces, flatten(vertices, faces).boundary)
+    allowed = dict(zip(system.boundary.tolist(), _corner_allowed(system).tolist(), strict=True))
+    assert allowed[int(idx[0, 8])] and not allowed[int(idx[0, 7])] and not allowed[int(idx[1, 8])]
+    beside = flatten(vertices, faces, corners=[idx[0, 0], idx[0, 7], idx[6, 8], idx[6, 0]])
+    assert beside.flipped >= 1
+    with threadpool_limits(1):
+        chair = load_target("chair", size_mm=200.0)
+        chosen = flatten(chair.vertices, chair.faces)
+    assert chosen.flipped == 0
+    ears = np.bincount(chair.faces.ravel()) == 1
+    loop = list(chosen.boundary)
+    for corner in chosen.corners:
+        at = loop.index(int(corner))
+        assert not ears[loop[at - 1]] and not ears[loop[(at + 1) % len(loop)]]
