@@ -313,6 +313,11 @@ class _Curvature:
     normal: NDArray[np.float64]  # (m, 3) unit face normals
     area: NDArray[np.float64]  # (m,) face areas, mm^2
     anisotropy: float  # int ((k1 - k2) / 2)^2 dA over the surface, dimensionless
+    # For d = a e1 + b e2 (e1, e2 the face's edges from its first corner): the torsion's
+    # numerator d^T S (n x d) and |d|^2 as quadratic forms in (a, b), (m, 3) each:
+    # coefficients of a^2, a b, b^2.
+    torsion_form: NDArray[np.float64]
+    length_form: NDArray[np.float64]
 
 
 def _face_curvature(V: NDArray[np.float64], F: NDArray[np.int64]) -> _Curvature | None:
@@ -343,7 +348,32 @@ def _face_curvature(V: NDArray[np.float64], F: NDArray[np.int64]) -> _Curvature 
     trace = np.einsum("fii->f", tensor)
     half_gap_sq = np.maximum(0.5 * frob - 0.25 * trace**2, 0.0)
     area = 0.5 * double_area
-    return _Curvature(tensor=tensor, normal=normal, area=area, anisotropy=float(area @ half_gap_sq))
+    e1 = V[F[:, 1]] - V[F[:, 0]]
+    e2 = V[F[:, 2]] - V[F[:, 0]]
+    s1 = np.einsum("fij,fj->fi", tensor, np.cross(normal, e1))
+    s2 = np.einsum("fij,fj->fi", tensor, np.cross(normal, e2))
+    torsion_form = np.column_stack(
+        [
+            np.einsum("fi,fi->f", e1, s1),
+            np.einsum("fi,fi->f", e1, s2) + np.einsum("fi,fi->f", e2, s1),
+            np.einsum("fi,fi->f", e2, s2),
+        ]
+    )
+    length_form = np.column_stack(
+        [
+            np.einsum("fi,fi->f", e1, e1),
+            2.0 * np.einsum("fi,fi->f", e1, e2),
+            np.einsum("fi,fi->f", e2, e2),
+        ]
+    )
+    return _Curvature(
+        tensor=tensor,
+        normal=normal,
+        area=area,
+        anisotropy=float(area @ half_gap_sq),
+        torsion_form=torsion_form,
+        length_form=length_form,
+    )
 
 
 def _grid_directions(
@@ -384,10 +414,24 @@ def _grid_torsion(
 def _grid_torsion_integral(
     system: _System, curvature: _Curvature, uv: NDArray[np.float64]
 ) -> float:
-    """Dimensionless ``int tau^2 dA`` of the uv grid lines (see ``_grid_torsion``)."""
-    assert system.vertices is not None
-    direction, valid = _grid_directions(system.vertices, system.faces, uv)
-    tau = _grid_torsion(curvature, direction, valid)
+    """Dimensionless ``int tau^2 dA`` of the uv grid lines (see ``_grid_torsion``).
+
+    The grid direction of a face is ``d = a e1 + b e2`` with ``(a, b)`` from the uv edges
+    (:func:`_grid_directions`), so ``tau`` is a ratio of two quadratic forms in ``(a, b)``
+    precomputed per face (``_Curvature.torsion_form`` / ``length_form``): a few flops per face
+    for each candidate map.  Faces with a flipped or degenerate flat image count 0.
+    """
+    F = system.faces
+    q1 = uv[F[:, 1]] - uv[F[:, 0]]
+    q2 = uv[F[:, 2]] - uv[F[:, 0]]
+    det = q1[:, 0] * q2[:, 1] - q1[:, 1] * q2[:, 0]
+    # (a, b) = (q2y, -q1y) / det; tau is homogeneous of degree 0, so det cancels (sign too)
+    a, b = q2[:, 1], -q1[:, 1]
+    basis = np.column_stack([a * a, a * b, b * b])
+    top = np.einsum("fk,fk->f", curvature.torsion_form, basis)
+    bottom = np.einsum("fk,fk->f", curvature.length_form, basis)
+    valid = (det > 0.0) & (bottom > 0.0)
+    tau = np.where(valid, top / np.where(valid, bottom, 1.0), 0.0)
     return float(curvature.area @ tau**2)
 
 
@@ -583,7 +627,7 @@ def _log_scale_offset(system: _System, u: NDArray[np.float64], uv: NDArray[np.fl
 
 
 def _corner_responses(
-    system: _System, samples: NDArray[np.int64]
+    system: _System, samples: NDArray[np.int64], schur: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Log scale factor as an affine function of which sampled boundary vertices are corners.
 
@@ -596,6 +640,7 @@ def _corner_responses(
     ----------
     system : the mesh's BFF system.
     samples : (d,) int, loop positions of candidate corner vertices.
+    schur : (k, k) float, the system's :func:`~.bff._schur_complement` (computed once per map).
 
     Returns
     -------
@@ -606,7 +651,7 @@ def _corner_responses(
     unit = np.zeros((len(system.boundary), len(samples)))
     unit[samples, np.arange(len(samples))] = 1.0
     responses = _neumann_solve(
-        _schur_complement(system),
+        schur,
         np.column_stack([-system.turning - system.A_IB.T @ w0, unit]),
     )
     a_boundary, Y_boundary = responses[:, 0], responses[:, 1:]
@@ -631,32 +676,50 @@ def _corner_scores(
     ``u = a + (pi/2) Y x`` with ``x`` the indicator of the quadruple, so the variance is a
     quadratic form in ``x`` evaluated for all quadruples at once.
     """
+    return _variances(_variance_terms(system, a, Y), corner_sets)
+
+
+def _variance_terms(
+    system: _System, a: NDArray[np.float64], Y: NDArray[np.float64]
+) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+    """The constant, linear (d,) and quadratic (d, d) terms of :func:`_corner_scores`."""
     weight = system.mass / system.mass.sum()
     a_c = a - weight @ a
     Y_c = Y - weight @ Y
     g = (Y_c * weight[:, None]).T @ a_c
     Q = (Y_c * weight[:, None]).T @ Y_c
+    return float(weight @ a_c**2), g, Q
+
+
+def _variances(
+    terms: tuple[float, NDArray[np.float64], NDArray[np.float64]], corner_sets: NDArray[np.int64]
+) -> NDArray[np.float64]:
+    """(q,) variance of ``u`` for each quadruple of sample columns, from :func:`_variance_terms`."""
+    constant, g, Q = terms
     c = corner_sets
     h = 0.5 * math.pi
     quad = Q[c[:, :, None], c[:, None, :]].sum(axis=(1, 2))
-    return np.asarray(float(weight @ a_c**2) + 2.0 * h * g[c].sum(axis=1) + h * h * quad)
+    return np.asarray(constant + 2.0 * h * g[c].sum(axis=1) + h * h * quad)
 
 
 def _rectangle_candidate(
     system: _System,
     u: NDArray[np.float64],
     corner_pos: NDArray[np.int64],
+    fit: bool = True,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
     """Rectangle flattening for given corners and log scale ``u``: (uv, fitted u) or None.
 
-    None when the boundary length closing fails for these corners.
+    None when the boundary length closing fails for these corners.  Without ``fit`` the
+    returned ``u`` is ``u`` as given (:func:`_log_scale_offset` not yet added: candidates are
+    scored on ``uv`` alone).
     """
     points, closed_ok = _rectangle_curve(system, u[system.boundary], corner_pos)
     if not closed_ok:
         return None
     scale = math.sqrt(system.area / float(np.prod(points[corner_pos[2]])))
     uv = _harmonic_extension(system, scale * points)
-    return uv, u + _log_scale_offset(system, u, uv)
+    return uv, (u + _log_scale_offset(system, u, uv) if fit else u)
 
 
 def _diverse_candidates(
@@ -705,9 +768,10 @@ def _shift_corners(
     best: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]],
     best_score: float,
     reference_torsion: float,
+    schur: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
     """The aligned choice moved along the boundary, all four corners by the same number of
-    vertices, up to half a sample spacing either way, if that scores lower.
+    vertices, up to a sample spacing either way, if that scores lower.
 
     The samples are spaced from wherever the boundary loop starts, so without this step how well
     the grid can follow the principal directions depends on that start (a rotated saddle: 1 to 17
@@ -727,16 +791,17 @@ def _shift_corners(
     if not len(shifts):
         return best
     positions = np.unique((start[None, :] + shifts[:, None]) % k)
-    _, Y = _corner_responses(system, positions)
+    _, Y = _corner_responses(system, positions, schur)
+    terms = _variance_terms(system, a, Y)
     unshifted_torsion = _grid_torsion_integral(system, curvature, best[0])
     for shift in shifts:
         columns = np.searchsorted(positions, (start + shift) % k)
-        variance = float(_corner_scores(system, a, Y, columns[None, :])[0])
+        variance = float(_variances(terms, columns[None, :])[0])
         if variance >= best_score:
             continue  # the torsion term cannot bring it back
         u = a + 0.5 * math.pi * Y[:, columns].sum(axis=1)
         corner_pos = _landscape_start(system, u[system.boundary], np.sort(positions[columns]))
-        candidate = _rectangle_candidate(system, u, corner_pos)
+        candidate = _rectangle_candidate(system, u, corner_pos, fit=False)
         if candidate is None or np.any(flipped_faces(system.faces, candidate[0])):
             continue
         torsion = _grid_torsion_integral(system, curvature, candidate[0])
@@ -755,6 +820,7 @@ def _flatten_rectangle(
     system: _System,
     named: NDArray[np.int64] | None,
     curvature: _Curvature | None = None,
+    schur: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
     """Rectangle mode: target turning pi/2 at four corners, 0 elsewhere (Neumann-to-Dirichlet).
 
@@ -784,7 +850,8 @@ def _flatten_rectangle(
         samples = _corner_samples(system)
         arc = np.concatenate([[0.0], np.cumsum(system.edge_length[:-1])])
         corner_sets = _quadruples(samples, arc, float(system.edge_length.sum()))
-    a, Y = _corner_responses(system, samples)
+    schur = _schur_complement(system) if schur is None else schur
+    a, Y = _corner_responses(system, samples, schur)
     if named is None:
         scores = _corner_scores(system, a, Y, corner_sets)
         order = np.argsort(scores, kind="stable")
@@ -816,7 +883,7 @@ def _flatten_rectangle(
         corner_pos = samples[corner_sets[index]]
         if named is None:
             corner_pos = _landscape_start(system, u[system.boundary], np.sort(corner_pos))
-        candidate = _rectangle_candidate(system, u, corner_pos)
+        candidate = _rectangle_candidate(system, u, corner_pos, fit=named is not None)
         if candidate is None:
             log.debug("corner candidate %d: the length closing failed", attempt)
             continue
@@ -851,10 +918,10 @@ def _flatten_rectangle(
             best, best_score = result, score
     if best is None and align:
         log.debug("no aligned corner candidate without flipped triangles; variance-only choice")
-        return _flatten_rectangle(system, None, None)
+        return _flatten_rectangle(system, None, None, schur)
     if align and best is not None:
         assert curvature is not None
-        best = _shift_corners(system, curvature, a, best, best_score, reference_torsion)
+        best = _shift_corners(system, curvature, a, best, best_score, reference_torsion, schur)
     chosen = best if best is not None else fallback
     if chosen is None:
         raise InputError(
@@ -865,9 +932,10 @@ def _flatten_rectangle(
         # The map of the chosen corners computed as named corners are (their four responses
         # alone), so that --corners with the recorded corners gives the same map to the bit;
         # kept unless that rounding flips a triangle the chosen map did not.
-        final = _flatten_rectangle(system, corner_pos)
+        final = _flatten_rectangle(system, corner_pos, None, schur)
         if not np.any(flipped_faces(system.faces, final[0])) or np.any(
             flipped_faces(system.faces, uv)
         ):
             return final
+        u = u + _log_scale_offset(system, u, uv)
     return uv, u, np.roll(system.boundary, -corner_pos[0]), system.boundary[corner_pos]
