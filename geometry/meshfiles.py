@@ -425,7 +425,16 @@ def _read_stl(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     if len(coordinates) % 3:
         raise InputError("ASCII STL facets must have exactly three vertices")
     rows = [[token.decode("ascii", errors="replace") for token in row] for row in coordinates]
-    vertices = _to_vertex_array(rows, "vertex")
+    try:
+        vertices = _to_vertex_array(rows, "vertex")
+    except InputError:
+        # again, naming the line (counted only when something is wrong)
+        lines, line, seen = [], 1, 0
+        for match in _STL_VERTEX.finditer(data):
+            line += data.count(b"\n", seen, match.start())
+            seen = match.start()
+            lines.append(line)
+        vertices = _to_vertex_array(rows, "vertex", lines)
     return vertices, np.arange(len(vertices), dtype=np.int64).reshape(-1, 3)
 
 

@@ -485,6 +485,12 @@ def test_file_without_faces(tmp_path):
         ("bad.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n", ["truncated"]),
         ("bad.ply", "ply\nformat ascii 1.0\nelement vertex 3\nend\n", ["not a PLY file"]),
         ("bad.stl", "not an stl\n", ["neither binary STL"]),
+        (
+            "bad.stl",
+            "solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"
+            "vertex 0 1 0x\nendloop\nendfacet\nendsolid t\n",
+            ["line 6:", "'0x' is not a number"],
+        ),
     ],
 )
 def test_unparsable_files(tmp_path, name, text, words):
