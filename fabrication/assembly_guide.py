@@ -574,7 +574,7 @@ def _write_assembly(
             lines += [
                 "",
                 "The layout is larger than the bed, so it was split along rows of hinges. "
-                "Join the jobs with the loose hinge pads (their job lays them out in rows, "
+                "Join the jobs with the loose hinge pads (their jobs lay them out in rows, "
                 "left to right, then row after row, in the order of this list; "
                 "`assembly-tiles.png` rings these hinges in red): press each pad's pins "
                 "into the holes of both tiles and glue it into the recess (CA glue):",

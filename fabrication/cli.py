@@ -173,6 +173,11 @@ def _add_design_options(p: argparse.ArgumentParser) -> None:
 VERBOSE_HELP = "log what each stage does, and every warning a library raises"
 
 
+def _mm(value: float) -> str:
+    """A distance for a progress line: three decimals, or 'under 0.001 mm'."""
+    return "under 0.001 mm" if value < 0.0005 else f"{value:.3f} mm"
+
+
 def _version() -> str:
     """The installed package's version (``unknown`` when run from an uninstalled tree)."""
     from importlib.metadata import PackageNotFoundError, version
@@ -373,7 +378,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(
             f"{verdict} after {block['steps']} steps; tiles within "
-            f"{block['final_max_deviation_mm']:.2g} mm of the assembled shape; wrote "
+            f"{_mm(block['final_max_deviation_mm'])} of the assembled shape; wrote "
             f"{folder / 'deploy.gif'}"
         )
     return 0

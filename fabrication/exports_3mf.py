@@ -299,26 +299,39 @@ def _greedy(ids: NDArray, key: NDArray, lo: NDArray, hi: NDArray, limit: float):
 
 def arrange_loose(
     meshes: Sequence[PartMesh], bed: tuple[float, float], spacing: float
-) -> tuple[list[PartMesh], bool]:
-    """Lay loose parts (cut hinge pads) flat in rows on the bed, lowest z on the bed.
+) -> list[list[PartMesh]]:
+    """Lay loose parts (cut hinge pads) flat in rows on beds, lowest z on the bed: left to
+    right, row after row, in the order given, a new bed when the next row would leave this one.
 
-    Returns the moved meshes and whether they all fit.
+    Returns each bed's moved meshes.
+
+    Raises
+    ------
+    InputError
+        When a part alone does not fit a bed inside its margins.
     """
-    placed = []
+    beds: list[list[PartMesh]] = [[]]
     x = y = BED_MARGIN_MM
     row = 0.0
-    fits = True
     for mesh in meshes:
         vertices = mesh.vertices - mesh.vertices.min(axis=0)
         size = vertices.max(axis=0)
+        if np.any(size[:2] > np.array(bed) - 2 * BED_MARGIN_MM):
+            raise InputError(
+                f"a loose hinge pad ({size[0]:.0f} x {size[1]:.0f} mm) does not fit the "
+                f"{bed[0]:g} x {bed[1]:g} mm bed with {BED_MARGIN_MM:g} mm free round it; use a "
+                "larger bed (machine.bed_x_mm / bed_y_mm)"
+            )
         if x + size[0] > bed[0] - BED_MARGIN_MM and x > BED_MARGIN_MM:
             x, y, row = BED_MARGIN_MM, y + row + spacing, 0.0
+        if y + size[1] > bed[1] - BED_MARGIN_MM and beds[-1]:
+            beds.append([])
+            x, y, row = BED_MARGIN_MM, BED_MARGIN_MM, 0.0
         vertices = vertices + [x, y, 0.0]
-        fits &= bool(y + size[1] <= bed[1] - BED_MARGIN_MM)
         x += size[0] + spacing
         row = max(row, size[1])
-        placed.append(PartMesh(mesh.name, mesh.kind, vertices, mesh.triangles))
-    return placed, fits
+        beds[-1].append(PartMesh(mesh.name, mesh.kind, vertices, mesh.triangles))
+    return [placed for placed in beds if placed]
 
 
 def flip_upside_down(mesh: PartMesh) -> PartMesh:

@@ -129,22 +129,19 @@ def loose_pads_and_beds(
             mesh = pad_mesh[h]
             side_top = bool(np.mean(mesh.vertices[:, 2]) > 0.5 * profile.thickness_mm)
             flipped.append(m3f.flip_upside_down(mesh) if side_top else mesh)
-        placed, fits = m3f.arrange_loose(flipped, bed, 3.0)
-        job_parts.append(list(placed))
-        low = np.min([p.vertices.min(axis=0) for p in placed], axis=0)
-        high = np.max([p.vertices.max(axis=0) for p in placed], axis=0)
-        record.jobs.append(
-            {
-                "job": len(record.jobs) + 1,
-                "tiles": [],
-                "pads": [int(h) for h in cut],
-                "size_mm": [round(float(v), 2) for v in (high - low)[:2]],
-                "loose": True,
-            }
-        )
-        if not fits:
-            record.notes.append(
-                "the loose hinge pads do not all fit one bed; print them in two runs"
+        # one job per bed the rows of pads fill, in the order of the cut hinges
+        for placed in m3f.arrange_loose(flipped, bed, 3.0):
+            job_parts.append(placed)
+            low = np.min([p.vertices.min(axis=0) for p in placed], axis=0)
+            high = np.max([p.vertices.max(axis=0) for p in placed], axis=0)
+            record.jobs.append(
+                {
+                    "job": len(record.jobs) + 1,
+                    "tiles": [],
+                    "pads": [int(p.name.split("_")[1]) for p in placed],
+                    "size_mm": [round(float(v), 2) for v in (high - low)[:2]],
+                    "loose": True,
+                }
             )
     return fill_beds(job_parts, bed)
 

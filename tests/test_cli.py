@@ -1139,3 +1139,10 @@ def test_version_names_the_installed_package(capsys: pytest.CaptureFixture[str])
         main(["--version"])
     assert done.value.code == 0
     assert capsys.readouterr().out.strip() == f"drawstring {version('drawstring')}"
+
+
+def test_progress_distances_read_as_millimetres() -> None:
+    from drawstring.fabrication.cli import _mm
+
+    assert _mm(6.5e-11) == "under 0.001 mm" and _mm(1e-4) == "under 0.001 mm"
+    assert _mm(0.1181) == "0.118 mm" and _mm(123.4) == "123.400 mm"

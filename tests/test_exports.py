@@ -997,7 +997,7 @@ def test_print_jobs_share_beds_where_they_fit_and_each_bed_has_a_file(
         assert "in the order of this list" in guide
         listed = [int(line.split()[2].rstrip(":")) for line in guide.splitlines()
                   if line.startswith("- hinge ")]  # fmt: skip
-        assert listed == loose[0]["pads"]
+        assert listed == [h for job in loose for h in job["pads"]]
 
 
 def test_jobs_are_turned_onto_the_bed_where_they_fit_only_so() -> None:
@@ -1135,3 +1135,25 @@ def test_plywood_pilot_holes_keep_a_wall_from_the_panel_edges(built: Built) -> N
         )
         walls.append(float(np.linalg.norm(start + t[:, None] * seg - centre, axis=1).min()) - r)
     assert walls and min(walls) >= 0.5 * profile.tool_diameter_mm
+
+
+def test_loose_pads_that_fill_a_bed_go_on_to_the_next() -> None:
+    # Ten 20 x 8 mm pads on a 60 x 60 mm bed (44 x 44 inside the margins): rows of two, four
+    # rows a bed, so two beds, in the order given; a pad larger than the bed is refused.
+    from drawstring.fabrication.exports_3mf import BED_MARGIN_MM, PartMesh, arrange_loose
+
+    def pad(h: int, w: float = 20.0, d: float = 8.0) -> PartMesh:
+        corners = np.array([[x, y, z] for x in (0, w) for y in (0, d) for z in (4.0, 6.0)])
+        return PartMesh(f"hinge_{h}", "pad", corners + 50.0, np.array([[0, 1, 2]]))
+
+    beds = arrange_loose([pad(h) for h in range(10)], (60.0, 60.0), 3.0)
+    assert [[p.name for p in bed] for bed in beds] == [
+        [f"hinge_{h}" for h in range(8)],
+        ["hinge_8", "hinge_9"],
+    ]
+    for bed in beds:
+        every = np.vstack([p.vertices for p in bed])
+        assert every[:, 2].min() == 0.0
+        assert np.all(every[:, :2] >= BED_MARGIN_MM) and np.all(every[:, :2] <= 60 - BED_MARGIN_MM)
+    with pytest.raises(InputError, match="loose hinge pad .* does not fit the 60 x 60 mm bed"):
+        arrange_loose([pad(0, w=50.0)], (60.0, 60.0), 3.0)
