@@ -556,7 +556,8 @@ def _write_assembly(
             f"({profile.hinge_material}); PrusaSlicer, Bambu Studio and OrcaSlicer read the "
             "assignment from the file. Each job lies top faces down (the tops share one plane, "
             "the bottoms follow each tile's thickness), so every tile starts on the first "
-            "layer; turn the printed sheet over before you thread it."
+            "layer; turn the printed sheet over before you thread it. Each tile's number is "
+            "engraved in its bottom face (it reads as printed, and from below once turned)."
             + _beds_text("print", record.jobs)
         )
         lines.append("")
