@@ -41,7 +41,12 @@ from drawstring.cad.design import normalize_route
 from drawstring.cad.paths import route_lengths
 from drawstring.fabrication import exports_3mf as m3f
 from drawstring.fabrication.assembly_guide import _write_assembly, write_pictures
-from drawstring.fabrication.exports_beds import jobs_on_bed, loose_pads_and_beds, nested_tiles
+from drawstring.fabrication.exports_beds import (
+    footprint_mm,
+    jobs_on_bed,
+    loose_pads_and_beds,
+    nested_tiles,
+)
 from drawstring.fabrication.exports_dxf import (
     Nesting,
     nest_parts,
@@ -289,14 +294,12 @@ def _fdm_exports(
         # loose tiles (their hinges are glued on later, on the placement template): nested
         job_parts = nested_tiles([tile_mesh[t] for t in range(len(tile_mesh))], bed)
         for parts in job_parts:
-            low = np.min([p.vertices.min(axis=0) for p in parts], axis=0)
-            high = np.max([p.vertices.max(axis=0) for p in parts], axis=0)
             record.jobs.append(
                 {
                     "job": len(record.jobs) + 1,
                     "tiles": sorted(int(p.name.split("_")[1]) for p in parts),
                     "pads": [],
-                    "size_mm": [round(float(v), 2) for v in (high - low)[:2]],
+                    "size_mm": footprint_mm(parts),
                     "nested": True,
                 }
             )

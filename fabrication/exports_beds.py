@@ -107,7 +107,7 @@ def jobs_on_bed(
                 "job": len(record.jobs) + 1,
                 "tiles": list(job.tiles),
                 "pads": list(job.pads),
-                "size_mm": [round(float(v), 2) for v in job.size],
+                "size_mm": footprint_mm(parts),
             }
         )
     return job_parts
@@ -132,18 +132,29 @@ def loose_pads_and_beds(
         # one job per bed the rows of pads fill, in the order of the cut hinges
         for placed in m3f.arrange_loose(flipped, bed, 3.0):
             job_parts.append(placed)
-            low = np.min([p.vertices.min(axis=0) for p in placed], axis=0)
-            high = np.max([p.vertices.max(axis=0) for p in placed], axis=0)
             record.jobs.append(
                 {
                     "job": len(record.jobs) + 1,
                     "tiles": [],
                     "pads": [int(p.name.split("_")[1]) for p in placed],
-                    "size_mm": [round(float(v), 2) for v in (high - low)[:2]],
+                    "size_mm": footprint_mm(placed),
                     "loose": True,
                 }
             )
     return fill_beds(job_parts, bed)
+
+
+def extent(parts: Sequence[m3f.PartMesh]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Lowest and highest corner (3,) of the parts' bounding box, mm."""
+    low = np.min([p.vertices.min(axis=0) for p in parts], axis=0)
+    high = np.max([p.vertices.max(axis=0) for p in parts], axis=0)
+    return low, high
+
+
+def footprint_mm(parts: Sequence[m3f.PartMesh]) -> list[float]:
+    """The parts' extent on the bed (x, y), mm, as the manifest's ``size_mm`` gives it."""
+    low, high = extent(parts)
+    return [round(float(v), 2) for v in (high - low)[:2]]
 
 
 #: Space left between print jobs that share a bed, mm.
@@ -158,11 +169,6 @@ def fill_beds(job_parts: list[list[m3f.PartMesh]], bed: tuple[float, float]) -> 
     A bed that holds one job keeps it where it was unless it had to turn (then centred)."""
     if not job_parts:
         return []
-
-    def extent(parts: list[m3f.PartMesh]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        low = np.min([p.vertices.min(axis=0) for p in parts], axis=0)
-        high = np.max([p.vertices.max(axis=0) for p in parts], axis=0)
-        return low, high
 
     boxes = [extent(parts) for parts in job_parts]
     sizes = np.array([(high - low)[:2] for low, high in boxes])

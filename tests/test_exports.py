@@ -982,8 +982,10 @@ def test_print_jobs_share_beds_where_they_fit_and_each_bed_has_a_file(
         meshes = _read_3mf(tmp_path / "fabrication" / f"{stem}-bed{b}.3mf") if per_bed else combined
         assert len(meshes) == len(on_bed)
         boxes = []
-        for _, vertices, _ in meshes:
+        for job, (_, vertices, _) in zip(on_bed, meshes, strict=True):
             low, high = vertices.min(axis=0), vertices.max(axis=0)
+            # the manifest's size is the job's printed footprint (turned or not on the bed)
+            assert np.allclose(sorted(high[:2] - low[:2]), sorted(job["size_mm"]), atol=0.006)
             assert np.all(low[:2] >= -1e-6) and np.all(high[:2] <= np.array(bed) + 1e-6)
             boxes.append((low[:2], high[:2]))
         for i, (lo_i, hi_i) in enumerate(boxes):  # jobs on one bed do not touch
