@@ -37,7 +37,14 @@ logger = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-__all__ = ["CO_STAGES", "CO_STEPS", "CoOptimizedTop", "co_optimize_top"]
+__all__ = [
+    "CO_CONICAL",
+    "CO_STAGES",
+    "CO_STEPS",
+    "CoOptimizedTop",
+    "co_optimize_top",
+    "vertex_stars",
+]
 
 #: Continuation of :func:`co_optimize_top`: (planarity weight, edge weight) per stage, both
 #: relative to the pull towards the starting K3D (weight 1 per mm^2).  The last stage leaves
@@ -63,6 +70,11 @@ CO_RHO_REL = 10.0
 #: The joint solve's few steps leave the angle bounds met to a few hundredths of a degree, so
 #: it keeps this much inside them; ``optimize_flat`` afterwards holds them exactly.
 CO_ANGLE_MARGIN_DEG = 0.1
+#: Weight of the conical condition (:func:`vertex_stars`) relative to planarity in every stage
+#: of a ``conical`` joint solve.  At 200 tiles, with the bottom corners pulled to equal depths
+#: every round, 3 left the largest 3D hinge gap of the seven built-ins with bottom hinges at
+#: 0.07-0.92 um where 10 and 30 gave the wave and the cloud flat errors over 1e-3 mm.
+CO_CONICAL = 3.0
 
 
 @dataclass(frozen=True)
@@ -91,6 +103,96 @@ class CoOptimizedTop:
     time_s: float
 
 
+@dataclass(frozen=True)
+class VertexStars:
+    """Inner vertices of a quad mesh in exactly four quads, for the conical condition.
+
+    A quad mesh is conical when at every inner vertex the angles of opposite quads sum
+    equal, ``a0 + a2 = a1 + a3``: its faces then touch a cone there, and moving every face
+    along its normal by one distance gives an offset mesh with the same planar faces.  Each
+    side face of that extrusion bisects the dihedral angle of its two tiles' top faces, so a
+    corner of it lies as deep under one tile's top face as under the other's: the bottom
+    hinges' corners meet when the tiles lie flat
+    (:func:`~drawstring.geometry.assembled.hinge_depth_pull`).
+
+    Attributes
+    ----------
+    members : (S, 5) int
+        The vertex and its four neighbours (sorted).
+    prev_local, next_local : (S, 4) int
+        Per quad, in the order 0, 1, 2, 3 around the vertex (0, 2 and 1, 3 opposite), the
+        column of ``members`` of the corner before and after the vertex.
+    """
+
+    members: IntArray
+    prev_local: IntArray
+    next_local: IntArray
+
+    def angle_sums(
+        self, x: FloatArray, with_jacobian: bool = False
+    ) -> tuple[FloatArray, FloatArray | None]:
+        """``a0 - a1 + a2 - a3`` (rad) per star, and its gradient ``(S, 5, 3)`` by member."""
+        p = x[self.members]  # (S, 5, 3)
+        s = np.arange(len(p))[:, None]
+        u = p[s, self.prev_local] - p[:, :1]  # (S, 4, 3)
+        w = p[s, self.next_local] - p[:, :1]
+        lu = np.linalg.norm(u, axis=2)
+        lw = np.linalg.norm(w, axis=2)
+        uh = u / np.maximum(lu, 1e-300)[..., None]
+        wh = w / np.maximum(lw, 1e-300)[..., None]
+        cos = np.einsum("ski,ski->sk", uh, wh)
+        sin = np.linalg.norm(np.cross(uh, wh), axis=2)
+        sign = np.array([1.0, -1.0, 1.0, -1.0])
+        sums = np.arctan2(sin, cos) @ sign
+        if not with_jacobian:
+            return sums, None
+        sin = np.maximum(sin, 1e-12)
+        d_u = -(wh - cos[..., None] * uh) / (lu * sin)[..., None] * sign[:, None]
+        d_w = -(uh - cos[..., None] * wh) / (lw * sin)[..., None] * sign[:, None]
+        cols = np.arange(5)
+        at_prev = (self.prev_local[..., None] == cols).astype(np.float64)  # (S, 4, 5)
+        at_next = (self.next_local[..., None] == cols).astype(np.float64)
+        grads = np.einsum("skm,ski->smi", at_prev, d_u) + np.einsum("skm,ski->smi", at_next, d_w)
+        grads[:, 0] = -(d_u.sum(axis=1) + d_w.sum(axis=1))
+        return sums, grads
+
+
+def vertex_stars(quads: ArrayLike) -> VertexStars:
+    """The :class:`VertexStars` of ``quads`` ``(T, 4)``: every vertex in exactly four quads
+    that meet around it edge to edge (a regular grid vertex)."""
+    q = np.asarray(quads, dtype=np.int64)
+    corner_vertex = q.ravel()
+    prev = np.roll(q, 1, axis=1).ravel()
+    after = np.roll(q, -1, axis=1).ravel()
+    order = np.argsort(corner_vertex, kind="stable")
+    count = np.bincount(corner_vertex)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])
+    centres = np.flatnonzero(count == 4)
+    slots = order[first[centres][:, None] + np.arange(4)]  # (S, 4) corners around each
+    pv, nv = prev[slots], after[slots]
+    # the quad opposite quad 0 shares no neighbour with it
+    shares = (pv == pv[:, :1]) | (pv == nv[:, :1]) | (nv == pv[:, :1]) | (nv == nv[:, :1])
+    alone = ~shares[:, 1:]
+    regular = alone.sum(axis=1) == 1
+    opposite = 1 + np.argmax(alone, axis=1)
+    others = np.sort(np.where(np.arange(1, 4) == opposite[:, None], 9, np.arange(1, 4)), axis=1)
+    turn = np.stack(
+        [np.zeros(len(centres), dtype=np.int64), others[:, 0], opposite, others[:, 1]], 1
+    )
+    rows = np.arange(len(centres))[:, None]
+    pv, nv = pv[rows, turn], nv[rows, turn]
+    around = np.sort(np.concatenate([pv, nv], axis=1), axis=1)
+    regular &= np.all(around[:, 0::2] == around[:, 1::2], axis=1)
+    regular &= np.all(np.diff(around[:, 0::2], axis=1) > 0, axis=1)
+    nbrs = around[:, 0::2]
+    members = np.concatenate([centres[:, None], nbrs], axis=1)[regular]
+    nbrs = nbrs[regular]
+    pv, nv = pv[regular], nv[regular]
+    prev_local = 1 + np.argmax(pv[..., None] == nbrs[:, None, :], axis=2)
+    next_local = 1 + np.argmax(nv[..., None] == nbrs[:, None, :], axis=2)
+    return VertexStars(members, prev_local, next_local)
+
+
 class _JointTopLeastSquares:
     """Least squares over K2D nodes and K3D vertices together (:func:`co_optimize_top`).
 
@@ -111,6 +213,7 @@ class _JointTopLeastSquares:
         target_faces: IntArray,
         w_surface: float,
         corner_shift: FloatArray | None = None,
+        stars: VertexStars | None = None,
     ) -> None:
         self.corner_node = linkage.corner_node
         self.n_nodes = linkage.n_nodes
@@ -143,6 +246,11 @@ class _JointTopLeastSquares:
         else:
             sh = np.asarray(corner_shift, dtype=np.float64)
             self.edge_shift = (sh[:, TILE_EDGES[:, 1]] - sh[:, TILE_EDGES[:, 0]]).reshape(-1, 3)
+        self.stars = stars
+        self.sqrt_conical = 0.0
+        self.side = float(
+            np.mean(np.linalg.norm(top0[quads] - top0[np.roll(quads, 1, axis=1)], axis=2))
+        )
         #: CSR order of the Jacobian's entries, its column indices and row pointers
         self._pattern: tuple[IntArray, NDArray[np.int32], NDArray[np.int32]] | None = None
 
@@ -232,6 +340,22 @@ class _JointTopLeastSquares:
                     vals.append(w * fn[:, c])
             row0 += self.n
 
+        # conical: opposite angles at every inner vertex sum equal (scaled by the mean side)
+        if self.stars is not None and self.sqrt_conical > 0:
+            sums, grads = self.stars.angle_sums(top, with_jacobian)
+            w = self.sqrt_conical * self.side
+            res.append(w * sums)
+            if with_jacobian:
+                assert grads is not None
+                r = row0 + np.arange(len(sums))
+                members = self.stars.members
+                for j in range(members.shape[1]):
+                    for c in range(3):
+                        rows.append(r)
+                        cols.append(base + 3 * members[:, j] + c)
+                        vals.append(w * grads[:, j, c])
+            row0 += len(sums)
+
         # pull towards the starting K3D
         w = float(np.sqrt(CO_KEEP))
         res.append(w * (top - self.top0).ravel())
@@ -273,6 +397,7 @@ def co_optimize_top(
     steps_per_stage: int | None = None,
     start_nodes: ArrayLike | None = None,
     hinges: HingeFaces | None = None,
+    conical: bool = False,
 ) -> CoOptimizedTop:
     """Move K3D and K2D together until every flat tile is congruent to its assembled top face
     (with ``hinges``: to its hinge points).
@@ -306,6 +431,10 @@ def co_optimize_top(
         Hinge faces of a ``dual`` layout (needs ``tiles_3d``): the K2D nodes are then the hinge
         points, each offset from its K3D top corner by the tile's bottom corner offset in
         ``tiles_3d`` (held during the solve), with ``optimize_flat``'s clearance bounds.
+    conical : bool
+        With ``hinges`` that put any hinge on the bottom faces, also make K3D conical
+        (:class:`VertexStars`, weight ``CO_CONICAL`` relative to planarity), so that the
+        bottom corners can be extruded to equal depths under both tiles of each bottom hinge.
 
     Returns
     -------
@@ -347,6 +476,7 @@ def co_optimize_top(
         np.asarray(target_faces),
         w_surface,
         shift,
+        vertex_stars(q) if conical and hinges is not None and hinges.bottom.any() else None,
     )
     nodes0 = flat.nodes if start_nodes is None else np.asarray(start_nodes, dtype=np.float64)
     z = problem.pack(nodes0, top0)
@@ -356,6 +486,7 @@ def co_optimize_top(
     for w_planar, w_edge in CO_STAGES if stages is None else stages:
         problem.sqrt_planar = float(np.sqrt(w_planar))
         problem.sqrt_edge = float(np.sqrt(w_edge))
+        problem.sqrt_conical = float(np.sqrt(w_planar * CO_CONICAL))
         z, used, _ = constrained_least_squares(
             z, problem, constraints, max_steps=per_stage, angle_tol=angle_tol,
             length_tol=angle_tol * side, rho0=CO_RHO_REL * w_edge,

@@ -62,7 +62,9 @@ def test_design_writes_the_output_contract(tmp_path: Path) -> None:
     faces = [ln for ln in (out / "lifted.obj").read_text().splitlines() if ln.startswith("f ")]
     assert len(faces) == 24
     # flat.obj's tiles, hinge pairs merged, sit within flat_merge_shift_max_mm of the rigid
-    # copies (tiles.npz 'fabricated'), which never exceeds half the largest hinge gap.
+    # copies (tiles.npz 'fabricated').  A pair merges at its midpoint moved sideways onto the
+    # plane that separates its tiles, which holds one of its two corners: within about the
+    # pair's gap of either corner (half of it where the plane already holds the midpoint).
     flat_obj = np.array(
         [
             [float(v) for v in ln.split()[1:4]]
@@ -74,7 +76,7 @@ def test_design_writes_the_output_contract(tmp_path: Path) -> None:
     shift = float(np.linalg.norm(flat_obj - rigid, axis=2).max())
     metrics = doc["metrics"]
     assert shift == pytest.approx(metrics["flat_merge_shift_max_mm"], abs=2e-6)  # OBJ rounding
-    assert metrics["flat_merge_shift_max_mm"] <= 0.5 * metrics["hinge_gap_max_mm"] + 1e-8
+    assert metrics["flat_merge_shift_max_mm"] <= metrics["hinge_gap_max_mm"] + 1e-8
     # No staging folders are left next to the output.
     assert sorted(p.name for p in tmp_path.iterdir()) == ["saddle"]
     # The lift-point sweep is checked by the simulation, which ran once per lift set tried.
@@ -505,8 +507,9 @@ def test_co_optimization_is_reported_and_can_be_turned_off(tmp_path: Path) -> No
 def test_dual_hinges_meet_on_their_own_faces(tmp_path: Path) -> None:
     # Default (dual) hinges: the flat layout and the co-optimization make every hinge's points
     # meet on the face that carries it, bottom hinges included.  Seen from above the hinge gap
-    # falls from the fixed-shape optimum (> 1e-2 mm) below the 1e-3 mm target; what remains in
-    # 3D is vertical, at most the tiles' thickness difference.
+    # falls from the fixed-shape optimum (> 1e-2 mm) below the 1e-3 mm target, and in 3D too:
+    # the co-optimized top is conical, so each bottom hinge's corner lies as deep under both
+    # its tiles' top faces (what remains vertically is at most the tiles' thickness difference).
     on, off = tmp_path / "on", tmp_path / "off"
     args = ["design", "saddle", *SMALL, "--no-simulate"]
     assert main([*args, "--out", str(on)]) == 0
@@ -520,6 +523,8 @@ def test_dual_hinges_meet_on_their_own_faces(tmp_path: Path) -> None:
     assert m_on["flat_edge_error_max_mm"] < 1e-3
     step = m_on["thickness_max_mm"] - m_on["thickness_min_mm"]
     assert m_on["hinge_gap_max_mm"] <= np.hypot(m_on["hinge_gap_in_plane_max_mm"], step) + 1e-9
+    assert m_on["hinge_gap_max_mm"] < 1e-3
+    assert m_off["hinge_gap_max_mm"] > 1e-2
     assert m_on["flat_interpenetration_mm3"] <= 1e-6 and m_on["flat_overlap_area_mm2"] <= 1e-6
 
 

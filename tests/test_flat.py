@@ -410,3 +410,93 @@ def test_bottom_hinges_are_pulled_to_equal_depths_under_both_tiles() -> None:
     faces = np.vstack([moved.quads + n, side_quads(moved.quads, quad_mesh_edges(moved.quads), n)])
     assert quad_planarity(np.vstack([moved.top, moved.bottom]), faces).max() < 1e-6
     assert 0 < np.abs(moved.bottom - assembled.bottom).max() < 0.05
+
+
+def _rotational_grid(rows: int = 5, cols: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    """A grid along the meridians and parallels of a surface of revolution (planar trapezoids)."""
+    z = np.linspace(0.0, 40.0, rows)
+    radius = 50.0 + 0.01 * (z - 20.0) ** 2
+    phi = np.linspace(0.0, 1.2, cols)
+    x = np.stack(
+        [np.outer(radius, np.cos(phi)), np.outer(radius, np.sin(phi)), np.outer(z, np.ones(cols))],
+        axis=-1,
+    ).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(rows - 1), np.arange(cols - 1), indexing="ij")
+    v = (i * cols + j).ravel()
+    return x, np.stack([v, v + 1, v + cols + 1, v + cols], axis=1)
+
+
+def test_vertex_stars_find_the_conical_vertices_of_a_grid_of_revolution() -> None:
+    # Mirror symmetry about each meridian plane makes the angles of opposite quads at every
+    # inner vertex sum equal (a conical mesh); moving one vertex breaks it in its stars only.
+    from drawstring.geometry.coflat import vertex_stars
+
+    x, quads = _rotational_grid()
+    stars = vertex_stars(quads)
+    assert len(stars.members) == 3 * 4  # the inner vertices of a 5 x 6 grid
+    assert sorted(stars.members[:, 0]) == [r * 6 + c for r in range(1, 4) for c in range(1, 5)]
+    sums, grads = stars.angle_sums(x, with_jacobian=True)
+    assert np.abs(sums).max() < 1e-12
+    moved = x.copy()
+    moved[14] += [0.7, -0.9, 0.4]
+    touched = np.any(stars.members == 14, axis=1)
+    moved_sums = stars.angle_sums(moved)[0]
+    assert np.abs(moved_sums[touched]).min() > 1e-3 and np.abs(moved_sums[~touched]).max() < 1e-12
+    # the gradient, against central differences
+    assert grads is not None
+    eps = 1e-6
+    for star in (0, 5):
+        for m in range(5):
+            for c in range(3):
+                plus, minus = x.copy(), x.copy()
+                plus[stars.members[star, m], c] += eps
+                minus[stars.members[star, m], c] -= eps
+                diff = (stars.angle_sums(plus)[0] - stars.angle_sums(minus)[0])[star] / (2 * eps)
+                assert grads[star, m, c] == pytest.approx(diff, abs=1e-7)
+
+
+def test_a_conical_top_lets_the_bottom_hinges_meet_in_depth() -> None:
+    """With bottom hinges the joint solve also makes K3D conical, so that the bottoms can be
+    pulled to equal depths under both tiles of every bottom hinge (the 3D hinge gap)."""
+    from dataclasses import replace
+
+    from drawstring.fabrication.layout_stage import _depth_pull
+    from drawstring.geometry.assembled import reextrude, tile_vertices
+    from drawstring.geometry.coflat import co_optimize_top, vertex_stars
+    from drawstring.geometry.flatpose import hinge_faces
+    from drawstring.geometry.hinges import dual_hinge_faces
+
+    linkage, assembled, _, target = _saddle_design()
+    bottom = dual_hinge_faces(linkage, assembled.tiles, 12.0).bottom
+    faces = hinge_faces(linkage, assembled.tiles, bottom)
+    flat = optimize_flat(
+        linkage, assembled.tiles[:, :4], uv=linkage.vertex_ij * 12.0 - 48.0,
+        min_gap_angle_deg=12.0, tiles_3d=assembled.tiles, hinges=faces,
+    )  # fmt: skip
+    hinges = linkage.hinges[bottom]
+    stars = vertex_stars(assembled.quads)
+
+    def extruded_depth_difference(top: np.ndarray) -> float:
+        carried = assembled.bottom + (top - assembled.top)
+        shape = replace(
+            assembled, top=top, bottom=carried, tiles=tile_vertices(top, carried, assembled.quads)
+        )
+        pull = _depth_pull(shape, linkage, bottom)
+        tiles = reextrude(assembled, top, *target, start_bottom=carried, pull=pull).tiles
+        normal = np.linalg.svd(tiles[:, :4] - tiles[:, :4].mean(axis=1, keepdims=True))[2][:, -1]
+        corner = tiles[hinges[:, 0], 4 + hinges[:, 1]]
+        depth_a = np.einsum("ki,ki->k", corner - tiles[hinges[:, 0], 0], normal[hinges[:, 0]])
+        depth_b = np.einsum("ki,ki->k", corner - tiles[hinges[:, 2], 0], normal[hinges[:, 2]])
+        return float(np.abs(np.abs(depth_a) - np.abs(depth_b)).max())
+
+    results = {}
+    for conical in (False, True):
+        co = co_optimize_top(
+            linkage, flat, assembled.top, assembled.quads, *target, tiles_3d=assembled.tiles,
+            hinges=faces, conical=conical,
+        )  # fmt: skip
+        assert co.edge_error_max_mm < 1e-4
+        results[conical] = (np.abs(stars.angle_sums(co.top)[0]).max(), co.top)
+    plain, cone = results[False], results[True]
+    assert plain[0] > 1e-2 and cone[0] < 1e-6  # rad
+    assert extruded_depth_difference(cone[1]) < 0.3 * extruded_depth_difference(plain[1])
