@@ -684,6 +684,12 @@ def _flatten_rectangle(
         samples = _corner_samples(system)
         arc = np.concatenate([[0.0], np.cumsum(system.edge_length[:-1])])
         corner_sets = _quadruples(samples, arc, float(system.edge_length.sum()))
+        if not len(corner_sets):
+            raise InputError(
+                f"the mesh is too coarse for rectangle corners: {len(samples)} of its {k} "
+                "boundary vertices can take one (a corner may not sit beside a triangle with "
+                "two boundary edges); subdivide the mesh, or name four --corners"
+            )
     schur = _schur_complement(system) if schur is None else schur
     a, Y = _corner_responses(system, samples, schur)
     if named is None:

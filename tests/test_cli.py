@@ -192,6 +192,12 @@ BAD_INPUTS = {
     "components": (two_patches, "component"),
     "nan": (lambda p: write(p, "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n"), "finite"),
     "empty": (lambda p: write(p, ""), "empty"),
+    # two triangles: every boundary vertex sits beside a triangle with two boundary edges, so
+    # no rectangle corners can be chosen (was an IndexError traceback)
+    "coarse": (
+        lambda p: write(p, "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 4\nf 1 4 3\n"),
+        "too coarse",
+    ),
 }
 
 
