@@ -172,7 +172,9 @@ class RigidityReport:
 
     @property
     def isostatic(self) -> bool:
-        return self.null_dimension == 6
+        """No internal flex.  (A null space below the six rigid motions only means that the
+        tolerance cut into them, as on a near-degenerate linkage: still no flex.)"""
+        return self.internal_flexes == 0
 
     def to_json(self) -> dict[str, object]:
         return {
