@@ -87,6 +87,7 @@ class CadResult:
     fasteners : screws or staples that hold the plywood hinge strips, one per pilot hole or
         pair of holes made (:func:`~drawstring.cad.hinge_parts.strip_hole_plan`; 0 for other
         interlocks).
+    unlabelled : tiles whose number could not be engraved (too small for the digits).
     """
 
     pose: Pose
@@ -99,6 +100,7 @@ class CadResult:
     notes: tuple[str, ...] = field(default=())
     failed: tuple[tuple[int, str], ...] = field(default=())
     fasteners: int = 0
+    unlabelled: tuple[int, ...] = field(default=())
 
     def records(self) -> dict[str, object]:
         """JSON-ready summary: magnet pairs with polarity, pads per hinge, notes."""
@@ -578,14 +580,13 @@ def build_design_solids(
             f"piece, dropping up to {max(v for _, v in split):.3g} mm^3: "
             f"{_id_ranges([t for t, _ in split])}"
         )
-    if labels:
-        unlabelled = [r.tile for r in results if not r.labelled]
-        if unlabelled:
-            notes.append(
-                f"tile numbers not engraved on {len(unlabelled)} of {n_tiles} tiles, too small "
-                f"for digits of {feature_wall_mm(profile):g} mm strokes clear of the hinge strips "
-                f"and pins on their bottom faces: {_id_ranges(unlabelled)}"
-            )
+    unlabelled = [r.tile for r in results if not r.labelled] if labels else []
+    if unlabelled:
+        notes.append(
+            f"tile numbers not engraved on {len(unlabelled)} of {n_tiles} tiles, too small "
+            f"for digits of {feature_wall_mm(profile):g} mm strokes clear of the hinge strips "
+            f"and pins on their bottom faces: {_id_ranges(unlabelled)}"
+        )
     transforms, residual = rigid_transforms(flat, assembled)
     if residual.size and residual.max() > 1e-3:
         notes.append(
@@ -611,6 +612,7 @@ def build_design_solids(
         tuple(notes),
         tuple(failed),
         fasteners,
+        tuple(int(t) for t in unlabelled),
     )
 
 

@@ -49,6 +49,20 @@ def _on_bed(job: dict[str, Any], jobs: Sequence[dict[str, Any]]) -> str:
     return f" (bed {job['bed']})" if several and "bed" in job else ""
 
 
+def _unnumbered_text(unlabelled: Sequence[int]) -> str:
+    """The guide's word on tiles too small for an engraved number (empty when there are
+    none)."""
+    if not unlabelled:
+        return ""
+    which = id_runs(unlabelled)
+    return (
+        f" {_count(len(unlabelled), 'tile')} too small for the digits carry no number "
+        f"(tile{'s' if len(unlabelled) > 1 else ''} {which}): mark them by hand as they come "
+        "off the bed, matching each outline to the placement template or the tile picture "
+        "below; a larger --size makes room for the numbers."
+    )
+
+
 def _count(number: int, noun: str) -> str:
     """``1 sheet``, ``3 sheets``."""
     return f"{number} {noun}" if number == 1 else f"{number} {noun}s"
@@ -558,6 +572,7 @@ def _write_assembly(
             "the bottoms follow each tile's thickness), so every tile starts on the first "
             "layer; turn the printed sheet over before you thread it. Each tile's number is "
             "engraved in its bottom face (it reads as printed, and from below once turned)."
+            + _unnumbered_text(record.unlabelled)
             + _beds_text("print", record.jobs)
         )
         lines.append("")
@@ -590,8 +605,9 @@ def _write_assembly(
         if profile.process == "laser-epdm":
             beds = len(record.jobs)
             text = (
-                "Print the tiles from `tiles.3mf` (single material). They print loose, each "
-                "turned about the vertical to take the least room, nested on "
+                "Print the tiles from `tiles.3mf` (single material). They print loose, top "
+                "faces down (tiles differ in thickness by a little, their top faces are "
+                "flat), each turned about the vertical to take the least room, nested on "
                 f"{_count(beds, 'bed')} of {profile.bed_x_mm:g} x {profile.bed_y_mm:g} mm"
             )
             if beds > 1:
@@ -600,8 +616,8 @@ def _write_assembly(
                     f"`tiles-bed1.3mf` to `tiles-bed{beds}.3mf` hold one bed each, on the plate"
                 )
             lines.append(
-                text + ". Each tile carries its number; the placement template (below) shows "
-                "where it goes."
+                text + ". Each tile's number is engraved in its bottom face; the placement "
+                "template (below) shows where it goes." + _unnumbered_text(record.unlabelled)
             )
             if beds > 1:
                 lines.append("")

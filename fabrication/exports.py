@@ -248,6 +248,8 @@ class _Record:
     notes: list[str] = field(default_factory=list)
     jobs: list[dict[str, Any]] = field(default_factory=list)
     sheets: dict[str, Any] = field(default_factory=dict)
+    #: tiles without an engraved number
+    unlabelled: list[int] = field(default_factory=list)
 
 
 # --------------------------------------------------------------------------------------------
@@ -713,6 +715,7 @@ def write_fabrication(
                 length_mm=string_mm,
             )
         )
+        record.unlabelled = list(cad_flat.unlabelled)
         magnets = cad_flat.magnets
         if magnets:
             polarity = "; ".join(

@@ -609,6 +609,21 @@ def test_print_jobs_split_along_rows_or_refuse() -> None:
         plan_print_jobs(tiles, design.linkage.hinges, (12.0, 12.0))
 
 
+def test_the_guide_names_the_tiles_without_a_number(built: Built, tmp_path: Path) -> None:
+    """Tiles too small for the engraved digits are named in the guide (it used to say every
+    tile carries its number)."""
+    if built.profile.process == "plywood-cnc":
+        pytest.skip("plywood panels are labelled on their inner faces")
+    _write(
+        dataclasses.replace(built, flat=dataclasses.replace(built.flat, unlabelled=(1, 3))),
+        tmp_path,
+    )
+    guide = (tmp_path / "fabrication/assembly.md").read_text()
+    assert "2 tiles too small for the digits carry no number (tiles 1, 3)" in guide
+    plain = (built.folder / "fabrication/assembly.md").read_text()
+    assert ("carry no number" in plain) == bool(built.flat.unlabelled)
+
+
 def test_loose_tiles_are_nested_on_the_beds_and_the_guide_lists_them(
     built: Built, tmp_path: Path
 ) -> None:
@@ -1045,6 +1060,33 @@ def test_nested_tiles_turn_to_fit_and_a_tile_too_large_is_refused() -> None:
     assert np.all(xy >= BED_MARGIN_MM - 1e-9) and np.all(xy <= np.array(bed) - BED_MARGIN_MM + 1e-9)
     with pytest.raises(InputError, match="a tile does not fit the .* bed .* or more tiles"):
         nested_tiles([slab(120.0, 10.0, 0.0)], bed)
+
+
+def test_loose_tiles_print_top_faces_down() -> None:
+    """Loose (laser-epdm) tiles are turned over onto their flat top faces: two boxes with tops
+    at z = 6 and bottoms at 0 and 0.3 mm (tiles of a mesh that is not conical differ in
+    thickness) both rest on z = 0, the thinner one 5.7 mm high, and a half turn keeps every
+    triangle facing outwards (the signed volume stays positive)."""
+    from drawstring.fabrication.exports_3mf import PartMesh
+    from drawstring.fabrication.exports_beds import nested_tiles
+
+    def box(z0: float, name: str) -> PartMesh:
+        corners = np.array([[x, y, z] for x in (0, 10.0) for y in (0, 8.0) for z in (z0, 6.0)])
+        quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+        triangles = np.array([t for a, b, c, d in quads for t in ([a, b, c], [a, c, d])])
+        return PartMesh(name, "tile", corners, triangles)
+
+    def volume(mesh: PartMesh) -> float:
+        p = mesh.vertices[mesh.triangles]
+        return float(np.einsum("ti,ti->t", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0)
+
+    tiles = [box(0.0, "tile_0"), box(0.3, "tile_1")]
+    assert volume(tiles[0]) == pytest.approx(480.0) and volume(tiles[1]) == pytest.approx(456.0)
+    (placed,) = nested_tiles(tiles, (200.0, 200.0))
+    heights = {p.name: (p.vertices[:, 2].min(), p.vertices[:, 2].max()) for p in placed}
+    assert heights["tile_0"] == pytest.approx((0.0, 6.0))
+    assert heights["tile_1"] == pytest.approx((0.0, 5.7))
+    assert [volume(p) for p in placed] == pytest.approx([480.0, 456.0])
 
 
 def test_plywood_panels_carry_the_magnet_holes_and_the_strips_pilot_holes(built: Built) -> None:
