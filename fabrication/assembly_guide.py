@@ -63,6 +63,19 @@ def _unnumbered_text(unlabelled: Sequence[int]) -> str:
     )
 
 
+def _trimmed_text(trimmed: Sequence[int]) -> str:
+    """The plywood guide's word on tiles whose overlap with a neighbour must be cut away (the
+    panels make whole boxes; empty when there are none)."""
+    if not trimmed:
+        return ""
+    return (
+        f" {_count(len(trimmed), 'tile')} overlap a hinged neighbour in the flat pose "
+        f"(tile{'s' if len(trimmed) > 1 else ''} {id_runs(trimmed)}; `hinges.json` trims): "
+        "the panels make whole boxes, so once each is glued, saw or sand its overlap off as "
+        "`flat.step` shows that tile, or the flat sheet will not lie flat."
+    )
+
+
 def _count(number: int, noun: str) -> str:
     """``1 sheet``, ``3 sheets``."""
     return f"{number} {noun}" if number == 1 else f"{number} {noun}s"
@@ -638,7 +651,7 @@ def _write_assembly(
                 "magnet holes in the side panels among them), CUT_OUTER black; DRILL magenta: "
                 "drill these at the diameter drawn (the pilot holes of the hinge strips' "
                 f"screws, and round holes narrower than the {profile.tool_diameter_mm:g} mm "
-                "tool)."
+                "tool)." + _trimmed_text(record.trimmed)
             )
         strip_sheets = _count(record.sheets["hinges"]["sheets"], "sheet")
         lines.append(

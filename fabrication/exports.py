@@ -250,6 +250,8 @@ class _Record:
     sheets: dict[str, Any] = field(default_factory=dict)
     #: tiles without an engraved number
     unlabelled: list[int] = field(default_factory=list)
+    #: tiles with an overlap cut away (hinges.json trims)
+    trimmed: list[int] = field(default_factory=list)
 
 
 # --------------------------------------------------------------------------------------------
@@ -488,7 +490,8 @@ def write_fabrication(
     route_steps : (S, 3) or (S, 4) int route (see :func:`drawstring.cad.design.normalize_route`).
     lift_tiles : (L, 2) int ``(tile, side)`` extra lift bores.
     magnet_pairs : (M, 4) int (the polarity comes from ``cad_flat.magnets``).
-    trims : unused here (already cut into the CAD solids); accepted for a uniform call.
+    trims : tiles whose overlap with a neighbour is cut away (in the CAD solids already);
+        plywood panels make whole boxes, so the guide names those tiles.
     cad_flat, cad_assembled : the solids in both poses.
     design_name : shown in titles.
     workers : processes for tessellation (default: CPU count).
@@ -497,7 +500,7 @@ def write_fabrication(
     -------
     Paths written, relative to ``folder`` (``fabrication/...``), sorted.
     """
-    del trims, magnet_pairs
+    del magnet_pairs
     out = Path(folder) / "fabrication"
     out.mkdir(parents=True, exist_ok=True)
     tiles_flat = np.asarray(tiles_flat, dtype=np.float64)
@@ -508,6 +511,7 @@ def write_fabrication(
     lifts = np.asarray(lift_tiles, dtype=np.int64).reshape(-1, 2)
     record = _Record()
     record.notes += list(cad_flat.notes)
+    record.trimmed = sorted(int(t) for t in (trims or {}))
     written: list[str] = []
 
     tile_parts = [(f"tile_{i}", s, profile.tile_material) for i, s in enumerate(cad_flat.tiles)]

@@ -624,6 +624,19 @@ def test_the_guide_names_the_tiles_without_a_number(built: Built, tmp_path: Path
     assert ("carry no number" in plain) == bool(built.flat.unlabelled)
 
 
+def test_the_plywood_guide_names_the_tiles_to_trim(built: Built, tmp_path: Path) -> None:
+    """Plywood panels make whole boxes: the tiles whose overlap the hinge stage cuts away
+    (trims) are named in the guide, to be sawn or sanded off after gluing."""
+    if built.profile.process != "plywood-cnc":
+        pytest.skip("plywood-cnc only")
+    design = dataclasses.replace(built.design, trims={4: [], 7: []})
+    _write(dataclasses.replace(built, design=design), tmp_path)
+    guide = (tmp_path / "fabrication/assembly.md").read_text()
+    assert "2 tiles overlap a hinged neighbour in the flat pose (tiles 4, 7;" in guide
+    plain = (built.folder / "fabrication/assembly.md").read_text()
+    assert ("overlap a hinged neighbour" in plain) == bool(built.design.trims)
+
+
 def test_loose_tiles_are_nested_on_the_beds_and_the_guide_lists_them(
     built: Built, tmp_path: Path
 ) -> None:
