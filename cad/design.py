@@ -655,7 +655,7 @@ def _bend_notes(
     return [
         f"{len(tight)} of {len(steps)} route steps bend tighter than the profile's "
         f"{profile.min_bend_radius_mm:g} mm: bend radius down to {min_radius[worst]:.2f} mm "
-        f"(route step {worst}, tile {int(steps[worst, 1])})"
+        f"(route.json step {worst}, counted from 0; tile {int(steps[worst, 1])})"
         + (f"; steps {_id_ranges(tight)}" if len(tight) > 1 else "")
     ]
 

@@ -735,10 +735,11 @@ def test_the_bend_note_lists_the_steps_only_when_there_are_several() -> None:
     radius = np.full(4, 2 * profile.min_bend_radius_mm)
     radius[2] = 0.5 * profile.min_bend_radius_mm
     (one,) = _bend_notes(radius, steps, profile)
-    assert one.startswith("1 of 4 route steps") and one.endswith("(route step 2, tile 12)")
+    assert one.startswith("1 of 4 route steps")
+    assert one.endswith("(route.json step 2, counted from 0; tile 12)")
     radius[0] = 0.6 * profile.min_bend_radius_mm
     (two,) = _bend_notes(radius, steps, profile)
-    assert two.endswith("(route step 2, tile 12); steps 0, 2")
+    assert two.endswith("(route.json step 2, counted from 0; tile 12); steps 0, 2")
 
 
 def test_box_tiles_keep_their_pilot_holes_clear_of_the_side_panels() -> None:
