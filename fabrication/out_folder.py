@@ -47,6 +47,15 @@ def check_out_dir(out_dir: str | os.PathLike[str]) -> Path:
     out = Path(out_dir).absolute()
     if out.exists() and not out.is_dir():
         raise InputError(f"output path {out} exists and is a file; choose another --out")
+    try:
+        here = Path.cwd().resolve()
+    except OSError:  # the working folder was removed
+        here = None
+    if here is not None and (out.resolve() == here or out.resolve() in here.parents):
+        raise InputError(
+            f"output folder {out} is the folder you are working in, or holds it; a design "
+            "folder is replaced whole, so give --out a folder of its own (e.g. --out design)"
+        )
     if out.is_dir() and any(out.iterdir()) and not (out / "design.json").is_file():
         raise InputError(
             f"output folder {out} exists and is not a drawstring design; choose another --out"

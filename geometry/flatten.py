@@ -764,8 +764,14 @@ def _flatten_rectangle(
         best = _shift_corners(system, curvature, a, best, best_score, reference_torsion, schur)
     chosen = best if best is not None else fallback
     if chosen is None:
+        if named is not None:
+            raise InputError(
+                "these corners give no closed rectangle boundary; pick corners farther apart"
+            )
         raise InputError(
-            "these corners give no closed rectangle boundary; pick corners farther apart"
+            f"none of the {len(order)} sets of rectangle corners tried gives a closed boundary: "
+            "the mesh is likely folded or badly distorted; check it (--repair mends small "
+            "defects) or name four --corners"
         )
     uv, u, corner_pos = chosen
     if named is None:

@@ -283,6 +283,21 @@ def test_bad_options_exit_2(args: list[str], words: str, tmp_path: Path) -> None
     assert not out.exists()
 
 
+def test_the_working_folder_is_not_an_output_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A design folder is replaced whole: '--out .' (or a folder holding the working one) would
+    # leave the user's shell in a removed folder.  Refused up front; nothing is touched.
+    here = tmp_path / "work" / "here"
+    here.mkdir(parents=True)
+    monkeypatch.chdir(here)
+    for out in (".", "..", str(here)):
+        assert main(["design", "saddle", *SMALL, "--out", out]) == 2
+        assert "is the folder you are working in" in capsys.readouterr().err
+    assert here.is_dir() and not any(here.iterdir())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["work"]
+
+
 def test_output_path_that_is_a_file_is_refused(tmp_path: Path) -> None:
     blocker = write(tmp_path / "taken", "not a folder")
     done = run_cli("design", "saddle", *SMALL, "--out", str(blocker))
