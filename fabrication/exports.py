@@ -659,11 +659,21 @@ def write_fabrication(
                         len(runs),
                         "plastic",
                         0.0,
-                        f"total {tube_total / 1000:.2f} m; one per route step, lengths in "
-                        "manifest.json",
+                        f"total {tube_total / 1000:.2f} m; one per route step "
+                        f"({len(steps)}) and lift bore ({len(runs) - len(steps)}), each with "
+                        "its tile and length in manifest.json channel_tubes",
                     )
                 )
                 record.estimates["channel_tubes_mm"] = [round(r.tube_length_mm, 1) for r in runs]
+                # runs come in route order, then the lift bores (cable_runs)
+                record.estimates["channel_tubes"] = [
+                    {
+                        "tile": r.tile,
+                        **({"route_step": k} if k < len(steps) else {"lift_bore": k - len(steps)}),
+                        "length_mm": round(r.tube_length_mm, 1),
+                    }
+                    for k, r in enumerate(runs)
+                ]
                 # one screw per pilot hole, one staple per pair (as cut: holes that found no
                 # room on a small tile are left out and not counted)
                 fasteners = cad_flat.fasteners

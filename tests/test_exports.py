@@ -624,6 +624,25 @@ def test_the_guide_names_the_tiles_without_a_number(built: Built, tmp_path: Path
     assert ("carry no number" in plain) == bool(built.flat.unlabelled)
 
 
+def test_plywood_channel_tubes_name_their_tile_and_step(built: Built) -> None:
+    """Each channel tube in manifest.json carries its tile and route step (or lift bore), in
+    route order, with the length bom.csv counts."""
+    if built.profile.process != "plywood-cnc":
+        pytest.skip("plywood-cnc only")
+    manifest = json.loads((built.folder / "fabrication/manifest.json").read_text())
+    tubes = manifest["estimates"]["channel_tubes"]
+    from drawstring.cad.design import normalize_route
+
+    steps = normalize_route(built.design.route_steps)  # (S, 4): gap, tile, enter, leave
+    lifts = np.asarray(built.design.lift_tiles).reshape(-1, 2)
+    assert len(tubes) == len(steps) + len(lifts)
+    assert [t["route_step"] for t in tubes[: len(steps)]] == list(range(len(steps)))
+    assert [t["tile"] for t in tubes[: len(steps)]] == [int(t) for t in steps[:, 1]]
+    assert [t["lift_bore"] for t in tubes[len(steps) :]] == list(range(len(lifts)))
+    assert [t["tile"] for t in tubes[len(steps) :]] == [int(t) for t in lifts[:, 0]]
+    assert [t["length_mm"] for t in tubes] == manifest["estimates"]["channel_tubes_mm"]
+
+
 def test_the_plywood_guide_names_the_tiles_to_trim(built: Built, tmp_path: Path) -> None:
     """Plywood panels make whole boxes: the tiles whose overlap the hinge stage cuts away
     (trims) are named in the guide, to be sawn or sanded off after gluing."""
