@@ -663,12 +663,21 @@ def _write_assembly(
         )
         lines.append("")
         width, height = est.get("placement_size_mm", (0.0, 0.0))
-        lines.append(
+        text = (
             f"Print `placement.svg` at 100 % (1:1; it is {width:g} x {height:g} mm: on a large-"
             "format printer, or tiled over several sheets taped together), lay the tiles on it "
             "by number, and fix each strip where the template shows it (blue, marked with a "
             "circle: on the top faces; orange, marked with a square: on the bottom faces)."
         )
+        if any(side != "top" for side in sides):
+            text += (
+                " The bottom faces' strips go on first, from below: print "
+                "`placement-bottom.svg` too (the layout seen from below, mirrored, with only "
+                "those strips), lay the tiles on it top faces down, by the numbers in their "
+                "bottom faces, and fix the orange strips; then turn the pieces over onto "
+                "`placement.svg`, top faces up, and fix the blue ones."
+            )
+        lines.append(text)
         lines.append("")
     lines += [
         f"## {next(section)}. Where each tile goes",

@@ -591,6 +591,20 @@ def write_fabrication(
             )
             record.estimates["placement_size_mm"] = [round(float(v), 1) for v in template]
             written += ["hinges.dxf", "placement.dxf", "placement.svg"]
+            below = [(h, side, outline) for h, side, outline in placed if side != "top"]
+            if below:
+                # The layout seen from below, for the bottom faces' strips: the tiles lie on
+                # it top faces down (mirrored in x; the numbers still read the right way).
+                mirror = np.array([-1.0, 1.0])
+                seen_from_below = tiles_flat.copy()
+                seen_from_below[..., 0] *= -1.0
+                write_placement(
+                    out / "placement-bottom.dxf",
+                    out / "placement-bottom.svg",
+                    seen_from_below,
+                    [(h, side, outline * mirror) for h, side, outline in below],
+                )
+                written += ["placement-bottom.dxf", "placement-bottom.svg"]
             cut, engrave = _cut_length(strip_nesting)
             strip_length = profile.hinge_pad_length_mm + profile.hinge_width_mm
             strip_size = (

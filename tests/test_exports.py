@@ -14,6 +14,7 @@ import sys
 import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -42,8 +43,24 @@ from drawstring.geometry.linkage import id_runs  # noqa: E402
 PROFILES = ("fdm-dual", "laser-epdm", "plywood-cnc")
 EXPECTED = {
     "fdm-dual": {"print.3mf"},
-    "laser-epdm": {"tiles.3mf", "hinges.dxf", "placement.dxf", "placement.svg"},
-    "plywood-cnc": {"panels.dxf", "hinges.dxf", "cutlist.csv", "placement.dxf", "placement.svg"},
+    # (the samples have bottom-face strips: their template seen from below too)
+    "laser-epdm": {
+        "tiles.3mf",
+        "hinges.dxf",
+        "placement.dxf",
+        "placement.svg",
+        "placement-bottom.dxf",
+        "placement-bottom.svg",
+    },
+    "plywood-cnc": {
+        "panels.dxf",
+        "hinges.dxf",
+        "cutlist.csv",
+        "placement.dxf",
+        "placement.svg",
+        "placement-bottom.dxf",
+        "placement-bottom.svg",
+    },
 }
 COMMON = {
     "flat.step",
@@ -631,8 +648,6 @@ def test_plywood_channel_tubes_name_their_tile_and_step(built: Built) -> None:
         pytest.skip("plywood-cnc only")
     manifest = json.loads((built.folder / "fabrication/manifest.json").read_text())
     tubes = manifest["estimates"]["channel_tubes"]
-    from drawstring.cad.design import normalize_route
-
     steps = normalize_route(built.design.route_steps)  # (S, 4): gap, tile, enter, leave
     lifts = np.asarray(built.design.lift_tiles).reshape(-1, 2)
     assert len(tubes) == len(steps) + len(lifts)
@@ -780,8 +795,6 @@ def test_assembly_sections_are_numbered_in_order(built: Built) -> None:
     assert numbers == list(range(1, len(numbers) + 1)) and len(numbers) >= 4
     # The sample's route enters its first tile and leaves its last through the top face: one
     # lift point, where both string ends stand up; the spare lift bore is named.
-    from drawstring.cad.design import normalize_route
-
     steps = normalize_route(built.design.route_steps)
     first, last = int(steps[0, 1]), int(steps[-1, 1])
     lines = guide.splitlines()
@@ -957,8 +970,26 @@ def test_placement_marks_hinges_as_every_picture_does(built: Built) -> None:
         assert len(entities) == 2 * count  # the strip and its marker
         kinds = {e.dxftype() for e in entities}
         assert kinds == ({"LWPOLYLINE", "CIRCLE"} if style is top else {"LWPOLYLINE"})
+    # the template seen from below: the bottom strips only, mirrored, tiles and numbers too
+    below = ezdxf.readfile(built.folder / "fabrication" / "placement-bottom.dxf").modelspace()
+    assert len(below.query(f"*[layer=='{bottom.layer}']")) == 2 * counts["bottom"]
+    assert len(below.query(f"*[layer=='{top.layer}']")) == 0
+    above = doc.modelspace()
+    for layer in ("TILE_TOP", "LABEL"):
+        assert len(below.query(f"*[layer=='{layer}']")) == len(above.query(f"*[layer=='{layer}']"))
+
+    def outline_xs(modelspace: Any) -> np.ndarray:
+        return np.array(
+            [p[0] for e in modelspace.query("LWPOLYLINE[layer=='TILE_TOP']") for p in e]
+        )
+
+    # both templates start 10 mm in from their left edge: mirrored, x -> width - x
+    xs, xs_below = outline_xs(above), outline_xs(below)
+    assert np.ptp(xs) == pytest.approx(np.ptp(xs_below))
+    np.testing.assert_allclose(np.sort(xs_below), np.sort(xs.min() + xs.max() - xs), atol=1e-3)
     guide = (built.folder / "fabrication" / "assembly.md").read_text()
     assert "orange, marked with a square: on the bottom faces" in guide and "pink" not in guide
+    assert "lay the tiles on it top faces down" in guide
     # the guide gives the template's printed size, as the SVG states it in mm
     width, height = (float(root.get(k, "0").removesuffix("mm")) for k in ("width", "height"))
     assert f"it is {round(width, 1):g} x {round(height, 1):g} mm" in guide
