@@ -670,12 +670,19 @@ def _write_assembly(
             "circle: on the top faces; orange, marked with a square: on the bottom faces)."
         )
         if any(side != "top" for side in sides):
+            # laser tiles carry their numbers in their bottom faces; plywood boxes inside
+            by_number = (
+                "by the numbers in their bottom faces"
+                if profile.process == "laser-epdm"
+                else "matching their outlines (the engraved numbers are inside the boxes: "
+                "pencil each box's number on its bottom as you glue it)"
+            )
             text += (
                 " The bottom faces' strips go on first, from below: print "
                 "`placement-bottom.svg` too (the layout seen from below, mirrored, with only "
-                "those strips), lay the tiles on it top faces down, by the numbers in their "
-                "bottom faces, and fix the orange strips; then turn the pieces over onto "
-                "`placement.svg`, top faces up, and fix the blue ones."
+                f"those strips), lay the tiles on it top faces down, {by_number}, and fix the "
+                "orange strips; then turn the pieces over onto `placement.svg`, top faces up, "
+                "and fix the blue ones."
             )
         lines.append(text)
         lines.append("")

@@ -256,7 +256,8 @@ def _shaped(
     linkage = tiling.linkage
     skipped = False
     assembled = _assembled_shape(tiling, loaded, options, progress, shapes)
-    # Hinge sides are decided once, on the eq.-1 tiles; the flat layout makes the hinged
+    # Hinge sides are decided on the eq.-1 tiles (and again once their bottom corners are
+    # pulled to equal depths, which can move a side); the flat layout makes the hinged
     # corners meet on the face that carries each hinge.
     faces = (
         dual_hinge_faces(linkage, assembled.tiles, options.min_gap_angle_deg)
@@ -286,7 +287,7 @@ def _shaped(
                 co_block["accepted"] and flat.edge_error_max_mm <= FLAT_EDGE_ERROR_TOL_MM
             ):
                 missed = co_block["reason"] or (
-                    f"its flat edge error {flat.edge_error_max_mm:.2g} mm exceeds "
+                    f"its flat edge error {flat.edge_error_max_mm:.3g} mm exceeds "
                     f"{FLAT_EDGE_ERROR_TOL_MM:g} mm"
                 )
                 logger.info("conical co-optimization missed (%s): again without", missed)

@@ -278,7 +278,8 @@ def measure_design(
             "hinge_gap_max_mm": _round(hinge_gap, 9),
             "hinge_gap_in_plane_max_mm": _round(float(in_plane.max(initial=0.0)), 9),
             # flat.obj holds the merged tiles: how far merging moved a vertex off its rigid
-            # copy of the assembled tile (at most half the largest hinge gap)
+            # copy of the assembled tile (about the largest hinge gap at most: a pair merges at
+            # its midpoint moved sideways onto the plane that separates its tiles)
             "flat_merge_shift_max_mm": _round(
                 float(np.linalg.norm(hinge_layout.tiles - fabricated, axis=2).max(initial=0.0)),
                 9,

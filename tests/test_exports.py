@@ -990,6 +990,11 @@ def test_placement_marks_hinges_as_every_picture_does(built: Built) -> None:
     guide = (built.folder / "fabrication" / "assembly.md").read_text()
     assert "orange, marked with a square: on the bottom faces" in guide and "pink" not in guide
     assert "lay the tiles on it top faces down" in guide
+    # laser tiles carry their numbers in their bottom faces, plywood boxes inside
+    if built.profile.process == "laser-epdm":
+        assert "by the numbers in their bottom faces" in guide
+    else:
+        assert "pencil each box's number on its bottom" in guide
     # the guide gives the template's printed size, as the SVG states it in mm
     width, height = (float(root.get(k, "0").removesuffix("mm")) for k in ("width", "height"))
     assert f"it is {round(width, 1):g} x {round(height, 1):g} mm" in guide
