@@ -12,11 +12,8 @@ import logging
 import math
 import multiprocessing
 import sys
-import time
-from collections.abc import Callable
 from dataclasses import dataclass, replace
-from multiprocessing.connection import Connection
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,6 +43,8 @@ from drawstring.geometry.tolerances import (
     HINGE_ANGLE_MARGIN_DEG,
     HINGE_GAP_TOL_MM,
 )
+
+from .ahead import Ahead as _Ahead
 
 if TYPE_CHECKING:
     from .pipeline import Progress, ResolvedOptions
@@ -163,7 +162,7 @@ def shape_and_layout(
     # co-optimization is refused for its area scale, which more splits mend (the 200-tile
     # chair in one part: the fallback took 4.5 s and still missed by 0.2 mm).  It runs after
     # all if the first tiling is the one kept.
-    ahead: _Ahead | None = None
+    ahead: _Ahead[ShapedLayout] | None = None
     prepared: Tiling | None = None  # the first tighter tiling, when tiled ahead of the loop
     if _can_fork() and RETILE_ATTEMPTS > 0:
         # The first tighter tiling, which the loop below lays out if the first tiling misses,
@@ -176,7 +175,7 @@ def shape_and_layout(
             def work(child_progress: Progress) -> ShapedLayout:
                 return _shaped(next_tiling, next_bound, loaded, options, child_progress, shapes)
 
-            ahead = _Ahead(work)
+            ahead = _Ahead(work, "the tiling laid out ahead")
     try:
         first = best = _shaped(
             first_tiling, bound, loaded, options, progress, shapes, fallback=False
@@ -435,75 +434,11 @@ def _assembled_shape(
 
 
 #: Lay out the first tighter tiling in a second process while the first tiling is laid out
-#: (:class:`_Ahead`), where the machine has two cores or more and processes can be forked.
+#: (:class:`~drawstring.fabrication.ahead.Ahead`), where the machine has two cores or more
+#: and processes can be forked.
 #: Its result is the one the serial run would compute: it is used only if the first tiling
 #: misses the targets, and thrown away otherwise.
 RETILE_AHEAD = True
-
-
-class _Ahead:
-    """One tiling laid out by :func:`_shaped` in a forked child process.
-
-    The child starts from a copy of this process (fork), so it computes what :func:`_shaped`
-    would compute here; it sends back the layout and its stage times through a pipe.  If the
-    child fails or dies, :meth:`result` gives None and the caller lays the tiling out itself.
-    """
-
-    def __init__(self, work: Callable[[Progress], ShapedLayout]) -> None:
-        context = multiprocessing.get_context("fork")
-        self._receive, send = context.Pipe(duplex=False)
-        self._process = context.Process(target=_lay_out_ahead, args=(work, send), daemon=True)
-        with parallel.sigint_held():  # the child takes Ctrl-C once its quiet exit is set
-            self._process.start()
-        send.close()
-
-    def result(self, progress: Progress) -> ShapedLayout | None:
-        """The child's layout; the time spent waiting for it is added to ``progress``'s
-        stages in proportion to the child's own stage times."""
-        start = time.perf_counter()
-        try:
-            status, payload, timings = self._receive.recv()
-        except (EOFError, OSError):
-            status, payload, timings = "died", "no result", {}
-        self._process.join()
-        self._receive.close()
-        if status != "ok":
-            logger.warning("the tiling laid out ahead failed (%s); laying it out again", payload)
-            return None
-        progress.absorb(timings, time.perf_counter() - start)
-        return cast(ShapedLayout, payload)
-
-    def cancel(self) -> None:
-        """Stop the child (its layout is not needed)."""
-        if self._process.is_alive():
-            self._process.terminate()
-        self._process.join()
-        self._receive.close()
-
-
-def _tag_ahead(record: logging.LogRecord) -> bool:
-    """Log filter of :class:`_Ahead`'s child: its lines start with ``(ahead)``."""
-    if not str(record.msg).startswith("(ahead) "):  # once, however many handlers
-        record.msg = f"(ahead) {record.msg}"
-    return True
-
-
-def _lay_out_ahead(work: Callable[[Progress], ShapedLayout], send: Connection) -> None:
-    """Body of :class:`_Ahead`'s child process."""
-    parallel.exit_quietly_on_interrupt()
-    from .pipeline import Progress  # the child only: pipeline imports this module
-
-    for handler in logging.getLogger().handlers:  # -v: tell this process's lines apart
-        handler.addFilter(_tag_ahead)
-
-    progress = Progress(quiet=True)
-    try:
-        shaped = work(progress)
-        send.send(("ok", shaped, progress.timings))
-    except Exception as exc:  # reported to the parent, which lays the tiling out itself
-        send.send(("error", f"{type(exc).__name__}: {exc}", {}))
-    finally:
-        send.close()
 
 
 def _can_fork() -> bool:

@@ -740,7 +740,9 @@ def test_the_ahead_process_tags_its_log_lines_once() -> None:
     record = logging.LogRecord(
         "drawstring.geometry.flat", logging.INFO, "f.py", 1, "flat: %d", (3,), None
     )
-    assert layout_stage._tag_ahead(record) and layout_stage._tag_ahead(record)
+    from drawstring.fabrication.ahead import tag_ahead
+
+    assert tag_ahead(record) and tag_ahead(record)
     assert record.getMessage() == "(ahead) flat: 3"
 
 

@@ -1,0 +1,91 @@
+"""A computation run ahead in a forked child process (Linux, two cores or more).
+
+:class:`Ahead` forks this process; the child computes what the parent would compute, from
+a copy of its state, and sends back the result and its stage times through a pipe.  The
+layout stage uses it to lay out the first tighter tiling while the first one is laid out
+(:data:`~drawstring.fabrication.layout_stage.RETILE_AHEAD`).
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import time
+from collections.abc import Callable
+from multiprocessing.connection import Connection
+from typing import TYPE_CHECKING, Generic, TypeVar, cast
+
+from drawstring.geometry import parallel
+
+if TYPE_CHECKING:
+    from .pipeline import Progress
+
+logger = logging.getLogger(__name__)
+
+T = TypeVar("T")
+
+
+class Ahead(Generic[T]):
+    """``work(progress)`` run in a forked child process.
+
+    The child starts from a copy of this process (fork), so it computes what ``work``
+    would compute here; it sends back the result and its stage times through a pipe.  If the
+    child fails or dies, :meth:`result` gives None and the caller does the work itself.
+    """
+
+    def __init__(self, work: Callable[[Progress], T], what: str = "the work done ahead") -> None:
+        self._what = what
+        context = multiprocessing.get_context("fork")
+        self._receive, send = context.Pipe(duplex=False)
+        self._process = context.Process(target=_run_ahead, args=(work, send), daemon=True)
+        with parallel.sigint_held():  # the child takes Ctrl-C once its quiet exit is set
+            self._process.start()
+        send.close()
+
+    def result(self, progress: Progress) -> T | None:
+        """The child's result; the time spent waiting for it is added to ``progress``'s
+        stages in proportion to the child's own stage times."""
+        start = time.perf_counter()
+        try:
+            status, payload, timings = self._receive.recv()
+        except (EOFError, OSError):
+            status, payload, timings = "died", "no result", {}
+        self._process.join()
+        self._receive.close()
+        if status != "ok":
+            logger.warning("%s failed (%s); doing it again here", self._what, payload)
+            return None
+        progress.absorb(timings, time.perf_counter() - start)
+        return cast(T, payload)
+
+    def cancel(self) -> None:
+        """Stop the child (its result is not needed)."""
+        if self._process.is_alive():
+            self._process.terminate()
+        self._process.join()
+        self._receive.close()
+
+
+def tag_ahead(record: logging.LogRecord) -> bool:
+    """Log filter of :class:`Ahead`'s child: its lines start with ``(ahead)``."""
+    if not str(record.msg).startswith("(ahead) "):  # once, however many handlers
+        record.msg = f"(ahead) {record.msg}"
+    return True
+
+
+def _run_ahead(work: Callable[[Progress], object], send: Connection) -> None:
+    """Body of :class:`Ahead`'s child process."""
+    parallel.exit_quietly_on_interrupt()
+    from .pipeline import Progress  # the child only: pipeline imports this module
+
+    for handler in logging.getLogger().handlers:  # -v: tell this process's lines apart
+        handler.addFilter(tag_ahead)
+
+    progress = Progress(quiet=True)
+    try:
+        result = work(progress)
+        send.send(("ok", result, progress.timings))
+    except Exception as exc:  # reported to the parent, which lays the tiling out itself
+        send.send(("error", f"{type(exc).__name__}: {exc}", {}))
+    finally:
+        send.close()
