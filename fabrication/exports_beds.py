@@ -49,23 +49,15 @@ def nest_footprints(
     return sheet, angle, shift
 
 
-def top_down(vertices: NDArray[np.float64]) -> NDArray[np.float64]:
-    """A loose tile's vertices turned over about the x axis, its top face (the highest plane
-    of a flat tile) down on z = 0: a half turn, so its triangles still face outwards."""
-    turned = np.asarray(vertices, dtype=np.float64).copy()
-    turned[:, 1] = -turned[:, 1]
-    turned[:, 2] = float(turned[:, 2].max()) - turned[:, 2]
-    return turned
-
-
 def nested_tiles(meshes: list[m3f.PartMesh], bed: tuple[float, float]) -> list[list[m3f.PartMesh]]:
-    """Tiles turned over, top faces down (:func:`top_down`: a tile is as thick as its assembled
-    frustum, so their bottoms do not share a plane), then turned about the vertical to their
-    smallest bounding rectangles and shelf-packed onto beds (as the DXF parts are), one list
-    of moved meshes per bed."""
+    """Tiles turned over onto their flat top faces (a tile is as thick as its assembled
+    frustum, so their bottoms do not share a plane), each on z = 0, then turned about the
+    vertical to their smallest bounding rectangles and shelf-packed onto beds (as the DXF
+    parts are), one list of moved meshes per bed."""
+    turned = [m3f.flip_upside_down(mesh) for mesh in meshes]
     meshes = [
-        m3f.PartMesh(mesh.name, mesh.kind, top_down(mesh.vertices), mesh.triangles)
-        for mesh in meshes
+        m3f.PartMesh(m.name, m.kind, m.vertices - [0.0, 0.0, m.vertices[:, 2].min()], m.triangles)
+        for m in turned
     ]
     sheet, angle, shift = nest_footprints([mesh.vertices for mesh in meshes], bed)
     beds: list[list[m3f.PartMesh]] = [[] for _ in range(int(sheet.max(initial=-1)) + 1)]
