@@ -364,7 +364,7 @@ def measure_design(
             cause = (
                 f"seen from above the hinges meet to {in_plane_gap:.2g} mm; the rest is the "
                 "tiles' thickness difference (the quad mesh is not conical), which the hinge "
-                "parts bridge"
+                "parts bridge; --hinges top puts every hinge on the top faces, where it closes"
             )
         else:
             cause = (

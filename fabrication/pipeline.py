@@ -268,7 +268,10 @@ class Design:
         into exit status 4 (:data:`~drawstring.fabrication.cli.EXIT_WARNINGS`) even without
         ``--strict``.  The vertical part of the hinge gap (the thickness difference of two
         tiles on a mesh that is not conical) and the surface distance stay plain warnings:
-        no layout changes them.
+        the layout in the plane does not change them.  (The conical co-optimization and a
+        tighter tiling close the vertical part where they can, see
+        :class:`~drawstring.fabrication.layout_stage.ShapedLayout`; where both fail, as on the
+        face scan, the hinge parts bridge it.)
         """
         misses = []
         for key, label, tol in (
