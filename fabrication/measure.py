@@ -366,6 +366,11 @@ def measure_design(
                 "tiles' thickness difference (the quad mesh is not conical), which the hinge "
                 "parts bridge; --hinges top puts every hinge on the top faces, where it closes"
             )
+        elif not options.co_optimize:
+            cause = (
+                "without the co-optimization (--no-co-optimize) the flat layout only "
+                "approximates the assembled tiles; drop that option to close it"
+            )
         else:
             cause = (
                 "the hinge parts bridge it; more tiles shrink it, and --hinges top reaches "

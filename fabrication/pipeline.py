@@ -592,9 +592,17 @@ def _design(
             repair=resolved.repair,
         )  # fmt: skip
     with progress.stage("flatten"):
-        flat_map = flatten(
-            loaded.vertices, loaded.faces, mode="rectangle", corners=mesh_corners(loaded, resolved)
-        )
+        try:
+            flat_map = flatten(
+                loaded.vertices, loaded.faces, mode="rectangle",
+                corners=mesh_corners(loaded, resolved),
+            )  # fmt: skip
+        except InputError as refusal:
+            if loaded.source == "builtin":
+                raise
+            # a mesh the loader accepted but that cannot be flattened: name the file, as the
+            # loader's own refusals do
+            raise InputError(f"{loaded.source}: {refusal}") from None
     if flat_map.flipped:
         notes.append(
             f"flattening: the conformal map turns {flat_map.flipped} of the target's "

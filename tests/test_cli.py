@@ -211,6 +211,7 @@ def test_bad_meshes_exit_2_with_one_line_and_no_folder(case: str, tmp_path: Path
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1, done.stderr
     assert words in lines[0].lower()
+    assert mesh.name in lines[0]  # which file, in case several are being run
     assert not out.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == [mesh.name]
 
@@ -547,6 +548,13 @@ def test_dual_hinges_meet_on_their_own_faces(tmp_path: Path) -> None:
     assert m_on["hinge_gap_max_mm"] < 1e-3
     assert m_off["hinge_gap_max_mm"] > 1e-2
     assert m_on["flat_interpenetration_mm3"] <= 1e-6 and m_on["flat_overlap_area_mm2"] <= 1e-6
+    # the warning names the option that caused the gap, not other hinge strategies
+    (gap_warning,) = [
+        w
+        for w in json.loads((off / "design.json").read_text())["warnings"]
+        if w.startswith("hinge gap")
+    ]
+    assert "--no-co-optimize" in gap_warning and "--hinges top" not in gap_warning
 
 
 def test_an_output_folder_that_cannot_be_renamed_is_refused_up_front(
