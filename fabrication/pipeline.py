@@ -597,12 +597,12 @@ def _design(
                 loaded.vertices, loaded.faces, mode="rectangle",
                 corners=mesh_corners(loaded, resolved),
             )  # fmt: skip
-        except InputError as refusal:
+        except InputError as unflattened:
             if loaded.source == "builtin":
                 raise
             # a mesh the loader accepted but that cannot be flattened: name the file, as the
             # loader's own refusals do
-            raise InputError(f"{loaded.source}: {refusal}") from None
+            raise InputError(f"{loaded.source}: {unflattened}") from None
     if flat_map.flipped:
         notes.append(
             f"flattening: the conformal map turns {flat_map.flipped} of the target's "
