@@ -26,6 +26,7 @@ from drawstring.geometry.simulate import route_snap_pairs, route_steps, split_co
 from drawstring.geometry.tiling import Tiling, parts_in_place
 from drawstring.geometry.tolerances import (
     CAD_PAD_INTERFERENCE_REL,
+    CAPSTAN_FACTOR_WARN,
     FLAT_EDGE_ERROR_TOL_MM,
     FLAT_GAP_ANGLE_TOL_DEG,
     FLAT_INTERPENETRATION_TOL_MM3,
@@ -371,11 +372,13 @@ def measure_design(
                 "without the co-optimization (--no-co-optimize) the flat layout only "
                 "approximates the assembled tiles; drop that option to close it"
             )
-        else:
+        elif options.hinges == "dual":
             cause = (
                 "the hinge parts bridge it; more tiles shrink it, and --hinges top reaches "
                 "1e-3 mm on most built-ins"
             )
+        else:
+            cause = "the hinge parts bridge it; more tiles shrink it"
         warnings.append(
             f"hinge gap {above(hinge_gap, HINGE_GAP_TOL_MM)} mm exceeds {HINGE_GAP_TOL_MM:g} mm: "
             f"{cause}"
@@ -420,10 +423,26 @@ def measure_design(
             "thickness, hinge parts and machine are made for that range); choose a profile "
             "for this size (drawstring profiles --size ...) or a size within it"
         )
-    if len(route.lifts_missed):
+    capstan = float(metrics["route"]["capstan_factor_channels_assembled"])
+    if capstan > CAPSTAN_FACTOR_WARN:
         warnings.append(
-            f"the string route cannot reach lift gap(s) {route.lifts_missed.tolist()} under the "
-            "routing rules; pull at the other lift points"
+            f"the string's channels bend {channel_turn:.3g} rad in all, so with friction "
+            f"{profile.friction_coefficient:g} the pull needs {capstan:.3g} times the tension "
+            f"that reaches the far end (over {CAPSTAN_FACTOR_WARN:g}); a slicker string and "
+            "channel (a profile with a lower friction_coefficient), fewer tiles or fewer "
+            "parts (a larger --max-scale-factor) lower it"
+        )
+    if len(route.lifts_missed):
+        missed = route.lifts_missed.tolist()
+        if len(missed) < len(lift.lift_gaps):
+            pull = "pull at the other lift points"
+        else:
+            pull = (
+                "no lift point is left to pull at; more tiles or other --corners give the "
+                "route other ways"
+            )
+        warnings.append(
+            f"the string route cannot reach lift gap(s) {missed} under the routing rules; {pull}"
         )
     return metrics, problems, warnings
 

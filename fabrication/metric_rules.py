@@ -14,6 +14,7 @@ from typing import Any
 
 from drawstring.geometry.tolerances import (
     CAD_PAD_INTERFERENCE_REL,
+    CAPSTAN_FACTOR_WARN,
     FLAT_EDGE_ERROR_TOL_MM,
     HINGE_GAP_TOL_MM,
     SURFACE_MAX_REL,
@@ -197,8 +198,8 @@ METRIC_RULES: dict[str, MetricRule] = {
     ),
     "route.capstan_factor_channels_assembled": MetricRule(
         "pull force over the force at the far end, exp(μ·bend of the channels), assembled",
-        _const("(lower is better)"),
-        None,
+        _const(f"≤ {CAPSTAN_FACTOR_WARN:g}"),
+        _at_most(CAPSTAN_FACTOR_WARN),
     ),
     "route.length_mm": MetricRule("string length through the channels", _const("(mm)"), None),
     "simulation.deployed": MetricRule(

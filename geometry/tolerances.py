@@ -158,3 +158,8 @@ SURFACE_MEAN_REL = 0.02
 #: Largest distance of a tile corner from the target, as a fraction of the target's
 #: bounding-box diagonal, above which the design is flagged (the report marks both).
 SURFACE_MAX_REL = 0.02
+#: Largest capstan factor of the string's channels in the assembled pose (the pull force over
+#: the force that reaches the far end, ``exp(mu * bend)``) before a warning: a firm hand pull of
+#: about 100 N then leaves about 1 N to close the last gaps.  The 200-tile saddle is at 14,
+#: the seashell at 157, the face scan at 2.6e3 and the seven-part three-shell at 2.1e4.
+CAPSTAN_FACTOR_WARN = 100.0

@@ -947,6 +947,12 @@ def test_a_scale_factor_no_split_can_mend_exits_3_naming_the_fixes(
     assert "--corners" in line and str(out) in line
     doc = json.loads((out / "design.json").read_text())
     assert any(p.startswith("scale factor 3.301 exceeds") for p in doc["problems"])
+    # its one lift point cannot be reached: the warning does not send the user to others
+    lifts = doc["metrics"]["lift_points"]
+    missed = doc["metrics"]["route"]["lift_gaps_missed"]
+    assert missed and len(missed) == lifts["count"] == 1
+    (warning,) = [w for w in doc["warnings"] if "cannot reach lift gap" in w]
+    assert "other lift points" not in warning and "no lift point is left" in warning
 
 
 def test_a_mesh_files_repairs_are_shown_not_only_recorded(

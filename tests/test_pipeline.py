@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from drawstring.fabrication import layout_stage
+from drawstring.fabrication import cli, layout_stage
 from drawstring.fabrication.pipeline import (
     DesignOptions,
     Progress,
@@ -129,6 +129,10 @@ def test_a_part_whose_hinges_miss_only_in_depth_is_split_further() -> None:
     assert metrics["hinge_gap_max_mm"] <= 1e-3
     assert metrics["flat_edge_error_max_mm"] <= 1e-3
     assert result.problems == ()
+    # the summary line says why the bound is below what one part can absorb
+    summary = cli._summary(result)
+    bound = metrics["split_bound"]
+    assert f"exceeds {bound:.3g}, tightened from {split_bound(result.options):.3g}" in summary
 
 
 def test_a_conical_round_that_loses_ground_does_not_end_the_co_optimization() -> None:
@@ -142,6 +146,23 @@ def test_a_conical_round_that_loses_ground_does_not_end_the_co_optimization() ->
     assert metrics["hinge_gap_max_mm"] <= 1e-3
     assert metrics["flat_edge_error_max_mm"] <= 1e-3
     assert result.problems == ()
+
+
+def test_a_string_whose_channels_bend_too_much_is_warned_about(monkeypatch) -> None:
+    # The warning follows the measured capstan factor of the assembled channels: none on a
+    # small saddle at the default bound, one naming the factor and the fixes once the bound is
+    # below it.
+    from drawstring.fabrication import measure
+
+    options = DesignOptions(grid=(6, 4), resolution=1500, simulate=False, cad=False)
+    plain = design("saddle", options)
+    factor = plain.metrics()["route"]["capstan_factor_channels_assembled"]
+    assert 1.0 < factor < measure.CAPSTAN_FACTOR_WARN
+    assert not any("the pull needs" in w for w in plain.warnings)
+    monkeypatch.setattr(measure, "CAPSTAN_FACTOR_WARN", 0.5 * factor)
+    (warning,) = [w for w in design("saddle", options).warnings if "the pull needs" in w]
+    assert f"the pull needs {factor:.3g} times the tension" in warning
+    assert "friction_coefficient" in warning and "fewer tiles" in warning
 
 
 def test_a_layout_that_meets_its_targets_keeps_the_default_split_bound() -> None:
@@ -814,7 +835,10 @@ def test_a_tile_size_refusal_names_the_problems_a_new_size_may_not_mend() -> Non
 
     options = DesignOptions(grid=(10, 8), resolution=1500, size_mm=30.0, simulate=False, cad=False)
     result = design("saddle", options)
-    with pytest.raises(InputError, match=r"use --size \d+ or more, or a smaller --grid$"):
+    with pytest.raises(
+        InputError,
+        match=r"use --size \d+ or more, or a smaller --grid \(the tiling, the lift points",
+    ):
         with_cad(result, Progress(quiet=True))
     troubled = replace(result, problems=("flat tiles overlap by 2 mm^2", "another"))
     with pytest.raises(InputError) as refused:
