@@ -307,7 +307,11 @@ def feature_fit_refusal(result: Design) -> InputError | None:
     the bore cuts a notch out of the far side face from about ``--size 41`` down (``--size 40``:
     3.27 mm deep) and, from ``--size 35`` down, the channel checks find openings missing; in
     between, the wall left is thinner than a nozzle.  The channel faces alone (2.40 mm) would
-    refuse only below ``--size 39``.
+    refuse only below ``--size 39``.  Later (with the conical co-optimization) ``--size 46``
+    was refused for its channel faces (2.32 mm) with ``--size 50`` suggested, which was refused
+    in turn: its lift point had moved to tiles whose bore bends the other way (4.21 mm deep,
+    4.27 needed), and ``--size 53`` built.  Where the lift points go at another size is not
+    known before that design is made, so the refusal says the check may name a next size.
     """
     profile, options = result.profile, result.options
     too_thin = thickness_refusal(profile, options.thickness_mm)
@@ -324,7 +328,9 @@ def feature_fit_refusal(result: Design) -> InputError | None:
     size = _round_up(options.size_mm * worst.need / worst.have * SIZE_MARGIN)
     return InputError(
         f"--size {options.size_mm:g} mm with {count} gives tiles too small for the "
-        f"{profile.name} profile: {worst.what}; use --size {size:g} or more, or {fewer}"
+        f"{profile.name} profile: {worst.what}; use --size {size:g} or more, or {fewer} "
+        "(the tiling, the lift points and the route change with the size: where the larger "
+        "tiles still fall short, this check names the next size)"
     )
 
 

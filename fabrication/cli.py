@@ -400,11 +400,24 @@ def _summary(result: Design) -> str:
     parts = linkage.n_components
     text = f"{linkage.n_tiles} tiles in {parts} part{'s' if parts > 1 else ''}"
     if parts > 1:
+        from .layout_stage import absorbable_ratio, split_bound
+
+        options = result.options
         bound = float(result.metrics().get("split_bound", 0.0))
+        default = split_bound(options)
+        if bound < default - 1e-9:
+            why = f"tightened from {default:.3g} to meet the accuracy targets (see the notes)"
+        elif options.max_scale_factor < absorbable_ratio(options.min_gap_angle_deg):
+            why = "the --max-scale-factor"
+        else:
+            why = (
+                f"what one part's gaps can absorb opening within "
+                f"[{options.min_gap_angle_deg:g}, 90] deg"
+            )
         text += (
             f" (split along grid lines: the tile area ratio "
-            f"{result.tiling.scale_factor_max_unsplit:.3g} exceeds the {bound:.3g} one part can "
-            "absorb; magnets join the parts)"
+            f"{result.tiling.scale_factor_max_unsplit:.3g} exceeds {bound:.3g}, {why}; magnets "
+            "join the parts)"
         )
     bottom = int(result.hinge_layout.bottom.sum())
     return f"{text}, {linkage.n_hinges} hinges ({bottom} on the bottom faces)"

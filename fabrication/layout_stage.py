@@ -75,7 +75,7 @@ def absorbable_ratio(min_gap_angle_deg: float) -> float:
 
 
 #: Extra tilings tried, each with a tighter split bound, when the flat layout misses its
-#: accuracy targets (flat edge error or in-plane hinge gap above 1e-3 mm).  The scale bound of
+#: accuracy targets (flat edge error or hinge gap above 1e-3 mm).  The scale bound of
 #: a split is necessary, not sufficient: a part whose area scale varies within it can still
 #: leave the tiles no flat layout that keeps their shape (the 200-tile chair: one part of
 #: ratio 1.55 < 1.66, 0.5 mm off; two parts of ratio 1.15, 1.5e-4 mm).

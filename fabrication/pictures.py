@@ -47,9 +47,14 @@ BOTTOM_HINGE = {
 }
 
 
-def save(fig: Figure, path: Path, dpi: int = 110) -> None:
-    """Write a figure as PNG with fixed metadata and close it."""
-    fig.savefig(path, dpi=dpi, metadata=PNG_METADATA)
+def save(fig: Figure, path: Path, dpi: int = 110, tight: bool = False) -> None:
+    """Write a figure as PNG with fixed metadata and close it; ``tight``: the canvas grows or
+    shrinks to everything drawn (a legend below the axes, a title of several lines), which a
+    fixed figure size cuts off where the layout is tall."""
+    if tight:
+        fig.savefig(path, dpi=dpi, metadata=PNG_METADATA, bbox_inches="tight", pad_inches=0.15)
+    else:
+        fig.savefig(path, dpi=dpi, metadata=PNG_METADATA)
     plt.close(fig)
 
 
@@ -593,7 +598,7 @@ def save_lift(result: Design, path: Path) -> None:
         fontsize=9,
     )
     fig.tight_layout()
-    save(fig, path)
+    save(fig, path, tight=True)
 
 
 def place_labels(

@@ -772,8 +772,10 @@ def optimize_flat(
     problems: list[str] = []
     if edge_error > FLAT_EDGE_ERROR_TOL_MM:
         problems.append(
-            f"flat edge error {edge_error:.3g} mm exceeds {FLAT_EDGE_ERROR_TOL_MM:g} mm: the tiles "
-            "cannot all keep their assembled shape in the plane (least-squares optimum reached)"
+            f"the layout solve's nodes keep the tiles' sides and diagonals to {edge_error:.3g} mm "
+            f"(node edge error; {FLAT_EDGE_ERROR_TOL_MM:g} mm wanted): the tiles cannot all keep "
+            "their assembled shape in the plane; the flat_edge_error_max_mm of design.json is "
+            "measured after the hinge layout"
         )
     if opening.size:
         lo, hi_deg = float(opening.min()), float(opening.max())
