@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
-import os
 import time
 from collections.abc import Callable
 from multiprocessing.connection import Connection
@@ -24,11 +23,6 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 T = TypeVar("T")
-
-#: Niceness added to the child: its result is used only when the parent's own work falls
-#: short, so where both want the same cores (the parent's threaded blocks) the parent goes
-#: first.
-AHEAD_NICENESS = int(os.environ.get("AHEAD_NICE", 0))
 
 
 class Ahead(Generic[T]):
@@ -82,8 +76,6 @@ def tag_ahead(record: logging.LogRecord) -> bool:
 def _run_ahead(work: Callable[[Progress], object], send: Connection) -> None:
     """Body of :class:`Ahead`'s child process."""
     parallel.exit_quietly_on_interrupt()
-    if AHEAD_NICENESS and hasattr(os, "nice"):
-        os.nice(AHEAD_NICENESS)
     from .pipeline import Progress  # the child only: pipeline imports this module
 
     for handler in logging.getLogger().handlers:  # -v: tell this process's lines apart
