@@ -371,7 +371,7 @@ def test_a_seed_layout_stops_once_its_bounds_hold() -> None:
     full = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=12.0)
     seed = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=12.0, seed_steps=1)
     assert seed.iterations < full.iterations
-    assert all(p.startswith("flat edge error") for p in seed.problems)
+    assert all("node edge error" in p for p in seed.problems)
     tol = FLAT_GAP_ANGLE_TOL_DEG
     assert seed.opening_deg.min() >= 12.0 - tol and seed.opening_deg.max() <= 90.0 + tol
     assert abs(seed.edge_error_max_mm - full.edge_error_max_mm) < 1e-6
