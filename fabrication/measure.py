@@ -410,8 +410,8 @@ def measure_design(
             warnings.append(
                 f"{excess}, yet the flat layout keeps every gap within "
                 f"[{options.min_gap_angle_deg:g}, 90] deg ({angles.min():.1f}.."
-                f"{angles.max():.1f}) and meets its targets (the bound is read off the "
-                f"target's conformal map, not the tiles); if it does not deploy, {fixes}"
+                f"{angles.max():.1f}) and meets its targets in the plane (the bound is read "
+                f"off the target's conformal map, not the tiles); if it does not deploy, {fixes}"
             )
         else:
             problems.append(f"{excess}; {fixes}")
