@@ -161,5 +161,6 @@ SURFACE_MAX_REL = 0.02
 #: Largest capstan factor of the string's channels in the assembled pose (the pull force over
 #: the force that reaches the far end, ``exp(mu * bend)``) before a warning: a firm hand pull of
 #: about 100 N then leaves about 1 N to close the last gaps.  The 200-tile saddle is at 14,
-#: the seashell at 157, the face scan at 2.6e3 and the seven-part three-shell at 2.1e4.
+#: the seashell at 157, the seven-part three-shell at 2.1e4 (all at 200 mm), and the face
+#: scan at the defaults at 1.2e3.
 CAPSTAN_FACTOR_WARN = 100.0
