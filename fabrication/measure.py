@@ -364,8 +364,8 @@ def measure_design(
         if in_plane_gap <= HINGE_GAP_TOL_MM:
             cause = (
                 f"seen from above the hinges meet to {in_plane_gap:.2g} mm; the rest is the "
-                "tiles' thickness difference (the quad mesh is not conical), which the hinge "
-                "parts bridge; --hinges top puts every hinge on the top faces, where it closes"
+                "tiles' thickness difference at bottom hinges (the quad mesh is not conical); "
+                "--hinges top puts every hinge on the top faces, where it closes"
             )
         elif not options.co_optimize:
             cause = (
@@ -373,12 +373,9 @@ def measure_design(
                 "approximates the assembled tiles; drop that option to close it"
             )
         elif options.hinges == "dual":
-            cause = (
-                "the hinge parts bridge it; more tiles shrink it, and --hinges top reaches "
-                "1e-3 mm on most built-ins"
-            )
+            cause = "more tiles shrink it, and --hinges top reaches 1e-3 mm on most built-ins"
         else:
-            cause = "the hinge parts bridge it; more tiles shrink it"
+            cause = "more tiles shrink it"
         warnings.append(
             f"hinge gap {above(hinge_gap, HINGE_GAP_TOL_MM)} mm exceeds {HINGE_GAP_TOL_MM:g} mm: "
             f"{cause}"
@@ -428,9 +425,9 @@ def measure_design(
         warnings.append(
             f"the string's channels bend {channel_turn:.3g} rad in all, so with friction "
             f"{profile.friction_coefficient:g} the pull needs {capstan:.3g} times the tension "
-            f"that reaches the far end (over {CAPSTAN_FACTOR_WARN:g}); a slicker string and "
-            "channel (a profile with a lower friction_coefficient), fewer tiles or fewer "
-            "parts (a larger --max-scale-factor) lower it"
+            f"that reaches the far end (over {CAPSTAN_FACTOR_WARN:g}): the far tiles may not "
+            "close; a slicker string and channel (a profile with a lower "
+            "friction_coefficient) lowers it"
         )
     if len(route.lifts_missed):
         missed = route.lifts_missed.tolist()

@@ -160,7 +160,9 @@ SURFACE_MEAN_REL = 0.02
 SURFACE_MAX_REL = 0.02
 #: Largest capstan factor of the string's channels in the assembled pose (the pull force over
 #: the force that reaches the far end, ``exp(mu * bend)``) before a warning: a firm hand pull of
-#: about 100 N then leaves about 1 N to close the last gaps.  The 200-tile saddle is at 14,
-#: the seashell at 157, the seven-part three-shell at 2.1e4 (all at 200 mm), and the face
-#: scan at the defaults at 1.2e3.
-CAPSTAN_FACTOR_WARN = 100.0
+#: about 100 N then leaves about 0.1 N to close the last gaps.  At 100, seven of the ten
+#: CLI-default designs were flagged (dome 185, wave 193, cloud 202, three-shell 603,
+#: hemisphere 735, face scan 1.2e3, peanut 4.0e3; the saddle 14), which deploy in the
+#: simulation (it has no friction): a warning on most designs tells a user nothing.  At 200
+#: tiles and 200 mm the seven-part three-shell is at 2.1e4.
+CAPSTAN_FACTOR_WARN = 1000.0
