@@ -389,9 +389,12 @@ def _run_view(args: argparse.Namespace) -> int:
     from .report import open_report
 
     folder = Path(args.folder)
+    if not folder.exists():
+        raise InputError(f"{folder} does not exist; give the folder drawstring design wrote")
     if not (folder / "design.json").is_file():
         raise InputError(f"{folder} is not a drawstring design folder (no design.json)")
-    print(open_report(folder))
+    path, opened = open_report(folder)
+    print(path if opened else f"{path} (no browser could be started here: open it by hand)")
     return 0
 
 

@@ -36,6 +36,44 @@ IntArray = NDArray[np.int64]
 # Reading the output folder
 # ----------------------------------------------------------------------------------------------
 
+#: The type of every top-level entry of ``design.json`` (see the output contract in README).
+DESIGN_JSON_TYPES: dict[str, type] = {
+    "drawstring_version": str,
+    "target": dict,
+    "options": dict,
+    "profile": str,
+    "linkage": dict,
+    "metrics": dict,
+    "notes": list,
+    "problems": list,
+    "warnings": list,
+    "timings_s": dict,
+    "files": list,
+}
+
+
+def _json_kind(value: Any) -> str:
+    """The JSON name of a parsed value's type."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "a boolean"
+    names = {dict: "an object", list: "an array", str: "a string", int: "a number"}
+    return names.get(type(value), "a number" if isinstance(value, float) else type(value).__name__)
+
+
+def design_json_faults(doc: Any) -> list[str]:
+    """What is wrong with the shape of a parsed ``design.json`` (empty: nothing): not an
+    object, or a top-level entry of another type than the output contract's.  Entries that
+    are missing are not faults here (a reader asks for those it needs)."""
+    if not isinstance(doc, dict):
+        return [f"design.json holds {_json_kind(doc)}, not an object"]
+    return [
+        f"design.json's '{key}' is {_json_kind(doc[key])}, not {_json_kind(kind())}"
+        for key, kind in DESIGN_JSON_TYPES.items()
+        if key in doc and not isinstance(doc[key], kind)
+    ]
+
 
 def read_obj_tiles(path: Path) -> FloatArray:
     """Tiles of an output OBJ (``assembled.obj``, ``flat.obj``).

@@ -25,6 +25,7 @@ from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import Linkage
 from drawstring.geometry.simulate import simulate_stage
 
+from .design_folder import design_json_faults
 from .measure import _jsonable
 
 if TYPE_CHECKING:
@@ -257,6 +258,7 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
         EOFError,
         ValueError,
         KeyError,
+        AttributeError,
         TypeError,
         IndexError,
         zipfile.BadZipFile,
@@ -361,6 +363,9 @@ def _read_design(
     from drawstring.geometry.linkage import Split, build_linkage
 
     doc = json.loads(design_path.read_text(encoding="utf-8"))
+    faults = design_json_faults(doc)
+    if faults:
+        raise InputError(f"{root}: {faults[0]}; run drawstring design again")
     block = doc.get("linkage", {})
     if "tile_cells" not in block:
         raise InputError(
@@ -375,6 +380,11 @@ def _read_design(
         for s in block.get("split_lines", [])
     )
     linkage = build_linkage(cells, splits)
+    if block.get("tiles", linkage.n_tiles) != linkage.n_tiles:
+        raise InputError(
+            f"{root}: design.json's linkage gives {block['tiles']} tiles but its cells make "
+            f"{linkage.n_tiles}; run drawstring design again"
+        )
     with np.load(root / "tiles.npz") as stored:
         assembled, fabricated = stored["assembled"], stored["fabricated"]
     hinges = json.loads((root / "hinges.json").read_text(encoding="utf-8"))["hinges"]

@@ -32,11 +32,10 @@ from drawstring.fabrication.design_folder import (
     COINCIDENT_CORNER_REL as COINCIDENT_CORNER_REL,
 )
 from drawstring.fabrication.design_folder import (
-    MAX_FRAME_VALUES as MAX_FRAME_VALUES,
-)
-from drawstring.fabrication.design_folder import (
+    DESIGN_JSON_TYPES,
     FloatArray,
     Route,
+    design_json_faults,
     hinges_from_flat,
     neighbour_lists,
     read_deploy_frames,
@@ -46,6 +45,9 @@ from drawstring.fabrication.design_folder import (
     subsample_frames,
     tile_volumes,
     touching_tiles,
+)
+from drawstring.fabrication.design_folder import (
+    MAX_FRAME_VALUES as MAX_FRAME_VALUES,
 )
 from drawstring.fabrication.design_folder import IntArray as IntArray
 from drawstring.fabrication.design_folder import (
@@ -177,6 +179,12 @@ def _load(folder: Path) -> _Folder:
             design = json.loads(path.read_text(encoding="utf-8"))
         except ValueError as err:
             problems.append(f"design.json is not valid JSON ({err})")
+        faults = design_json_faults(design)
+        if faults:  # the page is made of what is left
+            problems += faults
+            design = {} if not isinstance(design, dict) else design
+            design = {k: v for k, v in design.items() if k not in DESIGN_JSON_TYPES
+                      or isinstance(v, DESIGN_JSON_TYPES[k])}  # fmt: skip
 
     def attempt(name: str, reader: Callable[[Path], Any]) -> Any:
         if not (folder / name).is_file():
@@ -716,11 +724,11 @@ def write_report(folder: Path | str) -> Path:
     return path
 
 
-def open_report(folder: Path | str) -> Path:
-    """Open ``folder/report.html`` in the default browser, writing it first if missing."""
+def open_report(folder: Path | str) -> tuple[Path, bool]:
+    """Open ``folder/report.html`` in the default browser, writing it first if missing; the
+    page's path, and whether a browser took it (False on a machine without one)."""
     folder = Path(folder)
     path = folder / "report.html"
     if not path.is_file():
         path = write_report(folder)
-    webbrowser.open(path.resolve().as_uri())
-    return path
+    return path, bool(webbrowser.open(path.resolve().as_uri()))

@@ -337,7 +337,9 @@ def test_bad_profile_file_is_refused(tmp_path: Path) -> None:
     assert not out.exists()
 
 
-def test_simulate_an_existing_design(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_simulate_an_existing_design(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
     out = tmp_path / "d"
     args = ["design", "saddle", "--grid", "6", "5", "--resolution", "1500", "--no-cad"]
     assert main([*args, "--no-simulate", "--quiet", "--out", str(out)]) == 0
@@ -363,10 +365,24 @@ def test_simulate_an_existing_design(tmp_path: Path, capsys: pytest.CaptureFixtu
     flipped = tiles[:middle] + bytes(b ^ 0xFF for b in tiles[middle : middle + 64])
     route = json.loads((out / "route.json").read_text())
     route["steps"][0]["tile"] = 10_000
+    doc = json.loads(before)
+
+    def changed(**entries: object) -> bytes:
+        return json.dumps({**doc, **entries}).encode()
+
+    more_tiles = {**doc["linkage"], "tiles": doc["linkage"]["tiles"] + 1}
     for name, damaged, complaint in (
         ("tiles.npz", tiles[:100], "cannot be read"),
         ("tiles.npz", flipped + tiles[middle + 64 :], "cannot be read"),
         ("route.json", json.dumps(route).encode(), "do not match"),
+        # valid JSON of the wrong shape (these raised AttributeError / TypeError)
+        ("design.json", b"[]", "design.json holds an array, not an object"),
+        ("design.json", b"null", "design.json holds null, not an object"),
+        ("design.json", changed(metrics=5), "design.json's 'metrics' is a number, not an object"),
+        ("design.json", changed(target=None), "design.json's 'target' is null, not an object"),
+        ("design.json", changed(files=3), "design.json's 'files' is a number, not an array"),
+        # a tile count the cells do not make (was simulated and reported as 31 tiles)
+        ("design.json", changed(linkage=more_tiles), "gives 31 tiles but its cells make 30"),
     ):
         good = (out / name).read_bytes()
         (out / name).write_bytes(damaged)
@@ -374,8 +390,19 @@ def test_simulate_an_existing_design(tmp_path: Path, capsys: pytest.CaptureFixtu
         err = capsys.readouterr().err.strip()
         assert complaint in err and "run drawstring design again" in err
         assert len(err.splitlines()) == 1
-        assert (out / "design.json").read_bytes() == before
+        assert (out / "design.json").read_bytes() == (damaged if name == "design.json" else before)
         (out / name).write_bytes(good)
+    # drawstring view writes the page from what is left, listing what is wrong
+    (out / "design.json").write_bytes(changed(metrics=5, options=[]))
+    (out / "report.html").unlink()
+    import webbrowser
+
+    monkeypatch.setattr(webbrowser, "open", lambda url: False)  # a machine with no browser
+    assert main(["view", str(out)]) == 0
+    assert "no browser could be started here: open it by hand" in capsys.readouterr().out
+    page = (out / "report.html").read_text()
+    assert "design.json&#x27;s &#x27;metrics&#x27; is a number, not an object" in page
+    assert "design.json&#x27;s &#x27;options&#x27; is an array, not an object" in page
 
 
 def test_simulate_repeats_the_designs_own_run_exactly(tmp_path: Path) -> None:

@@ -289,9 +289,12 @@ def test_open_report_writes_then_opens(tmp_path: Path, monkeypatch: pytest.Monke
 
     monkeypatch.setattr(webbrowser, "open", fake_open)
     (tmp_path / "design.json").write_text("{}")
-    path = report.open_report(tmp_path)
-    assert path == tmp_path / "report.html" and path.is_file()
+    path, shown = report.open_report(tmp_path)
+    assert path == tmp_path / "report.html" and path.is_file() and shown
     assert opened == [path.resolve().as_uri()]
+    # no browser on this machine: said so
+    monkeypatch.setattr(webbrowser, "open", lambda url: False)
+    assert report.open_report(tmp_path) == (path, False)
 
 
 def _page_data(page: str) -> dict[str, Any]:
