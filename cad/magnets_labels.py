@@ -210,8 +210,30 @@ _SEGMENTS_OF_DIGIT = {
 }
 
 
+#: The digit each seven-segment digit shows when turned half a turn (3, 4 and 7 show none).
+_TURNED_DIGIT = {"0": "0", "1": "1", "2": "2", "5": "5", "6": "9", "8": "8", "9": "6"}
+#: An underline (a stroke's gap, then a stroke) adds this many digit heights below a label.
+_UNDERLINE_ROWS = 2.0 * _DIGIT_STROKE
+
+
+def reads_as_another(text: str) -> bool:
+    """Whether ``text`` in seven-segment digits turned half a turn shows another number (6 and
+    9, 16 and 91): such labels are underlined, as on dice.  Tiles of a loose print are turned
+    every way on the bed."""
+    if not all(char in _TURNED_DIGIT for char in text):
+        return False
+    return "".join(_TURNED_DIGIT[char] for char in reversed(text)) != text
+
+
+def _label_rows(text: str) -> float:
+    """Height of ``text``'s label, digits and any underline, in digit heights."""
+    return 1.0 + (_UNDERLINE_ROWS if reads_as_another(text) else 0.0)
+
+
 def _segment_rectangles(text: str, height: float) -> list[NDArray[np.float64]]:
-    """Seven-segment outlines of ``text`` ((4, 2) rectangles, mm), centred on the origin.
+    """Seven-segment outlines of ``text`` ((4, 2) rectangles, mm), centred on the origin
+    (``height`` the digits' height; a label that turned reads as another number gets an
+    underline below them, :func:`reads_as_another`).
 
     Segments of a digit are separated by small gaps, so the rectangles never touch.
     """
@@ -220,6 +242,7 @@ def _segment_rectangles(text: str, height: float) -> list[NDArray[np.float64]]:
     spacing = _DIGIT_SPACING * height
     total = len(text) * width + (len(text) - 1) * spacing
     half = 0.5 * height
+    rise = 0.5 * (_label_rows(text) - 1.0) * height  # the digits move up to make room
     boxes = {
         "a": (stroke + gap, width - stroke - gap, height - stroke, height),
         "g": (stroke + gap, width - stroke - gap, half - stroke / 2, half + stroke / 2),
@@ -235,8 +258,14 @@ def _segment_rectangles(text: str, height: float) -> list[NDArray[np.float64]]:
         for segment in _SEGMENTS_OF_DIGIT[char]:
             a, b, c, d = boxes[segment]
             rectangles.append(
-                np.array([[x0 + a, c], [x0 + b, c], [x0 + b, d], [x0 + a, d]]) - [0.0, half]
+                np.array([[x0 + a, c], [x0 + b, c], [x0 + b, d], [x0 + a, d]]) - [0.0, half - rise]
             )
+    if rise > 0:
+        low = -half - rise
+        rectangles.append(
+            np.array([[-0.5 * total, low], [0.5 * total, low], [0.5 * total, low + stroke],
+                      [-0.5 * total, low + stroke]])
+        )  # fmt: skip
     return rectangles
 
 
@@ -360,15 +389,17 @@ def label_engraving(
     edge = nxt - corners2d
     inradius = float(np.min(np.abs(_cross2(edge, -corners2d)) / np.linalg.norm(edge, axis=1)))
     text = str(tile_id)
+    rows = _label_rows(text)
     width_over_height = len(text) * _DIGIT_WIDTH + (len(text) - 1) * _DIGIT_SPACING
-    height = LABEL_FILL * inradius / float(np.hypot(0.5 * width_over_height, 0.5))
+    height = LABEL_FILL * inradius / float(np.hypot(0.5 * width_over_height, 0.5 * rows))
     min_stroke = feature_wall_mm(profile)
     if keep_out:
         footprints = []
         for points, radius in keep_out:
             rel = np.asarray(points, dtype=np.float64).reshape(-1, 3) - centre
             footprints.append((np.stack([rel @ axis_x, rel @ axis_y], axis=1), float(radius)))
-        height = _label_clear_height(height, width_over_height, footprints, min_stroke)
+        block = _label_clear_height(height * rows, width_over_height / rows, footprints, min_stroke)
+        height = block / rows
     if _DIGIT_STROKE * height < min_stroke:
         # debug: the design lists the tiles without numbers in one note
         log.debug(

@@ -188,6 +188,8 @@ class Part2D:
     circles : (c, 3) round holes ``(x, y, radius)``, cut.
     strokes : engraving polylines (k, 2), open.
     drills : (d, 3) round holes ``(x, y, radius)`` drilled (on the DRILL layer, no kerf).
+    text_angle : reading direction (rad) of the part's engraved text, None without text; the
+        nesting keeps it reading left to right (or upwards), so that a 6 is not a 9.
     """
 
     name: str
@@ -196,6 +198,7 @@ class Part2D:
     circles: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
     strokes: list[NDArray[np.float64]] = field(default_factory=list)
     drills: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
+    text_angle: float | None = None
 
     @property
     def area(self) -> float:
@@ -218,6 +221,7 @@ class Part2D:
             circles,
             [rotate(s, angle) + shift for s in self.strokes],
             drills,
+            None if self.text_angle is None else self.text_angle + angle,
         )
 
     def kerf_compensated(self, kerf: float) -> Part2D:
@@ -233,6 +237,7 @@ class Part2D:
             circles,
             list(self.strokes),
             self.drills.copy(),
+            self.text_angle,
         )
 
 
@@ -349,6 +354,13 @@ def place_outlines(
     return sheet_index, angles, shift, np.where(turned[:, None], sizes[:, ::-1], sizes)
 
 
+def reads_forwards(angle: float) -> bool:
+    """Whether text whose baseline runs at ``angle`` (rad) reads left to right, or upwards
+    where it runs vertically (within a thousandth of a radian), rather than upside down."""
+    c, s = np.cos(angle), np.sin(angle)
+    return bool(c > 1e-3 or (abs(c) <= 1e-3 and s > 0))
+
+
 def nest_parts(
     parts: Sequence[Part2D], sheet: tuple[float, float], kerf: float, spacing: float
 ) -> Nesting:
@@ -357,6 +369,12 @@ def nest_parts(
     sheet_index, angles, shift, _ = place_outlines(
         [part.outline for part in prepared], sheet, spacing, SHEET_MARGIN_MM
     )
+    for i, part in enumerate(prepared):
+        if part.text_angle is not None and not reads_forwards(part.text_angle + angles[i]):
+            # half a turn keeps the bounding rectangle: the text then reads forwards
+            before = rotate(part.outline, float(angles[i])).min(axis=0)
+            angles[i] += np.pi
+            shift[i] += before - rotate(part.outline, float(angles[i])).min(axis=0)
     n_sheets = int(sheet_index.max()) + 1 if len(parts) else 0
     sheets: list[list[Part2D]] = [[] for _ in range(n_sheets)]
     used = np.zeros(n_sheets)

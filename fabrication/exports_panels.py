@@ -264,7 +264,9 @@ def tile_panels(
             ):
                 centre = np.array([centre[0], y - r - height])
         strokes = text_strokes(label, height, centre)
-        part = Part2D(f"tile_{tile_id}_{FACE_NAMES[face]}", polygon, [], circles, strokes, drills)
+        part = Part2D(
+            f"tile_{tile_id}_{FACE_NAMES[face]}", polygon, [], circles, strokes, drills, 0.0
+        )
         panels.append(Panel(tile_id, FACE_NAMES[face], part, tuple(panel_edges), p))
     return panels
 

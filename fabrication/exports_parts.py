@@ -124,6 +124,7 @@ def strip_part(
     outline, _ = planar_outline(pad)
     strokes: list[NDArray[np.float64]] = []
     fits = True
+    reading: float | None = None
     for tile, corner, direction in hinge_halves(tiles, hinge, side):
         text = str(tile)
         start, stop = 0.5 * width, half_length
@@ -132,11 +133,15 @@ def strip_part(
             fits = False
             continue
         angle = float(np.arctan2(direction[1], direction[0]))
-        if not -0.5 * np.pi < angle <= 0.5 * np.pi:
-            angle += np.pi if angle <= -0.5 * np.pi else -np.pi
+        # both labels read the same way along the strip: within a quarter turn of the first
+        # (which reads left to right here; the nesting keeps it so, see nest_parts)
+        ref = 0.0 if reading is None else reading
+        angle = ref + float(np.mod(angle - ref + 0.5 * np.pi, np.pi)) - 0.5 * np.pi
         centre = corner + 0.5 * (start + stop) * direction
         strokes += text_strokes(text, height, centre, angle)
-    return Part2D(f"hinge_{hinge_id}", outline, [], np.zeros((0, 3)), strokes), fits
+        reading = angle if reading is None else reading  # the halves run along one line
+    part = Part2D(f"hinge_{hinge_id}", outline, [], np.zeros((0, 3)), strokes, text_angle=reading)
+    return part, fits
 
 
 def _inside(polygon: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.bool_]:

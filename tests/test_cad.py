@@ -7,6 +7,7 @@ import json
 import pickle
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -182,6 +183,29 @@ def test_label_is_sized_to_the_bottom_face(profile: Profile) -> None:
     assert label_engraving(_box(1.0), 187, profile) is None  # too small to engrave
     with pytest.raises(InputError):
         label_engraving(tile, -1, profile)
+
+
+def test_labels_that_turned_read_as_another_number_are_underlined(profile: Profile) -> None:
+    # Loose tiles lie every way on the bed, and a seven-segment 6 turned half a turn is a 9
+    # (a user-acceptance review): those labels get an underline, as on dice; the rest do not.
+    from drawstring.cad.magnets_labels import reads_as_another
+
+    assert [t for t in ("6", "9", "16", "91", "25", "18") if not reads_as_another(t)] == []
+    assert [t for t in ("8", "69", "11", "101", "7", "187", "34") if reads_as_another(t)] == []
+    tile = _box(12.0)
+    six, eight = label_engraving(tile, 6, profile), label_engraving(tile, 8, profile)
+    assert six is not None and eight is not None
+    assert len(six.solids()) == 6 + 1 and len(eight.solids()) == 7  # segments (+ underline)
+    digits = six.bounding_box()
+
+    def full_width(label: Any) -> int:  # rectangles as wide as the whole label
+        width = label.bounding_box().size.X
+        return sum(abs(solid.bounding_box().size.X - width) < 1e-6 for solid in label.solids())
+
+    assert full_width(six) == 1 and full_width(eight) == 0
+    # the block, underline included, stays centred on the face and within the digits' fit
+    assert digits.center().Y == pytest.approx(6.0) and digits.center().X == pytest.approx(6.0)
+    assert digits.size.Y < eight.bounding_box().size.Y * (1.0 + 2 * 0.18) + 1e-9
 
 
 def test_magnet_pockets_face_each_other(profile: Profile) -> None:

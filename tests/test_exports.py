@@ -32,9 +32,14 @@ from drawstring.fabrication.exports_dxf import (  # noqa: E402
     CUT_LAYERS,
     LAYER_CUT_OUTER,
     LAYER_SHEET,
+    Part2D,
+    nest_parts,
     offset_polygon,
+    reads_forwards,
+    rotate,
     shelf_pack,
     signed_area,
+    text_strokes,
 )
 from drawstring.fabrication.profiles import Profile, load_profile  # noqa: E402
 from drawstring.geometry.errors import InputError  # noqa: E402
@@ -752,6 +757,31 @@ def test_offset_and_shelf_pack_known_answers() -> None:
     assert turned.tolist() == [False, True]
     with pytest.raises(InputError, match="does not fit"):
         shelf_pack(np.array([[50.0, 10.0]]), (45.0, 60.0), 2.0, 1.0, turn=False)
+
+
+def test_nested_labels_read_forwards_so_a_six_stays_a_six() -> None:
+    # A strip engraved "6" along its length, drawn at every eighth of a turn: the nesting turns
+    # each to its smallest bounding rectangle, which left about half of them upside down (a
+    # user-acceptance review read tile 8's strip as "6 8" and 56's as "95").  Turned half a
+    # turn more where needed, every label reads left to right or upwards, the engraving is the
+    # upright "6" drawn where it lies, and the parts still fit their sheet without overlap.
+    strip = np.array([[-6.0, -1.0], [6.0, -1.0], [6.0, 1.0], [-6.0, 1.0]])
+    parts = []
+    for k in range(8):
+        angle = 0.25 * np.pi * k + 0.1
+        outline = rotate(strip, angle) + [3.0 * k, 1.0]
+        strokes = text_strokes("6", 1.5, outline.mean(axis=0), angle)
+        parts.append(Part2D(f"strip_{k}", outline, strokes=strokes, text_angle=angle))
+    nesting = nest_parts(parts, (60.0, 40.0), kerf=0.0, spacing=1.0)
+    placed = [part for sheet in nesting.sheets for part in sheet]
+    assert len(placed) == 8
+    for part in placed:
+        assert part.text_angle is not None and reads_forwards(part.text_angle)
+        upright = text_strokes("6", 1.5, part.outline.mean(axis=0), part.text_angle)
+        assert all(np.allclose(a, b, atol=1e-9) for a, b in zip(part.strokes, upright, strict=True))
+        assert np.all(part.outline >= 0.0) and np.all(part.outline <= [60.0, 40.0])
+    turned = [k for k in range(8) if not reads_forwards(0.25 * np.pi * k + 0.1)]
+    assert turned, "some strips start upside down"
 
 
 def test_a_design_states_one_mass_and_route_length_everywhere(tmp_path: Path) -> None:
