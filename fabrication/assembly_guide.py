@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.cad.paths import SIDE_TOP_FACE, lift_path, route_openings
+from drawstring.fabrication.profiles import string_is_cable
 from drawstring.geometry.linkage import id_runs
 
 if TYPE_CHECKING:
@@ -663,11 +664,18 @@ def _write_assembly(
         )
         lines.append("")
         width, height = est.get("placement_size_mm", (0.0, 0.0))
+        # the numbers are engraved in the bottom faces (laser) or inside the boxes (plywood)
+        on_top = (
+            "by number (read each tile's number in its bottom face before you lay it down)"
+            if profile.process == "laser-epdm"
+            else "matching their outlines"
+        )
         text = (
             f"Print `placement.svg` at 100 % (1:1; it is {width:g} x {height:g} mm: on a large-"
             "format printer, or tiled over several sheets taped together), lay the tiles on it "
-            "by number, and fix each strip where the template shows it (blue, marked with a "
-            "circle: on the top faces; orange, marked with a square: on the bottom faces)."
+            f"top faces up {on_top}, and fix each strip where the template shows it (blue, "
+            "marked with a circle: on the top faces; orange, marked with a square: on the "
+            "bottom faces)."
         )
         if any(side != "top" for side in sides):
             # laser tiles carry their numbers in their bottom faces; plywood boxes inside
@@ -713,7 +721,7 @@ def _write_assembly(
             )
         lines.append("")
     lines += _threading_text(next(section), steps, lifts, pictures[1], tail)
-    lines += _pull_text(next(section), steps, lifts, pictures[2])
+    lines += _pull_text(next(section), steps, lifts, pictures[2], string_is_cable(profile))
     if record.notes:
         lines += ["## Notes", ""] + [f"- {n}" for n in record.notes] + [""]
     del panels
@@ -816,9 +824,19 @@ def _threading_text(
 
 
 def _pull_text(
-    number: int, steps: NDArray[np.int64], lifts: NDArray[np.int64], picture: str
+    number: int,
+    steps: NDArray[np.int64],
+    lifts: NDArray[np.int64],
+    picture: str,
+    cable: bool = False,
 ) -> list[str]:
-    """The pull section of assembly.md: what to hold and lift, where, and how to finish."""
+    """The pull section of assembly.md: what to hold and lift, where, and how to finish
+    (``cable``: a wire cable, crimped rather than knotted)."""
+    join = (
+        "join the two ends with the crimp ferrule (or two wire-rope clips), pulled tight,"
+        if cable
+        else "knot the two ends together"
+    )
     guide = _guide(steps, lifts)
     lines = [f"## {number}. Pull", "", f"![pull]({picture})", ""]
     ends = [s for s in guide.stops if s.tails]
@@ -834,11 +852,11 @@ def _pull_text(
 
     if ends:
         held = f"the two string ends at lift point {ends[0].letter} ({tiles_of(ends[0])})"
-        finish = f"knot the two ends together on top of {tiles_of(ends[0])}"
+        finish = f"{join} on top of {tiles_of(ends[0])}"
     elif len(steps):
         tile = int(steps[guide.order[0], 1])
         held = f"the two string ends at tile {tile}"
-        finish = f"knot the two ends together at tile {tile}"
+        finish = f"{join} at tile {tile}"
     else:
         held, finish = "the string", "tie it off"
     grip = "Hold " + held

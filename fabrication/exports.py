@@ -59,6 +59,7 @@ from drawstring.fabrication.exports_step import (
     start_step_writers,
     stop_step_writers,
 )
+from drawstring.fabrication.profiles import string_is_cable
 
 if TYPE_CHECKING:
     from drawstring.cad.design import CadResult
@@ -743,8 +744,31 @@ def write_fabrication(
                 length_mm=string_mm,
             )
         )
+        if string_is_cable(profile):  # a cable is not knotted (assembly.md, Pull)
+            record.bom.append(
+                _row(
+                    "ferrule",
+                    f"crimp ferrule for {profile.string_diameter_mm:g} mm cable (or two "
+                    "wire-rope clips)",
+                    1,
+                    "aluminium",
+                    0.0,
+                    "joins the two ends once the part is pulled shut",
+                )
+            )
         record.unlabelled = list(cad_flat.unlabelled)
         magnets = cad_flat.magnets
+        if profile.process == "fdm-dual" and (magnets or record.estimates.get("cut_hinges")):
+            glued = " and ".join(
+                what
+                for what, used in (
+                    ("loose hinge pads", bool(record.estimates.get("cut_hinges"))),
+                    ("magnets", bool(magnets)),
+                )
+                if used
+            )
+            record.bom.append(_row("glue", f"CA (cyanoacrylate) glue for the {glued}", 1, "",
+                                   0.0, "one small tube"))  # fmt: skip
         if magnets:
             polarity = "; ".join(
                 f"tile {m.tile_a} side {m.side_a} {m.polarity_a} out / "

@@ -392,3 +392,10 @@ def rough_estimate(profile: Profile, size_mm: float, tiles: int) -> RoughEstimat
         hours=seconds / 3600.0,
         basis=" + ".join(basis) or "no machine time",
     )
+
+
+def string_is_cable(profile: Profile) -> bool:
+    """Whether the profile's string is a wire cable (steel, wire rope), whose ends are joined
+    with a crimp ferrule or a wire-rope clip: it cannot be knotted."""
+    material = profile.string_material.lower()
+    return any(word in material for word in ("cable", "wire", "steel"))

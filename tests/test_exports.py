@@ -8,6 +8,7 @@ import itertools
 import json
 import math
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -646,6 +647,26 @@ def test_the_guide_names_the_tiles_without_a_number(built: Built, tmp_path: Path
     assert ("carry no number" in plain) == bool(built.flat.unlabelled)
 
 
+def test_what_the_guide_asks_for_is_in_the_bom(built: Built) -> None:
+    """A user-acceptance review: the fdm guide asked for glue the BOM did not list, the
+    plywood guide said to knot a steel cable, and the laser guide laid tiles top up "by
+    number" with the numbers under them."""
+    guide = (built.folder / "fabrication/assembly.md").read_text()
+    bom = list(csv.DictReader((built.folder / "fabrication/bom.csv").open()))
+    items = [row["item"] for row in bom]
+    if re.search(r"\b[Gg]lue", guide.replace("glued", "")):
+        assert "glue" in items
+    cable = built.profile.process == "plywood-cnc"  # vinyl-coated stainless steel cable
+    assert ("knot the two ends" in guide) != cable
+    assert ("crimp ferrule" in guide) == cable == ("ferrule" in items)
+    if built.profile.process == "laser-epdm":
+        assert "top faces up by number (read each tile's number in its bottom face" in guide
+    if built.profile.process == "fdm-dual":
+        magnets = bool(len(built.design.magnet_pairs))
+        glue = [row["description"] for row in bom if row["item"] == "glue"]
+        assert glue == (["CA (cyanoacrylate) glue for the magnets"] if magnets else [])
+
+
 def test_plywood_channel_tubes_name_their_tile_and_step(built: Built) -> None:
     """Each channel tube in manifest.json carries its tile and route step (or lift bore), in
     route order, with the length bom.csv counts."""
@@ -1107,6 +1128,12 @@ def test_print_jobs_share_beds_where_they_fit_and_each_bed_has_a_file(
     guide = (tmp_path / "fabrication/assembly.md").read_text()
     if per_bed:
         assert f"`{stem}-bed1.3mf` to `{stem}-bed{len(beds)}.3mf`" in guide
+    # the loose pads are glued in (CA glue, as the guide says), and the BOM lists the glue
+    assert "glue it into the recess (CA glue)" in guide
+    glue = [
+        r for r in csv.DictReader((tmp_path / "fabrication/bom.csv").open()) if r["item"] == "glue"
+    ]
+    assert len(glue) == 1 and "loose hinge pads" in glue[0]["description"]
     loose = [job for job in jobs if job.get("loose")]
     if loose:  # the guide says how to find each loose pad
         assert "in the order of this list" in guide
