@@ -396,6 +396,10 @@ def _summary(found: _Folder, view: dict[str, Any]) -> str:
         length_text = f"{float(length):.0f} mm"
     else:
         length_text = "not computed yet"
+    cad = metrics.get("cad") if isinstance(metrics, dict) else None
+    cut = cad.get("string_length_mm") if isinstance(cad, dict) else None
+    if isinstance(cut, int | float):  # what to cut: the flat route, a margin and two tails
+        length_text += f"; cut {float(cut) / 1000:.2f} m of string (bom.csv)"
     rows.append(("String length", length_text))
     lifts = metrics.get("lift_points")
     if isinstance(lifts, list):

@@ -234,7 +234,13 @@ def test_report_of_a_full_folder(tmp_path: Path) -> None:
     assert "drawstring design: fake-dome" in page
     assert "✗ 1 of 4 checks fail: flat_overlap_area_mm2" in page
     assert "mystery_number" in page and "data:image/png;base64," in page
-    assert "321 mm" in page  # string length
+    assert "321 mm" in page and "of string (bom.csv)" not in page  # route length; no CAD yet
+    # with the fabrication files, the length to cut too (the route alone misled a review)
+    doc = json.loads((tmp_path / "design.json").read_text())
+    doc["metrics"]["cad"] = {"string_length_mm": 1360.4}
+    (tmp_path / "design.json").write_text(json.dumps(doc))
+    again = report.write_report(tmp_path).read_text(encoding="utf-8")
+    assert "321 mm; cut 1.36 m of string (bom.csv)" in again
     assert "globalThis.THREE=Object.freeze(" in page
     # Self-contained: nothing fetched from anywhere.
     assert "src='http" not in page and 'src="http' not in page and "<link" not in page
