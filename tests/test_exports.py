@@ -328,6 +328,12 @@ def test_3mf_meshes_and_extruders(built: Built) -> None:
     assert volume == pytest.approx(cad, rel=0.01)
     with zipfile.ZipFile(path) as archive:
         names = archive.namelist()
+        # every declared base material is used (loose tiles declared an unused "pad")
+        model = ET.fromstring(archive.read("3D/3dmodel.model"))
+        core = "{http://schemas.microsoft.com/3dmanufacturing/core/2015/02}"
+        declared = len(model.findall(f"{core}resources/{core}basematerials/{core}base"))
+        used = {t.get("p1") for t in model.iter(f"{core}triangle")}
+        assert used == {str(k) for k in range(declared)}
         if process != "fdm-dual":
             assert "Metadata/Slic3r_PE_model.config" not in names
             return
