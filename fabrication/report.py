@@ -436,11 +436,23 @@ def _verdict(rows: list[MetricRow]) -> str:
     failed = [r for r in marked if not r.passed]
     if not marked:
         return "<p class='verdict info'>No checks yet: this design has no metric with a target.</p>"
-    if failed:
-        names = ", ".join(r.name for r in failed)
+    hard = [r for r in failed if not r.advisory]
+    off = [r for r in failed if r.advisory]
+    off_text = (
+        f"{len(off)} quality target{'s' if len(off) != 1 else ''} missed: "
+        f"{', '.join(r.name for r in off)} (the design can be made; its warnings say what "
+        f"would bring {'them' if len(off) != 1 else 'it'} in)"
+    )
+    if hard:
+        names = ", ".join(r.name for r in hard)
         return (
-            f"<p class='verdict fail'>✗ {len(failed)} of {len(marked)} checks fail: {_e(names)}. "
-            "Look at these before printing.</p>"
+            f"<p class='verdict fail'>✗ {len(hard)} of {len(marked)} checks fail: {_e(names)}. "
+            "Look at these before printing." + (f" Also {_e(off_text)}." if off else "") + "</p>"
+        )
+    if off:
+        return (
+            f"<p class='verdict warn'>⚠ {len(marked) - len(off)} of {len(marked)} checks pass; "
+            f"{_e(off_text)}.</p>"
         )
     if len(marked) == 1:
         return f"<p class='verdict pass'>✓ The one check ({_e(marked[0].name)}) passes.</p>"
@@ -456,9 +468,11 @@ def _metrics_table(rows: list[MetricRow]) -> str:
             mark = "<td class='mark info'>–</td>"
         elif r.passed:
             mark = "<td class='mark pass'>✓ pass</td>"
+        elif r.advisory:
+            mark = "<td class='mark warn'>⚠ off target</td>"
         else:
             mark = "<td class='mark fail'>✗ fail</td>"
-        cls = " class=fail" if r.passed is False else ""
+        cls = "" if r.passed is not False else " class=warn" if r.advisory else " class=fail"
         meaning = _e(r.meaning) if r.meaning else "<span class=note>(no target known)</span>"
         lines.append(
             f"<tr{cls}><td class=mono>{_e(r.name)}</td><td class=num>{_e(r.value)}</td>"

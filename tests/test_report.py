@@ -227,6 +227,26 @@ def test_metric_marks() -> None:
 # ----------------------------------------------------------------------------------------------
 
 
+def test_quality_targets_missed_are_not_failures(tmp_path: Path) -> None:
+    # Every default design missed the surface-distance targets (the paper's weights; a
+    # warning, exit 0) and the page said "✗ 2 of 22 checks fail ... Look at these before
+    # printing" (a user-acceptance review): such targets are marked off target, in amber.
+    make_design_folder(tmp_path)
+    doc = json.loads((tmp_path / "design.json").read_text())
+    doc["metrics"]["flat_overlap_area_mm2"] = 0.0
+    doc["metrics"]["surface_distance_max_mm"] = 9.0  # over 2 % of the 100 mm diagonal
+    (tmp_path / "design.json").write_text(json.dumps(doc))
+    page = report.write_report(tmp_path).read_text(encoding="utf-8")
+    assert "<p class='verdict warn'>⚠ 4 of 5 checks pass; 1 quality target missed: " in page
+    assert "surface_distance_max_mm (the design can be made" in page
+    assert "verdict fail" not in page and "⚠ off target" in page
+    doc["metrics"]["flat_overlap_area_mm2"] = 0.5  # a real failure as well
+    (tmp_path / "design.json").write_text(json.dumps(doc))
+    page = report.write_report(tmp_path).read_text(encoding="utf-8")
+    assert "✗ 1 of 5 checks fail: flat_overlap_area_mm2. Look at these before printing. " in page
+    assert "Also 1 quality target missed: surface_distance_max_mm" in page
+
+
 def test_report_of_a_full_folder(tmp_path: Path) -> None:
     make_design_folder(tmp_path)
     (tmp_path / "flat.png").write_bytes(_tiny_png())
