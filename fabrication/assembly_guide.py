@@ -668,7 +668,8 @@ def _write_assembly(
         on_top = (
             "by number (read each tile's number in its bottom face before you lay it down)"
             if profile.process == "laser-epdm"
-            else "matching their outlines"
+            else "matching their outlines (the engraved numbers are inside the boxes: pencil "
+            "each box's number on its bottom as you glue it)"
         )
         text = (
             f"Print `placement.svg` at 100 % (1:1; it is {width:g} x {height:g} mm: on a large-"
@@ -682,8 +683,7 @@ def _write_assembly(
             by_number = (
                 "by the numbers in their bottom faces"
                 if profile.process == "laser-epdm"
-                else "matching their outlines (the engraved numbers are inside the boxes: "
-                "pencil each box's number on its bottom as you glue it)"
+                else "by the numbers pencilled on their bottoms"
             )
             text += (
                 " The bottom faces' strips go on first, from below: print "

@@ -635,7 +635,15 @@ def write_fabrication(
                     )
                 )
                 record.bom.append(
-                    _row("glue", "contact glue for rubber to PLA", 1, "", 0.0, "one small tube")
+                    _row(
+                        "glue",
+                        "contact glue for rubber to PLA"
+                        + (" (and the magnets)" if cad_flat.magnets else ""),
+                        1,
+                        "",
+                        0.0,
+                        "one small tube",
+                    )
                 )
             else:
                 panel_spacing = max(5.0, 2.0 * profile.tool_diameter_mm)
@@ -718,7 +726,17 @@ def write_fabrication(
                             "one per pair of pilot holes: up to 1 per tile per hinge",
                         )
                     )
-                record.bom.append(_row("glue", "wood glue for the panel joints", 1, "", 0.0, ""))
+                record.bom.append(
+                    _row(
+                        "glue",
+                        "wood glue for the panel joints and channel tubes"
+                        + (" (and the magnets)" if cad_flat.magnets else ""),
+                        1,
+                        "",
+                        0.0,
+                        "",
+                    )
+                )
                 pc, pe = _cut_length(panel_nesting)
                 cut_total += pc
                 engrave_total += pe

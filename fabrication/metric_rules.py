@@ -293,6 +293,8 @@ def evaluate_metrics(design: dict[str, Any]) -> list[MetricRow]:
                     passed = None
                 if not math.isfinite(float(value)):
                     passed = False
-        advisory = rule is not None and rule.advisory
+        # a value that is not finite is a broken measurement: failed, whatever the target
+        finite = not isinstance(value, int | float) or math.isfinite(float(value))
+        advisory = rule is not None and rule.advisory and finite
         rows.append(MetricRow(name, _format_value(value), meaning, target, passed, advisory))
     return rows

@@ -380,7 +380,13 @@ def _read_design(
         for s in block.get("split_lines", [])
     )
     linkage = build_linkage(cells, splits)
-    if block.get("tiles", linkage.n_tiles) != linkage.n_tiles:
+    stated = block.get("tiles", linkage.n_tiles)
+    if isinstance(stated, bool) or not isinstance(stated, int):
+        raise InputError(
+            f"{root}: design.json's linkage.tiles is {stated!r}, not a count; run drawstring "
+            "design again"
+        )
+    if stated != linkage.n_tiles:
         raise InputError(
             f"{root}: design.json's linkage gives {block['tiles']} tiles but its cells make "
             f"{linkage.n_tiles}; run drawstring design again"

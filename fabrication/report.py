@@ -440,8 +440,7 @@ def _verdict(rows: list[MetricRow]) -> str:
     off = [r for r in failed if r.advisory]
     off_text = (
         f"{len(off)} quality target{'s' if len(off) != 1 else ''} missed: "
-        f"{', '.join(r.name for r in off)} (the design can be made; its warnings say what "
-        f"would bring {'them' if len(off) != 1 else 'it'} in)"
+        f"{', '.join(r.name for r in off)}"
     )
     if hard:
         names = ", ".join(r.name for r in hard)
@@ -452,7 +451,8 @@ def _verdict(rows: list[MetricRow]) -> str:
     if off:
         return (
             f"<p class='verdict warn'>⚠ {len(marked) - len(off)} of {len(marked)} checks pass; "
-            f"{_e(off_text)}.</p>"
+            f"{_e(off_text)} (the design can be made; its warnings say what would bring "
+            f"{'them' if len(off) != 1 else 'it'} in).</p>"
         )
     if len(marked) == 1:
         return f"<p class='verdict pass'>✓ The one check ({_e(marked[0].name)}) passes.</p>"

@@ -383,6 +383,7 @@ def test_simulate_an_existing_design(
         ("design.json", changed(files=3), "design.json's 'files' is a number, not an array"),
         # a tile count the cells do not make (was simulated and reported as 31 tiles)
         ("design.json", changed(linkage=more_tiles), "gives 31 tiles but its cells make 30"),
+        ("design.json", changed(linkage={**doc["linkage"], "tiles": "30"}), "is '30', not a count"),
     ):
         good = (out / name).read_bytes()
         (out / name).write_bytes(damaged)

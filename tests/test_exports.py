@@ -667,6 +667,11 @@ def test_what_the_guide_asks_for_is_in_the_bom(built: Built) -> None:
     assert ("crimp ferrule" in guide) == cable == ("ferrule" in items)
     if built.profile.process == "laser-epdm":
         assert "top faces up by number (read each tile's number in its bottom face" in guide
+    if built.profile.process == "plywood-cnc":  # numbers inside the boxes: pencilled outside
+        assert "pencil each box's number on its bottom as you glue it" in guide
+        assert "channel tubes" in next(r["description"] for r in bom if r["item"] == "glue")
+    if "Glue the magnets" in guide or "glue them from inside" in guide:
+        assert "magnets" in " ".join(r["description"] for r in bom if r["item"] == "glue")
     if built.profile.process == "fdm-dual":
         magnets = bool(len(built.design.magnet_pairs))
         glue = [row["description"] for row in bom if row["item"] == "glue"]

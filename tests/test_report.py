@@ -244,7 +244,13 @@ def test_quality_targets_missed_are_not_failures(tmp_path: Path) -> None:
     (tmp_path / "design.json").write_text(json.dumps(doc))
     page = report.write_report(tmp_path).read_text(encoding="utf-8")
     assert "✗ 1 of 5 checks fail: flat_overlap_area_mm2. Look at these before printing. " in page
-    assert "Also 1 quality target missed: surface_distance_max_mm" in page
+    assert "Also 1 quality target missed: surface_distance_max_mm.</p>" in page  # no "can be made"
+    # a quality metric that is not finite is a broken measurement: failed, not off target
+    doc["metrics"]["flat_overlap_area_mm2"] = 0.0
+    doc["metrics"]["surface_distance_max_mm"] = float("nan")
+    (tmp_path / "design.json").write_text(json.dumps(doc))
+    page = report.write_report(tmp_path).read_text(encoding="utf-8")
+    assert "✗ 1 of 5 checks fail: surface_distance_max_mm" in page and "⚠" not in page
 
 
 def test_report_of_a_full_folder(tmp_path: Path) -> None:
