@@ -14,6 +14,7 @@ from OCP.BRepTools import BRepTools, BRepTools_WireExplorer
 from OCP.GCPnts import GCPnts_QuasiUniformDeflection
 from OCP.TopAbs import TopAbs_REVERSED
 
+from drawstring.cad.magnets_labels import reads_as_another
 from drawstring.cad.paths import face_planes
 from drawstring.fabrication.exports_dxf import (
     Part2D,
@@ -110,6 +111,11 @@ def hinge_halves(
     return halves
 
 
+#: A strip number that turned reads as another is underlined this many text heights below
+#: its centre line (inside the strip: the text is at most half the strip's width high).
+STRIP_UNDERLINE_DROP = 0.8
+
+
 def strip_part(
     hinge_id: int,
     pad: bd.Shape,
@@ -139,6 +145,11 @@ def strip_part(
         angle = ref + float(np.mod(angle - ref + 0.5 * np.pi, np.pi)) - 0.5 * np.pi
         centre = corner + 0.5 * (start + stop) * direction
         strokes += text_strokes(text, height, centre, angle)
+        if reads_as_another(text):  # a loose strip turned over: 6 or 9? (underlined)
+            along = np.array([np.cos(angle), np.sin(angle)])
+            below = centre - STRIP_UNDERLINE_DROP * height * np.array([-along[1], along[0]])
+            half = 0.5 * text_width(text, height) * along
+            strokes.append(np.stack([below - half, below + half]))
         reading = angle if reading is None else reading  # the halves run along one line
     part = Part2D(f"hinge_{hinge_id}", outline, [], np.zeros((0, 3)), strokes, text_angle=reading)
     return part, fits

@@ -486,6 +486,42 @@ def test_dxf_reads_back_clean(built: Built, name: str) -> None:
             assert np.any(hi_a <= lo_b) or np.any(hi_b <= lo_a), "nested parts overlap"
 
 
+def test_strip_numbers_that_turned_read_as_another_are_underlined(built: Built) -> None:
+    # A cut strip is a loose part: turned over, its "6" is a "9" (a review), so such numbers
+    # get one more stroke, a line under the number inside the strip; the others do not.
+    if built.profile.process == "fdm-dual":
+        pytest.skip("no cut hinges")
+    from drawstring.cad.magnets_labels import reads_as_another
+    from drawstring.fabrication.exports_parts import STRIP_UNDERLINE_DROP, strip_part
+
+    d, profile = built.design, built.profile
+    seen = set()
+    for h, pad in zip(built.flat.pad_hinge, built.flat.pads, strict=True):
+        part, fits = strip_part(
+            int(h), pad, d.tiles_2d, d.linkage.hinges[h], d.hinge_side[h],
+            profile.hinge_width_mm, 0.5 * profile.hinge_pad_length_mm,
+        )  # fmt: skip
+        if not fits:
+            continue
+        a, b = int(d.linkage.hinges[h][0]), int(d.linkage.hinges[h][2])
+        glyphs = sum(len(text_strokes(str(t), 1.0, np.zeros(2))) for t in (a, b))
+        lines = sum(reads_as_another(str(t)) for t in (a, b))
+        assert len(part.strokes) == glyphs + lines
+        seen.add(lines > 0)
+        # every stroke, underlines included, lies inside the strip's outline
+        assert all(_inside_polygon(part.outline, p) for stroke in part.strokes for p in stroke)
+    assert seen == {True, False}
+    assert STRIP_UNDERLINE_DROP < 1.0
+
+
+def _inside_polygon(polygon: np.ndarray, point: np.ndarray) -> bool:
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    spans = (a[:, 1] > point[1]) != (b[:, 1] > point[1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cross = a[:, 0] + (point[1] - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+    return bool((spans & (point[0] < cross)).sum() % 2 == 1)
+
+
 def test_hinge_strips_are_kerf_compensated(built: Built) -> None:
     if built.profile.process == "fdm-dual":
         pytest.skip("no cut hinges")
