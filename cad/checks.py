@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -104,6 +105,35 @@ def _as_manifold(solid: bd.Shape | manifold3d.Manifold, tolerance: float) -> man
     return solid if isinstance(solid, manifold3d.Manifold) else to_manifold(solid, tolerance)
 
 
+def _near_pairs(
+    meshes_a: Sequence[manifold3d.Manifold],
+    meshes_b: Sequence[manifold3d.Manifold],
+    within: bool,
+    reach: float,
+) -> NDArray[np.int64]:
+    """(K, 2) pairs (i in a, j in b; i < j when ``within`` one list) whose bounding boxes
+    come within ``reach`` (mm) of each other."""
+    boxes_a, boxes_b = _boxes(meshes_a), _boxes(meshes_b)
+    if not len(boxes_a) or not len(boxes_b):
+        return np.zeros((0, 2), dtype=np.int64)
+    centres_a, centres_b = boxes_a.mean(axis=1), boxes_b.mean(axis=1)
+    radius = 0.5 * (
+        np.linalg.norm(np.ptp(boxes_a, axis=1), axis=1).max()
+        + np.linalg.norm(np.ptp(boxes_b, axis=1), axis=1).max()
+    )
+    tree_a, tree_b = cKDTree(centres_a), cKDTree(centres_b)
+    candidates = []
+    for i, near in enumerate(tree_a.query_ball_tree(tree_b, radius + reach + 1e-9)):
+        for j in near:
+            if within and j <= i:
+                continue
+            if np.all(boxes_a[i, 0] - reach <= boxes_b[j, 1]) and np.all(
+                boxes_b[j, 0] - reach <= boxes_a[i, 1]
+            ):
+                candidates.append((i, j))
+    return np.array(sorted(candidates), dtype=np.int64).reshape(-1, 2)
+
+
 def interference(
     solids_a: Sequence[bd.Shape | manifold3d.Manifold],
     solids_b: Sequence[bd.Shape | manifold3d.Manifold] | None = None,
@@ -126,25 +156,41 @@ def interference(
     del allowed_contact
     meshes_a = [_as_manifold(s, tolerance) for s in solids_a]
     meshes_b = meshes_a if solids_b is None else [_as_manifold(s, tolerance) for s in solids_b]
-    boxes_a, boxes_b = _boxes(meshes_a), _boxes(meshes_b)
-    if not len(boxes_a) or not len(boxes_b):
-        return Interference(np.zeros((0, 2), dtype=np.int64), np.zeros(0))
-    centres_a, centres_b = boxes_a.mean(axis=1), boxes_b.mean(axis=1)
-    reach = 0.5 * (
-        np.linalg.norm(np.ptp(boxes_a, axis=1), axis=1).max()
-        + np.linalg.norm(np.ptp(boxes_b, axis=1), axis=1).max()
-    )
-    tree_a, tree_b = cKDTree(centres_a), cKDTree(centres_b)
-    candidates = []
-    for i, near in enumerate(tree_a.query_ball_tree(tree_b, reach + 1e-9)):
-        for j in near:
-            if solids_b is None and j <= i:
-                continue
-            if np.all(boxes_a[i, 0] <= boxes_b[j, 1]) and np.all(boxes_b[j, 0] <= boxes_a[i, 1]):
-                candidates.append((i, j))
-    pairs = np.array(candidates, dtype=np.int64).reshape(-1, 2)
+    pairs = _near_pairs(meshes_a, meshes_b, solids_b is None, 0.0)
     volumes = np.array([(meshes_a[i] ^ meshes_b[j]).volume() for i, j in pairs], dtype=np.float64)
     return Interference(pairs, volumes)
+
+
+@dataclass(frozen=True)
+class Clearances:
+    """Distances between solids that come close (:func:`clearances`).
+
+    pairs : (K, 2) int, solids closer than the search distance.
+    distances : (K,) float, mm.
+    """
+
+    pairs: NDArray[np.int64]
+    distances: NDArray[np.float64]
+
+    @property
+    def min_distance(self) -> float:
+        return float(self.distances.min()) if self.distances.size else math.inf
+
+
+def clearances(
+    solids: Sequence[bd.Shape | manifold3d.Manifold],
+    search_mm: float,
+    tolerance: float = CAD_INTERFERENCE_DEFLECTION_MM,
+) -> Clearances:
+    """Every pair of ``solids`` closer than ``search_mm`` and its distance (manifold3d's
+    ``min_gap`` between their tessellations, ``tolerance`` as in :func:`to_manifold`)."""
+    meshes = [_as_manifold(s, tolerance) for s in solids]
+    pairs = _near_pairs(meshes, meshes, True, search_mm)
+    distances = np.array(
+        [meshes[i].min_gap(meshes[j], search_mm) for i, j in pairs], dtype=np.float64
+    )
+    close = distances < search_mm
+    return Clearances(pairs[close], distances[close])
 
 
 def face_openings(

@@ -20,6 +20,7 @@ import build123d as bd
 import numpy as np
 from numpy.typing import NDArray
 
+from drawstring.cad.clearance import HingeReliefs, hinge_reliefs
 from drawstring.cad.features import (
     BEND_RADIUS_SLACK_MM,
     Footprint,
@@ -50,7 +51,7 @@ from drawstring.cad.features import (
 from drawstring.cad.features import channel_radius as _channel_radius
 from drawstring.cad.hinge_parts import strip_hole_wall_mm
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path
-from drawstring.cad.tiles import move_solid, rigid_transforms, tile_solid
+from drawstring.cad.tiles import move_solid, relieved_tile_solid, rigid_transforms, tile_solid
 from drawstring.geometry import parallel
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import id_runs
@@ -127,6 +128,7 @@ class _TileJob:
     lifts: list[int] = field(default_factory=list)
     tools: list[bd.Solid] = field(default_factory=list)
     trims: list[NDArray[np.float64]] = field(default_factory=list)
+    reliefs: list[NDArray[np.float64]] = field(default_factory=list)  # planes: keep n . x >= d
     hinges: list[tuple[int, bool]] = field(default_factory=list)
     label: bool = False
     pads: list[int] = field(default_factory=list)
@@ -266,8 +268,15 @@ def _build_job(job: _TileJob, profile: Profile, hinge_data: tuple[_HingeData, ..
         labelled = add(
             "number engraving", partial(label_engraving, job.vertices, job.tile, profile, bottom)
         )
+    block: bd.Solid | None = None
+    if job.reliefs:
+        try:
+            block = relieved_tile_solid(job.vertices, job.reliefs)
+        except Exception as exc:  # the plain block follows, its reliefs named as failed
+            _kernel_failure(f"tile {job.tile}: hinge relief", exc)
+            failed.append("hinge relief")
     try:
-        block = tile_solid(job.vertices)
+        block = block if block is not None else tile_solid(job.vertices)
     except Exception as exc:
         _kernel_failure(f"tile {job.tile}: block", exc)
         raise InputError(
@@ -408,6 +417,7 @@ def build_design_solids(
     *,
     labels: bool = True,
     workers: int | None = None,
+    print_clearance_mm: float = 0.0,
 ) -> CadResult:
     """Solids of every tile with all its features, and the hinge parts.
 
@@ -427,6 +437,9 @@ def build_design_solids(
     pose : ``"flat"`` or ``"assembled"``.
     labels : engrave tile numbers on the bottom faces.
     workers : worker processes (default: CPU count, used from ``PARALLEL_MIN_TILES`` tiles on).
+    print_clearance_mm : tiles printed together in the flat pose keep this far apart (0: they
+        are made loose): each hinged pair is relieved at its hinge (:func:`~drawstring.cad.
+        clearance.hinge_reliefs`) and the trims are grown by it.
 
     A feature or hinge part the CAD kernel fails on (an exception from OCP or build123d, or a
     cut that fails however it is shifted) is left out, noted and listed in
@@ -529,15 +542,29 @@ def build_design_solids(
             f"{broken_pairs}{more})"
         )
 
+    if not (np.isfinite(print_clearance_mm) and print_clearance_mm >= 0):
+        raise InputError(f"print_clearance_mm must be 0 or more, got {print_clearance_mm}")
+    # a trimmed tile keeps the print clearance from the tile it overlapped
+    growth = print_clearance_mm * np.array(
+        [[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64
+    )
     for tile, polyhedra in (trims or {}).items():
         if not 0 <= tile < n_tiles:
             raise InputError(f"trims refer to tile {tile} outside 0..{n_tiles - 1}")
         for points in polyhedra:
-            jobs[tile].trims.append(np.asarray(points, dtype=np.float64))
+            trim = np.asarray(points, dtype=np.float64)
+            if print_clearance_mm > 0:
+                trim = (trim.reshape(-1, 1, 3) + growth[None]).reshape(-1, 3)
+            jobs[tile].trims.append(trim)
 
     for side in sides:
         if side not in ("top", "bottom"):
             raise InputError(f"hinge side {side!r} must be 'top' or 'bottom'")
+    if print_clearance_mm > 0 and len(hinge_rows):
+        reliefs = hinge_reliefs(flat, hinge_rows, sides, print_clearance_mm)
+        for tile, planes in reliefs.cuts.items():
+            jobs[tile].reliefs.extend(planes)
+        notes.extend(_relief_notes(reliefs, hinge_rows, print_clearance_mm))
     notes.extend(_bend_notes(min_radius, steps, profile))
     crowds = strip_neighbours(hinge_rows, sides)
     notes.extend(_strip_notes(flat, hinge_rows, sides, profile, crowds))
@@ -710,6 +737,34 @@ def _hole_notes(holes: Sequence[StripHoles], profile: Profile) -> list[str]:
             "(--tiles)"
         )
     return [note]
+
+
+def _relief_notes(
+    reliefs: HingeReliefs, hinge_rows: NDArray[np.int64], clearance_mm: float
+) -> list[str]:
+    """What the hinge reliefs cut, and the hinges they left alone."""
+    notes = []
+    relieved = len(hinge_rows) - len(reliefs.skipped)
+    if relieved:
+        one_sided = (
+            f"; {reliefs.one_sided} pairs that overlap below the hinge have one tile cut "
+            f"{clearance_mm:g} mm clear of the other's side face instead"
+            if reliefs.one_sided
+            else ""
+        )
+        notes.append(
+            f"{relieved} hinges relieved for printing: both tiles' side faces are cut back "
+            f"{0.5 * clearance_mm:g} mm along the edge at the hinge, tapering out within "
+            f"{reliefs.reach_max_mm:.2g} mm of it{one_sided}, so that hinged tiles stay "
+            f"{clearance_mm:g} mm apart; the TPU pad bridges the cut"
+        )
+    if reliefs.skipped:
+        tiles = sorted({int(t) for h in reliefs.skipped for t in hinge_rows[h, [0, 2]]})
+        notes.append(
+            f"{len(reliefs.skipped)} hinges were not relieved for printing (a relief would cut "
+            f"away too much of a tile): tiles {_id_ranges(tiles)} may print joined there"
+        )
+    return notes
 
 
 def _pin_notes(plans: Sequence[PinPlan]) -> list[str]:

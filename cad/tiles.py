@@ -10,13 +10,14 @@ bottom corners 4..7 under them.  Faces, each counter-clockwise seen from outside
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 
 import build123d as bd
 import numpy as np
 from numpy.typing import NDArray
 from OCP.BRepBuilderAPI import BRepBuilderAPI_Transform
 from OCP.gp import gp_Trsf
-from scipy.spatial import ConvexHull
+from scipy.spatial import ConvexHull, HalfspaceIntersection
 
 from drawstring.cad.kernel import polyhedron_solid
 from drawstring.cad.paths import FACE_BOTTOM, FACE_INDICES, FACE_TOP, TILE_FACES, face_planes
@@ -79,6 +80,12 @@ def tile_solid(vertices: NDArray[np.float64]) -> bd.Solid:
     Faces whose vertices deviate from a plane by more than ``CAD_PLANAR_EXACT_MM`` are first
     snapped (:func:`snap_to_planes`); beyond ``CAD_MAX_FACE_DEVIATION_MM`` the tile is rejected.
     """
+    return polyhedron_solid(tile_solid_vertices(vertices), TILE_FACES)
+
+
+def tile_solid_vertices(vertices: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The vertices :func:`tile_solid` builds its solid on: checked, and snapped to planes
+    where a face deviates from one by more than ``CAD_PLANAR_EXACT_MM``."""
     points = np.asarray(vertices, dtype=np.float64)
     if points.shape != (8, 3) or not np.all(np.isfinite(points)):
         raise InputError(f"a tile needs (8, 3) finite vertices, got shape {points.shape}")
@@ -95,7 +102,55 @@ def tile_solid(vertices: NDArray[np.float64]) -> bd.Solid:
         )
     if deviation > CAD_PLANAR_EXACT_MM:
         points = snap_to_planes(points)
-    return polyhedron_solid(points, TILE_FACES)
+    return points
+
+
+def relieved_tile_solid(
+    vertices: NDArray[np.float64], cuts: Sequence[NDArray[np.float64]]
+) -> bd.Solid:
+    """:func:`tile_solid` cut by planes: the convex polyhedron of the tile's six face planes and
+    the kept side ``n . x >= d`` of each plane ``(n_x, n_y, n_z, d)`` of ``cuts`` (mm), made as
+    one exact B-rep (no boolean: the hinge reliefs of :mod:`drawstring.cad.clearance` pass
+    within a fraction of a millimetre of the hinge strips' recesses, where OCCT's cuts of
+    tools that close failed).
+
+    Raises
+    ------
+    InputError
+        Where the tile is not a valid block (:func:`tile_solid`) or a plane leaves its centre.
+    """
+    points = np.asarray(tile_solid_vertices(vertices), dtype=np.float64)
+    if not len(cuts):
+        return polyhedron_solid(points, TILE_FACES)
+    centroids, normals = face_planes(points)
+    planes = np.array(cuts, dtype=np.float64).reshape(-1, 4)
+    # scipy's half-spaces: A x + b <= 0
+    outward = np.vstack([normals, -planes[:, :3]])
+    offsets = np.concatenate([np.einsum("fd,fd->f", centroids, normals), -planes[:, 3]])
+    centre = points.mean(axis=0)
+    if np.any(outward @ centre - offsets >= 0):
+        raise InputError("a relief plane cuts through the tile's centre; check the hinge reliefs")
+    corners = HalfspaceIntersection(np.column_stack([outward, -offsets]), centre).intersections
+    scale = 1.0 + float(np.ptp(points, axis=0).max())
+    tol = 1e-9 * scale
+    unique: list[NDArray[np.float64]] = []
+    for corner in corners:  # a corner where four planes meet comes out more than once
+        if not any(np.linalg.norm(corner - u) <= tol for u in unique):
+            unique.append(corner)
+    kept = np.array(unique)
+    faces: list[list[int]] = []
+    for normal, offset in zip(outward, offsets, strict=True):
+        on = np.flatnonzero(np.abs(kept @ normal - offset) <= 1e-7 * scale)
+        if len(on) < 3:
+            continue  # a plane that only touches the polyhedron
+        ring = kept[on] - kept[on].mean(axis=0)
+        axis_u = ring[int(np.argmax(np.linalg.norm(ring, axis=1)))]
+        axis_u = axis_u / np.linalg.norm(axis_u)
+        axis_v = np.cross(normal, axis_u)  # counter-clockwise seen from outside
+        faces.append([int(on[k]) for k in np.argsort(np.arctan2(ring @ axis_v, ring @ axis_u))])
+    used = sorted({k for face in faces for k in face})
+    remap = {k: i for i, k in enumerate(used)}
+    return polyhedron_solid(kept[used], [[remap[k] for k in face] for face in faces])
 
 
 def tile_solids(tiles: NDArray[np.float64]) -> list[bd.Solid]:

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import SIDE_BOTTOM, SIDE_LEFT, SIDE_RIGHT, SIDE_TOP, Linkage
 from drawstring.geometry.route import Route
+from drawstring.geometry.tolerances import PRINT_GAP_TOL_MM
 
 if TYPE_CHECKING:
     from drawstring.cad.design import CadResult
@@ -371,6 +372,8 @@ def build_cad(result: Design) -> tuple[CadResult, CadResult]:
     from drawstring.cad.design import build_design_solids
     from drawstring.cad.tiles import move_solid
 
+    from .profiles import print_clearance_mm
+
     refusal = feature_fit_refusal(result)
     if refusal is not None:
         raise refusal
@@ -386,6 +389,7 @@ def build_cad(result: Design) -> tuple[CadResult, CadResult]:
         inputs.trims,
         result.profile,
         pose="flat",
+        print_clearance_mm=print_clearance_mm(result.profile),
     )
     # The assembled pose is the same solids moved rigidly (hinge parts bend, so they stay out).
     moved = tuple(
@@ -420,6 +424,7 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
     from drawstring.cad.checks import (
         channel_continuity,
         check_valid,
+        clearances,
         interference,
         pockets_paired,
         to_manifold,
@@ -457,6 +462,21 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
     pockets, facing = pockets_paired(
         cad_flat.tiles, flat_tiles, cad_flat.transforms, cad_flat.magnets
     )
+    from .profiles import print_clearance_mm
+
+    clearance = print_clearance_mm(result.profile)
+    printed: dict[str, Any] = {}
+    if clearance > 0:
+        # tiles printed together: how close any two come (a slicer joins tiles closer than
+        # a nozzle width); searched a little beyond, so that the closest is stated
+        near = clearances(tile_meshes, 2.0 * clearance)
+        printed = {
+            "print_clearance_mm": clearance,
+            "tile_gap_min_mm": round(near.min_distance, 6) if near.pairs.size else None,
+            "tile_pairs_closer": int(
+                np.count_nonzero(near.distances < clearance - PRINT_GAP_TOL_MM)
+            ),
+        }
     return {
         "solids_valid": bool(not not_valid and valid_pads.all()),
         "tiles_not_valid": not_valid,
@@ -475,6 +495,7 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
         "magnet_pockets_missing": int(np.count_nonzero(~np.isfinite(pockets.distances))),
         "magnet_pockets_breaking_out": sum(not m.fits for m in cad_flat.magnets),
         "magnet_pockets_facing": bool(np.all(facing < -0.999)) if len(facing) else True,
+        **printed,
         **fabrication_measures(result, cad_flat).to_json(),
         "notes": list(cad_flat.notes),
     }

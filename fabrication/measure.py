@@ -141,6 +141,14 @@ def cad_problems(measured: dict[str, Any]) -> list[str]:
             f"a hinge part has {100 * sunk:.3g} % of its volume inside a tile in the print pose "
             "(a recess or pin hole was not cut)"
         )
+    closer = measured.get("tile_pairs_closer")
+    if closer:
+        problems.append(
+            f"{closer} pairs of printed tiles come closer than the nozzle width "
+            f"({measured['print_clearance_mm']:g} mm; down to {measured['tile_gap_min_mm']} mm): "
+            "a slicer would join them and weld their hinges shut (the cad notes name the hinges "
+            "left unrelieved)"
+        )
     apart = measured["channel_opening_distance_max_mm"]
     missing = measured["channel_openings_missing"]
     if missing or apart > CHANNEL_MATCH_TOL_MM:

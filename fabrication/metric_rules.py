@@ -17,6 +17,7 @@ from drawstring.geometry.tolerances import (
     CAPSTAN_FACTOR_WARN,
     FLAT_EDGE_ERROR_TOL_MM,
     HINGE_GAP_TOL_MM,
+    PRINT_GAP_TOL_MM,
     SURFACE_MAX_REL,
     SURFACE_MEAN_REL,
 )
@@ -63,6 +64,11 @@ def _tile_side(design: dict[str, Any]) -> float:
 
 def _const(text: str) -> Callable[[dict[str, Any]], str]:
     return lambda _design: text
+
+
+def _cad(design: dict[str, Any], key: str, default: float) -> float:
+    value = design.get("metrics", {}).get("cad", {}).get(key)
+    return float(value) if isinstance(value, int | float) else default
 
 
 def _at_most(limit: float) -> Callable[[Any, dict[str, Any]], bool]:
@@ -170,6 +176,20 @@ METRIC_RULES: dict[str, MetricRule] = {
         "largest share of a hinge part's volume inside a tile, print pose",
         _const(f"≤ {100 * CAD_PAD_INTERFERENCE_REL:g} %"),
         _at_most(CAD_PAD_INTERFERENCE_REL),
+    ),
+    "cad.print_clearance_mm": MetricRule(
+        "distance tiles printed together keep apart: the nozzle width (their hinges relieved)",
+        _const("(mm)"),
+        None,
+    ),
+    "cad.tile_pairs_closer": MetricRule(
+        "pairs of printed tiles closer than that", _const("= 0"), _at_most(0)
+    ),
+    "cad.tile_gap_min_mm": MetricRule(
+        "closest two printed tiles come in the print pose (a slicer joins tiles closer than "
+        "a nozzle width, welding a hinge shut)",
+        lambda d: f"≥ {_cad(d, 'print_clearance_mm', 0.4):g} mm (the nozzle)",
+        lambda v, d: float(v) >= _cad(d, "print_clearance_mm", 0.4) - PRINT_GAP_TOL_MM,
     ),
     "lift_points": MetricRule(
         "points where the string leaves the top face to lift the structure",

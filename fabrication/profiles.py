@@ -399,3 +399,11 @@ def string_is_cable(profile: Profile) -> bool:
     with a crimp ferrule or a wire-rope clip: it cannot be knotted."""
     material = profile.string_material.lower()
     return any(word in material for word in ("cable", "wire", "steel"))
+
+
+def print_clearance_mm(profile: Profile) -> float:
+    """How far apart (mm) the tiles of a design must stay in the flat pose: one nozzle width
+    where they are printed together with their hinges in place (``fdm-dual``: a slicer lays
+    each tile's perimeter lines inside its own outline, so outlines a nozzle apart keep the
+    two tiles' lines from running into each other); 0 where they are made loose."""
+    return profile.nozzle_mm if profile.process == "fdm-dual" else 0.0

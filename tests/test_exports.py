@@ -23,9 +23,10 @@ import pytest
 bd = pytest.importorskip("build123d")
 ezdxf = pytest.importorskip("ezdxf")
 
+from drawstring.cad.checks import clearances  # noqa: E402
 from drawstring.cad.design import CadResult, build_design_solids, normalize_route  # noqa: E402
 from drawstring.cad.samples import SampleDesign, cylinder_design  # noqa: E402
-from drawstring.cad.tiles import move_solid  # noqa: E402
+from drawstring.cad.tiles import move_solid, tile_solid  # noqa: E402
 from drawstring.fabrication.exports import write_fabrication  # noqa: E402
 from drawstring.fabrication.exports_3mf import BED_MARGIN_MM, plan_print_jobs  # noqa: E402
 from drawstring.fabrication.exports_beds import TILE_SPACING_MM  # noqa: E402
@@ -42,9 +43,14 @@ from drawstring.fabrication.exports_dxf import (  # noqa: E402
     signed_area,
     text_strokes,
 )
-from drawstring.fabrication.profiles import Profile, load_profile  # noqa: E402
+from drawstring.fabrication.profiles import (  # noqa: E402
+    Profile,
+    load_profile,
+    print_clearance_mm,
+)
 from drawstring.geometry.errors import InputError  # noqa: E402
 from drawstring.geometry.linkage import id_runs  # noqa: E402
+from drawstring.geometry.tolerances import PRINT_GAP_TOL_MM  # noqa: E402
 
 PROFILES = ("fdm-dual", "laser-epdm", "plywood-cnc")
 EXPECTED = {
@@ -125,7 +131,7 @@ def _built(name: str, folder: Path) -> Built:
     fresh-process rerun share it)."""
     profile, d = _sample(name)
     args = (*d.solid_inputs(), profile)
-    flat = build_design_solids(*args, workers=1)
+    flat = build_design_solids(*args, workers=1, print_clearance_mm=print_clearance_mm(profile))
     # The assembled pose is the flat solids moved rigidly (what build_design_solids does).
     assembled = dataclasses.replace(
         flat,
@@ -378,6 +384,63 @@ def test_every_printed_tile_rests_on_the_bed(built: Built) -> None:
                 lowest.append(vertices[triangles[first : last + 1]][:, :, 2].min())
     assert len(lowest) == len(built.flat.tiles)
     assert np.max(lowest) <= 1e-4
+
+
+def _printed_tiles(path: Path) -> dict[int, np.ndarray]:
+    """Each PLA tile of a print.3mf by its number, as (triangles, 3, 3) float, read back with
+    lib3mf and split by the slicer's volume ranges."""
+    with zipfile.ZipFile(path) as archive:
+        config = ET.fromstring(archive.read("Metadata/Slic3r_PE_model.config"))
+    tiles = {}
+    for obj, (_, vertices, triangles) in zip(
+        config.findall("object"), _read_3mf(path), strict=True
+    ):
+        for volume_el in obj.findall("volume"):
+            keys = {m.get("key"): m.get("value") for m in volume_el.findall("metadata")}
+            if keys["extruder"] == "1":
+                first, last = int(volume_el.get("firstid")), int(volume_el.get("lastid"))
+                tiles[int(keys["name"].removeprefix("tile_"))] = vertices[
+                    triangles[first : last + 1]
+                ]
+    return tiles
+
+
+def test_printed_tiles_stay_a_nozzle_apart(built: Built) -> None:
+    """Hinged tiles meet at their hinge edges in the flat pose; as printed (print.3mf read
+    back, distances by manifold3d on its meshes) every two PLA tiles stay at least a nozzle
+    width apart, so a slicer cannot join them.  Loose tiles are not relieved."""
+    import manifold3d
+
+    if built.profile.process != "fdm-dual":
+        assert print_clearance_mm(built.profile) == 0.0
+        return
+    nozzle = built.profile.nozzle_mm
+    meshes = []
+    printed = _printed_tiles(built.folder / "fabrication" / "print.3mf")
+    assert sorted(printed) == list(range(len(built.flat.tiles)))
+    for _, soup in sorted(printed.items()):
+        mesh = manifold3d.Mesh(
+            vert_properties=soup.reshape(-1, 3).astype(np.float32),
+            tri_verts=np.arange(soup.shape[0] * 3, dtype=np.uint32).reshape(-1, 3),
+        )
+        mesh.merge()
+        meshes.append(manifold3d.Manifold(mesh))
+    assert len(meshes) == len(built.flat.tiles)
+    # (the sample lays the tiles across its split edge to edge, where a design's flat layout
+    # parts them: those pairs are left out)
+    split = {tuple(sorted(p)) for p in built.design.magnet_pairs[:, [0, 2]].tolist()}
+    gaps = [
+        meshes[i].min_gap(meshes[j], 2.0 * nozzle)
+        for i, j in itertools.combinations(range(len(meshes)), 2)
+        if (i, j) not in split
+    ]
+    hinged = len(built.design.linkage.hinges)
+    assert sum(g < 2.0 * nozzle for g in gaps) >= hinged  # the hinged pairs are close...
+    assert min(gaps) >= nozzle - 1e-3  # ... and a nozzle apart
+    # without the reliefs they touch at the hinges
+    plain = [tile_solid(t) for t in built.design.tiles_2d]
+    near = clearances(plain, 2.0 * nozzle)
+    assert near.min_distance < 1e-3
 
 
 def test_print_jobs_turn_tiles_of_different_thickness_onto_their_common_top_plane() -> None:
@@ -879,6 +942,10 @@ def test_a_design_states_one_mass_and_route_length_everywhere(tmp_path: Path) ->
     assert cad["tile_mass_g"] == estimates["tile_mass_g"] == float(rows["tile"]["mass_g"])
     assert cad["hinge_mass_g"] == estimates["hinge_mass_g"] == float(rows["hinge pad"]["mass_g"])
     assert cad["mass_g"] == round(cad["tile_mass_g"] + cad["hinge_mass_g"], 1)
+    # printed together, the hinged tiles are relieved to stay a nozzle apart (measured on the
+    # solids; test_printed_tiles_stay_a_nozzle_apart reads a print.3mf back)
+    assert cad["print_clearance_mm"] == 0.4 and cad["tile_pairs_closer"] == 0
+    assert 0.4 - PRINT_GAP_TOL_MM <= cad["tile_gap_min_mm"] < 0.45
 
 
 # --------------------------------------------------------------------------------------------

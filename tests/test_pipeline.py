@@ -68,9 +68,18 @@ def test_cad_problems_name_each_fault_of_the_solids() -> None:
             {"tiles": [3, 4], "distance_mm": 0.2},
             {"tiles": [4, 5], "distance_mm": 0.01},
         ],
+        "print_clearance_mm": 0.4,
+        "tile_gap_min_mm": 0.12,
+        "tile_pairs_closer": 3,
     }
     found = cad_problems(faults)
-    assert len(found) == 4
+    assert len(found) == 5
+    assert any(
+        p.startswith(
+            "3 pairs of printed tiles come closer than the nozzle width (0.4 mm; down to 0.12 mm)"
+        )
+        for p in found
+    )
     assert any(
         "(1 opening(s) missing, up to 0.2 mm apart; tiles 10 -> 11: an opening is missing on "
         "the solids; tiles 3 -> 4: 0.2 mm apart;" in p

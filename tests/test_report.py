@@ -207,7 +207,12 @@ def test_metric_marks() -> None:
             "flat_gap_angle_min_deg": 15.0,
             "surface_distance_max_mm": 1.0,
             "simulation": {"deployed": True},
-            "cad": {"interference_tiles_pads_max_rel": 0.4},  # an uncut pin hole
+            "cad": {
+                "interference_tiles_pads_max_rel": 0.4,  # an uncut pin hole
+                "print_clearance_mm": 0.6,
+                "tile_gap_min_mm": 0.5,  # closer than the 0.6 mm nozzle
+                "tile_pairs_closer": 2,
+            },
             "something_new": 1.0,
         },
     }
@@ -218,8 +223,14 @@ def test_metric_marks() -> None:
         "surface_distance_max_mm": True,  # 1 mm <= 2 % of 100 mm
         "simulation.deployed": True,
         "cad.interference_tiles_pads_max_rel": False,
+        "cad.print_clearance_mm": None,
+        "cad.tile_pairs_closer": False,
+        "cad.tile_gap_min_mm": False,
         "something_new": None,
     }
+    design["metrics"]["cad"]["tile_gap_min_mm"] = 0.6
+    marks = {row.name: row.passed for row in report.evaluate_metrics(design)}
+    assert marks["cad.tile_gap_min_mm"] is True
 
 
 # ----------------------------------------------------------------------------------------------

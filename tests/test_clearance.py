@@ -1,0 +1,116 @@
+"""Print clearance at hinges (cad/clearance.py): known answers on hand-built tile pairs."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from drawstring.cad.checks import clearances, to_manifold
+from drawstring.cad.clearance import MAX_RELIEF_SHARE, hinge_reliefs, separating_normal
+from drawstring.cad.tiles import relieved_tile_solid, tile_solid
+
+
+def _square(corner: np.ndarray, first: float, side: float, low: float, high: float) -> np.ndarray:
+    """(8, 3) box tile: a square of ``side`` with corner 0 at ``corner`` (xy), its sides from
+    there at angles ``first`` and ``first + 90`` deg (counter-clockwise), z from low to high."""
+    u = np.array([math.cos(math.radians(first)), math.sin(math.radians(first))])
+    v = np.array([-u[1], u[0]])
+    ring = np.array([corner, corner + side * u, corner + side * (u + v), corner + side * v])
+    top = np.column_stack([ring, np.full(4, high)])
+    bottom = np.column_stack([ring, np.full(4, low)])
+    return np.vstack([top, bottom])
+
+
+def _hinged_pair(theta_deg: float, side: float = 10.0, thickness: float = 6.0) -> np.ndarray:
+    """Two square box tiles hinged at their corner 0 (the origin), their facing sides
+    ``theta_deg`` apart across the +x axis: tile 0 above it, tile 1 below."""
+    origin = np.zeros(2)
+    above = _square(origin, 0.5 * theta_deg, side, 0.0, thickness)
+    below = _square(origin, -0.5 * theta_deg - 90.0, side, 0.0, thickness)
+    return np.stack([above, below])
+
+
+def _relieved(tiles: np.ndarray, clearance: float, side: str = "top") -> list:
+    reliefs = hinge_reliefs(tiles, np.array([[0, 0, 1, 0]]), [side], clearance)
+    return [relieved_tile_solid(t, reliefs.cuts.get(i, [])) for i, t in enumerate(tiles)]
+
+
+@pytest.mark.parametrize("theta", [12.0, 30.0])
+def test_relief_cuts_the_hand_computed_sliver(theta: float) -> None:
+    # Square boxes hinged at a corner, their sides theta apart: the plane between them is the
+    # x axis's vertical plane, and the part of each square within c of it is the triangle of
+    # the hinge and the points on its two sides at c / sin(theta/2) and c / cos(theta/2),
+    # of area c^2 / sin(theta) (a right angle between them).
+    tiles = _hinged_pair(theta)
+    clearance, thickness = 0.4, 6.0
+    c = 0.5 * clearance
+    before = [tile_solid(t).volume for t in tiles]
+    after = [s.volume for s in _relieved(tiles, clearance)]
+    expected = thickness * c * c / math.sin(math.radians(theta))
+    for b, a in zip(before, after, strict=True):
+        assert b - a == pytest.approx(expected, rel=1e-6)
+
+
+def test_relieved_tiles_keep_the_clearance_apart_and_plain_ones_touch() -> None:
+    tiles = _hinged_pair(12.0)
+    plain = clearances([tile_solid(t) for t in tiles], 1.0)
+    assert plain.min_distance == pytest.approx(0.0, abs=1e-6)
+    relieved = clearances(_relieved(tiles, 0.4), 1.0)
+    assert relieved.min_distance == pytest.approx(0.4, abs=1e-4)
+
+
+def test_tiles_whose_edges_at_the_hinge_lean_apart_are_relieved_along_them() -> None:
+    # Tile 1 turned 4 deg about the horizontal line through the hinge (the x axis): its edge
+    # under the hinge leans away from tile 0's, which is vertical (a hinge laid out on the top
+    # faces, with the bottoms parting).  The relief follows both
+    # edges down the whole thickness, and the tiles stay the clearance apart everywhere.
+    tiles = _hinged_pair(12.0)
+    tilt = math.radians(-4.0)
+    turn = np.array(
+        [[1, 0, 0], [0, math.cos(tilt), -math.sin(tilt)], [0, math.sin(tilt), math.cos(tilt)]]
+    )
+    top = np.array([0.0, 0.0, 6.0])
+    tiles[:, :, 2] -= 6.0  # hinge at the top corners, at z = 0
+    tiles[1] = tiles[1] @ turn.T
+    tiles += top
+    relieved = clearances(_relieved(tiles, 0.4), 1.0)
+    assert relieved.min_distance >= 0.4 - 1e-4
+    mesh = to_manifold(_relieved(tiles, 0.4)[0])
+    assert mesh.volume() > 0.99 * tile_solid(tiles[0]).volume
+
+
+def test_separating_normal_known_answers() -> None:
+    # two fans in the plane, 20 deg apart around +x and 100 deg apart around -x: the line is
+    # the x axis, turned so that both gaps keep the same angle (half of the narrower one)
+    a = np.array([[math.cos(math.radians(d)), math.sin(math.radians(d))] for d in (10, 60, 130)])
+    b = a * np.array([1.0, -1.0])
+    normal, angle = separating_normal(a, b)
+    np.testing.assert_allclose(normal, [0.0, 1.0], atol=1e-7)
+    assert math.degrees(angle) == pytest.approx(10.0, abs=1e-6)
+    # sets that cross: the best plane leaves a negative angle
+    crossed = separating_normal(a, np.vstack([b, [[1.0, 0.3]]]))
+    assert crossed is not None and crossed[1] < 0
+
+
+def test_tiles_that_overlap_below_the_hinge_cut_one_tile_clear_of_the_other() -> None:
+    # Frustums widening downwards (bottoms 1.15 times their tops) hinged at their top
+    # corners: below the hinge they overlap (the pairs the top strategy trims), so no plane
+    # through the hinge parts them with a thin cut.  One tile is cut a whole clearance beyond
+    # the other's side face at the hinge; the other stays whole.
+    tiles = _hinged_pair(12.0)
+    for tile in tiles:
+        centre = tile[4:, :2].mean(axis=0)
+        tile[4:, :2] = centre + 1.15 * (tile[4:, :2] - centre)
+    plain = [tile_solid(t) for t in tiles]
+    overlap = to_manifold(plain[0]) ^ to_manifold(plain[1])
+    assert overlap.volume() > 0.01
+    reliefs = hinge_reliefs(tiles, np.array([[0, 0, 1, 0]]), ["top"], 0.4)
+    assert reliefs.one_sided == 1 and not reliefs.skipped
+    assert sum(len(v) for v in reliefs.cuts.values()) == 1
+    solids = _relieved(tiles, 0.4)
+    assert clearances(solids, 1.0).min_distance >= 0.4 - 1e-4
+    volumes = [s.volume / p.volume for s, p in zip(solids, plain, strict=True)]
+    assert sorted(volumes)[1] == pytest.approx(1.0)  # one tile whole
+    assert sorted(volumes)[0] > 1.0 - MAX_RELIEF_SHARE
