@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.cad.paths import SIDE_TOP_FACE, lift_path, route_openings
-from drawstring.fabrication.profiles import string_is_cable
+from drawstring.fabrication.profiles import print_clearance_mm, string_is_cable
 from drawstring.geometry.linkage import id_runs
 
 if TYPE_CHECKING:
@@ -585,7 +585,11 @@ def _write_assembly(
             "assignment from the file. Each job lies top faces down (the tops share one plane, "
             "the bottoms follow each tile's thickness), so every tile starts on the first "
             "layer; turn the printed sheet over before you thread it. Each tile's number is "
-            "engraved in its bottom face (it reads as printed, and from below once turned)."
+            "engraved in its bottom face (it reads as printed, and from below once turned). "
+            f"Hinged tiles print {print_clearance_mm(profile):g} mm apart, joined only by "
+            "their pads (each tile is cut back that little along its hinge edges): before "
+            "you thread the sheet, bend every hinge once, and cut any stray strand of "
+            f"{profile.tile_material} across one."
             + _unnumbered_text(record.unlabelled)
             + _beds_text("print", record.jobs)
         )

@@ -411,10 +411,13 @@ def test_printed_tiles_stay_a_nozzle_apart(built: Built) -> None:
     width apart, so a slicer cannot join them.  Loose tiles are not relieved."""
     import manifold3d
 
+    guide = (built.folder / "fabrication" / "assembly.md").read_text(encoding="utf-8")
     if built.profile.process != "fdm-dual":
         assert print_clearance_mm(built.profile) == 0.0
+        assert "print 0." not in guide
         return
     nozzle = built.profile.nozzle_mm
+    assert f"Hinged tiles print {nozzle:g} mm apart, joined only by their pads" in guide
     meshes = []
     printed = _printed_tiles(built.folder / "fabrication" / "print.3mf")
     assert sorted(printed) == list(range(len(built.flat.tiles)))
