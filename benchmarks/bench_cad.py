@@ -20,7 +20,7 @@ from typing import Any
 from drawstring.cad import checks
 from drawstring.cad.design import build_design_solids
 from drawstring.cad.samples import cylinder_design
-from drawstring.fabrication.profiles import load_profile
+from drawstring.fabrication.profiles import load_profile, print_clearance_mm
 
 TARGET_S = 30.0
 CASES = ((5, 10), (10, 20))
@@ -46,6 +46,7 @@ def run(cases: tuple[tuple[int, int], ...] = CASES, workers: int | None = None) 
             *design.solid_inputs(),
             profile,
             workers=workers,
+            print_clearance_mm=print_clearance_mm(profile),  # hinge reliefs, as designs run
         )
         wall = time.perf_counter() - wall_start
         cpu = _cpu_seconds() - cpu_start

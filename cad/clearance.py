@@ -45,6 +45,7 @@ class HingeReliefs:
     cuts : tile -> planes ``(4,)`` float ``(n_x, n_y, n_z, d)``, flat pose, mm: the tile keeps
         the side ``n . x >= d`` of each (:func:`~drawstring.cad.tiles.relieved_tile_solid`).
     reach_max_mm : farthest a two-sided relief reaches from its hinge, seen from above.
+    one_sided_reach_mm : farthest a one-sided relief reaches from its hinge (0 without any).
     share_max : largest share of a tile's volume a relief takes.
     one_sided : hinges relieved in one tile only (their tiles overlap below the hinge).
     skipped : hinges (indices) left as they are: a relief would cut too much
@@ -53,6 +54,7 @@ class HingeReliefs:
 
     cuts: dict[int, list[FloatArray]]
     reach_max_mm: float
+    one_sided_reach_mm: float
     share_max: float
     one_sided: int
     skipped: tuple[int, ...]
@@ -151,12 +153,12 @@ def hinge_reliefs(
         raise InputError(f"the print clearance must be positive, got {clearance_mm}")
     depth = 0.5 * clearance_mm
     cuts: dict[int, list[FloatArray]] = {}
-    reach, share, one_sided = 0.0, 0.0, 0
+    reach, one_sided_reach, share, one_sided = 0.0, 0.0, 0.0, 0
     skipped: list[int] = []
     for index, ((a, ca, b, cb), side) in enumerate(zip(rows, sides, strict=True)):
         shift = 0 if side == "top" else 4
         hinge = 0.5 * (array[a, shift + ca] + array[b, shift + cb])
-        best: tuple[float, float, list[tuple[int, FloatArray]]] | None = None
+        best: tuple[float, float, list[tuple[int, FloatArray]], bool] | None = None
         for option in _relief_options(array, int(a), int(ca), int(b), int(cb), shift, hinge, depth):
             planes: list[tuple[int, FloatArray]] = []
             option_reach, option_share = 0.0, 0.0
@@ -168,20 +170,21 @@ def hinge_reliefs(
                 option_share = max(option_share, _volume(piece) / _volume(array[tile]))
                 planes.append((tile, np.append(towards, towards @ hinge + keep)))
             if best is None or option_share < best[1]:
-                best = (option_reach, option_share, planes)
+                best = (option_reach, option_share, planes, len(option) == 2)
             if option_share <= MAX_RELIEF_SHARE:
                 break  # the two-sided relief where it cuts little, else the smallest one
         if best is None or best[1] > MAX_RELIEF_SHARE:
             skipped.append(index)
             continue
         share = max(share, best[1])
-        if len(best[2]) == 2:
+        if best[3]:
             reach = max(reach, best[0])
         else:
             one_sided += 1
+            one_sided_reach = max(one_sided_reach, best[0])
         for tile, plane in best[2]:
             cuts.setdefault(tile, []).append(plane)
-    return HingeReliefs(cuts, reach, share, one_sided, tuple(skipped))
+    return HingeReliefs(cuts, reach, one_sided_reach, share, one_sided, tuple(skipped))
 
 
 def _relief_options(

@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from typing import TYPE_CHECKING, Literal
@@ -347,10 +347,12 @@ def _plan_all_pins(
     lifts: NDArray[np.int64],
     profile: Profile,
     crowds: Sequence[StripNeighbours],
+    reliefs: Mapping[int, Sequence[NDArray[np.float64]]],
 ) -> list[PinPlan]:
     """The TPU pins of every through-holes hinge, each kept a wall away from its tile's
-    channels and lift bores, the other hinges' strips, and the pins planned before it (hinge
-    order), so that no pin blocks the string and no two holes merge."""
+    channels and lift bores, the other hinges' strips, the pins planned before it (hinge
+    order) and the planes of its tile's hinge reliefs (tile -> planes), so that no pin blocks
+    the string, no two holes merge and no relief opens a hole."""
     keep = [KeepOut() for _ in flat]
     for _, tile, enter, leave in steps:
         keep[tile] += channel_keep_out(flat[tile], int(enter), int(leave), profile)
@@ -382,12 +384,20 @@ def _plan_all_pins(
             profile,
             (others(a, hinge), others(b, hinge)),
             crowds[hinge],
+            (_planes(reliefs, a), _planes(reliefs, b)),
         )
         for tile, pin in zip((a, b), plan.pins, strict=True):
             if pin is not None:
                 keep[tile] = keep[tile] + pin_keep_out(pin, profile)
         plans.append(plan)
     return plans
+
+
+def _planes(
+    reliefs: Mapping[int, Sequence[NDArray[np.float64]]], tile: int
+) -> NDArray[np.float64] | None:
+    found = reliefs.get(int(tile))
+    return None if not found else np.asarray(found, dtype=np.float64).reshape(-1, 4)
 
 
 def _build_chunk(
@@ -439,7 +449,8 @@ def build_design_solids(
     workers : worker processes (default: CPU count, used from ``PARALLEL_MIN_TILES`` tiles on).
     print_clearance_mm : tiles printed together in the flat pose keep this far apart (0: they
         are made loose): each hinged pair is relieved at its hinge (:func:`~drawstring.cad.
-        clearance.hinge_reliefs`) and the trims are grown by it.
+        clearance.hinge_reliefs`; where the top strategy's tiles overlap, one of them is cut
+        a whole clearance clear of the other) and its pins keep their wall from the cuts.
 
     A feature or hinge part the CAD kernel fails on (an exception from OCP or build123d, or a
     cut that fails however it is shifted) is left out, noted and listed in
@@ -544,24 +555,19 @@ def build_design_solids(
 
     if not (np.isfinite(print_clearance_mm) and print_clearance_mm >= 0):
         raise InputError(f"print_clearance_mm must be 0 or more, got {print_clearance_mm}")
-    # a trimmed tile keeps the print clearance from the tile it overlapped
-    growth = print_clearance_mm * np.array(
-        [[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64
-    )
     for tile, polyhedra in (trims or {}).items():
         if not 0 <= tile < n_tiles:
             raise InputError(f"trims refer to tile {tile} outside 0..{n_tiles - 1}")
         for points in polyhedra:
-            trim = np.asarray(points, dtype=np.float64)
-            if print_clearance_mm > 0:
-                trim = (trim.reshape(-1, 1, 3) + growth[None]).reshape(-1, 3)
-            jobs[tile].trims.append(trim)
+            jobs[tile].trims.append(np.asarray(points, dtype=np.float64))
 
     for side in sides:
         if side not in ("top", "bottom"):
             raise InputError(f"hinge side {side!r} must be 'top' or 'bottom'")
+    relief_planes: dict[int, list[NDArray[np.float64]]] = {}
     if print_clearance_mm > 0 and len(hinge_rows):
         reliefs = hinge_reliefs(flat, hinge_rows, sides, print_clearance_mm)
+        relief_planes = reliefs.cuts
         for tile, planes in reliefs.cuts.items():
             jobs[tile].reliefs.extend(planes)
         notes.extend(_relief_notes(reliefs, hinge_rows, print_clearance_mm))
@@ -570,7 +576,9 @@ def build_design_solids(
     notes.extend(_strip_notes(flat, hinge_rows, sides, profile, crowds))
     plans: list[PinPlan | None] = [None] * len(hinge_rows)
     if profile.hinge_interlock == "through-holes":
-        plans = list(_plan_all_pins(flat, hinge_rows, sides, steps, lifts, profile, crowds))
+        plans = list(
+            _plan_all_pins(flat, hinge_rows, sides, steps, lifts, profile, crowds, relief_planes)
+        )
         notes.extend(_pin_notes(plans))
     fasteners = 0
     if profile.hinge_interlock in ("screws", "staples"):
@@ -748,7 +756,8 @@ def _relief_notes(
     if relieved:
         one_sided = (
             f"; {reliefs.one_sided} pairs that overlap below the hinge have one tile cut "
-            f"{clearance_mm:g} mm clear of the other's side face instead"
+            f"{clearance_mm:g} mm clear of the other's side face instead, within "
+            f"{reliefs.one_sided_reach_mm:.2g} mm of the hinge"
             if reliefs.one_sided
             else ""
         )

@@ -275,21 +275,50 @@ def _place_holes(
     wall: float,
     limit: float = np.inf,
     depth: float | None = None,
+    cuts: NDArray[np.float64] | None = None,
 ) -> tuple[list[NDArray[np.float64]], int]:
     """Hole axes along one half of a strip, each slid inward (up to ``limit`` mm from the
     corner) until it keeps ``wall`` from the tile's side faces (within ``depth`` of the face
-    for a blind hole, see :func:`_footprint_margin`), and how many stations never fit."""
+    for a blind hole, see :func:`_footprint_margin`) and from the planes that cut the tile
+    (``cuts``, see :func:`_cut_margin`), and how many stations never fit."""
     placed, missing = [], 0
     for station in stations:
         candidates = np.linspace(station, station + 4.0 * radius, 17)
         for distance in candidates[candidates <= limit + 1e-9]:
             point = corner + distance * direction
-            if _footprint_margin(tile, point, normal, depth) >= radius + wall:
+            if (
+                _footprint_margin(tile, point, normal, depth) >= radius + wall
+                and _cut_margin(tile, point, normal, radius, cuts, depth) >= wall
+            ):
                 placed.append(point)
                 break
         else:
             missing += 1
     return placed, missing
+
+
+def _cut_margin(
+    tile: NDArray[np.float64],
+    point: NDArray[np.float64],
+    normal: NDArray[np.float64],
+    radius: float,
+    cuts: NDArray[np.float64] | None,
+    depth: float | None = None,
+) -> float:
+    """Least distance (mm) from a hole of ``radius`` on the axis from ``point`` along
+    ``-normal`` to the planes ``(n, d)`` of ``cuts`` that cut the tile (it keeps ``n . x >= d``,
+    see :func:`drawstring.cad.tiles.relieved_tile_solid`): the hole runs ``depth`` deep, or
+    through the tile without one; negative where it breaks through a plane; inf without cuts."""
+    if cuts is None or not len(cuts):
+        return float("inf")
+    planes = np.asarray(cuts, dtype=np.float64).reshape(-1, 4)
+    lengths = np.linalg.norm(planes[:, :3], axis=1)
+    unit, offsets = planes[:, :3] / lengths[:, None], planes[:, 3] / lengths
+    reach = float(((point - tile) @ normal).max()) if depth is None else depth
+    ends = np.stack([point, point - reach * normal])  # (2, 3) the axis's two ends
+    # the rim of a circle of the hole reaches radius * sin(angle to the plane's normal) nearer
+    rim = radius * np.sqrt(np.clip(1.0 - (unit @ normal) ** 2, 0.0, 1.0))
+    return float(((ends @ unit.T) - offsets[None, :] - rim[None, :]).min())
 
 
 def _cylinder_between(
@@ -457,6 +486,7 @@ def plan_pins(
     profile: Profile,
     keep_out: tuple[KeepOut | None, KeepOut | None] = (None, None),
     neighbours: StripNeighbours = (None, None),
+    cuts: tuple[NDArray[np.float64] | None, NDArray[np.float64] | None] = (None, None),
 ) -> PinPlan:
     """Where the TPU pins of a through-holes hinge go, one per tile (a "lollipop").
 
@@ -469,6 +499,8 @@ def plan_pins(
     from them; a pin shorter than ``MIN_PIN_LENGTH_RADII`` radii is left out.
 
     ``keep_out`` entries are None for no other features (only the tile's edges limit the pin).
+    ``cuts`` per tile: planes ``(n, d)`` that cut the tile (the hinge reliefs of
+    :mod:`drawstring.cad.clearance`); a pin keeps its wall from them as from a side face.
     """
     tiles = (np.asarray(tile_a, dtype=np.float64), np.asarray(tile_b, dtype=np.float64))
     frame = _hinge_frame(tiles[0], corner_a, tiles[1], corner_b, side, profile, neighbours)
@@ -478,13 +510,14 @@ def plan_pins(
     pins: list[HingePin | None] = []
     short = [False, False]
     notes: list[str] = []
-    for index, (tile, (corner, direction), length, keep, name) in enumerate(
-        zip(tiles, frame.halves, frame.lengths, keep_out, ("a", "b"), strict=True)
+    for index, (tile, (corner, direction), length, keep, cut, name) in enumerate(
+        zip(tiles, frame.halves, frame.lengths, keep_out, cuts, ("a", "b"), strict=True)
     ):
         # the axis stays under the strip: a pin beyond its end would not hold it
         points, _ = _place_holes(
-            tile, corner, direction, frame.normal, (length - radius,), radius, wall, length
-        )
+            tile, corner, direction, frame.normal, (length - radius,), radius, wall, length,
+            cuts=cut,
+        )  # fmt: skip
         blind = None
         if not points:
             # Side faces leaning in under the hinge corner (a curved design's tiles) leave no
@@ -494,7 +527,7 @@ def plan_pins(
             for tried in (0.5 * span, floor + 2.0 * MIN_PIN_LENGTH_RADII * radius):
                 points, _ = _place_holes(
                     tile, corner, direction, frame.normal, (length - radius,), radius, wall,
-                    length, tried,
+                    length, tried, cut,
                 )  # fmt: skip
                 if points:
                     blind = tried

@@ -108,16 +108,21 @@ def tile_solid_vertices(vertices: NDArray[np.float64]) -> NDArray[np.float64]:
 def relieved_tile_solid(
     vertices: NDArray[np.float64], cuts: Sequence[NDArray[np.float64]]
 ) -> bd.Solid:
-    """:func:`tile_solid` cut by planes: the convex polyhedron of the tile's six face planes and
-    the kept side ``n . x >= d`` of each plane ``(n_x, n_y, n_z, d)`` of ``cuts`` (mm), made as
-    one exact B-rep (no boolean: the hinge reliefs of :mod:`drawstring.cad.clearance` pass
+    """:func:`tile_solid` cut by planes: what of the tile lies on the kept side ``n . x >= d``
+    of each plane ``(n_x, n_y, n_z, d)`` of ``cuts`` (mm).
+
+    A convex tile is made as one exact B-rep, the convex polyhedron of its six face planes and
+    the cut planes (no boolean: the hinge reliefs of :mod:`drawstring.cad.clearance` pass
     within a fraction of a millimetre of the hinge strips' recesses, where OCCT's cuts of
-    tools that close failed).
+    tools that close failed).  A tile that is not convex (a dart-shaped face) is cut by a
+    half-space box per plane instead.
 
     Raises
     ------
     InputError
         Where the tile is not a valid block (:func:`tile_solid`) or a plane leaves its centre.
+    ValueError
+        Where the kernel returns no valid solid (the caller keeps the plain block).
     """
     points = np.asarray(tile_solid_vertices(vertices), dtype=np.float64)
     if not len(cuts):
@@ -128,11 +133,13 @@ def relieved_tile_solid(
     outward = np.vstack([normals, -planes[:, :3]])
     offsets = np.concatenate([np.einsum("fd,fd->f", centroids, normals), -planes[:, 3]])
     centre = points.mean(axis=0)
-    if np.any(outward @ centre - offsets >= 0):
+    if np.any(planes[:, :3] @ centre - planes[:, 3] <= 0):
         raise InputError("a relief plane cuts through the tile's centre; check the hinge reliefs")
-    corners = HalfspaceIntersection(np.column_stack([outward, -offsets]), centre).intersections
     scale = 1.0 + float(np.ptp(points, axis=0).max())
-    tol = 1e-9 * scale
+    tol = _RELIEF_TOL * scale  # one tolerance for merging corners and for a corner on a plane
+    if np.any(points @ normals.T - offsets[: len(normals)] > tol):
+        return _cut_by_boxes(polyhedron_solid(points, TILE_FACES), planes, scale)
+    corners = HalfspaceIntersection(np.column_stack([outward, -offsets]), centre).intersections
     unique: list[NDArray[np.float64]] = []
     for corner in corners:  # a corner where four planes meet comes out more than once
         if not any(np.linalg.norm(corner - u) <= tol for u in unique):
@@ -140,7 +147,7 @@ def relieved_tile_solid(
     kept = np.array(unique)
     faces: list[list[int]] = []
     for normal, offset in zip(outward, offsets, strict=True):
-        on = np.flatnonzero(np.abs(kept @ normal - offset) <= 1e-7 * scale)
+        on = np.flatnonzero(np.abs(kept @ normal - offset) <= tol)
         if len(on) < 3:
             continue  # a plane that only touches the polyhedron
         ring = kept[on] - kept[on].mean(axis=0)
@@ -150,7 +157,37 @@ def relieved_tile_solid(
         faces.append([int(on[k]) for k in np.argsort(np.arctan2(ring @ axis_v, ring @ axis_u))])
     used = sorted({k for face in faces for k in face})
     remap = {k: i for i, k in enumerate(used)}
-    return polyhedron_solid(kept[used], [[remap[k] for k in face] for face in faces])
+    solid = polyhedron_solid(kept[used], [[remap[k] for k in face] for face in faces])
+    if not solid.is_valid:
+        raise ValueError("the relieved tile is not a valid solid")
+    return solid
+
+
+#: Relative tolerance (times the tile's size in mm) of :func:`relieved_tile_solid`: corners
+#: nearer than this are one corner, and a corner this near a plane lies on it.
+_RELIEF_TOL = 1e-8
+
+
+def _cut_by_boxes(block: bd.Solid, planes: NDArray[np.float64], scale: float) -> bd.Solid:
+    """``block`` less, per plane ``(n, d)``, a box filling the side ``n . x < d`` near it."""
+    size = 4.0 * scale
+    centre = np.asarray(tuple(block.center()), dtype=np.float64)
+    result: bd.Shape = block
+    for plane in planes:
+        length = float(np.linalg.norm(plane[:3]))
+        normal = plane[:3] / length
+        origin = centre - (centre @ normal - plane[3] / length) * normal
+        helper = np.eye(3)[int(np.argmin(np.abs(normal)))]
+        along = np.cross(normal, helper)
+        along /= np.linalg.norm(along)
+        across = np.cross(-normal, along)  # the box frame's y direction
+        corner = origin - 0.5 * size * (along + across)
+        frame = bd.Plane(origin=tuple(corner), x_dir=tuple(along), z_dir=tuple(-normal))
+        result = result - bd.Solid.make_box(size, size, size, frame)
+    solids = result.solids()
+    if len(solids) != 1 or not solids[0].is_valid:
+        raise ValueError("cutting the tile's reliefs left no single valid solid")
+    return bd.Solid(solids[0].wrapped)
 
 
 def tile_solids(tiles: NDArray[np.float64]) -> list[bd.Solid]:

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from drawstring.fabrication.profiles import print_clearance_mm
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import SIDE_BOTTOM, SIDE_LEFT, SIDE_RIGHT, SIDE_TOP, Linkage
 from drawstring.geometry.route import Route
@@ -372,8 +373,6 @@ def build_cad(result: Design) -> tuple[CadResult, CadResult]:
     from drawstring.cad.design import build_design_solids
     from drawstring.cad.tiles import move_solid
 
-    from .profiles import print_clearance_mm
-
     refusal = feature_fit_refusal(result)
     if refusal is not None:
         raise refusal
@@ -462,8 +461,6 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
     pockets, facing = pockets_paired(
         cad_flat.tiles, flat_tiles, cad_flat.transforms, cad_flat.magnets
     )
-    from .profiles import print_clearance_mm
-
     clearance = print_clearance_mm(result.profile)
     printed: dict[str, Any] = {}
     if clearance > 0:

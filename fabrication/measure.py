@@ -146,7 +146,7 @@ def cad_problems(measured: dict[str, Any]) -> list[str]:
         problems.append(
             f"{closer} pairs of printed tiles come closer than the nozzle width "
             f"({measured['print_clearance_mm']:g} mm; down to {measured['tile_gap_min_mm']} mm): "
-            "a slicer would join them and weld their hinges shut (the cad notes name the hinges "
+            "a slicer would join them and weld their hinges shut (the cad notes name the tiles "
             "left unrelieved)"
         )
     apart = measured["channel_opening_distance_max_mm"]

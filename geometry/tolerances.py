@@ -138,13 +138,13 @@ FLAT_SEPARATION_MARGIN_REL = 1e-3
 #: most this chordal distance (mm, absolute) ...
 CAD_INTERFERENCE_DEFLECTION_MM = 0.02
 
-#: Tiles printed together (``fdm-dual``) count as closer than the print clearance only this
-#: far (mm) inside it: their near faces are planar (meshed exactly), the meshes are float32.
-PRINT_GAP_TOL_MM = 0.005
-
 #: CAD interference check: ... and by at most this angle (rad) between neighbouring triangles
 #: along a curved face.
 CAD_INTERFERENCE_ANGLE_RAD = 0.5
+
+#: Tiles printed together (``fdm-dual``) count as closer than the print clearance only this
+#: far (mm) inside it: their near faces are planar (meshed exactly), the meshes are float32.
+PRINT_GAP_TOL_MM = 0.005
 
 #: Largest share of a hinge part's volume that may lie inside a tile in the print pose.
 #: Tessellating the curved pin walls a TPU pad shares with its tile gives about 0.05 %

@@ -406,6 +406,29 @@ def test_pins_stop_short_of_the_string_channel(profile: Profile) -> None:
     assert any("left out" in note for note in none.notes)
 
 
+def test_pins_keep_their_wall_from_the_planes_that_relieve_the_tile(profile: Profile) -> None:
+    # A plane cutting tile a's hinge corner square to the strip (the tile keeps n . x >= d):
+    # set just short of the free pin's rim it would open the hole; the pin slides inward until
+    # a wall is left, and a plane across the whole strip leaves no room for a pin at all.
+    tile_a, tile_b = _tile(4.5), _tile(4.5, at=(4.5, 4.5))
+    corner = tile_a[2]
+    inward = np.array([-1.0, -1.0, 0.0]) / np.sqrt(2.0)
+    wall, radius = max(profile.nozzle_mm, 0.3), pin_radius(profile)
+    free = plan_pins(tile_a, 2, tile_b, 0, "top", profile).pins[0]
+    assert free is not None
+    reach = float((free.point - corner) @ inward)
+    cut = reach - radius - 0.5 * wall
+    plane = np.append(inward, inward @ corner + cut)
+    moved = plan_pins(tile_a, 2, tile_b, 0, "top", profile, cuts=(plane[None], None)).pins[0]
+    assert moved is not None
+    margin = float(moved.point @ inward - plane[3]) - radius
+    assert margin >= wall - 1e-9 and margin < wall + 0.5
+    across = np.append(-inward, -inward @ corner - 0.1)  # keeps only a corner-side sliver
+    cuts = (across[None], None)
+    none = plan_pins(tile_a, 2, tile_b, 0, "top", profile, cuts=cuts)
+    assert none.pins[0] is None and any("left out" in note for note in none.notes)
+
+
 def test_strips_stop_short_of_the_tile_centre(profile: Profile) -> None:
     # 3 mm tiles: the corner is 2.12 mm from the face's centre.  Alone on its face the strip
     # keeps half its width and a wall (0.4 + 0.4 mm) from it; with strips at the neighbouring

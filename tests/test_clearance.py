@@ -108,9 +108,25 @@ def test_tiles_that_overlap_below_the_hinge_cut_one_tile_clear_of_the_other() ->
     assert overlap.volume() > 0.01
     reliefs = hinge_reliefs(tiles, np.array([[0, 0, 1, 0]]), ["top"], 0.4)
     assert reliefs.one_sided == 1 and not reliefs.skipped
+    assert reliefs.reach_max_mm == 0.0 and reliefs.one_sided_reach_mm > 0.4
     assert sum(len(v) for v in reliefs.cuts.values()) == 1
     solids = _relieved(tiles, 0.4)
     assert clearances(solids, 1.0).min_distance >= 0.4 - 1e-4
     volumes = [s.volume / p.volume for s, p in zip(solids, plain, strict=True)]
     assert sorted(volumes)[1] == pytest.approx(1.0)  # one tile whole
     assert sorted(volumes)[0] > 1.0 - MAX_RELIEF_SHARE
+
+
+def test_a_dart_shaped_tile_keeps_its_notch_when_relieved() -> None:
+    # Top and bottom faces a dart (reflex corner 2 at (3, 3)), 6 mm thick; the plane
+    # x + y = 0.5 sqrt(2) cuts from corner 0 the right triangle of legs 1 mm: 3 mm^3.  The
+    # convex polyhedron of the face planes would fill the notch instead.
+    ring = np.array([[0.0, 0.0], [10.0, 0.0], [3.0, 3.0], [0.0, 10.0]])
+    tile = np.vstack(
+        [np.column_stack([ring, np.full(4, 6.0)]), np.column_stack([ring, np.zeros(4)])]
+    )
+    normal = np.array([1.0, 1.0, 0.0]) / math.sqrt(2.0)
+    relieved = relieved_tile_solid(tile, [np.append(normal, 0.5 * math.sqrt(2.0))])
+    assert relieved.is_valid
+    assert tile_solid(tile).volume - relieved.volume == pytest.approx(3.0, rel=1e-9)
+    assert relieved.volume == pytest.approx(6.0 * 30.0 - 3.0, rel=1e-9)
