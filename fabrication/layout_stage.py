@@ -527,6 +527,70 @@ def too_slow(
     return bool(error_mm / rate**rounds_left > reach * FLAT_EDGE_ERROR_TOL_MM)
 
 
+@dataclass
+class RoundJudge:
+    """When :func:`co_optimized` stops its rounds, judged by their re-solved flat edge errors.
+
+    Attributes
+    ----------
+    plain_mm : the plain layout's flat edge error (the result must beat it to be used).
+    conical : the rounds make the bottom hinges meet in depth too (see :func:`co_optimized`).
+    give_up_slow : stop when the rounds shrink the error too slowly to reach the tolerance
+        (:data:`CO_SLOW_REACH`); ``cut_short`` then says so.
+    """
+
+    plain_mm: float
+    conical: bool = False
+    give_up_slow: bool = False
+    best_mm: float = math.inf
+    #: rounds in a row below neither the best round nor the plain layout
+    worse: int = 0
+    rounds: int = 0
+    previous_mm: float | None = None
+    cut_short: bool = False
+
+    def judge(self, error_mm: float, joint_mm: float) -> tuple[bool, bool]:
+        """One more round, its re-solved error and its joint solve's (mm): whether it is the
+        best so far, and whether the rounds stop after it."""
+        self.rounds += 1
+        first_round = self.rounds == 1
+        previous = self.plain_mm if self.previous_mm is None else self.previous_mm
+        best_before = self.best_mm
+        progress = first_round or error_mm < best_before
+        if progress:
+            self.best_mm = error_mm
+        self.worse = 0 if progress and error_mm < self.plain_mm else self.worse + 1
+        stop_near = CO_STOP_NEAR_CONICAL if self.conical else CO_STOP_NEAR
+        # Stop once the re-solve is well inside the tolerance, or within the tolerance and
+        # close to what the joint solve reached (more rounds would not gain much).  A re-solve
+        # that misses the tolerance goes on even when it is close to a poor joint solve: the
+        # 200-tile seashell with top hinges then meets the targets with its first tiling
+        # (7.3e-4 mm) where it stopped at 3.2e-3 mm and was split once more.
+        if (
+            self.worse >= 2
+            or (first_round and error_mm > CO_GIVE_UP_RATIO * self.plain_mm)
+            or error_mm <= CO_STOP_SHARE * FLAT_EDGE_ERROR_TOL_MM
+            or error_mm <= min(stop_near * FLAT_EDGE_ERROR_TOL_MM, CO_STOP_RATIO * joint_mm)
+            or (error_mm <= FLAT_EDGE_ERROR_TOL_MM and error_mm > CO_STALL_GAIN * best_before)
+        ):
+            return progress, True
+        # A conical round that lost ground is judged by the rounds after it (``worse``): the
+        # CLI-default three-shell's went 0.020, 0.060, 1.1e-3, 3.9e-4, 1.4e-4 mm, where a
+        # rate taken from the lost round had given it up after two.
+        judged = progress or not self.conical
+        left = CO_REFINEMENTS + 1 - self.rounds
+        if self.give_up_slow and judged and too_slow(previous, error_mm, left):
+            self.cut_short = True
+            return progress, True
+        if self.conical and judged and too_slow(previous, error_mm, left, reach=1.0):
+            # it would miss the tolerance: the caller co-optimizes again without the conical
+            # condition (the 1600-tile wave: 0.29, 0.016, 0.0099, 0.0065 mm, ... 0.0027 mm
+            # after eight rounds; without, 1.4e-4 mm after four)
+            return progress, True
+        self.previous_mm = error_mm
+        return progress, False
+
+
 def flat_layout(
     linkage: Linkage,
     tiling: Tiling,
@@ -617,14 +681,12 @@ def co_optimized(
     # 200-tile seashell's two parts stalled at 1.5e-3 mm and it was split into four, where now
     # two meet 4e-4 mm.
     block: dict[str, Any] = {"accepted": False, "reason": "", "steps": 0}
-    stop_near = CO_STOP_NEAR_CONICAL if conical else CO_STOP_NEAR
+    judge = RoundJudge(flat.edge_error_max_mm, conical=conical, give_up_slow=give_up_slow)
 
     current, nodes = assembled, None
     rounds: list[tuple[tuple[float, float], ...]] = [CO_STAGES, CO_STAGES[-1:]]
     best: tuple[AssembledResult, FlatResult] | None = None
-    worse = 0  # rounds in a row below neither the best round nor the plain layout
-    previous = flat.edge_error_max_mm
-    for done in range(1, CO_REFINEMENTS + 2):
+    for _ in range(CO_REFINEMENTS + 1):
         for stages in rounds:
             first = current is assembled  # round 1's first joint solve: the eq.-1 inputs
             if first and first_solves is not None and "eq1" in first_solves:
@@ -692,43 +754,14 @@ def co_optimized(
         logger.info(
             "co-optimization round: joint %.3g mm, re-solved %.3g mm", co.edge_error_max_mm, error
         )
-        first_round = best is None
-        best_before = math.inf if best is None else best[1].edge_error_max_mm
-        progress_made = best is None or error < best[1].edge_error_max_mm
+        progress_made, stop = judge.judge(error, co.edge_error_max_mm)
         if progress_made:
             best = (current, new_flat)
-        if progress_made and error < flat.edge_error_max_mm:
-            worse = 0
-        else:
-            worse += 1
-        # Stop once the re-solve is well inside the tolerance, or within the tolerance and
-        # close to what the joint solve reached (more rounds would not gain much).  A re-solve
-        # that misses the tolerance goes on even when it is close to a poor joint solve: the
-        # 200-tile seashell with top hinges then meets the targets with its first tiling
-        # (7.3e-4 mm) where it stopped at 3.2e-3 mm and was split once more.
-        if (
-            worse >= 2
-            or (first_round and error > CO_GIVE_UP_RATIO * flat.edge_error_max_mm)
-            or error <= CO_STOP_SHARE * FLAT_EDGE_ERROR_TOL_MM
-            or error
-            <= min(stop_near * FLAT_EDGE_ERROR_TOL_MM, CO_STOP_RATIO * co.edge_error_max_mm)
-            or (error <= FLAT_EDGE_ERROR_TOL_MM and error > CO_STALL_GAIN * best_before)
-        ):
+        if stop:
             break
-        # A conical round that lost ground is judged by the rounds after it (``worse``): the
-        # CLI-default three-shell's went 0.020, 0.060, 1.1e-3, 3.9e-4, 1.4e-4 mm, where a
-        # rate taken from the lost round had given it up after two.
-        judged = progress_made or not conical
-        if give_up_slow and judged and too_slow(previous, error, CO_REFINEMENTS + 1 - done):
-            block["cut_short"] = True
-            break
-        if conical and judged and too_slow(previous, error, CO_REFINEMENTS + 1 - done, reach=1.0):
-            # it would miss the tolerance: the caller co-optimizes again without the conical
-            # condition (the 1600-tile wave: 0.29, 0.016, 0.0099, 0.0065 mm, ... 0.0027 mm
-            # after eight rounds; without, 1.4e-4 mm after four)
-            break
-        previous = error
         rounds = [CO_STAGES[-1:]]
+    if judge.cut_short:
+        block["cut_short"] = True
     # a refinement round can lose (its re-solve may settle elsewhere): keep the best round
     assert best is not None
     new_assembled, new_flat = best
