@@ -398,6 +398,7 @@ def co_optimize_top(
     start_nodes: ArrayLike | None = None,
     hinges: HingeFaces | None = None,
     conical: bool = False,
+    conical_weight: float | None = None,
 ) -> CoOptimizedTop:
     """Move K3D and K2D together until every flat tile is congruent to its assembled top face
     (with ``hinges``: to its hinge points).
@@ -435,6 +436,8 @@ def co_optimize_top(
         With ``hinges`` that put any hinge on the bottom faces, also make K3D conical
         (:class:`VertexStars`, weight ``CO_CONICAL`` relative to planarity), so that the
         bottom corners can be extruded to equal depths under both tiles of each bottom hinge.
+    conical_weight : float, optional
+        That weight instead of ``CO_CONICAL``.
 
     Returns
     -------
@@ -486,7 +489,9 @@ def co_optimize_top(
     for w_planar, w_edge in CO_STAGES if stages is None else stages:
         problem.sqrt_planar = float(np.sqrt(w_planar))
         problem.sqrt_edge = float(np.sqrt(w_edge))
-        problem.sqrt_conical = float(np.sqrt(w_planar * CO_CONICAL))
+        problem.sqrt_conical = float(
+            np.sqrt(w_planar * (CO_CONICAL if conical_weight is None else conical_weight))
+        )
         z, used, _ = constrained_least_squares(
             z, problem, constraints, max_steps=per_stage, angle_tol=angle_tol,
             length_tol=angle_tol * side, rho0=CO_RHO_REL * w_edge,

@@ -22,6 +22,7 @@ from drawstring.fabrication.pipeline import (
 )
 from drawstring.fabrication.profiles import load_profile
 from drawstring.geometry import parallel
+from drawstring.geometry.coflat import CO_CONICAL
 from drawstring.geometry.linkage import build_linkage, gap_centroids, rotating_squares_layout
 from drawstring.geometry.route import plan_route
 
@@ -216,6 +217,46 @@ def test_co_optimization_rounds_stop_where_they_no_longer_pay() -> None:
         True,
         False,
     )
+
+
+def _conical_runs(monkeypatch, refused: set[float]) -> list[tuple[bool, float | None]]:
+    """Record the co-optimizations ``_shaped`` runs as ``(conical, weight)``; a conical one
+    with a weight in ``refused`` comes back refused."""
+    calls: list[tuple[bool, float | None]] = []
+    real = layout_stage._co_optimized_with_fallback
+
+    def recorded(*args):
+        conical, weight = args[8], args[9] if len(args) > 9 else None
+        calls.append((conical, weight))
+        out = real(*args)
+        if conical and weight in refused:
+            block = {**out[2], "accepted": False, "reason": f"refused at weight {weight:g}"}
+            return out[0], out[1], block, out[3]
+        return out
+
+    monkeypatch.setattr(layout_stage, "_co_optimized_with_fallback", recorded)
+    return calls
+
+
+def test_a_conical_co_optimization_that_misses_is_tried_with_the_next_weight(monkeypatch) -> None:
+    # The 60-tile saddle has bottom hinges: its co-optimization is conical.  Refused at the
+    # first weight, it runs again at the retry weight, and only where that is refused too
+    # without the condition, with a note giving the last reason.
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    first, retry = CO_CONICAL, layout_stage.CONICAL_RETRY_WEIGHTS[0]
+    calls = _conical_runs(monkeypatch, {first})
+    result = design("saddle", options)
+    assert calls[:2] == [(True, first), (True, retry)]
+    without = [n for n in result.notes if "without the conical condition" in n]
+    if calls[2:3] == [(False, None)]:  # the retry weight missed the flat targets itself
+        assert without and f"refused at weight {first:g}" not in without[0]
+    else:
+        assert not without
+    calls = _conical_runs(monkeypatch, {first, retry})
+    result = design("saddle", options)
+    assert calls[:3] == [(True, first), (True, retry), (False, None)]
+    (note,) = [n for n in result.notes if "without the conical condition" in n]
+    assert f"(refused at weight {retry:g} with it)" in note
 
 
 def test_the_cli_default_three_shell_meets_its_hinges_seen_from_above() -> None:
