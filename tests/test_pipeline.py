@@ -259,20 +259,17 @@ def test_a_conical_co_optimization_that_misses_is_tried_with_the_next_weight(mon
     assert f"(refused at weight {retry:g} with it)" in note
 
 
-def test_the_cli_default_three_shell_meets_its_hinges_seen_from_above() -> None:
-    # Whichever way its conical rounds go, the three-shell's flat tiles meet their assembled
-    # shapes, and their hinges seen from above; a gap in depth left by co-optimizing without
-    # the conical condition is warned about, naming the thickness difference as its cause.
+def test_the_cli_default_three_shell_meets_its_hinges_in_3d() -> None:
+    # Its conical co-optimization once gave up: after a lost second round on one machine,
+    # after a first round above the plain layout (0.197 against 0.117 mm) with AVX-512
+    # kernels on another, keeping 0.032 mm in depth.  Judged by the rounds after those, the
+    # bottom hinges meet in 3D with AVX-512 and AVX2 kernels alike (3.8e-4, 3.5e-4 mm).
     result = design("three-shell", DesignOptions(simulate=False, cad=False))
     metrics = result.metrics()
     assert metrics["hinges_bottom"] > 0
     assert metrics["flat_edge_error_max_mm"] <= 1e-3
-    assert metrics["hinge_gap_in_plane_max_mm"] <= 1e-3
-    if metrics["hinge_gap_max_mm"] > 1e-3:
-        assert any("without the conical condition" in n for n in result.notes)
-        assert any(
-            w.startswith("hinge gap") and "thickness difference" in w for w in result.warnings
-        )
+    assert metrics["hinge_gap_max_mm"] <= 1e-3
+    assert not any("without the conical condition" in n for n in result.notes)
     assert result.problems == ()
 
 
