@@ -278,7 +278,8 @@ def _shaped(
             plain = (assembled, flat)
             # With bottom hinges the top is made conical too (their corners then meet in
             # depth); where that costs the flat layout its targets, it is co-optimized again
-            # without (the face scan: 0.012 mm conical, within 1e-3 mm without).
+            # with the next weight of the condition (CONICAL_RETRY_WEIGHTS), and after the
+            # last without it (the face scan: 0.012 mm conical, within 1e-3 mm without).
             conical = (
                 HINGE_DEPTHS and CO_CONICAL > 0 and faces is not None and bool(faces.bottom.any())
             )
@@ -377,7 +378,7 @@ def _co_optimized_with_fallback(
     conical_weight: float | None = None,
 ) -> tuple[AssembledResult, FlatResult, dict[str, Any], bool]:
     """:func:`co_optimized` tracking the clear openings and, when that is refused and
-    ``fallback`` (and not ``conical``: that is tried again without instead), again holding the
+    ``fallback`` (and not ``conical``: the caller tries that again otherwise), again holding the
     eq.-1 tiles' openings; also whether a full run is owed
     (:attr:`ShapedLayout.fallback_skipped`)."""
     first_solves: dict[str, CoOptimizedTop] = {}
