@@ -8,8 +8,10 @@ layout stage uses it to lay out the first tighter tiling while the first one is 
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import multiprocessing
+import os
 import time
 from collections.abc import Callable
 from multiprocessing.connection import Connection
@@ -23,6 +25,13 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 T = TypeVar("T")
+
+
+#: Scheduling niceness added in :class:`Ahead`'s child.  The child's result is often thrown
+#: away (the tiling laid out here meets the targets), so where the two processes and this
+#: one's worker threads want more cores than there are, the parent goes first; the child
+#: still gets every core the parent leaves idle.  Its result does not depend on it.
+AHEAD_NICENESS = 19
 
 
 class Ahead(Generic[T]):
@@ -76,6 +85,8 @@ def tag_ahead(record: logging.LogRecord) -> bool:
 def _run_ahead(work: Callable[[Progress], object], send: Connection) -> None:
     """Body of :class:`Ahead`'s child process."""
     parallel.exit_quietly_on_interrupt()
+    with contextlib.suppress(OSError):  # AHEAD_NICENESS: yield to the parent
+        os.nice(AHEAD_NICENESS)
     from .pipeline import Progress  # the child only: pipeline imports this module
 
     for handler in logging.getLogger().handlers:  # -v: tell this process's lines apart

@@ -253,6 +253,25 @@ class _JointTopLeastSquares:
         )
         #: CSR order of the Jacobian's entries, its column indices and row pointers
         self._pattern: tuple[IntArray, NDArray[np.int32], NDArray[np.int32]] | None = None
+        #: the last K3D evaluated, its quads' best-fit planes and its closest target points:
+        #: the solver asks for the residual of a trial point and, once it is accepted, for
+        #: the Jacobian at the same point
+        self._seen: tuple[FloatArray, tuple[FloatArray, ...]] | None = None
+
+    def _planes_and_closest(self, top: FloatArray) -> tuple[FloatArray, ...]:
+        """Best-fit plane (centroid, normal) of every quad of ``top``, and every vertex's
+        closest target point with the normal of its face (zeros without ``w_surface``)."""
+        if self._seen is not None and np.array_equal(self._seen[0], top):
+            return self._seen[1]
+        centroid, normal = plane_fit(top[self.quads])
+        if self.sqrt_surface > 0:
+            _, face, closest = self.tree.squared_distance(*self.target, np.ascontiguousarray(top))
+            face_normal = self.target_normals[np.asarray(face, dtype=np.int64)]
+        else:
+            closest = face_normal = np.zeros((0, 3))
+        found = (centroid, normal, np.asarray(closest), face_normal)
+        self._seen = (top.copy(), found)
+        return found
 
     def pack(self, nodes: FloatArray, top: FloatArray) -> FloatArray:
         z = np.zeros((self.rows, 2))
@@ -313,7 +332,7 @@ class _JointTopLeastSquares:
         # planarity: distances to the best-fit plane (Jacobian by the envelope theorem)
         w = self.sqrt_planar
         pts = top[self.quads]
-        centroid, normal = plane_fit(pts)
+        centroid, normal, closest, fn = self._planes_and_closest(top)
         dist = np.einsum("qki,qi->qk", pts - centroid[:, None], normal)
         res.append(w * dist.ravel())
         if with_jacobian:
@@ -329,8 +348,6 @@ class _JointTopLeastSquares:
         # closeness to the target along the closest face's normal
         if self.sqrt_surface > 0:
             w = self.sqrt_surface
-            _, face, closest = self.tree.squared_distance(*self.target, np.ascontiguousarray(top))
-            fn = self.target_normals[np.asarray(face, dtype=np.int64)]
             res.append(w * np.einsum("vi,vi->v", top - closest, fn))
             if with_jacobian:
                 r = row0 + np.arange(self.n)

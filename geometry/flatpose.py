@@ -37,7 +37,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from drawstring.geometry.linkage import Linkage, slit_ends
-from drawstring.geometry.parallel import map_blocks
+from drawstring.geometry.parallel import map_blocks, thread_count
 from drawstring.geometry.rigid import apply_rigid, rigid_fit
 from drawstring.geometry.tolerances import (
     FLAT_FREE_MARGIN_DEG,
@@ -308,10 +308,18 @@ def free_openings(
             clearance, current[sel] - opening,
         )  # fmt: skip
 
-    # the openings on the grid, and each bisection's lower and upper midpoints, are checked
-    # independently of each other: the checks are spread over the cores (:func:`map_blocks`)
+    # Every end is checked on its own (row by row), so all the openings on the grid are
+    # checked in one batch, split into a block per core (:func:`map_blocks`); a bisection's
+    # lower and upper midpoints, too few to pay for a thread, go in one batch.
     grid = np.radians(np.linspace(0.0, 90.0, _GRID + 1))
-    on_grid = np.stack(map_blocks(lambda g: ok(np.full(n_ends, g)), list(grid)), axis=1)  # (E, G)
+    batch_end = np.tile(np.arange(n_ends), len(grid))
+    batch_opening = np.repeat(grid, n_ends)
+    spans = np.array_split(np.arange(len(batch_end)), thread_count())
+    on_grid = (
+        np.concatenate(map_blocks(lambda rows: ok(batch_opening[rows], batch_end[rows]), spans))
+        .reshape(len(grid), n_ends)
+        .T
+    )  # (E, G)
     anywhere = on_grid.any(axis=1)
     first = np.argmax(on_grid, axis=1)
     # end of the first separable run
@@ -325,7 +333,8 @@ def free_openings(
     for _ in range(_BISECTIONS):
         lo_mid = 0.5 * (lo_out[lo_sel] + lo_in[lo_sel])
         hi_mid = 0.5 * (hi_in[hi_sel] + hi_out[hi_sel])
-        lo_good, hi_good = map_blocks(lambda job: ok(*job), [(lo_mid, lo_sel), (hi_mid, hi_sel)])
+        good = ok(np.concatenate([lo_mid, hi_mid]), np.concatenate([lo_sel, hi_sel]))
+        lo_good, hi_good = good[: len(lo_sel)], good[len(lo_sel) :]
         lo_in[lo_sel] = np.where(lo_good, lo_mid, lo_in[lo_sel])
         lo_out[lo_sel] = np.where(lo_good, lo_out[lo_sel], lo_mid)
         hi_in[hi_sel] = np.where(hi_good, hi_mid, hi_in[hi_sel])

@@ -77,7 +77,8 @@ def with_diagonal(upper: sp.csc_matrix) -> sp.csc_matrix:
     n = upper.shape[1]
     ends = upper.indptr[1:]
     filled = ends > upper.indptr[:-1]
-    last = np.where(filled, upper.indices[np.maximum(ends - 1, 0)], -1)
+    last = np.full(n, -1, dtype=np.int64)
+    last[filled] = upper.indices[ends[filled] - 1]
     missing = np.flatnonzero(last != np.arange(n))
     if missing.size == 0:
         return upper
@@ -105,17 +106,34 @@ def _upper_keys(upper: sp.csc_matrix) -> IntArray:
     return cols * n + upper.indices.astype(np.int64)
 
 
-def _backward_error(upper: sp.csc_matrix, x: FloatArray, b: FloatArray) -> float:
+def _widest_row(upper: sp.csc_matrix) -> int:
+    """Most stored entries in one row of the symmetric matrix whose upper triangle (a
+    canonical CSC matrix) is ``upper``."""
+    n = upper.shape[0]
+    in_row = np.bincount(upper.indices, minlength=n)  # row i: the diagonal and right of it
+    in_col = np.diff(upper.indptr)  # column i: the diagonal and above it (left of it in row i)
+    filled = np.flatnonzero(in_col)
+    on_diagonal = np.zeros(n, dtype=np.int64)  # a column's last entry is its diagonal one
+    on_diagonal[filled] = upper.indices[upper.indptr[filled + 1] - 1] == filled
+    return int((in_row + in_col - on_diagonal).max(initial=0))
+
+
+def _backward_error(
+    upper: sp.csc_matrix, x: FloatArray, b: FloatArray, widest: int | None = None
+) -> float:
     """Normwise backward error of ``x`` as a solution of ``A x = b``, ``A`` the symmetric
-    matrix of which ``upper`` is the upper triangle (inf: not finite)."""
+    matrix of which ``upper`` is the upper triangle (inf: not finite).  The infinity norm of
+    ``A`` is bounded by its largest entry times ``widest`` (:func:`_widest_row`, found here if
+    not given): at most that many times too lenient, against a tolerance that tells a stable
+    factorization from a broken one by many orders of magnitude."""
     if not np.all(np.isfinite(x)):
         return float("inf")
     diagonal = upper.diagonal()
     product = upper @ x + upper.T @ x - diagonal * x
-    magnitude = abs(upper)
-    ones = np.ones(upper.shape[0])
-    row_sums = magnitude @ ones + magnitude.T @ ones - np.abs(diagonal)
-    scale = float(row_sums.max(initial=0.0)) * float(np.abs(x).max(initial=0.0))
+    if widest is None:
+        widest = _widest_row(upper)
+    norm = float(np.abs(upper.data).max(initial=0.0)) * widest
+    scale = norm * float(np.abs(x).max(initial=0.0))
     scale += float(np.abs(b).max(initial=0.0))
     residual = float(np.abs(product - b).max(initial=0.0))
     return residual / scale if scale > 0 else residual
@@ -140,6 +158,7 @@ class SpdSolver:
         # the last matrix's own pattern and where its entries sit in the union
         self._last: tuple[NDArray[np.int32], NDArray[np.int32]] | None = None
         self._pos: IntArray = np.zeros(0, dtype=np.int64)
+        self._widest = 0  # of the last matrix's pattern (:func:`_widest_row`)
         self._union = sp.csc_matrix((0, 0))  # the union pattern, refilled for every matrix
         #: the union pattern as a cvxopt matrix and CHOLMOD's symbolic factor of it, when it
         #: is large enough (:data:`SUPERNODAL_MIN_ENTRIES`)
@@ -174,6 +193,7 @@ class SpdSolver:
                 self._set_union(merged, n)
                 pos = np.searchsorted(self._keys, keys)
             self._last, self._pos = (upper.indptr.copy(), upper.indices.copy()), pos
+            self._widest = _widest_row(upper)
         union = self._union
         union.data[:] = 0.0
         union.data[self._pos] = upper.data
@@ -192,7 +212,7 @@ class SpdSolver:
                 x = np.asarray(self._solver.solve(b))
             except RuntimeError:  # qdldl refuses a zero pivot it meets while analysing
                 pass
-        if x is not None and _backward_error(upper, x, b) <= BACKWARD_ERROR_TOL:
+        if x is not None and _backward_error(upper, x, b, self._widest) <= BACKWARD_ERROR_TOL:
             return x
         # not numerically positive definite: a pivoting factorization; analyse afresh next time
         # (CHOLMOD's symbolic factor depends on the pattern alone and is kept)

@@ -500,3 +500,29 @@ def test_a_conical_top_lets_the_bottom_hinges_meet_in_depth() -> None:
     plain, cone = results[False], results[True]
     assert plain[0] > 1e-2 and cone[0] < 1e-6  # rad
     assert extruded_depth_difference(cone[1]) < 0.3 * extruded_depth_difference(plain[1])
+
+
+def test_the_joint_solves_jacobian_after_a_residual_at_the_same_point_is_a_fresh_ones() -> None:
+    # The joint solve keeps the last point's planes and closest target points for the
+    # Jacobian the solver asks for next at the same point; a moved point gets its own.
+    from drawstring.geometry.coflat import _JointTopLeastSquares
+
+    linkage, assembled, flat, target = _saddle_design(n=5)
+
+    def problem() -> _JointTopLeastSquares:
+        return _JointTopLeastSquares(
+            linkage, assembled.quads, assembled.top, *target, w_surface=0.1
+        )
+
+    z = problem().pack(flat.nodes, assembled.top)
+    moved = z.copy()
+    moved[linkage.n_nodes :] += 0.37  # K3D shifted off the target
+    warm = problem()
+    for point in (z, moved, z):
+        warm.residual(point)
+        res, jac = warm.residual_jacobian(point)
+        fresh_res, fresh_jac = problem().residual_jacobian(point)
+        assert np.array_equal(res, fresh_res)
+        assert np.array_equal(jac.toarray(), fresh_jac.toarray())
+    # the residual of the moved point sees its own closest points
+    assert not np.array_equal(warm.residual(moved), warm.residual(z))

@@ -207,3 +207,21 @@ def test_hinge_face_openings_match_the_extruded_tiles() -> None:
     lo, hi, fits = faces.window(np.radians(12.0), 0.5 * np.pi)
     assert np.all(opened[fits] >= np.degrees(lo[fits]) - 1e-3)
     assert np.all(opened[fits] <= np.degrees(hi[fits]) + 1e-3)
+
+
+def test_free_openings_do_not_depend_on_how_the_checks_are_split(monkeypatch) -> None:
+    # The grid's checks go in one batch per core: each end is checked on its own, so the
+    # windows are bitwise the same on any number of cores.
+    from drawstring.geometry import flatpose
+
+    linkage, uv = _grid(5, 80.0)
+    _, t3 = heightfield_tiles(uv, linkage.tile_corners, "saddle", 6.0, 0.004)
+    bottom = hinge_sides(linkage, t3, 12.0)
+    flat = lay_flat(t3)
+    found = []
+    for threads in (1, 3):
+        monkeypatch.setattr(flatpose, "thread_count", lambda threads=threads: threads)
+        monkeypatch.setattr(flatpose, "map_blocks", lambda work, blocks: [work(b) for b in blocks])
+        found.append(free_openings(linkage, flat, bottom, clearance=CLEARANCE, touch=TOUCH))
+    assert np.array_equal(found[0][0], found[1][0]) and np.array_equal(found[0][1], found[1][1])
+    assert np.any(found[0][0] > 0) or np.any(found[0][1] < 0.5 * np.pi)  # some ends bisected

@@ -8,7 +8,7 @@ import pytest
 import scipy.sparse as sp
 
 from drawstring.geometry import spd as spd_module
-from drawstring.geometry.spd import SpdSolver, upper_triangle, with_diagonal
+from drawstring.geometry.spd import SpdSolver, _widest_row, upper_triangle, with_diagonal
 
 
 def spd(n: int, density: float, seed: int) -> sp.csc_matrix:
@@ -155,3 +155,28 @@ def test_with_diagonal_stores_every_diagonal_entry_as_adding_a_diagonal_matrix_w
     whole.sum_duplicates()  # canonical: sorted indices
     full = upper_triangle(whole)
     assert with_diagonal(full) is full  # nothing missing: unchanged
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_widest_row_counts_the_entries_of_the_symmetric_pattern(seed: int) -> None:
+    # The backward-error check bounds the matrix norm with it: it must count every stored
+    # entry of the densest row, on both sides of the diagonal, the diagonal once.
+    rng = np.random.default_rng(seed)
+    n = 25
+    matrix = sp.random(n, n, density=0.15, random_state=rng, format="csc")
+    matrix = sp.csc_matrix(matrix + matrix.T)
+    matrix.sum_duplicates()
+    upper = upper_triangle(matrix)
+    if seed % 2:
+        upper = with_diagonal(upper)  # explicit zeros count as stored
+    cols = np.repeat(np.arange(n), np.diff(upper.indptr))
+    mask = np.zeros((n, n), dtype=bool)
+    mask[upper.indices, cols] = mask[cols, upper.indices] = True
+    assert _widest_row(upper) == mask.sum(axis=1).max()
+
+
+def test_an_empty_upper_triangle_gets_its_diagonal_and_no_row_width() -> None:
+    empty = sp.csc_matrix((3, 3))
+    assert _widest_row(empty) == 0
+    filled = with_diagonal(empty)
+    assert filled.nnz == 3 and np.array_equal(filled.indices, [0, 1, 2])

@@ -1,0 +1,32 @@
+"""The tiling laid out ahead in a forked child process (fabrication/ahead.py)."""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import sys
+
+import pytest
+
+from drawstring.fabrication.ahead import AHEAD_NICENESS, Ahead
+from drawstring.fabrication.pipeline import Progress
+
+pytestmark = pytest.mark.skipif(
+    not sys.platform.startswith("linux") or "fork" not in multiprocessing.get_all_start_methods(),
+    reason="laid out ahead only where processes fork (Linux)",
+)
+
+
+def test_the_child_yields_the_cores_to_the_parent() -> None:
+    # Its result is often not needed: it runs at a lower priority than the parent.
+    parent = os.nice(0)
+    ahead: Ahead[int] = Ahead(lambda progress: os.nice(0))
+    assert ahead.result(Progress(quiet=True)) == min(parent + AHEAD_NICENESS, 19)
+    assert os.nice(0) == parent
+
+
+def test_a_child_that_fails_gives_no_result() -> None:
+    def fails(progress: Progress) -> int:
+        raise RuntimeError("out of memory")
+
+    assert Ahead(fails).result(Progress(quiet=True)) is None
