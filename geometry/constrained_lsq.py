@@ -45,19 +45,41 @@ __all__ = [
 LM_DAMPING_MAX = 1e12
 
 
-def _csr_rows(cols: IntArray, vals: FloatArray, n_cols: int) -> sp.csr_matrix:
+def _csr_rows(
+    cols: IntArray,
+    vals: FloatArray,
+    n_cols: int,
+    pattern: _RowPattern | None = None,
+) -> sp.csr_matrix:
     """The sparse matrix with ``cols.shape[1]`` entries per row (columns ``cols``, values
     ``vals``), built directly in canonical CSR form: the matrix ``csr_matrix((vals, (rows,
-    cols)))`` would give, without its coordinate sorting, when no row repeats a column."""
+    cols)))`` would give, without its coordinate sorting, when no row repeats a column.
+    ``pattern`` is :func:`_row_pattern` of ``cols``, where the caller keeps it."""
+    k, width = cols.shape
+    if pattern is None:
+        pattern = _row_pattern(cols)
+    if pattern is None:  # a row repeats a column
+        rows = np.repeat(np.arange(k), width)
+        return sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(k, n_cols))
+    order, indices, indptr = pattern
+    v = np.take_along_axis(vals, order, axis=1)
+    return sp.csr_matrix((v.ravel(), indices, indptr), shape=(k, n_cols))
+
+
+#: Per row, the order of its columns, then the CSR column indices and row pointers.
+_RowPattern = tuple[IntArray, NDArray[np.int32], NDArray[np.int32]]
+
+
+def _row_pattern(cols: IntArray) -> _RowPattern | None:
+    """How :func:`_csr_rows` sorts ``cols`` ``(k, width)`` into CSR form (None: a row repeats
+    a column)."""
     k, width = cols.shape
     order = np.argsort(cols, axis=1, kind="stable")
     c = np.take_along_axis(cols, order, axis=1)
     if width > 1 and np.any(c[:, 1:] == c[:, :-1]):
-        rows = np.repeat(np.arange(k), width)
-        return sp.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(k, n_cols))
-    v = np.take_along_axis(vals, order, axis=1)
+        return None
     indptr = np.arange(0, k * width + 1, width, dtype=np.int32)
-    return sp.csr_matrix((v.ravel(), c.ravel().astype(np.int32), indptr), shape=(k, n_cols))
+    return order, c.ravel().astype(np.int32), indptr
 
 
 @dataclass(frozen=True)
@@ -157,14 +179,18 @@ class EdgeLeastSquares:
     targets: FloatArray
     sqrt_w: FloatArray
 
+    def __post_init__(self) -> None:
+        e = self.edges
+        self._cols = np.stack([2 * e[:, 0], 2 * e[:, 0] + 1, 2 * e[:, 1], 2 * e[:, 1] + 1], axis=1)
+        self._pattern = _row_pattern(self._cols)  # the edges, and so the pattern, are fixed
+
     def residual_jacobian(self, x: FloatArray) -> tuple[FloatArray, sp.csr_matrix]:
         e = self.edges
         d = x[e[:, 1]] - x[e[:, 0]]
         length = np.linalg.norm(d, axis=1)
         unit = d / np.maximum(length, 1e-300)[:, None]
-        cols = np.stack([2 * e[:, 0], 2 * e[:, 0] + 1, 2 * e[:, 1], 2 * e[:, 1] + 1], axis=1)
         vals = self.sqrt_w[:, None] * np.concatenate([-unit, unit], axis=1)
-        jac = _csr_rows(cols, vals, 2 * len(x))
+        jac = _csr_rows(self._cols, vals, 2 * len(x), self._pattern)
         return self.sqrt_w * (length - self.targets), jac
 
     def residual(self, x: FloatArray) -> FloatArray:

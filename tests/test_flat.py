@@ -361,6 +361,29 @@ def test_direct_csr_rows_match_the_coordinate_build() -> None:
     assert summed[1, 1] == pytest.approx(vals[1, 0] + vals[1, 3])
 
 
+def test_the_edge_objective_keeps_its_jacobians_pattern_across_points() -> None:
+    # EdgeLeastSquares sorts its fixed columns once; every point's Jacobian is the coordinate
+    # build's, edges running either way between their nodes.
+    from scipy import sparse
+
+    from drawstring.geometry.constrained_lsq import EdgeLeastSquares
+
+    edges = np.array([[0, 3], [2, 1], [4, 0], [3, 2]])
+    objective = EdgeLeastSquares(edges, np.full(4, 2.0), np.array([1.0, 2.0, 0.5, 1.5]))
+    rng = np.random.default_rng(8)
+    for _ in range(3):
+        x = rng.normal(size=(5, 2))
+        _, jac = objective.residual_jacobian(x)
+        d = x[edges[:, 1]] - x[edges[:, 0]]
+        unit = d / np.linalg.norm(d, axis=1, keepdims=True)
+        vals = objective.sqrt_w[:, None] * np.c_[-unit, unit]
+        cols = np.c_[2 * edges[:, 0], 2 * edges[:, 0] + 1, 2 * edges[:, 1], 2 * edges[:, 1] + 1]
+        rows = np.repeat(np.arange(4), 4)
+        reference = sparse.csr_matrix((vals.ravel(), (rows, cols.ravel())), shape=(4, 10))
+        np.testing.assert_array_equal(jac.indices, reference.indices)
+        np.testing.assert_array_equal(jac.data, reference.data)
+
+
 def test_a_seed_layout_stops_once_its_bounds_hold() -> None:
     # With seed_steps the solve stops at the first multiplier round, past that many steps,
     # whose rows all hold: fewer steps, every hard bound kept (only the least-squares edge
