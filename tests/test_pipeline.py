@@ -219,19 +219,23 @@ def test_co_optimization_rounds_stop_where_they_no_longer_pay() -> None:
     )
 
 
-def _conical_runs(monkeypatch, refused: set[float]) -> list[tuple[bool, float | None]]:
-    """Record the co-optimizations ``_shaped`` runs as ``(conical, weight)``; a conical one
-    with a weight in ``refused`` comes back refused."""
+def _conical_runs(
+    monkeypatch, refused: set[float], off_mm: float | None = None
+) -> list[tuple[bool, float | None]]:
+    """Record the co-optimizations ``_shaped`` runs as ``(conical, weight, fallback)``; a
+    conical one with a weight in ``refused`` comes back refused (with its flat layout
+    ``off_mm`` off, if given)."""
     calls: list[tuple[bool, float | None]] = []
     real = layout_stage._co_optimized_with_fallback
 
     def recorded(*args):
         conical, weight = args[8], args[9] if len(args) > 9 else None
-        calls.append((conical, weight))
+        calls.append((conical, weight, args[7]))
         out = real(*args)
         if conical and weight in refused:
             block = {**out[2], "accepted": False, "reason": f"refused at weight {weight:g}"}
-            return out[0], out[1], block, out[3]
+            flat = out[1] if off_mm is None else replace(out[1], edge_error_max_mm=off_mm)
+            return out[0], flat, block, out[3]
         return out
 
     monkeypatch.setattr(layout_stage, "_co_optimized_with_fallback", recorded)
@@ -246,17 +250,43 @@ def test_a_conical_co_optimization_that_misses_is_tried_with_the_next_weight(mon
     first, retry = CO_CONICAL, layout_stage.CONICAL_RETRY_WEIGHTS[0]
     calls = _conical_runs(monkeypatch, {first})
     result = design("saddle", options)
-    assert calls[:2] == [(True, first), (True, retry)]
+    assert [c[:2] for c in calls[:2]] == [(True, first), (True, retry)]
     without = [n for n in result.notes if "without the conical condition" in n]
-    if calls[2:3] == [(False, None)]:  # the retry weight missed the flat targets itself
+    if [c[:2] for c in calls[2:3]] == [
+        (False, None)
+    ]:  # the retry weight missed the flat targets itself
         assert without and f"refused at weight {first:g}" not in without[0]
     else:
         assert not without
     calls = _conical_runs(monkeypatch, {first, retry})
     result = design("saddle", options)
-    assert calls[:3] == [(True, first), (True, retry), (False, None)]
+    assert [c[:2] for c in calls[:3]] == [(True, first), (True, retry), (False, None)]
     (note,) = [n for n in result.notes if "without the conical condition" in n]
     assert f"(refused at weight {retry:g} with it)" in note
+
+
+def test_a_tiling_that_may_still_be_split_tries_no_second_weight_after_a_far_miss(
+    monkeypatch,
+) -> None:
+    # The 60-tile saddle is made a tiling that may be split again; its conical
+    # co-optimization misses by 0.5 mm at the first weight: it goes without the condition at
+    # once.  A miss within CO_SLOW_REACH of the tolerance still gets the retry weight, and so
+    # does the same far miss in a tiling that is laid out in full.
+    monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 0.0)
+    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    first, retry = CO_CONICAL, layout_stage.CONICAL_RETRY_WEIGHTS[0]
+    calls = _conical_runs(monkeypatch, {first}, off_mm=0.5)
+    design("saddle", options)
+    assert calls[:2] == [(True, first, False), (False, None, False)]
+    near = 0.5 * layout_stage.CO_SLOW_REACH * layout_stage.FLAT_EDGE_ERROR_TOL_MM
+    calls = _conical_runs(monkeypatch, {first}, off_mm=near)
+    design("saddle", options)
+    assert calls[:2] == [(True, first, False), (True, retry, False)]
+    monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 10.0)  # laid out in full
+    calls = _conical_runs(monkeypatch, {first}, off_mm=0.5)
+    design("saddle", options)
+    assert calls[:2] == [(True, first, True), (True, retry, True)]
 
 
 def test_the_cli_default_three_shell_meets_its_hinges_in_3d() -> None:
