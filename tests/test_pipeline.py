@@ -220,11 +220,11 @@ def test_co_optimization_rounds_stop_where_they_no_longer_pay() -> None:
 
 
 def _conical_runs(
-    monkeypatch, refused: set[float], off_mm: float | None = None
+    monkeypatch, refused: set[float], off_mm: float | None = None, joint: bool = False
 ) -> list[tuple[bool, float | None]]:
     """Record the co-optimizations ``_shaped`` runs as ``(conical, weight, fallback)``; a
     conical one with a weight in ``refused`` comes back refused (with its flat layout
-    ``off_mm`` off, if given)."""
+    ``off_mm`` off, if given; ``joint``: refused for its first joint solve)."""
     calls: list[tuple[bool, float | None]] = []
     real = layout_stage._co_optimized_with_fallback
 
@@ -234,6 +234,8 @@ def _conical_runs(
         out = real(*args)
         if conical and weight in refused:
             block = {**out[2], "accepted": False, "reason": f"refused at weight {weight:g}"}
+            if joint:
+                block["joint_refused"] = True
             flat = out[1] if off_mm is None else replace(out[1], edge_error_max_mm=off_mm)
             return out[0], flat, block, out[3]
         return out
@@ -287,6 +289,19 @@ def test_a_tiling_that_may_still_be_split_tries_no_second_weight_after_a_far_mis
     calls = _conical_runs(monkeypatch, {first}, off_mm=0.5)
     design("saddle", options)
     assert calls[:2] == [(True, first, True), (True, retry, True)]
+
+
+def test_no_larger_conical_weight_follows_a_joint_solve_above_the_plain_layout(
+    monkeypatch,
+) -> None:
+    # Refused for its first joint solve, the conical co-optimization is run without the
+    # condition next: a larger weight would pull the joint solve further off.
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    calls = _conical_runs(monkeypatch, {CO_CONICAL}, joint=True)
+    result = design("saddle", options)
+    assert [c[:2] for c in calls[:2]] == [(True, CO_CONICAL), (False, None)]
+    (note,) = [n for n in result.notes if "without the conical condition" in n]
+    assert f"(refused at weight {CO_CONICAL:g} with it)" in note
 
 
 def test_the_cli_default_three_shell_meets_its_hinges_in_3d() -> None:
