@@ -189,9 +189,15 @@ class SpdSolver:
             inside = pos < len(self._keys)
             inside[inside] = self._keys[pos[inside]] == keys[inside]
             if (self._solver is None and self._cholmod is None) or not inside.all():
-                merged = np.sort(np.concatenate([self._keys, keys[~inside]]))
-                self._set_union(merged, n)
-                pos = np.searchsorted(self._keys, keys)
+                # the union and the new keys are both ascending: a stable sort merges the two
+                # runs in linear time, and says where each old and new key lands
+                both = np.concatenate([self._keys, keys[~inside]])
+                order = np.argsort(both, kind="stable")
+                landed = np.empty(len(both), dtype=np.int64)
+                landed[order] = np.arange(len(both))
+                pos[inside] = landed[pos[inside]]
+                pos[~inside] = landed[len(self._keys) :]
+                self._set_union(both[order], n)
             self._last, self._pos = (upper.indptr.copy(), upper.indices.copy()), pos
             self._widest = _widest_row(upper)
         union = self._union
