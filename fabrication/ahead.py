@@ -3,7 +3,9 @@
 :class:`Ahead` forks this process; the child computes what the parent would compute, from
 a copy of its state, and sends back the result and its stage times through a pipe.  The
 layout stage uses it to lay out the first tighter tiling while the first one is laid out
-(:data:`~drawstring.fabrication.layout_stage.RETILE_AHEAD`).
+(:data:`~drawstring.fabrication.layout_stage.RETILE_AHEAD`), and to co-optimize without the
+conical condition while the conical co-optimizations run
+(:data:`~drawstring.fabrication.layout_stage.CO_SPECULATE`).
 """
 
 from __future__ import annotations

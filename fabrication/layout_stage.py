@@ -12,6 +12,7 @@ import logging
 import math
 import multiprocessing
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
@@ -160,7 +161,7 @@ def shape_and_layout(
     first_tiling = tiled(bound)
     if first_tiling.scale_factor_max - 1.0 < RETILE_MIN_SHARE * (bound - 1.0):
         # its area scale hardly varies: more splits are not what it lacks
-        return _shaped(first_tiling, bound, loaded, options, progress, shapes)
+        return _shaped(first_tiling, bound, loaded, options, progress, shapes, spare_core=True)
     # A tiling that may be split again goes without the held-openings fallback: its
     # co-optimization is refused for its area scale, which more splits mend (the 200-tile
     # chair in one part: the fallback took 4.5 s and still missed by 0.2 mm).  It runs after
@@ -181,8 +182,9 @@ def shape_and_layout(
             ahead = _Ahead(work, "the tiling laid out ahead")
     try:
         first = best = _shaped(
-            first_tiling, bound, loaded, options, progress, shapes, fallback=False
-        )
+            first_tiling, bound, loaded, options, progress, shapes, fallback=False,
+            spare_core=ahead is None,
+        )  # fmt: skip
         first_accuracy = best_accuracy = first.accuracy_mm
         target = min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
         tried: list[str] = []
@@ -198,7 +200,7 @@ def shape_and_layout(
             if _same_parts(tiling, best.tiling):
                 break  # no further split keeps enough cells on each side
             if trial is None:
-                trial = _shaped(tiling, bound, loaded, options, progress, shapes)
+                trial = _shaped(tiling, bound, loaded, options, progress, shapes, spare_core=True)
             accuracy = trial.accuracy_mm
             tried.append(f"{_parts(tiling)} at bound {bound:.3g}: {accuracy:.2g} mm")
             if not (accuracy < RETILE_GAIN * best_accuracy or accuracy <= target):
@@ -209,7 +211,9 @@ def shape_and_layout(
             ahead.cancel()  # the first tiling met the targets: its result is not needed
     if best is first and first.fallback_skipped and first_accuracy > target:
         # kept after all: co-optimized in full, with the held-openings fallback
-        best = first = _shaped(first_tiling, first.split_bound, loaded, options, progress, shapes)
+        best = first = _shaped(
+            first_tiling, first.split_bound, loaded, options, progress, shapes, spare_core=True
+        )
     if not tried:
         return first
     outcome = f"kept {_parts(best.tiling)}" if best is not first else "kept the first tiling"
@@ -247,10 +251,13 @@ def _shaped(
     shapes: dict[MeshKey, AssembledResult],
     *,
     fallback: bool = True,
+    spare_core: bool = False,
 ) -> ShapedLayout:
     """Stages assembled to hinges on one tiling (see :func:`shape_and_layout`); with
     ``fallback=False`` a refused co-optimization is not run again holding the eq.-1
     openings, and the hinge stage is skipped when the flat layout is too far off.
+    ``spare_core``: no other process lays out a tiling meanwhile, so the co-optimizations
+    that may follow the one running are run ahead (:class:`_CoLadder`).
     ``shapes`` holds the assembled configurations already solved, by quad mesh; their arrays
     are read-only, as they may be shared between tilings (and so are those of a design that
     keeps the eq.-1 tiles, e.g. with ``--no-co-optimize``)."""
@@ -283,44 +290,16 @@ def _shaped(
             conical = (
                 HINGE_DEPTHS and CO_CONICAL > 0 and faces is not None and bool(faces.bottom.any())
             )
-            missed, met, retries_skipped = "", False, False
-            for weight in (CO_CONICAL, *CONICAL_RETRY_WEIGHTS) if conical else (None,):
-                assembled, flat, co_block, skipped = _co_optimized_with_fallback(
-                    linkage, tiling, *plain, loaded, options, faces, fallback, conical, weight
-                )  # fmt: skip
-                if not conical or (
-                    co_block["accepted"] and flat.edge_error_max_mm <= FLAT_EDGE_ERROR_TOL_MM
-                ):
-                    met = True
-                    break
-                missed = co_block["reason"] or (
-                    f"its flat edge error {flat.edge_error_max_mm:.3g} mm exceeds "
-                    f"{FLAT_EDGE_ERROR_TOL_MM:g} mm"
-                )
-                logger.info("conical co-optimization (weight %g) missed (%s)", weight, missed)
-                if co_block.get("joint_refused") and not CONICAL_RETRY_JOINT_MISS:
-                    break
-                if (
-                    CONICAL_RETRY_FAR
-                    and not fallback
-                    and flat.edge_error_max_mm > CO_SLOW_REACH * FLAT_EDGE_ERROR_TOL_MM
-                ):
-                    # A tiling that may still be split tries no further weight after a miss
-                    # this far off (see CONICAL_RETRY_FAR): it is tiled again, and laid out
-                    # in full if kept after all.
-                    retries_skipped = True
-                    break
-            if not met:
-                logger.info("conical co-optimization missed (%s): again without", missed)
-                assembled, flat, co_block, skipped = _co_optimized_with_fallback(
-                    linkage, tiling, *plain, loaded, options, faces, fallback, False
-                )  # fmt: skip
-                skipped = skipped or retries_skipped
-                notes.append(
-                    f"co-optimized without the conical condition ({missed} with it): the "
-                    "bottom hinges meet seen from above, and in depth only as the tiles' "
-                    "thicknesses allow"
-                )
+            ladder = _CoLadder(
+                lambda step: _co_optimized_with_fallback(
+                    linkage, tiling, *plain, loaded, options, faces, fallback, *step
+                ),
+                conical,
+                spare_core and CO_SPECULATE and _can_fork(),
+            )  # fmt: skip
+            assembled, flat, co_block, skipped, note = ladder.run(fallback)
+            if note:
+                notes.append(note)
         if not co_block["accepted"]:
             notes.append(f"co-optimization not used: {co_block['reason']}")
             if flat.iterations >= FLAT_SEED_STEPS:
@@ -354,6 +333,115 @@ def _shaped(
         notes=tuple(notes),
         fallback_skipped=skipped,
     )
+
+
+#: Run the co-optimization without the conical condition, which follows where the conical
+#: ones miss, in a forked child process while they run, where a core is spare
+#: (:class:`_CoLadder`).
+CO_SPECULATE = True
+
+#: One co-optimization of :class:`_CoLadder`: conical or not, and the conical weight.
+_Step = tuple[bool, float | None]
+_Outcome = tuple[AssembledResult, FlatResult, dict[str, Any], bool]
+
+
+class _CoLadder:
+    """The co-optimizations of one tiling in turn: with bottom hinges conical with each weight
+    of ``(CO_CONICAL, *CONICAL_RETRY_WEIGHTS)`` until one meets the flat targets, then without
+    the condition; otherwise the one run without it.
+
+    With ``ahead``, the run without the condition is computed meanwhile in a forked child
+    (:class:`~drawstring.fabrication.ahead.Ahead`, which yields the cores to this process),
+    and taken from it if it is needed.  Every run depends on the tiling's plain layout alone,
+    so the outcome is the one of the runs in turn.  Where the first weight meets the targets
+    (most designs) the child is stopped and its work thrown away; where the conical runs miss,
+    the wait for the last run is cut by the time they took (the 1600-tile wave: 2.4 s for
+    its first weight, whose joint solve is refused, then 4.8 s without the condition; 7.3 s
+    in turn, 5.5 s so).  Only the last run goes ahead: running the retry weight too made the
+    two children share the spare core, and the wave gained 0.6 s.
+    """
+
+    def __init__(self, run: Callable[[_Step], _Outcome], conical: bool, ahead: bool) -> None:
+        self._run = run
+        weights = (CO_CONICAL, *CONICAL_RETRY_WEIGHTS)
+        self.steps: list[_Step] = [(True, w) for w in weights] if conical else []
+        self.steps.append((False, None))
+        self._ahead = ahead
+        self._children: dict[int, _Ahead[_Outcome]] = {}
+
+    def run(self, fallback: bool) -> tuple[AssembledResult, FlatResult, dict[str, Any], bool, str]:
+        """The outcome (assembled, flat, co-optimization block, full run owed) and a note
+        when the conical condition was given up."""
+        missed, retries_skipped, i = "", False, 0
+        try:
+            while True:
+                conical, weight = self.steps[i]
+                assembled, flat, block, skipped = self._step(i)
+                last = i == len(self.steps) - 1
+                if last or (block["accepted"] and flat.edge_error_max_mm <= FLAT_EDGE_ERROR_TOL_MM):
+                    break
+                missed = block["reason"] or (
+                    f"its flat edge error {flat.edge_error_max_mm:.3g} mm exceeds "
+                    f"{FLAT_EDGE_ERROR_TOL_MM:g} mm"
+                )
+                logger.info("conical co-optimization (weight %g) missed (%s)", weight, missed)
+                i += 1
+                if block.get("joint_refused") and not CONICAL_RETRY_JOINT_MISS:
+                    i = len(self.steps) - 1
+                elif (
+                    CONICAL_RETRY_FAR
+                    and not fallback
+                    and flat.edge_error_max_mm > CO_SLOW_REACH * FLAT_EDGE_ERROR_TOL_MM
+                ):
+                    # A tiling that may still be split tries no further weight after a miss
+                    # this far off (see CONICAL_RETRY_FAR): it is tiled again, and laid out
+                    # in full if kept after all.
+                    retries_skipped, i = True, len(self.steps) - 1
+                if i == len(self.steps) - 1:
+                    logger.info("conical co-optimization missed (%s): again without", missed)
+        finally:
+            for child in self._children.values():
+                child.cancel()
+            self._children.clear()
+        note = ""
+        if i > 0 and not self.steps[i][0]:  # went without the conical condition
+            skipped = skipped or retries_skipped
+            note = (
+                f"co-optimized without the conical condition ({missed} with it): the bottom "
+                "hinges meet seen from above, and in depth only as the tiles' thicknesses allow"
+            )
+        return assembled, flat, block, skipped, note
+
+    def _step(self, i: int) -> _Outcome:
+        """Step ``i``: from its child if one computed it, else here (with the last step
+        started meanwhile in a child)."""
+        for j in [j for j in self._children if j < i]:  # skipped
+            self._children.pop(j).cancel()
+        child = self._children.pop(i, None)
+        if child is not None:
+            from .pipeline import Progress
+
+            outcome = child.result(Progress(quiet=True))
+            if outcome is not None:
+                return outcome
+        if self._ahead:
+            for j in range(max(i + 1, len(self.steps) - 1), len(self.steps)):
+                if j not in self._children:
+                    self._children[j] = _Ahead(
+                        self._work(self.steps[j]),
+                        f"the co-optimization {_step_name(self.steps[j])} run ahead",
+                    )
+        return self._run(self.steps[i])
+
+    def _work(self, step: _Step) -> Callable[[Progress], _Outcome]:
+        def work(progress: Progress) -> _Outcome:
+            return self._run(step)
+
+        return work
+
+
+def _step_name(step: _Step) -> str:
+    return f"with conical weight {step[1]:g}" if step[0] else "without the conical condition"
 
 
 #: Pull the bottom hinges' corners to equal depths before the flat layout (dual hinges; see

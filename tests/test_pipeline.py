@@ -227,6 +227,7 @@ def _conical_runs(
     ``off_mm`` off, if given; ``joint``: refused for its first joint solve)."""
     calls: list[tuple[bool, float | None]] = []
     real = layout_stage._co_optimized_with_fallback
+    monkeypatch.setattr(layout_stage, "CO_SPECULATE", False)  # every call in this process
 
     def recorded(*args):
         conical, weight = args[8], args[9] if len(args) > 9 else None
@@ -502,6 +503,28 @@ def _two_parts_meet(shaped: layout_stage.ShapedLayout) -> float:
 def _design_arrays(result) -> list[np.ndarray]:
     layout = result.hinge_layout
     return [result.assembled.tiles, result.flat.nodes, layout.tiles, layout.hinge_vertices]
+
+
+def test_the_co_optimization_run_ahead_gives_the_design_run_in_turn(monkeypatch) -> None:
+    # Both conical weights refused: the co-optimization without the condition, run in a
+    # forked child meanwhile, is taken from it, and the design is bitwise the serial one.
+    monkeypatch.setattr(parallel, "thread_count", lambda: 2)  # a spare core even on one
+    monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 10.0)  # one tiling, no other process
+    if not layout_stage._can_fork():
+        pytest.skip("processes cannot fork here")
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    first, retry = CO_CONICAL, layout_stage.CONICAL_RETRY_WEIGHTS[0]
+    calls = _conical_runs(monkeypatch, {first, retry})
+    serial = design("saddle", options)
+    assert [c[:2] for c in calls] == [(True, first), (True, retry), (False, None)]
+    monkeypatch.setattr(layout_stage, "CO_SPECULATE", True)
+    calls.clear()
+    ahead = design("saddle", options)
+    assert [c[:2] for c in calls] == [(True, first), (True, retry)]  # the last in the child
+    assert ahead.notes == serial.notes
+    for a, b in zip(_design_arrays(ahead), _design_arrays(serial), strict=True):
+        assert np.array_equal(a, b)
+    assert ahead.metrics()["co_optimization"] == serial.metrics()["co_optimization"]
 
 
 def test_the_tighter_tiling_laid_out_ahead_gives_the_design_laid_out_in_turn(
