@@ -58,6 +58,9 @@ _FINE_SAMPLES = 17
 #: (resolution 6 / 2**10 deg).
 _GRID = 15
 _BISECTIONS = 10
+#: Most (end, opening) checks in one block: their (rows, 16) direction samples stay in the
+#: caches (1600 tiles, 50k checks: 0.29 s in two blocks, 0.20 s in blocks of 2048).
+_CHECK_BLOCK_ROWS = 2048
 
 #: :meth:`HingeFaces.closing`: an opening this close to its window's end (beyond
 #: ``FLAT_FREE_MARGIN_DEG``) is held by it, and a window end that moved more than
@@ -309,12 +312,14 @@ def free_openings(
         )  # fmt: skip
 
     # Every end is checked on its own (row by row), so all the openings on the grid are
-    # checked in one batch, split into a block per core (:func:`map_blocks`); a bisection's
-    # lower and upper midpoints, too few to pay for a thread, go in one batch.
+    # checked in one batch, split into blocks of at most _CHECK_BLOCK_ROWS spread over the
+    # cores (:func:`map_blocks`); a bisection's lower and upper midpoints, too few to pay for
+    # a thread, go in one batch.
     grid = np.radians(np.linspace(0.0, 90.0, _GRID + 1))
     batch_end = np.tile(np.arange(n_ends), len(grid))
     batch_opening = np.repeat(grid, n_ends)
-    spans = np.array_split(np.arange(len(batch_end)), thread_count())
+    blocks = max(thread_count(), -(-len(batch_end) // _CHECK_BLOCK_ROWS))
+    spans = np.array_split(np.arange(len(batch_end)), blocks)
     on_grid = (
         np.concatenate(map_blocks(lambda rows: ok(batch_opening[rows], batch_end[rows]), spans))
         .reshape(len(grid), n_ends)

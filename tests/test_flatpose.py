@@ -219,8 +219,9 @@ def test_free_openings_do_not_depend_on_how_the_checks_are_split(monkeypatch) ->
     bottom = hinge_sides(linkage, t3, 12.0)
     flat = lay_flat(t3)
     found = []
-    for threads in (1, 3):
+    for threads, rows in ((1, 2048), (3, 7)):
         monkeypatch.setattr(flatpose, "thread_count", lambda threads=threads: threads)
+        monkeypatch.setattr(flatpose, "_CHECK_BLOCK_ROWS", rows)
         monkeypatch.setattr(flatpose, "map_blocks", lambda work, blocks: [work(b) for b in blocks])
         found.append(free_openings(linkage, flat, bottom, clearance=CLEARANCE, touch=TOUCH))
     assert np.array_equal(found[0][0], found[1][0]) and np.array_equal(found[0][1], found[1][1])
