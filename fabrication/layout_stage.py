@@ -12,7 +12,6 @@ import logging
 import math
 import multiprocessing
 import sys
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
@@ -46,6 +45,7 @@ from drawstring.geometry.tolerances import (
 )
 
 from .ahead import Ahead as _Ahead
+from .co_ladder import CoLadder
 
 if TYPE_CHECKING:
     from .pipeline import Progress, ResolvedOptions
@@ -257,7 +257,7 @@ def _shaped(
     ``fallback=False`` a refused co-optimization is not run again holding the eq.-1
     openings, and the hinge stage is skipped when the flat layout is too far off.
     ``spare_core``: no other process lays out a tiling meanwhile, so the co-optimizations
-    that may follow the one running are run ahead (:class:`_CoLadder`).
+    that may follow the one running are run ahead (:class:`~.co_ladder.CoLadder`).
     ``shapes`` holds the assembled configurations already solved, by quad mesh; their arrays
     are read-only, as they may be shared between tilings (and so are those of a design that
     keeps the eq.-1 tiles, e.g. with ``--no-co-optimize``)."""
@@ -290,14 +290,15 @@ def _shaped(
             conical = (
                 HINGE_DEPTHS and CO_CONICAL > 0 and faces is not None and bool(faces.bottom.any())
             )
-            ladder = _CoLadder(
+            ladder = CoLadder(
                 lambda step: _co_optimized_with_fallback(
                     linkage, tiling, *plain, loaded, options, faces, fallback, *step
                 ),
                 conical,
-                spare_core and CO_SPECULATE and _can_fork(),
+                spare_core and _can_fork(),
             )  # fmt: skip
-            assembled, flat, co_block, skipped, note = ladder.run(fallback)
+            far = None if fallback else CO_SLOW_REACH * FLAT_EDGE_ERROR_TOL_MM
+            assembled, flat, co_block, skipped, note = ladder.run(far)
             if note:
                 notes.append(note)
         if not co_block["accepted"]:
@@ -333,115 +334,6 @@ def _shaped(
         notes=tuple(notes),
         fallback_skipped=skipped,
     )
-
-
-#: Run the co-optimization without the conical condition, which follows where the conical
-#: ones miss, in a forked child process while they run, where a core is spare
-#: (:class:`_CoLadder`).
-CO_SPECULATE = True
-
-#: One co-optimization of :class:`_CoLadder`: conical or not, and the conical weight.
-_Step = tuple[bool, float | None]
-_Outcome = tuple[AssembledResult, FlatResult, dict[str, Any], bool]
-
-
-class _CoLadder:
-    """The co-optimizations of one tiling in turn: with bottom hinges conical with each weight
-    of ``(CO_CONICAL, *CONICAL_RETRY_WEIGHTS)`` until one meets the flat targets, then without
-    the condition; otherwise the one run without it.
-
-    With ``ahead``, the run without the condition is computed meanwhile in a forked child
-    (:class:`~drawstring.fabrication.ahead.Ahead`, which yields the cores to this process),
-    and taken from it if it is needed.  Every run depends on the tiling's plain layout alone,
-    so the outcome is the one of the runs in turn.  Where the first weight meets the targets
-    (most designs) the child is stopped and its work thrown away; where the conical runs miss,
-    the wait for the last run is cut by the time they took (the 1600-tile wave: 2.4 s for
-    its first weight, whose joint solve is refused, then 4.8 s without the condition; 7.3 s
-    in turn, 5.5 s so).  Only the last run goes ahead: running the retry weight too made the
-    two children share the spare core, and the wave gained 0.6 s.
-    """
-
-    def __init__(self, run: Callable[[_Step], _Outcome], conical: bool, ahead: bool) -> None:
-        self._run = run
-        weights = (CO_CONICAL, *CONICAL_RETRY_WEIGHTS)
-        self.steps: list[_Step] = [(True, w) for w in weights] if conical else []
-        self.steps.append((False, None))
-        self._ahead = ahead
-        self._children: dict[int, _Ahead[_Outcome]] = {}
-
-    def run(self, fallback: bool) -> tuple[AssembledResult, FlatResult, dict[str, Any], bool, str]:
-        """The outcome (assembled, flat, co-optimization block, full run owed) and a note
-        when the conical condition was given up."""
-        missed, retries_skipped, i = "", False, 0
-        try:
-            while True:
-                conical, weight = self.steps[i]
-                assembled, flat, block, skipped = self._step(i)
-                last = i == len(self.steps) - 1
-                if last or (block["accepted"] and flat.edge_error_max_mm <= FLAT_EDGE_ERROR_TOL_MM):
-                    break
-                missed = block["reason"] or (
-                    f"its flat edge error {flat.edge_error_max_mm:.3g} mm exceeds "
-                    f"{FLAT_EDGE_ERROR_TOL_MM:g} mm"
-                )
-                logger.info("conical co-optimization (weight %g) missed (%s)", weight, missed)
-                i += 1
-                if block.get("joint_refused") and not CONICAL_RETRY_JOINT_MISS:
-                    i = len(self.steps) - 1
-                elif (
-                    CONICAL_RETRY_FAR
-                    and not fallback
-                    and flat.edge_error_max_mm > CO_SLOW_REACH * FLAT_EDGE_ERROR_TOL_MM
-                ):
-                    # A tiling that may still be split tries no further weight after a miss
-                    # this far off (see CONICAL_RETRY_FAR): it is tiled again, and laid out
-                    # in full if kept after all.
-                    retries_skipped, i = True, len(self.steps) - 1
-                if i == len(self.steps) - 1:
-                    logger.info("conical co-optimization missed (%s): again without", missed)
-        finally:
-            for child in self._children.values():
-                child.cancel()
-            self._children.clear()
-        note = ""
-        if i > 0 and not self.steps[i][0]:  # went without the conical condition
-            skipped = skipped or retries_skipped
-            note = (
-                f"co-optimized without the conical condition ({missed} with it): the bottom "
-                "hinges meet seen from above, and in depth only as the tiles' thicknesses allow"
-            )
-        return assembled, flat, block, skipped, note
-
-    def _step(self, i: int) -> _Outcome:
-        """Step ``i``: from its child if one computed it, else here (with the last step
-        started meanwhile in a child)."""
-        for j in [j for j in self._children if j < i]:  # skipped
-            self._children.pop(j).cancel()
-        child = self._children.pop(i, None)
-        if child is not None:
-            from .pipeline import Progress
-
-            outcome = child.result(Progress(quiet=True))
-            if outcome is not None:
-                return outcome
-        if self._ahead:
-            for j in range(max(i + 1, len(self.steps) - 1), len(self.steps)):
-                if j not in self._children:
-                    self._children[j] = _Ahead(
-                        self._work(self.steps[j]),
-                        f"the co-optimization {_step_name(self.steps[j])} run ahead",
-                    )
-        return self._run(self.steps[i])
-
-    def _work(self, step: _Step) -> Callable[[Progress], _Outcome]:
-        def work(progress: Progress) -> _Outcome:
-            return self._run(step)
-
-        return work
-
-
-def _step_name(step: _Step) -> str:
-    return f"with conical weight {step[1]:g}" if step[0] else "without the conical condition"
 
 
 #: Pull the bottom hinges' corners to equal depths before the flat layout (dual hinges; see
@@ -625,28 +517,6 @@ CO_SLOW_REACH = 4.0
 #: one-part chair 6.5x, 1600-tile wave 9x; one that did: the 200-tile wave holding the eq.-1
 #: openings, 2.8x (0.032 mm, then 2.3e-3, 2e-4, 9e-5).
 CO_GIVE_UP_RATIO = 5.0
-
-
-#: Weights of the conical condition (see ``coflat.CO_CONICAL``, tried first) a design with
-#: bottom hinges is co-optimized with again, in turn, where the last one missed the flat
-#: targets, before it goes without the condition.  Which weight reaches them depends on the
-#: design and on the last bits of the arithmetic: on an AMD EPYC machine (200 tiles, dual
-#: hinges) 3 left the seashell 0.024 mm apart in depth with OpenBLAS's AVX-512 kernels, the
-#: wave 4.2e-3 mm with its AVX2 ones, where 10 met them; 10 alone missed the seashell with
-#: AVX2 (0.011 mm), where 3 met it.
-CONICAL_RETRY_WEIGHTS: tuple[float, ...] = (10.0,)
-#: ... except in a tiling that may still be split (``fallback=False``), where a miss by more
-#: than ``CO_SLOW_REACH`` times the tolerance ends the weights at once: splitting mends such
-#: misses, and the tiling is laid out in full, every weight tried, if it is kept after all.
-#: The 200-tile chair in one part missed by 0.68 mm with weight 3, then spent 1.5 s to miss
-#: by 0.029 mm with 10, while its two-part tiling, laid out ahead, met the targets with 3.
-CONICAL_RETRY_FAR = True
-#: Whether the next weight is tried after one whose first joint solve, in its own model,
-#: already ended above the plain layout (``co_optimized`` refuses it at once).  It is not: a
-#: larger weight holds the conical condition tighter against the flat tiles' congruence.  The
-#: 1600-tile wave: weight 3 ended at 0.30 mm against a plain 0.13 mm, weight 10 at 0.35 mm,
-#: 2.8 s for nothing.
-CONICAL_RETRY_JOINT_MISS = False
 
 
 def too_slow(

@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from drawstring.fabrication import cli, layout_stage
+from drawstring.fabrication import cli, co_ladder, layout_stage
 from drawstring.fabrication.pipeline import (
     DesignOptions,
     Progress,
@@ -227,7 +227,7 @@ def _conical_runs(
     ``off_mm`` off, if given; ``joint``: refused for its first joint solve)."""
     calls: list[tuple[bool, float | None]] = []
     real = layout_stage._co_optimized_with_fallback
-    monkeypatch.setattr(layout_stage, "CO_SPECULATE", False)  # every call in this process
+    monkeypatch.setattr(co_ladder, "CO_SPECULATE", False)  # every call in this process
 
     def recorded(*args):
         conical, weight = args[8], args[9] if len(args) > 9 else None
@@ -250,7 +250,7 @@ def test_a_conical_co_optimization_that_misses_is_tried_with_the_next_weight(mon
     # first weight, it runs again at the retry weight, and only where that is refused too
     # without the condition, with a note giving the last reason.
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
-    first, retry = CO_CONICAL, layout_stage.CONICAL_RETRY_WEIGHTS[0]
+    first, retry = CO_CONICAL, co_ladder.CONICAL_RETRY_WEIGHTS[0]
     calls = _conical_runs(monkeypatch, {first})
     result = design("saddle", options)
     assert [c[:2] for c in calls[:2]] == [(True, first), (True, retry)]
@@ -278,7 +278,7 @@ def test_a_tiling_that_may_still_be_split_tries_no_second_weight_after_a_far_mis
     monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 0.0)
     monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
-    first, retry = CO_CONICAL, layout_stage.CONICAL_RETRY_WEIGHTS[0]
+    first, retry = CO_CONICAL, co_ladder.CONICAL_RETRY_WEIGHTS[0]
     calls = _conical_runs(monkeypatch, {first}, off_mm=0.5)
     design("saddle", options)
     assert calls[:2] == [(True, first, False), (False, None, False)]
@@ -513,11 +513,11 @@ def test_the_co_optimization_run_ahead_gives_the_design_run_in_turn(monkeypatch)
     if not layout_stage._can_fork():
         pytest.skip("processes cannot fork here")
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
-    first, retry = CO_CONICAL, layout_stage.CONICAL_RETRY_WEIGHTS[0]
+    first, retry = CO_CONICAL, co_ladder.CONICAL_RETRY_WEIGHTS[0]
     calls = _conical_runs(monkeypatch, {first, retry})
     serial = design("saddle", options)
     assert [c[:2] for c in calls] == [(True, first), (True, retry), (False, None)]
-    monkeypatch.setattr(layout_stage, "CO_SPECULATE", True)
+    monkeypatch.setattr(co_ladder, "CO_SPECULATE", True)
     calls.clear()
     ahead = design("saddle", options)
     assert [c[:2] for c in calls] == [(True, first), (True, retry)]  # the last in the child

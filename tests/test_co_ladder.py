@@ -1,0 +1,85 @@
+"""The co-optimizations of one tiling in turn (fabrication/co_ladder.py), on stand-in runs."""
+
+from __future__ import annotations
+
+import multiprocessing
+import sys
+from types import SimpleNamespace
+
+import pytest
+
+from drawstring.fabrication import co_ladder
+from drawstring.fabrication.co_ladder import CONICAL_RETRY_WEIGHTS, CoLadder
+from drawstring.geometry.coflat import CO_CONICAL
+
+TOL = co_ladder.FLAT_EDGE_ERROR_TOL_MM
+FIRST, RETRY = CO_CONICAL, CONICAL_RETRY_WEIGHTS[0]
+
+
+def _runs(errors: dict, joint: frozenset = frozenset()):
+    """A stand-in co-optimization: ``errors[step]`` is the flat edge error it ends with
+    (accepted), ``joint`` the steps refused for their first joint solve.  Returns it and the
+    steps it ran."""
+    ran: list = []
+
+    def run(step):
+        ran.append(step)
+        error = errors[step]
+        block = {"accepted": step not in joint, "reason": "", "steps": 1}
+        if step in joint:
+            block.update(reason="the joint solve did not lower it", joint_refused=True)
+        return f"assembled {step}", SimpleNamespace(edge_error_max_mm=error), block, False
+
+    return run, ran
+
+
+def test_a_design_without_bottom_hinges_is_co_optimized_once() -> None:
+    run, ran = _runs({(False, None): 0.5 * TOL})
+    assembled, flat, block, skipped, note = CoLadder(run, False, False).run()
+    assert ran == [(False, None)] and not note and not skipped
+    assert assembled == "assembled (False, None)"
+
+
+def test_the_weights_are_tried_in_turn_then_without_the_condition() -> None:
+    met = {(True, FIRST): 2 * TOL, (True, RETRY): 0.5 * TOL, (False, None): 0.1 * TOL}
+    run, ran = _runs(met)
+    *_, note = CoLadder(run, True, False).run()
+    assert ran == [(True, FIRST), (True, RETRY)] and not note
+    missed = {**met, (True, RETRY): 3 * TOL}
+    run, ran = _runs(missed)
+    assembled, flat, block, skipped, note = CoLadder(run, True, False).run()
+    assert ran == [(True, FIRST), (True, RETRY), (False, None)]
+    assert flat.edge_error_max_mm == 0.1 * TOL and not skipped
+    assert "without the conical condition" in note and f"{3 * TOL:.3g} mm exceeds" in note
+
+
+def test_a_refused_joint_solve_or_a_far_miss_ends_the_weights() -> None:
+    errors = {(True, FIRST): 0.3, (True, RETRY): 0.5 * TOL, (False, None): 0.1 * TOL}
+    run, ran = _runs(errors, joint=frozenset({(True, FIRST)}))
+    *_, note = CoLadder(run, True, False).run()
+    assert ran == [(True, FIRST), (False, None)] and "joint solve" in note
+    # a far miss ends them only where the caller gives a bound (a tiling that may be split),
+    # and a full run is then owed
+    run, ran = _runs(errors)
+    _, _, _, skipped, _ = CoLadder(run, True, False).run(far_mm=4 * TOL)
+    assert ran == [(True, FIRST), (False, None)] and skipped
+    run, ran = _runs(errors)
+    _, _, _, skipped, _ = CoLadder(run, True, False).run()
+    assert ran == [(True, FIRST), (True, RETRY)] and not skipped
+
+
+@pytest.mark.skipif(
+    not sys.platform.startswith("linux") or "fork" not in multiprocessing.get_all_start_methods(),
+    reason="runs ahead only where processes fork",
+)
+def test_the_run_without_the_condition_is_taken_from_its_child() -> None:
+    errors = {(True, FIRST): 2 * TOL, (True, RETRY): 2 * TOL, (False, None): 0.1 * TOL}
+    run, ran = _runs(errors)
+    assembled, flat, *_ = CoLadder(run, True, True).run()
+    assert ran == [(True, FIRST), (True, RETRY)]  # the last one ran in the child
+    assert assembled == "assembled (False, None)" and flat.edge_error_max_mm == 0.1 * TOL
+    # where the first weight meets the targets, the child is stopped and not waited for
+    errors[(True, FIRST)] = 0.5 * TOL
+    run, ran = _runs(errors)
+    assembled, *_ = CoLadder(run, True, True).run()
+    assert ran == [(True, FIRST)] and assembled == f"assembled {(True, FIRST)}"
