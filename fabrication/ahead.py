@@ -49,9 +49,14 @@ class Ahead(Generic[T]):
         context = multiprocessing.get_context("fork")
         self._receive, send = context.Pipe(duplex=False)
         self._process = context.Process(target=_run_ahead, args=(work, send), daemon=True)
-        with parallel.sigint_held():  # the child takes Ctrl-C once its quiet exit is set
-            self._process.start()
-        send.close()
+        try:
+            with parallel.sigint_held():  # the child takes Ctrl-C once its quiet exit is set
+                self._process.start()
+        except BaseException:  # e.g. OSError: the fork was refused
+            self._receive.close()
+            raise
+        finally:
+            send.close()
 
     def result(self, progress: Progress) -> T | None:
         """The child's result; the time spent waiting for it is added to ``progress``'s
@@ -61,6 +66,9 @@ class Ahead(Generic[T]):
             status, payload, timings = self._receive.recv()
         except (EOFError, OSError):
             status, payload, timings = "died", "no result", {}
+        except BaseException:  # e.g. Ctrl-C while waiting: the child goes too
+            self.cancel()
+            raise
         self._process.join()
         self._receive.close()
         if status != "ok":

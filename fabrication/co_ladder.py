@@ -40,15 +40,15 @@ __all__ = [
 #: wave 4.2e-3 mm with its AVX2 ones, where 10 met them; 10 alone missed the seashell with
 #: AVX2 (0.011 mm), where 3 met it.
 CONICAL_RETRY_WEIGHTS: tuple[float, ...] = (10.0,)
-#: ... except in a tiling that may still be split (``fallback=False``), where a miss by more
-#: than ``layout_stage.CO_SLOW_REACH`` times the tolerance (``CoLadder.run``'s ``far_mm``)
-#: ends the weights at once: splitting mends such misses, and the tiling is laid out in
-#: full, every weight tried, if it is kept after all.
+#: ... except in a tiling that may still be split (``fallback=False``), where a run that was
+#: used but missed by more than ``layout_stage.CO_SLOW_REACH`` times the tolerance
+#: (``CoLadder.run``'s ``far_mm``) ends the weights at once: splitting mends such misses,
+#: and the tiling is laid out in full, every weight tried, if it is kept after all.
 #: The 200-tile chair in one part missed by 0.68 mm with weight 3, then spent 1.5 s to miss
 #: by 0.029 mm with 10, while its two-part tiling, laid out ahead, met the targets with 3.
 CONICAL_RETRY_FAR = True
 #: Whether the next weight is tried after one whose first joint solve, in its own model,
-#: already ended above the plain layout (``co_optimized`` refuses it at once).  It is not: a
+#: already ended no lower than the plain layout (``co_optimized`` refuses it at once).  It is not: a
 #: larger weight holds the conical condition tighter against the flat tiles' congruence.  The
 #: 1600-tile wave: weight 3 ended at 0.30 mm against a plain 0.13 mm, weight 10 at 0.35 mm,
 #: 2.8 s for nothing.
@@ -66,9 +66,10 @@ _Outcome = tuple[AssembledResult, FlatResult, dict[str, Any], bool]
 
 
 class CoLadder:
-    """The co-optimizations of one tiling in turn: with bottom hinges conical with each weight
-    of ``(CO_CONICAL, *CONICAL_RETRY_WEIGHTS)`` until one meets the flat targets, then without
-    the condition; otherwise the one run without it.
+    """The co-optimizations of one tiling in turn: with bottom hinges (``conical``) conical
+    with each weight of ``(CO_CONICAL, *CONICAL_RETRY_WEIGHTS)`` until one meets the flat
+    targets, and if none does, without the condition; without bottom hinges only the run
+    without it.
 
     With ``ahead``, the run without the condition is computed meanwhile in a forked child
     (:class:`~drawstring.fabrication.ahead.Ahead`, which yields the cores to this process),
@@ -108,15 +109,21 @@ class CoLadder:
                     f"{FLAT_EDGE_ERROR_TOL_MM:g} mm"
                 )
                 logger.info("conical co-optimization (weight %g) missed (%s)", weight, missed)
-                i += 1
+                i, without = i + 1, len(self.steps) - 1
                 if block.get("joint_refused") and not CONICAL_RETRY_JOINT_MISS:
-                    i = len(self.steps) - 1
-                elif CONICAL_RETRY_FAR and far_mm is not None and flat.edge_error_max_mm > far_mm:
+                    i = without
+                elif (
+                    CONICAL_RETRY_FAR
+                    and far_mm is not None
+                    and i < without  # a weight is left
+                    and block["accepted"]  # (a refused run hands back the plain layout)
+                    and flat.edge_error_max_mm > far_mm
+                ):
                     # A tiling that may still be split tries no further weight after a miss
                     # this far off (see CONICAL_RETRY_FAR): it is tiled again, and laid out
                     # in full if kept after all.
-                    retries_skipped, i = True, len(self.steps) - 1
-                if i == len(self.steps) - 1:
+                    retries_skipped, i = True, without
+                if i == without:
                     logger.info("conical co-optimization missed (%s): again without", missed)
         finally:
             for child in self._children.values():
@@ -136,20 +143,23 @@ class CoLadder:
         started meanwhile in a child)."""
         for j in [j for j in self._children if j < i]:  # skipped
             self._children.pop(j).cancel()
-        child = self._children.pop(i, None)
+        child = self._children.get(i)
         if child is not None:
             from .pipeline import Progress  # pipeline imports the layout stage, which imports this
 
             outcome = child.result(Progress(quiet=True))
+            del self._children[i]  # only now: run() stops it if the wait is interrupted
             if outcome is not None:
                 return outcome
         if self._ahead:
             for j in range(max(i + 1, len(self.steps) - 1), len(self.steps)):
                 if j not in self._children:
-                    self._children[j] = Ahead(
-                        self._work(self.steps[j]),
-                        f"the co-optimization {_step_name(self.steps[j])} run ahead",
-                    )
+                    what = f"the co-optimization {_step_name(self.steps[j])} run ahead"
+                    try:
+                        self._children[j] = Ahead(self._work(self.steps[j]), what)
+                    except OSError as exc:  # no process to spare (fork refused)
+                        logger.warning("could not start %s (%s): running it in turn", what, exc)
+                        self._ahead = False
         return self._run(self.steps[i])
 
     def _work(self, step: _Step) -> Callable[[Progress], _Outcome]:

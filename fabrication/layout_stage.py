@@ -168,7 +168,7 @@ def shape_and_layout(
     # all if the first tiling is the one kept.
     ahead: _Ahead[ShapedLayout] | None = None
     prepared: Tiling | None = None  # the first tighter tiling, when tiled ahead of the loop
-    if _can_fork() and RETILE_ATTEMPTS > 0:
+    if RETILE_AHEAD and _can_fork() and RETILE_ATTEMPTS > 0:
         # The first tighter tiling, which the loop below lays out if the first tiling misses,
         # is laid out meanwhile in a second process (the 200-tile seashell and chair).
         next_bound = _tighter(bound, first_tiling)
@@ -179,7 +179,10 @@ def shape_and_layout(
             def work(child_progress: Progress) -> ShapedLayout:
                 return _shaped(next_tiling, next_bound, loaded, options, child_progress, shapes)
 
-            ahead = _Ahead(work, "the tiling laid out ahead")
+            try:
+                ahead = _Ahead(work, "the tiling laid out ahead")
+            except OSError as exc:  # no process to spare (fork refused): laid out in turn
+                logger.warning("could not lay the tighter tiling out ahead (%s)", exc)
     try:
         first = best = _shaped(
             first_tiling, bound, loaded, options, progress, shapes, fallback=False,
@@ -256,8 +259,9 @@ def _shaped(
     """Stages assembled to hinges on one tiling (see :func:`shape_and_layout`); with
     ``fallback=False`` a refused co-optimization is not run again holding the eq.-1
     openings, and the hinge stage is skipped when the flat layout is too far off.
-    ``spare_core``: no other process lays out a tiling meanwhile, so the co-optimizations
-    that may follow the one running are run ahead (:class:`~.co_ladder.CoLadder`).
+    ``spare_core``: no other process lays out a tiling meanwhile, so the co-optimization
+    without the conical condition is run ahead while the conical ones run
+    (:class:`~.co_ladder.CoLadder`).
     ``shapes`` holds the assembled configurations already solved, by quad mesh; their arrays
     are read-only, as they may be shared between tilings (and so are those of a design that
     keeps the eq.-1 tiles, e.g. with ``--no-co-optimize``)."""
@@ -446,12 +450,12 @@ RETILE_AHEAD = True
 
 
 def _can_fork() -> bool:
-    """Whether a tiling may be laid out ahead (:data:`RETILE_AHEAD`): two cores or more,
-    Linux (forking a process that has loaded macOS system frameworks is unsafe), and not
-    inside a daemonic process (e.g. a ``multiprocessing`` pool worker: it may not fork)."""
+    """Whether work may be run ahead in a forked child (a tiling, :data:`RETILE_AHEAD`; a
+    co-optimization, :data:`~.co_ladder.CO_SPECULATE`): two cores or more, Linux (forking a
+    process that has loaded macOS system frameworks is unsafe), and not inside a daemonic
+    process (e.g. a ``multiprocessing`` pool worker: it may not fork)."""
     return (
-        RETILE_AHEAD
-        and sys.platform.startswith("linux")
+        sys.platform.startswith("linux")
         and parallel.thread_count() >= 2
         and "fork" in multiprocessing.get_all_start_methods()
         and not multiprocessing.current_process().daemon

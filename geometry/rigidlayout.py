@@ -334,8 +334,8 @@ def _select_planes(
     offset = np.zeros(n_p)
 
     def run(sel: IntArray, guess: FloatArray | None) -> None:
-        # Rows are searched independently, in blocks of at most 512 (memory) spread over the
-        # cores (:func:`map_blocks`; the result does not depend on the blocks).
+        # Rows are searched independently, in blocks of at most _SEARCH_BLOCK_ROWS (caches)
+        # spread over the cores (:func:`map_blocks`; the result does not depend on the blocks).
         count = -(-len(sel) // _SEARCH_BLOCK_ROWS)
         count = max(count, min(parallel.thread_count(), -(-len(sel) // _SEARCH_MIN_BLOCK_ROWS)))
         bounds = [int(v) for v in np.linspace(0, len(sel), count + 1)] if len(sel) else [0]

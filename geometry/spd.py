@@ -43,8 +43,9 @@ __all__ = [
 ]
 
 #: Largest accepted normwise backward error ``|A x - b| / (|A| |x| + |b|)`` (infinity norms) of
-#: a qdldl answer; a stable ``LDL^T`` of a positive definite matrix stays near machine
-#: precision, a stale or broken factor is off by order one.
+#: a qdldl answer, with ``|A|`` bounded from above (see :func:`_backward_error`); a stable
+#: ``LDL^T`` of a positive definite matrix stays near machine precision, a stale or broken
+#: factor is off by order one.
 BACKWARD_ERROR_TOL = 1e-8
 
 #: Union patterns with at least this many stored upper-triangle entries are factored by

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import multiprocessing
 import sys
+import time
 from types import SimpleNamespace
 
 import pytest
@@ -16,18 +17,21 @@ TOL = co_ladder.FLAT_EDGE_ERROR_TOL_MM
 FIRST, RETRY = CO_CONICAL, CONICAL_RETRY_WEIGHTS[0]
 
 
-def _runs(errors: dict, joint: frozenset = frozenset()):
+def _runs(errors: dict, joint: frozenset = frozenset(), refused: frozenset = frozenset()):
     """A stand-in co-optimization: ``errors[step]`` is the flat edge error it ends with
-    (accepted), ``joint`` the steps refused for their first joint solve.  Returns it and the
+    (accepted), ``joint`` the steps refused for their first joint solve, ``refused`` those
+    refused otherwise (both hand back that error as the plain layout's).  Returns it and the
     steps it ran."""
     ran: list = []
 
     def run(step):
         ran.append(step)
         error = errors[step]
-        block = {"accepted": step not in joint, "reason": "", "steps": 1}
+        block = {"accepted": step not in joint | refused, "reason": "", "steps": 1}
         if step in joint:
             block.update(reason="the joint solve did not lower it", joint_refused=True)
+        elif step in refused:
+            block.update(reason="it broke a bound")
         return f"assembled {step}", SimpleNamespace(edge_error_max_mm=error), block, False
 
     return run, ran
@@ -66,6 +70,19 @@ def test_a_refused_joint_solve_or_a_far_miss_ends_the_weights() -> None:
     run, ran = _runs(errors)
     _, _, _, skipped, _ = CoLadder(run, True, False).run()
     assert ran == [(True, FIRST), (True, RETRY)] and not skipped
+    # a refused run hands back the plain layout, whose error says nothing of how near it came
+    run, ran = _runs(errors, refused=frozenset({(True, FIRST)}))
+    CoLadder(run, True, False).run(far_mm=4 * TOL)
+    assert ran == [(True, FIRST), (True, RETRY)]
+
+
+def test_a_far_miss_at_the_last_weight_skips_nothing() -> None:
+    # every weight was tried: no full run is owed for the tiling
+    errors = {(True, FIRST): 2 * TOL, (True, RETRY): 0.5, (False, None): 0.1 * TOL}
+    run, ran = _runs(errors)
+    _, _, _, skipped, note = CoLadder(run, True, False).run(far_mm=4 * TOL)
+    assert ran == [(True, FIRST), (True, RETRY), (False, None)]
+    assert not skipped and "without the conical condition" in note
 
 
 @pytest.mark.skipif(
@@ -78,8 +95,28 @@ def test_the_run_without_the_condition_is_taken_from_its_child() -> None:
     assembled, flat, *_ = CoLadder(run, True, True).run()
     assert ran == [(True, FIRST), (True, RETRY)]  # the last one ran in the child
     assert assembled == "assembled (False, None)" and flat.edge_error_max_mm == 0.1 * TOL
-    # where the first weight meets the targets, the child is stopped and not waited for
+    assert multiprocessing.active_children() == []
+    # where the first weight meets the targets, the child is stopped, not waited for
     errors[(True, FIRST)] = 0.5 * TOL
     run, ran = _runs(errors)
-    assembled, *_ = CoLadder(run, True, True).run()
+
+    def slow_without(step):
+        if not step[0]:
+            time.sleep(60.0)
+        return run(step)
+
+    start = time.perf_counter()
+    assembled, *_ = CoLadder(slow_without, True, True).run()
     assert ran == [(True, FIRST)] and assembled == f"assembled {(True, FIRST)}"
+    assert time.perf_counter() - start < 30.0
+    assert multiprocessing.active_children() == []
+
+    # and so it is when the run here fails
+    def fails(step):
+        if step[0]:
+            raise RuntimeError("no memory")
+        return slow_without(step)
+
+    with pytest.raises(RuntimeError):
+        CoLadder(fails, True, True).run()
+    assert multiprocessing.active_children() == []

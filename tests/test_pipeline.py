@@ -220,12 +220,12 @@ def test_co_optimization_rounds_stop_where_they_no_longer_pay() -> None:
 
 
 def _conical_runs(
-    monkeypatch, refused: set[float], off_mm: float | None = None, joint: bool = False
-) -> list[tuple[bool, float | None]]:
+    monkeypatch, refused: set[float], missed_mm: float | None = None, joint: bool = False
+) -> list[tuple[bool, float | None, bool]]:
     """Record the co-optimizations ``_shaped`` runs as ``(conical, weight, fallback)``; a
-    conical one with a weight in ``refused`` comes back refused (with its flat layout
-    ``off_mm`` off, if given; ``joint``: refused for its first joint solve)."""
-    calls: list[tuple[bool, float | None]] = []
+    conical one with a weight in ``refused`` comes back refused (``joint``: for its first
+    joint solve), or with ``missed_mm`` used but that far off the flat targets."""
+    calls: list[tuple[bool, float | None, bool]] = []
     real = layout_stage._co_optimized_with_fallback
     monkeypatch.setattr(co_ladder, "CO_SPECULATE", False)  # every call in this process
 
@@ -234,11 +234,13 @@ def _conical_runs(
         calls.append((conical, weight, args[7]))
         out = real(*args)
         if conical and weight in refused:
+            if missed_mm is not None:
+                block = {**out[2], "accepted": True, "reason": ""}
+                return out[0], replace(out[1], edge_error_max_mm=missed_mm), block, out[3]
             block = {**out[2], "accepted": False, "reason": f"refused at weight {weight:g}"}
             if joint:
                 block["joint_refused"] = True
-            flat = out[1] if off_mm is None else replace(out[1], edge_error_max_mm=off_mm)
-            return out[0], flat, block, out[3]
+            return out[0], out[1], block, out[3]
         return out
 
     monkeypatch.setattr(layout_stage, "_co_optimized_with_fallback", recorded)
@@ -272,22 +274,22 @@ def test_a_tiling_that_may_still_be_split_tries_no_second_weight_after_a_far_mis
     monkeypatch,
 ) -> None:
     # The 60-tile saddle is made a tiling that may be split again; its conical
-    # co-optimization misses by 0.5 mm at the first weight: it goes without the condition at
-    # once.  A miss within CO_SLOW_REACH of the tolerance still gets the retry weight, and so
-    # does the same far miss in a tiling that is laid out in full.
+    # co-optimization is used but misses by 0.5 mm at the first weight: it goes without the
+    # condition at once.  A miss within CO_SLOW_REACH of the tolerance still gets the retry
+    # weight, and so does the same far miss in a tiling that is laid out in full.
     monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 0.0)
     monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
     first, retry = CO_CONICAL, co_ladder.CONICAL_RETRY_WEIGHTS[0]
-    calls = _conical_runs(monkeypatch, {first}, off_mm=0.5)
+    calls = _conical_runs(monkeypatch, {first}, missed_mm=0.5)
     design("saddle", options)
     assert calls[:2] == [(True, first, False), (False, None, False)]
     near = 0.5 * layout_stage.CO_SLOW_REACH * layout_stage.FLAT_EDGE_ERROR_TOL_MM
-    calls = _conical_runs(monkeypatch, {first}, off_mm=near)
+    calls = _conical_runs(monkeypatch, {first}, missed_mm=near)
     design("saddle", options)
     assert calls[:2] == [(True, first, False), (True, retry, False)]
     monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 10.0)  # laid out in full
-    calls = _conical_runs(monkeypatch, {first}, off_mm=0.5)
+    calls = _conical_runs(monkeypatch, {first}, missed_mm=0.5)
     design("saddle", options)
     assert calls[:2] == [(True, first, True), (True, retry, True)]
 
