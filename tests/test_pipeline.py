@@ -589,6 +589,7 @@ def test_a_tiling_that_may_be_split_again_skips_the_held_openings_run(monkeypatc
 
     monkeypatch.setattr(layout_stage, "co_optimized", refused)
     monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)  # calls are counted here
+    monkeypatch.setattr(co_ladder, "CO_SPECULATE", False)
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
 
     def split_wins(shaped: layout_stage.ShapedLayout) -> float:
@@ -637,6 +638,7 @@ def test_a_first_tiling_far_off_skips_the_hinge_stage_unless_kept(monkeypatch) -
     monkeypatch.setattr(layout_stage, "co_optimized", far_off_in_one_part)
     monkeypatch.setattr(layout_stage, "layout_hinges", counted)
     monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)  # calls are counted here
+    monkeypatch.setattr(co_ladder, "CO_SPECULATE", False)
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
     result = design("saddle", options)
     assert result.tiling.linkage.n_components == 2
@@ -751,6 +753,7 @@ def test_the_design_hands_the_first_joint_solve_to_the_held_openings_run(monkeyp
 
     monkeypatch.setattr(layout_stage, "co_optimized", refused)
     monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)
+    monkeypatch.setattr(co_ladder, "CO_SPECULATE", False)
     design("saddle", DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False))
     # per laid-out tiling: the tracked run, then (where held openings are tried) the held one
     # with the same dictionary
