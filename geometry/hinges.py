@@ -496,7 +496,7 @@ def layout_hinges(
     if 0 < apart.sum() <= HINGE_RELAYOUT_MAX_SHARE * len(apart):
         retry = rigid_layout(
             linkage, t2, ids, strategy=strategy, min_gap_angle_deg=theta,
-            clearance_mm=clearance_mm, max_rounds=max_rounds, trim=trim | apart,
+            clearance_mm=clearance_mm, max_rounds=max_rounds, trim=trim | apart, like=result,
         )  # fmt: skip
         if retry.violation_mm <= max(
             result.violation_mm, HINGE_LAYOUT_FEASIBLE_MM

@@ -64,6 +64,7 @@ class _Planes:
     score: FloatArray
     piece_a: IntArray
     piece_b: IntArray
+    trim: NDArray[np.bool_]  # (H,) the hinges treated as trimmed when choosing them
 
 
 #: Most rows searched at once for separating planes, and fewest worth a block of their own on
@@ -214,6 +215,7 @@ def _select_planes(
     x: FloatArray | None = None,
     pairs: IntArray | None = None,
     previous: _Planes | None = None,
+    known: _Planes | None = None,
 ) -> _Planes:
     """Best separating plane of every close pair of convex pieces (sampled, then refined).
 
@@ -224,8 +226,10 @@ def _select_planes(
     other face's half is trimmed away).  ``touch``
     is the separation required where a hinged pair may touch.  With
     ``previous`` planes, a row found there is only searched near its previous plane, unless
-    that leaves it violated.  The returned score of each plane is its smallest margin beyond
-    the required ones.
+    that leaves it violated.  ``known`` planes, chosen earlier at this very pose (vertices
+    ``x``), are taken as they are for every row found there whose hinge is not treated
+    differently now (``known.trim``): the search is row by row, so this gives the same planes.
+    The returned score of each plane is its smallest margin beyond the required ones.
     """
     x = layout.positions() if x is None else x
     if pairs is None:
@@ -359,18 +363,23 @@ def _select_planes(
             part = part[better]
             normal[part], score[part], offset[part] = n_new[better], s_new[better], o_new[better]
 
+    def row_key(pa: IntArray, pb: IntArray, ia: IntArray, ib: IntArray) -> IntArray:
+        return ((pa * layout.n + pb) * 2 + ia) * 2 + ib
+
+    new = row_key(a, b, piece_a, piece_b)
+
+    def match(old_planes: _Planes) -> tuple[NDArray[np.bool_], IntArray]:
+        """Rows of this selection also in ``old_planes``, and where they are there."""
+        old = row_key(old_planes.a, old_planes.b, old_planes.piece_a, old_planes.piece_b)
+        order = np.argsort(old, kind="stable")
+        pos = np.minimum(np.searchsorted(old[order], new), len(old) - 1)
+        found = old[order][pos] == new
+        return found, order[pos[found]]
+
     todo = k_all
     if previous is not None and len(previous.a):
         # warm start: rows also present before are searched near their previous plane
-        def row_key(pa: IntArray, pb: IntArray, ia: IntArray, ib: IntArray) -> IntArray:
-            return ((pa * layout.n + pb) * 2 + ia) * 2 + ib
-
-        old = row_key(previous.a, previous.b, previous.piece_a, previous.piece_b)
-        order = np.argsort(old, kind="stable")
-        new = row_key(a, b, piece_a, piece_b)
-        pos = np.minimum(np.searchsorted(old[order], new), len(old) - 1)
-        found = old[order][pos] == new
-        src = order[pos[found]]
+        found, src = match(previous)
         world = np.concatenate(
             [_rotate2(previous.normal[src, :2], layout.phi[a[found]]), previous.normal[src, 2:]],
             axis=1,
@@ -378,9 +387,24 @@ def _select_planes(
         warm = np.flatnonzero(found)
         run(warm, world)
         todo = np.concatenate([np.flatnonzero(~found), warm[score[warm] < 0]])
+    reused = np.zeros(0, dtype=np.int64)
+    if known is not None and len(known.a):
+        found, src = match(known)
+        same = ~np.isin(hinge[found], np.flatnonzero(known.trim != trim))
+        reused, src = np.flatnonzero(found)[same], src[same]
+        todo = np.setdiff1d(todo, reused)
     run(np.sort(todo), None)
     body = np.concatenate([_rotate2(normal[:, :2], -layout.phi[a]), normal[:, 2:]], axis=1)
-    return _Planes(a, b, hinge, body, offset, delta_a, delta_b, score, piece_a, piece_b)
+    if len(reused):
+        assert known is not None
+        body[reused], offset[reused], score[reused] = (
+            known.normal[src],
+            known.offset[src],
+            known.score[src],
+        )
+    return _Planes(
+        a, b, hinge, body, offset, delta_a, delta_b, score, piece_a, piece_b, trim.copy()
+    )
 
 
 def _plane_values(
@@ -543,10 +567,12 @@ def _augmented_lagrangian(
     inner: int,
     weight: FloatArray,
     pin: FloatArray,
+    factor: SpdSolver,
 ) -> tuple[FloatArray, int]:
     """Minimize ``|hinge mismatch|^2 + rho * sum max(0, lam / rho - g)^2`` over the pose.
 
-    ``pin`` ``(3T,)`` is 1 on the pose variables held fixed.
+    ``pin`` ``(3T,)`` is 1 on the pose variables held fixed; ``factor`` solves the normal
+    equations (its pattern reserved for every constraint the planes can make active).
 
     Damped Gauss-Newton (the objective is piecewise quadratic up to the small rotations); the
     layout's pose is updated in place.  Returns the constraint values at the end and the number
@@ -572,7 +598,6 @@ def _augmented_lagrangian(
 
     cost, rh, g = evaluate(layout.phi, layout.trans)
     steps = 0
-    factor = SpdSolver()
     for _ in range(inner):
         res, jac = jacobian(layout.phi, layout.trans, g, rh)
         jtj = (jac.T @ jac).tocsc()
@@ -624,6 +649,8 @@ class RigidLayoutResult:
         times the mean tile side), rigid tiles.
     iterations : int
         Accepted Levenberg-Marquardt steps over all rounds.
+    first_planes : _Planes
+        The separating planes chosen at the start layout (``shapes``), before any round.
     """
 
     tiles: FloatArray
@@ -633,6 +660,7 @@ class RigidLayoutResult:
     gap_mm: FloatArray
     violation_mm: float
     iterations: int
+    first_planes: _Planes
 
 
 def _merge_points(
@@ -668,6 +696,7 @@ def rigid_layout(
     max_rounds: int = 40,
     inner_steps: int = 60,
     trim: ArrayLike | None = None,
+    like: RigidLayoutResult | None = None,
 ) -> RigidLayoutResult:
     """Lay rigid flat tiles out so paired hinge vertices meet as closely as possible.
 
@@ -709,6 +738,10 @@ def rigid_layout(
     trim : (H,) bool, optional
         ``dual`` hinges whose pairs are separated on the hinge face only (default none; every
         hinge for ``top``).
+    like : RigidLayoutResult, optional
+        An earlier layout of these ``shapes`` (with other ``trim`` flags, say): its first
+        planes are taken as they are for the pairs whose flags agree, instead of being searched
+        for again (the same planes, found once).
 
     Returns
     -------
@@ -742,11 +775,16 @@ def rigid_layout(
         )
 
     state: dict[str, Any] = {"lam": None, "rho": 10.0}
+    # One solver for the whole layout, its pattern reserved for all the constraints a set of
+    # planes can make active: a symbolic analysis per set of planes rather than one whenever the
+    # active set grows (62 of them, 9 ms each, in the 1600-tile wave's hinge layout).
+    factor = SpdSolver()
 
     def solve(planes: _Planes, rounds: int, reselect: int) -> tuple[_Planes, float]:
         """Augmented Lagrangian rounds; multipliers carry over between calls."""
         nonlocal total_steps
         con = constraints(planes)
+        factor.reserve(_normal_pattern(layout.n, ids, planes, ends))
         g, _ = _constraint_values(layout, con, layout.phi, layout.trans)
         lam = state["lam"] if state["lam"] is not None and len(state["lam"]) == len(g) else None
         lam = np.zeros(len(g)) if lam is None else lam
@@ -760,10 +798,13 @@ def rigid_layout(
                 )
                 n_old = len(lam)
                 con = constraints(planes)
+                factor.reserve(_normal_pattern(layout.n, ids, planes, ends))
                 g, _ = _constraint_values(layout, con, layout.phi, layout.trans)
                 n_ang = 2 * angle0.size
                 lam = np.concatenate([np.zeros(len(g) - n_ang), lam[n_old - n_ang :]])
-            g, steps = _augmented_lagrangian(layout, con, ids, lam, rho, inner_steps, weight, pin)
+            g, steps = _augmented_lagrangian(
+                layout, con, ids, lam, rho, inner_steps, weight, pin, factor
+            )
             total_steps += steps
             viol = float(np.max(-g, initial=0.0))
             lam = np.maximum(0.0, lam - rho * g)
@@ -776,8 +817,9 @@ def rigid_layout(
         state["lam"] = lam
         return planes, viol
 
-    planes = _select_planes(layout, linkage, ids, cut, clearance_mm, reach)
-    planes, violation = solve(planes, max_rounds, 2)
+    known = None if like is None else like.first_planes
+    first_planes = _select_planes(layout, linkage, ids, cut, clearance_mm, reach, known=known)
+    planes, violation = solve(first_planes, max_rounds, 2)
     is_merged = np.ones(len(ids), dtype=bool)
     for attempt in range(4):
         x = layout.positions()
@@ -828,7 +870,29 @@ def rigid_layout(
         points,
         0.5 * (x.reshape(-1, 3)[ids[:, 0]] + x.reshape(-1, 3)[ids[:, 1]]),
     )
-    return RigidLayoutResult(x, merged, points, is_merged, gap, violation, total_steps)
+    return RigidLayoutResult(
+        x, merged, points, is_merged, gap, violation, total_steps, first_planes
+    )
+
+
+def _normal_pattern(n: int, ids: IntArray, planes: _Planes, ends: SlitEnds) -> sp.csr_matrix:
+    """Every entry the layout's Gauss-Newton matrix ``(3T, 3T)`` can hold with ``planes``,
+    whichever constraints are active: a 3 x 3 block for every tile and for every tile pair that
+    a hinge, a plane or a slit end's angle couples."""
+    tiles = np.arange(n)
+    pairs = np.concatenate(
+        [
+            ids // 8,
+            np.column_stack([planes.a, planes.b]),
+            ends.tiles,
+            np.column_stack([tiles, tiles]),
+        ]
+    )
+    pairs = np.concatenate([pairs, pairs[:, ::-1]])
+    d = np.arange(3)
+    rows = np.broadcast_to(3 * pairs[:, 0, None, None] + d[:, None], (len(pairs), 3, 3))
+    cols = np.broadcast_to(3 * pairs[:, 1, None, None] + d[None, :], (len(pairs), 3, 3))
+    return sp.csr_matrix((np.ones(rows.size), (rows.ravel(), cols.ravel())), shape=(3 * n, 3 * n))
 
 
 def _merged_tiles(

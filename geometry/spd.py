@@ -168,6 +168,17 @@ class SpdSolver:
         self.reused = 0
         self.analysed = 0
 
+    def reserve(self, pattern: sp.spmatrix | sp.sparray) -> None:
+        """Make room in the factored pattern for every entry of the symmetric ``pattern`` (its
+        values are not read), so that matrices within it are refactored numerically only,
+        without a new symbolic analysis each time the pattern grows."""
+        canonical = sp.csc_matrix(pattern, copy=True)
+        canonical.sum_duplicates()
+        keys = _upper_keys(upper_triangle(canonical))
+        if len(keys) and not np.isin(keys, self._keys, assume_unique=True).all():
+            self._set_union(np.union1d(self._keys, keys), canonical.shape[0])
+            self._last = None
+
     def solve(self, matrix: sp.spmatrix | sp.sparray, rhs: FloatArray) -> FloatArray:
         """``x`` with ``matrix @ x = rhs``; ``matrix`` ``(n, n)`` symmetric positive definite
         (only its upper triangle is read)."""

@@ -121,6 +121,45 @@ def test_dual_pairs_that_never_clear_are_trimmed_not_held_apart() -> None:
     assert held.gap_mm[never].max() > 10 * layout.hinge_gap_max_mm + 1e-3
 
 
+def test_a_layout_like_another_takes_its_first_planes_and_ends_the_same() -> None:
+    """``rigid_layout(like=...)`` reuses the earlier layout's first planes for the pairs whose
+    trim flag is unchanged and searches the others: the result is bitwise the one found
+    without it."""
+    from dataclasses import fields, replace
+
+    from drawstring.geometry.hinges import _hinge_vertex_ids
+    from drawstring.geometry.linkage import slit_ends
+    from drawstring.geometry.rigidlayout import rigid_layout
+
+    linkage, uv = _grid(6)
+    top, t3 = heightfield_tiles(uv, linkage.tile_corners, "saddle", 6.0, 0.006)
+    flat = optimize_flat(linkage, top, uv=uv, min_gap_angle_deg=12.0)
+    t2 = extrude_flat(flat, t3)
+    bottom = hinge_sides(linkage, t3, 12.0)
+    ids = _hinge_vertex_ids(linkage, bottom)
+    trim = np.zeros(linkage.n_hinges, dtype=bool)
+    first = rigid_layout(linkage, t2, ids, min_gap_angle_deg=12.0, trim=trim)
+    changed = np.zeros_like(trim)
+    changed[slit_ends(linkage).hinge[:4]] = True
+    alone = rigid_layout(linkage, t2, ids, min_gap_angle_deg=12.0, trim=changed)
+    again = rigid_layout(linkage, t2, ids, min_gap_angle_deg=12.0, trim=changed, like=first)
+    for name in ("tiles", "merged", "points", "is_merged", "gap_mm"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(alone, name))
+    for f in fields(alone.first_planes):
+        np.testing.assert_array_equal(
+            getattr(again.first_planes, f.name), getattr(alone.first_planes, f.name)
+        )
+    # the rows are taken, not searched again: marked scores come through, except on the rows
+    # of the hinges whose flag changed
+    planes = first.first_planes
+    marked = replace(first, first_planes=replace(planes, score=planes.score + 1.0))
+    seen = rigid_layout(linkage, t2, ids, min_gap_angle_deg=12.0, trim=changed, like=marked)
+    moved = seen.first_planes.score != alone.first_planes.score
+    of_changed = np.isin(alone.first_planes.hinge, np.flatnonzero(changed))
+    assert of_changed.any() and (~of_changed).any()
+    assert moved[~of_changed].all() and not moved[of_changed].any()
+
+
 def test_flat_obj_is_closed_and_outward(tmp_path: Path) -> None:
     tiles = _block(-0.5, 2.0)
     path = tmp_path / "flat.obj"

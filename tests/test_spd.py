@@ -34,6 +34,27 @@ def test_solves_match_dense_answers_as_the_pattern_changes() -> None:
     assert solver.reused == len(sequence) - 3
 
 
+def test_a_reserved_pattern_is_analysed_once_for_every_matrix_inside_it() -> None:
+    n = 60
+    rhs = np.linspace(-1.0, 1.0, n)
+    base, extra = spd(n, 0.05, 0), spd(n, 0.05, 1)
+    solver = SpdSolver()
+    solver.reserve(base + extra)
+    for matrix in [base, base + extra, 2.0 * extra + sp.identity(n), base]:
+        x = solver.solve(matrix, rhs)
+        np.testing.assert_allclose(x, np.linalg.solve(matrix.toarray(), rhs), rtol=1e-10)
+    assert solver.analysed == 1 and solver.reused == 3
+    # reserving what is already there keeps the factor; a new entry makes a new analysis
+    solver.reserve(base)
+    solver.solve(base, rhs)
+    assert solver.analysed == 1
+    other = spd(n, 0.05, 2)
+    solver.reserve(other)
+    x = solver.solve(base, rhs)
+    np.testing.assert_allclose(x, np.linalg.solve(base.toarray(), rhs), rtol=1e-10)
+    assert solver.analysed == 2
+
+
 def test_a_full_symmetric_matrix_and_its_upper_triangle_give_the_same_answer() -> None:
     matrix = spd(40, 0.1, 2)
     rhs = np.arange(40.0)
