@@ -725,7 +725,7 @@ def optimize_flat(
     angle_tol = np.radians(FLAT_SOLVER_ANGLE_TOL_DEG)
     nodes, iterations, violation = constrained_least_squares(
         nodes0, objective, constraints, max_steps=max_iter, angle_tol=angle_tol,
-        length_tol=angle_tol * side, feasible_stop=seed_steps,
+        length_tol=angle_tol * side, feasible_stop=seed_steps, line_search=True,
     )  # fmt: skip
     cn = linkage.corner_node
     for round_ in range(4):
@@ -743,6 +743,7 @@ def optimize_flat(
             nodes, objective, constraints, max_steps=max(max_iter - iterations, 1),
             angle_tol=angle_tol, length_tol=angle_tol * side,
             feasible_stop=None if seed_steps is None else max(seed_steps - iterations, 0),
+            line_search=True,
         )  # fmt: skip
         iterations += steps
     if separate_components:
