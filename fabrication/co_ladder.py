@@ -41,7 +41,7 @@ __all__ = [
 #: AVX2 (0.011 mm), where 3 met it.
 CONICAL_RETRY_WEIGHTS: tuple[float, ...] = (10.0,)
 #: ... except in a tiling that may still be split (``fallback=False``), where a run that was
-#: used but missed by more than ``layout_stage.CO_SLOW_REACH`` times the tolerance
+#: used but missed by more than ``co_rounds.CO_SLOW_REACH`` times the tolerance
 #: (``CoLadder.run``'s ``far_mm``) ends the weights at once: splitting mends such misses,
 #: and the tiling is laid out in full, every weight tried, if it is kept after all.
 #: The 200-tile chair in one part missed by 0.68 mm with weight 3, then spent 1.5 s to miss

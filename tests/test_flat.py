@@ -483,7 +483,7 @@ def test_a_conical_top_lets_the_bottom_hinges_meet_in_depth() -> None:
     pulled to equal depths under both tiles of every bottom hinge (the 3D hinge gap)."""
     from dataclasses import replace
 
-    from drawstring.fabrication.layout_stage import _depth_pull
+    from drawstring.fabrication.co_rounds import depth_pull
     from drawstring.geometry.assembled import reextrude, tile_vertices
     from drawstring.geometry.coflat import co_optimize_top, vertex_stars
     from drawstring.geometry.flatpose import hinge_faces
@@ -504,7 +504,7 @@ def test_a_conical_top_lets_the_bottom_hinges_meet_in_depth() -> None:
         shape = replace(
             assembled, top=top, bottom=carried, tiles=tile_vertices(top, carried, assembled.quads)
         )
-        pull = _depth_pull(shape, linkage, bottom)
+        pull = depth_pull(shape, linkage, bottom)
         tiles = reextrude(assembled, top, *target, start_bottom=carried, pull=pull).tiles
         normal = np.linalg.svd(tiles[:, :4] - tiles[:, :4].mean(axis=1, keepdims=True))[2][:, -1]
         corner = tiles[hinges[:, 0], 4 + hinges[:, 1]]

@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from drawstring.fabrication import cli, co_ladder, layout_stage
+from drawstring.fabrication import cli, co_ladder, co_rounds, layout_stage
 from drawstring.fabrication.pipeline import (
     DesignOptions,
     Progress,
@@ -170,50 +170,50 @@ def test_a_conical_round_that_loses_ground_does_not_end_the_co_optimization() ->
     # design co-optimized without the condition kept a 0.033 mm hinge gap in depth.  (With
     # other last bits the three-shell's rounds go otherwise; the rule is tested here on those
     # numbers, the real design below.)
-    judge = layout_stage.RoundJudge(0.13, conical=True)
+    judge = co_rounds.RoundJudge(0.13, conical=True)
     rounds = [0.020, 0.060, 1.1e-3, 3.9e-4, 1.4e-4]
     verdicts = [judge.judge(error, 1e-6) for error in rounds]
     assert verdicts == [(True, False), (False, False), (True, False), (True, False), (True, True)]
     assert judge.best_mm == 1.4e-4 and not judge.cut_short
     # A plain run that may still be split is given up at the lost round: at its rate the
     # rounds left would not reach the tolerance.
-    plain = layout_stage.RoundJudge(0.13, give_up_slow=True)
+    plain = co_rounds.RoundJudge(0.13, give_up_slow=True)
     assert [plain.judge(error, 1e-6) for error in rounds[:2]] == [(True, False), (False, True)]
     assert plain.cut_short
     # A conical first round above the plain layout waits for the next one too (AVX-512
     # three-shell: 0.197 mm against a plain 0.117 mm, then 6.7e-3, 4.0e-4 mm); a plain one
     # that may be split is given up (at its rate it would not reach the tolerance).
-    conical = layout_stage.RoundJudge(0.117, conical=True, give_up_slow=True)
+    conical = co_rounds.RoundJudge(0.117, conical=True, give_up_slow=True)
     assert [conical.judge(e, 1e-4) for e in (0.197, 6.7e-3, 4.0e-4)] == [
         (True, False),
         (True, False),
         (True, False),
     ]
     assert not conical.cut_short
-    plain = layout_stage.RoundJudge(0.117, give_up_slow=True)
+    plain = co_rounds.RoundJudge(0.117, give_up_slow=True)
     assert plain.judge(0.197, 1e-4) == (True, True) and plain.cut_short
 
 
 def test_co_optimization_rounds_stop_where_they_no_longer_pay() -> None:
     tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
     # a first round far above the plain layout is given up at once (one-part chair: 6.5x)
-    judge = layout_stage.RoundJudge(0.69)
+    judge = co_rounds.RoundJudge(0.69)
     assert judge.judge(4.5, 0.1) == (True, True)
     # two rounds in a row that do not get below the plain layout
-    judge = layout_stage.RoundJudge(0.69)
+    judge = co_rounds.RoundJudge(0.69)
     assert [judge.judge(e, 0.1) for e in (1.0, 0.9)] == [(True, False), (True, True)]
     # within the tolerance and gaining less than 10 % on the best round
-    judge = layout_stage.RoundJudge(0.1)
+    judge = co_rounds.RoundJudge(0.1)
     assert [judge.judge(e, 1e-6) for e in (5e-4, 4.6e-4)] == [(True, False), (True, True)]
     # ... but not where it is within the tolerance by less than CO_STOP_NEAR: the hinge
     # layout can add to it (the AVX-512 wave stopped at 9.4e-4 mm and missed at 1.2e-3 mm)
-    judge = layout_stage.RoundJudge(0.1)
+    judge = co_rounds.RoundJudge(0.1)
     assert [judge.judge(e, 1e-6) for e in (9.4e-4, 9.8e-4)] == [(True, False), (False, False)]
     # well inside the tolerance at once
-    assert layout_stage.RoundJudge(0.1).judge(0.25 * tol, 1e-6) == (True, True)
+    assert co_rounds.RoundJudge(0.1).judge(0.25 * tol, 1e-6) == (True, True)
     # within the tolerance and near the joint solve (conical: only within 0.35 of it)
-    assert layout_stage.RoundJudge(0.1).judge(0.5 * tol, 0.1 * tol) == (True, True)
-    assert layout_stage.RoundJudge(0.1, conical=True).judge(0.5 * tol, 0.1 * tol) == (
+    assert co_rounds.RoundJudge(0.1).judge(0.5 * tol, 0.1 * tol) == (True, True)
+    assert co_rounds.RoundJudge(0.1, conical=True).judge(0.5 * tol, 0.1 * tol) == (
         True,
         False,
     )
@@ -284,7 +284,7 @@ def test_a_tiling_that_may_still_be_split_tries_no_second_weight_after_a_far_mis
     calls = _conical_runs(monkeypatch, {first}, missed_mm=0.5)
     design("saddle", options)
     assert calls[:2] == [(True, first, False), (False, None, False)]
-    near = 0.5 * layout_stage.CO_SLOW_REACH * layout_stage.FLAT_EDGE_ERROR_TOL_MM
+    near = 0.5 * co_rounds.CO_SLOW_REACH * layout_stage.FLAT_EDGE_ERROR_TOL_MM
     calls = _conical_runs(monkeypatch, {first}, missed_mm=near)
     design("saddle", options)
     assert calls[:2] == [(True, first, False), (True, retry, False)]
@@ -402,7 +402,7 @@ def _saddle_before_co_optimization():
     )
     linkage = shaped.tiling.linkage
     faces = layout_stage.dual_hinge_faces(linkage, eq1.tiles, shaped.options.min_gap_angle_deg)
-    plain = layout_stage.flat_layout(linkage, shaped.tiling, eq1, shaped.options, faces)
+    plain = co_rounds.flat_layout(linkage, shaped.tiling, eq1, shaped.options, faces)
     return shaped, eq1, faces, plain
 
 
@@ -411,7 +411,7 @@ def test_co_optimization_is_judged_by_its_own_tiles_not_the_target_normals(monke
     # (``flipped_tiles``); that said nothing about the co-optimization and refused it on the
     # scanned face.  A tile is turned over only when its top turned by more than 90 deg.
     shaped, eq1, faces, plain = _saddle_before_co_optimization()
-    reextrude, remeasured = layout_stage.reextrude, layout_stage.remeasured
+    reextrude, remeasured = co_rounds.reextrude, co_rounds.remeasured
     seen: list[int] = []
 
     def noisy_extrusion(*args: object, **kwargs: object):
@@ -423,17 +423,17 @@ def test_co_optimization_is_judged_by_its_own_tiles_not_the_target_normals(monke
         seen.append(1)
         return replace(out, metrics={**out.metrics, "flipped_tiles": 3})
 
-    monkeypatch.setattr(layout_stage, "reextrude", noisy_extrusion)
-    monkeypatch.setattr(layout_stage, "remeasured", noisy_measure)
-    new, flat, block = layout_stage.co_optimized(
+    monkeypatch.setattr(co_rounds, "reextrude", noisy_extrusion)
+    monkeypatch.setattr(co_rounds, "remeasured", noisy_measure)
+    new, flat, block = co_rounds.co_optimized(
         shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces
     )
     assert block["accepted"], block["reason"]
     assert seen and new.metrics["flipped_tiles"] == 3  # the kept round was measured so
     assert flat.edge_error_max_mm < plain.edge_error_max_mm
     # every top face kept its orientation
-    before = layout_stage.quad_vector_areas(eq1.top, eq1.quads)
-    after = layout_stage.quad_vector_areas(new.top, new.quads)
+    before = co_rounds.quad_vector_areas(eq1.top, eq1.quads)
+    after = co_rounds.quad_vector_areas(new.top, new.quads)
     assert np.all(np.einsum("ki,ki->k", before, after) > 0)
 
 
@@ -447,8 +447,8 @@ def test_co_optimization_can_hold_the_clear_openings_of_the_eq1_tiles(monkeypatc
     def no_recompute(*_args: object, **_kwargs: object) -> None:
         raise AssertionError("clear openings recomputed")
 
-    monkeypatch.setattr(layout_stage, "hinge_faces", no_recompute)
-    _, flat, block = layout_stage.co_optimized(
+    monkeypatch.setattr(co_rounds, "hinge_faces", no_recompute)
+    _, flat, block = co_rounds.co_optimized(
         linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces,
         track_openings=False,
     )  # fmt: skip
@@ -658,14 +658,14 @@ def test_a_first_tiling_far_off_skips_the_hinge_stage_unless_kept(monkeypatch) -
 def _re_solves_reporting(monkeypatch, error: float) -> list[float]:
     """Make every flat re-solve of the co-optimization report ``error`` as its edge error;
     the list returned collects one entry per re-solve."""
-    flat_layout = layout_stage.flat_layout
+    flat_layout = co_rounds.flat_layout
     resolves: list[float] = []
 
     def reporting(*args: object, **kwargs: object):
         resolves.append(error)
         return replace(flat_layout(*args, **kwargs), edge_error_max_mm=error)
 
-    monkeypatch.setattr(layout_stage, "flat_layout", reporting)
+    monkeypatch.setattr(co_rounds, "flat_layout", reporting)
     return resolves
 
 
@@ -673,9 +673,9 @@ def test_co_optimization_gives_up_when_its_first_re_solve_is_far_worse(monkeypat
     # A first re-solve many times worse than the plain layout has never recovered: the run
     # stops after one round and is refused.
     shaped, eq1, faces, plain = _saddle_before_co_optimization()
-    assert layout_stage.CO_GIVE_UP_RATIO < 100.0
+    assert co_rounds.CO_GIVE_UP_RATIO < 100.0
     resolves = _re_solves_reporting(monkeypatch, 100.0 * plain.edge_error_max_mm)
-    _, flat, block = layout_stage.co_optimized(
+    _, flat, block = co_rounds.co_optimized(
         shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces
     )
     assert len(resolves) == 1
@@ -691,7 +691,7 @@ def test_co_optimization_stops_when_its_first_joint_solve_ends_above_the_plain_l
     # is refused at once with the two errors.
     shaped, eq1, faces, plain = _saddle_before_co_optimization()
     resolves = _re_solves_reporting(monkeypatch, 1e-9)
-    joint = layout_stage.co_optimize_top
+    joint = co_rounds.co_optimize_top
     solves: list[int] = []
 
     def no_better(*args: object, **kwargs: object):
@@ -701,9 +701,9 @@ def test_co_optimization_stops_when_its_first_joint_solve_ends_above_the_plain_l
     def no_extrusion(*_args: object, **_kwargs: object) -> None:
         raise AssertionError("re-extruded")
 
-    monkeypatch.setattr(layout_stage, "co_optimize_top", no_better)
-    monkeypatch.setattr(layout_stage, "reextrude", no_extrusion)
-    new, flat, block = layout_stage.co_optimized(
+    monkeypatch.setattr(co_rounds, "co_optimize_top", no_better)
+    monkeypatch.setattr(co_rounds, "reextrude", no_extrusion)
+    new, flat, block = co_rounds.co_optimized(
         shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces
     )
     assert resolves == [] and len(solves) == 2  # round 1's two joint solves, nothing after
@@ -717,27 +717,25 @@ def test_the_held_openings_run_reuses_the_first_joint_solve(monkeypatch) -> None
     # openings are tracked or held: the held-openings run takes it from the tracked run and
     # comes out bitwise as it would on its own, with one joint solve fewer.
     shaped, eq1, faces, plain = _saddle_before_co_optimization()
-    joint = layout_stage.co_optimize_top
+    joint = co_rounds.co_optimize_top
     solves: list[int] = []
 
     def counted(*args: object, **kwargs: object):
         solves.append(1)
         return joint(*args, **kwargs)
 
-    monkeypatch.setattr(layout_stage, "co_optimize_top", counted)
+    monkeypatch.setattr(co_rounds, "co_optimize_top", counted)
     args = (shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options)
     first: dict = {}
-    layout_stage.co_optimized(*args, faces, first_solves=first)
+    co_rounds.co_optimized(*args, faces, first_solves=first)
     assert set(first) == {"eq1"}
     solves.clear()
-    new, flat, block = layout_stage.co_optimized(
+    new, flat, block = co_rounds.co_optimized(
         *args, faces, track_openings=False, first_solves=first
     )
     reused = len(solves)
     solves.clear()
-    new_alone, flat_alone, block_alone = layout_stage.co_optimized(
-        *args, faces, track_openings=False
-    )
+    new_alone, flat_alone, block_alone = co_rounds.co_optimized(*args, faces, track_openings=False)
     assert reused == len(solves) - 1
     assert np.array_equal(flat.nodes, flat_alone.nodes)
     assert np.array_equal(new.tiles, new_alone.tiles)
@@ -770,14 +768,14 @@ def test_co_optimization_stops_once_a_re_solve_is_well_inside_the_tolerance(monk
     # followed only moved the bottom corners again: 1600-tile wave).
     shaped, eq1, faces, plain = _saddle_before_co_optimization()
     resolves = _re_solves_reporting(monkeypatch, 0.25 * layout_stage.FLAT_EDGE_ERROR_TOL_MM)
-    joint = layout_stage.co_optimize_top
+    joint = co_rounds.co_optimize_top
 
     def exact_joint(*args: object, **kwargs: object):
         return replace(joint(*args, **kwargs), edge_error_max_mm=1e-9)
 
-    assert layout_stage.CO_STOP_SHARE > 0.25
-    monkeypatch.setattr(layout_stage, "co_optimize_top", exact_joint)
-    _, flat, block = layout_stage.co_optimized(
+    assert co_rounds.CO_STOP_SHARE > 0.25
+    monkeypatch.setattr(co_rounds, "co_optimize_top", exact_joint)
+    _, flat, block = co_rounds.co_optimized(
         shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces
     )
     assert len(resolves) == 1
@@ -792,11 +790,11 @@ def test_co_optimization_stops_when_rounds_inside_the_tolerance_stall(monkeypatc
     shaped, eq1, faces, plain = _saddle_before_co_optimization()
     tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
     reported = [0.58 * tol, 0.5 * tol, 0.49 * tol, 0.35 * tol]
-    assert reported[2] > layout_stage.CO_STALL_GAIN * reported[1]
-    assert reported[1] < layout_stage.CO_STALL_GAIN * reported[0]
-    assert min(reported[:3]) > layout_stage.CO_STOP_SHARE * tol
-    assert max(reported[:3]) <= layout_stage.CO_STOP_NEAR * tol
-    flat_layout, joint = layout_stage.flat_layout, layout_stage.co_optimize_top
+    assert reported[2] > co_rounds.CO_STALL_GAIN * reported[1]
+    assert reported[1] < co_rounds.CO_STALL_GAIN * reported[0]
+    assert min(reported[:3]) > co_rounds.CO_STOP_SHARE * tol
+    assert max(reported[:3]) <= co_rounds.CO_STOP_NEAR * tol
+    flat_layout, joint = co_rounds.flat_layout, co_rounds.co_optimize_top
     resolves: list[float] = []
 
     def reporting(*args: object, **kwargs: object):
@@ -806,9 +804,9 @@ def test_co_optimization_stops_when_rounds_inside_the_tolerance_stall(monkeypatc
     def exact_joint(*args: object, **kwargs: object):  # the ratio rule never stops it
         return replace(joint(*args, **kwargs), edge_error_max_mm=1e-9)
 
-    monkeypatch.setattr(layout_stage, "flat_layout", reporting)
-    monkeypatch.setattr(layout_stage, "co_optimize_top", exact_joint)
-    _, flat, block = layout_stage.co_optimized(
+    monkeypatch.setattr(co_rounds, "flat_layout", reporting)
+    monkeypatch.setattr(co_rounds, "co_optimize_top", exact_joint)
+    _, flat, block = co_rounds.co_optimized(
         shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces
     )
     assert resolves == reported[:3]
@@ -819,13 +817,13 @@ def test_co_optimization_stops_when_rounds_inside_the_tolerance_stall(monkeypatc
 def test_slow_rounds_are_projected_from_their_last_gain() -> None:
     # Re-solved errors (mm) of real runs at 200 tiles: the seashell's first tiling shrank 1.3x
     # a round and was split in the end; the peanut's shrinks 3x a round and meets 1e-3 mm.
-    left = layout_stage.CO_REFINEMENTS + 1
-    assert layout_stage.too_slow(0.0516, 0.0386, left - 2)
-    assert not layout_stage.too_slow(0.0306, 0.0102, left - 2)
-    assert not layout_stage.too_slow(0.0102, 0.00306, left - 3)
+    left = co_rounds.CO_REFINEMENTS + 1
+    assert co_rounds.too_slow(0.0516, 0.0386, left - 2)
+    assert not co_rounds.too_slow(0.0306, 0.0102, left - 2)
+    assert not co_rounds.too_slow(0.0102, 0.00306, left - 3)
     # no gain at all projects no shrinking; no rounds left is never "too slow"
-    assert layout_stage.too_slow(0.01, 0.02, 1)
-    assert not layout_stage.too_slow(0.0516, 0.0386, 0)
+    assert co_rounds.too_slow(0.01, 0.02, 1)
+    assert not co_rounds.too_slow(0.0516, 0.0386, 0)
 
 
 def test_a_tiling_that_may_be_split_again_stops_slow_co_optimization(monkeypatch) -> None:
@@ -833,7 +831,7 @@ def test_a_tiling_that_may_be_split_again_stops_slow_co_optimization(monkeypatch
     # tolerance in the rounds left: a tiling that may be split again stops after one round
     # (and says so); one that is final runs every round.
     shaped, eq1, faces, plain = _saddle_before_co_optimization()
-    flat_layout = layout_stage.flat_layout
+    flat_layout = co_rounds.flat_layout
     resolves: list[float] = []
 
     def slow(*args: object, **kwargs: object):
@@ -842,14 +840,14 @@ def test_a_tiling_that_may_be_split_again_stops_slow_co_optimization(monkeypatch
         resolves.append(error)
         return replace(out, edge_error_max_mm=error)
 
-    monkeypatch.setattr(layout_stage, "flat_layout", slow)
+    monkeypatch.setattr(co_rounds, "flat_layout", slow)
     args = (shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options)
-    _, flat, block = layout_stage.co_optimized(*args, faces, give_up_slow=True)
+    _, flat, block = co_rounds.co_optimized(*args, faces, give_up_slow=True)
     assert len(resolves) == 1 and block["cut_short"]
     assert block["accepted"] and flat.edge_error_max_mm == resolves[0]
     resolves.clear()
-    _, flat, block = layout_stage.co_optimized(*args, faces)
-    assert len(resolves) == layout_stage.CO_REFINEMENTS + 1 and "cut_short" not in block
+    _, flat, block = co_rounds.co_optimized(*args, faces)
+    assert len(resolves) == co_rounds.CO_REFINEMENTS + 1 and "cut_short" not in block
     assert flat.edge_error_max_mm == resolves[-1]
 
 
@@ -857,8 +855,8 @@ def test_refinement_rounds_start_from_the_re_solved_layout(monkeypatch) -> None:
     # each refinement round's joint solve starts from the layout re-solved on the extruded
     # tiles (which holds their bounds), not from the previous joint solve's nodes
     shaped, eq1, faces, plain = _saddle_before_co_optimization()
-    co_optimize_top = layout_stage.co_optimize_top
-    flat_layout = layout_stage.flat_layout
+    co_optimize_top = co_rounds.co_optimize_top
+    flat_layout = co_rounds.flat_layout
     starts: list[np.ndarray | None] = []
     resolved: list[np.ndarray] = []
 
@@ -873,14 +871,14 @@ def test_refinement_rounds_start_from_the_re_solved_layout(monkeypatch) -> None:
         # shrinking slowly: every round runs
         return replace(out, edge_error_max_mm=plain.edge_error_max_mm * 0.8 ** len(resolved))
 
-    monkeypatch.setattr(layout_stage, "co_optimize_top", recording_joint)
-    monkeypatch.setattr(layout_stage, "flat_layout", slow)
+    monkeypatch.setattr(co_rounds, "co_optimize_top", recording_joint)
+    monkeypatch.setattr(co_rounds, "flat_layout", slow)
     args = (shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options)
-    layout_stage.co_optimized(*args, faces)
+    co_rounds.co_optimized(*args, faces)
     # round 1 runs every stage, then its last one again; each later round one stage
     assert starts[0] is None
-    assert len(starts) == 2 + layout_stage.CO_REFINEMENTS
-    assert len(resolved) == 1 + layout_stage.CO_REFINEMENTS
+    assert len(starts) == 2 + co_rounds.CO_REFINEMENTS
+    assert len(resolved) == 1 + co_rounds.CO_REFINEMENTS
     for start, before in zip(starts[2:], resolved[:-1], strict=True):
         assert start is not None and np.array_equal(start, before)
 
@@ -894,7 +892,7 @@ def test_clear_windows_closing_on_their_openings_are_released(monkeypatch) -> No
 
     shaped, eq1, faces, plain = _saddle_before_co_optimization()
     linkage = shaped.tiling.linkage
-    hinge_faces, flat_layout = layout_stage.hinge_faces, layout_stage.flat_layout
+    hinge_faces, flat_layout = co_rounds.hinge_faces, co_rounds.flat_layout
     given: list[tuple[object, np.ndarray]] = []
     chosen = np.arange(len(faces.clear_hi)) % 2 == 0
 
@@ -911,9 +909,9 @@ def test_clear_windows_closing_on_their_openings_are_released(monkeypatch) -> No
         given.append((args[4], hinge_face_openings(linkage, out, args[2].tiles)))
         return replace(out, edge_error_max_mm=plain.edge_error_max_mm * 0.8 ** len(given))
 
-    monkeypatch.setattr(layout_stage, "hinge_faces", closing)
-    monkeypatch.setattr(layout_stage, "flat_layout", slow)
-    _, flat, block = layout_stage.co_optimized(
+    monkeypatch.setattr(co_rounds, "hinge_faces", closing)
+    monkeypatch.setattr(co_rounds, "flat_layout", slow)
+    _, flat, block = co_rounds.co_optimized(
         linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces
     )
     assert block["accepted"], block["reason"]
