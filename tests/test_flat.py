@@ -547,3 +547,23 @@ def test_the_joint_solves_jacobian_after_a_residual_at_the_same_point_is_a_fresh
         fresh_res, fresh_jac = problem().residual_jacobian(point)
         assert np.array_equal(res, fresh_res)
         assert np.array_equal(jac.toarray(), fresh_jac.toarray())
+
+
+def test_the_target_tree_is_built_once_per_target_and_leaves_the_callers_arrays_alone() -> None:
+    from drawstring.geometry.coflat import _target_search
+
+    rng = np.random.default_rng(5)
+    vertices = rng.normal(size=(30, 3))
+    faces = np.array([[i, i + 1, i + 2] for i in range(28)])
+    first = _target_search(vertices, faces)
+    again = _target_search(vertices.copy(), faces.copy())  # equal arrays, other objects
+    assert again[1] is first[1]
+    assert vertices.flags.writeable and faces.flags.writeable
+    vertices[0, 0] += 1.0  # another target: its own tree, on its own copy
+    other = _target_search(vertices, faces)
+    assert other[1] is not first[1]
+    assert other[0][0][0, 0] == vertices[0, 0] and first[0][0][0, 0] == vertices[0, 0] - 1.0
+    # the normals are the faces' own
+    tri = vertices[faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    np.testing.assert_allclose(other[2], n / np.linalg.norm(n, axis=1, keepdims=True))
