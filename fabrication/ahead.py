@@ -58,6 +58,14 @@ class Ahead(Generic[T]):
         finally:
             send.close()
 
+    def ready(self) -> bool:
+        """Whether the child is done (its result, or its end, is waiting in the pipe): it no
+        longer takes a core."""
+        try:
+            return bool(self._receive.poll())
+        except (OSError, ValueError):  # closed: collected or cancelled
+            return True
+
     def result(self, progress: Progress) -> T | None:
         """The child's result; the time spent waiting for it is added to ``progress``'s
         stages in proportion to the child's own stage times."""

@@ -82,13 +82,35 @@ class CoLadder:
     two children share the spare core, and the wave gained 0.6 s.
     """
 
-    def __init__(self, run: Callable[[_Step], _Outcome], conical: bool, ahead: bool) -> None:
+    def __init__(
+        self,
+        run: Callable[[_Step], _Outcome],
+        conical: bool,
+        ahead: bool,
+        core_freed: Callable[[], bool] | None = None,
+    ) -> None:
         self._run = run
         weights = (CO_CONICAL, *CONICAL_RETRY_WEIGHTS)
         self.steps: list[_Step] = [(True, w) for w in weights] if conical else []
         self.steps.append((False, None))
         self._ahead = ahead and CO_SPECULATE
         self._children: dict[int, Ahead[_Outcome]] = {}
+        #: whether a core that another process held (a tiling laid out ahead) is spare now
+        self._core_freed = core_freed
+        self._current = 0
+
+    def poll(self) -> None:
+        """Between the rounds of a run: once the core another process held is spare
+        (``core_freed``), start the last step ahead, as where it was spare from the start (the
+        200-tile seashell's two-part tiling is laid out ahead and done while its one-part
+        tiling is still on its second conical weight)."""
+        if self._ahead or self._core_freed is None or not CO_SPECULATE:
+            return
+        if not self._core_freed():
+            return
+        self._core_freed = None
+        self._ahead = True
+        self._start_ahead(self._current)
 
     def run(
         self, far_mm: float | None = None
@@ -151,19 +173,28 @@ class CoLadder:
             del self._children[i]  # only now: run() stops it if the wait is interrupted
             if outcome is not None:
                 return outcome
-        if self._ahead:
-            for j in range(max(i + 1, len(self.steps) - 1), len(self.steps)):
-                if j not in self._children:
-                    what = f"the co-optimization {_step_name(self.steps[j])} run ahead"
-                    try:
-                        self._children[j] = Ahead(self._work(self.steps[j]), what)
-                    except OSError as exc:  # no process to spare (fork refused)
-                        logger.warning("could not start %s (%s): running it in turn", what, exc)
-                        self._ahead = False
+        self._current = i
+        self.poll()
+        self._start_ahead(i)
         return self._run(self.steps[i])
+
+    def _start_ahead(self, i: int) -> None:
+        """With a spare core, the last step started in a child while step ``i`` runs here."""
+        if not self._ahead:
+            return
+        for j in range(max(i + 1, len(self.steps) - 1), len(self.steps)):
+            if j not in self._children:
+                what = f"the co-optimization {_step_name(self.steps[j])} run ahead"
+                try:
+                    self._children[j] = Ahead(self._work(self.steps[j]), what)
+                except OSError as exc:  # no process to spare (fork refused)
+                    logger.warning("could not start %s (%s): running it in turn", what, exc)
+                    self._ahead = False
 
     def _work(self, step: _Step) -> Callable[[Progress], _Outcome]:
         def work(progress: Progress) -> _Outcome:
+            # in the child: no children of its own (polls between its rounds find none)
+            self._ahead, self._core_freed = False, None
             return self._run(step)
 
         return work

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
@@ -235,6 +236,7 @@ def co_optimized(
     first_solves: dict[str, CoOptimizedTop] | None = None,
     conical: bool = False,
     conical_weight: float | None = None,
+    between_rounds: Callable[[], None] | None = None,
 ) -> tuple[AssembledResult, FlatResult, dict[str, Any]]:
     """K3D and K2D moved together so the flat tiles are congruent to the assembled ones
     (:func:`~drawstring.geometry.coflat.co_optimize_top`; with ``faces``, at their hinge points
@@ -252,7 +254,9 @@ def co_optimized(
     every round pulls the bottom hinges' corners to equal depths under both their tiles'
     top faces (:func:`depth_pull`), so that those corners meet in 3D, not only seen from
     above; the rounds then stop only within ``CO_STOP_NEAR_CONICAL`` of the tolerance.
-    ``conical_weight`` replaces ``coflat.CO_CONICAL``, the weight of that condition."""
+    ``conical_weight`` replaces ``coflat.CO_CONICAL``, the weight of that condition.
+    ``between_rounds`` is called after every round that does not end the run (the ladder
+    starts work ahead there once a core is spare, :meth:`~.co_ladder.CoLadder.poll`)."""
 
     last: list[tuple[NDArray[np.float64], HingeFaces]] = []
     # the openings of the last re-solved layout on its hinge faces, and the slit ends released
@@ -367,6 +371,8 @@ def co_optimized(
             best = (current, new_flat)
         if stop:
             break
+        if between_rounds is not None:
+            between_rounds()
         rounds = [CO_STAGES[-1:]]
     if judge.cut_short:
         block["cut_short"] = True

@@ -12,6 +12,7 @@ import logging
 import math
 import multiprocessing
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
@@ -177,7 +178,7 @@ def shape_and_layout(
     try:
         first = best = _shaped(
             first_tiling, bound, loaded, options, progress, shapes, fallback=False,
-            spare_core=ahead is None,
+            spare_core=ahead is None, core_freed=None if ahead is None else ahead.ready,
         )  # fmt: skip
         first_accuracy = best_accuracy = first.accuracy_mm
         target = min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
@@ -246,13 +247,15 @@ def _shaped(
     *,
     fallback: bool = True,
     spare_core: bool = False,
+    core_freed: Callable[[], bool] | None = None,
 ) -> ShapedLayout:
     """Stages assembled to hinges on one tiling (see :func:`shape_and_layout`); with
     ``fallback=False`` a refused co-optimization is not run again holding the eq.-1
     openings, and the hinge stage is skipped when the flat layout is too far off.
     ``spare_core``: no other process lays out a tiling meanwhile, so the co-optimization
     without the conical condition is run ahead while the conical ones run
-    (:class:`~.co_ladder.CoLadder`).
+    (:class:`~.co_ladder.CoLadder`); ``core_freed`` says whether the process that lays out
+    another tiling is done, so that the core it held is spare from then on.
     ``shapes`` holds the assembled configurations already solved, by quad mesh; their arrays
     are read-only, as they may be shared between tilings (and so are those of a design that
     keeps the eq.-1 tiles, e.g. with ``--no-co-optimize``)."""
@@ -287,10 +290,12 @@ def _shaped(
             )
             ladder = CoLadder(
                 lambda step: _co_optimized_with_fallback(
-                    linkage, tiling, *plain, loaded, options, faces, fallback, *step
+                    linkage, tiling, *plain, loaded, options, faces, fallback, *step,
+                    between_rounds=ladder.poll,
                 ),
                 conical,
                 spare_core and _can_fork(),
+                core_freed if core_freed is not None and _can_fork() else None,
             )  # fmt: skip
             far = None if fallback else CO_SLOW_REACH * FLAT_EDGE_ERROR_TOL_MM
             assembled, flat, co_block, skipped, note = ladder.run(far)
@@ -365,15 +370,18 @@ def _co_optimized_with_fallback(
     fallback: bool,
     conical: bool,
     conical_weight: float | None = None,
+    *,
+    between_rounds: Callable[[], None] | None = None,
 ) -> tuple[AssembledResult, FlatResult, dict[str, Any], bool]:
     """:func:`co_optimized` tracking the clear openings and, when that is refused and
     ``fallback`` (and not ``conical``: the caller tries that again otherwise), again holding the
     eq.-1 tiles' openings; also whether a full run is owed
-    (:attr:`ShapedLayout.fallback_skipped`)."""
+    (:attr:`ShapedLayout.fallback_skipped`).  ``between_rounds`` is called after every round."""
     first_solves: dict[str, CoOptimizedTop] = {}
     new_assembled, new_flat, co_block = co_optimized(
         linkage, tiling, assembled, flat, loaded, options, faces, give_up_slow=not fallback,
         first_solves=first_solves, conical=conical, conical_weight=conical_weight,
+        between_rounds=between_rounds,
     )  # fmt: skip
     refused = not co_block["accepted"] and faces is not None
     skipped = (refused and not fallback) or bool(co_block.get("cut_short"))
@@ -384,7 +392,7 @@ def _co_optimized_with_fallback(
         # there.  The hinge stage separates the final tiles exactly either way.
         held = co_optimized(
             linkage, tiling, assembled, flat, loaded, options, faces, track_openings=False,
-            first_solves=first_solves, conical=conical,
+            first_solves=first_solves, conical=conical, between_rounds=between_rounds,
         )  # fmt: skip
         if held[2]["accepted"]:
             new_assembled, new_flat = held[0], held[1]

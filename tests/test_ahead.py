@@ -5,6 +5,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import sys
+import time
 
 import pytest
 
@@ -30,3 +31,20 @@ def test_a_child_that_fails_gives_no_result() -> None:
         raise RuntimeError("out of memory")
 
     assert Ahead(fails).result(Progress(quiet=True)) is None
+
+
+def test_a_child_is_ready_once_its_work_is_done(tmp_path) -> None:
+    go = tmp_path / "go"
+
+    def waits(progress: Progress) -> int:
+        while not go.exists():
+            time.sleep(0.01)
+        return 7
+
+    ahead: Ahead[int] = Ahead(waits)
+    assert not ahead.ready()  # still working
+    go.touch()
+    ahead._receive.poll(30.0)  # (the test's own wait: the child sends when done)
+    assert ahead.ready()
+    assert ahead.result(Progress(quiet=True)) == 7
+    assert ahead.ready()  # collected: it holds no core

@@ -121,3 +121,48 @@ def test_the_run_without_the_condition_is_taken_from_its_child(tmp_path) -> None
     with pytest.raises(RuntimeError):
         CoLadder(fails, True, True).run()
     assert multiprocessing.active_children() == [] and not finished.exists()
+
+
+@pytest.mark.skipif(
+    not sys.platform.startswith("linux") or "fork" not in multiprocessing.get_all_start_methods(),
+    reason="runs ahead only where processes fork",
+)
+def test_a_core_freed_during_a_run_starts_the_last_step_ahead_from_then() -> None:
+    # Another process (a tiling laid out ahead) held the spare core; once it is done, the
+    # polls between rounds start the run without the condition in a child, whose own polls
+    # start nothing.
+    errors = {(True, FIRST): 2 * TOL, (True, RETRY): 2 * TOL, (False, None): 0.1 * TOL}
+    base, ran = _runs(errors)
+    freed = {"now": False}
+    started: list[list[int]] = []
+
+    def run(step):
+        ladder.poll()
+        started.append(sorted(ladder._children))
+        if step == (True, FIRST):
+            freed["now"] = True  # the other process is done during this run
+            ladder.poll()
+            started.append(sorted(ladder._children))
+        assembled, flat, block, skipped = base(step)
+        return f"{assembled}, children {sorted(ladder._children)}", flat, block, skipped
+
+    ladder = CoLadder(run, True, False, core_freed=lambda: freed["now"])
+    assembled, flat, *_ = ladder.run()
+    assert ran == [(True, FIRST), (True, RETRY)]  # the last one ran in the child
+    assert started == [[], [2], [2]]  # nothing before the core was freed, then the last step
+    # taken from the child, which started no child of its own
+    assert assembled == "assembled (False, None), children []"
+    assert flat.edge_error_max_mm == 0.1 * TOL
+    assert multiprocessing.active_children() == []
+    # a core never freed: every step here, in turn
+    base, ran = _runs(errors)
+    freed["now"] = False
+    started.clear()
+
+    def never(step):
+        ladder.poll()
+        return base(step)
+
+    ladder = CoLadder(never, True, False, core_freed=lambda: False)
+    ladder.run()
+    assert ran == [(True, FIRST), (True, RETRY), (False, None)]

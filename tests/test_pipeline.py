@@ -229,10 +229,10 @@ def _conical_runs(
     real = layout_stage._co_optimized_with_fallback
     monkeypatch.setattr(co_ladder, "CO_SPECULATE", False)  # every call in this process
 
-    def recorded(*args):
+    def recorded(*args, **kwargs):
         conical, weight = args[8], args[9] if len(args) > 9 else None
         calls.append((conical, weight, args[7]))
-        out = real(*args)
+        out = real(*args, **kwargs)
         if conical and weight in refused:
             if missed_mm is not None:
                 block = {**out[2], "accepted": True, "reason": ""}
