@@ -5,7 +5,8 @@ a copy of its state, and sends back the result and its stage times through a pip
 layout stage uses it to lay out the first tighter tiling while the first one is laid out
 (:data:`~drawstring.fabrication.layout_stage.RETILE_AHEAD`), and to co-optimize without the
 conical condition while the conical co-optimizations run
-(:data:`~drawstring.fabrication.co_ladder.CO_SPECULATE`).
+(:data:`~drawstring.fabrication.co_ladder.CO_SPECULATE`); :meth:`Ahead.ready` tells, without
+waiting, whether the child is done (its core spare).
 """
 
 from __future__ import annotations

@@ -79,7 +79,9 @@ class CoLadder:
     the wait for the last run is cut by the time they took (the 1600-tile wave: 2.4 s for
     its first weight, whose joint solve is refused, then 4.8 s without the condition; 7.3 s
     in turn, 5.5 s so).  Only the last run goes ahead: running the retry weight too made the
-    two children share the spare core, and the wave gained 0.6 s.
+    two children share the spare core, and the wave gained 0.6 s.  Without ``ahead`` but with
+    ``core_freed`` (another process lays out a tiling and holds the spare core), :meth:`poll`,
+    called between rounds, starts that child once ``core_freed()`` says the core is spare.
     """
 
     def __init__(

@@ -204,7 +204,10 @@ def _target_search(
     """The target's contiguous arrays, an AABB tree over it and its unit face normals, built
     once per target (a design's joint solves all search the same one; 6 ms per build at the
     CLI default resolution)."""
-    target = (np.array(vertices, dtype=np.float64), np.array(faces, dtype=np.int64))  # own copies
+    target = (  # own copies
+        np.array(vertices, dtype=np.float64, order="C"),
+        np.array(faces, dtype=np.int64, order="C"),
+    )
     key = hashlib.sha1(b"".join([repr(a.shape).encode() + a.tobytes() for a in target])).digest()
     if key not in _TARGET_SEARCHES:
         tree = igl.AABB()
@@ -217,6 +220,7 @@ def _target_search(
         if len(_TARGET_SEARCHES) >= 2:
             _TARGET_SEARCHES.pop(next(iter(_TARGET_SEARCHES)))
         _TARGET_SEARCHES[key] = (target, tree, normals)
+    _TARGET_SEARCHES[key] = _TARGET_SEARCHES.pop(key)  # the latest last: evicted last
     return _TARGET_SEARCHES[key]
 
 

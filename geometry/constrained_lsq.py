@@ -40,8 +40,9 @@ __all__ = [
 #: already 1e-12 of a gradient step; without the bound, a subproblem that cannot descend (the
 #: three-shell's joint solve at the CLI's default size) multiplied it by 8 for every refused
 #: trial of every multiplier round until it overflowed, and each round then spent eight
-#: factorizations on an infinite matrix.  The largest damping a built-in reaches otherwise is
-#: about 5e10 (the CLI's saddle), so no other design changes.
+#: factorizations on an infinite matrix.  The largest damping a built-in reached otherwise was
+#: about 5e10 (the CLI's saddle, measured before the flat layout's line search), so no other
+#: design changed.
 LM_DAMPING_MAX = 1e12
 
 
@@ -237,6 +238,7 @@ def _secant_minimum(
         vertex = np.where(da > 0, np.clip(-db / (2.0 * da), lo, hi), lo)
     candidates = np.concatenate([vertex, lo, hi])
     value = (np.tile(da, 3) * candidates + np.tile(db, 3)) * candidates + np.tile(de, 3)
+    value = np.where(np.isfinite(value), value, np.inf)  # a NaN would hide a finite least
     return float(candidates[int(np.argmin(value))])
 
 
@@ -377,14 +379,15 @@ def constrained_least_squares(
                     # between its ends, cost least is tried before a damped step is factored.
                     r1, g1 = evaluated(trial)
                     alpha = _secant_minimum(r0, r1, lam - rho * g0, lam - rho * g1, rho)
-                    if alpha > SECANT_MIN_STEP:
+                    if SECANT_MIN_STEP < alpha < 1.0 - 1e-12:  # (at 1: the trial itself)
                         short = x + alpha * step.reshape(n, 2)
                         c_short = cost(short, lam, rho)
                         if c_short < c0:
                             x, improved = short, True
                             decrease = c0 - c_short
                             c0 = c_short
-                            moved = max(moved, alpha * float(np.abs(step).max()))
+                            step = alpha * step  # the step taken
+                            moved = max(moved, float(np.abs(step).max()))
                             break
                 if c1 < c0:
                     x, improved = trial, True

@@ -11,6 +11,7 @@ tiles' pose (a turn and a translation each) that the planes move with.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,6 +59,9 @@ class SeparatingPlanes:
     piece_a: IntArray
     piece_b: IntArray
     trim: NDArray[np.bool_]  # (H,) the hinges treated as trimmed when choosing them
+    #: digest of what else the search saw (the vertices, clearance, touch, unhinged pairs on
+    #: their top faces only): ``known`` planes are taken only from a search of the same
+    made_with: bytes = b""
 
 
 #: Most rows searched at once for separating planes, and fewest worth a block of their own on
@@ -215,8 +219,9 @@ def select_planes(
     other face's half is trimmed away).  ``touch``
     is the separation required where a hinged pair may touch.  With
     ``previous`` planes, a row found there is only searched near its previous plane, unless
-    that leaves it violated.  ``known`` planes, chosen earlier at this very pose (vertices
-    ``x``), are taken as they are for every row found there whose hinge is not treated
+    that leaves it violated.  ``known`` planes, chosen earlier by a search of these vertices
+    ``x`` with the same clearance and touch (``known.made_with``; otherwise they are not
+    used), are taken as they are for every row found there whose hinge is not treated
     differently now (``known.trim``): the search is row by row, so this gives the same planes.
     The returned score of each plane is its smallest margin beyond the required ones.
     """
@@ -377,7 +382,11 @@ def select_planes(
         run(warm, world)
         todo = np.concatenate([np.flatnonzero(~found), warm[score[warm] < 0]])
     reused = np.zeros(0, dtype=np.int64)
-    if known is not None and len(known.a):
+    made_with = hashlib.sha1(
+        np.ascontiguousarray(x).tobytes()
+        + repr((clearance, touch, layout.unhinged_top_only)).encode()
+    ).digest()
+    if known is not None and len(known.a) and known.made_with == made_with:
         found, src = match(known)
         same = ~np.isin(hinge[found], np.flatnonzero(known.trim != trim))
         reused, src = np.flatnonzero(found)[same], src[same]
@@ -392,7 +401,18 @@ def select_planes(
             known.score[src],
         )
     return SeparatingPlanes(
-        a, b, hinge, body, offset, delta_a, delta_b, score, piece_a, piece_b, trim.copy()
+        a,
+        b,
+        hinge,
+        body,
+        offset,
+        delta_a,
+        delta_b,
+        score,
+        piece_a,
+        piece_b,
+        trim.copy(),
+        made_with,
     )
 
 

@@ -174,6 +174,10 @@ class SpdSolver:
         without a new symbolic analysis each time the pattern grows."""
         canonical = sp.csc_matrix(pattern, copy=True)
         canonical.sum_duplicates()
+        if len(self._keys) and canonical.shape != self._union.shape:
+            raise ValueError(
+                f"reserve: a {canonical.shape} pattern for a solver of {self._union.shape} matrices"
+            )
         keys = _upper_keys(upper_triangle(canonical))
         if len(keys) and not np.isin(keys, self._keys, assume_unique=True).all():
             self._set_union(np.union1d(self._keys, keys), canonical.shape[0])

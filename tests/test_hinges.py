@@ -158,6 +158,12 @@ def test_a_layout_like_another_takes_its_first_planes_and_ends_the_same() -> Non
     of_changed = np.isin(alone.first_planes.hinge, np.flatnonzero(changed))
     assert of_changed.any() and (~of_changed).any()
     assert moved[~of_changed].all() and not moved[of_changed].any()
+    # planes searched with another clearance are not taken
+    wider = rigid_layout(
+        linkage, t2, ids, min_gap_angle_deg=12.0, trim=changed, like=marked, clearance_mm=0.05
+    )
+    fresh = rigid_layout(linkage, t2, ids, min_gap_angle_deg=12.0, trim=changed, clearance_mm=0.05)
+    np.testing.assert_array_equal(wider.first_planes.score, fresh.first_planes.score)
 
 
 def test_flat_obj_is_closed_and_outward(tmp_path: Path) -> None:

@@ -546,7 +546,8 @@ def test_the_tighter_tiling_laid_out_ahead_gives_the_design_laid_out_in_turn(
 
     def result(self, progress):
         out = result_of(self, progress)
-        taken.append(out is not None)
+        if self._what == "the tiling laid out ahead":  # (not a co-optimization run ahead)
+            taken.append(out is not None)
         return out
 
     monkeypatch.setattr(layout_stage._Ahead, "result", result)

@@ -53,6 +53,8 @@ def test_a_reserved_pattern_is_analysed_once_for_every_matrix_inside_it() -> Non
     x = solver.solve(base, rhs)
     np.testing.assert_allclose(x, np.linalg.solve(base.toarray(), rhs), rtol=1e-10)
     assert solver.analysed == 2
+    with pytest.raises(ValueError, match="reserve"):
+        solver.reserve(spd(n + 1, 0.05, 3))
 
 
 def test_a_full_symmetric_matrix_and_its_upper_triangle_give_the_same_answer() -> None:
