@@ -39,13 +39,15 @@ Solvers.  ``"exact"`` is an integer program (``scipy.optimize.milp``, HiGHS) on 
 whose edges carry their tile: binary edge, node and turn variables, where a turn is a pair of
 edges at a gap whose tiles are contact partners there (so only partner-consistent turns exist),
 one pass per tile, crossing-pair exclusions, and connectivity cuts added until one cycle
-remains; HiGHS proves optimality.  Large instances use ``"heuristic: boundary-DP +
-window-MILP"``: a dynamic program over the boundary tiles in their order along the outer
-boundary (one step per tile, consecutive tiles partners, short bridges through interior tiles
-where two consecutive boundary tiles are not partners) builds the minimum-turn boundary loop;
-each lift gap not on it is spliced in by solving the same integer program exactly on a window (a
-stretch of the loop plus a corridor to the lift gap) with the rest of the loop fixed, growing the
-window until it succeeds.  If the dynamic program's loop reuses a gap or a tile (a ring two
+remains; HiGHS proves optimality within a node budget (:data:`MILP_NODE_LIMIT`: work, not
+time, bounds every solve, so that the route is the same on every machine).  Large instances use
+``"heuristic: boundary-DP + window-MILP"``: a dynamic program over the boundary tiles in their
+order along the outer boundary (one step per tile, consecutive tiles partners, short bridges
+through interior tiles where two consecutive boundary tiles are not partners) builds the
+minimum-turn boundary loop; each lift gap not on it is spliced in by solving the same integer
+program on a window (a stretch of the loop plus a corridor to the lift gap) with the rest of the
+loop fixed, from the root node's best path (:data:`SPLICE_NODE_LIMITS`), growing the window
+until it succeeds.  If the dynamic program's loop reuses a gap or a tile (a ring two
 tiles wide), the integer program is solved on the band of tiles next to the boundary instead.
 The heuristic's lower bound is ``2 pi`` (a simple closed polygon turns at least once around).
 
@@ -79,6 +81,7 @@ from .route_heuristics import (
     boundary_tile_order,
 )
 from .route_milp import (
+    NodeBudgetError,
     Step,
     _Rules,
     _segments_cross,
@@ -90,11 +93,12 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "EXACT_LIMIT_DEFAULT",
-    "MILP_TIME_LIMIT_S",
+    "MILP_NODE_LIMIT",
     "NODE_ENTRANCE",
     "NODE_HORIZONTAL",
     "NODE_SPLIT",
     "NODE_VERTICAL",
+    "SPLICE_NODE_LIMITS",
     "SPLICE_WINDOWS",
     "Route",
     "SplitRule",
@@ -124,19 +128,26 @@ _LABEL = {
 
 #: Largest number of gaps solved by the exact integer program by default.
 EXACT_LIMIT_DEFAULT = 40
-#: Time limit of one integer-program solve, s.
-MILP_TIME_LIMIT_S = 20.0
+#: Branch-and-bound nodes of one whole-instance or band integer-program solve (HiGHS
+#: ``mip_max_nodes``): a bound on work, not time, so that every machine stops a solve at the
+#: same point and draws the same route (``route_milp.MILP_SAFETY_TIME_S`` is the time's).
+MILP_NODE_LIMIT = 10_000
 #: Windows tried in turn when splicing a lift gap into the loop: (loop gaps each side of the
 #: loop gap nearest to the lift gap, corridor half-width in median gap spacings around the
-#: segment to the lift gap, time limit of the window's integer program in s).  A window solve
-#: that stops at its time limit with a valid path keeps it (not proven optimal).
-SPLICE_WINDOWS: tuple[tuple[int, float, float], ...] = (
-    (3, 2.0, 1.0),
-    (3, 2.0, 5.0),
-    (5, 3.0, 5.0),
-    (8, 4.5, 5.0),
-    (12, 6.5, 5.0),
-)
+#: segment to the lift gap).
+SPLICE_WINDOWS: tuple[tuple[int, float], ...] = ((3, 2.0), (5, 3.0), (8, 4.5), (12, 6.5))
+#: Node budgets of a window's integer program, tried in turn while the window neither yields a
+#: path nor is proved to hold none: first the root node alone (with HiGHS's heuristics there),
+#: then a few more.  A solve stopped at its budget with a valid path keeps it, not proven
+#: optimal.  Measured on the eight built-ins (200 tiles and the CLI defaults, both hinge
+#: strategies; 1600 tiles, dual hinges) and the three scans: all 41 routes are the ones the
+#: 5 s time limits per window gave before.  Most window programs finish at the root; the
+#: largest (1800-3700 variables: the face scan, the 1600-tile dome and wave) had kept the path
+#: found there whether or not they reached the time limit, which they did after 2 to 11 nodes
+#: or not, by the machine's speed.  Their route stages took 8.0, 5.1 and 5.1 s, now 7.5, 3.3
+#: and 1.8 s.  A window whose root neither finds a path nor proves that none exists costs its
+#: root twice (the face scan: 2.8 s, then 3.0 s to prove it).
+SPLICE_NODE_LIMITS: tuple[int, ...] = (1, 16)
 
 
 @dataclass(frozen=True)
@@ -436,7 +447,7 @@ def plan_route(
     lift_gaps: ArrayLike = (),
     *,
     exact_limit: int = EXACT_LIMIT_DEFAULT,
-    time_limit_s: float = MILP_TIME_LIMIT_S,
+    node_limit: int = MILP_NODE_LIMIT,
     split_rule: SplitRule = "boundary",
 ) -> Route:
     """Closed minimum-turn route through all boundary tiles and all lift gaps.
@@ -448,7 +459,8 @@ def plan_route(
     lift_gaps : (k,) int, gaps the route must pass (lift points).
     exact_limit : solve the whole instance exactly when it has at most this many gaps;
         otherwise use the heuristic (boundary DP + exact windows around lift points).
-    time_limit_s : time limit of every whole-instance integer-program solve.
+    node_limit : branch-and-bound nodes of every whole-instance (or band) integer-program
+        solve (the lift windows' are :data:`SPLICE_NODE_LIMITS`).
     split_rule : which crossings of a ``-2`` split gap are allowed (lift gaps are exempt):
         ``"boundary"`` (default, paper "Connecting splits"): only between two boundary tiles, so
         the string never runs into the interior through a gap on a cut; ``"same-component"``:
@@ -487,9 +499,9 @@ def plan_route(
     reachable = lift_set - set(missed)
     if linkage.n_gaps <= exact_limit:
         steps, cost, optimal = _exact(
-            rules, pos, linkage.n_gaps, reachable, cover, groups, time_limit_s, missed, notes
+            rules, pos, linkage.n_gaps, reachable, cover, groups, node_limit, missed, notes
         )
-        method = "exact" if optimal else "heuristic: MILP stopped at its time limit"
+        method = "exact" if optimal else "heuristic: MILP stopped at its node or time limit"
         bound = cost if optimal else 2 * math.pi
         return _finish(linkage, rules, pos, steps, method, bound, notes, missed)
 
@@ -505,30 +517,29 @@ def plan_route(
     except DesignError as err:
         notes.append(f"boundary DP failed ({err}); solved the boundary band exactly")
         method = "heuristic: band-MILP + window-MILP"
-        steps = _band_loop_any(rules, pos, cover, groups, time_limit_s)
+        steps = _band_loop_any(rules, pos, cover, groups, node_limit, notes)
     spacing = _median_spacing(pos)
     for lift in sorted(reachable):
         if lift in {g for g, _ in steps}:
             continue
-        reason = ""
-        for half_window, corridor, limit in SPLICE_WINDOWS:
-            try:
-                steps = _splice_lift(
-                    rules,
-                    pos,
-                    steps,
-                    lift,
-                    cover,
-                    lift_set,
-                    spacing,
-                    min(time_limit_s, limit),
-                    half_window,
-                    corridor,
-                    linkage.tile_component,
-                )
+        reason, spliced = "", None
+        for half_window, corridor in SPLICE_WINDOWS:
+            for nodes in SPLICE_NODE_LIMITS:
+                try:
+                    spliced = _splice_lift(
+                        rules, pos, steps, lift, cover, lift_set, spacing, nodes,
+                        half_window, corridor, linkage.tile_component, notes,
+                    )  # fmt: skip
+                    break
+                except NodeBudgetError as err:  # more nodes may find a path in this window
+                    reason = str(err)
+                except DesignError as err:  # this window holds none: a larger one
+                    reason = str(err)
+                    break
+            if spliced is not None:
                 break
-            except DesignError as err:
-                reason = str(err)
+        if spliced is not None:
+            steps = spliced
         else:
             missed.append(lift)
             notes.append(

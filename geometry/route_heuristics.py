@@ -213,7 +213,8 @@ def _band_loop(
     cover: set[int],
     groups: Sequence[set[int]],
     layers: int,
-    time_limit: float,
+    node_limit: int,
+    notes: list[str] | None = None,
 ) -> tuple[list[Step], float, bool]:
     """The exact program on the boundary tiles and the tiles within ``layers`` steps of them."""
     band = set(cover)
@@ -222,7 +223,7 @@ def _band_loop(
     nodes = {g for t in band for g in rules.tile_gaps.get(t, ())}
     touched = [grp for grp in groups if grp & band]
     problem = _build_problem(rules, pos, nodes, set(), cover, tiles=band, groups=touched)
-    cyc, cost, optimal = _solve_cycle(problem, rules, pos, time_limit)
+    cyc, cost, optimal = _solve_cycle(problem, rules, pos, node_limit, notes)
     return _cycle_steps(problem, cyc), cost, optimal
 
 
@@ -234,10 +235,11 @@ def _splice_lift(
     cover: set[int],
     lifts: set[int],
     spacing: float,
-    time_limit: float,
+    node_limit: int,
     half_window: int,
     corridor: float,
     component: NDArray[np.int64] | None = None,
+    notes: list[str] | None = None,
 ) -> list[Step]:
     """Re-route a window of the loop so that it passes ``lift``, solving the window exactly.
 
@@ -310,7 +312,7 @@ def _splice_lift(
     problem.virtual_tile = {p0: t_pre, q1: t_post}
     problem.edge_cost = extra
     problem.flow = True
-    cyc, _cost, _optimal = _solve_cycle(problem, rules, pos, time_limit)
+    cyc, _cost, _optimal = _solve_cycle(problem, rules, pos, node_limit, notes)
     loop = _cycle_steps(problem, cyc)
     k = next(i for i, (_g, t) in enumerate(loop) if t < 0)
     if loop[k][0] == p0:  # runs q1 ... p0 -> q1: turn it round
@@ -331,13 +333,14 @@ def _band_loop_any(
     pos: NDArray[np.float64],
     cover: set[int],
     groups: Sequence[set[int]],
-    time_limit: float,
+    node_limit: int,
+    notes: list[str] | None = None,
 ) -> list[Step]:
     """The band program with one, then two, then three layers of interior tiles."""
     err: DesignError | None = None
     for layers in (1, 2, 3):
         try:
-            return _band_loop(rules, pos, cover, groups, layers, time_limit)[0]
+            return _band_loop(rules, pos, cover, groups, layers, node_limit, notes)[0]
         except DesignError as e:
             err = e
     raise DesignError(
@@ -353,7 +356,7 @@ def _exact(
     lifts: set[int],
     cover: set[int],
     groups: Sequence[set[int]],
-    time_limit: float,
+    node_limit: int,
     missed: list[int],
     notes: list[str],
 ) -> tuple[list[Step], float, bool]:
@@ -361,7 +364,7 @@ def _exact(
 
     def solve(required: set[int]) -> tuple[list[Step], float, bool]:
         problem = _build_problem(rules, pos, range(n_gaps), required, cover, groups=groups)
-        cyc, cost, optimal = _solve_cycle(problem, rules, pos, time_limit)
+        cyc, cost, optimal = _solve_cycle(problem, rules, pos, node_limit, notes)
         return _cycle_steps(problem, cyc), cost, optimal
 
     try:

@@ -28,6 +28,19 @@ log = logging.getLogger(__name__)
 
 Step = tuple[int, int]  # (gap the string crosses into the tile, tile)
 
+#: Wall-clock safety net of one integer-program solve, s.  The solves are bounded by
+#: branch-and-bound nodes (HiGHS ``mip_max_nodes``, the callers' ``node_limit``), which stop
+#: them at the same point on every machine.  Bounded by time instead (5 s per window), the
+#: largest window programs of the face scan at the CLI defaults and of the 1600-tile dome and
+#: wave stopped after 2 to 11 nodes, or finished, depending on the machine's speed and load, so
+#: their routes could differ between runs.  A solve this limit stops keeps its best route and
+#: says so in the route's notes.
+MILP_SAFETY_TIME_S = 60.0
+
+
+class NodeBudgetError(DesignError):
+    """No closed route was found within the node budget (none was proved not to exist)."""
+
 
 @dataclass(frozen=True)
 class _Rules:
@@ -172,12 +185,19 @@ def _crossing_pairs(
 
 
 def _solve_cycle(
-    problem: _Problem, rules: _Rules, pos: NDArray[np.float64], time_limit: float
+    problem: _Problem,
+    rules: _Rules,
+    pos: NDArray[np.float64],
+    node_limit: int,
+    notes: list[str] | None = None,
 ) -> tuple[list[int], float, bool]:
-    """Minimum-turn single cycle of the program.
+    """Minimum-turn single cycle of the program, each solve bounded by ``node_limit``
+    branch-and-bound nodes (1: the root only, with HiGHS's heuristics there).
 
     Returns the cycle's edge indices in order, its cost and whether HiGHS proved optimality.
-    Raises DesignError when no valid cycle exists.
+    Raises DesignError when no valid cycle exists, :class:`NodeBudgetError` when none was found
+    within the nodes.  A solve stopped by :data:`MILP_SAFETY_TIME_S` instead adds a note to
+    ``notes``.
     """
     edges, edge_tile = problem.edges, problem.edge_tile
     n_e = len(edges)
@@ -293,10 +313,11 @@ def _solve_cycle(
             constraints=[matrix(rows)],
             integrality=integrality,
             bounds=Bounds(lb, ub),
-            options={"time_limit": time_limit, "disp": False},
+            options={"node_limit": node_limit, "time_limit": MILP_SAFETY_TIME_S, "disp": False},
         )
+        timed_out = res.status == 1  # milp's status 1 is the time limit; the node limit is 4
         if res.x is None:
-            # milp status 2: proved infeasible; otherwise a time or iteration limit was hit
+            # milp status 2: proved infeasible; otherwise the node or time limit was hit
             rule = (
                 "that passes every boundary tile and each tile and gap at most once between "
                 "contact partners without crossing itself"
@@ -306,12 +327,18 @@ def _solve_cycle(
                     f"no closed string route exists {rule}; a shape part only one or two tiles "
                     "wide has none: use more tiles (--tiles or --grid)"
                 )
-            raise DesignError(
-                f"no closed string route was found within {time_limit:g} s {rule}; the route "
-                "program is too large for its time limit: use fewer tiles (--tiles or --grid)"
+            budget = f"{MILP_SAFETY_TIME_S:g} s" if timed_out else f"{node_limit} nodes"
+            raise NodeBudgetError(
+                f"no closed string route was found within {budget} {rule}; the route "
+                "program is too large: use fewer tiles (--tiles or --grid)"
             )
         if res.status != 0:
             optimal = False
+        if timed_out and notes is not None:
+            notes.append(
+                f"a route program ({n_var} variables) stopped at its {MILP_SAFETY_TIME_S:g} s "
+                "safety limit before its node budget: on another machine the route may differ"
+            )
         z = res.x[:n_e] > 0.5
         cycles = _cycles_of(edges, np.nonzero(z)[0])
         if len(cycles) == 1:

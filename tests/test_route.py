@@ -481,3 +481,59 @@ def test_a_lift_no_nearby_gap_serves_stays_missed(monkeypatch: Any) -> None:
     monkeypatch.setattr(pipeline, "nearby_lift_gaps", lambda *_: np.zeros(0, dtype=np.int64))
     route, note, served = pipeline.plan_lift_route(linkage, pos, np.array([lift]))
     assert served.tolist() == [lift] and route.lifts_missed.tolist() == [lift] and note is None
+
+
+def test_every_route_solve_is_bounded_by_nodes_not_by_time(monkeypatch: Any) -> None:
+    """The route must not depend on the machine's speed: every integer-program solve gets a node
+    budget, and its time limit is only the safety net."""
+    from drawstring.geometry import route_milp
+
+    seen: list[dict[str, Any]] = []
+    real = route_milp.milp
+
+    def recording(*args: Any, **kwargs: Any) -> Any:
+        seen.append(dict(kwargs["options"]))  # milp pops the options it reads
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(route_milp, "milp", recording)
+    cells = np.ones((16, 12), dtype=bool)
+    cells[11:, 8:] = False
+    linkage = build_linkage(cells)
+    pos = _centroids(linkage)
+    route = plan_route(linkage, pos, [_gap_at(linkage, 6, 6)], exact_limit=0)
+    small = build_linkage(np.ones((4, 4), dtype=bool))
+    exact = plan_route(small, _centroids(small), exact_limit=200)
+    assert route.method.startswith("heuristic") and exact.method == "exact"
+    assert seen, "no integer program was solved"
+    for options in seen:
+        assert options["node_limit"] >= 1
+        assert options["time_limit"] == route_milp.MILP_SAFETY_TIME_S
+
+
+def test_a_window_out_of_nodes_is_tried_with_more_before_it_grows(monkeypatch: Any) -> None:
+    """A window whose root node finds no path (and proves none missing) gets the next node
+    budget on the same window; a window proved to hold no path is left for a larger one."""
+    from drawstring.geometry import route_heuristics
+    from drawstring.geometry.route import SPLICE_NODE_LIMITS
+    from drawstring.geometry.route_milp import NodeBudgetError
+
+    calls: list[tuple[int, int]] = []  # (program size, node budget)
+    real = route_heuristics._solve_cycle
+
+    def root_finds_nothing(problem: Any, rules: Any, pos: Any, node_limit: int, notes: Any) -> Any:
+        calls.append((len(problem.edges), node_limit))
+        if node_limit == SPLICE_NODE_LIMITS[0]:
+            raise NodeBudgetError("no closed string route was found within 1 nodes")
+        return real(problem, rules, pos, node_limit, notes)
+
+    monkeypatch.setattr(route_heuristics, "_solve_cycle", root_finds_nothing)
+    cells = np.ones((16, 12), dtype=bool)
+    linkage = build_linkage(cells)
+    pos = _centroids(linkage)
+    lift = _gap_at(linkage, 6, 6)
+    route = plan_route(linkage, pos, [lift], exact_limit=0)
+    assert lift in route.gaps.tolist()
+    _check_valid(linkage, pos, route)
+    # each window first at the root, then again with more nodes on the same program
+    assert calls[0][1] == SPLICE_NODE_LIMITS[0] and calls[1][1] == SPLICE_NODE_LIMITS[1]
+    assert calls[0][0] == calls[1][0]
