@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from .errors import DesignError
 from .linkage import Linkage
 from .route_milp import (
+    NodeBudgetError,
     Step,
     _build_problem,
     _cycle_steps,
@@ -241,7 +242,8 @@ def _splice_lift(
     component: NDArray[np.int64] | None = None,
     notes: list[str] | None = None,
 ) -> list[Step]:
-    """Re-route a window of the loop so that it passes ``lift``, solving the window exactly.
+    """Re-route a window of the loop so that it passes ``lift``, solving the window's program
+    within ``node_limit`` branch-and-bound nodes.
 
     The window is the loop stretch of ``2 half_window + 1`` gaps around the loop gap nearest to
     the lift gap plus every gap within ``corridor`` gap spacings of the segment from that gap to
@@ -252,7 +254,8 @@ def _splice_lift(
     The rest of the loop is fixed: the window's path joins it at the same two
     gaps ``p0``, ``q1`` (contact partners of the fixed tiles there, paying the turns there), uses
     none of its gaps or tiles, crosses none of its segments, and passes every boundary tile that
-    the removed stretch passed.  Raises DesignError when the window holds no such path.
+    the removed stretch passed.  Raises DesignError when the window holds no such path,
+    :class:`~.route_milp.NodeBudgetError` when its nodes found none (more nodes may).
     """
     r = len(steps)
     cycle = [g for g, _ in steps]
@@ -360,7 +363,8 @@ def _exact(
     missed: list[int],
     notes: list[str],
 ) -> tuple[list[Step], float, bool]:
-    """Whole-instance program; lift gaps that make it infeasible are dropped one by one."""
+    """Whole-instance program; lift gaps that make it infeasible (or that no route found
+    within its node budget passes) are dropped one by one."""
 
     def solve(required: set[int]) -> tuple[list[Step], float, bool]:
         problem = _build_problem(rules, pos, range(n_gaps), required, cover, groups=groups)
@@ -378,6 +382,12 @@ def _exact(
         try:
             base = solve(kept | {g})
             kept.add(g)
+        except NodeBudgetError:
+            missed.append(g)
+            notes.append(
+                f"lift gap {g} was left out: the route program found no route through it within"
+                f" its budget of {node_limit} branch-and-bound nodes"
+            )
         except DesignError:
             missed.append(g)
             notes.append(

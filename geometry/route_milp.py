@@ -39,7 +39,8 @@ MILP_SAFETY_TIME_S = 60.0
 
 
 class NodeBudgetError(DesignError):
-    """No closed route was found within the node budget (none was proved not to exist)."""
+    """No closed route was found within the node budget, and none was proved not to exist:
+    more nodes may find one."""
 
 
 @dataclass(frozen=True)
@@ -195,9 +196,9 @@ def _solve_cycle(
     branch-and-bound nodes (1: the root only, with HiGHS's heuristics there).
 
     Returns the cycle's edge indices in order, its cost and whether HiGHS proved optimality.
-    Raises DesignError when no valid cycle exists, :class:`NodeBudgetError` when none was found
-    within the nodes.  A solve stopped by :data:`MILP_SAFETY_TIME_S` instead adds a note to
-    ``notes``.
+    Raises :class:`NodeBudgetError` when none was found within the nodes, DesignError when none
+    exists or none was found otherwise.  A solve stopped by :data:`MILP_SAFETY_TIME_S`, with a
+    cycle or without, adds a note (once) to ``notes``.
     """
     edges, edge_tile = problem.edges, problem.edge_tile
     n_e = len(edges)
@@ -315,30 +316,39 @@ def _solve_cycle(
             bounds=Bounds(lb, ub),
             options={"node_limit": node_limit, "time_limit": MILP_SAFETY_TIME_S, "disp": False},
         )
-        timed_out = res.status == 1  # milp's status 1 is the time limit; the node limit is 4
+        # milp's status 1: the time (or an iteration) limit; 4 with HiGHS's "solution limit":
+        # the node limit
+        timed_out = res.status == 1
+        out_of_nodes = res.status == 4 and "Solution limit" in str(res.message)
+        if timed_out and notes is not None:
+            note = (
+                f"a route program stopped at its {MILP_SAFETY_TIME_S:g} s safety limit before "
+                "its node budget: on another machine the route may differ"
+            )
+            if note not in notes:
+                notes.append(note)
         if res.x is None:
-            # milp status 2: proved infeasible; otherwise the node or time limit was hit
             rule = (
                 "that passes every boundary tile and each tile and gap at most once between "
                 "contact partners without crossing itself"
             )
-            if res.status == 2:
+            if res.status == 2:  # proved infeasible
                 raise DesignError(
                     f"no closed string route exists {rule}; a shape part only one or two tiles "
                     "wide has none: use more tiles (--tiles or --grid)"
                 )
-            budget = f"{MILP_SAFETY_TIME_S:g} s" if timed_out else f"{node_limit} nodes"
-            raise NodeBudgetError(
-                f"no closed string route was found within {budget} {rule}; the route "
-                "program is too large: use fewer tiles (--tiles or --grid)"
+            too_large = "the route program is too large: use fewer tiles (--tiles or --grid)"
+            if out_of_nodes:
+                raise NodeBudgetError(
+                    f"no closed string route was found within {node_limit} branch-and-bound "
+                    f"nodes {rule}; {too_large}"
+                )
+            # the safety time limit (more nodes would take longer still) or a solver failure
+            raise DesignError(
+                f"no closed string route was found {rule} (HiGHS: {res.message}); {too_large}"
             )
         if res.status != 0:
             optimal = False
-        if timed_out and notes is not None:
-            notes.append(
-                f"a route program ({n_var} variables) stopped at its {MILP_SAFETY_TIME_S:g} s "
-                "safety limit before its node budget: on another machine the route may differ"
-            )
         z = res.x[:n_e] > 0.5
         cycles = _cycles_of(edges, np.nonzero(z)[0])
         if len(cycles) == 1:

@@ -19,8 +19,10 @@ from drawstring.geometry.linkage import (
     rotating_squares_layout,
 )
 from drawstring.geometry.route import (
+    MILP_NODE_LIMIT,
     NODE_ENTRANCE,
     NODE_SPLIT,
+    SPLICE_NODE_LIMITS,
     Route,
     channel_partner_faults,
     contact_partners,
@@ -505,8 +507,11 @@ def test_every_route_solve_is_bounded_by_nodes_not_by_time(monkeypatch: Any) -> 
     exact = plan_route(small, _centroids(small), exact_limit=200)
     assert route.method.startswith("heuristic") and exact.method == "exact"
     assert seen, "no integer program was solved"
+    budgets = {options["node_limit"] for options in seen}
+    # the lift window's budgets (root first) and the whole instance's
+    assert SPLICE_NODE_LIMITS[0] in budgets and MILP_NODE_LIMIT in budgets
+    assert budgets <= {*SPLICE_NODE_LIMITS, MILP_NODE_LIMIT}
     for options in seen:
-        assert options["node_limit"] >= 1
         assert options["time_limit"] == route_milp.MILP_SAFETY_TIME_S
 
 
@@ -514,26 +519,70 @@ def test_a_window_out_of_nodes_is_tried_with_more_before_it_grows(monkeypatch: A
     """A window whose root node finds no path (and proves none missing) gets the next node
     budget on the same window; a window proved to hold no path is left for a larger one."""
     from drawstring.geometry import route_heuristics
-    from drawstring.geometry.route import SPLICE_NODE_LIMITS
     from drawstring.geometry.route_milp import NodeBudgetError
 
-    calls: list[tuple[int, int]] = []  # (program size, node budget)
     real = route_heuristics._solve_cycle
-
-    def root_finds_nothing(problem: Any, rules: Any, pos: Any, node_limit: int, notes: Any) -> Any:
-        calls.append((len(problem.edges), node_limit))
-        if node_limit == SPLICE_NODE_LIMITS[0]:
-            raise NodeBudgetError("no closed string route was found within 1 nodes")
-        return real(problem, rules, pos, node_limit, notes)
-
-    monkeypatch.setattr(route_heuristics, "_solve_cycle", root_finds_nothing)
     cells = np.ones((16, 12), dtype=bool)
     linkage = build_linkage(cells)
     pos = _centroids(linkage)
     lift = _gap_at(linkage, 6, 6)
-    route = plan_route(linkage, pos, [lift], exact_limit=0)
-    assert lift in route.gaps.tolist()
-    _check_valid(linkage, pos, route)
-    # each window first at the root, then again with more nodes on the same program
-    assert calls[0][1] == SPLICE_NODE_LIMITS[0] and calls[1][1] == SPLICE_NODE_LIMITS[1]
+
+    def first_windows_fail(error: type[DesignError]) -> list[tuple[int, int]]:
+        calls: list[tuple[int, int]] = []  # (window program size, node budget)
+
+        def solve(problem: Any, rules: Any, pos: Any, node_limit: int, notes: Any) -> Any:
+            calls.append((len(problem.edges), node_limit))
+            if len(calls) == 1:
+                raise error("the first window's root: no route")
+            return real(problem, rules, pos, node_limit, notes)
+
+        monkeypatch.setattr(route_heuristics, "_solve_cycle", solve)
+        route = plan_route(linkage, pos, [lift], exact_limit=0)
+        assert lift in route.gaps.tolist()
+        _check_valid(linkage, pos, route)
+        return calls
+
+    # out of nodes: the same window's program again, with the next budget
+    calls = first_windows_fail(NodeBudgetError)
+    assert [c[1] for c in calls[:2]] == list(SPLICE_NODE_LIMITS[:2])
     assert calls[0][0] == calls[1][0]
+    # proved empty: the next, larger window at the root
+    calls = first_windows_fail(DesignError)
+    assert [c[1] for c in calls[:2]] == [SPLICE_NODE_LIMITS[0]] * 2
+    assert calls[1][0] > calls[0][0]
+
+
+@pytest.mark.parametrize(
+    ("status", "message", "out_of_nodes"),
+    [
+        (
+            4,
+            "The HiGHS status code was not recognized. (HiGHS Status 16: Solution limit reached)",
+            True,
+        ),
+        (1, "Time limit reached. (HiGHS Status 13: Time limit reached)", False),
+        (
+            4,
+            "The HiGHS status code was not recognized. (HiGHS Status 8: Unbounded or infeasible)",
+            False,
+        ),
+    ],
+)
+def test_a_solve_without_a_route_is_out_of_nodes_only_at_the_node_limit(
+    monkeypatch: Any, status: int, message: str, out_of_nodes: bool
+) -> None:
+    """Only HiGHS's node limit asks for more nodes; the safety time limit and other failures
+    do not (more nodes would only take longer)."""
+    from types import SimpleNamespace
+
+    from drawstring.geometry import route_milp
+    from drawstring.geometry.route_milp import NodeBudgetError
+
+    def no_route(*args: Any, **kwargs: Any) -> Any:
+        return SimpleNamespace(status=status, message=message, x=None, fun=None)
+
+    monkeypatch.setattr(route_milp, "milp", no_route)
+    small = build_linkage(np.ones((4, 4), dtype=bool))
+    with pytest.raises(DesignError) as caught:
+        plan_route(small, _centroids(small), exact_limit=200)
+    assert isinstance(caught.value, NodeBudgetError) == out_of_nodes
