@@ -100,6 +100,12 @@ class CoLadder:
         #: whether a core that another process held (a tiling laid out ahead) is spare now
         self._core_freed = core_freed
         self._current = 0
+        #: the step :meth:`run` runs next, and whether a far miss skipped the other weights
+        self._next, self._retries_skipped = 0, False
+        #: the last :meth:`run` paused after a miss (``pause_after_miss``)
+        self.paused = False
+        #: why the last step that missed the flat targets missed them ("" while none has)
+        self.missed = ""
 
     def poll(self) -> None:
         """Between the rounds of a run: once the core another process held is spare
@@ -115,24 +121,28 @@ class CoLadder:
         self._start_ahead(self._current)
 
     def run(
-        self, far_mm: float | None = None
+        self, far_mm: float | None = None, pause_after_miss: bool = False
     ) -> tuple[AssembledResult, FlatResult, dict[str, Any], bool, str]:
         """The outcome (assembled, flat, co-optimization block, full run owed) and a note
         when the conical condition was given up.  ``far_mm``: a tiling that may still be
-        split gives the weights up after a miss by more than that (see CONICAL_RETRY_FAR)."""
-        missed, retries_skipped, i = "", False, 0
+        split gives the weights up after a miss by more than that (see CONICAL_RETRY_FAR).
+        With ``pause_after_miss``, a step that misses the flat targets and is not the last
+        ends the call with its own outcome and :attr:`paused` set: a later call goes on with
+        the next step (the work run ahead meanwhile goes on too), or :meth:`cancel` stops it."""
+        self.paused = False
         try:
             while True:
+                i = self._next
                 conical, weight = self.steps[i]
                 assembled, flat, block, skipped = self._step(i)
                 last = i == len(self.steps) - 1
                 if last or (block["accepted"] and flat.edge_error_max_mm <= FLAT_EDGE_ERROR_TOL_MM):
                     break
-                missed = block["reason"] or (
+                self.missed = block["reason"] or (
                     f"its flat edge error {flat.edge_error_max_mm:.3g} mm exceeds "
                     f"{FLAT_EDGE_ERROR_TOL_MM:g} mm"
                 )
-                logger.info("conical co-optimization (weight %g) missed (%s)", weight, missed)
+                logger.info("conical co-optimization (weight %g) missed (%s)", weight, self.missed)
                 i, without = i + 1, len(self.steps) - 1
                 if block.get("joint_refused") and not CONICAL_RETRY_JOINT_MISS:
                     i = without
@@ -146,21 +156,32 @@ class CoLadder:
                     # A tiling that may still be split tries no further weight after a miss
                     # this far off (see CONICAL_RETRY_FAR): it is tiled again, and laid out
                     # in full if kept after all.
-                    retries_skipped, i = True, without
+                    self._retries_skipped, i = True, without
                 if i == without:
-                    logger.info("conical co-optimization missed (%s): again without", missed)
-        finally:
-            for child in self._children.values():
-                child.cancel()
-            self._children.clear()
+                    logger.info("conical co-optimization missed (%s): again without", self.missed)
+                self._next = i
+                if pause_after_miss:
+                    self.paused = True
+                    return assembled, flat, block, skipped, ""
+        except BaseException:
+            self.cancel()
+            raise
+        self.cancel()  # whatever runs ahead is not needed now
         note = ""
         if i > 0 and not self.steps[i][0]:  # went without the conical condition
-            skipped = skipped or retries_skipped
+            skipped = skipped or self._retries_skipped
             note = (
-                f"co-optimized without the conical condition ({missed} with it): the bottom "
-                "hinges meet seen from above, and in depth only as the tiles' thicknesses allow"
+                f"co-optimized without the conical condition ({self.missed} with it): the "
+                "bottom hinges meet seen from above, and in depth only as the tiles' "
+                "thicknesses allow"
             )
         return assembled, flat, block, skipped, note
+
+    def cancel(self) -> None:
+        """Stop the work run ahead (a paused ladder that is not gone on with)."""
+        for child in self._children.values():
+            child.cancel()
+        self._children.clear()
 
     def _step(self, i: int) -> _Outcome:
         """Step ``i``: from its child if one computed it, else here (with the last step

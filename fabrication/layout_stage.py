@@ -82,6 +82,19 @@ RETILE_SHRINK = 0.7
 #: 0.58; the 1600-tile wave, whose miss has another cause, 0.05).
 RETILE_MIN_SHARE = 0.5
 
+#: A first tiling that may still be split is co-optimized with the first conical weight
+#: alone at first; where that misses the flat targets, the first tighter tiling is laid out
+#: (ahead, where a core is spare) and kept if it meets every accuracy target, before the
+#: first tiling's further weights and its run without the condition are tried.  Those meet
+#: the targets, where they do, only by the last bits of the arithmetic (see
+#: ``co_ladder.CONICAL_RETRY_WEIGHTS``) or with the bottom hinges apart in depth; a split
+#: that meets them with the first weight is the sounder design, at the cost of a part.
+#: Where the split misses, the first tiling's ladder goes on from its first step.  The
+#: 200-tile seashell in one part missed with weight 3 (2.9e-3 mm), then weight 10 (3.3e-3 mm)
+#: and then its hinges in depth (0.011 mm) without the condition, where its two parts meet
+#: the targets (8.3e-4 mm): 3.0 s of layout, 2.0 s now.
+PREFER_SPLIT_AT_FIRST_WEIGHT = True
+
 #: A tighter tiling is kept only when it at least halves the accuracy figure or meets the
 #: accuracy targets (more parts cost a longer route and more assembly, so a marginal gain that
 #: still misses them does not pay for them); one that does neither ends the search.
@@ -105,6 +118,19 @@ class ShapedLayout:
     #: slow progress, or the hinge stage skipped (``fallback=False``): a full run is owed if
     #: this tiling is kept
     fallback_skipped: bool = False
+    #: the co-optimization ladder paused after a step that missed the flat targets
+    #: (``_shaped``'s ``pause_after_miss``); the hinge stage has not run
+    paused: _Paused | None = None
+
+    @property
+    def unfinished(self) -> bool:
+        """Whether the co-optimization ladder paused (see :attr:`paused`)."""
+        return self.paused is not None
+
+    def abandon(self) -> None:
+        """Stop a paused ladder's work run ahead: this layout is not gone on with."""
+        if self.paused is not None:
+            self.paused.ladder.cancel()
 
     @property
     def accuracy_mm(self) -> float:
@@ -175,13 +201,44 @@ def shape_and_layout(
                 ahead = _Ahead(work, "the tiling laid out ahead")
             except OSError as exc:  # no process to spare (fork refused): laid out in turn
                 logger.warning("could not lay the tighter tiling out ahead (%s)", exc)
+    target = min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
+    trial: ShapedLayout | None = None  # the first tighter tiling's layout, once it is known
+    first: ShapedLayout | None = None
     try:
-        first = best = _shaped(
+        first = _shaped(
             first_tiling, bound, loaded, options, progress, shapes, fallback=False,
             spare_core=ahead is None, core_freed=None if ahead is None else ahead.ready,
+            pause_after_miss=PREFER_SPLIT_AT_FIRST_WEIGHT,
         )  # fmt: skip
+        if first.unfinished:
+            # Its first conical co-optimization missed the flat targets: the first tighter
+            # tiling decides whether the first one's co-optimizations go on.
+            next_bound = _tighter(bound, first_tiling)
+            prepared = prepared if prepared is not None else tiled(next_bound)
+            if not _same_parts(prepared, first_tiling):
+                if ahead is not None:
+                    trial, ahead = ahead.result(progress), None
+                if trial is None:
+                    trial = _shaped(
+                        prepared, next_bound, loaded, options, progress, shapes, spare_core=True
+                    )
+                if trial.accuracy_mm <= target:
+                    assert first.paused is not None
+                    note = (
+                        f"tiling: with split bound {bound:.3g} ({_parts(first_tiling)}) the "
+                        f"conical co-optimization (weight {CO_CONICAL:g}) missed "
+                        f"({first.paused.ladder.missed}); tighter splits gave "
+                        f"{_parts(prepared)} at bound {next_bound:.3g}: "
+                        f"{trial.accuracy_mm:.2g} mm; kept {_parts(prepared)}, without trying "
+                        "the first tiling with another weight or without the condition"
+                    )
+                    return replace(trial, notes=(*trial.notes, note))
+            first = _shaped(
+                first_tiling, bound, loaded, options, progress, shapes, fallback=False,
+                paused=first,
+            )  # fmt: skip
+        best = first
         first_accuracy = best_accuracy = first.accuracy_mm
-        target = min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
         tried: list[str] = []
         for _ in range(RETILE_ATTEMPTS):
             if best_accuracy <= target:
@@ -189,11 +246,12 @@ def shape_and_layout(
             bound = _tighter(bound, best.tiling)
             tiling = prepared if prepared is not None else tiled(bound)
             prepared = None
-            trial: ShapedLayout | None = None
+            known, trial = trial, None  # laid out already (the first tighter tiling)
             if ahead is not None:  # laid out meanwhile (its tiling is ``prepared``)
-                trial, ahead = ahead.result(progress), None
+                known, ahead = ahead.result(progress), None
             if _same_parts(tiling, best.tiling):
                 break  # no further split keeps enough cells on each side
+            trial = known
             if trial is None:
                 trial = _shaped(tiling, bound, loaded, options, progress, shapes, spare_core=True)
             accuracy = trial.accuracy_mm
@@ -204,6 +262,8 @@ def shape_and_layout(
     finally:
         if ahead is not None:
             ahead.cancel()  # the first tiling met the targets: its result is not needed
+        if first is not None:
+            first.abandon()  # (a paused ladder, on the way out)
     if best is first and first.fallback_skipped and first_accuracy > target:
         # kept after all: co-optimized in full, with the held-openings fallback
         best = first = _shaped(
@@ -237,6 +297,16 @@ def _same_parts(a: Tiling, b: Tiling) -> bool:
     )
 
 
+@dataclass(frozen=True)
+class _Paused:
+    """A tiling's co-optimization ladder paused after a step that missed the flat targets
+    (see :func:`_shaped`'s ``pause_after_miss``), and what the stages after it need."""
+
+    ladder: CoLadder
+    faces: HingeFaces | None
+    notes: tuple[str, ...]
+
+
 def _shaped(
     tiling: Tiling,
     bound: float,
@@ -248,6 +318,8 @@ def _shaped(
     fallback: bool = True,
     spare_core: bool = False,
     core_freed: Callable[[], bool] | None = None,
+    pause_after_miss: bool = False,
+    paused: ShapedLayout | None = None,
 ) -> ShapedLayout:
     """Stages assembled to hinges on one tiling (see :func:`shape_and_layout`); with
     ``fallback=False`` a refused co-optimization is not run again holding the eq.-1
@@ -258,28 +330,40 @@ def _shaped(
     another tiling is done, so that the core it held is spare from then on.
     ``shapes`` holds the assembled configurations already solved, by quad mesh; their arrays
     are read-only, as they may be shared between tilings (and so are those of a design that
-    keeps the eq.-1 tiles, e.g. with ``--no-co-optimize``)."""
-    notes = list(tiling.notes)
+    keeps the eq.-1 tiles, e.g. with ``--no-co-optimize``).
+    With ``pause_after_miss``, the co-optimization ladder pauses after its first step if that
+    misses the flat targets: the result is then ``unfinished`` (no hinge layout), and a call
+    with it as ``paused`` goes on from there (:meth:`ShapedLayout.abandon` stops it instead)."""
     linkage = tiling.linkage
     skipped = False
-    assembled = _assembled_shape(tiling, loaded, options, progress, shapes)
-    # Hinge sides are decided on the eq.-1 tiles (and again once their bottom corners are
-    # pulled to equal depths, which can move a side); the flat layout makes the hinged
-    # corners meet on the face that carries each hinge.
-    faces = (
-        dual_hinge_faces(linkage, assembled.tiles, options.min_gap_angle_deg)
-        if options.hinges == "dual"
-        else None
-    )
-    if faces is not None and HINGE_DEPTHS and faces.bottom.any():
-        assembled = _bottom_hinge_depths(assembled, linkage, faces.bottom, loaded)
-        faces = dual_hinge_faces(linkage, assembled.tiles, options.min_gap_angle_deg)
-    with progress.stage("flat"):
-        # only a seed when the co-optimization follows (FLAT_SEED_STEPS)
-        seed_steps = FLAT_SEED_STEPS if options.co_optimize else None
-        flat = flat_layout(linkage, tiling, assembled, options, faces, seed_steps=seed_steps)
-    if options.co_optimize:
-        with progress.stage("co-optimize"):
+    ladder: CoLadder | None = None
+    if paused is not None:
+        assert paused.paused is not None
+        assembled, flat = paused.assembled, paused.flat
+        ladder, faces, notes = (
+            paused.paused.ladder,
+            paused.paused.faces,
+            list(paused.paused.notes),
+        )
+    else:
+        notes = list(tiling.notes)
+        assembled = _assembled_shape(tiling, loaded, options, progress, shapes)
+        # Hinge sides are decided on the eq.-1 tiles (and again once their bottom corners are
+        # pulled to equal depths, which can move a side); the flat layout makes the hinged
+        # corners meet on the face that carries each hinge.
+        faces = (
+            dual_hinge_faces(linkage, assembled.tiles, options.min_gap_angle_deg)
+            if options.hinges == "dual"
+            else None
+        )
+        if faces is not None and HINGE_DEPTHS and faces.bottom.any():
+            assembled = _bottom_hinge_depths(assembled, linkage, faces.bottom, loaded)
+            faces = dual_hinge_faces(linkage, assembled.tiles, options.min_gap_angle_deg)
+        with progress.stage("flat"):
+            # only a seed when the co-optimization follows (FLAT_SEED_STEPS)
+            seed_steps = FLAT_SEED_STEPS if options.co_optimize else None
+            flat = flat_layout(linkage, tiling, assembled, options, faces, seed_steps=seed_steps)
+        if options.co_optimize:
             plain = (assembled, flat)
             # With bottom hinges the top is made conical too (their corners then meet in
             # depth); where that costs the flat layout its targets, it is co-optimized again
@@ -291,16 +375,24 @@ def _shaped(
             ladder = CoLadder(
                 lambda step: _co_optimized_with_fallback(
                     linkage, tiling, *plain, loaded, options, faces, fallback, *step,
-                    between_rounds=ladder.poll,
+                    between_rounds=ladder.poll if ladder is not None else None,
                 ),
                 conical,
                 spare_core and _can_fork(),
                 core_freed if core_freed is not None and _can_fork() else None,
             )  # fmt: skip
+    if ladder is not None:
+        with progress.stage("co-optimize"):
             far = None if fallback else CO_SLOW_REACH * FLAT_EDGE_ERROR_TOL_MM
-            assembled, flat, co_block, skipped, note = ladder.run(far)
+            assembled, flat, co_block, skipped, note = ladder.run(far, pause_after_miss)
             if note:
                 notes.append(note)
+        if ladder.paused:  # the caller decides whether the ladder goes on
+            return ShapedLayout(
+                tiling=tiling, assembled=assembled, flat=flat, co_block=co_block,
+                hinge_layout=None, split_bound=bound, notes=tuple(notes), fallback_skipped=True,
+                paused=_Paused(ladder, faces, tuple(notes)),
+            )  # fmt: skip
         if not co_block["accepted"]:
             notes.append(f"co-optimization not used: {co_block['reason']}")
             if flat.iterations >= FLAT_SEED_STEPS:

@@ -166,3 +166,55 @@ def test_a_core_freed_during_a_run_starts_the_last_step_ahead_from_then() -> Non
     ladder = CoLadder(never, True, False, core_freed=lambda: False)
     ladder.run()
     assert ran == [(True, FIRST), (True, RETRY), (False, None)]
+
+
+def test_a_ladder_paused_after_a_miss_goes_on_as_if_it_had_not_paused() -> None:
+    # paused after the first weight's miss, with that run's outcome; the next call goes on
+    # from the next step, and ends as the ladder run straight through does
+    errors = {(True, FIRST): 2 * TOL, (True, RETRY): 3 * TOL, (False, None): 0.1 * TOL}
+    run, ran = _runs(errors)
+    straight = CoLadder(run, True, False).run()
+    run, ran = _runs(errors)
+    ladder = CoLadder(run, True, False)
+    assembled, flat, *_ = ladder.run(pause_after_miss=True)
+    assert ladder.paused and ran == [(True, FIRST)]
+    assert flat.edge_error_max_mm == 2 * TOL and f"{2 * TOL:.3g} mm exceeds" in ladder.missed
+    assembled, flat, block, skipped, note = ladder.run()
+    assert not ladder.paused and ran == [(True, FIRST), (True, RETRY), (False, None)]
+    assert (assembled, flat.edge_error_max_mm, block, skipped, note) == (
+        straight[0], straight[1].edge_error_max_mm, *straight[2:],
+    )  # fmt: skip
+    # a far miss pauses too, and the run going on keeps its skipped weights and owed run
+    run, ran = _runs({**errors, (True, FIRST): 0.5})
+    ladder = CoLadder(run, True, False)
+    ladder.run(far_mm=4 * TOL, pause_after_miss=True)
+    assert ladder.paused
+    *_, skipped, note = ladder.run(far_mm=4 * TOL)
+    assert ran == [(True, FIRST), (False, None)] and skipped and "0.5 mm exceeds" in note
+    # a first weight that meets the targets ends the ladder: nothing to pause
+    run, ran = _runs({**errors, (True, FIRST): 0.5 * TOL})
+    ladder = CoLadder(run, True, False)
+    ladder.run(pause_after_miss=True)
+    assert not ladder.paused and ran == [(True, FIRST)]
+
+
+@pytest.mark.skipif(
+    not sys.platform.startswith("linux") or "fork" not in multiprocessing.get_all_start_methods(),
+    reason="runs ahead only where processes fork",
+)
+def test_a_paused_ladder_keeps_its_child_until_it_goes_on_or_is_cancelled() -> None:
+    errors = {(True, FIRST): 2 * TOL, (True, RETRY): 2 * TOL, (False, None): 0.1 * TOL}
+    run, ran = _runs(errors)
+    ladder = CoLadder(run, True, True)
+    ladder.run(pause_after_miss=True)
+    assert ladder.paused and len(multiprocessing.active_children()) == 1
+    assembled, *_ = ladder.run()
+    assert ran == [(True, FIRST), (True, RETRY)]  # the last one ran in the child
+    assert assembled == "assembled (False, None)"
+    assert multiprocessing.active_children() == []
+    run, ran = _runs(errors)
+    ladder = CoLadder(run, True, True)
+    ladder.run(pause_after_miss=True)
+    assert len(multiprocessing.active_children()) == 1
+    ladder.cancel()
+    assert multiprocessing.active_children() == []

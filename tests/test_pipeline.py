@@ -129,12 +129,14 @@ def test_a_part_whose_flat_layout_misses_is_tiled_again_and_a_miss_is_never_sile
     assert result.problems == ()
 
 
-def test_a_part_whose_hinges_miss_only_in_depth_is_split_further() -> None:
+def test_a_part_whose_hinges_miss_only_in_depth_is_split_further(monkeypatch) -> None:
     # The 100-tile chair in one part: its conical co-optimization misses the flat target, so
-    # it is co-optimized without, and its bottom hinges then meet seen from above (1.3e-4 mm)
-    # but not in depth (0.020 mm with numpy's AVX2 kernels, 0.005 mm with AVX-512 ones).  The
+    # (laid out in full, not paused for the split, PREFER_SPLIT_AT_FIRST_WEIGHT) it is
+    # co-optimized without, and its bottom hinges then meet seen from above (1.3e-4 mm) but
+    # not in depth (0.020 mm with numpy's AVX2 kernels, 0.005 mm with AVX-512 ones).  The
     # tiling is judged by the whole hinge gap: split once more, the conical co-optimization
     # succeeds and the hinges meet in 3D.
+    monkeypatch.setattr(layout_stage, "PREFER_SPLIT_AT_FIRST_WEIGHT", False)
     options = DesignOptions(tiles=100, size_mm=200.0, simulate=False, cad=False)
     result = design("chair", options)
     metrics = result.metrics()
@@ -250,7 +252,9 @@ def _conical_runs(
 def test_a_conical_co_optimization_that_misses_is_tried_with_the_next_weight(monkeypatch) -> None:
     # The 60-tile saddle has bottom hinges: its co-optimization is conical.  Refused at the
     # first weight, it runs again at the retry weight, and only where that is refused too
-    # without the condition, with a note giving the last reason.
+    # without the condition, with a note giving the last reason.  (Laid out in full: a
+    # tiling that may still be split pauses for its split after the first weight.)
+    monkeypatch.setattr(layout_stage, "PREFER_SPLIT_AT_FIRST_WEIGHT", False)
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
     first, retry = CO_CONICAL, co_ladder.CONICAL_RETRY_WEIGHTS[0]
     calls = _conical_runs(monkeypatch, {first})
@@ -279,6 +283,7 @@ def test_a_tiling_that_may_still_be_split_tries_no_second_weight_after_a_far_mis
     # weight, and so does the same far miss in a tiling that is laid out in full.
     monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 0.0)
     monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)
+    monkeypatch.setattr(layout_stage, "PREFER_SPLIT_AT_FIRST_WEIGHT", False)  # (no pause)
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
     first, retry = CO_CONICAL, co_ladder.CONICAL_RETRY_WEIGHTS[0]
     calls = _conical_runs(monkeypatch, {first}, missed_mm=0.5)
@@ -292,6 +297,57 @@ def test_a_tiling_that_may_still_be_split_tries_no_second_weight_after_a_far_mis
     calls = _conical_runs(monkeypatch, {first}, missed_mm=0.5)
     design("saddle", options)
     assert calls[:2] == [(True, first, True), (True, retry, True)]
+
+
+def test_a_split_meeting_the_targets_is_kept_before_the_first_tiling_tries_more(
+    monkeypatch,
+) -> None:
+    # The 60-tile saddle as a tiling that may still be split: its first conical weight misses
+    # the flat targets, so its ladder pauses and the first tighter tiling is laid out; that
+    # meets every target, so it is kept and the first tiling tries no further co-optimization
+    # (PREFER_SPLIT_AT_FIRST_WEIGHT).
+    monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 0.0)
+    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)  # calls are counted here
+    monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(_two_parts_meet))
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    first = CO_CONICAL
+    tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
+    calls = _conical_runs(monkeypatch, {first}, missed_mm=2.0 * tol)
+    result = design("saddle", options)
+    assert result.tiling.linkage.n_components == 2
+    assert [c for c in calls if not c[2]] == [(True, first, False)]  # the first tiling's
+    assert calls[1] == (True, first, True)  # then the split, laid out in full
+    (note,) = [n for n in result.notes if n.startswith("tiling:")]
+    assert f"(1 part) the conical co-optimization (weight {first:g}) missed" in note
+    assert f"{2.0 * tol:.3g} mm exceeds" in note
+    assert "2 parts at bound" in note and "0.00095 mm" in note
+    assert note.endswith(
+        "without trying the first tiling with another weight or without the condition"
+    )
+
+
+def test_a_paused_first_tiling_goes_on_where_the_split_misses(monkeypatch) -> None:
+    # Where the split misses too, the first tiling's ladder goes on from its next weight (the
+    # first is not run again) and the design is bitwise the one laid out without the pause.
+    monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 0.0)
+    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)
+    monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(lambda _s: 1.0))
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    first, retry = CO_CONICAL, co_ladder.CONICAL_RETRY_WEIGHTS[0]
+    tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
+    calls = _conical_runs(monkeypatch, {first}, missed_mm=2.0 * tol)
+    paused = design("saddle", options)
+    ones = [c for c in calls if not c[2]]  # the first tiling's, in this process
+    assert ones[:2] == [(True, first, False), (True, retry, False)]
+    assert calls.index((True, retry, False)) > calls.index((True, first, True))  # after the split
+    assert paused.tiling.linkage.n_components == 1
+    monkeypatch.setattr(layout_stage, "PREFER_SPLIT_AT_FIRST_WEIGHT", False)
+    calls.clear()
+    straight = design("saddle", options)
+    assert [c for c in calls if not c[2]] == ones
+    assert paused.notes == straight.notes
+    for a, b in zip(_design_arrays(paused), _design_arrays(straight), strict=True):
+        assert np.array_equal(a, b)
 
 
 def test_no_larger_conical_weight_follows_a_joint_solve_above_the_plain_layout(
@@ -638,6 +694,8 @@ def test_a_first_tiling_far_off_skips_the_hinge_stage_unless_kept(monkeypatch) -
 
     monkeypatch.setattr(layout_stage, "co_optimized", far_off_in_one_part)
     monkeypatch.setattr(layout_stage, "layout_hinges", counted)
+    # (its ladder goes on after the first weight's miss instead of pausing for the split)
+    monkeypatch.setattr(layout_stage, "PREFER_SPLIT_AT_FIRST_WEIGHT", False)
     monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)  # calls are counted here
     monkeypatch.setattr(co_ladder, "CO_SPECULATE", False)
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
