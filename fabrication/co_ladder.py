@@ -101,7 +101,7 @@ class CoLadder:
         self._core_freed = core_freed
         self._current = 0
         #: the step :meth:`run` runs next, and whether a far miss skipped the other weights
-        self._next, self._retries_skipped = 0, False
+        self._next, self._retries_skipped, self._finished = 0, False, False
         #: the last :meth:`run` paused after a miss (``pause_after_miss``)
         self.paused = False
         #: why the last step that missed the flat targets missed them ("" while none has)
@@ -128,7 +128,10 @@ class CoLadder:
         split gives the weights up after a miss by more than that (see CONICAL_RETRY_FAR).
         With ``pause_after_miss``, a step that misses the flat targets and is not the last
         ends the call with its own outcome and :attr:`paused` set: a later call goes on with
-        the next step (the work run ahead meanwhile goes on too), or :meth:`cancel` stops it."""
+        the next step (the work run ahead meanwhile goes on too), or :meth:`cancel` stops it.
+        A ladder runs to its end once: a call after that is refused."""
+        if self._finished:
+            raise RuntimeError("this co-optimization ladder has run to its end already")
         self.paused = False
         try:
             while True:
@@ -167,6 +170,7 @@ class CoLadder:
             self.cancel()
             raise
         self.cancel()  # whatever runs ahead is not needed now
+        self._finished = True
         note = ""
         if i > 0 and not self.steps[i][0]:  # went without the conical condition
             skipped = skipped or self._retries_skipped
@@ -176,6 +180,11 @@ class CoLadder:
                 "thicknesses allow"
             )
         return assembled, flat, block, skipped, note
+
+    @property
+    def running_ahead(self) -> bool:
+        """Whether a step runs ahead in a child now (it takes a core)."""
+        return bool(self._children)
 
     def cancel(self) -> None:
         """Stop the work run ahead (a paused ladder that is not gone on with)."""

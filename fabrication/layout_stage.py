@@ -89,7 +89,7 @@ RETILE_MIN_SHARE = 0.5
 #: the targets, where they do, only by the last bits of the arithmetic (see
 #: ``co_ladder.CONICAL_RETRY_WEIGHTS``) or with the bottom hinges apart in depth; a split
 #: that meets them with the first weight is the sounder design, at the cost of a part.
-#: Where the split misses, the first tiling's ladder goes on from its first step.  The
+#: Where the split misses, the first tiling's ladder goes on from its next step.  The
 #: 200-tile seashell in one part missed with weight 3 (2.9e-3 mm), then weight 10 (3.3e-3 mm)
 #: and then its hinges in depth (0.011 mm) without the condition, where its two parts meet
 #: the targets (8.3e-4 mm): 3.0 s of layout, 2.0 s now.
@@ -202,13 +202,14 @@ def shape_and_layout(
             except OSError as exc:  # no process to spare (fork refused): laid out in turn
                 logger.warning("could not lay the tighter tiling out ahead (%s)", exc)
     target = min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
-    trial: ShapedLayout | None = None  # the first tighter tiling's layout, once it is known
+    # the first tighter tiling's layout where the first tiling paused for it (used once)
+    laid_out: ShapedLayout | None = None
     first: ShapedLayout | None = None
     try:
         first = _shaped(
             first_tiling, bound, loaded, options, progress, shapes, fallback=False,
             spare_core=ahead is None, core_freed=None if ahead is None else ahead.ready,
-            pause_after_miss=PREFER_SPLIT_AT_FIRST_WEIGHT,
+            pause_after_miss=PREFER_SPLIT_AT_FIRST_WEIGHT and RETILE_ATTEMPTS > 0,
         )  # fmt: skip
         if first.unfinished:
             # Its first conical co-optimization missed the flat targets: the first tighter
@@ -216,23 +217,25 @@ def shape_and_layout(
             next_bound = _tighter(bound, first_tiling)
             prepared = prepared if prepared is not None else tiled(next_bound)
             if not _same_parts(prepared, first_tiling):
+                assert first.paused is not None
                 if ahead is not None:
-                    trial, ahead = ahead.result(progress), None
-                if trial is None:
-                    trial = _shaped(
-                        prepared, next_bound, loaded, options, progress, shapes, spare_core=True
-                    )
-                if trial.accuracy_mm <= target:
-                    assert first.paused is not None
+                    laid_out, ahead = ahead.result(progress), None
+                if laid_out is None:
+                    # (a core is spare unless the paused ladder runs a step ahead on it)
+                    laid_out = _shaped(
+                        prepared, next_bound, loaded, options, progress, shapes,
+                        spare_core=not first.paused.ladder.running_ahead,
+                    )  # fmt: skip
+                if laid_out.accuracy_mm <= target:
                     note = (
                         f"tiling: with split bound {bound:.3g} ({_parts(first_tiling)}) the "
                         f"conical co-optimization (weight {CO_CONICAL:g}) missed "
                         f"({first.paused.ladder.missed}); tighter splits gave "
                         f"{_parts(prepared)} at bound {next_bound:.3g}: "
-                        f"{trial.accuracy_mm:.2g} mm; kept {_parts(prepared)}, without trying "
-                        "the first tiling with another weight or without the condition"
+                        f"{laid_out.accuracy_mm:.2g} mm; kept {_parts(prepared)}, without "
+                        "trying the first tiling with another weight or without the condition"
                     )
-                    return replace(trial, notes=(*trial.notes, note))
+                    return replace(laid_out, notes=(*laid_out.notes, note))
             first = _shaped(
                 first_tiling, bound, loaded, options, progress, shapes, fallback=False,
                 paused=first,
@@ -246,12 +249,11 @@ def shape_and_layout(
             bound = _tighter(bound, best.tiling)
             tiling = prepared if prepared is not None else tiled(bound)
             prepared = None
-            known, trial = trial, None  # laid out already (the first tighter tiling)
+            trial, laid_out = laid_out, None  # laid out already (the first tighter tiling)
             if ahead is not None:  # laid out meanwhile (its tiling is ``prepared``)
-                known, ahead = ahead.result(progress), None
+                trial, ahead = ahead.result(progress), None
             if _same_parts(tiling, best.tiling):
                 break  # no further split keeps enough cells on each side
-            trial = known
             if trial is None:
                 trial = _shaped(tiling, bound, loaded, options, progress, shapes, spare_core=True)
             accuracy = trial.accuracy_mm

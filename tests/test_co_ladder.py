@@ -202,19 +202,37 @@ def test_a_ladder_paused_after_a_miss_goes_on_as_if_it_had_not_paused() -> None:
     not sys.platform.startswith("linux") or "fork" not in multiprocessing.get_all_start_methods(),
     reason="runs ahead only where processes fork",
 )
-def test_a_paused_ladder_keeps_its_child_until_it_goes_on_or_is_cancelled() -> None:
+def test_a_paused_ladder_keeps_its_child_until_it_goes_on_or_is_cancelled(tmp_path) -> None:
     errors = {(True, FIRST): 2 * TOL, (True, RETRY): 2 * TOL, (False, None): 0.1 * TOL}
-    run, ran = _runs(errors)
+    base, ran = _runs(errors)
+    finished = tmp_path / "finished"
+
+    def run(step):
+        if not step[0]:  # the step run ahead: slow, and it leaves a mark when it ends
+            time.sleep(float(finished.read_text()) if finished.exists() else 20.0)
+            finished.write_text("done")
+        return base(step)
+
+    finished.write_text("1.0")  # the child goes on through the pause and is taken after it
     ladder = CoLadder(run, True, True)
     ladder.run(pause_after_miss=True)
-    assert ladder.paused and len(multiprocessing.active_children()) == 1
+    assert ladder.paused
+    time.sleep(0.1)  # (the pause itself)
     assembled, *_ = ladder.run()
     assert ran == [(True, FIRST), (True, RETRY)]  # the last one ran in the child
     assert assembled == "assembled (False, None)"
-    assert multiprocessing.active_children() == []
-    run, ran = _runs(errors)
+    assert finished.read_text() == "done" and multiprocessing.active_children() == []
+    finished.unlink()  # cancelled, the child never ends its 20 s step
+    base, ran = _runs(errors)
     ladder = CoLadder(run, True, True)
     ladder.run(pause_after_miss=True)
-    assert len(multiprocessing.active_children()) == 1
+    assert ladder.paused and ladder.running_ahead
     ladder.cancel()
-    assert multiprocessing.active_children() == []
+    assert not ladder.running_ahead and multiprocessing.active_children() == []
+    assert not finished.exists()
+    # a ladder that ran to its end is not run again
+    base, ran = _runs({**errors, (True, FIRST): 0.5 * TOL})
+    ladder = CoLadder(base, True, False)
+    ladder.run()
+    with pytest.raises(RuntimeError, match="run to its end"):
+        ladder.run()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import multiprocessing
 import os
 import re
 from dataclasses import replace
@@ -324,6 +325,12 @@ def test_a_split_meeting_the_targets_is_kept_before_the_first_tiling_tries_more(
     assert note.endswith(
         "without trying the first tiling with another weight or without the condition"
     )
+    # with no tighter tiling to try, nothing pauses: the first tiling runs its whole ladder
+    monkeypatch.setattr(layout_stage, "RETILE_ATTEMPTS", 0)
+    calls.clear()
+    result = design("saddle", options)
+    assert result.tiling.linkage.n_components == 1
+    assert calls[:2] == [(True, first, False), (True, co_ladder.CONICAL_RETRY_WEIGHTS[0], False)]
 
 
 def test_a_paused_first_tiling_goes_on_where_the_split_misses(monkeypatch) -> None:
@@ -348,6 +355,65 @@ def test_a_paused_first_tiling_goes_on_where_the_split_misses(monkeypatch) -> No
     assert paused.notes == straight.notes
     for a, b in zip(_design_arrays(paused), _design_arrays(straight), strict=True):
         assert np.array_equal(a, b)
+
+
+def test_after_a_pause_each_tighter_tiling_is_laid_out_once(monkeypatch) -> None:
+    # The 60-tile saddle pauses in one part; its two parts halve the accuracy figure but miss
+    # the targets, so the first tiling goes on, the two parts (laid out once) are kept over
+    # it, and the next split (four parts) is laid out in its own right and meets them.
+    monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 0.0)
+    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)  # calls are counted here
+    tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
+    _conical_runs(monkeypatch, {CO_CONICAL}, missed_mm=2.0 * tol)
+    by_parts = {1: 1.0, 2: 0.4}
+    monkeypatch.setattr(
+        layout_stage.ShapedLayout,
+        "accuracy_mm",
+        property(lambda s: by_parts.get(s.tiling.linkage.n_components, 1e-4)),
+    )
+    laid: list[tuple[int, bool]] = []  # parts of each tiling laid out, and whether it paused
+    shaped = layout_stage._shaped
+
+    def recorded(tiling, *args, **kwargs):
+        out = shaped(tiling, *args, **kwargs)
+        laid.append((tiling.linkage.n_components, out.unfinished))
+        return out
+
+    monkeypatch.setattr(layout_stage, "_shaped", recorded)
+    result = design("saddle", DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False))
+    assert laid == [(1, True), (2, False), (1, False), (4, False)]
+    assert result.tiling.linkage.n_components == 4
+    (note,) = [n for n in result.notes if n.startswith("tiling:")]
+    assert re.search(
+        r"gave 2 parts at bound [\d.]+: 0\.4 mm; 4 parts at bound [\d.]+: 0\.0001 mm", note
+    )
+    assert note.endswith("kept 4 parts")
+
+
+def test_the_pause_gives_the_design_laid_out_in_turn_where_work_runs_ahead(monkeypatch) -> None:
+    # With the split laid out ahead and the run without the condition run ahead, the paused
+    # first tiling gives the serial design bitwise, where the split is kept and where the
+    # first tiling goes on, and no child is left behind.
+    monkeypatch.setattr(parallel, "thread_count", lambda: 2)  # ahead even on one core
+    monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 0.0)
+    if not layout_stage._can_fork():
+        pytest.skip("processes cannot fork here")
+    tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
+    _conical_runs(monkeypatch, {CO_CONICAL}, missed_mm=2.0 * tol)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    for accuracy, parts in ((_two_parts_meet, 2), (lambda _s: 1.0, 1)):
+        monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(accuracy))
+        monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)
+        monkeypatch.setattr(co_ladder, "CO_SPECULATE", False)
+        serial = design("saddle", options)
+        monkeypatch.setattr(layout_stage, "RETILE_AHEAD", True)
+        monkeypatch.setattr(co_ladder, "CO_SPECULATE", True)
+        ahead = design("saddle", options)
+        assert ahead.tiling.linkage.n_components == serial.tiling.linkage.n_components == parts
+        assert ahead.notes == serial.notes
+        for a, b in zip(_design_arrays(ahead), _design_arrays(serial), strict=True):
+            assert np.array_equal(a, b)
+        assert multiprocessing.active_children() == []
 
 
 def test_no_larger_conical_weight_follows_a_joint_solve_above_the_plain_layout(
