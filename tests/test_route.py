@@ -586,3 +586,49 @@ def test_a_solve_without_a_route_is_out_of_nodes_only_at_the_node_limit(
     with pytest.raises(DesignError) as caught:
         plan_route(small, _centroids(small), exact_limit=200)
     assert isinstance(caught.value, NodeBudgetError) == out_of_nodes
+
+
+def test_a_solve_stopped_by_the_safety_time_limit_says_so_once(monkeypatch: Any) -> None:
+    """A solve the safety time limit stops (not its node budget) may have ended elsewhere on
+    another machine: the route says so in its notes, once however many solves stop, and the
+    route it found is kept; without a route the design stops with a plain error, not a call
+    for more nodes."""
+    from types import SimpleNamespace
+
+    from drawstring.geometry import route_milp
+    from drawstring.geometry.route_milp import NodeBudgetError
+
+    real = route_milp.milp
+    stopped: list[int] = []
+
+    def timed_out(*args: Any, **kwargs: Any) -> Any:
+        res = real(*args, **kwargs)
+        stopped.append(1)
+        return SimpleNamespace(status=1, message="Time limit reached", x=res.x, fun=res.fun)
+
+    cells = np.ones((16, 12), dtype=bool)
+    cells[11:, 8:] = False
+    linkage = build_linkage(cells)
+    pos = _centroids(linkage)
+    lifts = [_gap_at(linkage, 6, 6), _gap_at(linkage, 3, 9)]
+    plain = plan_route(linkage, pos, lifts, exact_limit=0)
+    assert not [n for n in plain.notes if "safety limit" in n]
+    monkeypatch.setattr(route_milp, "milp", timed_out)
+    route = plan_route(linkage, pos, lifts, exact_limit=0)
+    safety = [n for n in route.notes if "safety limit" in n]
+    assert len(stopped) >= 2, "one solve is not enough to show the note comes once"
+    assert safety == [
+        f"a route program stopped at its {route_milp.MILP_SAFETY_TIME_S:g} s safety limit "
+        "before its node budget: on another machine the route may differ"
+    ]
+    assert route.tiles.tolist() == plain.tiles.tolist()
+    _check_valid(linkage, pos, route)
+    small = build_linkage(np.ones((4, 4), dtype=bool))
+
+    def timed_out_empty(*args: Any, **kwargs: Any) -> Any:
+        return SimpleNamespace(status=1, message="Time limit reached", x=None, fun=None)
+
+    monkeypatch.setattr(route_milp, "milp", timed_out_empty)
+    with pytest.raises(DesignError, match="Time limit reached") as caught:
+        plan_route(small, _centroids(small), exact_limit=200)
+    assert not isinstance(caught.value, NodeBudgetError)
