@@ -15,6 +15,11 @@ from drawstring.geometry.coflat import CO_CONICAL
 
 TOL = co_ladder.FLAT_EDGE_ERROR_TOL_MM
 FIRST, RETRY = CO_CONICAL, CONICAL_RETRY_WEIGHTS[0]
+#: a test of work run ahead in forked children
+FORKS = pytest.mark.skipif(
+    not sys.platform.startswith("linux") or "fork" not in multiprocessing.get_all_start_methods(),
+    reason="runs ahead only where processes fork",
+)
 
 
 def _runs(errors: dict, joint: frozenset = frozenset(), refused: frozenset = frozenset()):
@@ -85,10 +90,7 @@ def test_a_far_miss_at_the_last_weight_skips_nothing() -> None:
     assert not skipped and "without the conical condition" in note
 
 
-@pytest.mark.skipif(
-    not sys.platform.startswith("linux") or "fork" not in multiprocessing.get_all_start_methods(),
-    reason="runs ahead only where processes fork",
-)
+@FORKS
 def test_the_run_without_the_condition_is_taken_from_its_child(tmp_path) -> None:
     errors = {(True, FIRST): 2 * TOL, (True, RETRY): 2 * TOL, (False, None): 0.1 * TOL}
     run, ran = _runs(errors)
@@ -123,10 +125,7 @@ def test_the_run_without_the_condition_is_taken_from_its_child(tmp_path) -> None
     assert multiprocessing.active_children() == [] and not finished.exists()
 
 
-@pytest.mark.skipif(
-    not sys.platform.startswith("linux") or "fork" not in multiprocessing.get_all_start_methods(),
-    reason="runs ahead only where processes fork",
-)
+@FORKS
 def test_a_core_freed_during_a_run_starts_the_last_step_ahead_from_then() -> None:
     # Another process (a tiling laid out ahead) held the spare core; once it is done, the
     # polls between rounds start the run without the condition in a child, whose own polls
@@ -198,10 +197,7 @@ def test_a_ladder_paused_after_a_miss_goes_on_as_if_it_had_not_paused() -> None:
     assert not ladder.paused and ran == [(True, FIRST)]
 
 
-@pytest.mark.skipif(
-    not sys.platform.startswith("linux") or "fork" not in multiprocessing.get_all_start_methods(),
-    reason="runs ahead only where processes fork",
-)
+@FORKS
 def test_a_paused_ladder_keeps_its_child_until_it_goes_on_or_is_cancelled(tmp_path) -> None:
     errors = {(True, FIRST): 2 * TOL, (True, RETRY): 2 * TOL, (False, None): 0.1 * TOL}
     base, ran = _runs(errors)
