@@ -306,7 +306,6 @@ class _Paused:
 
     ladder: CoLadder
     faces: HingeFaces | None
-    notes: tuple[str, ...]
 
 
 def _shaped(
@@ -342,11 +341,7 @@ def _shaped(
     if paused is not None:
         assert paused.paused is not None
         assembled, flat = paused.assembled, paused.flat
-        ladder, faces, notes = (
-            paused.paused.ladder,
-            paused.paused.faces,
-            list(paused.paused.notes),
-        )
+        ladder, faces, notes = paused.paused.ladder, paused.paused.faces, list(paused.notes)
     else:
         notes = list(tiling.notes)
         assembled = _assembled_shape(tiling, loaded, options, progress, shapes)
@@ -393,7 +388,7 @@ def _shaped(
             return ShapedLayout(
                 tiling=tiling, assembled=assembled, flat=flat, co_block=co_block,
                 hinge_layout=None, split_bound=bound, notes=tuple(notes), fallback_skipped=True,
-                paused=_Paused(ladder, faces, tuple(notes)),
+                paused=_Paused(ladder, faces),
             )  # fmt: skip
         if not co_block["accepted"]:
             notes.append(f"co-optimization not used: {co_block['reason']}")
