@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Generic, TypeVar, cast
 from drawstring.geometry import parallel
 
 if TYPE_CHECKING:
-    from .pipeline import Progress
+    from drawstring.fabrication.pipeline import Progress
 
 logger = logging.getLogger(__name__)
 
@@ -106,7 +106,9 @@ def _run_ahead(work: Callable[[Progress], object], send: Connection) -> None:
     parallel.exit_quietly_on_interrupt()
     with contextlib.suppress(OSError):  # AHEAD_NICENESS: yield to the parent
         os.nice(AHEAD_NICENESS)
-    from .pipeline import Progress  # the child only: pipeline imports this module
+    from drawstring.fabrication.pipeline import (
+        Progress,  # the child only: pipeline imports this module
+    )
 
     for handler in logging.getLogger().handlers:  # -v: tell this process's lines apart
         handler.addFilter(tag_ahead)

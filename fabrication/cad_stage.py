@@ -22,10 +22,9 @@ from drawstring.geometry.tolerances import PRINT_GAP_TOL_MM
 
 if TYPE_CHECKING:
     from drawstring.cad.design import CadResult
+    from drawstring.fabrication.exports import Measures
+    from drawstring.fabrication.pipeline import Design
     from drawstring.fabrication.profiles import Profile
-
-    from .exports import Measures
-    from .pipeline import Design
 
 
 @dataclass(frozen=True)
@@ -116,7 +115,7 @@ def cad_inputs(result: Design) -> CadInputs:
 def print_tiles(result: Design) -> NDArray[np.float64]:
     """(T, 8, 3) flat tiles to fabricate (see :func:`~drawstring.fabrication.pipeline.
     fabricated_tiles`): congruent to the assembled ones, placed by the hinge layout."""
-    from .pipeline import fabricated_tiles
+    from drawstring.fabrication.pipeline import fabricated_tiles
 
     return fabricated_tiles(result.hinge_layout, result.tiles_assembled)
 
@@ -138,7 +137,7 @@ def route_lengths(result: Design) -> tuple[float, float]:
 def fabrication_measures(result: Design, cad_flat: CadResult) -> Measures:
     """Route, string and mass measured on a design's solids (:func:`~.exports.
     measure_fabrication` with the design's print tiles, route and lift bores)."""
-    from .exports import measure_fabrication
+    from drawstring.fabrication.exports import measure_fabrication
 
     inputs = cad_inputs(result)
     return measure_fabrication(
@@ -345,8 +344,8 @@ def bed_refusal(result: Design) -> InputError | None:
     turned to fit (:func:`~.exports_beds.nest_footprints`).  ``plywood-cnc`` sheets are checked
     when the panels are laid out.
     """
-    from .exports_3mf import tile_bed_refusal
-    from .exports_beds import nest_footprints
+    from drawstring.fabrication.exports_3mf import tile_bed_refusal
+    from drawstring.fabrication.exports_beds import nest_footprints
 
     profile = result.profile
     bed = (profile.bed_x_mm, profile.bed_y_mm)

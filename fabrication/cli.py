@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any, NoReturn, TextIO  # noqa: E402
 from drawstring.geometry.errors import DesignError, InputError  # noqa: E402
 
 if TYPE_CHECKING:
-    from .pipeline import Design
+    from drawstring.fabrication.pipeline import Design
 
 EXIT_INPUT = 2
 EXIT_DESIGN = 3
@@ -48,7 +48,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _add_design_options(p: argparse.ArgumentParser) -> None:
-    from .profiles import MAX_SIZE_MM, MAX_TILES, MIN_GRID_SIDE, MIN_TILES
+    from drawstring.fabrication.profiles import MAX_SIZE_MM, MAX_TILES, MIN_GRID_SIDE, MIN_TILES
 
     p.add_argument("target", help="a mesh file (.obj .off .ply .stl) or a built-in target name")
     p.add_argument(
@@ -228,8 +228,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run_design(args: argparse.Namespace) -> int:
-    from .pipeline import DesignOptions, Progress, check_out_dir, default_out_dir, design
-    from .pipeline import write_design as write
+    from drawstring.fabrication.pipeline import (
+        DesignOptions,
+        Progress,
+        check_out_dir,
+        default_out_dir,
+        design,
+    )
+    from drawstring.fabrication.pipeline import write_design as write
 
     options = DesignOptions(
         profile=args.profile,
@@ -303,7 +309,7 @@ def _run_targets() -> int:
 
 
 def _run_profiles(args: argparse.Namespace) -> int:
-    from .profiles import (
+    from drawstring.fabrication.profiles import (
         MAX_SIZE_MM,
         MAX_TILES,
         MIN_TILES,
@@ -368,7 +374,7 @@ def _run_profiles(args: argparse.Namespace) -> int:
 def _run_simulate(args: argparse.Namespace) -> int:
     import json
 
-    from .pipeline import simulate_folder
+    from drawstring.fabrication.pipeline import simulate_folder
 
     folder = simulate_folder(args.folder, quiet=args.quiet)
     block = json.loads((folder / "design.json").read_text())["metrics"]["simulation"]
@@ -386,7 +392,7 @@ def _run_simulate(args: argparse.Namespace) -> int:
 
 
 def _run_view(args: argparse.Namespace) -> int:
-    from .report import open_report
+    from drawstring.fabrication.report import open_report
 
     folder = Path(args.folder)
     if not folder.exists():
@@ -404,7 +410,7 @@ def _summary(result: Design) -> str:
     parts = linkage.n_components
     text = f"{linkage.n_tiles} tiles in {parts} part{'s' if parts > 1 else ''}"
     if parts > 1:
-        from .layout_stage import absorbable_ratio, split_bound
+        from drawstring.fabrication.layout_stage import absorbable_ratio, split_bound
 
         options = result.options
         bound = float(result.metrics().get("split_bound", 0.0))
@@ -430,7 +436,7 @@ def _summary(result: Design) -> str:
 
 def _print_jobs(folder: Path) -> str:
     """``; printed in 7 jobs on 6 beds (...)`` when the fabrication files split the layout."""
-    from .report import print_job_counts
+    from drawstring.fabrication.report import print_job_counts
 
     jobs, beds = print_job_counts(folder)
     if jobs <= 1:

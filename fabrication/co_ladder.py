@@ -12,15 +12,14 @@ import logging
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+from drawstring.fabrication.ahead import Ahead
 from drawstring.geometry.assembled import AssembledResult
 from drawstring.geometry.coflat import CO_CONICAL
 from drawstring.geometry.flat import FlatResult
 from drawstring.geometry.tolerances import FLAT_EDGE_ERROR_TOL_MM
 
-from .ahead import Ahead
-
 if TYPE_CHECKING:
-    from .pipeline import Progress
+    from drawstring.fabrication.pipeline import Progress
 
 logger = logging.getLogger(__name__)
 
@@ -199,7 +198,9 @@ class CoLadder:
             self._children.pop(j).cancel()
         child = self._children.get(i)
         if child is not None:
-            from .pipeline import Progress  # pipeline imports the layout stage, which imports this
+            from drawstring.fabrication.pipeline import (
+                Progress,
+            )  # pipeline imports the layout stage, which imports this
 
             outcome = child.result(Progress(quiet=True))
             del self._children[i]  # only now: run() stops it if the wait is interrupted

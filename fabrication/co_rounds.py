@@ -38,7 +38,7 @@ from drawstring.geometry.tiling import Tiling, component_flattenings
 from drawstring.geometry.tolerances import FLAT_EDGE_ERROR_TOL_MM, HINGE_ANGLE_MARGIN_DEG
 
 if TYPE_CHECKING:
-    from .pipeline import ResolvedOptions
+    from drawstring.fabrication.pipeline import ResolvedOptions
 
 logger = logging.getLogger(__name__)
 

@@ -19,6 +19,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from drawstring.fabrication.ahead import Ahead as _Ahead
+from drawstring.fabrication.co_ladder import CoLadder
+from drawstring.fabrication.co_rounds import CO_SLOW_REACH, co_optimized, depth_pull, flat_layout
 from drawstring.geometry import parallel, verify
 from drawstring.geometry.assembled import AssembledResult, optimize_assembled, reextrude
 from drawstring.geometry.coflat import CO_CONICAL, CoOptimizedTop
@@ -35,12 +38,8 @@ from drawstring.geometry.tolerances import (
     HINGE_GAP_TOL_MM,
 )
 
-from .ahead import Ahead as _Ahead
-from .co_ladder import CoLadder
-from .co_rounds import CO_SLOW_REACH, co_optimized, depth_pull, flat_layout
-
 if TYPE_CHECKING:
-    from .pipeline import Progress, ResolvedOptions
+    from drawstring.fabrication.pipeline import Progress, ResolvedOptions
 
 logger = logging.getLogger(__name__)
 

@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from drawstring.fabrication.layout_stage import absorbable_ratio, fabricated_tiles, split_bound
+from drawstring.fabrication.profiles import Profile
 from drawstring.geometry import verify
 from drawstring.geometry.assembled import AssembledResult
 from drawstring.geometry.flat import FlatResult
@@ -36,11 +38,8 @@ from drawstring.geometry.tolerances import (
     SURFACE_MEAN_REL,
 )
 
-from .layout_stage import absorbable_ratio, fabricated_tiles, split_bound
-from .profiles import Profile
-
 if TYPE_CHECKING:
-    from .pipeline import ResolvedOptions
+    from drawstring.fabrication.pipeline import ResolvedOptions
 
 
 #: Largest distance (mm) between a channel's exit and the next tile's entry, assembled pose.
@@ -308,8 +307,7 @@ def measure_design(
     # the string's length along its channels on the fabricated tiles, as every other output
     # reports it (not the planning polyline through the gap centres)
     from drawstring.cad.paths import route_lengths
-
-    from .cad_stage import lift_exits, route_steps
+    from drawstring.fabrication.cad_stage import lift_exits, route_steps
 
     flat_length, assembled_length = route_lengths(
         fabricated, assembled.tiles, route_steps(route), lift_exits(route, lift.lift_gaps)

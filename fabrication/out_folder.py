@@ -20,16 +20,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from drawstring.fabrication.design_folder import design_json_faults
+from drawstring.fabrication.measure import _jsonable
 from drawstring.geometry import parallel
 from drawstring.geometry.errors import InputError
 from drawstring.geometry.linkage import Linkage
 from drawstring.geometry.simulate import simulate_stage
 
-from .design_folder import design_json_faults
-from .measure import _jsonable
-
 if TYPE_CHECKING:
-    from .pipeline import Design, Writer
+    from drawstring.fabrication.pipeline import Design, Writer
 
 
 def default_out_dir(target: str | os.PathLike[str]) -> Path:
@@ -160,8 +159,8 @@ def write_design(
     every file was written.  On any failure the temporary folder is removed and ``out_dir`` is
     left as it was.
     """
-    from .outputs import DEFAULT_WRITERS
-    from .report import write_report
+    from drawstring.fabrication.outputs import DEFAULT_WRITERS
+    from drawstring.fabrication.report import write_report
 
     out = check_out_dir(out_dir)
     try:
@@ -232,9 +231,9 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
     the ``simulation`` metrics and timing into ``design.json``, and rewrites ``report.html``.
     Every file is written next to its final name first and renamed into place.
     """
-    from .outputs import save_deployment
-    from .pipeline import Progress
-    from .report import write_report
+    from drawstring.fabrication.outputs import save_deployment
+    from drawstring.fabrication.pipeline import Progress
+    from drawstring.fabrication.report import write_report
 
     root = Path(folder)
     design_path = root / "design.json"

@@ -14,13 +14,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from drawstring.fabrication import pictures
 from drawstring.geometry.linkage import TILE_FACES, gap_centroids
 from drawstring.geometry.route import route_to_json
 
-from . import pictures
-
 if TYPE_CHECKING:
-    from .pipeline import Design, Writer
+    from drawstring.fabrication.pipeline import Design, Writer
 
 
 def format_obj(
@@ -81,9 +80,8 @@ def write_tiles_npz(result: Design, folder: Path) -> list[str]:
     ``fabricated`` (each T3D tile moved rigidly onto its place in the flat layout, the pose the
     deployment simulation starts from), so ``drawstring simulate`` repeats the design's run
     exactly (the OBJ files round to 1e-6 mm)."""
+    from drawstring.fabrication.layout_stage import fabricated_tiles
     from drawstring.geometry.npz import save_npz
-
-    from .layout_stage import fabricated_tiles
 
     save_npz(
         folder / "tiles.npz",
@@ -110,7 +108,7 @@ def write_route(result: Design, folder: Path) -> list[str]:
     (:func:`~.cad_stage.route_lengths`, as bom.csv and manifest.json state it), not the
     polyline through the gap centroids the route was planned on.
     """
-    from .cad_stage import route_lengths
+    from drawstring.fabrication.cad_stage import route_lengths
 
     linkage = result.tiling.linkage
     document = route_to_json(
@@ -170,9 +168,8 @@ def write_deployment(result: Design, folder: Path) -> list[str]:
 def save_deployment(simulation: Any, route: Any, folder: Path) -> list[str]:
     """Write ``deploy.npz`` and ``deploy.gif`` of a simulation whose string follows ``route``
     (a ``Route`` or (S, 4) steps ``(gap, tile, enter_side, leave_side)``)."""
+    from drawstring.fabrication.deploy_pictures import route_polylines, save_deploy_gif
     from drawstring.geometry.simulate import route_snap_pairs, route_steps, save_deploy_npz
-
-    from .deploy_pictures import route_polylines, save_deploy_gif
 
     save_deploy_npz(simulation, folder / "deploy.npz")
     pairs = route_snap_pairs(route_steps(route))[0]
@@ -185,8 +182,8 @@ def write_fabrication_files(result: Design, folder: Path) -> list[str]:
     """The profile's fabrication files under ``fabrication/`` (only when CAD ran)."""
     if result.cad_flat is None:
         return []
-    from .cad_stage import cad_inputs, print_tiles
-    from .exports import write_fabrication
+    from drawstring.fabrication.cad_stage import cad_inputs, print_tiles
+    from drawstring.fabrication.exports import write_fabrication
 
     inputs = cad_inputs(result)
     return write_fabrication(

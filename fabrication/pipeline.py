@@ -28,6 +28,25 @@ import numpy as np
 from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
+from drawstring.fabrication.layout_stage import fabricated_tiles, shape_and_layout
+from drawstring.fabrication.measure import (
+    _jsonable,
+    _round,
+    above,
+    cad_problems,
+    cad_warnings,
+    design_rigidity,
+    measure_design,
+)
+from drawstring.fabrication.profiles import (
+    MAX_SIZE_MM,
+    MAX_TILES,
+    MAX_WEIGHT,
+    MIN_GRID_SIDE,
+    MIN_TILES,
+    Profile,
+    load_profile,
+)
 from drawstring.geometry.assembled import (
     AssembledResult,
 )
@@ -53,40 +72,6 @@ from drawstring.geometry.tolerances import (
     FLAT_EDGE_ERROR_TOL_MM,
     HINGE_GAP_TOL_MM,
     MAX_SCALE_FACTOR,
-)
-
-from .layout_stage import (
-    fabricated_tiles,
-    shape_and_layout,
-    split_bound,  # noqa: F401 (re-exported)
-)
-from .measure import (
-    CHANNEL_MATCH_TOL_MM,  # noqa: F401 (re-exported)
-    SURFACE_MEAN_REL,  # noqa: F401 (re-exported)
-    _jsonable,
-    _round,
-    above,
-    cad_problems,
-    cad_warnings,
-    channel_turn_assembled,  # noqa: F401 (re-exported)
-    design_rigidity,
-    measure_design,
-    route_problems,  # noqa: F401 (re-exported)
-)
-from .out_folder import (  # noqa: F401 (re-exported)
-    check_out_dir,
-    default_out_dir,
-    simulate_folder,
-    write_design,
-)
-from .profiles import (
-    MAX_SIZE_MM,
-    MAX_TILES,
-    MAX_WEIGHT,
-    MIN_GRID_SIDE,
-    MIN_TILES,
-    Profile,
-    load_profile,
 )
 
 log = logging.getLogger(__name__)
@@ -443,7 +428,7 @@ def resolve_options(options: DesignOptions, profile: Profile) -> ResolvedOptions
         repair=options.repair,
     )
     if resolved.cad:
-        from .cad_stage import thickness_refusal
+        from drawstring.fabrication.cad_stage import thickness_refusal
 
         too_thin = thickness_refusal(profile, resolved.thickness_mm)
         if too_thin is not None:
@@ -756,7 +741,7 @@ def _design(
 def with_cad(result: Design, progress: Progress) -> Design:
     """Build the solids (flat and assembled pose) and measure them; the export stage writes
     them out in :func:`write_design`."""
-    from .cad_stage import build_cad, measure_cad
+    from drawstring.fabrication.cad_stage import build_cad, measure_cad
 
     with progress.stage("cad"):
         try:

@@ -285,7 +285,7 @@ def _mass_g(found: _Folder) -> tuple[float | None, str]:
     profile_name = found.design.get("options", {}).get("profile") or found.design.get("profile")
     if not profile_name:
         return None, f"tile volume {volume_mm3 / 1000:.1f} cm³ (no profile to give a density)"
-    from .profiles import load_profile
+    from drawstring.fabrication.profiles import load_profile
 
     try:
         profile = load_profile(str(profile_name))
@@ -306,7 +306,7 @@ def _bed_note(found: _Folder) -> str:
     profile_name = found.design.get("options", {}).get("profile") or found.design.get("profile")
     if not profile_name:
         return text
-    from .profiles import BED_MARGIN_MM, load_profile
+    from drawstring.fabrication.profiles import BED_MARGIN_MM, load_profile
 
     try:
         profile = load_profile(str(profile_name))
@@ -570,8 +570,8 @@ def _threading_steps(route: Route) -> list[str]:
     """The threading, lift-point and pulling steps, in the assembly guide's order: the guide
     (``fabrication/assembly.md``) starts the closed route at the lift point where both string
     ends stand up, and this page names the same start (the guide's own function decides it)."""
-    from .assembly_guide import _guide
-    from .cad_stage import lift_bores
+    from drawstring.fabrication.assembly_guide import _guide
+    from drawstring.fabrication.cad_stage import lift_bores
 
     guide = _guide(route.steps, lift_bores(route.steps, route.lift[:, 0]))
     first = guide.order[0]

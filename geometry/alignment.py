@@ -14,8 +14,8 @@ import igl
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .bff import _System
-from .errors import InputError
+from drawstring.geometry.bff import _System
+from drawstring.geometry.errors import InputError
 
 log = logging.getLogger(__name__)
 

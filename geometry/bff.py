@@ -22,8 +22,8 @@ import scipy.sparse.csgraph as csgraph
 import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
-from .errors import InputError
-from .tolerances import (
+from drawstring.geometry.errors import InputError
+from drawstring.geometry.tolerances import (
     DEGENERATE_FACE_REL_AREA,
     FLATTEN_MIN_CLOSED_LENGTH_REL,
     FLATTEN_SCHUR_NULL_REL,

@@ -35,21 +35,11 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .alignment import (
-    _Curvature,
-    _face_curvature,
-    _grid_torsion_integral,
-)
-from .alignment import (
-    principal_misalignment as principal_misalignment,
-)
-from .bff import (
-    SCHUR_DENSE_MAX_ENTRIES as SCHUR_DENSE_MAX_ENTRIES,
-)
-from .bff import (
-    SOLVE_BLOCK_COLUMNS as SOLVE_BLOCK_COLUMNS,
-)
-from .bff import (
+from drawstring.geometry.alignment import _Curvature, _face_curvature, _grid_torsion_integral
+from drawstring.geometry.alignment import principal_misalignment as principal_misalignment
+from drawstring.geometry.bff import SCHUR_DENSE_MAX_ENTRIES as SCHUR_DENSE_MAX_ENTRIES
+from drawstring.geometry.bff import SOLVE_BLOCK_COLUMNS as SOLVE_BLOCK_COLUMNS
+from drawstring.geometry.bff import (
     _boundary_loop,
     _build_system,
     _check_lengths,
@@ -62,7 +52,7 @@ from .bff import (
     _solve_interior,
     _System,
 )
-from .errors import InputError
+from drawstring.geometry.errors import InputError
 
 log = logging.getLogger(__name__)
 

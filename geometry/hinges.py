@@ -703,7 +703,7 @@ def draw_flat(
     if flat is not None and flat.junctions.elements.size:
         gap_polys: list[FloatArray] = []
         gap_vals: list[float] = []
-        from .verify import gap_opening_angles_deg
+        from drawstring.geometry.verify import gap_opening_angles_deg
 
         measured = gap_opening_angles_deg(linkage, tiles, layout.bottom)
         ang: dict[int, float] = {}

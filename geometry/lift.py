@@ -33,9 +33,9 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import InputError
-from .linkage import Linkage
-from .tolerances import LIFT_SHARE_MIN, LIFT_SUPPORT_MIN
+from drawstring.geometry.errors import InputError
+from drawstring.geometry.linkage import Linkage
+from drawstring.geometry.tolerances import LIFT_SHARE_MIN, LIFT_SUPPORT_MIN
 
 log = logging.getLogger(__name__)
 

@@ -71,16 +71,16 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-from .errors import DesignError, InputError
-from .linkage import Linkage
-from .route_heuristics import (
+from drawstring.geometry.errors import DesignError, InputError
+from drawstring.geometry.linkage import Linkage
+from drawstring.geometry.route_heuristics import (
     _band_loop_any,
     _boundary_loop_dp,
     _exact,
     _splice_lift,
     boundary_tile_order,
 )
-from .route_milp import (
+from drawstring.geometry.route_milp import (
     NodeBudgetError,
     Step,
     _Rules,

@@ -16,9 +16,9 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from .errors import DesignError
-from .linkage import Linkage
-from .route_milp import (
+from drawstring.geometry.errors import DesignError
+from drawstring.geometry.linkage import Linkage
+from drawstring.geometry.route_milp import (
     NodeBudgetError,
     Step,
     _build_problem,

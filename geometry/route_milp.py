@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from scipy.optimize import Bounds, LinearConstraint, milp
 from scipy.spatial import cKDTree
 
-from .errors import DesignError
+from drawstring.geometry.errors import DesignError
 
 log = logging.getLogger(__name__)
 

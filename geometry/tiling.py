@@ -16,10 +16,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from .errors import InputError
-from .flatten import flatten
-from .linkage import Linkage, Split, build_linkage
-from .tolerances import MAX_SCALE_FACTOR
+from drawstring.geometry.errors import InputError
+from drawstring.geometry.flatten import flatten
+from drawstring.geometry.linkage import Linkage, Split, build_linkage
+from drawstring.geometry.tolerances import MAX_SCALE_FACTOR
 
 log = logging.getLogger(__name__)
 
