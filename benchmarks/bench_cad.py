@@ -2,7 +2,7 @@
 
 Target: 200 tiles with channels, lift bores, TPU hinge pads with pins, a magnet pair, trims and
 labels in <= 30 s on 2 cores, growing linearly.  ``run()`` builds the synthetic cylinder design
-(:func:`drawstring.cad.samples.cylinder_design`) at 50 and 200 tiles and reports wall time, the
+(:func:`cad_sample.cylinder_design`) at 50 and 200 tiles and reports wall time, the
 CPU time of the whole process tree (so the numbers mean something on a busy machine), seconds per
 tile and counts, then the same for the solid checks (validity, interference tiles-tiles and
 tiles-pads on one shared tessellation per solid).  ``python benchmarks/bench_cad.py`` prints
@@ -14,12 +14,18 @@ from __future__ import annotations
 import dataclasses
 import os
 import resource
+import sys
 import time
+from pathlib import Path as _Path
 from typing import Any
+
+# the synthetic scenes and designs the tests use live beside them
+sys.path.insert(0, str(_Path(__file__).resolve().parents[1] / "tests"))
+
+from cad_sample import cylinder_design  # noqa: E402
 
 from drawstring.cad import checks
 from drawstring.cad.design import build_design_solids
-from drawstring.cad.samples import cylinder_design
 from drawstring.fabrication.profiles import load_profile, print_clearance_mm
 
 TARGET_S = 30.0

@@ -2,7 +2,7 @@
 
 Target: all exports for 200 tiles <= 30 s on 2 cores (the CAD build is timed by bench_cad.py
 and is not included).  ``run()`` builds the synthetic cylinder design
-(:func:`drawstring.cad.samples.cylinder_design`, 10 x 20 cells) once per profile, then times
+(:func:`cad_sample.cylinder_design`, 10 x 20 cells) once per profile, then times
 :func:`drawstring.fabrication.exports.write_fabrication`: wall time, CPU time of the process tree,
 files and bytes written.  ``python benchmarks/bench_exports.py`` prints the rows.
 """
@@ -12,15 +12,21 @@ from __future__ import annotations
 import dataclasses
 import os
 import resource
+import sys
 import tempfile
 import time
 from pathlib import Path
+from pathlib import Path as _Path
 from typing import Any
 
 import numpy as np
 
+# the synthetic scenes and designs the tests use live beside them
+sys.path.insert(0, str(_Path(__file__).resolve().parents[1] / "tests"))
+
+from cad_sample import cylinder_design  # noqa: E402
+
 from drawstring.cad.design import build_design_solids
-from drawstring.cad.samples import cylinder_design
 from drawstring.cad.tiles import move_solid
 from drawstring.fabrication.exports import write_fabrication
 from drawstring.fabrication.profiles import load_profile

@@ -14,10 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from drawstring.geometry.flat import extrude_flat, optimize_flat
-from drawstring.geometry.hinges import layout_hinges
-from drawstring.geometry.linkage import build_linkage
-from drawstring.geometry.verify import (
+from drawstring.geometry.flat.layout import extrude_flat, optimize_flat
+from drawstring.geometry.flat.verify import (
     flat_edge_errors,
     flat_overlap,
     gap_opening_angles_deg,
@@ -25,6 +23,8 @@ from drawstring.geometry.verify import (
     hinge_gaps,
     interpenetration,
 )
+from drawstring.geometry.hinges.placement import layout_hinges
+from drawstring.geometry.tiling.linkage import build_linkage
 
 CASES: tuple[tuple[str, float], ...] = (
     ("saddle", 0.002),

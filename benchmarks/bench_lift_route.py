@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.geometry.lift import select_lift_points
-from drawstring.geometry.linkage import Linkage, build_linkage, rotating_squares_layout
-from drawstring.geometry.route import plan_route, route_metrics
+from drawstring.geometry.route.lift import select_lift_points
+from drawstring.geometry.route.plan import plan_route, route_metrics
+from drawstring.geometry.tiling.linkage import Linkage, build_linkage, rotating_squares_layout
 
 
 def _flat_gap_centroids(linkage: Linkage, opening: float = 0.5) -> NDArray[np.float64]:

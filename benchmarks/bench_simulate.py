@@ -2,7 +2,7 @@
 
 Targets on 2 cores: 200 tiles deploy in <= 20 s, 1600 tiles in <= 180 s (the paper reports
 5.5-6 min).  Scenes are exact frustum linkages on a cylinder patch
-(:func:`drawstring.geometry.simulate.cylinder_scene`) with the boundary loop as the route and
+(:func:`sim_scene.cylinder_scene`) with the boundary loop as the route and
 the centre gap as the lift point.  Each row records deployed, steps, wall time, per-step cost,
 local-global iterations and factorizations.
 
@@ -15,12 +15,19 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
+from pathlib import Path as _Path
 from typing import Any
 
 import numpy as np
 
-from drawstring.geometry import simulate as S
+# the synthetic scenes and designs the tests use live beside them
+sys.path.insert(0, str(_Path(__file__).resolve().parents[1] / "tests"))
+
+from sim_scene import cylinder_scene  # noqa: E402
+
+from drawstring.geometry.simulate import deploy as S
 
 SIZES: tuple[tuple[int, int], ...] = ((4, 4), (8, 8), (10, 20), (40, 40))
 TARGET_S = {200: 20.0, 1600: 180.0}
@@ -28,7 +35,7 @@ TARGET_S = {200: 20.0, 1600: 180.0}
 
 def run_one(n_i: int, n_j: int, settings: S.SimulationSettings | None = None) -> dict[str, Any]:
     """Simulate one cylinder scene and return its benchmark row (wall and CPU seconds)."""
-    scene = S.cylinder_scene(n_i, n_j)
+    scene = cylinder_scene(n_i, n_j)
     link = scene.linkage
     pairs, gaps = S.route_snap_pairs(scene.route)
     centre = np.array(link.grid_shape) / 2.0

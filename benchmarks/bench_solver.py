@@ -41,24 +41,24 @@ from drawstring.fabrication.pipeline import (
     split_bound,
 )
 from drawstring.fabrication.profiles import load_profile
-from drawstring.geometry.assembled import (
+from drawstring.geometry.assembled.shape import (
     ANDERSON_HISTORY,
     CLOSE_FIT_WEIGHTS,
     PAPER_WEIGHTS,
     eq1_energy,
     optimize_assembled,
 )
-from drawstring.geometry.builtins import BUILTIN_TARGETS
-from drawstring.geometry.flatten import Flattening, flatten, principal_misalignment
-from drawstring.geometry.solver import (
+from drawstring.geometry.flatten.conformal import Flattening, flatten, principal_misalignment
+from drawstring.geometry.solve.solver import (
     ClosenessToPoints,
     LocalGlobalSolver,
     Plane,
     planarize_quads,
     quad_planarity,
 )
-from drawstring.geometry.target import Target, load_target
-from drawstring.geometry.tiling import Tiling, tile_surface
+from drawstring.geometry.target.builtins import BUILTIN_TARGETS
+from drawstring.geometry.target.surface import Target, load_target
+from drawstring.geometry.tiling.grid import Tiling, tile_surface
 
 PATCH_MM = 200.0
 
@@ -254,7 +254,7 @@ def run(cores_note: str = "", quick: bool = False) -> list[dict[str, object]]:
     """All benchmark rows (a few minutes on 2 cores).
 
     The assembled rows run with the stage's default Anderson history
-    (:data:`~drawstring.geometry.assembled.ANDERSON_HISTORY`) and with ``anderson=0``.
+    (:data:`~drawstring.geometry.assembled.shape.ANDERSON_HISTORY`) and with ``anderson=0``.
 
     Parameters
     ----------

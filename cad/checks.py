@@ -25,7 +25,7 @@ from drawstring.cad.features import MagnetPair, channel_radius
 from drawstring.cad.kernel import tessellate
 from drawstring.cad.paths import face_planes
 from drawstring.cad.tiles import apply_transform
-from drawstring.geometry.tolerances import (
+from drawstring.geometry.core.tolerances import (
     CAD_INTERFERENCE_ANGLE_RAD,
     CAD_INTERFERENCE_DEFLECTION_MM,
 )

@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from scipy.spatial import ConvexHull, QhullError
 
 from drawstring.cad.paths import face_planes
-from drawstring.geometry.errors import InputError
+from drawstring.geometry.core.errors import InputError
 
 FloatArray = NDArray[np.float64]
 

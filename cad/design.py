@@ -52,9 +52,9 @@ from drawstring.cad.features import channel_radius as _channel_radius
 from drawstring.cad.hinge_parts import strip_hole_wall_mm
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path
 from drawstring.cad.tiles import move_solid, relieved_tile_solid, rigid_transforms, tile_solid
-from drawstring.geometry import parallel
-from drawstring.geometry.errors import InputError
-from drawstring.geometry.linkage import id_runs
+from drawstring.geometry.core import parallel
+from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.tiling.linkage import id_runs
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile

@@ -73,7 +73,7 @@ from drawstring.cad.paths import (
     unit_vector,
 )
 from drawstring.cad.tiles import convex_solid, tile_solid
-from drawstring.geometry.errors import InputError
+from drawstring.geometry.core.errors import InputError
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile

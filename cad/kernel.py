@@ -30,7 +30,7 @@ from OCP.TopExp import TopExp_Explorer
 from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS, TopoDS_Shape, TopoDS_Shell, TopoDS_Solid
 
-from drawstring.geometry.errors import InputError
+from drawstring.geometry.core.errors import InputError
 
 
 def polyhedron_solid(vertices: NDArray[np.float64], faces: Sequence[Sequence[int]]) -> bd.Solid:

@@ -22,7 +22,7 @@ from drawstring.cad.feature_common import (
 )
 from drawstring.cad.kernel import polyhedron_solid
 from drawstring.cad.paths import FACE_BOTTOM, check_side, face_planes, unit_vector
-from drawstring.geometry.errors import InputError
+from drawstring.geometry.core.errors import InputError
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.geometry.errors import InputError
+from drawstring.geometry.core.errors import InputError
 
 FACE_TOP = 4
 FACE_BOTTOM = 5

@@ -21,9 +21,9 @@ from scipy.spatial import ConvexHull, HalfspaceIntersection
 
 from drawstring.cad.kernel import polyhedron_solid
 from drawstring.cad.paths import FACE_BOTTOM, FACE_INDICES, FACE_TOP, TILE_FACES, face_planes
-from drawstring.geometry.errors import InputError
-from drawstring.geometry.rigid import apply_rigid, rigid_fit
-from drawstring.geometry.tolerances import CAD_MAX_FACE_DEVIATION_MM, CAD_PLANAR_EXACT_MM
+from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.rigid import apply_rigid, rigid_fit
+from drawstring.geometry.core.tolerances import CAD_MAX_FACE_DEVIATION_MM, CAD_PLANAR_EXACT_MM
 
 log = logging.getLogger(__name__)
 

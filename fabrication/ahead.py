@@ -20,7 +20,7 @@ from collections.abc import Callable
 from multiprocessing.connection import Connection
 from typing import TYPE_CHECKING, Generic, TypeVar, cast
 
-from drawstring.geometry import parallel
+from drawstring.geometry.core import parallel
 
 if TYPE_CHECKING:
     from drawstring.fabrication.pipeline import Progress

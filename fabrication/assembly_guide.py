@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from drawstring.cad.paths import SIDE_TOP_FACE, lift_path, route_openings
 from drawstring.fabrication.profiles import print_clearance_mm, string_is_cable
-from drawstring.geometry.linkage import id_runs
+from drawstring.geometry.tiling.linkage import id_runs
 
 if TYPE_CHECKING:
     from drawstring.fabrication.exports import _Record

@@ -15,10 +15,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.fabrication.profiles import print_clearance_mm
-from drawstring.geometry.errors import InputError
-from drawstring.geometry.linkage import SIDE_BOTTOM, SIDE_LEFT, SIDE_RIGHT, SIDE_TOP, Linkage
-from drawstring.geometry.route import Route
-from drawstring.geometry.tolerances import PRINT_GAP_TOL_MM
+from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.tolerances import PRINT_GAP_TOL_MM
+from drawstring.geometry.route.plan import Route
+from drawstring.geometry.tiling.linkage import SIDE_BOTTOM, SIDE_LEFT, SIDE_RIGHT, SIDE_TOP, Linkage
 
 if TYPE_CHECKING:
     from drawstring.cad.design import CadResult

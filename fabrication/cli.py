@@ -23,7 +23,7 @@ from collections.abc import Iterator, Sequence  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import TYPE_CHECKING, Any, NoReturn, TextIO  # noqa: E402
 
-from drawstring.geometry.errors import DesignError, InputError  # noqa: E402
+from drawstring.geometry.core.errors import DesignError, InputError  # noqa: E402
 
 if TYPE_CHECKING:
     from drawstring.fabrication.pipeline import Design
@@ -300,7 +300,7 @@ def _run_design(args: argparse.Namespace) -> int:
 
 
 def _run_targets() -> int:
-    from drawstring.geometry.builtins import BUILTIN_TARGETS
+    from drawstring.geometry.target.builtins import BUILTIN_TARGETS
 
     width = max(len(name) for name in BUILTIN_TARGETS)
     for name, builtin in BUILTIN_TARGETS.items():

@@ -13,10 +13,10 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from drawstring.fabrication.ahead import Ahead
-from drawstring.geometry.assembled import AssembledResult
-from drawstring.geometry.coflat import CO_CONICAL
-from drawstring.geometry.flat import FlatResult
-from drawstring.geometry.tolerances import FLAT_EDGE_ERROR_TOL_MM
+from drawstring.geometry.assembled.shape import AssembledResult
+from drawstring.geometry.core.tolerances import FLAT_EDGE_ERROR_TOL_MM
+from drawstring.geometry.flat.coflat import CO_CONICAL
+from drawstring.geometry.flat.layout import FlatResult
 
 if TYPE_CHECKING:
     from drawstring.fabrication.pipeline import Progress

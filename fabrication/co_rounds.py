@@ -2,7 +2,7 @@
 
 :func:`co_optimized` moves the assembled top (K3D) and the flat layout (K2D) together so the
 flat tiles become congruent to the assembled ones (the joint solve,
-:func:`~drawstring.geometry.coflat.co_optimize_top`), extrudes the tiles again under the moved
+:func:`~drawstring.geometry.flat.coflat.co_optimize_top`), extrudes the tiles again under the moved
 top and solves the flat layout again with its true bounds (:func:`flat_layout`), for up to
 :data:`CO_REFINEMENTS` more rounds.  :class:`RoundJudge` decides when the rounds stop.  The
 layout stage (:mod:`~drawstring.fabrication.layout_stage`) runs it, through the ladder of
@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.geometry.assembled import (
+from drawstring.geometry.assembled.shape import (
     AssembledResult,
     hinge_depth_pull,
     quad_vector_areas,
@@ -28,14 +28,14 @@ from drawstring.geometry.assembled import (
     remeasured,
     tile_vertices,
 )
-from drawstring.geometry.coflat import CO_STAGES, CoOptimizedTop, co_optimize_top
-from drawstring.geometry.flat import FlatResult, hinge_face_openings, optimize_flat
-from drawstring.geometry.flatpose import HingeFaces, hinge_faces
-from drawstring.geometry.linkage import Linkage
-from drawstring.geometry.solver import LinearPull
-from drawstring.geometry.target import Target
-from drawstring.geometry.tiling import Tiling, component_flattenings
-from drawstring.geometry.tolerances import FLAT_EDGE_ERROR_TOL_MM, HINGE_ANGLE_MARGIN_DEG
+from drawstring.geometry.core.tolerances import FLAT_EDGE_ERROR_TOL_MM, HINGE_ANGLE_MARGIN_DEG
+from drawstring.geometry.flat.coflat import CO_STAGES, CoOptimizedTop, co_optimize_top
+from drawstring.geometry.flat.layout import FlatResult, hinge_face_openings, optimize_flat
+from drawstring.geometry.flat.pose import HingeFaces, hinge_faces
+from drawstring.geometry.solve.solver import LinearPull
+from drawstring.geometry.target.surface import Target
+from drawstring.geometry.tiling.grid import Tiling, component_flattenings
+from drawstring.geometry.tiling.linkage import Linkage
 
 if TYPE_CHECKING:
     from drawstring.fabrication.pipeline import ResolvedOptions
@@ -61,7 +61,7 @@ __all__ = [
 
 def depth_pull(shape: AssembledResult, linkage: Linkage, bottom: NDArray[np.bool_]) -> LinearPull:
     """The pull of the ``bottom`` hinges' corners of ``shape`` to equal depths under both
-    tiles' top faces (:func:`~drawstring.geometry.assembled.hinge_depth_pull`)."""
+    tiles' top faces (:func:`~drawstring.geometry.assembled.shape.hinge_depth_pull`)."""
     hinges = linkage.hinges[bottom]
     vertex = shape.quads[hinges[:, 0], hinges[:, 1]]
     return hinge_depth_pull(shape, vertex, hinges[:, 0], hinges[:, 2])
@@ -239,7 +239,7 @@ def co_optimized(
     between_rounds: Callable[[], None] | None = None,
 ) -> tuple[AssembledResult, FlatResult, dict[str, Any]]:
     """K3D and K2D moved together so the flat tiles are congruent to the assembled ones
-    (:func:`~drawstring.geometry.coflat.co_optimize_top`; with ``faces``, at their hinge points
+    (:func:`~drawstring.geometry.flat.coflat.co_optimize_top`; with ``faces``, at their hinge points
     and with the clear openings of the current tiles, or with ``track_openings=False`` those of
     ``faces`` throughout), T3D extruded again under the new K3D and the flat layout solved
     again from the joint one.  The round whose re-solved layout has the smallest edge error is

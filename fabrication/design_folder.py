@@ -17,8 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from drawstring.geometry.errors import InputError
-from drawstring.geometry.linkage import TILE_FACES
+from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.tiling.linkage import TILE_FACES
 
 #: At most this many coordinates of deployment frames are inlined (F * T * 24); more frames are
 #: subsampled evenly, keeping the first (flat) and the last (assembled).

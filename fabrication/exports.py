@@ -64,7 +64,7 @@ from drawstring.fabrication.profiles import string_is_cable
 if TYPE_CHECKING:
     from drawstring.cad.design import CadResult
     from drawstring.fabrication.profiles import Profile
-    from drawstring.geometry.linkage import Linkage
+    from drawstring.geometry.tiling.linkage import Linkage
 
 log = logging.getLogger(__name__)
 

@@ -29,8 +29,8 @@ from OCP.BRepMesh import BRepMesh_IncrementalMesh
 from OCP.StlAPI import StlAPI_Writer
 
 from drawstring.fabrication.profiles import BED_MARGIN_MM
-from drawstring.geometry import parallel
-from drawstring.geometry.errors import InputError
+from drawstring.geometry.core import parallel
+from drawstring.geometry.core.errors import InputError
 
 #: Fixed zip member timestamp (the earliest a zip can hold) for byte-identical files.
 ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from drawstring.fabrication import exports_3mf as m3f
 from drawstring.fabrication.exports_dxf import place_outlines, rotate, shelf_pack
-from drawstring.geometry.errors import InputError
+from drawstring.geometry.core.errors import InputError
 
 if TYPE_CHECKING:
     from drawstring.fabrication.exports import _Record

@@ -21,7 +21,7 @@ import ezdxf
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.geometry.errors import InputError
+from drawstring.geometry.core.errors import InputError
 
 LAYER_ENGRAVE = "ENGRAVE"
 LAYER_CUT_INNER = "CUT_INNER"

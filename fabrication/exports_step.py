@@ -16,7 +16,7 @@ from typing import Any
 
 import build123d as bd
 
-from drawstring.geometry import parallel
+from drawstring.geometry.core import parallel
 
 #: Fixed timestamp written into STEP headers.
 STEP_TIMESTAMP = "2000-01-01T00:00:00"

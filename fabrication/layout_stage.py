@@ -22,21 +22,22 @@ from numpy.typing import NDArray
 from drawstring.fabrication.ahead import Ahead as _Ahead
 from drawstring.fabrication.co_ladder import CoLadder
 from drawstring.fabrication.co_rounds import CO_SLOW_REACH, co_optimized, depth_pull, flat_layout
-from drawstring.geometry import parallel, verify
-from drawstring.geometry.assembled import AssembledResult, optimize_assembled, reextrude
-from drawstring.geometry.coflat import CO_CONICAL, CoOptimizedTop
-from drawstring.geometry.flat import FlatResult, extrude_flat
-from drawstring.geometry.flatpose import HingeFaces
-from drawstring.geometry.flatten import Flattening
-from drawstring.geometry.hinges import HingeLayout, dual_hinge_faces, layout_hinges
-from drawstring.geometry.linkage import Linkage
-from drawstring.geometry.rigid import rigid_copies
-from drawstring.geometry.target import Target
-from drawstring.geometry.tiling import Tiling, tile_surface
-from drawstring.geometry.tolerances import (
+from drawstring.geometry.assembled.shape import AssembledResult, optimize_assembled, reextrude
+from drawstring.geometry.core import parallel
+from drawstring.geometry.core.rigid import rigid_copies
+from drawstring.geometry.core.tolerances import (
     FLAT_EDGE_ERROR_TOL_MM,
     HINGE_GAP_TOL_MM,
 )
+from drawstring.geometry.flat import verify
+from drawstring.geometry.flat.coflat import CO_CONICAL, CoOptimizedTop
+from drawstring.geometry.flat.layout import FlatResult, extrude_flat
+from drawstring.geometry.flat.pose import HingeFaces
+from drawstring.geometry.flatten.conformal import Flattening
+from drawstring.geometry.hinges.placement import HingeLayout, dual_hinge_faces, layout_hinges
+from drawstring.geometry.target.surface import Target
+from drawstring.geometry.tiling.grid import Tiling, tile_surface
+from drawstring.geometry.tiling.linkage import Linkage
 
 if TYPE_CHECKING:
     from drawstring.fabrication.pipeline import Progress, ResolvedOptions
@@ -434,7 +435,7 @@ def _bottom_hinge_depths(
 ) -> AssembledResult:
     """The assembled tiles with their bottom vertices moved (tops held, every face planar) so
     that the ``bottom`` hinges' corners lie as deep under both tiles' top faces as they can
-    (:func:`~drawstring.geometry.assembled.hinge_depth_pull`).  Read-only like the eq.-1
+    (:func:`~drawstring.geometry.assembled.shape.hinge_depth_pull`).  Read-only like the eq.-1
     tiles it stands for (a design whose co-optimization is refused keeps it)."""
     moved = reextrude(
         assembled, assembled.top, loaded.vertices, loaded.faces, start_bottom=assembled.bottom,

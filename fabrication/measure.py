@@ -16,17 +16,9 @@ from numpy.typing import NDArray
 
 from drawstring.fabrication.layout_stage import absorbable_ratio, fabricated_tiles, split_bound
 from drawstring.fabrication.profiles import Profile
-from drawstring.geometry import verify
-from drawstring.geometry.assembled import AssembledResult
-from drawstring.geometry.flat import FlatResult
-from drawstring.geometry.hinges import HingeLayout
-from drawstring.geometry.lift import LiftPoints
-from drawstring.geometry.linkage import Linkage, gap_centroids
-from drawstring.geometry.rigidity import rigidity_report
-from drawstring.geometry.route import Route, route_metrics
-from drawstring.geometry.simulate import route_snap_pairs, route_steps, split_contact_pairs
-from drawstring.geometry.tiling import Tiling, parts_in_place
-from drawstring.geometry.tolerances import (
+from drawstring.geometry.assembled.rigidity import rigidity_report
+from drawstring.geometry.assembled.shape import AssembledResult
+from drawstring.geometry.core.tolerances import (
     CAD_PAD_INTERFERENCE_REL,
     CAPSTAN_FACTOR_WARN,
     FLAT_EDGE_ERROR_TOL_MM,
@@ -37,6 +29,14 @@ from drawstring.geometry.tolerances import (
     SURFACE_MAX_REL,
     SURFACE_MEAN_REL,
 )
+from drawstring.geometry.flat import verify
+from drawstring.geometry.flat.layout import FlatResult
+from drawstring.geometry.hinges.placement import HingeLayout
+from drawstring.geometry.route.lift import LiftPoints
+from drawstring.geometry.route.plan import Route, route_metrics
+from drawstring.geometry.simulate.deploy import route_snap_pairs, route_steps, split_contact_pairs
+from drawstring.geometry.tiling.grid import Tiling, parts_in_place
+from drawstring.geometry.tiling.linkage import Linkage, gap_centroids
 
 if TYPE_CHECKING:
     from drawstring.fabrication.pipeline import ResolvedOptions

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from drawstring.geometry.tolerances import (
+from drawstring.geometry.core.tolerances import (
     CAD_PAD_INTERFERENCE_REL,
     CAPSTAN_FACTOR_WARN,
     FLAT_EDGE_ERROR_TOL_MM,

@@ -22,10 +22,10 @@ from numpy.typing import NDArray
 
 from drawstring.fabrication.design_folder import design_json_faults
 from drawstring.fabrication.measure import _jsonable
-from drawstring.geometry import parallel
-from drawstring.geometry.errors import InputError
-from drawstring.geometry.linkage import Linkage
-from drawstring.geometry.simulate import simulate_stage
+from drawstring.geometry.core import parallel
+from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.simulate.deploy import simulate_stage
+from drawstring.geometry.tiling.linkage import Linkage
 
 if TYPE_CHECKING:
     from drawstring.fabrication.pipeline import Design, Writer
@@ -34,7 +34,7 @@ if TYPE_CHECKING:
 def default_out_dir(target: str | os.PathLike[str]) -> Path:
     """``./NAME-drawstring`` for a built-in name (as ``design.json`` spells it: ``SADDLE`` is
     ``saddle``) or a mesh file's stem."""
-    from drawstring.geometry.builtins import BUILTIN_TARGETS
+    from drawstring.geometry.target.builtins import BUILTIN_TARGETS
 
     name = str(target)
     if name.strip().lower() in BUILTIN_TARGETS and not Path(name).suffix:
@@ -359,7 +359,7 @@ def _read_design(
 ]:
     """What :func:`simulate_folder` reads from a design folder (raises what the readers
     raise on damaged files)."""
-    from drawstring.geometry.linkage import Split, build_linkage
+    from drawstring.geometry.tiling.linkage import Split, build_linkage
 
     doc = json.loads(design_path.read_text(encoding="utf-8"))
     faults = design_json_faults(doc)

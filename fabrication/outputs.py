@@ -15,8 +15,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.fabrication import pictures
-from drawstring.geometry.linkage import TILE_FACES, gap_centroids
-from drawstring.geometry.route import route_to_json
+from drawstring.geometry.route.plan import route_to_json
+from drawstring.geometry.tiling.linkage import TILE_FACES, gap_centroids
 
 if TYPE_CHECKING:
     from drawstring.fabrication.pipeline import Design, Writer
@@ -81,7 +81,7 @@ def write_tiles_npz(result: Design, folder: Path) -> list[str]:
     deployment simulation starts from), so ``drawstring simulate`` repeats the design's run
     exactly (the OBJ files round to 1e-6 mm)."""
     from drawstring.fabrication.layout_stage import fabricated_tiles
-    from drawstring.geometry.npz import save_npz
+    from drawstring.geometry.core.npz import save_npz
 
     save_npz(
         folder / "tiles.npz",
@@ -150,7 +150,7 @@ def write_stage_pictures(result: Design, folder: Path) -> list[str]:
 def write_hinges(result: Design, folder: Path) -> list[str]:
     """``hinges.json``: every hinge's tiles, corners, side (top/bottom), OBJ vertex ids in
     ``flat.obj`` and position; the trimmed overlaps for the ``top`` strategy."""
-    from drawstring.geometry.hinges import hinge_vertex_json
+    from drawstring.geometry.hinges.placement import hinge_vertex_json
 
     document = hinge_vertex_json(result.hinge_layout, result.tiling.linkage)
     text = json.dumps(_rounded(document), indent=1, allow_nan=False)
@@ -169,7 +169,7 @@ def save_deployment(simulation: Any, route: Any, folder: Path) -> list[str]:
     """Write ``deploy.npz`` and ``deploy.gif`` of a simulation whose string follows ``route``
     (a ``Route`` or (S, 4) steps ``(gap, tile, enter_side, leave_side)``)."""
     from drawstring.fabrication.deploy_pictures import route_polylines, save_deploy_gif
-    from drawstring.geometry.simulate import route_snap_pairs, route_steps, save_deploy_npz
+    from drawstring.geometry.simulate.deploy import route_snap_pairs, route_steps, save_deploy_npz
 
     save_deploy_npz(simulation, folder / "deploy.npz")
     pairs = route_snap_pairs(route_steps(route))[0]

@@ -16,19 +16,19 @@ from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from drawstring.geometry.linkage import TILE_FACES  # noqa: E402
+from drawstring.geometry.tiling.linkage import TILE_FACES  # noqa: E402
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
     from drawstring.fabrication.pipeline import Design
-    from drawstring.geometry.hinges import HingeLayout
-    from drawstring.geometry.lift import LiftPoints
-    from drawstring.geometry.linkage import Linkage
-    from drawstring.geometry.route import Route
-    from drawstring.geometry.target import Target
-    from drawstring.geometry.tiling import Tiling
+    from drawstring.geometry.hinges.placement import HingeLayout
+    from drawstring.geometry.route.lift import LiftPoints
+    from drawstring.geometry.route.plan import Route
+    from drawstring.geometry.target.surface import Target
+    from drawstring.geometry.tiling.grid import Tiling
+    from drawstring.geometry.tiling.linkage import Linkage
 
 #: PNG metadata without version strings, so pictures are byte-identical across runs.
 PNG_METADATA = {"Software": None}
@@ -296,8 +296,8 @@ def draw_flat_layout(
     lift_gaps : gap ids of the lift points (starred at the gap centroid).
     trimmed : hinge ids of trimmed pairs (crossed).
     """
-    from drawstring.geometry.linkage import gap_centroids
-    from drawstring.geometry.route import NODE_ENTRANCE
+    from drawstring.geometry.route.plan import NODE_ENTRANCE
+    from drawstring.geometry.tiling.linkage import gap_centroids
 
     angle = np.asarray(gap_angle_deg, dtype=np.float64)
     shade = open_gaps(linkage) & np.isfinite(angle)
@@ -386,8 +386,8 @@ def flat_gap_angles(
 ) -> NDArray[np.float64]:
     """(G,) float, deg: the smallest opening angle at the slit ends of each gap, measured on the
     face that carries each hinge; NaN where a gap has no hinged slit end."""
-    from drawstring.geometry.flat import gap_junctions
-    from drawstring.geometry.verify import gap_opening_angles_deg
+    from drawstring.geometry.flat.layout import gap_junctions
+    from drawstring.geometry.flat.verify import gap_opening_angles_deg
 
     angle = np.full(linkage.n_gaps, np.nan)
     junctions = gap_junctions(linkage)
@@ -509,7 +509,7 @@ def draw_lift_basins(
     from matplotlib import colormaps
     from matplotlib.lines import Line2D
 
-    from drawstring.geometry.linkage import gap_centroids
+    from drawstring.geometry.tiling.linkage import gap_centroids
 
     pos = gap_centroids(linkage, corners)
     cmap = colormaps["tab20"]

@@ -28,15 +28,29 @@ import numpy as np
 from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
-from drawstring.fabrication.layout_stage import fabricated_tiles, shape_and_layout
-from drawstring.fabrication.measure import (
+from drawstring.fabrication.layout_stage import (
+    fabricated_tiles,
+    shape_and_layout,
+    split_bound,  # noqa: F401 (re-exported)
+)
+from drawstring.fabrication.measure import (  # noqa: F401 (re-exported)
+    CHANNEL_MATCH_TOL_MM,
+    SURFACE_MEAN_REL,
     _jsonable,
     _round,
     above,
     cad_problems,
     cad_warnings,
+    channel_turn_assembled,
     design_rigidity,
     measure_design,
+    route_problems,
+)
+from drawstring.fabrication.out_folder import (  # noqa: F401 (re-exported)
+    check_out_dir,
+    default_out_dir,
+    simulate_folder,
+    write_design,
 )
 from drawstring.fabrication.profiles import (
     MAX_SIZE_MM,
@@ -47,32 +61,32 @@ from drawstring.fabrication.profiles import (
     Profile,
     load_profile,
 )
-from drawstring.geometry.assembled import (
+from drawstring.geometry.assembled.shape import (
     AssembledResult,
 )
-from drawstring.geometry.errors import InputError, ThicknessError
-from drawstring.geometry.flat import FlatResult
-from drawstring.geometry.flatten import Flattening, flatten
-from drawstring.geometry.hinges import (
+from drawstring.geometry.core.errors import InputError, ThicknessError
+from drawstring.geometry.core.tolerances import (
+    FLAT_EDGE_ERROR_TOL_MM,
+    HINGE_GAP_TOL_MM,
+    MAX_SCALE_FACTOR,
+)
+from drawstring.geometry.flat.layout import FlatResult
+from drawstring.geometry.flatten.conformal import Flattening, flatten
+from drawstring.geometry.hinges.placement import (
     HingeLayout,
     HingeStrategy,
 )
-from drawstring.geometry.lift import (
+from drawstring.geometry.route.lift import (
     LiftPoints,
     nearby_lift_gaps,
     select_lift_points,
     tile_masses_from_volumes,
 )
-from drawstring.geometry.linkage import Linkage, gap_centroids
-from drawstring.geometry.route import Route, plan_route
-from drawstring.geometry.simulate import SimulationResult, simulate_stage
-from drawstring.geometry.target import Target, load_target
-from drawstring.geometry.tiling import Tiling, grid_shape_for, parts_in_place
-from drawstring.geometry.tolerances import (
-    FLAT_EDGE_ERROR_TOL_MM,
-    HINGE_GAP_TOL_MM,
-    MAX_SCALE_FACTOR,
-)
+from drawstring.geometry.route.plan import Route, plan_route
+from drawstring.geometry.simulate.deploy import SimulationResult, simulate_stage
+from drawstring.geometry.target.surface import Target, load_target
+from drawstring.geometry.tiling.grid import Tiling, grid_shape_for, parts_in_place
+from drawstring.geometry.tiling.linkage import Linkage, gap_centroids
 
 log = logging.getLogger(__name__)
 

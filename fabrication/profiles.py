@@ -14,7 +14,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal, get_args
 
-from drawstring.geometry.errors import InputError
+from drawstring.geometry.core.errors import InputError
 
 Process = Literal["fdm-dual", "laser-epdm", "plywood-cnc"]
 SHIPPED_PROFILES: tuple[str, ...] = ("fdm-dual", "laser-epdm", "plywood-cnc")

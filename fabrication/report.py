@@ -59,8 +59,8 @@ from drawstring.fabrication.design_folder import (
 from drawstring.fabrication.metric_rules import METRIC_RULES as METRIC_RULES
 from drawstring.fabrication.metric_rules import MetricRow, evaluate_metrics
 from drawstring.fabrication.metric_rules import MetricRule as MetricRule
-from drawstring.geometry.errors import InputError
-from drawstring.geometry.linkage import TILE_FACES as TILE_FACES
+from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.tiling.linkage import TILE_FACES as TILE_FACES
 
 log = logging.getLogger(__name__)
 

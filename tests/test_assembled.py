@@ -7,7 +7,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from drawstring.geometry.assembled import (
+from drawstring.geometry.assembled.shape import (
     CLOSE_FIT_WEIGHTS,
     PAPER_WEIGHTS,
     eq1_energy,
@@ -18,8 +18,8 @@ from drawstring.geometry.assembled import (
     square_edge_targets,
     thickness_advice,
 )
-from drawstring.geometry.errors import DesignError, InputError
-from drawstring.geometry.linkage import TILE_FACES
+from drawstring.geometry.core.errors import DesignError, InputError
+from drawstring.geometry.tiling.linkage import TILE_FACES
 
 
 def grid_mesh(nx: int, ny: int, x0: float, y0: float, step: float) -> tuple[np.ndarray, np.ndarray]:
@@ -307,8 +307,8 @@ def test_bad_inputs_raise() -> None:
 def test_convex_corners_unfold_a_dart_and_leave_convex_quads_alone() -> None:
     """Regression (three-shell, ~210 tiles): the K3D solve folded quads into darts. The convexity
     group pushes a reflex corner back out past the margin and is inert on convex quads."""
-    from drawstring.geometry.assembled import CONVEX_MARGIN, ConvexCorners, corner_margins
-    from drawstring.geometry.solver import ClosenessToPoints, LocalGlobalSolver, Plane
+    from drawstring.geometry.assembled.shape import CONVEX_MARGIN, ConvexCorners, corner_margins
+    from drawstring.geometry.solve.solver import ClosenessToPoints, LocalGlobalSolver, Plane
 
     square = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
     dart = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 4.0, 0.0]])
@@ -337,7 +337,7 @@ def test_convex_corners_unfold_a_dart_and_leave_convex_quads_alone() -> None:
 
 def test_assembled_tiles_stay_convex_on_a_strongly_curved_cap() -> None:
     """A deep cap at the paper's weights: every top face of T3D is convex and no tiles clash."""
-    from drawstring.geometry.verify import assembled_overlap
+    from drawstring.geometry.flat.verify import assembled_overlap
 
     vertices, quads, target, target_faces = height_field_case(
         lambda x, y: np.sqrt(np.maximum(80.0**2 - x**2 - y**2, 0.0)), n=8, size=100.0
@@ -355,9 +355,9 @@ def three_shell_front() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
     default profile size and resolution, rectangle flattening, tiling with splits."""
     from drawstring.fabrication.pipeline import DesignOptions, resolve_options, split_bound
     from drawstring.fabrication.profiles import load_profile
-    from drawstring.geometry.flatten import flatten
-    from drawstring.geometry.target import load_target
-    from drawstring.geometry.tiling import tile_surface
+    from drawstring.geometry.flatten.conformal import flatten
+    from drawstring.geometry.target.surface import load_target
+    from drawstring.geometry.tiling.grid import tile_surface
 
     options = DesignOptions(tiles=200)
     resolved = resolve_options(options, load_profile(options.profile))

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from drawstring.geometry.builtins import (
+from drawstring.geometry.target.builtins import (
     BUILTIN_TARGETS,
     alternating_grid,
     grid_shape,
 )
-from drawstring.geometry.target import load_target, validate_disk_mesh
+from drawstring.geometry.target.surface import load_target, validate_disk_mesh
 
 NAMES = list(BUILTIN_TARGETS)
 REQUIRED = ["saddle", "dome", "peanut", "seashell", "three-shell", "cloud", "wave", "chair"]

@@ -14,6 +14,8 @@ import pytest
 
 bd = pytest.importorskip("build123d")
 
+from cad_sample import SampleDesign, cylinder_design  # noqa: E402
+
 from drawstring.cad import checks  # noqa: E402
 from drawstring.cad.design import (  # noqa: E402
     CadResult,
@@ -41,7 +43,6 @@ from drawstring.cad.features import (  # noqa: E402
     trim_tool,
 )
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path  # noqa: E402
-from drawstring.cad.samples import SampleDesign, cylinder_design  # noqa: E402
 from drawstring.cad.tiles import (  # noqa: E402
     convex_solid,
     face_deviation,
@@ -52,8 +53,8 @@ from drawstring.cad.tiles import (  # noqa: E402
     tile_solids,
 )
 from drawstring.fabrication.profiles import Profile, load_profile  # noqa: E402
-from drawstring.geometry.errors import InputError  # noqa: E402
-from drawstring.geometry.tolerances import CAD_OPENING_MATCH_MM  # noqa: E402
+from drawstring.geometry.core.errors import InputError  # noqa: E402
+from drawstring.geometry.core.tolerances import CAD_OPENING_MATCH_MM  # noqa: E402
 
 
 @pytest.fixture(scope="module")

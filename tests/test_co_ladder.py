@@ -11,7 +11,7 @@ import pytest
 
 from drawstring.fabrication import co_ladder
 from drawstring.fabrication.co_ladder import CONICAL_RETRY_WEIGHTS, CoLadder
-from drawstring.geometry.coflat import CO_CONICAL
+from drawstring.geometry.flat.coflat import CO_CONICAL
 
 TOL = co_ladder.FLAT_EDGE_ERROR_TOL_MM
 FIRST, RETRY = CO_CONICAL, CONICAL_RETRY_WEIGHTS[0]

@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 import pytest
 
-from drawstring.geometry.constrained_lsq import (
+from drawstring.geometry.solve.constrained_lsq import (
     EdgeLeastSquares,
     SeparationRows,
     _secant_minimum,

@@ -23,9 +23,10 @@ import pytest
 bd = pytest.importorskip("build123d")
 ezdxf = pytest.importorskip("ezdxf")
 
+from cad_sample import SampleDesign, cylinder_design  # noqa: E402
+
 from drawstring.cad.checks import clearances  # noqa: E402
 from drawstring.cad.design import CadResult, build_design_solids, normalize_route  # noqa: E402
-from drawstring.cad.samples import SampleDesign, cylinder_design  # noqa: E402
 from drawstring.cad.tiles import move_solid, tile_solid  # noqa: E402
 from drawstring.fabrication.exports import write_fabrication  # noqa: E402
 from drawstring.fabrication.exports_3mf import BED_MARGIN_MM, plan_print_jobs  # noqa: E402
@@ -48,9 +49,9 @@ from drawstring.fabrication.profiles import (  # noqa: E402
     load_profile,
     print_clearance_mm,
 )
-from drawstring.geometry.errors import InputError  # noqa: E402
-from drawstring.geometry.linkage import id_runs  # noqa: E402
-from drawstring.geometry.tolerances import PRINT_GAP_TOL_MM  # noqa: E402
+from drawstring.geometry.core.errors import InputError  # noqa: E402
+from drawstring.geometry.core.tolerances import PRINT_GAP_TOL_MM  # noqa: E402
+from drawstring.geometry.tiling.linkage import id_runs  # noqa: E402
 
 PROFILES = ("fdm-dual", "laser-epdm", "plywood-cnc")
 EXPECTED = {
@@ -982,8 +983,8 @@ def test_assembly_sections_are_numbered_in_order(built: Built) -> None:
 
 def _ring_route() -> tuple[object, object, list[int]]:
     """A closed route round a 4 x 3 grid with two lift gaps, as the pipeline builds it."""
-    from drawstring.geometry.linkage import build_linkage
-    from drawstring.geometry.route import Route
+    from drawstring.geometry.route.plan import Route
+    from drawstring.geometry.tiling.linkage import build_linkage
 
     link = build_linkage(np.ones((4, 3), dtype=bool))
     ring = [(0, 0), (1, 0), (2, 0), (3, 0), (3, 1), (3, 2), (2, 2), (1, 2), (0, 2), (0, 1)]
@@ -1028,8 +1029,8 @@ def test_every_lift_exit_of_route_json_is_in_assembly_md(
 
     from drawstring.fabrication import assembly_guide, exports
     from drawstring.fabrication.cad_stage import lift_exits, route_steps
-    from drawstring.geometry.linkage import gap_centroids, rotating_squares_layout
-    from drawstring.geometry.route import route_to_json
+    from drawstring.geometry.route.plan import route_to_json
+    from drawstring.geometry.tiling.linkage import gap_centroids, rotating_squares_layout
 
     link, route, lift_gaps = _ring_route()
     top = rotating_squares_layout(link, 0.4, 12.0)

@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import drawstring.geometry.flat as flat_module
-from drawstring.geometry.flat import extrude_flat, gap_junctions, optimize_flat
-from drawstring.geometry.linkage import Split, build_linkage
-from drawstring.geometry.tolerances import FLAT_GAP_ANGLE_TOL_DEG
-from drawstring.geometry.verify import (
+import drawstring.geometry.flat.layout as flat_module
+from drawstring.geometry.core.tolerances import FLAT_GAP_ANGLE_TOL_DEG
+from drawstring.geometry.flat.layout import extrude_flat, gap_junctions, optimize_flat
+from drawstring.geometry.flat.verify import (
     convex_polygon_overlap,
     flat_edge_errors,
     flat_overlap,
@@ -17,6 +16,7 @@ from drawstring.geometry.verify import (
     heightfield_tiles,
     interpenetration,
 )
+from drawstring.geometry.tiling.linkage import Split, build_linkage
 
 
 def _grid(n: int, size: float = 100.0):
@@ -157,7 +157,7 @@ def test_bottom_face_bounds_follow_twisted_side_faces() -> None:
 
 def _saddle_design(n: int = 8, cell: float = 12.0, radius: float = 60.0):
     """K3D/T3D (paper eq. 1) and K2D of an n x n grid on a saddle z = (x^2 - y^2) / (2 R)."""
-    from drawstring.geometry.assembled import optimize_assembled
+    from drawstring.geometry.assembled.shape import optimize_assembled
 
     linkage = build_linkage(np.ones((n, n), dtype=bool))
     uv = linkage.vertex_ij * cell - 0.5 * n * cell
@@ -177,7 +177,7 @@ def _saddle_design(n: int = 8, cell: float = 12.0, radius: float = 60.0):
 
 
 def test_co_optimization_makes_curved_tiles_flat_foldable() -> None:
-    from drawstring.geometry.coflat import co_optimize_top
+    from drawstring.geometry.flat.coflat import co_optimize_top
 
     linkage, assembled, flat, target = _saddle_design()
     # With K3D fixed the flat layout stops at its least-squares optimum.
@@ -204,7 +204,7 @@ def test_co_optimization_makes_curved_tiles_flat_foldable() -> None:
 def test_co_optimization_leaves_a_developable_layout_alone() -> None:
     # A cylinder's tiles lie flat exactly: nothing to fix, so nothing moves beyond what opening
     # the gaps by the joint solve's 0.1 deg margin above the 8 deg bound takes.
-    from drawstring.geometry.coflat import co_optimize_top
+    from drawstring.geometry.flat.coflat import co_optimize_top
 
     linkage, uv = _grid(6)
     top, tiles = heightfield_tiles(uv, linkage.tile_corners, "cylinder", 4.0, 60.0)
@@ -245,7 +245,7 @@ def test_split_parts_are_laid_out_in_the_order_in_which_they_meet() -> None:
     # three parts in a row, the outer ones larger: the middle one stays and the outer ones
     # move outwards, so the string between parts never has to cross one (placed largest
     # first, the middle part used to slide past an outer one)
-    from drawstring.geometry.linkage import rotating_squares_layout
+    from drawstring.geometry.tiling.linkage import rotating_squares_layout
 
     splits = (Split("x", 5, 0, 6), Split("x", 8, 0, 6))
     linkage = build_linkage(np.ones((14, 6), dtype=bool), splits)
@@ -270,7 +270,7 @@ def test_split_parts_clear_each_other_with_their_bottoms_too() -> None:
     (wedge tiles of a strongly curved target): placed by their top faces alone with a 2 mm
     clearance, the facing columns' bottoms overlapped; given the tiles' outlines seen from
     above, the parts clear those by the clearance."""
-    from drawstring.geometry.linkage import rotating_squares_layout
+    from drawstring.geometry.tiling.linkage import rotating_squares_layout
 
     linkage = build_linkage(np.ones((8, 4), dtype=bool), (Split("x", 4, 0, 4),))
     assert linkage.n_components == 2
@@ -325,7 +325,7 @@ def test_tile_outlines_seen_from_above_share_the_top_faces_frame() -> None:
     """A tilted 10 mm square tile whose bottom lies 3 mm under its top and 2 mm out along its
     first side: seen from above once laid flat, the top corners are the plane coordinates and
     the bottom ones are those moved 2 mm along the first side."""
-    from drawstring.geometry.flat import tile_plane_coordinates
+    from drawstring.geometry.flat.layout import tile_plane_coordinates
 
     rng = np.random.default_rng(5)
     q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
@@ -343,7 +343,7 @@ def test_tile_outlines_seen_from_above_share_the_top_faces_frame() -> None:
 def test_direct_csr_rows_match_the_coordinate_build() -> None:
     from scipy import sparse
 
-    from drawstring.geometry.constrained_lsq import _csr_rows
+    from drawstring.geometry.solve.constrained_lsq import _csr_rows
 
     rng = np.random.default_rng(5)
     cols = np.array([[7, 2, 9, 0], [1, 3, 5, 4], [8, 6, 2, 1]])
@@ -366,7 +366,7 @@ def test_the_edge_objective_keeps_its_jacobians_pattern_across_points() -> None:
     # build's, edges running either way between their nodes.
     from scipy import sparse
 
-    from drawstring.geometry.constrained_lsq import EdgeLeastSquares
+    from drawstring.geometry.solve.constrained_lsq import EdgeLeastSquares
 
     edges = np.array([[0, 3], [2, 1], [4, 0], [3, 2]])
     objective = EdgeLeastSquares(edges, np.full(4, 2.0), np.array([1.0, 2.0, 0.5, 1.5]))
@@ -407,9 +407,9 @@ def test_bottom_hinges_are_pulled_to_equal_depths_under_both_tiles() -> None:
     import types
 
     from drawstring.fabrication.layout_stage import _bottom_hinge_depths
-    from drawstring.geometry.frustums import quad_mesh_edges, side_quads
-    from drawstring.geometry.hinges import dual_hinge_faces
-    from drawstring.geometry.solver import quad_planarity
+    from drawstring.geometry.assembled.frustums import quad_mesh_edges, side_quads
+    from drawstring.geometry.hinges.placement import dual_hinge_faces
+    from drawstring.geometry.solve.solver import quad_planarity
 
     linkage, assembled, _, target = _saddle_design()
     bottom = dual_hinge_faces(linkage, assembled.tiles, 12.0).bottom
@@ -452,7 +452,7 @@ def _rotational_grid(rows: int = 5, cols: int = 6) -> tuple[np.ndarray, np.ndarr
 def test_vertex_stars_find_the_conical_vertices_of_a_grid_of_revolution() -> None:
     # Mirror symmetry about each meridian plane makes the angles of opposite quads at every
     # inner vertex sum equal (a conical mesh); moving one vertex breaks it in its stars only.
-    from drawstring.geometry.coflat import vertex_stars
+    from drawstring.geometry.flat.coflat import vertex_stars
 
     x, quads = _rotational_grid()
     stars = vertex_stars(quads)
@@ -484,10 +484,10 @@ def test_a_conical_top_lets_the_bottom_hinges_meet_in_depth() -> None:
     from dataclasses import replace
 
     from drawstring.fabrication.co_rounds import depth_pull
-    from drawstring.geometry.assembled import reextrude, tile_vertices
-    from drawstring.geometry.coflat import co_optimize_top, vertex_stars
-    from drawstring.geometry.flatpose import hinge_faces
-    from drawstring.geometry.hinges import dual_hinge_faces
+    from drawstring.geometry.assembled.shape import reextrude, tile_vertices
+    from drawstring.geometry.flat.coflat import co_optimize_top, vertex_stars
+    from drawstring.geometry.flat.pose import hinge_faces
+    from drawstring.geometry.hinges.placement import dual_hinge_faces
 
     linkage, assembled, _, target = _saddle_design()
     bottom = dual_hinge_faces(linkage, assembled.tiles, 12.0).bottom
@@ -528,7 +528,7 @@ def test_a_conical_top_lets_the_bottom_hinges_meet_in_depth() -> None:
 def test_the_joint_solves_jacobian_after_a_residual_at_the_same_point_is_a_fresh_ones() -> None:
     # The joint solve keeps the last point's planes and closest target points for the
     # Jacobian the solver asks for next at the same point; a moved point gets its own.
-    from drawstring.geometry.coflat import _JointTopLeastSquares
+    from drawstring.geometry.flat.coflat import _JointTopLeastSquares
 
     linkage, assembled, flat, target = _saddle_design(n=5)
 
@@ -550,7 +550,7 @@ def test_the_joint_solves_jacobian_after_a_residual_at_the_same_point_is_a_fresh
 
 
 def test_the_target_tree_is_built_once_per_target_and_leaves_the_callers_arrays_alone() -> None:
-    from drawstring.geometry.coflat import _target_search
+    from drawstring.geometry.flat.coflat import _target_search
 
     rng = np.random.default_rng(5)
     vertices = rng.normal(size=(30, 3))

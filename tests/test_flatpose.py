@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drawstring.geometry.flatpose import free_openings, hinge_faces, hinge_points, lay_flat
-from drawstring.geometry.hinges import hinge_sides
-from drawstring.geometry.linkage import build_linkage, slit_ends
-from drawstring.geometry.verify import heightfield_tiles, interpenetration
+from drawstring.geometry.flat.pose import free_openings, hinge_faces, hinge_points, lay_flat
+from drawstring.geometry.flat.verify import heightfield_tiles, interpenetration
+from drawstring.geometry.hinges.placement import hinge_sides
+from drawstring.geometry.tiling.linkage import build_linkage, slit_ends
 
 CLEARANCE = 0.1
 TOUCH = 1e-5
@@ -158,8 +158,8 @@ def test_windows_that_close_on_their_opening_are_released() -> None:
     """``HingeFaces.closing`` flags a slit end only when its opening stands at an end of its
     clear window and that end moved inwards on the newer tiles; ``window`` then treats a
     released end like one that never clears."""
-    from drawstring.geometry.flatpose import CLOSING_BIND_DEG, CLOSING_SHIFT_DEG, HingeFaces
-    from drawstring.geometry.tolerances import FLAT_FREE_MARGIN_DEG
+    from drawstring.geometry.core.tolerances import FLAT_FREE_MARGIN_DEG
+    from drawstring.geometry.flat.pose import CLOSING_BIND_DEG, CLOSING_SHIFT_DEG, HingeFaces
 
     deg = np.radians
     bottom = np.zeros(4, dtype=bool)
@@ -189,8 +189,8 @@ def test_windows_that_close_on_their_opening_are_released() -> None:
 def test_hinge_face_openings_match_the_extruded_tiles() -> None:
     """The openings a dual layout's hard rows bound, read back on its rigid flat tiles by the
     independent measure of ``verify`` (each slit end on its hinge face)."""
-    from drawstring.geometry.flat import extrude_flat, hinge_face_openings, optimize_flat
-    from drawstring.geometry.verify import gap_opening_angles_deg
+    from drawstring.geometry.flat.layout import extrude_flat, hinge_face_openings, optimize_flat
+    from drawstring.geometry.flat.verify import gap_opening_angles_deg
 
     linkage, uv = _grid(6, 90.0)
     top, t3 = heightfield_tiles(uv, linkage.tile_corners, "saddle", 6.0, 0.006)
@@ -212,7 +212,7 @@ def test_hinge_face_openings_match_the_extruded_tiles() -> None:
 def test_free_openings_do_not_depend_on_how_the_checks_are_split(monkeypatch) -> None:
     # The grid's checks go in one batch per core: each end is checked on its own, so the
     # windows are bitwise the same on any number of cores.
-    from drawstring.geometry import flatpose
+    from drawstring.geometry.flat import pose as flatpose
 
     linkage, uv = _grid(5, 80.0)
     _, t3 = heightfield_tiles(uv, linkage.tile_corners, "saddle", 6.0, 0.004)

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial import Delaunay
 
-from drawstring.geometry.errors import InputError
-from drawstring.geometry.flatten import (
+from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.flatten.conformal import (
     _build_system,
     _schur_complement,
     flatten,
@@ -415,7 +415,7 @@ def test_corner_choice_follows_principal_directions(
     # Principal axes at 35 degrees. The corner samples are 15 degrees apart from wherever the
     # boundary loop starts; shifting the chosen corners along the boundary brings the grid onto
     # the axes whatever the start (without the shift: 1 to 17 degrees off, as the start varies).
-    import drawstring.geometry.bff as bff
+    import drawstring.geometry.flatten.bff as bff
 
     toward = np.array([np.cos(np.radians(start_deg)), np.sin(np.radians(start_deg)), -0.27])
     monkeypatch.setattr(bff, "LOOP_START_DIRECTION", toward / np.linalg.norm(toward))
@@ -497,8 +497,8 @@ def test_corners_beside_an_ear_would_collapse_its_triangle_and_are_never_chosen(
     # triangle's area came out 0 and the tiling lifted NaN points).
     from threadpoolctl import threadpool_limits
 
-    from drawstring.geometry.flatten import _corner_allowed
-    from drawstring.geometry.target import load_target
+    from drawstring.geometry.flatten.conformal import _corner_allowed
+    from drawstring.geometry.target.surface import load_target
 
     points, faces = grid(8, 6, 80.0, 60.0)
     vertices = np.c_[points, np.zeros(len(points))]

@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drawstring.geometry.flat import extrude_flat, optimize_flat
-from drawstring.geometry.hinges import (
+from drawstring.geometry.flat.layout import extrude_flat, optimize_flat
+from drawstring.geometry.flat.verify import heightfield_tiles, hinge_gaps, interpenetration
+from drawstring.geometry.hinges.placement import (
     _held_apart,
     hinge_sides,
     hinge_trims,
@@ -17,8 +18,7 @@ from drawstring.geometry.hinges import (
     layout_hinges,
     write_flat_obj,
 )
-from drawstring.geometry.linkage import TILE_FACES, build_linkage
-from drawstring.geometry.verify import heightfield_tiles, hinge_gaps, interpenetration
+from drawstring.geometry.tiling.linkage import TILE_FACES, build_linkage
 
 
 def _grid(n: int, size: float = 100.0):
@@ -92,12 +92,12 @@ def test_dual_pairs_that_never_clear_are_trimmed_not_held_apart() -> None:
     face at every opening.  A dual layout handed these sides lays such pairs out like top
     hinges (tops apart, overlap trimmed) and their hinges meet; held apart as rigid pairs
     instead, they could not meet."""
-    from drawstring.geometry.flatpose import hinge_faces
-    from drawstring.geometry.hinges import _hinge_vertex_ids
-    from drawstring.geometry.linkage import slit_ends
-    from drawstring.geometry.rigidlayout import rigid_layout
-    from drawstring.geometry.tolerances import FLAT_INTERPENETRATION_TOL_MM3
-    from drawstring.geometry.verify import flat_overlap
+    from drawstring.geometry.core.tolerances import FLAT_INTERPENETRATION_TOL_MM3
+    from drawstring.geometry.flat.pose import hinge_faces
+    from drawstring.geometry.flat.verify import flat_overlap
+    from drawstring.geometry.hinges.placement import _hinge_vertex_ids
+    from drawstring.geometry.hinges.rigid_layout import rigid_layout
+    from drawstring.geometry.tiling.linkage import slit_ends
 
     linkage, uv = _grid(6)
     top, t3 = heightfield_tiles(uv, linkage.tile_corners, "cylinder_inside", 4.0, 40.0)
@@ -127,9 +127,9 @@ def test_a_layout_like_another_takes_its_first_planes_and_ends_the_same() -> Non
     without it."""
     from dataclasses import fields, replace
 
-    from drawstring.geometry.hinges import _hinge_vertex_ids
-    from drawstring.geometry.linkage import slit_ends
-    from drawstring.geometry.rigidlayout import rigid_layout
+    from drawstring.geometry.hinges.placement import _hinge_vertex_ids
+    from drawstring.geometry.hinges.rigid_layout import rigid_layout
+    from drawstring.geometry.tiling.linkage import slit_ends
 
     linkage, uv = _grid(6)
     top, t3 = heightfield_tiles(uv, linkage.tile_corners, "saddle", 6.0, 0.006)
@@ -210,12 +210,12 @@ def test_hinged_layout_is_valid(surface: str, strategy: str) -> None:
     """Hard requirements after the hinge layout and the merge: every gap angle (top faces and
     hinge faces) within [theta_min, 90], no footprint overlap, no 3D interpenetration (for
     ``top`` after subtracting the recorded trims)."""
-    from drawstring.geometry.tolerances import (
+    from drawstring.geometry.core.tolerances import (
         FLAT_GAP_ANGLE_TOL_DEG,
         FLAT_INTERPENETRATION_TOL_MM3,
         FLAT_OVERLAP_TOL_MM2,
     )
-    from drawstring.geometry.verify import flat_overlap, gap_opening_angles_deg
+    from drawstring.geometry.flat.verify import flat_overlap, gap_opening_angles_deg
 
     linkage, uv = _grid(8)
     top, t3 = heightfield_tiles(uv, linkage.tile_corners, surface, 6.0, 0.004)
@@ -241,7 +241,7 @@ def test_hinged_layout_is_valid(surface: str, strategy: str) -> None:
 def test_hinge_face_angle_measure() -> None:
     """A bottom-hinged slit end is measured on the bottom sides: flaring the bottoms turns
     the measured sides, and the measure follows the hinge face."""
-    from drawstring.geometry.verify import gap_opening_angles_deg
+    from drawstring.geometry.flat.verify import gap_opening_angles_deg
 
     linkage, _ = _grid(2)
     tiles = _block(1.0, 3.0)
@@ -277,7 +277,7 @@ def test_dart_tile_is_measured_as_its_convex_pieces() -> None:
     """Regression (three-shell): a non-convex tile is not its convex hull.  A square resting in
     the notch of a dart-shaped tile touches it at one point only; the hull would report an
     overlap.  Pushed ``d`` into the dart, the overlap is an L-shaped band: ``4 d - d^2``."""
-    from drawstring.geometry.verify import convex_pieces, flat_overlap, reflex_corners
+    from drawstring.geometry.flat.verify import convex_pieces, flat_overlap, reflex_corners
 
     tiles = _dart_and_square(0.0)
     assert list(reflex_corners(tiles[:, :4])) == [2, -1]
@@ -296,7 +296,7 @@ def test_dart_tile_is_measured_as_its_convex_pieces() -> None:
 def test_dual_layout_with_a_dart_tile_is_valid() -> None:
     """A 2x2 block whose centre is pulled into tile 0 (a dart with its reflex corner at the
     hinges): the layout separates the dart's convex pieces, and the result has no overlap."""
-    from drawstring.geometry.verify import flat_overlap
+    from drawstring.geometry.flat.verify import flat_overlap
 
     linkage, _ = _grid(2)
     tiles = []
@@ -351,9 +351,9 @@ def test_released_slit_ends_are_laid_out_like_pairs_that_never_clear(monkeypatch
     hinge face only (its overlap, if any, trimmed), like an end that never clears."""
     from dataclasses import replace
 
-    import drawstring.geometry.hinges as hinges_module
-    from drawstring.geometry.flatpose import hinge_faces
-    from drawstring.geometry.linkage import slit_ends
+    import drawstring.geometry.hinges.placement as hinges_module
+    from drawstring.geometry.flat.pose import hinge_faces
+    from drawstring.geometry.tiling.linkage import slit_ends
 
     linkage, uv = _grid(6)
     top, t3 = heightfield_tiles(uv, linkage.tile_corners, "saddle", 6.0, 0.006)

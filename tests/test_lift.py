@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from drawstring.geometry.errors import InputError
-from drawstring.geometry.lift import (
+from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.route.lift import (
     cluster_peaks,
     gap_adjacency,
     gap_potential_energy,
@@ -19,7 +19,7 @@ from drawstring.geometry.lift import (
     select_lift_points,
     tile_masses_from_volumes,
 )
-from drawstring.geometry.linkage import Linkage, build_linkage
+from drawstring.geometry.tiling.linkage import Linkage, build_linkage
 
 HeightField = Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
 
@@ -196,7 +196,7 @@ def test_tile_mass_of_a_box_and_a_frustum() -> None:
 
 def test_peak_on_a_split_is_lifted_at_the_next_interior_gap() -> None:
     """A dome split through its apex: the peak gap lies on the seam, the lift point next to it."""
-    from drawstring.geometry.linkage import Split, build_linkage
+    from drawstring.geometry.tiling.linkage import Split, build_linkage
 
     link = build_linkage(np.ones((8, 8), dtype=bool), (Split("y", 4, 0, 8),))
     centres = (link.tile_cells + 0.5).astype(float)
@@ -215,7 +215,7 @@ def test_peak_on_a_split_is_lifted_at_the_next_interior_gap() -> None:
 def test_a_split_dome_that_fails_every_threshold_is_lifted_part_by_part() -> None:
     """The seam through the apex leaves one peak, lifted on one side only; a check that wants
     every part lifted fails every threshold, and the last try, peaks part by part, passes."""
-    from drawstring.geometry.linkage import Split, build_linkage
+    from drawstring.geometry.tiling.linkage import Split, build_linkage
 
     link = build_linkage(np.ones((8, 8), dtype=bool), (Split("y", 4, 0, 8),))
     centres = (link.tile_cells + 0.5).astype(float)

@@ -7,7 +7,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from drawstring.geometry.linkage import Split, build_linkage, rotating_squares_layout
+from drawstring.geometry.tiling.linkage import Split, build_linkage, rotating_squares_layout
 
 
 def boundary_hinge_count(n_i: int, n_j: int) -> int:
@@ -148,8 +148,8 @@ def test_cropped_grid_has_three_tile_gap() -> None:
 
 
 def test_derived_tables_are_built_once_per_linkage_and_read_only() -> None:
-    from drawstring.geometry.flat import gap_junctions
-    from drawstring.geometry.linkage import slit_ends
+    from drawstring.geometry.flat.layout import gap_junctions
+    from drawstring.geometry.tiling.linkage import slit_ends
 
     linkage = build_linkage(np.ones((4, 3), dtype=bool))
     calls: list[int] = []

@@ -9,12 +9,12 @@ import threading
 import numpy as np
 import pytest
 
-from drawstring.geometry import parallel
-from drawstring.geometry.flat import extrude_flat, optimize_flat
-from drawstring.geometry.flatpose import free_openings, lay_flat
-from drawstring.geometry.hinges import hinge_sides, layout_hinges
-from drawstring.geometry.linkage import build_linkage
-from drawstring.geometry.verify import heightfield_tiles
+from drawstring.geometry.core import parallel
+from drawstring.geometry.flat.layout import extrude_flat, optimize_flat
+from drawstring.geometry.flat.pose import free_openings, lay_flat
+from drawstring.geometry.flat.verify import heightfield_tiles
+from drawstring.geometry.hinges.placement import hinge_sides, layout_hinges
+from drawstring.geometry.tiling.linkage import build_linkage
 
 
 def test_blocks_come_back_in_order_from_several_threads(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -22,10 +22,10 @@ from drawstring.fabrication.pipeline import (
     split_bound,
 )
 from drawstring.fabrication.profiles import load_profile
-from drawstring.geometry import parallel
-from drawstring.geometry.coflat import CO_CONICAL
-from drawstring.geometry.linkage import build_linkage, gap_centroids, rotating_squares_layout
-from drawstring.geometry.route import plan_route
+from drawstring.geometry.core import parallel
+from drawstring.geometry.flat.coflat import CO_CONICAL
+from drawstring.geometry.route.plan import plan_route
+from drawstring.geometry.tiling.linkage import build_linkage, gap_centroids, rotating_squares_layout
 
 
 def flat_boxes(link, side: float = 10.0, thickness: float = 3.0) -> np.ndarray:
@@ -1012,8 +1012,8 @@ def test_clear_windows_closing_on_their_openings_are_released(monkeypatch) -> No
     # A joint solve that presses an opening against its clear window, while its move of K3D
     # closes that window, strands every re-solve; from the next round on such a slit end is
     # laid out without its window (the hinge stage trims the pair), and stays released.
-    from drawstring.geometry.flat import hinge_face_openings
-    from drawstring.geometry.tolerances import FLAT_FREE_MARGIN_DEG
+    from drawstring.geometry.core.tolerances import FLAT_FREE_MARGIN_DEG
+    from drawstring.geometry.flat.layout import hinge_face_openings
 
     shaped, eq1, faces, plain = _saddle_before_co_optimization()
     linkage = shaped.tiling.linkage
@@ -1114,7 +1114,7 @@ def test_the_ahead_process_tags_its_log_lines_once() -> None:
     import logging
 
     record = logging.LogRecord(
-        "drawstring.geometry.flat", logging.INFO, "f.py", 1, "flat: %d", (3,), None
+        "drawstring.geometry.flat.layout", logging.INFO, "f.py", 1, "flat: %d", (3,), None
     )
     from drawstring.fabrication.ahead import tag_ahead
 
@@ -1154,7 +1154,7 @@ def test_a_tile_size_refusal_names_the_problems_a_new_size_may_not_mend() -> Non
     # Tiles too small for the lift bores are refused before any solid; where the design has a
     # problem besides, the one line names it (a new --size alone may not give a design).
     from drawstring.fabrication.pipeline import with_cad
-    from drawstring.geometry.errors import InputError
+    from drawstring.geometry.core.errors import InputError
 
     options = DesignOptions(grid=(10, 8), resolution=1500, size_mm=30.0, simulate=False, cad=False)
     result = design("saddle", options)

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from drawstring.fabrication.profiles import SHIPPED_PROFILES, load_profile, parse_profile
-from drawstring.geometry.errors import InputError
+from drawstring.geometry.core.errors import InputError
 
 
 @pytest.mark.parametrize("name", SHIPPED_PROFILES)

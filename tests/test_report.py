@@ -27,8 +27,8 @@ import numpy as np
 import pytest
 
 from drawstring.fabrication import report
-from drawstring.geometry.errors import InputError
-from drawstring.geometry.linkage import Linkage, build_linkage, rotating_squares_layout
+from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.tiling.linkage import Linkage, build_linkage, rotating_squares_layout
 
 SIDE = 20.0  # mm, tile edge of the fake design
 THICKNESS = 6.0  # mm
@@ -603,7 +603,7 @@ def test_page_without_geometry_in_a_real_browser(tmp_path: Path, browser: Browse
 
 def _two_part_layout() -> tuple[Linkage, np.ndarray]:
     """A 4 x 3 grid split through in two parts, the right part moved 80 mm away."""
-    from drawstring.geometry.linkage import Split
+    from drawstring.geometry.tiling.linkage import Split
 
     link = build_linkage(np.ones((4, 3), dtype=bool), (Split("x", 2, 0, 3),))
     tiles = fake_tiles(link, OPENING, 0.0)
@@ -690,7 +690,7 @@ def test_flat_picture_legend_lists_only_the_hinges_and_trims_the_design_has() ->
     import matplotlib.pyplot as plt
 
     from drawstring.fabrication import pictures
-    from drawstring.geometry.hinges import HingeTrim
+    from drawstring.geometry.hinges.placement import HingeTrim
 
     points = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
     fig, ax = plt.subplots()

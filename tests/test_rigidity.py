@@ -5,12 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from sim_scene import DeploymentScene, cylinder_scene
 
-from drawstring.geometry import simulate as S
-from drawstring.geometry.rigidity import rigid_motion_basis, rigidity_matrix, rigidity_report
+from drawstring.geometry.assembled.rigidity import (
+    rigid_motion_basis,
+    rigidity_matrix,
+    rigidity_report,
+)
+from drawstring.geometry.simulate import deploy as S
 
 
-def generic(scene: S.DeploymentScene, seed: int = 0) -> np.ndarray:
+def generic(scene: DeploymentScene, seed: int = 0) -> np.ndarray:
     """The scene's assembled tiles moved into generic position (exact cylinders are special)."""
     rng = np.random.default_rng(seed)
     return scene.tiles_assembled + rng.normal(scale=0.3, size=scene.tiles_assembled.shape)
@@ -18,7 +23,7 @@ def generic(scene: S.DeploymentScene, seed: int = 0) -> np.ndarray:
 
 @pytest.mark.parametrize("n", [3, 4])
 def test_boundary_string_makes_linkage_isostatic(n: int) -> None:
-    scene = S.cylinder_scene(n, n)
+    scene = cylinder_scene(n, n)
     pairs, _ = S.route_snap_pairs(scene.route)
     tiles = generic(scene)
     with_string = rigidity_report(tiles, scene.hinge_vertices, pairs)
@@ -32,7 +37,7 @@ def test_boundary_string_makes_linkage_isostatic(n: int) -> None:
 
 
 def test_rigid_motions_are_in_the_null_space() -> None:
-    scene = S.cylinder_scene(3, 3)
+    scene = cylinder_scene(3, 3)
     pairs, _ = S.route_snap_pairs(scene.route)
     mat = rigidity_matrix(scene.tiles_assembled, scene.hinge_vertices, pairs)
     basis = rigid_motion_basis(scene.tiles_assembled)
@@ -41,7 +46,7 @@ def test_rigid_motions_are_in_the_null_space() -> None:
 
 
 def test_flexes_are_orthogonal_to_rigid_motions_and_move_nothing() -> None:
-    scene = S.cylinder_scene(3, 3)
+    scene = cylinder_scene(3, 3)
     tiles = generic(scene, 1)
     rep = rigidity_report(tiles, scene.hinge_vertices)
     centred = (tiles - tiles.reshape(-1, 3).mean(axis=0)) / np.linalg.norm(
@@ -58,10 +63,10 @@ def test_exact_cylinder_special_position() -> None:
 
     Face contact (three points per contact) removes them on small grids.
     """
-    s3 = S.cylinder_scene(3, 3)
+    s3 = cylinder_scene(3, 3)
     p3, _ = S.route_snap_pairs(s3.route)
     assert rigidity_report(s3.tiles_assembled, s3.hinge_vertices, p3).null_dimension == 6
-    s4 = S.cylinder_scene(4, 4)
+    s4 = cylinder_scene(4, 4)
     p4, _ = S.route_snap_pairs(s4.route)
     assert rigidity_report(s4.tiles_assembled, s4.hinge_vertices, p4).internal_flexes > 0
     face = rigidity_report(s4.tiles_assembled, s4.hinge_vertices, p4, contact="face")
@@ -73,9 +78,9 @@ def test_sparse_eigensolve_agrees_with_the_dense_svd(
     with_string: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Large linkages take the sparse path; on a small one both paths find the same motions."""
-    from drawstring.geometry import rigidity
+    from drawstring.geometry.assembled import rigidity
 
-    scene = S.cylinder_scene(4, 4)
+    scene = cylinder_scene(4, 4)
     pairs = S.route_snap_pairs(scene.route)[0] if with_string else np.zeros((0, 4), int)
     tiles = generic(scene, 2)
     dense = rigidity_report(tiles, scene.hinge_vertices, pairs)
@@ -98,7 +103,7 @@ def test_sparse_eigensolve_factors_a_gram_matrix_whose_shift_vanishes() -> None:
     null vector is still found."""
     import scipy.sparse.linalg as spla
 
-    from drawstring.geometry import rigidity
+    from drawstring.geometry.assembled import rigidity
 
     rng = np.random.default_rng(3)
     col = np.zeros((40, 1))
@@ -117,7 +122,7 @@ def test_sparse_eigensolve_factors_a_gram_matrix_whose_shift_vanishes() -> None:
 def test_flex_count_ignores_eigensolver_noise_on_the_rigid_motions() -> None:
     # The sparse eigensolve returns the rigid motions only to about 1e-5 (the 1600-tile saddle);
     # such a null space with two true flexes has two internal flexes, not eight.
-    from drawstring.geometry.rigidity import internal_flexes
+    from drawstring.geometry.assembled.rigidity import internal_flexes
 
     rng = np.random.default_rng(3)
     tiles = rng.normal(size=(30, 8, 3))

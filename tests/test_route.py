@@ -10,15 +10,8 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from drawstring.geometry.errors import DesignError
-from drawstring.geometry.linkage import (
-    Linkage,
-    Split,
-    build_linkage,
-    gap_centroids,
-    rotating_squares_layout,
-)
-from drawstring.geometry.route import (
+from drawstring.geometry.core.errors import DesignError
+from drawstring.geometry.route.plan import (
     MILP_NODE_LIMIT,
     NODE_ENTRANCE,
     NODE_SPLIT,
@@ -31,7 +24,14 @@ from drawstring.geometry.route import (
     route_metrics,
     route_to_json,
 )
-from drawstring.geometry.tiling import parts_in_place
+from drawstring.geometry.tiling.grid import parts_in_place
+from drawstring.geometry.tiling.linkage import (
+    Linkage,
+    Split,
+    build_linkage,
+    gap_centroids,
+    rotating_squares_layout,
+)
 
 
 def _centroids(linkage: Linkage, opening: float = 0.5) -> NDArray[np.float64]:
@@ -208,7 +208,7 @@ def test_an_unreachable_lift_gap_is_reported_not_faked() -> None:
 
 def test_an_unreachable_lift_moves_to_the_nearest_gap_the_string_passes() -> None:
     from drawstring.fabrication.pipeline import plan_lift_route
-    from drawstring.geometry.lift import nearby_lift_gaps
+    from drawstring.geometry.route.lift import nearby_lift_gaps
 
     linkage = build_linkage(np.ones((4, 4), dtype=bool))
     pos = _centroids(linkage)
@@ -230,7 +230,7 @@ def test_an_unreachable_lift_moves_to_the_nearest_gap_the_string_passes() -> Non
 
 
 def test_nearby_lift_gaps_stay_in_the_part_and_are_sorted_by_distance() -> None:
-    from drawstring.geometry.lift import nearby_lift_gaps
+    from drawstring.geometry.route.lift import nearby_lift_gaps
 
     linkage = build_linkage(np.ones((8, 8), dtype=bool), (Split("x", 4, 0, 8),))
     pos = _centroids(linkage)
@@ -451,7 +451,7 @@ def test_an_unreachable_lift_moves_to_a_gap_a_new_route_reaches(monkeypatch: Any
     # The candidates on the first route are hidden here so that this branch runs; in a 4 x 6
     # grid this lift gap is unreachable and some of its neighbours off the route are not.
     import drawstring.fabrication.pipeline as pipeline
-    from drawstring.geometry.lift import nearby_lift_gaps
+    from drawstring.geometry.route.lift import nearby_lift_gaps
 
     linkage = build_linkage(np.ones((4, 6), dtype=bool))
     pos = _centroids(linkage)
@@ -488,7 +488,7 @@ def test_a_lift_no_nearby_gap_serves_stays_missed(monkeypatch: Any) -> None:
 def test_every_route_solve_is_bounded_by_nodes_not_by_time(monkeypatch: Any) -> None:
     """The route must not depend on the machine's speed: every integer-program solve gets a node
     budget, and its time limit is only the safety net."""
-    from drawstring.geometry import route_milp
+    from drawstring.geometry.route import milp as route_milp
 
     seen: list[dict[str, Any]] = []
     real = route_milp.milp
@@ -518,8 +518,8 @@ def test_every_route_solve_is_bounded_by_nodes_not_by_time(monkeypatch: Any) -> 
 def test_a_window_out_of_nodes_is_tried_with_more_before_it_grows(monkeypatch: Any) -> None:
     """A window whose root node finds no path (and proves none missing) gets the next node
     budget on the same window; a window proved to hold no path is left for a larger one."""
-    from drawstring.geometry import route_heuristics
-    from drawstring.geometry.route_milp import NodeBudgetError
+    from drawstring.geometry.route import loops as route_heuristics
+    from drawstring.geometry.route.milp import NodeBudgetError
 
     real = route_heuristics._solve_cycle
     cells = np.ones((16, 12), dtype=bool)
@@ -575,8 +575,8 @@ def test_a_solve_without_a_route_is_out_of_nodes_only_at_the_node_limit(
     do not (more nodes would only take longer)."""
     from types import SimpleNamespace
 
-    from drawstring.geometry import route_milp
-    from drawstring.geometry.route_milp import NodeBudgetError
+    from drawstring.geometry.route import milp as route_milp
+    from drawstring.geometry.route.milp import NodeBudgetError
 
     def no_route(*args: Any, **kwargs: Any) -> Any:
         return SimpleNamespace(status=status, message=message, x=None, fun=None)
@@ -595,8 +595,8 @@ def test_a_solve_stopped_by_the_safety_time_limit_says_so_once(monkeypatch: Any)
     for more nodes."""
     from types import SimpleNamespace
 
-    from drawstring.geometry import route_milp
-    from drawstring.geometry.route_milp import NodeBudgetError
+    from drawstring.geometry.route import milp as route_milp
+    from drawstring.geometry.route.milp import NodeBudgetError
 
     real = route_milp.milp
     stopped: list[int] = []

@@ -6,30 +6,31 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from sim_scene import DeploymentScene, boundary_loop_route, cylinder_scene
 
-from drawstring.geometry import simgroups
-from drawstring.geometry import simulate as S
-from drawstring.geometry.errors import InputError
-from drawstring.geometry.rigid import rigid_copies
-
-
-@pytest.fixture(scope="module")
-def scene2() -> S.DeploymentScene:
-    return S.cylinder_scene(2, 2)
+from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.rigid import rigid_copies
+from drawstring.geometry.simulate import deploy as S
+from drawstring.geometry.simulate import groups as simgroups
 
 
 @pytest.fixture(scope="module")
-def scene4() -> S.DeploymentScene:
-    return S.cylinder_scene(4, 4)
+def scene2() -> DeploymentScene:
+    return cylinder_scene(2, 2)
 
 
-def centre_gap(scene: S.DeploymentScene) -> int:
+@pytest.fixture(scope="module")
+def scene4() -> DeploymentScene:
+    return cylinder_scene(4, 4)
+
+
+def centre_gap(scene: DeploymentScene) -> int:
     link = scene.linkage
     centre = np.array(link.grid_shape) / 2.0
     return int(np.argmin(np.linalg.norm(link.vertex_ij[link.gap_vertex] - centre, axis=1)))
 
 
-def run(scene: S.DeploymentScene, *, string: bool = True, lift: bool = False) -> S.SimulationResult:
+def run(scene: DeploymentScene, *, string: bool = True, lift: bool = False) -> S.SimulationResult:
     pairs, gaps = S.route_snap_pairs(scene.route)
     verts, targets = S.lift_targets_for_gaps(
         scene.linkage, scene.tiles_assembled, [centre_gap(scene)] if lift else []
@@ -49,7 +50,7 @@ def run(scene: S.DeploymentScene, *, string: bool = True, lift: bool = False) ->
     )
 
 
-def test_scene_is_exact(scene4: S.DeploymentScene) -> None:
+def test_scene_is_exact(scene4: DeploymentScene) -> None:
     """Flat and assembled tiles are congruent; hinges and route faces coincide in T3D."""
     flat, goal = scene4.tiles_flat, scene4.tiles_assembled
     assert np.allclose(S.tile_edge_lengths(flat), S.tile_edge_lengths(goal), atol=1e-9)
@@ -74,7 +75,7 @@ def test_route_snap_pairs_wrap_and_skip() -> None:
         S.route_snap_pairs([(0, 0, 0, 1)])
 
 
-def test_kabsch_deviation_ignores_rigid_motion(scene2: S.DeploymentScene) -> None:
+def test_kabsch_deviation_ignores_rigid_motion(scene2: DeploymentScene) -> None:
     tiles = scene2.tiles_assembled
     angle = 0.7
     rot = np.array(
@@ -84,7 +85,7 @@ def test_kabsch_deviation_ignores_rigid_motion(scene2: S.DeploymentScene) -> Non
     assert S.kabsch_deviation(moved, tiles).max() < 1e-9
 
 
-def test_2x2_deploys(scene2: S.DeploymentScene) -> None:
+def test_2x2_deploys(scene2: DeploymentScene) -> None:
     res = run(scene2)
     side = S.mean_tile_side(scene2.tiles_assembled)
     assert res.deployed, res.reasons
@@ -94,7 +95,7 @@ def test_2x2_deploys(scene2: S.DeploymentScene) -> None:
     assert np.allclose(res.frames[0], scene2.tiles_flat, atol=1e-5)
 
 
-def test_4x4_deploys_with_centre_lift(scene4: S.DeploymentScene) -> None:
+def test_4x4_deploys_with_centre_lift(scene4: DeploymentScene) -> None:
     res = run(scene4, lift=True)
     side = S.mean_tile_side(scene4.tiles_assembled)
     assert res.deployed, res.reasons
@@ -110,7 +111,7 @@ def test_4x4_deploys_with_centre_lift(scene4: S.DeploymentScene) -> None:
     assert block["deployed"] is True and block["steps"] == res.steps
 
 
-def test_without_string_nothing_deploys(scene4: S.DeploymentScene) -> None:
+def test_without_string_nothing_deploys(scene4: DeploymentScene) -> None:
     res = run(scene4, string=False)
     assert not res.deployed
     # The tiles stay (close to) flat on the table: nothing pulls them together.
@@ -118,7 +119,7 @@ def test_without_string_nothing_deploys(scene4: S.DeploymentScene) -> None:
     assert np.ptp(res.frames[-1][..., 2]) < 1.5 * scene4.thickness
 
 
-def test_open_gaps_reported_when_stuck(scene4: S.DeploymentScene) -> None:
+def test_open_gaps_reported_when_stuck(scene4: DeploymentScene) -> None:
     """A step budget too small to reel the string in reports the open route gaps."""
     pairs, gaps = S.route_snap_pairs(scene4.route)
     res = S.simulate_deployment(
@@ -134,7 +135,7 @@ def test_open_gaps_reported_when_stuck(scene4: S.DeploymentScene) -> None:
     assert set(res.open_gaps) <= set(gaps.tolist()) and len(res.open_gaps) > 0
 
 
-def test_deploy_check_plugs_into_lift_sweep(scene2: S.DeploymentScene) -> None:
+def test_deploy_check_plugs_into_lift_sweep(scene2: DeploymentScene) -> None:
     check = S.deploy_check_from_simulation(
         scene2.linkage,
         scene2.tiles_flat,
@@ -147,7 +148,7 @@ def test_deploy_check_plugs_into_lift_sweep(scene2: S.DeploymentScene) -> None:
 
 
 def test_bad_input() -> None:
-    scene = S.cylinder_scene(2, 2)
+    scene = cylinder_scene(2, 2)
     with pytest.raises(InputError):
         S.simulate_deployment(
             scene.linkage, scene.tiles_flat[:, :4], scene.tiles_assembled, scene.hinge_vertices, []
@@ -156,7 +157,7 @@ def test_bad_input() -> None:
 
 def test_8x8_deploys_with_gravity() -> None:
     """A 64-tile linkage closes its boundary, curls up and locks within the step budget."""
-    scene = S.cylinder_scene(8, 8)
+    scene = cylinder_scene(8, 8)
     res = run(scene, lift=True)
     side = S.mean_tile_side(scene.tiles_assembled)
     assert res.deployed, res.reasons
@@ -166,7 +167,7 @@ def test_8x8_deploys_with_gravity() -> None:
     assert res.max_edge_error_mm <= 0.005 * side
 
 
-def test_simulate_stage_takes_route_object(scene2: S.DeploymentScene) -> None:
+def test_simulate_stage_takes_route_object(scene2: DeploymentScene) -> None:
     class Route:
         steps = np.array(scene2.route)
         gaps, tiles, enter_side, leave_side = steps.T
@@ -184,7 +185,7 @@ def test_simulate_stage_takes_route_object(scene2: S.DeploymentScene) -> None:
     assert np.array_equal(S.route_steps(Route()), np.array(scene2.route))
 
 
-def test_snap_goal_length_zero_only_for_touching_faces(scene4: S.DeploymentScene) -> None:
+def test_snap_goal_length_zero_only_for_touching_faces(scene4: DeploymentScene) -> None:
     pairs, _ = S.route_snap_pairs(scene4.route)
     assert np.allclose(S.snap_goal_length(scene4.tiles_assembled, pairs), 0.0, atol=1e-9)
     faces = S.contact_face_pairs(scene4.linkage)
@@ -195,7 +196,7 @@ def test_snap_goal_length_zero_only_for_touching_faces(scene4: S.DeploymentScene
     assert S.snap_goal_length(scene4.tiles_assembled, far)[0] > 5.0
 
 
-def test_deploy_npz_is_byte_identical(tmp_path: Path, scene2: S.DeploymentScene) -> None:
+def test_deploy_npz_is_byte_identical(tmp_path: Path, scene2: DeploymentScene) -> None:
     res = run(scene2)
     a = S.save_deploy_npz(res, tmp_path / "a.npz")
     b = S.save_deploy_npz(res, tmp_path / "b.npz")
@@ -205,18 +206,18 @@ def test_deploy_npz_is_byte_identical(tmp_path: Path, scene2: S.DeploymentScene)
         assert np.array_equal(data["frames"], res.frames)
 
 
-def split_scene() -> S.DeploymentScene:
+def split_scene() -> DeploymentScene:
     """The 4 x 4 cylinder scene with a cut between columns 1 and 2 in rows 0 and 1."""
-    from drawstring.geometry.linkage import Split, build_linkage
+    from drawstring.geometry.tiling.linkage import Split, build_linkage
 
-    base = S.cylinder_scene(4, 4)
+    base = cylinder_scene(4, 4)
     link = build_linkage(np.ones((4, 4), dtype=bool), (Split("x", 2, 0, 2),))
-    return S.DeploymentScene(
+    return DeploymentScene(
         linkage=link,
         tiles_flat=base.tiles_flat,
         tiles_assembled=base.tiles_assembled,
         hinge_vertices=S.hinge_vertex_pairs(link),
-        route=S.boundary_loop_route(link),
+        route=boundary_loop_route(link),
         thickness=base.thickness,
     )
 
@@ -228,7 +229,7 @@ def test_split_contact_pairs_are_the_unhinged_edge_neighbours() -> None:
     got = {(tuple(cells[a]), sa, tuple(cells[b]), sb) for a, sa, b, sb in pairs.tolist()}
     assert got == {((1, 0), 1, (2, 0), 3), ((1, 1), 1, (2, 1), 3)}
     # Without a split every edge neighbour is hinged.
-    assert len(S.split_contact_pairs(S.cylinder_scene(3, 3).linkage)) == 0
+    assert len(S.split_contact_pairs(cylinder_scene(3, 3).linkage)) == 0
     # In the assembled state the split faces touch (same as hinged contact faces).
     assert np.all(S.snap_goal_length(scene.tiles_assembled, pairs) < 1e-9)
 
@@ -260,7 +261,7 @@ def test_split_linkage_deploys_with_magnets() -> None:
     assert res.max_penetration_mm <= 0.01 * side
 
 
-def test_frames_are_exactly_rigid(scene4: S.DeploymentScene) -> None:
+def test_frames_are_exactly_rigid(scene4: DeploymentScene) -> None:
     """Every step ends with each tile replaced by a rigid copy of its rest shape."""
     res = run(scene4, lift=True)
     assert res.deployed, res.reasons
@@ -271,7 +272,7 @@ def test_frames_are_exactly_rigid(scene4: S.DeploymentScene) -> None:
 
 
 def test_rigid_fit_is_the_closest_rigid_copy() -> None:
-    scene = S.cylinder_scene(2, 2)
+    scene = cylinder_scene(2, 2)
     rest = scene.tiles_flat - scene.tiles_flat.mean(axis=1, keepdims=True)
     moved = scene.tiles_assembled + np.random.default_rng(0).normal(0.0, 0.05, (4, 8, 3))
     fit = rigid_copies(rest, moved)
@@ -282,7 +283,7 @@ def test_rigid_fit_is_the_closest_rigid_copy() -> None:
 
 def test_table_contact_pivots_a_tile_instead_of_shoving_it() -> None:
     """A tilted tile dipping below the table is raised about its low corner, rigidly."""
-    scene = S.cylinder_scene(2, 2)
+    scene = cylinder_scene(2, 2)
     tile = scene.tiles_flat[:1].copy()
     rest = tile - tile.mean(axis=1, keepdims=True)
     angle = 0.2
@@ -317,7 +318,7 @@ def test_best_rotations_match_the_svd_kabsch() -> None:
         np.testing.assert_allclose(np.linalg.det(got), 1.0, atol=1e-12)
 
 
-def test_faces_stick_only_face_on_face(scene4: S.DeploymentScene) -> None:
+def test_faces_stick_only_face_on_face(scene4: DeploymentScene) -> None:
     """Static friction engages for contact faces that lie face on face (assembled), never in
     the flat pose, where hinged neighbours are rotated apart."""
     faces = S.contact_face_pairs(scene4.linkage)
@@ -334,7 +335,7 @@ def test_faces_stick_only_face_on_face(scene4: S.DeploymentScene) -> None:
     assert not stick[0] and stick[np.all(faces[:, [0, 2]] != a, axis=1)].all()
 
 
-def test_a_lift_gap_off_the_route_is_not_pulled(scene4: S.DeploymentScene) -> None:
+def test_a_lift_gap_off_the_route_is_not_pulled(scene4: DeploymentScene) -> None:
     """The string leaves the structure only where the route passes: a lift gap the route does
     not reach changes nothing; a stuck run says why and where."""
     steps = np.array(scene4.route)
@@ -353,11 +354,11 @@ def test_a_lift_gap_off_the_route_is_not_pulled(scene4: S.DeploymentScene) -> No
     assert block["reasons"] == list(without.reasons)
 
 
-def test_lean_solver_steps_are_bitwise_the_plain_ones(scene4: S.DeploymentScene) -> None:
+def test_lean_solver_steps_are_bitwise_the_plain_ones(scene4: DeploymentScene) -> None:
     """The simulation's groups on the lean solver (column-summed energies, whole-array global
     and Anderson steps) give bitwise the iterates of the plain solver; the cached inertia
     rows and contact axes follow new targets and axes."""
-    from drawstring.geometry.solver import LocalGlobalSolver
+    from drawstring.geometry.solve.solver import LocalGlobalSolver
 
     flat = scene4.tiles_flat
     n = flat.size // 3

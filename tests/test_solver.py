@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drawstring.geometry.errors import InputError
-from drawstring.geometry.solver import (
+from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.solve.solver import (
     ClosenessToPlanes,
     ClosenessToPoints,
     ClosenessToSurface,
@@ -421,7 +421,7 @@ def test_planarize_quads_exact_and_respects_fixed() -> None:
 def test_planarize_quads_pull_trades_a_wanted_move_against_distance() -> None:
     """A pull the planarity allows is met to w / (1 + w) (nearest point of |s|^2 + w (s - d)^2);
     one the planarity forbids moves nothing out of the plane."""
-    from drawstring.geometry.solver import LinearPull
+    from drawstring.geometry.solve.solver import LinearPull
 
     square = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
     quads = np.array([[0, 1, 2, 3]])

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from drawstring.geometry import spd as spd_module
-from drawstring.geometry.spd import SpdSolver, _widest_row, upper_triangle, with_diagonal
+from drawstring.geometry.solve import spd as spd_module
+from drawstring.geometry.solve.spd import SpdSolver, _widest_row, upper_triangle, with_diagonal
 
 
 def spd(n: int, density: float, seed: int) -> sp.csc_matrix:

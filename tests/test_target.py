@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from drawstring.geometry.errors import InputError
-from drawstring.geometry.meshfiles import merge_coincident_vertices, read_mesh
-from drawstring.geometry.target import (
+from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.target.meshfiles import merge_coincident_vertices, read_mesh
+from drawstring.geometry.target.surface import (
     Target,
     load_target,
     validate_disk_mesh,

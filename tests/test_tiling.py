@@ -6,8 +6,8 @@ import igl
 import numpy as np
 import pytest
 
-from drawstring.geometry.errors import InputError
-from drawstring.geometry.tiling import grid_shape_for, lift_points, tile_surface
+from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.tiling.grid import grid_shape_for, lift_points, tile_surface
 
 
 def plane_patch(width: float, height: float, n: int = 21) -> tuple[np.ndarray, np.ndarray]:
@@ -115,8 +115,8 @@ def test_every_split_part_keeps_a_tile_on_the_outer_boundary() -> None:
     (its string route then missed it); now another cut serves, with the same largest ratio."""
     import math
 
-    from drawstring.geometry.flatten import flatten
-    from drawstring.geometry.target import load_target
+    from drawstring.geometry.flatten.conformal import flatten
+    from drawstring.geometry.target.surface import load_target
 
     target = load_target("three-shell", size_mm=200.0)
     uv = flatten(target.vertices, target.faces).uv

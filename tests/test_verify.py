@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drawstring.geometry.verify import (
+from drawstring.geometry.flat.verify import (
     assembled_overlap,
     convex_penetration_depth,
     polygon_in_convex_polyhedron_area,
