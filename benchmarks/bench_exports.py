@@ -30,6 +30,7 @@ from drawstring.cad.design import build_design_solids
 from drawstring.cad.tiles import move_solid
 from drawstring.fabrication.exports import write_fabrication
 from drawstring.fabrication.profiles import load_profile
+from drawstring.output.assembly_guide import write_guide
 
 TARGET_S = 30.0
 CELLS = (10, 20)
@@ -88,6 +89,7 @@ def run(
                 cad_flat=flat,
                 cad_assembled=assembled,
                 design_name="bench",
+                guide=write_guide,
                 workers=workers,
             )
             wall = time.perf_counter() - wall_start

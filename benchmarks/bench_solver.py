@@ -34,12 +34,6 @@ import time
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.fabrication.pipeline import (
-    DesignOptions,
-    ResolvedOptions,
-    resolve_options,
-    split_bound,
-)
 from drawstring.fabrication.profiles import load_profile
 from drawstring.geometry.assembled.shape import (
     ANDERSON_HISTORY,
@@ -59,6 +53,9 @@ from drawstring.geometry.solve.solver import (
 from drawstring.geometry.target.builtins import BUILTIN_TARGETS
 from drawstring.geometry.target.surface import Target, load_target
 from drawstring.geometry.tiling.grid import Tiling, tile_surface
+from drawstring.pipeline.layout_stage import split_bound
+from drawstring.pipeline.record import DesignOptions, ResolvedOptions
+from drawstring.pipeline.run import resolve_options
 
 PATCH_MM = 200.0
 

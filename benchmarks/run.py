@@ -91,7 +91,8 @@ def pipeline_rows(
     (``weights``: paper eq. 1 weights other than the default).  With ``repeat``, each design
     runs that many times and the row holds the run with the least layout time (the designs
     are the same; the machine's speed is not)."""
-    from drawstring.fabrication.pipeline import DesignOptions, design
+    from drawstring.pipeline.record import DesignOptions
+    from drawstring.pipeline.run import design
 
     def layout_s(result: Any) -> float:
         return float(sum(result.timings_s.get(k, 0.0) for k in ("flat", "co-optimize", "hinges")))

@@ -283,7 +283,7 @@ def route_length(
     straight runs between consecutive openings.
 
     ``bores`` (L, 2) ``(tile, side)`` are the lift bores
-    (:func:`~drawstring.fabrication.cad_stage.lift_bores`): where both tiles of a crossing
+    (:func:`~drawstring.pipeline.cad_stage.lift_bores`): where both tiles of a crossing
     have one on the contact face between them, the string comes up one bore, runs over the
     gap from top face to top face and goes down the other instead of straight across.  (A
     route passes each tile once, ``Route.tiles_passed_once``, so a contact face is crossed at

@@ -29,7 +29,7 @@ import json
 import logging
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -39,27 +39,27 @@ from numpy.typing import NDArray
 
 from drawstring.cad.design import normalize_route
 from drawstring.cad.paths import route_lengths
-from drawstring.fabrication import exports_3mf as m3f
-from drawstring.fabrication.assembly_guide import _write_assembly, write_pictures
-from drawstring.fabrication.exports_beds import (
+from drawstring.fabrication import mesh3mf as m3f
+from drawstring.fabrication.beds import (
     footprint_mm,
     jobs_on_bed,
     loose_pads_and_beds,
     nested_tiles,
 )
-from drawstring.fabrication.exports_dxf import (
+from drawstring.fabrication.dxf import (
     Nesting,
     nest_parts,
     write_sheets_dxf,
 )
-from drawstring.fabrication.exports_panels import CableRun, Panel, cable_runs, tile_panels
-from drawstring.fabrication.exports_parts import strip_part, write_placement
-from drawstring.fabrication.exports_step import (
+from drawstring.fabrication.panels import CableRun, Panel, cable_runs, tile_panels
+from drawstring.fabrication.parts import strip_part, write_placement
+from drawstring.fabrication.profiles import string_is_cable
+from drawstring.fabrication.record import AssemblyGuide, ExportRecord, GuideInputs
+from drawstring.fabrication.step import (
     finish_step_writers,
     start_step_writers,
     stop_step_writers,
 )
-from drawstring.fabrication.profiles import string_is_cable
 
 if TYPE_CHECKING:
     from drawstring.cad.design import CadResult
@@ -240,21 +240,6 @@ def measure_fabrication(
     )
 
 
-@dataclass
-class _Record:
-    """What the exports measured, for bom.csv and manifest.json."""
-
-    bom: list[dict[str, Any]] = field(default_factory=list)
-    estimates: dict[str, Any] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-    jobs: list[dict[str, Any]] = field(default_factory=list)
-    sheets: dict[str, Any] = field(default_factory=dict)
-    #: tiles without an engraved number
-    unlabelled: list[int] = field(default_factory=list)
-    #: tiles with an overlap cut away (hinges.json trims)
-    trimmed: list[int] = field(default_factory=list)
-
-
 # --------------------------------------------------------------------------------------------
 # STEP
 
@@ -270,7 +255,7 @@ def _fdm_exports(
     hinges: NDArray[np.int64],
     cad_flat: CadResult,
     design_name: str,
-    record: _Record,
+    record: ExportRecord,
     workers: int | None,
     with_pads: bool,
     file_name: str,
@@ -375,7 +360,7 @@ def _strip_parts(
     hinges: NDArray[np.int64],
     hinge_side: Sequence[str],
     cad_flat: CadResult,
-    record: _Record,
+    record: ExportRecord,
 ) -> tuple[list[Any], list[tuple[int, str, NDArray[np.float64]]]]:
     parts = []
     placed = []
@@ -478,6 +463,7 @@ def write_fabrication(
     cad_assembled: CadResult,
     design_name: str,
     workers: int | None = None,
+    guide: AssemblyGuide | None = None,
 ) -> list[str]:
     """Write every fabrication file of the profile's process under ``folder / "fabrication"``.
 
@@ -496,6 +482,8 @@ def write_fabrication(
     cad_flat, cad_assembled : the solids in both poses.
     design_name : shown in titles.
     workers : processes for tessellation (default: CPU count).
+    guide : writes the assembly guide and its pictures into the folder (the output layer's
+        :func:`drawstring.output.assembly_guide.write_guide`); the manifest lists its files.
 
     Returns
     -------
@@ -510,7 +498,7 @@ def write_fabrication(
     sides = list(hinge_side)
     steps = normalize_route(route_steps)
     lifts = np.asarray(lift_tiles, dtype=np.int64).reshape(-1, 2)
-    record = _Record()
+    record = ExportRecord()
     record.notes += list(cad_flat.notes)
     record.trimmed = sorted(int(t) for t in (trims or {}))
     written: list[str] = []
@@ -831,27 +819,25 @@ def write_fabrication(
         stop_step_writers(step_processes)  # an error or Ctrl-C: they write into the staging
         raise
     finish_step_writers(step_processes)
-    pictures = write_pictures(
-        out, tiles_flat, tiles_assembled, hinges, sides, steps, lifts,
-        cut_hinges=[int(h) for h in record.estimates.get("cut_hinges", [])],
-    )  # fmt: skip
-    written += pictures
     _write_bom(out / "bom.csv", record, profile)
     written.append("bom.csv")
-    _write_assembly(
-        out / "assembly.md",
-        profile,
-        design_name,
-        record,
-        hinges,
-        sides,
-        steps,
-        lifts,
-        magnets,
-        panels,
-        pictures,
-    )
-    written.append("assembly.md")
+    if guide is not None:
+        written += guide(
+            out,
+            GuideInputs(
+                profile=profile,
+                design_name=design_name,
+                record=record,
+                tiles_flat=tiles_flat,
+                tiles_assembled=tiles_assembled,
+                hinges=hinges,
+                sides=sides,
+                steps=steps,
+                lifts=lifts,
+                magnets=magnets,
+                panels=panels,
+            ),
+        )
     manifest = {
         "design": design_name,
         "profile": profile.name,
@@ -899,7 +885,7 @@ def _row(
     }
 
 
-def _write_bom(path: Path, record: _Record, profile: Profile) -> None:
+def _write_bom(path: Path, record: ExportRecord, profile: Profile) -> None:
     buffer = io.StringIO()
     writer = csv.DictWriter(
         buffer,

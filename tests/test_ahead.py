@@ -9,8 +9,8 @@ import time
 
 import pytest
 
-from drawstring.fabrication.ahead import AHEAD_NICENESS, Ahead
-from drawstring.fabrication.pipeline import Progress
+from drawstring.pipeline.ahead import AHEAD_NICENESS, Ahead
+from drawstring.pipeline.record import Progress
 
 pytestmark = pytest.mark.skipif(
     not sys.platform.startswith("linux") or "fork" not in multiprocessing.get_all_start_methods(),

@@ -353,11 +353,13 @@ def test_assembled_tiles_stay_convex_on_a_strongly_curved_cap() -> None:
 def three_shell_front() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
     """The real pipeline front of the three-shell at ~200 tiles (as benchmarks/bench_solver.py):
     default profile size and resolution, rectangle flattening, tiling with splits."""
-    from drawstring.fabrication.pipeline import DesignOptions, resolve_options, split_bound
     from drawstring.fabrication.profiles import load_profile
     from drawstring.geometry.flatten.conformal import flatten
     from drawstring.geometry.target.surface import load_target
     from drawstring.geometry.tiling.grid import tile_surface
+    from drawstring.pipeline.layout_stage import split_bound
+    from drawstring.pipeline.record import DesignOptions
+    from drawstring.pipeline.run import resolve_options
 
     options = DesignOptions(tiles=200)
     resolved = resolve_options(options, load_profile(options.profile))

@@ -628,8 +628,8 @@ def test_a_kernel_failure_is_a_design_problem_not_a_traceback(
 ) -> None:
     from OCP.Standard import Standard_Failure
 
+    from drawstring.app.cli import main
     from drawstring.cad import design as cad_design
-    from drawstring.fabrication.cli import main
 
     # 9 tiles build in this process, in tile order: the fifth cut is tile 4's.
     real_build = cad_design.build_tile
@@ -660,7 +660,7 @@ def test_small_tiles_build_or_are_refused_with_a_size_that_builds(
     # 3 x 3 tiles on a 12 mm saddle are 4 mm across: too small for the TPU pins and the numbers
     # (left out, with notes), not for the channel and lift bores.  The CAD stage crashed here
     # (an OCCT boolean failed on a tile with a channel, a lift bore and three hinges).
-    from drawstring.fabrication.cli import main
+    from drawstring.app.cli import main
 
     args = ["design", "saddle", "--grid", "3", "3", "--resolution", "1500", "--no-simulate"]
     out = tmp_path / "small"

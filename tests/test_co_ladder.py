@@ -1,4 +1,4 @@
-"""The co-optimizations of one tiling in turn (fabrication/co_ladder.py), on stand-in runs."""
+"""The co-optimizations of one tiling in turn (pipeline/co_ladder.py), on stand-in runs."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ from types import SimpleNamespace
 
 import pytest
 
-from drawstring.fabrication import co_ladder
-from drawstring.fabrication.co_ladder import CONICAL_RETRY_WEIGHTS, CoLadder
 from drawstring.geometry.flat.coflat import CO_CONICAL
+from drawstring.pipeline import co_ladder
+from drawstring.pipeline.co_ladder import CONICAL_RETRY_WEIGHTS, CoLadder
 
 TOL = co_ladder.FLAT_EDGE_ERROR_TOL_MM
 FIRST, RETRY = CO_CONICAL, CONICAL_RETRY_WEIGHTS[0]

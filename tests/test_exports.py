@@ -28,10 +28,8 @@ from cad_sample import SampleDesign, cylinder_design  # noqa: E402
 from drawstring.cad.checks import clearances  # noqa: E402
 from drawstring.cad.design import CadResult, build_design_solids, normalize_route  # noqa: E402
 from drawstring.cad.tiles import move_solid, tile_solid  # noqa: E402
-from drawstring.fabrication.exports import write_fabrication  # noqa: E402
-from drawstring.fabrication.exports_3mf import BED_MARGIN_MM, plan_print_jobs  # noqa: E402
-from drawstring.fabrication.exports_beds import TILE_SPACING_MM  # noqa: E402
-from drawstring.fabrication.exports_dxf import (  # noqa: E402
+from drawstring.fabrication.beds import TILE_SPACING_MM  # noqa: E402
+from drawstring.fabrication.dxf import (  # noqa: E402
     CUT_LAYERS,
     LAYER_CUT_OUTER,
     LAYER_SHEET,
@@ -44,14 +42,18 @@ from drawstring.fabrication.exports_dxf import (  # noqa: E402
     signed_area,
     text_strokes,
 )
+from drawstring.fabrication.exports import write_fabrication  # noqa: E402
+from drawstring.fabrication.mesh3mf import BED_MARGIN_MM, plan_print_jobs  # noqa: E402
 from drawstring.fabrication.profiles import (  # noqa: E402
     Profile,
     load_profile,
     print_clearance_mm,
 )
+from drawstring.fabrication.record import ExportRecord  # noqa: E402
 from drawstring.geometry.core.errors import InputError  # noqa: E402
 from drawstring.geometry.core.tolerances import PRINT_GAP_TOL_MM  # noqa: E402
 from drawstring.geometry.tiling.linkage import id_runs  # noqa: E402
+from drawstring.output.assembly_guide import write_guide  # noqa: E402
 
 PROFILES = ("fdm-dual", "laser-epdm", "plywood-cnc")
 EXPECTED = {
@@ -123,6 +125,7 @@ def _write(built: Built, folder: Path) -> list[str]:
         cad_flat=built.flat,
         cad_assembled=built.assembled,
         design_name="sample",
+        guide=write_guide,
         workers=1,
     )
 
@@ -162,6 +165,7 @@ def test_files_written(built: Built) -> None:
 _BUILD_AGAIN = """
 import importlib.util, sys
 from pathlib import Path
+sys.path.insert(0, str(Path(sys.argv[1]).parent))  # the test module's helpers beside it
 spec = importlib.util.spec_from_file_location("exports_tests", sys.argv[1])
 module = sys.modules[spec.name] = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(module)
@@ -199,7 +203,7 @@ _BOXES_STEP = """
 import sys
 from pathlib import Path
 import build123d as bd
-from drawstring.fabrication.exports_step import write_step
+from drawstring.fabrication.step import write_step
 parts = [
     (f"part_{k}", bd.Solid.make_box(1.0 + k, 2.0, 3.0).moved(bd.Location((10.0 * k, 0, 0))),
      "TPU" if k % 3 == 0 else "PLA")
@@ -228,7 +232,7 @@ def test_step_colour_section_is_canonical_in_one_process(tmp_path: Path) -> None
     """Copies of the same solids sit at other addresses: the file must not change."""
     import copy
 
-    from drawstring.fabrication.exports_step import write_step
+    from drawstring.fabrication.step import write_step
 
     boxes = [
         (f"part_{k}", bd.Solid.make_box(1.0 + k, 2.0, 3.0), "TPU" if k % 2 else "PLA")
@@ -453,8 +457,8 @@ def test_print_jobs_turn_tiles_of_different_thickness_onto_their_common_top_plan
     # tiles touch z = 0, the pad lies on it, and the job keeps its footprint on the bed.
     from types import SimpleNamespace
 
-    from drawstring.fabrication.exports_3mf import PartMesh, PrintJob
-    from drawstring.fabrication.exports_beds import jobs_on_bed
+    from drawstring.fabrication.beds import jobs_on_bed
+    from drawstring.fabrication.mesh3mf import PartMesh, PrintJob
 
     def box(x0: float, x1: float, z0: float, z1: float, name: str, kind: str) -> PartMesh:
         corners = np.array([[x, y, z] for x in (x0, x1) for y in (0.0, 10.0) for z in (z0, z1)])
@@ -559,7 +563,7 @@ def test_strip_numbers_that_turned_read_as_another_are_underlined(built: Built) 
     if built.profile.process == "fdm-dual":
         pytest.skip("no cut hinges")
     from drawstring.cad.magnets_labels import reads_as_another
-    from drawstring.fabrication.exports_parts import STRIP_UNDERLINE_DROP, strip_part
+    from drawstring.fabrication.parts import STRIP_UNDERLINE_DROP, strip_part
 
     d, profile = built.design, built.profile
     seen = set()
@@ -592,7 +596,7 @@ def _inside_polygon(polygon: np.ndarray, point: np.ndarray) -> bool:
 def test_hinge_strips_are_kerf_compensated(built: Built) -> None:
     if built.profile.process == "fdm-dual":
         pytest.skip("no cut hinges")
-    from drawstring.fabrication.exports_parts import planar_outline
+    from drawstring.fabrication.parts import planar_outline
 
     doc = ezdxf.readfile(built.folder / "fabrication" / "hinges.dxf")
     cut = sum(
@@ -922,7 +926,9 @@ def test_nested_labels_read_forwards_so_a_six_stays_a_six() -> None:
 def test_a_design_states_one_mass_and_route_length_everywhere(tmp_path: Path) -> None:
     """design.json (metrics.cad), route.json, bom.csv, manifest.json and assembly.md of one
     design agree on the measured route, string and mass."""
-    from drawstring.fabrication.pipeline import DesignOptions, design, write_design
+    from drawstring.output.folder import write_design
+    from drawstring.pipeline.record import DesignOptions
+    from drawstring.pipeline.run import design
 
     options = DesignOptions(grid=(5, 5), resolution=1500, simulate=False)
     out = write_design(design("saddle", options), tmp_path / "saddle")
@@ -1027,10 +1033,10 @@ def test_every_lift_exit_of_route_json_is_in_assembly_md(
 ) -> None:
     import re
 
-    from drawstring.fabrication import assembly_guide, exports
-    from drawstring.fabrication.cad_stage import lift_exits, route_steps
     from drawstring.geometry.route.plan import route_to_json
     from drawstring.geometry.tiling.linkage import gap_centroids, rotating_squares_layout
+    from drawstring.output import assembly_guide
+    from drawstring.pipeline.cad_stage import lift_exits, route_steps
 
     link, route, lift_gaps = _ring_route()
     top = rotating_squares_layout(link, 0.4, 12.0)
@@ -1047,7 +1053,7 @@ def test_every_lift_exit_of_route_json_is_in_assembly_md(
     pictures = assembly_guide.write_pictures(
         tmp_path, tiles, tiles, link.hinges, ["top"] * link.n_hinges, steps, lifts
     )
-    record = exports._Record(
+    record = ExportRecord(
         estimates={
             "string_length_mm": 900.0,
             "string_rule": "rule",
@@ -1093,7 +1099,7 @@ def test_every_lift_exit_of_route_json_is_in_assembly_md(
 
 
 def test_threading_labels_do_not_overlap() -> None:
-    from drawstring.fabrication.pictures import place_labels
+    from drawstring.output.pictures import place_labels
 
     rng = np.random.default_rng(3)
     anchors = np.vstack([rng.normal(0.0, 8.0, (40, 2)), [[0.0, 0.0]] * 5])  # a dense cluster
@@ -1112,8 +1118,8 @@ def test_placement_marks_hinges_as_every_picture_does(built: Built) -> None:
     # markers), as flat.png and the assembly pictures; the guide says the same.
     if "placement.svg" not in EXPECTED[built.profile.process]:
         pytest.skip(f"no placement template for {built.profile.process}")
-    from drawstring.fabrication.exports_parts import PLACEMENT_HINGES
-    from drawstring.fabrication.pictures import BOTTOM_HINGE, TOP_HINGE
+    from drawstring.fabrication.parts import PLACEMENT_HINGES
+    from drawstring.output.pictures import BOTTOM_HINGE, TOP_HINGE
 
     top, bottom = PLACEMENT_HINGES["top"], PLACEMENT_HINGES["bottom"]
     assert (top.colour, top.marker) == (TOP_HINGE["colour"], "circle")
@@ -1170,7 +1176,7 @@ def test_placement_marks_hinges_as_every_picture_does(built: Built) -> None:
 
 
 def test_stops_past_z_get_two_letters() -> None:
-    from drawstring.fabrication.assembly_guide import _stop_label
+    from drawstring.output.assembly_guide import _stop_label
 
     labels = [_stop_label(k) for k in range(30)]
     assert labels[:3] == ["A", "B", "C"] and labels[25:28] == ["Z", "AA", "AB"]
@@ -1263,8 +1269,8 @@ def test_print_jobs_share_beds_where_they_fit_and_each_bed_has_a_file(
 def test_jobs_are_turned_onto_the_bed_where_they_fit_only_so() -> None:
     """The job planner may cut bands along the bed's other side; such a job is turned by 90
     degrees onto the bed, and small jobs share one."""
-    from drawstring.fabrication.exports_3mf import BED_MARGIN_MM, PartMesh
-    from drawstring.fabrication.exports_beds import fill_beds
+    from drawstring.fabrication.beds import fill_beds
+    from drawstring.fabrication.mesh3mf import BED_MARGIN_MM, PartMesh
 
     def box(name: str, w: float, h: float) -> PartMesh:
         corners = np.array([[x, y, z] for x in (0, w) for y in (0, h) for z in (0, 3.0)])
@@ -1287,8 +1293,8 @@ def test_jobs_are_turned_onto_the_bed_where_they_fit_only_so() -> None:
 def test_nested_tiles_turn_to_fit_and_a_tile_too_large_is_refused() -> None:
     """Loose tiles are turned to their smallest bounding rectangles: a long thin tile lying
     diagonally fits a bed it would not fit as drawn; one too large for the bed is refused."""
-    from drawstring.fabrication.exports_3mf import PartMesh
-    from drawstring.fabrication.exports_beds import nested_tiles
+    from drawstring.fabrication.beds import nested_tiles
+    from drawstring.fabrication.mesh3mf import PartMesh
 
     def slab(length: float, width: float, turn_deg: float) -> PartMesh:
         corners = np.array([[x, y, z] for x in (0, length) for y in (0, width) for z in (0, 3.0)])
@@ -1310,8 +1316,8 @@ def test_loose_tiles_print_top_faces_down() -> None:
     at z = 6 and bottoms at 0 and 0.3 mm (tiles of a mesh that is not conical differ in
     thickness) both rest on z = 0, the thinner one 5.7 mm high, and a half turn keeps every
     triangle facing outwards (the signed volume stays positive)."""
-    from drawstring.fabrication.exports_3mf import PartMesh
-    from drawstring.fabrication.exports_beds import nested_tiles
+    from drawstring.fabrication.beds import nested_tiles
+    from drawstring.fabrication.mesh3mf import PartMesh
 
     def box(z0: float, name: str) -> PartMesh:
         corners = np.array([[x, y, z] for x in (0, 10.0) for y in (0, 8.0) for z in (z0, 6.0)])
@@ -1339,14 +1345,14 @@ def test_plywood_panels_carry_the_magnet_holes_and_the_strips_pilot_holes(built:
     if built.profile.process != "plywood-cnc":
         pytest.skip("plywood only")
     from drawstring.cad.design import strip_hole_plans
-    from drawstring.fabrication.exports_dxf import LAYER_CUT_INNER, LAYER_DRILL
+    from drawstring.fabrication.dxf import LAYER_CUT_INNER, LAYER_DRILL
 
     d, profile = built.design, built.profile
     plans = strip_hole_plans(d.tiles_2d, d.linkage.hinges, list(d.hinge_side), profile)
     pilots = sum(plan.made for plan in plans)
     # two openings per route step and lift bore; a bore leaving where a channel opens shares
     # its hole
-    from drawstring.fabrication.exports_panels import cable_runs
+    from drawstring.fabrication.panels import cable_runs
 
     runs = cable_runs(d.tiles_2d, normalize_route(d.route_steps), np.asarray(d.lift_tiles))
     openings = {(r.tile, f, *np.round(p, 6)) for r in runs for f, p in r.drill_points}
@@ -1396,7 +1402,7 @@ def test_plywood_pilot_holes_keep_a_wall_from_the_panel_edges(built: Built) -> N
     if built.profile.process != "plywood-cnc":
         pytest.skip("plywood only")
     from drawstring.cad.design import strip_hole_plans
-    from drawstring.fabrication.exports_dxf import LAYER_DRILL
+    from drawstring.fabrication.dxf import LAYER_DRILL
 
     d, profile = built.design, built.profile
     radius = strip_hole_plans(d.tiles_2d, d.linkage.hinges, list(d.hinge_side), profile)[0].radius
@@ -1427,7 +1433,7 @@ def test_plywood_pilot_holes_keep_a_wall_from_the_panel_edges(built: Built) -> N
 def test_loose_pads_that_fill_a_bed_go_on_to_the_next() -> None:
     # Ten 20 x 8 mm pads on a 60 x 60 mm bed (44 x 44 inside the margins): rows of two, four
     # rows a bed, so two beds, in the order given; a pad larger than the bed is refused.
-    from drawstring.fabrication.exports_3mf import BED_MARGIN_MM, PartMesh, arrange_loose
+    from drawstring.fabrication.mesh3mf import BED_MARGIN_MM, PartMesh, arrange_loose
 
     def pad(h: int, w: float = 20.0, d: float = 8.0) -> PartMesh:
         corners = np.array([[x, y, z] for x in (0, w) for y in (0, d) for z in (4.0, 6.0)])

@@ -406,10 +406,10 @@ def test_bottom_hinges_are_pulled_to_equal_depths_under_both_tiles() -> None:
     still planar) to halve the worst difference on a saddle, by hundredths of a millimetre."""
     import types
 
-    from drawstring.fabrication.layout_stage import _bottom_hinge_depths
     from drawstring.geometry.assembled.frustums import quad_mesh_edges, side_quads
     from drawstring.geometry.hinges.placement import dual_hinge_faces
     from drawstring.geometry.solve.solver import quad_planarity
+    from drawstring.pipeline.layout_stage import _bottom_hinge_depths
 
     linkage, assembled, _, target = _saddle_design()
     bottom = dual_hinge_faces(linkage, assembled.tiles, 12.0).bottom
@@ -483,11 +483,11 @@ def test_a_conical_top_lets_the_bottom_hinges_meet_in_depth() -> None:
     pulled to equal depths under both tiles of every bottom hinge (the 3D hinge gap)."""
     from dataclasses import replace
 
-    from drawstring.fabrication.co_rounds import depth_pull
     from drawstring.geometry.assembled.shape import reextrude, tile_vertices
     from drawstring.geometry.flat.coflat import co_optimize_top, vertex_stars
     from drawstring.geometry.flat.pose import hinge_faces
     from drawstring.geometry.hinges.placement import dual_hinge_faces
+    from drawstring.pipeline.co_rounds import depth_pull
 
     linkage, assembled, _, target = _saddle_design()
     bottom = dual_hinge_faces(linkage, assembled.tiles, 12.0).bottom

@@ -11,21 +11,17 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from drawstring.fabrication import cli, co_ladder, co_rounds, layout_stage
-from drawstring.fabrication.pipeline import (
-    DesignOptions,
-    Progress,
-    cad_problems,
-    cad_warnings,
-    channel_turn_assembled,
-    design,
-    split_bound,
-)
+from drawstring.app import cli
 from drawstring.fabrication.profiles import load_profile
 from drawstring.geometry.core import parallel
 from drawstring.geometry.flat.coflat import CO_CONICAL
 from drawstring.geometry.route.plan import plan_route
 from drawstring.geometry.tiling.linkage import build_linkage, gap_centroids, rotating_squares_layout
+from drawstring.pipeline import co_ladder, co_rounds, layout_stage
+from drawstring.pipeline.layout_stage import split_bound
+from drawstring.pipeline.measure import channel_turn_assembled
+from drawstring.pipeline.record import DesignOptions, Progress
+from drawstring.pipeline.run import cad_problems, cad_warnings, design
 
 
 def flat_boxes(link, side: float = 10.0, thickness: float = 3.0) -> np.ndarray:
@@ -447,7 +443,7 @@ def test_a_string_whose_channels_bend_too_much_is_warned_about(monkeypatch) -> N
     # The warning follows the measured capstan factor of the assembled channels: none on a
     # small saddle at the default bound, one naming the factor and the fixes once the bound is
     # below it.
-    from drawstring.fabrication import measure
+    from drawstring.pipeline import measure
 
     options = DesignOptions(grid=(6, 4), resolution=1500, simulate=False, cad=False)
     plain = design("saddle", options)
@@ -1116,14 +1112,14 @@ def test_the_ahead_process_tags_its_log_lines_once() -> None:
     record = logging.LogRecord(
         "drawstring.geometry.flat.layout", logging.INFO, "f.py", 1, "flat: %d", (3,), None
     )
-    from drawstring.fabrication.ahead import tag_ahead
+    from drawstring.pipeline.ahead import tag_ahead
 
     assert tag_ahead(record) and tag_ahead(record)
     assert record.getMessage() == "(ahead) flat: 3"
 
 
 def test_a_value_just_above_its_bound_reads_as_above_it() -> None:
-    from drawstring.fabrication.measure import above
+    from drawstring.pipeline.record import above
 
     assert above(0.001005479, 0.001) == "0.00101"
     assert above(0.0010000004, 0.001) == "0.001"  # closer than six digits show
@@ -1135,7 +1131,7 @@ def test_a_value_just_above_its_bound_reads_as_above_it() -> None:
 def test_surface_distance_warnings_agree_with_the_report(weights) -> None:
     # The report marks both surface-distance targets; a design that misses one says so in its
     # warnings too (and --strict then exits 4), and one that meets them says nothing.
-    from drawstring.fabrication.metric_rules import evaluate_metrics
+    from drawstring.output.metric_rules import evaluate_metrics
 
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
     if weights is not None:
@@ -1153,8 +1149,8 @@ def test_surface_distance_warnings_agree_with_the_report(weights) -> None:
 def test_a_tile_size_refusal_names_the_problems_a_new_size_may_not_mend() -> None:
     # Tiles too small for the lift bores are refused before any solid; where the design has a
     # problem besides, the one line names it (a new --size alone may not give a design).
-    from drawstring.fabrication.pipeline import with_cad
     from drawstring.geometry.core.errors import InputError
+    from drawstring.pipeline.run import with_cad
 
     options = DesignOptions(grid=(10, 8), resolution=1500, size_mm=30.0, simulate=False, cad=False)
     result = design("saddle", options)

@@ -127,8 +127,9 @@ def test_smallest_size_gives_tiles_the_cad_features_fit(name: str) -> None:
     # The saddle at the profile's size_min_mm with its default tiles passes the check that
     # refuses tiles too small for the string channel, lift bores and hinge strips before the
     # CAD build (feature_fit_refusal); no solid is built.
-    from drawstring.fabrication.cad_stage import feature_fit_refusal
-    from drawstring.fabrication.pipeline import DesignOptions, design
+    from drawstring.pipeline.cad_stage import feature_fit_refusal
+    from drawstring.pipeline.record import DesignOptions
+    from drawstring.pipeline.run import design
 
     profile = load_profile(name)
     options = DesignOptions(profile=name, size_mm=profile.size_min_mm, simulate=False, cad=False)

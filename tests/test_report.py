@@ -26,9 +26,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from drawstring.fabrication import report
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.tiling.linkage import Linkage, build_linkage, rotating_squares_layout
+from drawstring.output import report
 
 SIDE = 20.0  # mm, tile edge of the fake design
 THICKNESS = 6.0  # mm
@@ -615,7 +615,7 @@ def test_flat_picture_shades_no_gap_between_parts() -> None:
     import matplotlib.pyplot as plt
     from matplotlib.collections import PolyCollection
 
-    from drawstring.fabrication import pictures
+    from drawstring.output import pictures
 
     link, tiles = _two_part_layout()
     assert link.n_components == 2
@@ -646,7 +646,7 @@ def test_flat_picture_shades_no_gap_between_parts() -> None:
 
 
 def test_flat_picture_dashes_the_string_between_parts() -> None:
-    from drawstring.fabrication import pictures
+    from drawstring.output import pictures
 
     link, tiles = _two_part_layout()
     loop = boundary_loop(build_linkage(np.ones((4, 3), dtype=bool)))
@@ -689,8 +689,8 @@ def test_threading_starts_where_the_assembly_guide_does(tmp_path: Path) -> None:
 def test_flat_picture_legend_lists_only_the_hinges_and_trims_the_design_has() -> None:
     import matplotlib.pyplot as plt
 
-    from drawstring.fabrication import pictures
     from drawstring.geometry.hinges.placement import HingeTrim
+    from drawstring.output import pictures
 
     points = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
     fig, ax = plt.subplots()

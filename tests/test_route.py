@@ -207,8 +207,8 @@ def test_an_unreachable_lift_gap_is_reported_not_faked() -> None:
 
 
 def test_an_unreachable_lift_moves_to_the_nearest_gap_the_string_passes() -> None:
-    from drawstring.fabrication.pipeline import plan_lift_route
     from drawstring.geometry.route.lift import nearby_lift_gaps
+    from drawstring.pipeline.route_stage import plan_lift_route
 
     linkage = build_linkage(np.ones((4, 4), dtype=bool))
     pos = _centroids(linkage)
@@ -375,7 +375,7 @@ def test_a_lift_in_a_narrow_split_strip_needs_the_same_component_rule() -> None:
 def test_a_split_part_the_route_cannot_reach_is_a_design_problem() -> None:
     # Four cuts box in a middle part that touches no outer boundary: the boundary route never
     # gets there, and the design check must say so (that part would not be pulled).
-    from drawstring.fabrication.pipeline import route_problems
+    from drawstring.pipeline.measure import route_problems
 
     cells = np.ones((12, 12), dtype=bool)
     splits = (Split("y", 4, 0, 12), Split("y", 8, 0, 12), Split("x", 4, 4, 8), Split("x", 8, 4, 8))
@@ -450,7 +450,7 @@ def test_an_unreachable_lift_moves_to_a_gap_a_new_route_reaches(monkeypatch: Any
     # When no nearby gap lies on the first route, nearby gaps are tried with a new route each.
     # The candidates on the first route are hidden here so that this branch runs; in a 4 x 6
     # grid this lift gap is unreachable and some of its neighbours off the route are not.
-    import drawstring.fabrication.pipeline as pipeline
+    import drawstring.pipeline.route_stage as pipeline
     from drawstring.geometry.route.lift import nearby_lift_gaps
 
     linkage = build_linkage(np.ones((4, 6), dtype=bool))
@@ -475,7 +475,7 @@ def test_an_unreachable_lift_moves_to_a_gap_a_new_route_reaches(monkeypatch: Any
 
 
 def test_a_lift_no_nearby_gap_serves_stays_missed(monkeypatch: Any) -> None:
-    import drawstring.fabrication.pipeline as pipeline
+    import drawstring.pipeline.route_stage as pipeline
 
     linkage = build_linkage(np.ones((4, 4), dtype=bool))
     pos = _centroids(linkage)

@@ -1,0 +1,11 @@
+"""Lift points and the string route (paper sections 5.2 and 5.3)."""
+
+from drawstring.geometry.route.lift import LiftPoints, select_lift_points
+from drawstring.geometry.route.plan import Route, plan_route
+
+__all__ = [
+    "LiftPoints",
+    "Route",
+    "plan_route",
+    "select_lift_points",
+]

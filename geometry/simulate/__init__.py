@@ -1,0 +1,15 @@
+"""The deployment simulation: the pull from the flat layout to the assembled shape (paper
+section 5.4).
+"""
+
+from drawstring.geometry.simulate.deploy import (
+    SimulationResult,
+    simulate_deployment,
+    simulate_stage,
+)
+
+__all__ = [
+    "SimulationResult",
+    "simulate_deployment",
+    "simulate_stage",
+]

@@ -14,14 +14,11 @@ import multiprocessing
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.fabrication.ahead import Ahead as _Ahead
-from drawstring.fabrication.co_ladder import CoLadder
-from drawstring.fabrication.co_rounds import CO_SLOW_REACH, co_optimized, depth_pull, flat_layout
 from drawstring.geometry.assembled.shape import AssembledResult, optimize_assembled, reextrude
 from drawstring.geometry.core import parallel
 from drawstring.geometry.core.rigid import rigid_copies
@@ -38,9 +35,10 @@ from drawstring.geometry.hinges.placement import HingeLayout, dual_hinge_faces, 
 from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling, tile_surface
 from drawstring.geometry.tiling.linkage import Linkage
-
-if TYPE_CHECKING:
-    from drawstring.fabrication.pipeline import Progress, ResolvedOptions
+from drawstring.pipeline.ahead import Ahead as _Ahead
+from drawstring.pipeline.co_ladder import CoLadder
+from drawstring.pipeline.co_rounds import CO_SLOW_REACH, co_optimized, depth_pull, flat_layout
+from drawstring.pipeline.record import Progress, ResolvedOptions
 
 logger = logging.getLogger(__name__)
 
@@ -135,7 +133,7 @@ class ShapedLayout:
     @property
     def accuracy_mm(self) -> float:
         """The larger of the flat edge error and the hinge gap, mm, as measured on the output
-        (:func:`~drawstring.fabrication.pipeline.measure_design`): how far the flat tiles are
+        (:func:`~drawstring.pipeline.run.measure_design`): how far the flat tiles are
         from meeting at their hinges with their assembled shapes (the flat layout's edge error
         where the hinge stage was skipped).  The gap is the whole one, its vertical part too:
         a tighter tiling whose conical co-optimization succeeds closes that part where the
@@ -522,7 +520,7 @@ def _assembled_shape(
 
 
 #: Lay out the first tighter tiling in a second process while the first tiling is laid out
-#: (:class:`~drawstring.fabrication.ahead.Ahead`), where the machine has two cores or more
+#: (:class:`~drawstring.pipeline.ahead.Ahead`), where the machine has two cores or more
 #: and processes can be forked.
 #: Its result is the one the serial run would compute: it is used only if the first tiling
 #: misses the targets, and thrown away otherwise.

@@ -14,17 +14,17 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.fabrication.profiles import print_clearance_mm
+from drawstring.fabrication.profiles import Profile, print_clearance_mm
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tolerances import PRINT_GAP_TOL_MM
 from drawstring.geometry.route.plan import Route
 from drawstring.geometry.tiling.linkage import SIDE_BOTTOM, SIDE_LEFT, SIDE_RIGHT, SIDE_TOP, Linkage
+from drawstring.pipeline.layout_stage import fabricated_tiles
+from drawstring.pipeline.record import Design
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # the CAD kernel loads only where solids are built
     from drawstring.cad.design import CadResult
     from drawstring.fabrication.exports import Measures
-    from drawstring.fabrication.pipeline import Design
-    from drawstring.fabrication.profiles import Profile
 
 
 @dataclass(frozen=True)
@@ -113,10 +113,8 @@ def cad_inputs(result: Design) -> CadInputs:
 
 
 def print_tiles(result: Design) -> NDArray[np.float64]:
-    """(T, 8, 3) flat tiles to fabricate (see :func:`~drawstring.fabrication.pipeline.
+    """(T, 8, 3) flat tiles to fabricate (see :func:`~drawstring.pipeline.run.
     fabricated_tiles`): congruent to the assembled ones, placed by the hinge layout."""
-    from drawstring.fabrication.pipeline import fabricated_tiles
-
     return fabricated_tiles(result.hinge_layout, result.tiles_assembled)
 
 
@@ -344,8 +342,8 @@ def bed_refusal(result: Design) -> InputError | None:
     turned to fit (:func:`~.exports_beds.nest_footprints`).  ``plywood-cnc`` sheets are checked
     when the panels are laid out.
     """
-    from drawstring.fabrication.exports_3mf import tile_bed_refusal
-    from drawstring.fabrication.exports_beds import nest_footprints
+    from drawstring.fabrication.beds import nest_footprints
+    from drawstring.fabrication.mesh3mf import tile_bed_refusal
 
     profile = result.profile
     bed = (profile.bed_x_mm, profile.bed_y_mm)

@@ -10,16 +10,14 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from drawstring.fabrication.ahead import Ahead
 from drawstring.geometry.assembled.shape import AssembledResult
 from drawstring.geometry.core.tolerances import FLAT_EDGE_ERROR_TOL_MM
 from drawstring.geometry.flat.coflat import CO_CONICAL
 from drawstring.geometry.flat.layout import FlatResult
-
-if TYPE_CHECKING:
-    from drawstring.fabrication.pipeline import Progress
+from drawstring.pipeline.ahead import Ahead
+from drawstring.pipeline.record import Progress
 
 logger = logging.getLogger(__name__)
 
@@ -71,7 +69,7 @@ class CoLadder:
     without it.
 
     With ``ahead``, the run without the condition is computed meanwhile in a forked child
-    (:class:`~drawstring.fabrication.ahead.Ahead`, which yields the cores to this process),
+    (:class:`~drawstring.pipeline.ahead.Ahead`, which yields the cores to this process),
     and taken from it if it is needed.  Every run depends on the tiling's plain layout alone,
     so the outcome is the one of the runs in turn.  Where the first weight meets the targets
     (most designs) the child is stopped and its work thrown away; where the conical runs miss,
@@ -198,10 +196,6 @@ class CoLadder:
             self._children.pop(j).cancel()
         child = self._children.get(i)
         if child is not None:
-            from drawstring.fabrication.pipeline import (
-                Progress,
-            )  # pipeline imports the layout stage, which imports this
-
             outcome = child.result(Progress(quiet=True))
             del self._children[i]  # only now: run() stops it if the wait is interrupted
             if outcome is not None:

@@ -16,7 +16,7 @@ from OCP.TopAbs import TopAbs_REVERSED
 
 from drawstring.cad.magnets_labels import reads_as_another
 from drawstring.cad.paths import face_planes
-from drawstring.fabrication.exports_dxf import (
+from drawstring.fabrication.dxf import (
     Part2D,
     new_dxf,
     save_dxf,

@@ -28,10 +28,12 @@ from typing import Any
 
 import numpy as np
 
-from drawstring.fabrication.design_folder import (
+from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.tiling.linkage import TILE_FACES as TILE_FACES
+from drawstring.output.design_folder import (
     COINCIDENT_CORNER_REL as COINCIDENT_CORNER_REL,
 )
-from drawstring.fabrication.design_folder import (
+from drawstring.output.design_folder import (
     DESIGN_JSON_TYPES,
     FloatArray,
     Route,
@@ -46,21 +48,19 @@ from drawstring.fabrication.design_folder import (
     tile_volumes,
     touching_tiles,
 )
-from drawstring.fabrication.design_folder import (
+from drawstring.output.design_folder import (
     MAX_FRAME_VALUES as MAX_FRAME_VALUES,
 )
-from drawstring.fabrication.design_folder import IntArray as IntArray
-from drawstring.fabrication.design_folder import (
+from drawstring.output.design_folder import IntArray as IntArray
+from drawstring.output.design_folder import (
     coincident_corners as coincident_corners,
 )
-from drawstring.fabrication.design_folder import (
+from drawstring.output.design_folder import (
     median_edge_length as median_edge_length,
 )
-from drawstring.fabrication.metric_rules import METRIC_RULES as METRIC_RULES
-from drawstring.fabrication.metric_rules import MetricRow, evaluate_metrics
-from drawstring.fabrication.metric_rules import MetricRule as MetricRule
-from drawstring.geometry.core.errors import InputError
-from drawstring.geometry.tiling.linkage import TILE_FACES as TILE_FACES
+from drawstring.output.metric_rules import METRIC_RULES as METRIC_RULES
+from drawstring.output.metric_rules import MetricRow, evaluate_metrics
+from drawstring.output.metric_rules import MetricRule as MetricRule
 
 log = logging.getLogger(__name__)
 
@@ -125,7 +125,7 @@ def _e(value: Any) -> str:
 
 
 def _web_text(name: str) -> str:
-    return (resources.files("drawstring.fabrication") / "web" / name).read_text(encoding="utf-8")
+    return (resources.files("drawstring.output") / "web" / name).read_text(encoding="utf-8")
 
 
 def three_module_as_global() -> str:
@@ -570,8 +570,8 @@ def _threading_steps(route: Route) -> list[str]:
     """The threading, lift-point and pulling steps, in the assembly guide's order: the guide
     (``fabrication/assembly.md``) starts the closed route at the lift point where both string
     ends stand up, and this page names the same start (the guide's own function decides it)."""
-    from drawstring.fabrication.assembly_guide import _guide
-    from drawstring.fabrication.cad_stage import lift_bores
+    from drawstring.output.assembly_guide import _guide
+    from drawstring.pipeline.cad_stage import lift_bores
 
     guide = _guide(route.steps, lift_bores(route.steps, route.lift[:, 0]))
     first = guide.order[0]

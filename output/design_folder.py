@@ -3,7 +3,7 @@
 Readers for the folder's files (``assembled.obj``, ``flat.obj``, ``lifted.obj``,
 ``deploy.npz``, ``route.json``) and the measurements the report derives from the tiles: hinges
 of the flat layout, touching tiles of the assembled pose, neighbour lists, tile volumes and the
-subsampling of deployment frames.  Used by :mod:`drawstring.fabrication.report`.
+subsampling of deployment frames.  Used by :mod:`drawstring.output.report`.
 """
 
 from __future__ import annotations

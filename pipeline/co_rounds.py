@@ -5,8 +5,8 @@ flat tiles become congruent to the assembled ones (the joint solve,
 :func:`~drawstring.geometry.flat.coflat.co_optimize_top`), extrudes the tiles again under the moved
 top and solves the flat layout again with its true bounds (:func:`flat_layout`), for up to
 :data:`CO_REFINEMENTS` more rounds.  :class:`RoundJudge` decides when the rounds stop.  The
-layout stage (:mod:`~drawstring.fabrication.layout_stage`) runs it, through the ladder of
-conical weights (:mod:`~drawstring.fabrication.co_ladder`).
+layout stage (:mod:`~drawstring.pipeline.layout_stage`) runs it, through the ladder of
+conical weights (:mod:`~drawstring.pipeline.co_ladder`).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -36,9 +36,7 @@ from drawstring.geometry.solve.solver import LinearPull
 from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling, component_flattenings
 from drawstring.geometry.tiling.linkage import Linkage
-
-if TYPE_CHECKING:
-    from drawstring.fabrication.pipeline import ResolvedOptions
+from drawstring.pipeline.record import ResolvedOptions
 
 logger = logging.getLogger(__name__)
 

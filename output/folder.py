@@ -15,20 +15,17 @@ import tempfile
 import zipfile
 import zlib
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.fabrication.design_folder import design_json_faults
-from drawstring.fabrication.measure import _jsonable
 from drawstring.geometry.core import parallel
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.simulate.deploy import simulate_stage
 from drawstring.geometry.tiling.linkage import Linkage
-
-if TYPE_CHECKING:
-    from drawstring.fabrication.pipeline import Design, Writer
+from drawstring.output.design_folder import design_json_faults
+from drawstring.pipeline.record import Design, Progress, Writer, jsonable
 
 
 def default_out_dir(target: str | os.PathLike[str]) -> Path:
@@ -159,8 +156,8 @@ def write_design(
     every file was written.  On any failure the temporary folder is removed and ``out_dir`` is
     left as it was.
     """
-    from drawstring.fabrication.outputs import DEFAULT_WRITERS
-    from drawstring.fabrication.report import write_report
+    from drawstring.output.report import write_report
+    from drawstring.output.writers import DEFAULT_WRITERS
 
     out = check_out_dir(out_dir)
     try:
@@ -231,9 +228,8 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
     the ``simulation`` metrics and timing into ``design.json``, and rewrites ``report.html``.
     Every file is written next to its final name first and renamed into place.
     """
-    from drawstring.fabrication.outputs import save_deployment
-    from drawstring.fabrication.pipeline import Progress
-    from drawstring.fabrication.report import write_report
+    from drawstring.output.report import write_report
+    from drawstring.output.writers import save_deployment
 
     root = Path(folder)
     design_path = root / "design.json"
@@ -301,7 +297,7 @@ def simulate_folder(folder: str | os.PathLike[str], *, quiet: bool = True) -> Pa
             lift_gaps,
             thickness,
         )
-    result_block = _jsonable(simulation.to_json())
+    result_block = jsonable(simulation.to_json())
     # the lift sweep's count is the design's; a design made without simulating has run once now
     runs = doc.get("metrics", {}).get("simulation", {}).get("runs")
     result_block["runs"] = runs if isinstance(runs, int) else 1

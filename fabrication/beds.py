@@ -11,12 +11,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.fabrication import exports_3mf as m3f
-from drawstring.fabrication.exports_dxf import place_outlines, rotate, shelf_pack
+from drawstring.fabrication import mesh3mf as m3f
+from drawstring.fabrication.dxf import place_outlines, rotate, shelf_pack
+from drawstring.fabrication.record import ExportRecord
 from drawstring.geometry.core.errors import InputError
 
 if TYPE_CHECKING:
-    from drawstring.fabrication.exports import _Record
     from drawstring.fabrication.profiles import Profile
 
 
@@ -72,7 +72,7 @@ def jobs_on_bed(
     jobs: list[m3f.PrintJob],
     tile_mesh: dict[int, m3f.PartMesh],
     pad_mesh: dict[int, m3f.PartMesh],
-    record: _Record,
+    record: ExportRecord,
 ) -> list[list[m3f.PartMesh]]:
     """Every job's parts moved onto the bed, in the job's own frame (centred on the bed), top
     faces down.
@@ -126,7 +126,7 @@ def loose_pads_and_beds(
     job_parts: list[list[m3f.PartMesh]],
     bed: tuple[float, float],
     profile: Profile,
-    record: _Record,
+    record: ExportRecord,
 ) -> list[int]:
     """The job of the loose pads of ``cut`` hinges (appended), then every job's bed."""
     loose_cut = [h for h in cut if h in pad_mesh]

@@ -3,9 +3,9 @@
 :class:`Ahead` forks this process; the child computes what the parent would compute, from
 a copy of its state, and sends back the result and its stage times through a pipe.  The
 layout stage uses it to lay out the first tighter tiling while the first one is laid out
-(:data:`~drawstring.fabrication.layout_stage.RETILE_AHEAD`), and to co-optimize without the
+(:data:`~drawstring.pipeline.layout_stage.RETILE_AHEAD`), and to co-optimize without the
 conical condition while the conical co-optimizations run
-(:data:`~drawstring.fabrication.co_ladder.CO_SPECULATE`); :meth:`Ahead.ready` tells, without
+(:data:`~drawstring.pipeline.co_ladder.CO_SPECULATE`); :meth:`Ahead.ready` tells, without
 waiting, whether the child is done (its core spare).
 """
 
@@ -18,12 +18,10 @@ import os
 import time
 from collections.abc import Callable
 from multiprocessing.connection import Connection
-from typing import TYPE_CHECKING, Generic, TypeVar, cast
+from typing import Generic, TypeVar, cast
 
 from drawstring.geometry.core import parallel
-
-if TYPE_CHECKING:
-    from drawstring.fabrication.pipeline import Progress
+from drawstring.pipeline.record import Progress
 
 logger = logging.getLogger(__name__)
 
@@ -106,9 +104,6 @@ def _run_ahead(work: Callable[[Progress], object], send: Connection) -> None:
     parallel.exit_quietly_on_interrupt()
     with contextlib.suppress(OSError):  # AHEAD_NICENESS: yield to the parent
         os.nice(AHEAD_NICENESS)
-    from drawstring.fabrication.pipeline import (
-        Progress,  # the child only: pipeline imports this module
-    )
 
     for handler in logging.getLogger().handlers:  # -v: tell this process's lines apart
         handler.addFilter(tag_ahead)

@@ -22,13 +22,13 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-    from drawstring.fabrication.pipeline import Design
     from drawstring.geometry.hinges.placement import HingeLayout
     from drawstring.geometry.route.lift import LiftPoints
     from drawstring.geometry.route.plan import Route
     from drawstring.geometry.target.surface import Target
     from drawstring.geometry.tiling.grid import Tiling
     from drawstring.geometry.tiling.linkage import Linkage
+    from drawstring.pipeline.record import Design
 
 #: PNG metadata without version strings, so pictures are byte-identical across runs.
 PNG_METADATA = {"Software": None}

@@ -18,14 +18,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.cad.paths import SIDE_TOP_FACE, lift_path, route_openings
-from drawstring.fabrication.profiles import print_clearance_mm, string_is_cable
+from drawstring.fabrication.profiles import Profile, print_clearance_mm, string_is_cable
+from drawstring.fabrication.record import ExportRecord, GuideInputs
 from drawstring.geometry.tiling.linkage import id_runs
+from drawstring.output import pictures
 
-if TYPE_CHECKING:
-    from drawstring.fabrication.exports import _Record
-    from drawstring.fabrication.exports_panels import Panel
-    from drawstring.fabrication.profiles import Profile
-
+if TYPE_CHECKING:  # panels load the CAD kernel, which a --no-cad report never needs
+    from drawstring.fabrication.panels import Panel
 
 #: Top of the legends under the flat-layout pictures, in axes heights below the axes: clear of
 #: the x-axis label (at -0.09 the legend covered it).
@@ -230,8 +229,6 @@ def write_pictures(
     """
     from matplotlib.collections import LineCollection, PolyCollection
     from matplotlib.lines import Line2D
-
-    from drawstring.fabrication import pictures
 
     plt = pictures.plt
     names = []
@@ -482,7 +479,6 @@ def _place_step_labels(
     labels and of the lift-point markers; a label that had to move gets a leader line to its
     step.  Call after the layout of the figure is final (positions are found in pixels).
     """
-    from drawstring.fabrication import pictures
 
     fig.canvas.draw()
     to_px = ax.transData.transform
@@ -550,7 +546,7 @@ def _write_assembly(
     path: Path,
     profile: Profile,
     design_name: str,
-    record: _Record,
+    record: ExportRecord,
     hinges: NDArray[np.int64],
     sides: Sequence[str],
     steps: NDArray[np.int64],
@@ -885,3 +881,26 @@ def _pull_text(
     )
     lines.append("")
     return lines
+
+
+def write_guide(out: Path, inputs: GuideInputs) -> list[str]:
+    """The assembly guide of a fabrication folder: its pictures and ``assembly.md``."""
+    pictures = write_pictures(
+        out, inputs.tiles_flat, inputs.tiles_assembled, inputs.hinges, inputs.sides,
+        inputs.steps, inputs.lifts,
+        cut_hinges=[int(h) for h in inputs.record.estimates.get("cut_hinges", [])],
+    )  # fmt: skip
+    _write_assembly(
+        out / "assembly.md",
+        inputs.profile,
+        inputs.design_name,
+        inputs.record,
+        inputs.hinges,
+        inputs.sides,
+        inputs.steps,
+        inputs.lifts,
+        inputs.magnets,
+        inputs.panels,
+        pictures,
+    )
+    return [*pictures, "assembly.md"]

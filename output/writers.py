@@ -1,6 +1,6 @@
 """Files of the output folder, one writer per file group.
 
-Each writer takes the :class:`~drawstring.fabrication.pipeline.Design` and the (staging) folder,
+Each writer takes the :class:`~drawstring.pipeline.run.Design` and the (staging) folder,
 writes its files and returns their paths relative to the folder.  Output is deterministic: fixed
 float formatting, no timestamps in files.
 """
@@ -9,17 +9,17 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.fabrication import pictures
 from drawstring.geometry.route.plan import route_to_json
 from drawstring.geometry.tiling.linkage import TILE_FACES, gap_centroids
-
-if TYPE_CHECKING:
-    from drawstring.fabrication.pipeline import Design, Writer
+from drawstring.output import pictures
+from drawstring.pipeline.cad_stage import route_lengths
+from drawstring.pipeline.layout_stage import fabricated_tiles
+from drawstring.pipeline.record import Design, Writer
 
 
 def format_obj(
@@ -80,7 +80,6 @@ def write_tiles_npz(result: Design, folder: Path) -> list[str]:
     ``fabricated`` (each T3D tile moved rigidly onto its place in the flat layout, the pose the
     deployment simulation starts from), so ``drawstring simulate`` repeats the design's run
     exactly (the OBJ files round to 1e-6 mm)."""
-    from drawstring.fabrication.layout_stage import fabricated_tiles
     from drawstring.geometry.core.npz import save_npz
 
     save_npz(
@@ -108,7 +107,6 @@ def write_route(result: Design, folder: Path) -> list[str]:
     (:func:`~.cad_stage.route_lengths`, as bom.csv and manifest.json state it), not the
     polyline through the gap centroids the route was planned on.
     """
-    from drawstring.fabrication.cad_stage import route_lengths
 
     linkage = result.tiling.linkage
     document = route_to_json(
@@ -168,8 +166,8 @@ def write_deployment(result: Design, folder: Path) -> list[str]:
 def save_deployment(simulation: Any, route: Any, folder: Path) -> list[str]:
     """Write ``deploy.npz`` and ``deploy.gif`` of a simulation whose string follows ``route``
     (a ``Route`` or (S, 4) steps ``(gap, tile, enter_side, leave_side)``)."""
-    from drawstring.fabrication.deploy_pictures import route_polylines, save_deploy_gif
     from drawstring.geometry.simulate.deploy import route_snap_pairs, route_steps, save_deploy_npz
+    from drawstring.output.deploy_pictures import route_polylines, save_deploy_gif
 
     save_deploy_npz(simulation, folder / "deploy.npz")
     pairs = route_snap_pairs(route_steps(route))[0]
@@ -182,8 +180,10 @@ def write_fabrication_files(result: Design, folder: Path) -> list[str]:
     """The profile's fabrication files under ``fabrication/`` (only when CAD ran)."""
     if result.cad_flat is None:
         return []
-    from drawstring.fabrication.cad_stage import cad_inputs, print_tiles
+    # the exports load the CAD kernel (seconds), which a --no-cad design never needs
     from drawstring.fabrication.exports import write_fabrication
+    from drawstring.output.assembly_guide import write_guide
+    from drawstring.pipeline.cad_stage import cad_inputs, print_tiles
 
     inputs = cad_inputs(result)
     return write_fabrication(
@@ -200,6 +200,7 @@ def write_fabrication_files(result: Design, folder: Path) -> list[str]:
         cad_flat=result.cad_flat,
         cad_assembled=result.cad_assembled,
         design_name=result.target.name,
+        guide=write_guide,
     )
 
 

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from drawstring.cad.features import channel_radius
 from drawstring.cad.paths import SIDE_TOP_FACE, TILE_FACES, channel_path, face_planes, lift_path
-from drawstring.fabrication.exports_dxf import Part2D, text_strokes, text_width
+from drawstring.fabrication.dxf import Part2D, text_strokes, text_width
 
 if TYPE_CHECKING:
     from drawstring.fabrication.profiles import Profile
@@ -237,7 +237,7 @@ def tile_panels(
         polygon = np.array(outline)
         # c points outward (the neighbour's normal), so the ring runs as the corners do;
         # make it counter-clockwise in the frame seen from inside.
-        from drawstring.fabrication.exports_dxf import signed_area
+        from drawstring.fabrication.dxf import signed_area
 
         if signed_area(polygon) < 0:
             polygon = polygon[::-1]

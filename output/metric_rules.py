@@ -2,7 +2,7 @@
 
 ``METRIC_RULES`` holds the known metrics (dotted names for nested ones) with their meaning,
 their target and a check; :func:`evaluate_metrics` turns the metrics of a design.json into
-:class:`MetricRow` lines of the report's table.  Used by :mod:`drawstring.fabrication.report`.
+:class:`MetricRow` lines of the report's table.  Used by :mod:`drawstring.output.report`.
 """
 
 from __future__ import annotations

@@ -9,12 +9,11 @@ the tight string locks the assembled shape.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.fabrication.layout_stage import absorbable_ratio, fabricated_tiles, split_bound
 from drawstring.fabrication.profiles import Profile
 from drawstring.geometry.assembled.rigidity import rigidity_report
 from drawstring.geometry.assembled.shape import AssembledResult
@@ -37,43 +36,11 @@ from drawstring.geometry.route.plan import Route, route_metrics
 from drawstring.geometry.simulate.deploy import route_snap_pairs, route_steps, split_contact_pairs
 from drawstring.geometry.tiling.grid import Tiling, parts_in_place
 from drawstring.geometry.tiling.linkage import Linkage, gap_centroids
-
-if TYPE_CHECKING:
-    from drawstring.fabrication.pipeline import ResolvedOptions
-
+from drawstring.pipeline.layout_stage import absorbable_ratio, fabricated_tiles, split_bound
+from drawstring.pipeline.record import ResolvedOptions, above, jsonable, rounded
 
 #: Largest distance (mm) between a channel's exit and the next tile's entry, assembled pose.
 CHANNEL_MATCH_TOL_MM = 0.05
-
-
-def _round(value: float, digits: int = 6) -> float:
-    return float(round(value, digits))
-
-
-def above(value: float, bound: float) -> str:
-    """``value`` with two significant digits, or as many more (up to six) as it takes to read
-    above ``bound`` (a hinge gap of 0.001005 mm printed as 0.001 did not read as exceeding
-    0.001 mm)."""
-    for digits in range(2, 7):
-        text = f"{value:.{digits}g}"
-        if float(text) > bound:
-            return text
-    return text
-
-
-def _jsonable(value: Any) -> Any:
-    """Plain JSON values: numpy scalars and arrays become Python numbers and lists."""
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple | np.ndarray):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.bool_ | bool):
-        return bool(value)
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.floating | float):
-        return float(value) if math.isfinite(value) else None
-    return value
 
 
 def channel_turn_assembled(route: Route, tiles_3d: NDArray[np.float64]) -> float:
@@ -196,7 +163,7 @@ def design_rigidity(
         "isostatic": report.isostatic,
         "contacts": {"string": len(string_pairs), "magnets": len(magnet_pairs)},
         "joints": len(hinge_vertices),
-        "smallest_nonzero_singular_value": _round(
+        "smallest_nonzero_singular_value": rounded(
             float(report.to_json()["smallest_nonzero_singular_value"]),
             12,
         ),
@@ -238,7 +205,7 @@ def measure_design(
     linkage = tiling.linkage
     a = assembled.metrics
     metrics: dict[str, Any] = {
-        key: _round(float(a[key]), 9)
+        key: rounded(float(a[key]), 9)
         for key in (
             "planarity_max_mm",
             "planarity_max_before_mm",
@@ -255,7 +222,7 @@ def measure_design(
     }
     clash = verify.assembled_overlap(assembled.tiles, linkage)
     metrics.update(
-        {k: _round(v, 9) if isinstance(v, float) else v for k, v in clash.to_json().items()}
+        {k: rounded(v, 9) if isinstance(v, float) else v for k, v in clash.to_json().items()}
     )
     tiles_2d = hinge_layout.tiles
     top_2d = tiles_2d[:, :4, :2]
@@ -278,44 +245,44 @@ def measure_design(
     in_plane = verify.hinge_gaps(fabricated, hinge_layout.hinge_vertices, in_plane=True)
     metrics.update(
         {
-            "flat_overlap_area_mm2": _round(overlap_area, 9),
-            "flat_interpenetration_mm3": _round(volume, 9),
-            "flat_edge_error_max_mm": _round(edge_error, 9),
-            "flat_gap_angle_min_deg": _round(float(angles.min(initial=90.0)), 6),
-            "flat_gap_angle_max_deg": _round(float(angles.max(initial=0.0)), 6),
-            "hinge_gap_max_mm": _round(hinge_gap, 9),
-            "hinge_gap_in_plane_max_mm": _round(float(in_plane.max(initial=0.0)), 9),
+            "flat_overlap_area_mm2": rounded(overlap_area, 9),
+            "flat_interpenetration_mm3": rounded(volume, 9),
+            "flat_edge_error_max_mm": rounded(edge_error, 9),
+            "flat_gap_angle_min_deg": rounded(float(angles.min(initial=90.0)), 6),
+            "flat_gap_angle_max_deg": rounded(float(angles.max(initial=0.0)), 6),
+            "hinge_gap_max_mm": rounded(hinge_gap, 9),
+            "hinge_gap_in_plane_max_mm": rounded(float(in_plane.max(initial=0.0)), 9),
             # flat.obj holds the merged tiles: how far merging moved a vertex off its rigid
             # copy of the assembled tile (about the largest hinge gap at most: a pair merges at
             # its midpoint moved sideways onto the plane that separates its tiles)
-            "flat_merge_shift_max_mm": _round(
+            "flat_merge_shift_max_mm": rounded(
                 float(np.linalg.norm(hinge_layout.tiles - fabricated, axis=2).max(initial=0.0)),
                 9,
             ),
             "hinges_bottom": int(np.count_nonzero(hinge_layout.bottom)),
-            "mass_g": _round(float(masses.sum()) * 1000.0, 3),
+            "mass_g": rounded(float(masses.sum()) * 1000.0, 3),
         }
     )
     # top hinges trim every overlapping pair; dual ones only pairs that clear on neither face
-    metrics["contact_area_lost_mm2"] = _round(hinge_layout.contact_area_lost_mm2, 6)
+    metrics["contact_area_lost_mm2"] = rounded(hinge_layout.contact_area_lost_mm2, 6)
     metrics["lift_points"] = lift.to_json()
     assembled_gaps = gap_centroids(linkage, assembled.tiles[:, :4])
     flat_gaps = gap_centroids(linkage, parts_in_place(linkage, top_2d, tiling.uv))
-    metrics["route"] = _jsonable(
+    metrics["route"] = jsonable(
         route_metrics(route, linkage, flat_gaps, assembled_gaps, profile.friction_coefficient)
     )
     # the string's length along its channels on the fabricated tiles, as every other output
     # reports it (not the planning polyline through the gap centres)
     from drawstring.cad.paths import route_lengths
-    from drawstring.fabrication.cad_stage import lift_exits, route_steps
+    from drawstring.pipeline.cad_stage import lift_exits, route_steps
 
     flat_length, assembled_length = route_lengths(
         fabricated, assembled.tiles, route_steps(route), lift_exits(route, lift.lift_gaps)
     )
     metrics["route"]["length_mm"] = {"flat": flat_length, "assembled": assembled_length}
     channel_turn = channel_turn_assembled(route, assembled.tiles)
-    metrics["route"]["turn_angle_channels_assembled_rad"] = _round(channel_turn, 6)
-    metrics["route"]["capstan_factor_channels_assembled"] = _round(
+    metrics["route"]["turn_angle_channels_assembled_rad"] = rounded(channel_turn, 6)
+    metrics["route"]["capstan_factor_channels_assembled"] = rounded(
         math.exp(profile.friction_coefficient * channel_turn), 6
     )
     problems: list[str] = []

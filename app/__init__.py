@@ -1,0 +1,1 @@
+"""What a person runs: the ``drawstring`` command line (:mod:`.cli`)."""

@@ -1,0 +1,412 @@
+"""The design pipeline: target -> flattening -> tiling -> ... -> measured design.
+
+``design(target, options)`` runs every stage in order, times each one and returns a
+:class:`~drawstring.pipeline.record.Design`; :func:`drawstring.output.folder.write_design`
+writes its output folder atomically.  The command line and the Python API (``from drawstring
+import design, write_design``) both go through these two functions.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from dataclasses import replace
+from typing import Any
+
+import igl
+import numpy as np
+from numpy.typing import NDArray
+from threadpoolctl import threadpool_limits
+
+from drawstring.fabrication.profiles import MAX_TILES, MIN_GRID_SIDE, Profile, load_profile
+from drawstring.geometry.core.errors import InputError, ThicknessError
+from drawstring.geometry.flatten.conformal import Flattening, flatten
+from drawstring.geometry.route.lift import select_lift_points, tile_masses_from_volumes
+from drawstring.geometry.route.plan import Route
+from drawstring.geometry.simulate.deploy import SimulationResult, simulate_stage
+from drawstring.geometry.target.surface import Target, load_target
+from drawstring.geometry.tiling.grid import grid_shape_for, parts_in_place
+from drawstring.geometry.tiling.linkage import gap_centroids
+from drawstring.pipeline.layout_stage import fabricated_tiles, shape_and_layout
+from drawstring.pipeline.measure import cad_problems, cad_warnings, design_rigidity, measure_design
+from drawstring.pipeline.record import (
+    Design,
+    DesignOptions,
+    Progress,
+    ResolvedOptions,
+    jsonable,
+    rounded,
+)
+from drawstring.pipeline.route_stage import NamedCheck, plan_lift_route
+
+log = logging.getLogger(__name__)
+
+
+def resolve_options(options: DesignOptions, profile: Profile) -> ResolvedOptions:
+    """Fill profile defaults into the options."""
+    options.validate()
+    tiles = options.tiles
+    if options.grid is None and tiles is None:
+        tiles = profile.default_tiles
+    resolved = ResolvedOptions(
+        profile=profile.name if profile.source.endswith("(shipped)") else profile.source,
+        tiles=tiles if options.grid is None else None,
+        grid=tuple(options.grid) if options.grid is not None else None,
+        size_mm=options.size_mm if options.size_mm is not None else profile.default_size_mm,
+        resolution=options.resolution,
+        thickness_mm=options.thickness_mm
+        if options.thickness_mm is not None
+        else profile.thickness_mm,
+        min_gap_angle_deg=options.min_gap_angle_deg
+        if options.min_gap_angle_deg is not None
+        else profile.min_gap_angle_deg,
+        max_scale_factor=options.max_scale_factor,
+        corners=options.corners,
+        hinges=options.hinges,
+        weights=tuple(options.weights),
+        up=tuple(float(c) / math.hypot(*options.up) for c in options.up),
+        simulate=options.simulate,
+        cad=options.cad,
+        co_optimize=options.co_optimize,
+        seed=options.seed,
+        repair=options.repair,
+    )
+    if resolved.cad:
+        from drawstring.pipeline.cad_stage import thickness_refusal
+
+        too_thin = thickness_refusal(profile, resolved.thickness_mm)
+        if too_thin is not None:
+            raise too_thin
+    return resolved
+
+
+def check_grid(options: ResolvedOptions, flat_map: Flattening, *, from_profile: bool) -> None:
+    """Refuse a tile count that gives this target's flattening a grid too narrow for a string
+    route (fewer than :data:`MIN_GRID_SIDE` cells one way), before the costly stages."""
+    if options.tiles is None:
+        return
+    width, height = np.ptp(flat_map.uv, axis=0).tolist()
+    n_i, n_j = grid_shape_for(width, height, options.tiles)
+    if min(n_i, n_j) >= MIN_GRID_SIDE:
+        return
+    need = options.tiles
+    while need < MAX_TILES and min(grid_shape_for(width, height, need)) < MIN_GRID_SIDE:
+        need += 1
+    asked = f"the profile's {options.tiles} tiles" if from_profile else f"--tiles {options.tiles}"
+    grid = f"--grid {MIN_GRID_SIDE} {MIN_GRID_SIDE}"
+    fix = (
+        f"use --tiles {need} or more, or {grid}"
+        if min(grid_shape_for(width, height, need)) >= MIN_GRID_SIDE
+        else f"use {grid} or more (no tile count up to {MAX_TILES} gives such a grid)"
+    )
+    raise InputError(
+        f"with {asked} this target gets a {n_i} x {n_j} grid, but the string route needs at least "
+        f"{MIN_GRID_SIDE} tiles each way: {fix}"
+    )
+
+
+def size_refusal(exc: ThicknessError, options: ResolvedOptions) -> InputError | None:
+    """The one-line refusal of a size too small for the tile thickness, or None when the
+    assembled stage found no thickness that works.
+
+    Tiles turn inside out where the thickness exceeds about the target's radius of curvature,
+    which scales with ``--size``: the design at ``size * thickness / advice`` is the one at
+    ``--thickness advice`` scaled up, so that size is the one to suggest.
+    """
+    thickness, advice = exc.thickness, exc.advice
+    if not 0 < advice < thickness:
+        return None
+    wanted = options.size_mm * thickness / advice
+    step = 10.0 ** (math.floor(math.log10(wanted)) - 1)  # two significant digits, rounded up
+    size = math.ceil(wanted / step - 1e-9) * step
+    fewer = "a smaller --grid" if options.grid is not None else "fewer --tiles"
+    return InputError(
+        f"--size {options.size_mm:g} mm is too small for {thickness:g} mm thick tiles: "
+        f"{exc.inverted} tile(s) turn inside out where this target curves tightly; use "
+        f"--size {size:g} or more, --thickness {advice:g} or less, or {fewer}"
+    )
+
+
+#: BLAS threads while designing.  A multi-threaded BLAS sums in an order that depends on its
+#: thread count; the eq.-1 solve and the layouts amplify that rounding (the 200-tile chair:
+#: assembled tiles 0.019 mm apart, flat edge error 0.0009 mm on two threads against 0.49 mm on
+#: one), and the BLAS calls here are small enough that one thread costs nothing measurable.
+BLAS_THREADS = 1
+
+
+def mesh_corners(target: Target, options: ResolvedOptions) -> tuple[int, ...] | None:
+    """``--corners`` (vertex ids of the mesh as read, counting from 0) as ids of the loaded
+    target, whose repairs may have dropped or merged vertices."""
+    if options.corners is None:
+        return None
+    ids = [int(v) for v in options.corners]
+    where = target.vertex_of_input
+    if where is None:
+        return tuple(ids)
+    outside = [v for v in ids if not 0 <= v < len(where)]
+    if outside:
+        raise InputError(
+            f"--corners {outside[0]} is not a vertex of the mesh, which has {len(where)} "
+            f"(ids 0 to {len(where) - 1}, in the file's order)"
+        )
+    if len(set(ids)) != len(ids):
+        raise InputError(
+            f"--corners {' '.join(map(str, ids))} repeat a vertex; name four distinct boundary "
+            "vertices"
+        )
+    dropped = [v for v in ids if where[v] < 0]
+    if dropped:
+        raise InputError(
+            f"--corners {dropped[0]} names a vertex that no face of the mesh uses (or only "
+            "faces that loading removed, zero-area or duplicated); pick four boundary vertices "
+            "of the surface"
+        )
+    mapped = [int(where[v]) for v in ids]
+    boundary = set(igl.boundary_loop(np.asarray(target.faces)).tolist())
+    inside = [v for v, m in zip(ids, mapped, strict=True) if m not in boundary]
+    if inside:
+        raise InputError(
+            f"--corners vertices {inside} are not on the mesh boundary; pick four boundary "
+            "vertex ids (counting from 0, in the file's order)"
+        )
+    if len(set(mapped)) < len(set(ids)):
+        raise InputError(
+            f"--corners {' '.join(map(str, ids))} name coincident vertices, which loading "
+            "merged into one; pick four distinct corners"
+        )
+    return tuple(mapped)
+
+
+def design(
+    target: str | os.PathLike[str],
+    options: DesignOptions | None = None,
+    *,
+    quiet: bool = True,
+    progress: Progress | None = None,
+) -> Design:
+    """Run the design pipeline on a mesh path or built-in target name.
+
+    BLAS runs on one thread meanwhile (:data:`BLAS_THREADS`), so the result does not depend on
+    the machine's core count.
+
+    Raises
+    ------
+    InputError
+        For bad input (the CLI prints its one-line message and exits with status 2).
+    """
+    with threadpool_limits(limits=BLAS_THREADS, user_api="blas"):
+        return _design(target, options, quiet=quiet, progress=progress)
+
+
+def _design(
+    target: str | os.PathLike[str],
+    options: DesignOptions | None,
+    *,
+    quiet: bool,
+    progress: Progress | None,
+) -> Design:
+    options = options or DesignOptions()
+    options.validate()
+    profile = load_profile(options.profile)
+    resolved = resolve_options(options, profile)
+    progress = progress or Progress(quiet=quiet)
+    notes: list[str] = []
+
+    with progress.stage("target"):
+        loaded = load_target(
+            target, size_mm=resolved.size_mm, resolution=resolved.resolution,
+            repair=resolved.repair,
+        )  # fmt: skip
+    with progress.stage("flatten"):
+        try:
+            flat_map = flatten(
+                loaded.vertices, loaded.faces, mode="rectangle",
+                corners=mesh_corners(loaded, resolved),
+            )  # fmt: skip
+        except InputError as unflattened:
+            if loaded.source == "builtin":
+                raise
+            # a mesh the loader accepted but that cannot be flattened: name the file, as the
+            # loader's own refusals do
+            raise InputError(f"{loaded.source}: {unflattened}") from None
+    if flat_map.flipped:
+        notes.append(
+            f"flattening: the conformal map turns {flat_map.flipped} of the target's "
+            f"{len(loaded.faces)} triangles over (slivers or a coarse mesh where the surface "
+            "bends sharply); the tiles are lifted from this map and checked as measured, and "
+            "a finer, cleaner target mesh or other --corners avoids it"
+        )
+    check_grid(resolved, flat_map, from_profile=options.tiles is None and options.grid is None)
+    try:
+        shaped = shape_and_layout(loaded, flat_map, resolved, progress)
+    except ThicknessError as exc:
+        refusal = size_refusal(exc, resolved)
+        if refusal is None:
+            raise
+        raise refusal from exc
+    notes.extend(shaped.notes)
+    tiling, assembled, flat = shaped.tiling, shaped.assembled, shaped.flat
+    co_block, hinge_layout, linkage = shaped.co_block, shaped.hinge_layout, shaped.tiling.linkage
+    assert hinge_layout is not None  # only a tiling that was tiled again goes without
+    masses = tile_masses_from_volumes(
+        assembled.tiles, profile.density_kg_m3 * profile.infill_fraction
+    )
+    # the route is planned with the parts side by side as they meet in the assembled shape
+    flat_gap_xy = gap_centroids(
+        linkage, parts_in_place(linkage, hinge_layout.tiles[:, :4, :2], tiling.uv)
+    )
+    fabricated = fabricated_tiles(hinge_layout, assembled.tiles)
+    routes: dict[tuple[int, ...], tuple[Route, str | None, NDArray[np.int64]]] = {}
+    runs: dict[tuple[int, ...], SimulationResult] = {}
+
+    def route_for(
+        lift_gaps: NDArray[np.int64],
+    ) -> tuple[Route, str | None, NDArray[np.int64]]:
+        key = tuple(int(g) for g in lift_gaps)
+        if key not in routes:
+            with progress.stage("route"):
+                routes[key] = plan_lift_route(linkage, flat_gap_xy, lift_gaps)
+        return routes[key]
+
+    def simulated(lift_gaps: NDArray[np.int64]) -> SimulationResult:
+        key = tuple(int(g) for g in lift_gaps)
+        if key not in runs:
+            route_steps, _, served = route_for(lift_gaps)
+            with progress.stage("simulate"):
+                runs[key] = simulate_stage(
+                    linkage,
+                    fabricated,
+                    assembled.tiles,
+                    hinge_layout.hinge_vertices,
+                    route_steps,
+                    served,
+                    resolved.thickness_mm,
+                )
+        return runs[key]
+
+    deploy_check = None
+    if resolved.simulate:
+        # The lift-point sweep raises its threshold while the simulated deployment fails
+        # (paper sec. 5.2); every lift set is routed and simulated once.
+        deploy_check = NamedCheck(
+            "projective-dynamics deployment simulation",
+            lambda gaps: simulated(gaps).deployed,
+        )
+    assembled_gap_xyz = gap_centroids(linkage, assembled.tiles[:, :4])
+    with progress.stage("lift"):
+        lift = select_lift_points(
+            linkage,
+            assembled.tiles.mean(axis=1),
+            masses,
+            up=resolved.up,
+            gap_positions=assembled_gap_xyz,
+            deploy_check=deploy_check,
+        )
+    if not resolved.simulate and lift.sweep and not any(ok for _, _, ok in lift.sweep):
+        notes.append(
+            f"lift points: the check '{lift.check_name}' failed for every threshold, so every "
+            "energy peak is a lift point (run with the deployment simulation to check the pull)"
+        )
+    # the lift set the sweep chose; a lift gap the string cannot reach is served next to it
+    chosen = lift.lift_gaps
+    route, route_note, served = route_for(chosen)
+    if route_note:
+        notes.append(route_note)
+    if not np.array_equal(served, chosen):
+        lift = replace(lift, lift_gaps=served, positions=assembled_gap_xyz[served])
+    measured, problems, warnings = measure_design(
+        resolved, profile, tiling, assembled, flat, hinge_layout, lift, route, masses,
+        target_diagonal_mm=loaded.bbox_diagonal_mm,
+    )  # fmt: skip
+    measured["co_optimization"] = co_block
+    measured["split_bound"] = rounded(shaped.split_bound, 6)
+    notes.extend(f"flat stage: {p}" for p in flat.problems)
+    notes.extend(f"hinge stage: {p}" for p in hinge_layout.problems)
+    with progress.stage("rigidity"):
+        rigidity = design_rigidity(linkage, assembled.tiles, hinge_layout.hinge_vertices, route)
+    measured["rigidity"] = rigidity
+    if not rigidity["isostatic"]:
+        warnings.append(
+            f"the assembled linkage with its string keeps {rigidity['internal_flexes']} internal "
+            "flex(es) (metrics.rigidity); it may wobble when the string is tight"
+        )
+    simulation = None
+    if resolved.simulate:
+        simulation = simulated(chosen)  # the run of this route, already made by the sweep
+        block = jsonable(simulation.to_json())
+        # Wall-clock numbers go to timings_s, so everything else in design.json is reproducible.
+        block.pop("time_s", None)
+        progress.timings["simulate_per_step"] = float(block.pop("per_step_ms", 0.0)) / 1000.0
+        block["runs"] = len(runs)
+        measured["simulation"] = block
+        if not simulation.deployed:
+            warnings.append(
+                "the deployment simulation got stuck ("
+                f"{len(simulation.open_gaps)} route gaps open, tiles up to "
+                f"{simulation.final_max_deviation_mm:.2f} mm from the assembled shape, worst "
+                f"tiles {', '.join(str(w['tile']) for w in simulation.worst_tiles(3))}) with "
+                f"every lift-point set the sweep tried ({len(runs)}); see design.json "
+                "metrics.simulation"
+            )
+    result = Design(
+        options=resolved,
+        profile=profile,
+        target=loaded,
+        flattening=flat_map,
+        tiling=tiling,
+        assembled=assembled,
+        flat=flat,
+        hinge_layout=hinge_layout,
+        lift=lift,
+        route=route,
+        simulation=simulation,
+        measured=measured,
+        timings_s=progress.ordered_timings(),
+        notes=tuple(notes),
+        problems=tuple(problems),
+        warnings=tuple(warnings),
+    )
+    if resolved.cad:
+        result = with_cad(result, progress)
+    return result
+
+
+def with_cad(result: Design, progress: Progress) -> Design:
+    """Build the solids (flat and assembled pose) and measure them; the export stage writes
+    them out in :func:`write_design`."""
+    from drawstring.pipeline.cad_stage import build_cad, measure_cad
+
+    with progress.stage("cad"):
+        try:
+            cad_flat, cad_assembled = build_cad(result)
+        except InputError as refusal:
+            if not result.problems:
+                raise
+            # Tiles too small (or too large) for the profile: a new size alone may not give a
+            # design, so the refusal names what else is wrong (found before any solid).
+            more = f" and {len(result.problems) - 1} more" if len(result.problems) > 1 else ""
+            raise InputError(
+                f"{refusal}; the design has problems besides, which --no-cad writes out to "
+                f"look at: {result.problems[0]}{more}"
+            ) from None
+        measured = measure_cad(result, cad_flat)
+    problems = [*result.problems, *cad_problems(measured)]
+    warnings = [*result.warnings, *cad_warnings(measured, result.profile)]
+    notes = [*result.notes, *(f"cad: {n}" for n in cad_flat.notes)]
+    return replace(
+        result,
+        cad_flat=cad_flat,
+        cad_assembled=cad_assembled,
+        # the mass of the tiles as cut plus the hinge parts replaces the uncut tiles' estimate
+        measured={**result.measured, "cad": measured, "mass_g": measured["mass_g"]},
+        problems=tuple(problems),
+        warnings=tuple(warnings),
+        notes=tuple(notes),
+        timings_s=progress.ordered_timings(),
+    )
+
+
+def with_options(options: DesignOptions, **changes: Any) -> DesignOptions:
+    """A copy of ``options`` with some fields changed (for scripts and tests)."""
+    return replace(options, **changes)
