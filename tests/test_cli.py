@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drawstring.fabrication.cli import main
+from drawstring.app.cli import main
 
 SMALL = ["--grid", "6", "4", "--resolution", "1500", "--no-cad", "--quiet"]
 
@@ -19,7 +19,7 @@ SMALL = ["--grid", "6", "4", "--resolution", "1500", "--no-cad", "--quiet"]
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
     """Run ``drawstring`` in a subprocess, as a user would."""
     return subprocess.run(
-        [sys.executable, "-m", "drawstring.fabrication.cli", *args],
+        [sys.executable, "-m", "drawstring.app.cli", *args],
         capture_output=True,
         text=True,
         check=False,
@@ -32,7 +32,7 @@ def test_a_design_without_cad_loads_no_cad_kernel(tmp_path: Path) -> None:
     out = tmp_path / "plain"
     script = (
         "import sys\n"
-        "from drawstring.fabrication.cli import main\n"
+        "from drawstring.app.cli import main\n"
         f"code = main(['design', 'saddle', *{SMALL!r}, '--out', {str(out)!r}])\n"
         "print(code, sorted(m for m in ('build123d', 'OCP', 'ezdxf') if m in sys.modules))\n"
     )
@@ -271,7 +271,7 @@ def test_bad_options_exit_2(args: list[str], words: str, tmp_path: Path) -> None
     (tmp_path / "mesh.xyz").write_text("v 0 0 0\n")
     out = tmp_path / "out"
     done = subprocess.run(
-        [sys.executable, "-m", "drawstring.fabrication.cli", "design", *args, "--out", str(out)],
+        [sys.executable, "-m", "drawstring.app.cli", "design", *args, "--out", str(out)],
         capture_output=True,
         text=True,
         cwd=tmp_path,
@@ -316,7 +316,7 @@ def test_an_output_folder_that_cannot_be_made_is_refused_before_any_work(
     # /proc takes no new folders, not even from root (whom os.access lets write anywhere).
     if not Path("/proc/self").is_dir():
         pytest.skip("needs Linux /proc")
-    import drawstring.fabrication.pipeline as pipeline
+    import drawstring.pipeline.run as pipeline
 
     def no_work(*args: object, **kwargs: object) -> None:
         raise AssertionError("the design ran before its output folder was checked")
@@ -325,6 +325,23 @@ def test_an_output_folder_that_cannot_be_made_is_refused_before_any_work(
     assert main(["design", "saddle", *SMALL, "--out", "/proc/drawstring-out"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "cannot write into /proc" in err
+
+
+def test_an_internal_error_is_one_line_and_exit_status_1(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import drawstring.pipeline.run as pipeline
+    from drawstring.geometry.core.errors import InternalError
+
+    def broken(*args: object, **kwargs: object) -> None:
+        raise InternalError("the route handed the simulation 3 columns, not 4")
+
+    monkeypatch.setattr(pipeline, "design", broken)
+    out = tmp_path / "out"
+    assert main(["design", "saddle", *SMALL, "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "internal error: the route handed" in err[0] and "-v" in err[0]
+    assert not out.exists()
 
 
 def test_bad_profile_file_is_refused(tmp_path: Path) -> None:
@@ -478,7 +495,7 @@ def test_a_missed_flat_layout_target_exits_4_without_strict(tmp_path: Path) -> N
 def test_layout_misses_name_the_flat_layout_targets_above_their_tolerance() -> None:
     from types import SimpleNamespace
 
-    from drawstring.fabrication.pipeline import Design
+    from drawstring.pipeline.record import Design
 
     def misses(**measured: object) -> list[str]:
         return Design.layout_misses(SimpleNamespace(measured=measured))  # type: ignore[arg-type]
@@ -506,7 +523,7 @@ def test_the_fix_for_a_missed_layout_target_names_tiles_and_a_split_bound_that_s
     # (in depth it misses, 0.029 mm; --hinges top meets them all).
     from types import SimpleNamespace
 
-    from drawstring.fabrication.cli import _closer_fit
+    from drawstring.app.cli import _closer_fit
 
     edge = ["flat edge error 0.0015 mm exceeds 0.001 mm"]
 
@@ -551,7 +568,7 @@ def test_the_fix_for_a_missed_layout_target_names_tiles_and_a_split_bound_that_s
 def test_strict_exits_0_without_warnings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import dataclasses
 
-    from drawstring.fabrication import pipeline
+    from drawstring.pipeline import run as pipeline
 
     real = pipeline.design
 
@@ -708,9 +725,10 @@ def test_a_route_failure_found_late_is_one_line_without_solver_internals(
 ) -> None:
     # A grid two cells wide has no closed string route.  --grid refuses it up front; with that
     # check lifted, the route stage's own refusal is one plain line too.
-    from drawstring.fabrication import pipeline
+    from drawstring.pipeline import record, run
 
-    monkeypatch.setattr(pipeline, "MIN_GRID_SIDE", 1, raising=False)  # absent before the check
+    for module in (record, run):  # the options' check and the check on the flattened target
+        monkeypatch.setattr(module, "MIN_GRID_SIDE", 1)
     out = tmp_path / "narrow"
     args = ["design", "saddle", "--grid", "2", "2", "--resolution", "1500", "--no-cad"]
     assert main([*args, "--no-simulate", "--quiet", "--out", str(out)]) == 3
@@ -724,7 +742,7 @@ def test_a_route_failure_found_late_is_one_line_without_solver_internals(
     "argv", [["-v", "design", "saddle"], ["design", "saddle", "-v"], ["design", "saddle"]]
 )
 def test_verbose_is_accepted_before_and_after_the_subcommand(argv: list[str]) -> None:
-    from drawstring.fabrication.cli import build_parser
+    from drawstring.app.cli import build_parser
 
     assert build_parser().parse_args(argv).verbose is ("-v" in argv)
     done = run_cli("targets", "-v")
@@ -739,7 +757,7 @@ def test_facts_the_design_lists_are_not_repeated_as_log_lines(
     # the simulation, as a note when it is the geometric stand-in (--no-simulate).
     import dataclasses
 
-    from drawstring.fabrication import pipeline
+    from drawstring.pipeline import run as pipeline
 
     real_simulate = pipeline.simulate_stage
     first: list[object] = []
@@ -780,7 +798,7 @@ def test_library_warnings_are_logged_with_verbose_and_kept_off_the_terminal_with
 ) -> None:
     import warnings
 
-    from drawstring.fabrication import cli
+    from drawstring.app import cli
 
     def noisy() -> int:
         warnings.warn("overflow encountered in multiply", RuntimeWarning, stacklevel=1)
@@ -810,7 +828,7 @@ def test_ctrl_c_is_one_line_exit_130_and_leaves_no_folder(tmp_path: Path) -> Non
     # Python ignores SIGINT where its parent did (a CI job run in the background): take it back
     run = (
         "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
-        "from drawstring.fabrication.cli import main; sys.exit(main(sys.argv[1:]))"
+        "from drawstring.app.cli import main; sys.exit(main(sys.argv[1:]))"
     )
     process = subprocess.Popen(
         [sys.executable, "-c", run, "design", "seashell", "--tiles", "400", "--no-cad",
@@ -901,7 +919,7 @@ def test_a_design_folder_that_cannot_be_moved_aside_is_refused_up_front(
 
     monkeypatch.setattr(os, "rename", no_move)
     ran = []
-    from drawstring.fabrication import pipeline
+    from drawstring.pipeline import run as pipeline
 
     monkeypatch.setattr(pipeline, "design", lambda *a, **k: ran.append(1))
     capsys.readouterr()
@@ -917,7 +935,7 @@ def test_simulate_refuses_a_folder_it_cannot_write_before_simulating(
 ) -> None:
     import tempfile
 
-    from drawstring.fabrication import out_folder
+    from drawstring.output import folder as out_folder
 
     out = tmp_path / "d"
     args = ["design", "saddle", "--grid", "6", "5", "--resolution", "1500", "--no-cad"]
@@ -1042,7 +1060,7 @@ def test_a_mesh_files_repairs_are_shown_not_only_recorded(
 def test_the_default_folder_spells_a_built_in_as_design_json_does(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from drawstring.fabrication.out_folder import default_out_dir
+    from drawstring.output.folder import default_out_dir
 
     monkeypatch.chdir(tmp_path)
     assert default_out_dir("SADDLE") == tmp_path / "saddle-drawstring"
@@ -1079,7 +1097,7 @@ def test_a_reader_that_goes_away_ends_the_output_not_the_command(
     whole)."""
     out = tmp_path / "piped"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "drawstring.fabrication.cli", *(a.format(out=out) for a in args)],
+        [sys.executable, "-m", "drawstring.app.cli", *(a.format(out=out) for a in args)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -1127,7 +1145,7 @@ def test_design_help_states_every_default_and_range(capsys) -> None:
 
 
 def test_the_wrote_line_names_the_print_jobs_of_a_layout_larger_than_the_bed(tmp_path) -> None:
-    from drawstring.fabrication.cli import _print_jobs
+    from drawstring.app.cli import _print_jobs
 
     assert _print_jobs(tmp_path) == ""  # --no-cad: no fabrication files
     (tmp_path / "fabrication").mkdir()
@@ -1242,7 +1260,7 @@ def test_version_names_the_installed_package(capsys: pytest.CaptureFixture[str])
 
 
 def test_progress_distances_read_as_millimetres() -> None:
-    from drawstring.fabrication.cli import _mm
+    from drawstring.app.cli import _mm
 
     assert _mm(6.5e-11) == "under 0.001 mm" and _mm(1e-4) == "under 0.001 mm"
     assert _mm(0.1181) == "0.118 mm" and _mm(123.4) == "123.400 mm"

@@ -1,4 +1,11 @@
-"""Errors that the command line turns into a one-line message and exit status 2."""
+"""The errors of drawstring, by whose fault they are.
+
+- :class:`InputError`: the user's input (a mesh, an option, a profile, a path) cannot be used;
+  the command line prints its one-line message and exits with status 2.
+- :class:`DesignError`: the input is valid but no design meets a hard target.
+- :class:`InternalError`: one module handed another data that breaks its contract (a bug in
+  drawstring, never the user's doing); the command line prints one line and exits with status 1.
+"""
 
 
 class InputError(ValueError):
@@ -6,6 +13,10 @@ class InputError(ValueError):
 
     The message is one line that names the problem and what to do about it.
     """
+
+
+class InternalError(RuntimeError):
+    """Data passed between drawstring's own modules breaks the receiver's contract (a bug)."""
 
 
 class DesignError(RuntimeError):
