@@ -10,13 +10,25 @@ from __future__ import annotations
 import math
 import tomllib
 from dataclasses import dataclass, fields
+from enum import StrEnum
 from importlib import resources
 from pathlib import Path
 from typing import Any, Literal, get_args
 
 from drawstring.geometry.core.errors import InputError
 
-Process = Literal["fdm-dual", "laser-epdm", "plywood-cnc"]
+
+class Process(StrEnum):
+    """How a design is made; a profile TOML names it by its value."""
+
+    #: tiles and TPU hinge pads printed together on a dual-extruder FDM printer
+    FDM_DUAL = "fdm-dual"
+    #: tiles printed loose, rubber hinge strips laser-cut and glued into recesses
+    LASER_EPDM = "laser-epdm"
+    #: tiles as plywood boxes of six CNC-cut panels, rubber strips screwed or stapled on
+    PLYWOOD_CNC = "plywood-cnc"
+
+
 SHIPPED_PROFILES: tuple[str, ...] = ("fdm-dual", "laser-epdm", "plywood-cnc")
 Interlock = Literal["through-holes", "dovetail", "glue-recess", "screws", "staples"]
 Joint = Literal["none", "butt", "finger"]
@@ -72,7 +84,7 @@ MAX_WEIGHT = 1e8
 # Schema: attribute name on Profile -> where it lives in the TOML and what it may hold.
 SCHEMA: dict[str, Field] = {
     "name": Field("", "name", str),
-    "process": Field("", "process", str, choices=get_args(Process)),
+    "process": Field("", "process", str, choices=tuple(p.value for p in Process)),
     "description": Field("", "description", str),
     "default_size_mm": Field("design", "default_size_mm", float, 10.0, MAX_SIZE_MM, "mm"),
     "default_tiles": Field("design", "default_tiles", int, MIN_TILES, MAX_TILES, "tiles"),
@@ -260,6 +272,7 @@ def parse_profile(data: dict[str, Any], source: str) -> Profile:
                     f"{source}: {where} = {value!r} is out of range ({_describe_range(spec)})"
                 )
         values[attr] = value
+    values["process"] = Process(values["process"])
     if values["size_min_mm"] > values["size_max_mm"]:
         raise InputError(
             f"{source}: design.size_min_mm ({values['size_min_mm']}) is above "
@@ -300,16 +313,16 @@ def load_profile(name_or_path: str | Path) -> Profile:
 
 
 #: What each process needs and makes, for ``drawstring profiles``.
-PROCESS_GUIDE: dict[str, tuple[str, str]] = {
-    "fdm-dual": (
+PROCESS_GUIDE: dict[Process, tuple[str, str]] = {
+    Process.FDM_DUAL: (
         "a dual-extruder FDM printer (or one with a tool changer / multi-material unit)",
         "print.3mf with tiles on extruder 1 and hinge pads on extruder 2, STEP, BOM, guide",
     ),
-    "laser-epdm": (
+    Process.LASER_EPDM: (
         "a single-material FDM printer for the tiles and a laser cutter for 1 mm EPDM sheet",
         "tiles.3mf, hinges.dxf (nested, kerf-compensated), a 1:1 placement template, BOM",
     ),
-    "plywood-cnc": (
+    Process.PLYWOOD_CNC: (
         "a laser cutter or CNC router for plywood sheet, a drill, glue and screws",
         "panels.dxf (finger-jointed box panels, nested), hinges.dxf, cutlist.csv, BOM, guide",
     ),
@@ -349,7 +362,7 @@ def rough_estimate(profile: Profile, size_mm: float, tiles: int) -> RoughEstimat
         raise InputError("an estimate needs a positive size in mm and at least one tile")
     area = ESTIMATE_AREA_FACTOR * size_mm**2
     side = math.sqrt(area / tiles)
-    if profile.process == "plywood-cnc":  # the panels of every box
+    if profile.process == Process.PLYWOOD_CNC:  # the panels of every box
         panels = 2 * side**2 + 4 * side * profile.thickness_mm
         tile_volume = tiles * panels * profile.panel_thickness_mm  # mm^3
     else:
@@ -369,12 +382,12 @@ def rough_estimate(profile: Profile, size_mm: float, tiles: int) -> RoughEstimat
     seconds = 0.0
     basis = []
     if profile.print_rate_mm3_s > 0:
-        printed = tile_volume + (hinge_volume if profile.process == "fdm-dual" else 0.0)
+        printed = tile_volume + (hinge_volume if profile.process == Process.FDM_DUAL else 0.0)
         seconds += printed / profile.print_rate_mm3_s
         basis.append("printing")
     if profile.cut_speed_mm_s > 0:
         cut = 2 * tiles * 2 * (profile.hinge_pad_length_mm + profile.hinge_width_mm)
-        if profile.process == "plywood-cnc":
+        if profile.process == Process.PLYWOOD_CNC:
             # six panel outlines per box: top and bottom round the side, four sides round
             # side x thickness; finger joints jog in and out by a panel thickness per finger
             outlines = 16 * side + 8 * profile.thickness_mm
@@ -406,4 +419,4 @@ def print_clearance_mm(profile: Profile) -> float:
     where they are printed together with their hinges in place (``fdm-dual``: a slicer lays
     each tile's perimeter lines inside its own outline, so outlines a nozzle apart keep the
     two tiles' lines from running into each other); 0 where they are made loose."""
-    return profile.nozzle_mm if profile.process == "fdm-dual" else 0.0
+    return profile.nozzle_mm if profile.process == Process.FDM_DUAL else 0.0

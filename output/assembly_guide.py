@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.cad.paths import SIDE_TOP_FACE, lift_path, route_openings
-from drawstring.fabrication.profiles import Profile, print_clearance_mm, string_is_cable
+from drawstring.fabrication.profiles import Process, Profile, print_clearance_mm, string_is_cable
 from drawstring.fabrication.record import ExportRecord, GuideInputs
 from drawstring.geometry.tiling.linkage import id_runs
 from drawstring.output import pictures
@@ -572,7 +572,7 @@ def _write_assembly(
         f"{profile.string_material} ({est['string_rule']}).",
         "",
     ]
-    if profile.process == "fdm-dual":
+    if profile.process == Process.FDM_DUAL:
         lines += [f"## {next(section)}. Print", ""]
         lines.append(
             f"`print.3mf` holds {len(record.jobs)} object(s), one per print job. Tiles are "
@@ -616,7 +616,7 @@ def _write_assembly(
         lines.append("")
     else:
         lines += [f"## {next(section)}. Make the parts", ""]
-        if profile.process == "laser-epdm":
+        if profile.process == Process.LASER_EPDM:
             beds = len(record.jobs)
             text = (
                 "Print the tiles from `tiles.3mf` (single material). They print loose, top "
@@ -667,7 +667,7 @@ def _write_assembly(
         # the numbers are engraved in the bottom faces (laser) or inside the boxes (plywood)
         on_top = (
             "by number (read each tile's number in its bottom face before you lay it down)"
-            if profile.process == "laser-epdm"
+            if profile.process == Process.LASER_EPDM
             else "matching their outlines (the engraved numbers are inside the boxes: pencil "
             "each box's number on its bottom as you glue it)"
         )
@@ -682,7 +682,7 @@ def _write_assembly(
             # laser tiles carry their numbers in their bottom faces; plywood boxes inside
             by_number = (
                 "by the numbers in their bottom faces"
-                if profile.process == "laser-epdm"
+                if profile.process == Process.LASER_EPDM
                 else "by the numbers pencilled on their bottoms"
             )
             text += (
@@ -709,7 +709,7 @@ def _write_assembly(
             (
                 "Press the magnets into their holes in the side panels, flush with the outer "
                 "face, and glue them from inside, with these poles facing out:"
-                if profile.process == "plywood-cnc"
+                if profile.process == Process.PLYWOOD_CNC
                 else "Glue the magnets into their pockets with these poles facing out:"
             ),
             "",

@@ -306,13 +306,13 @@ def _bed_note(found: _Folder) -> str:
     profile_name = found.design.get("options", {}).get("profile") or found.design.get("profile")
     if not profile_name:
         return text
-    from drawstring.fabrication.profiles import BED_MARGIN_MM, load_profile
+    from drawstring.fabrication.profiles import BED_MARGIN_MM, Process, load_profile
 
     try:
         profile = load_profile(str(profile_name))
     except (InputError, OSError):
         return text
-    if profile.process == "plywood-cnc":  # cut as panels nested on sheets: no bed to fit
+    if profile.process == Process.PLYWOOD_CNC:  # cut as panels nested on sheets: no bed to fit
         return f"{text} (its tiles are cut as panels nested on the sheets)"
     bed = (profile.bed_x_mm, profile.bed_y_mm)
     room = (bed[0] - 2 * BED_MARGIN_MM, bed[1] - 2 * BED_MARGIN_MM)  # as the job planner
@@ -329,7 +329,7 @@ def _bed_note(found: _Folder) -> str:
     jobs, beds = print_job_counts(found.folder)
     if not jobs:
         return f"{note}; the fabrication files split it into print jobs"
-    if profile.process == "laser-epdm":
+    if profile.process == Process.LASER_EPDM:
         return (
             f"{note}; the loose tiles print nested on {beds} bed{'s' if beds != 1 else ''} "
             "(see fabrication/assembly.md)"

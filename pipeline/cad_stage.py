@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.fabrication.profiles import Profile, print_clearance_mm
+from drawstring.fabrication.profiles import Process, Profile, print_clearance_mm
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tolerances import PRINT_GAP_TOL_MM
 from drawstring.geometry.route.plan import Route
@@ -348,9 +348,9 @@ def bed_refusal(result: Design) -> InputError | None:
     profile = result.profile
     bed = (profile.bed_x_mm, profile.bed_y_mm)
     tiles = print_tiles(result)
-    if profile.process == "fdm-dual":
+    if profile.process == Process.FDM_DUAL:
         return tile_bed_refusal(tiles, bed)
-    if profile.process == "laser-epdm":
+    if profile.process == Process.LASER_EPDM:
         try:
             nest_footprints(list(tiles), bed)
         except InputError as error:

@@ -2,13 +2,19 @@
 
 from __future__ import annotations
 
+import json
 import math
 import tomllib
 from pathlib import Path
 
 import pytest
 
-from drawstring.fabrication.profiles import SHIPPED_PROFILES, load_profile, parse_profile
+from drawstring.fabrication.profiles import (
+    SHIPPED_PROFILES,
+    Process,
+    load_profile,
+    parse_profile,
+)
 from drawstring.geometry.core.errors import InputError
 
 
@@ -19,6 +25,15 @@ def test_shipped_profiles_load(name: str) -> None:
     assert profile.process == name
     assert profile.thickness_mm > 0
     assert 0 <= profile.min_gap_angle_deg < 90
+
+
+@pytest.mark.parametrize("name", SHIPPED_PROFILES)
+def test_process_is_the_enum_and_written_as_its_name(name: str) -> None:
+    profile = load_profile(name)
+    assert type(profile.process) is Process
+    assert profile.process is Process(name)
+    assert json.loads(json.dumps(profile.to_json()))["process"] == name
+    assert f'process = "{name}"' in profile.to_toml()
 
 
 @pytest.mark.parametrize("name", SHIPPED_PROFILES)
