@@ -21,13 +21,11 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial import ConvexHull, QhullError
 
 from drawstring.cad.paths import face_planes
 from drawstring.geometry.core.errors import InputError
-
-FloatArray = NDArray[np.float64]
+from drawstring.geometry.core.types import FloatArray, IntArray
 
 __all__ = ["HingeReliefs", "hinge_reliefs", "separating_normal"]
 
@@ -123,7 +121,7 @@ def _sliver(tile: FloatArray, normal: FloatArray, depth: float) -> FloatArray:
 
 def hinge_reliefs(
     tiles: FloatArray,
-    hinges: NDArray[np.int64],
+    hinges: IntArray,
     sides: Sequence[str],
     clearance_mm: float,
 ) -> HingeReliefs:
