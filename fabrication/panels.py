@@ -18,7 +18,7 @@ the inner face up, so the engraved labels end up hidden inside the box.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from drawstring.cad.features import channel_radius
 from drawstring.cad.paths import SIDE_TOP_FACE, TILE_FACES, channel_path, face_planes, lift_path
-from drawstring.fabrication.dxf import Part2D, text_strokes, text_width
+from drawstring.fabrication.dxf import Part2D, signed_area, text_strokes, text_width
 
 if TYPE_CHECKING:
     from drawstring.fabrication.profiles import Profile
@@ -159,91 +159,62 @@ def tile_panels(
     A round hole at least as wide as the router's tool is cut (CUT_INNER); a narrower one is
     drilled (the DRILL layer), as the pilot holes are.
     """
-    p = profile.panel_thickness_mm
     centroids, normals = face_planes(vertices)
-    offsets = np.einsum("fd,fd->f", centroids, normals)
-    finger = profile.joint == "finger"
-    tool_radius = 0.5 * profile.tool_diameter_mm
-    finger_width = max(FINGER_WIDTH_FACTOR * p, 4.0 * tool_radius)
-    hole_radius = channel_radius(profile)
-    panels = []
-    for face in range(6):
-        normal = normals[face]
-        axis_a, axis_b = _frame(normal)
-        origin = centroids[face]
+    box = _Box(vertices, centroids, normals, np.einsum("fd,fd->f", centroids, normals), profile)
+    return [box.panel(tile_id, face, drill_points, holes, pilots) for face in range(6)]
 
-        def to2d(point: NDArray[np.float64], origin=origin, a=axis_a, b=axis_b) -> NDArray:
+
+@dataclass(frozen=True)
+class _EdgeLine:
+    """One edge of a panel as a 2D line: ``c`` the unit normal pointing out of the panel (the
+    neighbour's normal in the panel's frame), ``positions`` along it where the owner of the
+    joint reaches (the neighbour's outer plane) and where the other stops (its inner plane),
+    ``owner_ends`` whether this panel owns the edge's ends, the edge's two ends in 2D, the
+    neighbouring face and the dihedral angle (degrees)."""
+
+    c: NDArray[np.float64]
+    positions: tuple[float, float]
+    owner_ends: bool
+    start: NDArray[np.float64]
+    end: NDArray[np.float64]
+    neighbour: int
+    dihedral: float
+
+
+@dataclass(frozen=True)
+class _Box:
+    """A tile as a box of panels: its vertices, face planes (centroids, outward normals and
+    offsets ``n . x``) and the profile's panel dimensions."""
+
+    vertices: NDArray[np.float64]
+    centroids: NDArray[np.float64]
+    normals: NDArray[np.float64]
+    offsets: NDArray[np.float64]
+    profile: Profile
+
+    def panel(
+        self,
+        tile_id: int,
+        face: int,
+        drill_points: Sequence[tuple[int, NDArray[np.float64]]],
+        holes: Sequence[tuple[int, NDArray[np.float64], float]],
+        pilots: Sequence[tuple[int, NDArray[np.float64], float]],
+    ) -> Panel:
+        """Face ``face``'s panel: outline, holes and engraved label."""
+        profile = self.profile
+        axis_a, axis_b = _frame(self.normals[face])
+        origin = self.centroids[face]
+
+        def to2d(point: NDArray[np.float64]) -> NDArray:
             rel = point - origin
-            return np.array([rel @ a, rel @ b])
+            return np.array([rel @ axis_a, rel @ axis_b])
 
-        # Each edge as a 2D line: unit direction e, inward normal m, and two positions along m
-        # (owner: reaches the neighbour's outer plane; other: stops at its inner plane).
-        lines = []
-        edges = []
-        for neighbour, first in _EDGES[face]:
-            ring = TILE_FACES[face]
-            start3, end3 = vertices[ring[first]], vertices[ring[(first + 1) % 4]]
-            n_g = normals[neighbour]
-            c = np.array([n_g @ axis_a, n_g @ axis_b])
-            scale = float(np.linalg.norm(c))
-            c /= scale
-            cos_fg = float(normal @ n_g)
-            positions = []
-            for level in (offsets[neighbour], offsets[neighbour] - p):
-                # Plane n_g.x = level cut with this panel's outer and inner plane: take the
-                # larger extent (the panel is left proud rather than short).
-                outer = (level - n_g @ origin) / scale
-                inner = (level - n_g @ (origin - p * normal)) / scale
-                positions.append(max(outer, inner))
-            dihedral = float(np.degrees(np.pi - np.arccos(np.clip(cos_fg, -1.0, 1.0))))
-            owner_ends = face < neighbour
-            lines.append((c, positions, owner_ends, to2d(start3), to2d(end3)))
-            edges.append((neighbour, dihedral))
-        # Base polygon: edge i at its end-owner position; corner i between edges i-1 and i.
-        base_level = [pos[0] if own else pos[1] for c, pos, own, _, _ in lines]
-        corners = []
-        for i in range(4):
-            c0, c1 = lines[i - 1][0], lines[i][0]
-            matrix = np.array([c0, c1])
-            corners.append(np.linalg.solve(matrix, [base_level[i - 1], base_level[i]]))
-        outline: list[NDArray[np.float64]] = []
-        panel_edges = []
-        for i in range(4):
-            c, positions, own_ends, start2, end2 = lines[i]
-            neighbour, dihedral = edges[i]
-            a = corners[i]
-            outline.append(a)
-            length = float(np.linalg.norm(end2 - start2))
-            count = 1
-            if finger and length >= 3 * finger_width:
-                count = int(length // finger_width)
-                count -= 1 - count % 2  # odd
-            if count > 1:
-                direction = (end2 - start2) / length
-                for k in range(1, count):
-                    t = float((start2 - a) @ direction) + k * length / count
-                    own_before = own_ends if (k - 1) % 2 == 0 else not own_ends
-                    own_after = own_ends if k % 2 == 0 else not own_ends
-                    for owned in (own_before, own_after):
-                        level = positions[0] if owned else positions[1]
-                        point = a + t * direction
-                        point = point + (level - c @ point) * c
-                        outline.append(point)
-            panel_edges.append(
-                PanelEdge(
-                    FACE_NAMES[neighbour], round(dihedral, 3), round(dihedral - 90.0, 3), count
-                )
-            )
-        polygon = np.array(outline)
-        # c points outward (the neighbour's normal), so the ring runs as the corners do;
-        # make it counter-clockwise in the frame seen from inside.
-        from drawstring.fabrication.dxf import signed_area
-
-        if signed_area(polygon) < 0:
-            polygon = polygon[::-1]
-        if finger and tool_radius > 0:
-            polygon = _dogbones(polygon, tool_radius)
-        round_holes = [(point, hole_radius) for f, point in drill_points if f == face]
+        lines = [
+            self._edge_line(face, neighbour, first, axis_a, axis_b, to2d)
+            for neighbour, first in _EDGES[face]
+        ]
+        polygon, panel_edges = _outline(lines, profile)
+        round_holes = [(point, channel_radius(profile)) for f, point in drill_points if f == face]
         round_holes += [(point, radius) for f, point, radius in holes if f == face]
         rows = np.array([[*to2d(point), r] for point, r in round_holes]).reshape(-1, 3)
         # a lift bore and the channel it leaves from open at the same place: one hole (the
@@ -254,21 +225,125 @@ def tile_panels(
         screw_rows = [[*to2d(point), r] for f, point, r in pilots if f == face]
         drills = np.vstack([rows[~wide], np.array(screw_rows).reshape(-1, 3)])
         label = f"{tile_id}{FACE_NAMES[face]}"
-        span = np.ptp(polygon, axis=0)
-        height = float(min(0.12 * span.min(), 25.0))
-        height = min(height, 0.6 * span.max() / max(text_width(label, 1.0), 1e-9))
-        centre = polygon.mean(axis=0)
-        for x, y, r in np.vstack([circles, drills]):
-            if np.all(
-                np.abs(centre - [x, y]) < [0.5 * text_width(label, height) + r, 0.5 * height + r]
-            ):
-                centre = np.array([centre[0], y - r - height])
-        strokes = text_strokes(label, height, centre)
+        strokes = _label_strokes(label, polygon, np.vstack([circles, drills]))
         part = Part2D(
             f"tile_{tile_id}_{FACE_NAMES[face]}", polygon, [], circles, strokes, drills, 0.0
         )
-        panels.append(Panel(tile_id, FACE_NAMES[face], part, tuple(panel_edges), p))
-    return panels
+        return Panel(
+            tile_id, FACE_NAMES[face], part, tuple(panel_edges), profile.panel_thickness_mm
+        )
+
+    def _edge_line(
+        self,
+        face: int,
+        neighbour: int,
+        first: int,
+        axis_a: NDArray[np.float64],
+        axis_b: NDArray[np.float64],
+        to2d: Callable[[NDArray[np.float64]], NDArray],
+    ) -> _EdgeLine:
+        """The edge of face ``face``'s panel against ``neighbour``, from vertex ``first`` of
+        the face's ring."""
+        p = self.profile.panel_thickness_mm
+        normal, origin = self.normals[face], self.centroids[face]
+        ring = TILE_FACES[face]
+        start3, end3 = self.vertices[ring[first]], self.vertices[ring[(first + 1) % 4]]
+        n_g = self.normals[neighbour]
+        c = np.array([n_g @ axis_a, n_g @ axis_b])
+        scale = float(np.linalg.norm(c))
+        c /= scale
+        cos_fg = float(normal @ n_g)
+        positions = []
+        for level in (self.offsets[neighbour], self.offsets[neighbour] - p):
+            # Plane n_g.x = level cut with this panel's outer and inner plane: take the
+            # larger extent (the panel is left proud rather than short).
+            outer = (level - n_g @ origin) / scale
+            inner = (level - n_g @ (origin - p * normal)) / scale
+            positions.append(max(outer, inner))
+        dihedral = float(np.degrees(np.pi - np.arccos(np.clip(cos_fg, -1.0, 1.0))))
+        return _EdgeLine(
+            c, (positions[0], positions[1]), face < neighbour, to2d(start3), to2d(end3),
+            neighbour, dihedral,
+        )  # fmt: skip
+
+
+def _outline(
+    lines: Sequence[_EdgeLine], profile: Profile
+) -> tuple[NDArray[np.float64], list[PanelEdge]]:
+    """A panel's outline (counter-clockwise seen from inside, with fingers and dog-bones for
+    finger joints) and its edges."""
+    finger = profile.joint == "finger"
+    tool_radius = 0.5 * profile.tool_diameter_mm
+    finger_width = max(FINGER_WIDTH_FACTOR * profile.panel_thickness_mm, 4.0 * tool_radius)
+    # Base polygon: edge i at its end-owner position; corner i between edges i-1 and i.
+    base_level = [line.positions[0 if line.owner_ends else 1] for line in lines]
+    corners = []
+    for i in range(4):
+        matrix = np.array([lines[i - 1].c, lines[i].c])
+        corners.append(np.linalg.solve(matrix, [base_level[i - 1], base_level[i]]))
+    outline: list[NDArray[np.float64]] = []
+    panel_edges = []
+    for line, a in zip(lines, corners, strict=True):
+        outline.append(a)
+        length = float(np.linalg.norm(line.end - line.start))
+        count = 1
+        if finger and length >= 3 * finger_width:
+            count = int(length // finger_width)
+            count -= 1 - count % 2  # odd
+        if count > 1:
+            outline += _fingers(line, a, length, count)
+        panel_edges.append(
+            PanelEdge(
+                FACE_NAMES[line.neighbour],
+                round(line.dihedral, 3),
+                round(line.dihedral - 90.0, 3),
+                count,
+            )
+        )
+    polygon = np.array(outline)
+    # c points outward (the neighbour's normal), so the ring runs as the corners do;
+    # make it counter-clockwise in the frame seen from inside.
+    if signed_area(polygon) < 0:
+        polygon = polygon[::-1]
+    if finger and tool_radius > 0:
+        polygon = _dogbones(polygon, tool_radius)
+    return polygon, panel_edges
+
+
+def _fingers(
+    line: _EdgeLine, a: NDArray[np.float64], length: float, count: int
+) -> list[NDArray[np.float64]]:
+    """The outline's points along an edge from corner ``a`` cut into ``count`` fingers that
+    alternate owners: two points (before and after the step) at each finger boundary."""
+    points = []
+    direction = (line.end - line.start) / length
+    for k in range(1, count):
+        t = float((line.start - a) @ direction) + k * length / count
+        own_before = line.owner_ends if (k - 1) % 2 == 0 else not line.owner_ends
+        own_after = line.owner_ends if k % 2 == 0 else not line.owner_ends
+        for owned in (own_before, own_after):
+            level = line.positions[0] if owned else line.positions[1]
+            point = a + t * direction
+            point = point + (level - line.c @ point) * line.c
+            points.append(point)
+    return points
+
+
+def _label_strokes(
+    label: str, polygon: NDArray[np.float64], round_holes: NDArray[np.float64]
+) -> list[NDArray[np.float64]]:
+    """The panel's name engraved at its centre, moved below a hole ``(x, y, r)`` it would
+    cross."""
+    span = np.ptp(polygon, axis=0)
+    height = float(min(0.12 * span.min(), 25.0))
+    height = min(height, 0.6 * span.max() / max(text_width(label, 1.0), 1e-9))
+    centre = polygon.mean(axis=0)
+    for x, y, r in round_holes:
+        if np.all(
+            np.abs(centre - [x, y]) < [0.5 * text_width(label, height) + r, 0.5 * height + r]
+        ):
+            centre = np.array([centre[0], y - r - height])
+    return text_strokes(label, height, centre)
 
 
 @dataclass(frozen=True)
