@@ -1,6 +1,7 @@
 """Print beds: the fdm-dual print jobs (bands of the flat layout along rows of hinges, the
 loose pads of the hinges between them) and the laser-epdm loose tiles nested, each job moved
-onto a bed and the jobs that fit together sharing one (:mod:`.exports` writes the 3MF files).
+onto a bed and the jobs that fit together sharing one (:mod:`.processes.print_jobs` writes
+the 3MF files).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ def nest_footprints(
     points: Sequence[NDArray[np.float64]], bed: tuple[float, float]
 ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
     """Bed, turn (rad) and shift of each tile nested by the convex hull of its points' x, y
-    (:func:`~.exports_dxf.place_outlines`).
+    (:func:`~.dxf.place_outlines`).
 
     Raises
     ------

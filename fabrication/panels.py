@@ -25,11 +25,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from drawstring.cad.design import strip_hole_plans
 from drawstring.cad.features import channel_radius
 from drawstring.cad.paths import SIDE_TOP_FACE, TILE_FACES, channel_path, face_planes, lift_path
 from drawstring.fabrication.dxf import Part2D, signed_area, text_strokes, text_width
 
 if TYPE_CHECKING:
+    from drawstring.cad.design import CadResult
     from drawstring.fabrication.profiles import Profile
 
 FACE_NAMES = ("S0", "S1", "S2", "S3", "T", "B")
@@ -385,3 +387,61 @@ def cable_runs(
             points = ((enter, channel.control[0]), (leave, channel.control[3]))
         runs.append(CableRun(tile, points, length))
     return runs
+
+
+#: A round hole through a panel: ``(tile, face, (3,) point, radius)``, mm.
+PanelHole = tuple[int, int, NDArray[np.float64], float]
+
+
+def plywood_panels(
+    profile: Profile,
+    tiles_flat: NDArray[np.float64],
+    steps: NDArray[np.int64],
+    lifts: NDArray[np.int64],
+    holes: Sequence[PanelHole] = (),
+    pilots: Sequence[PanelHole] = (),
+) -> tuple[list[Panel], list[CableRun]]:
+    """The six panels of every tile, with the cable holes of the route, and the runs;
+    ``holes`` (magnets) and ``pilots`` (hinge strip screws) are ``(tile, face, point,
+    radius)`` in the pose of ``tiles_flat`` (see :func:`panel_holes`)."""
+    drill: dict[int, list[tuple[int, NDArray[np.float64]]]] = {}
+    runs = cable_runs(tiles_flat, steps, lifts)
+    for run in runs:
+        drill.setdefault(run.tile, []).extend(run.drill_points)
+    panels: list[Panel] = []
+    for tile in range(len(tiles_flat)):
+        panels += tile_panels(
+            tile, tiles_flat[tile], profile, drill.get(tile, []),
+            [(f, p, r) for t, f, p, r in holes if t == tile],
+            [(f, p, r) for t, f, p, r in pilots if t == tile],
+        )  # fmt: skip
+    return panels, runs
+
+
+def panel_holes(
+    profile: Profile,
+    tiles_flat: NDArray[np.float64],
+    tiles_assembled: NDArray[np.float64],
+    hinges: NDArray[np.int64],
+    hinge_side: Sequence[str],
+    cad_flat: CadResult,
+) -> tuple[list[PanelHole], list[PanelHole]]:
+    """Magnet holes (through the side panels, where the solids have their pockets) and the
+    hinge strips' pilot holes (through the top or bottom panels, as
+    :func:`~drawstring.cad.design.strip_hole_plans` places them on the solids), each
+    ``(tile, face, point, radius)`` on the flat tiles."""
+    magnets = []
+    for pair in cad_flat.magnets:
+        for tile, side, point in pair.flat_points(tiles_assembled, tiles_flat):
+            magnets.append((int(tile), int(side), point, 0.5 * pair.diameter_mm))
+    pilots = []
+    if profile.hinge_interlock in ("screws", "staples"):
+        rows = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
+        sides = [str(side) for side in hinge_side]
+        for (a, _, b, _), side, plan in zip(
+            rows, sides, strip_hole_plans(tiles_flat, rows, sides, profile), strict=True
+        ):
+            face = 4 if side == "top" else 5
+            for tile, points in zip((a, b), plan.points, strict=True):
+                pilots += [(int(tile), face, point, plan.radius) for point in points]
+    return magnets, pilots

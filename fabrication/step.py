@@ -218,7 +218,7 @@ def _wrap_step(entity: str) -> str:
 
 
 # --------------------------------------------------------------------------------------------
-# process-specific exports
+# writing in forked processes
 
 
 def start_step_writers(

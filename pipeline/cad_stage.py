@@ -24,7 +24,7 @@ from drawstring.pipeline.record import Design
 
 if TYPE_CHECKING:  # the CAD kernel loads only where solids are built
     from drawstring.cad.design import CadResult
-    from drawstring.fabrication.exports import Measures
+    from drawstring.fabrication.measures import Measures
 
 
 @dataclass(frozen=True)
@@ -133,9 +133,9 @@ def route_lengths(result: Design) -> tuple[float, float]:
 
 
 def fabrication_measures(result: Design, cad_flat: CadResult) -> Measures:
-    """Route, string and mass measured on a design's solids (:func:`~.exports.
+    """Route, string and mass measured on a design's solids (:func:`~.measures.
     measure_fabrication` with the design's print tiles, route and lift bores)."""
-    from drawstring.fabrication.exports import measure_fabrication
+    from drawstring.fabrication.measures import measure_fabrication
 
     inputs = cad_inputs(result)
     return measure_fabrication(

@@ -634,7 +634,8 @@ def test_outputs_state_the_measured_mass_and_route(built: Built) -> None:
     from drawstring.cad.design import route_links
     from drawstring.cad.features import channel_radius
     from drawstring.cad.paths import route_openings
-    from drawstring.fabrication.exports import measure_fabrication, panel_holes, plywood_panels
+    from drawstring.fabrication.measures import measure_fabrication
+    from drawstring.fabrication.panels import panel_holes, plywood_panels
 
     d, profile, cad = built.design, built.profile, built.flat
     measures = measure_fabrication(
