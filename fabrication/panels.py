@@ -25,8 +25,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.cad.design import strip_hole_plans
 from drawstring.cad.features import channel_radius
+from drawstring.cad.hinge_plans import strip_hole_plans
 from drawstring.cad.paths import SIDE_TOP_FACE, TILE_FACES, channel_path, face_planes, lift_path
 from drawstring.fabrication.dxf import Part2D, signed_area, text_strokes, text_width
 
@@ -428,7 +428,7 @@ def panel_holes(
 ) -> tuple[list[PanelHole], list[PanelHole]]:
     """Magnet holes (through the side panels, where the solids have their pockets) and the
     hinge strips' pilot holes (through the top or bottom panels, as
-    :func:`~drawstring.cad.design.strip_hole_plans` places them on the solids), each
+    :func:`~drawstring.cad.hinge_plans.strip_hole_plans` places them on the solids), each
     ``(tile, face, point, radius)`` on the flat tiles."""
     magnets = []
     for pair in cad_flat.magnets:

@@ -191,12 +191,12 @@ class _Shortfall:
 
 def _shortfalls(result: Design) -> list[_Shortfall]:
     """The features the profile cannot give up on that do not fit this design's tiles."""
-    from drawstring.cad.design import strip_neighbours
     from drawstring.cad.features import (
         channel_min_face_mm,
         lift_bore_depth_mm,
         strip_min_reach_mm,
     )
+    from drawstring.cad.hinge_plans import strip_neighbours
 
     profile = result.profile
     tiles = print_tiles(result)

@@ -19,11 +19,11 @@ from cad_sample import SampleDesign, cylinder_design  # noqa: E402
 from drawstring.cad import checks  # noqa: E402
 from drawstring.cad.design import (  # noqa: E402
     CadResult,
-    _hole_notes,
     build_design_solids,
     normalize_route,
     route_links,
 )
+from drawstring.cad.design_notes import hole_notes  # noqa: E402
 from drawstring.cad.features import (  # noqa: E402
     KeepOut,
     build_tile,
@@ -595,19 +595,19 @@ def test_a_feature_the_kernel_fails_on_is_left_out_and_listed(
 ) -> None:
     from OCP.Standard import Standard_Failure
 
-    from drawstring.cad import design as cad_design
+    from drawstring.cad import tile_build
 
     steps = normalize_route(design.route_steps)
     channelled = sorted({int(t) for _, t, a, b in steps if SIDE_TOP_FACE not in (a, b)})
     victim = channelled[0]
-    real_channel = cad_design.string_channel
+    real_channel = tile_build.string_channel
 
     def channel(tile: np.ndarray, *args: object) -> bd.Solid:
         if np.array_equal(tile, design.tiles_2d[victim]):
             raise Standard_Failure("BRepOffsetAPI_MakePipeShell: made up")
         return real_channel(tile, *args)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(cad_design, "string_channel", channel)
+    monkeypatch.setattr(tile_build, "string_channel", channel)
     result = build_design_solids(
         *design.solid_inputs(),
         profile,
@@ -629,10 +629,10 @@ def test_a_kernel_failure_is_a_design_problem_not_a_traceback(
     from OCP.Standard import Standard_Failure
 
     from drawstring.app.cli import main
-    from drawstring.cad import design as cad_design
+    from drawstring.cad import tile_build
 
     # 9 tiles build in this process, in tile order: the fifth cut is tile 4's.
-    real_build = cad_design.build_tile
+    real_build = tile_build.build_tile
     calls = []
 
     def build(*args: object, **kwargs: object) -> bd.Solid:
@@ -641,7 +641,7 @@ def test_a_kernel_failure_is_a_design_problem_not_a_traceback(
             raise Standard_Failure("BOPAlgo_AlertBuilderFailed: made up")
         return real_build(*args, **kwargs)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(cad_design, "build_tile", build)
+    monkeypatch.setattr(tile_build, "build_tile", build)
     out = tmp_path / "design"
     args = ["design", "saddle", "--grid", "3", "3", "--resolution", "1500", "--no-simulate"]
     assert main([*args, "--quiet", "--size", "40", "--out", str(out)]) == 3
@@ -723,7 +723,7 @@ def test_screw_holes_need_room_only_as_deep_as_they_go() -> None:
         "top", ply,
     )  # fmt: skip
     assert small.made == 0 and small.missing == (2, 2)
-    notes = _hole_notes([plan, small, small], ply)
+    notes = hole_notes([plan, small, small], ply)
     assert notes == [
         "8 of 12 screw holes left out: no room for them 6 mm from their tiles' edges "
         "(hinges 1-2); 4 strip halves have none left: glue those, or use fewer, larger tiles "
@@ -776,17 +776,17 @@ def test_a_pin_too_near_leaning_side_faces_goes_in_blind(profile: Profile) -> No
 
 
 def test_the_bend_note_lists_the_steps_only_when_there_are_several() -> None:
-    from drawstring.cad.design import _bend_notes
+    from drawstring.cad.design_notes import bend_notes
 
     profile = load_profile("fdm-dual")
     steps = np.array([[0, 10, 0, 2], [1, 11, 1, 3], [2, 12, 0, 2], [3, 13, 1, 3]])
     radius = np.full(4, 2 * profile.min_bend_radius_mm)
     radius[2] = 0.5 * profile.min_bend_radius_mm
-    (one,) = _bend_notes(radius, steps, profile)
+    (one,) = bend_notes(radius, steps, profile)
     assert one.startswith("1 of 4 route steps")
     assert one.endswith("(route.json step 2, counted from 0; tile 12)")
     radius[0] = 0.6 * profile.min_bend_radius_mm
-    (two,) = _bend_notes(radius, steps, profile)
+    (two,) = bend_notes(radius, steps, profile)
     assert two.endswith("(route.json step 2, counted from 0; tile 12); steps 0, 2")
 
 

@@ -1345,7 +1345,7 @@ def test_plywood_panels_carry_the_magnet_holes_and_the_strips_pilot_holes(built:
     panels and the cable holes (drilled: the DRILL layer, narrower than the 6 mm tool)."""
     if built.profile.process != "plywood-cnc":
         pytest.skip("plywood only")
-    from drawstring.cad.design import strip_hole_plans
+    from drawstring.cad.hinge_plans import strip_hole_plans
     from drawstring.fabrication.dxf import LAYER_CUT_INNER, LAYER_DRILL
 
     d, profile = built.design, built.profile
@@ -1402,7 +1402,7 @@ def test_plywood_pilot_holes_keep_a_wall_from_the_panel_edges(built: Built) -> N
     outer panel thickness of a top or bottom panel, and the hole stays clear of that."""
     if built.profile.process != "plywood-cnc":
         pytest.skip("plywood only")
-    from drawstring.cad.design import strip_hole_plans
+    from drawstring.cad.hinge_plans import strip_hole_plans
     from drawstring.fabrication.dxf import LAYER_DRILL
 
     d, profile = built.design, built.profile

@@ -1,0 +1,128 @@
+"""What every hinge of a design needs planned before its tiles are cut: which other corners
+of a tile's hinge face hold strips (:func:`strip_neighbours`), the TPU pins placed clear of the
+tiles' other features (:func:`plan_all_pins`) and the plywood strips' pilot holes
+(:func:`strip_hole_plans`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drawstring.cad.features import (
+    HingeSide,
+    KeepOut,
+    PinPlan,
+    StripHoles,
+    StripNeighbours,
+    channel_keep_out,
+    pin_keep_out,
+    plan_pins,
+    strip_hole_plan,
+    strip_keep_outs,
+)
+from drawstring.cad.paths import SIDE_TOP_FACE
+
+if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
+    from drawstring.cad.dimensions import FeatureDimensions as Profile
+
+
+def strip_neighbours(
+    hinges: NDArray[np.int64], hinge_side: Sequence[HingeSide]
+) -> list[StripNeighbours]:
+    """Per hinge ``(tile_a, corner_a, tile_b, corner_b)``, the other corners of tile a's and of
+    tile b's hinge face that hold strips too (hinges on the same face of the same tile), which
+    the strip keeps a wall from (:func:`~drawstring.cad.hinge_parts.strip_room`)."""
+    rows = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
+    held: dict[tuple[int, str], set[int]] = {}
+    for (a, ca, b, cb), side in zip(rows.tolist(), hinge_side, strict=True):
+        held.setdefault((a, side), set()).add(ca)
+        held.setdefault((b, side), set()).add(cb)
+    return [
+        (
+            tuple(sorted(held[(a, side)] - {ca})),
+            tuple(sorted(held[(b, side)] - {cb})),
+        )
+        for (a, ca, b, cb), side in zip(rows.tolist(), hinge_side, strict=True)
+    ]
+
+
+def plan_all_pins(
+    flat: NDArray[np.float64],
+    hinge_rows: NDArray[np.int64],
+    sides: Sequence[HingeSide],
+    steps: NDArray[np.int64],
+    lifts: NDArray[np.int64],
+    profile: Profile,
+    crowds: Sequence[StripNeighbours],
+    reliefs: Mapping[int, Sequence[NDArray[np.float64]]],
+) -> list[PinPlan]:
+    """The TPU pins of every through-holes hinge, each kept a wall away from its tile's
+    channels and lift bores, the other hinges' strips, the pins planned before it (hinge
+    order) and the planes of its tile's hinge reliefs (tile -> planes), so that no pin blocks
+    the string, no two holes merge and no relief opens a hole."""
+    keep = [KeepOut() for _ in flat]
+    for _, tile, enter, leave in steps:
+        keep[tile] += channel_keep_out(flat[tile], int(enter), int(leave), profile)
+    for tile, side in lifts:
+        keep[tile] += channel_keep_out(flat[tile], int(side), SIDE_TOP_FACE, profile)
+    strips: list[list[tuple[int, KeepOut]]] = [[] for _ in flat]
+    for hinge, ((a, ca, b, cb), side) in enumerate(zip(hinge_rows, sides, strict=True)):
+        in_a, in_b = strip_keep_outs(
+            flat[a], int(ca), flat[b], int(cb), side, profile, crowds[hinge]
+        )
+        strips[a].append((hinge, in_a))
+        strips[b].append((hinge, in_b))
+
+    def others(tile: int, hinge: int) -> KeepOut:
+        found = keep[tile]
+        for other, strip in strips[tile]:
+            if other != hinge:
+                found = found + strip
+        return found
+
+    plans = []
+    for hinge, ((a, ca, b, cb), side) in enumerate(zip(hinge_rows, sides, strict=True)):
+        plan = plan_pins(
+            flat[a],
+            int(ca),
+            flat[b],
+            int(cb),
+            side,
+            profile,
+            (others(a, hinge), others(b, hinge)),
+            crowds[hinge],
+            (_planes(reliefs, a), _planes(reliefs, b)),
+        )
+        for tile, pin in zip((a, b), plan.pins, strict=True):
+            if pin is not None:
+                keep[tile] = keep[tile] + pin_keep_out(pin, profile)
+        plans.append(plan)
+    return plans
+
+
+def _planes(
+    reliefs: Mapping[int, Sequence[NDArray[np.float64]]], tile: int
+) -> NDArray[np.float64] | None:
+    found = reliefs.get(int(tile))
+    return None if not found else np.asarray(found, dtype=np.float64).reshape(-1, 4)
+
+
+def strip_hole_plans(
+    flat: NDArray[np.float64],
+    hinge_rows: NDArray[np.int64],
+    sides: Sequence[HingeSide],
+    profile: Profile,
+    crowds: Sequence[StripNeighbours] | None = None,
+) -> list[StripHoles]:
+    """The pilot holes of every plywood hinge strip (:func:`strip_hole_plan`) on the flat
+    tiles, hinge by hinge; ``crowds`` as :func:`strip_neighbours` gives them (computed when
+    not passed)."""
+    if crowds is None:
+        crowds = strip_neighbours(hinge_rows, sides)
+    return [
+        strip_hole_plan(flat[a], int(ca), flat[b], int(cb), side, profile, crowd)
+        for (a, ca, b, cb), side, crowd in zip(hinge_rows, sides, crowds, strict=True)
+    ]
