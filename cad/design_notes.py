@@ -58,7 +58,7 @@ def strip_notes(
     crowds: Sequence[StripNeighbours],
 ) -> list[str]:
     """One note for the hinge strips shortened to keep a wall from the other strips of their
-    tiles (:func:`~drawstring.cad.hinge_parts.hinge_strip_lengths`)."""
+    tiles (:func:`~drawstring.cad.hinge_frame.hinge_strip_lengths`)."""
     half = 0.5 * profile.hinge_pad_length_mm
     lengths = np.array(
         [

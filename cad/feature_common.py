@@ -1,7 +1,7 @@
 """Shared pieces of the fabrication features (:mod:`.features`, :mod:`.magnets_labels`,
-:mod:`.hinge_parts`): the tool overshoot, the channel radius and feature wall every feature is
-sized from, and small geometry helpers (build123d vectors and planes, 2D cross products and
-areas, a hole's margin from a tile's face edges)."""
+:mod:`.hinge_frame`, :mod:`.hinge_pins`, :mod:`.hinge_parts`): the tool overshoot, the channel
+radius and feature wall every feature is sized from, and small geometry helpers (build123d
+vectors and planes, 2D cross products and areas, a hole's margin from a tile's face edges)."""
 
 from __future__ import annotations
 

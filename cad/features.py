@@ -9,9 +9,10 @@ Route sides: ``0..3`` are the tile's side faces; ``SIDE_TOP_FACE`` (4) means the
 point, where the string leaves the linkage upward).
 
 This module holds the string channels and lift bores, and builds a tile (trims and the batched
-cut).  Magnet pockets and labels live in :mod:`.magnets_labels`, hinge strips, pads, pins and
-holes in :mod:`.hinge_parts`, the helpers they share in :mod:`.feature_common`; the names other
-modules use are re-exported here (``__all__``).
+cut).  Magnet pockets and labels live in :mod:`.magnets_labels`; hinge strips, pads, pins and
+holes in :mod:`.hinge_frame`, :mod:`.hinge_pins` and :mod:`.hinge_parts`; the helpers they
+share in :mod:`.feature_common`.  The names other modules use are re-exported here
+(``__all__``).
 """
 
 from __future__ import annotations
@@ -33,26 +34,30 @@ from drawstring.cad.feature_common import (
     channel_radius,
     feature_wall_mm,
 )
+from drawstring.cad.hinge_frame import (
+    HingeSide,
+    StripNeighbours,
+    hinge_strip_lengths,
+    strip_min_reach_mm,
+    strip_room,
+)
 from drawstring.cad.hinge_parts import (
     GLUE_RECESS_DEPTH_FRACTION,
-    HingePins,
-    HingeSide,
-    KeepOut,
-    PinPlan,
     StripHoles,
-    StripNeighbours,
-    _tube_keep_out,
     hinge_face_footprints,
     hinge_pad,
-    hinge_strip_lengths,
+    strip_hole_plan,
+    strip_holes,
+)
+from drawstring.cad.hinge_pins import (
+    HingePins,
+    KeepOut,
+    PinPlan,
     pin_keep_out,
     pin_radius,
     plan_pins,
-    strip_hole_plan,
-    strip_holes,
     strip_keep_outs,
-    strip_min_reach_mm,
-    strip_room,
+    tube_keep_out,
 )
 from drawstring.cad.kernel import bounding_box, clean_solid, cut, fuse
 from drawstring.cad.magnets_labels import (
@@ -104,7 +109,7 @@ __all__ = [
     "label_depth",
     "label_engraving",
     "magnet_pockets",
-    # re-exported from .hinge_parts
+    # re-exported from .hinge_frame, .hinge_pins and .hinge_parts
     "GLUE_RECESS_DEPTH_FRACTION",
     "HingePins",
     "HingeSide",
@@ -296,16 +301,16 @@ def channel_keep_out(
     tile = np.asarray(tile, dtype=np.float64)
     radius = channel_radius(profile)
     if SIDE_TOP_FACE not in (enter_side, leave_side):
-        return _tube_keep_out(channel_path(tile, enter_side, leave_side).points(129), radius)
+        return tube_keep_out(channel_path(tile, enter_side, leave_side).points(129), radius)
     side = enter_side if leave_side == SIDE_TOP_FACE else leave_side
     path = lift_path(tile, side)
     chamfer = lift_chamfer(tile, path, profile)
     exit_point = path.arc[2]
-    bore = _tube_keep_out(
+    bore = tube_keep_out(
         np.vstack([path.entry[None], arc_samples(path.arc), exit_point[None]]), radius
     )
     top = exit_point + (radius + TOOL_OVERSHOOT_MM) * path.end_tangent
-    flare = _tube_keep_out(np.stack([exit_point - chamfer * path.end_tangent, top]), radius)
+    flare = tube_keep_out(np.stack([exit_point - chamfer * path.end_tangent, top]), radius)
     return bore + KeepOut(flare.centres, flare.radii + chamfer)
 
 

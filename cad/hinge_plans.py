@@ -34,7 +34,7 @@ def strip_neighbours(
 ) -> list[StripNeighbours]:
     """Per hinge ``(tile_a, corner_a, tile_b, corner_b)``, the other corners of tile a's and of
     tile b's hinge face that hold strips too (hinges on the same face of the same tile), which
-    the strip keeps a wall from (:func:`~drawstring.cad.hinge_parts.strip_room`)."""
+    the strip keeps a wall from (:func:`~drawstring.cad.hinge_frame.strip_room`)."""
     rows = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
     held: dict[tuple[int, str], set[int]] = {}
     for (a, ca, b, cb), side in zip(rows.tolist(), hinge_side, strict=True):

@@ -293,7 +293,7 @@ def feature_fit_refusal(result: Design) -> InputError | None:
     against :func:`~drawstring.cad.features.channel_min_face_mm`; each lift-point tile's depth
     against :func:`~drawstring.cad.features.lift_bore_depth_mm`; and each hinged corner's
     distance from its face's centre against
-    :func:`~drawstring.cad.hinge_parts.strip_min_reach_mm`.  Every other feature gives way on a
+    :func:`~drawstring.cad.hinge_frame.strip_min_reach_mm`.  Every other feature gives way on a
     small tile (pins cut short or left out, strips shortened, chamfers and numbers dropped, each
     with a note).  The size suggested scales the tiles up to the worst shortfall, plus
     :data:`SIZE_MARGIN`.

@@ -793,7 +793,8 @@ def test_the_bend_note_lists_the_steps_only_when_there_are_several() -> None:
 def test_box_tiles_keep_their_pilot_holes_clear_of_the_side_panels() -> None:
     """Box tiles: the side panels take the outer 6 mm, so a pilot hole keeps 6 + 3 mm from the
     side faces; on the 100 mm frustum each strip half keeps one of its two holes."""
-    from drawstring.cad.hinge_parts import _footprint_margin, strip_hole_wall_mm
+    from drawstring.cad.feature_common import _footprint_margin
+    from drawstring.cad.hinge_parts import strip_hole_wall_mm
 
     ply = load_profile("plywood-cnc")
     assert strip_hole_wall_mm(ply) == pytest.approx(ply.panel_thickness_mm + 3.0)
