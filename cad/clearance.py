@@ -24,7 +24,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from drawstring.cad.paths import face_planes
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.types import FloatArray, IntArray
 
 __all__ = ["HingeReliefs", "hinge_reliefs", "separating_normal"]
@@ -144,11 +144,11 @@ def hinge_reliefs(
     array = np.asarray(tiles, dtype=np.float64)
     rows = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
     if array.ndim != 3 or array.shape[1:] != (8, 3):
-        raise InputError(f"tiles must be a (T, 8, 3) array, got shape {array.shape}")
+        raise InternalError(f"tiles must be a (T, 8, 3) array, got shape {array.shape}")
     if len(sides) != len(rows):
-        raise InputError(f"{len(sides)} hinge sides for {len(rows)} hinges")
+        raise InternalError(f"{len(sides)} hinge sides for {len(rows)} hinges")
     if not clearance_mm > 0:
-        raise InputError(f"the print clearance must be positive, got {clearance_mm}")
+        raise InternalError(f"the print clearance must be positive, got {clearance_mm}")
     depth = 0.5 * clearance_mm
     cuts: dict[int, list[FloatArray]] = {}
     reach, one_sided_reach, share, one_sided = 0.0, 0.0, 0.0, 0

@@ -41,7 +41,7 @@ from drawstring.cad.hinge_plans import plan_all_pins, strip_hole_plans, strip_ne
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path
 from drawstring.cad.tile_build import HingeData, JobResult, TileJob, kernel_failure, run_jobs
 from drawstring.cad.tiles import move_solid, rigid_transforms
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile
@@ -113,12 +113,12 @@ def normalize_route(route_steps: NDArray[np.int64] | Sequence[Sequence[int]]) ->
     if steps.size == 0:
         return np.zeros((0, 4), dtype=np.int64)
     if steps.ndim != 2 or steps.shape[1] not in (3, 4):
-        raise InputError(f"route steps must be (S, 3) or (S, 4) ints, got shape {steps.shape}")
+        raise InternalError(f"route steps must be (S, 3) or (S, 4) ints, got shape {steps.shape}")
     if steps.shape[1] == 3:
         steps = np.hstack([np.zeros((len(steps), 1), dtype=np.int64), steps])
     sides = steps[:, 2:]
     if np.any((sides < 0) | (sides > SIDE_TOP_FACE)):
-        raise InputError(f"route sides must be 0..3 or {SIDE_TOP_FACE} (top face)")
+        raise InternalError(f"route sides must be 0..3 or {SIDE_TOP_FACE} (top face)")
     return steps
 
 
@@ -179,10 +179,10 @@ def build_design_solids(
     A feature or hinge part the CAD kernel fails on (an exception from OCP or build123d, or a
     cut that fails however it is shifted) is left out, noted and listed in
     ``CadResult.failed`` with its tile; a tile whose cut fails altogether is its plain block.
-    Bad input still raises :class:`InputError`.
+    Arrays that break this contract raise :class:`InternalError`.
     """
     if pose not in ("flat", "assembled"):
-        raise InputError(f"pose {pose!r} must be 'flat' or 'assembled'")
+        raise InternalError(f"pose {pose!r} must be 'flat' or 'assembled'")
     inputs = _checked_inputs(
         tiles_2d, tiles_3d, hinges, hinge_side, route_steps, lift_tiles, magnet_pairs
     )
@@ -192,15 +192,15 @@ def build_design_solids(
     min_radius, channel_sides = _route_tools(jobs, inputs, profile, notes)
     magnets, failed = _magnet_tools(jobs, inputs, channel_sides, profile, notes)
     if not (np.isfinite(print_clearance_mm) and print_clearance_mm >= 0):
-        raise InputError(f"print_clearance_mm must be 0 or more, got {print_clearance_mm}")
+        raise InternalError(f"print_clearance_mm must be 0 or more, got {print_clearance_mm}")
     for tile, polyhedra in (trims or {}).items():
         if not 0 <= tile < len(flat):
-            raise InputError(f"trims refer to tile {tile} outside 0..{len(flat) - 1}")
+            raise InternalError(f"trims refer to tile {tile} outside 0..{len(flat) - 1}")
         for points in polyhedra:
             jobs[tile].trims.append(np.asarray(points, dtype=np.float64))
     for side in inputs.sides:
         if side not in ("top", "bottom"):
-            raise InputError(f"hinge side {side!r} must be 'top' or 'bottom'")
+            raise InternalError(f"hinge side {side!r} must be 'top' or 'bottom'")
     hinge_data, fasteners = _plan_hinges(
         jobs, inputs, profile, print_clearance_mm, min_radius, notes
     )
@@ -251,7 +251,7 @@ class _Inputs:
 def _check_tiles(name: str, tiles: NDArray[np.float64]) -> NDArray[np.float64]:
     array = np.asarray(tiles, dtype=np.float64)
     if array.ndim != 3 or array.shape[1:] != (8, 3):
-        raise InputError(f"{name} must be a (T, 8, 3) array of tile vertices, got {array.shape}")
+        raise InternalError(f"{name} must be a (T, 8, 3) array of tile vertices, got {array.shape}")
     return array
 
 
@@ -268,12 +268,12 @@ def _checked_inputs(
     flat = _check_tiles("tiles_2d", tiles_2d)
     assembled = _check_tiles("tiles_3d", tiles_3d)
     if flat.shape != assembled.shape:
-        raise InputError(f"tiles_2d {flat.shape} and tiles_3d {assembled.shape} differ in shape")
+        raise InternalError(f"tiles_2d {flat.shape} and tiles_3d {assembled.shape} differ in shape")
     n_tiles = len(flat)
     hinge_rows = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
     sides = list(hinge_side)
     if len(sides) != len(hinge_rows):
-        raise InputError(f"hinge_side has {len(sides)} entries for {len(hinge_rows)} hinges")
+        raise InternalError(f"hinge_side has {len(sides)} entries for {len(hinge_rows)} hinges")
     steps = normalize_route(route_steps)
     lifts = np.asarray(lift_tiles, dtype=np.int64).reshape(-1, 2)
     pairs = np.asarray(magnet_pairs, dtype=np.int64).reshape(-1, 4)
@@ -284,7 +284,7 @@ def _checked_inputs(
         ("magnet_pairs", pairs[:, [0, 2]]),
     ):
         if ids.size and (ids.min() < 0 or ids.max() >= n_tiles):
-            raise InputError(f"{name} refers to a tile outside 0..{n_tiles - 1}")
+            raise InternalError(f"{name} refers to a tile outside 0..{n_tiles - 1}")
     return _Inputs(flat, assembled, hinge_rows, sides, steps, lifts, pairs)
 
 
@@ -300,7 +300,7 @@ def _route_tools(
     for index, (_, tile, enter, leave) in enumerate(steps):
         if SIDE_TOP_FACE in (enter, leave):
             if enter == leave:
-                raise InputError(f"route step {index} enters and leaves through the top face")
+                raise InternalError(f"route step {index} enters and leaves through the top face")
             min_radius[index] = lift_path(flat[tile], int(min(enter, leave))).radius
         else:
             min_radius[index] = channel_path(flat[tile], int(enter), int(leave)).min_radius

@@ -78,7 +78,7 @@ from drawstring.cad.paths import (
     unit_vector,
 )
 from drawstring.cad.tiles import convex_solid, tile_solid
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile
@@ -322,7 +322,7 @@ def trim_tool(points: NDArray[np.float64]) -> bd.Solid:
     """Tool: the convex polyhedron spanned by ``points`` ((k, 3) float, mm), to subtract."""
     array = np.asarray(points, dtype=np.float64)
     if array.ndim != 2 or array.shape[1] != 3 or len(array) < 4:
-        raise InputError(f"a trim polyhedron needs (k >= 4, 3) points, got shape {array.shape}")
+        raise InternalError(f"a trim polyhedron needs (k >= 4, 3) points, got shape {array.shape}")
     return convex_solid(array)
 
 

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from drawstring.cad.feature_common import _footprint_margin, _plane, _vec, feature_wall_mm
 from drawstring.cad.kernel import clean_solid
 from drawstring.cad.paths import FACE_BOTTOM, FACE_TOP, face_planes, unit_vector
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile
@@ -130,10 +130,10 @@ def hinge_frame(
     neighbouring corners met there: their recesses overlapping in thin slivers made OCCT's
     cut of a tile fail)."""
     if side not in ("top", "bottom"):
-        raise InputError(f"hinge side {side!r} must be 'top' or 'bottom'")
+        raise InternalError(f"hinge side {side!r} must be 'top' or 'bottom'")
     for corner, name in ((corner_a, "corner_a"), (corner_b, "corner_b")):
         if corner not in (0, 1, 2, 3):
-            raise InputError(f"{name} = {corner} must be a corner index 0..3")
+            raise InternalError(f"{name} = {corner} must be a corner index 0..3")
     face = FACE_TOP if side == "top" else FACE_BOTTOM
     shift = 0 if side == "top" else 4
     normal = unit_vector(face_planes(tile_a)[1][face] + face_planes(tile_b)[1][face])

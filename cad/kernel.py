@@ -30,14 +30,14 @@ from OCP.TopExp import TopExp_Explorer
 from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS, TopoDS_Shape, TopoDS_Shell, TopoDS_Solid
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 
 
 def polyhedron_solid(vertices: NDArray[np.float64], faces: Sequence[Sequence[int]]) -> bd.Solid:
     """Exact planar-faced solid from vertices and outward (counter-clockwise) polygon faces.
 
     Vertices and edges are shared between faces, so the shell is closed by construction (no
-    sewing tolerance).  Each face must be planar; a non-planar face raises :class:`InputError`.
+    sewing tolerance).  Each face must be planar; a non-planar face raises :class:`InternalError`.
 
     Parameters
     ----------
@@ -66,13 +66,12 @@ def polyhedron_solid(vertices: NDArray[np.float64], faces: Sequence[Sequence[int
         normal = np.cross(ring, np.roll(ring, -1, axis=0)).sum(axis=0)
         length = float(np.linalg.norm(normal))
         if length < 1e-300:
-            raise InputError(f"polyhedron face {face_index} has zero area")
+            raise InternalError(f"polyhedron face {face_index} has zero area")
         normal /= length
         deviation = float(np.abs((ring - ring.mean(axis=0)) @ normal).max())
         if deviation > 1e-7 * (1.0 + float(np.ptp(ring, axis=0).max())):
-            raise InputError(
-                f"polyhedron face {face_index} is not planar (deviation {deviation:.3g} mm); "
-                "snap the vertices to planes first"
+            raise InternalError(
+                f"polyhedron face {face_index} is not planar (deviation {deviation:.3g} mm)"
             )
         plane = gp_Pln(gp_Pnt(*map(float, ring.mean(axis=0))), gp_Dir(*map(float, normal)))
         face_maker = BRepBuilderAPI_MakeFace(plane, wire_maker.Wire(), True)

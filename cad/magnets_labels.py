@@ -22,7 +22,7 @@ from drawstring.cad.feature_common import (
 )
 from drawstring.cad.kernel import polyhedron_solid
 from drawstring.cad.paths import FACE_BOTTOM, check_side, face_planes, unit_vector
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile
@@ -376,7 +376,7 @@ def label_engraving(
     (:func:`feature_wall_mm`: ``max(nozzle, 2 kerf, 0.3 mm)``).
     """
     if tile_id < 0:
-        raise InputError(f"tile_id = {tile_id} must be >= 0")
+        raise InternalError(f"tile_id = {tile_id} must be >= 0")
     tile = np.asarray(tile, dtype=np.float64)
     centroids, normals = face_planes(tile)
     centre, outward = centroids[FACE_BOTTOM], normals[FACE_BOTTOM]

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 
 FACE_TOP = 4
 FACE_BOTTOM = 5
@@ -54,7 +54,7 @@ def face_planes(vertices: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDA
     normals = np.cross(quads, following).sum(axis=1)
     lengths = np.linalg.norm(normals, axis=1, keepdims=True)
     if np.any(lengths < 1e-300):
-        raise InputError("a tile has a face of zero area; check the tile vertices")
+        raise InternalError("a tile has a face of zero area")
     return centroids, normals / lengths
 
 
@@ -66,13 +66,13 @@ _HANDLE_FRACTIONS = np.linspace(0.15, 0.85, 15)
 def unit_vector(vector: NDArray[np.float64]) -> NDArray[np.float64]:
     length = float(np.linalg.norm(vector))
     if length < 1e-12:
-        raise InputError("degenerate feature geometry (zero-length direction); check the tiles")
+        raise InternalError("degenerate feature geometry (zero-length direction)")
     return np.asarray(vector / length)
 
 
 def check_side(side: int, name: str) -> None:
     if side not in (0, 1, 2, 3):
-        raise InputError(f"{name} = {side} is not a side index; use 0, 1, 2 or 3")
+        raise InternalError(f"{name} = {side} is not a side index 0..3")
 
 
 def bezier_points(control: NDArray[np.float64], samples: int = 65) -> NDArray[np.float64]:
@@ -131,7 +131,7 @@ def smooth_path(
     radius of curvature is largest among a few handle lengths."""
     chord = float(np.linalg.norm(end - start))
     if chord < 1e-9:
-        raise InputError("channel entry and exit coincide; check the route sides")
+        raise InternalError("channel entry and exit coincide")
     best: ChannelPath | None = None
     for fraction in _HANDLE_FRACTIONS:
         handle = fraction * chord
@@ -151,10 +151,12 @@ def channel_path(tile: NDArray[np.float64], enter_side: int, leave_side: int) ->
     contact.
     """
     if enter_side == leave_side:
-        raise InputError(f"route enters and leaves tile through the same side {enter_side}")
+        raise InternalError(f"route enters and leaves tile through the same side {enter_side}")
     for side, name in ((enter_side, "enter_side"), (leave_side, "leave_side")):
         if side not in (0, 1, 2, 3, SIDE_TOP_FACE):
-            raise InputError(f"{name} = {side} must be a side 0..3 or {SIDE_TOP_FACE} (top face)")
+            raise InternalError(
+                f"{name} = {side} must be a side 0..3 or {SIDE_TOP_FACE} (top face)"
+            )
     centroids, normals = face_planes(np.asarray(tile, dtype=np.float64))
     return smooth_path(
         centroids[enter_side], -normals[enter_side], centroids[leave_side], normals[leave_side]
@@ -207,7 +209,7 @@ def lift_path(tile: NDArray[np.float64], side: int) -> LiftPath:
         run = min(run, longest)
     radius = (height - run * cos_turn) / sin_turn
     if radius <= 0.0:
-        raise InputError("tile too thin for a lift bore; check the tile vertices")
+        raise InternalError("tile too thin for a lift bore: no height above its side face's centre")
     start = entry + run * inward
     centre = start + radius * across
 

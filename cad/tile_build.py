@@ -32,7 +32,7 @@ from drawstring.cad.features import (
 from drawstring.cad.hinge_parts import HingeParts
 from drawstring.cad.tiles import relieved_tile_solid, tile_solid
 from drawstring.geometry.core import parallel
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InputError, InternalError
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile
@@ -81,9 +81,10 @@ class JobResult:
 
 
 def kernel_failure(what: str, exc: Exception) -> None:
-    """Re-raise bad input; log any other exception (OCP's Standard_Failure, build123d's
-    errors) as the kernel failure of ``what``, which the caller leaves out."""
-    if isinstance(exc, InputError):
+    """Re-raise bad data (:class:`InternalError`) and bad input (:class:`InputError`); log any
+    other exception (OCP's Standard_Failure, build123d's errors) as the kernel failure of
+    ``what``, which the caller leaves out."""
+    if isinstance(exc, InputError | InternalError):
         raise exc
     log.debug("%s: %s: %s", what, type(exc).__name__, exc, exc_info=exc)
 
@@ -120,8 +121,8 @@ class _Tools:
 def build_job(job: TileJob, profile: Profile, hinge_data: tuple[HingeData, ...]) -> JobResult:
     """Worker: build the tools of one tile, cut them, and build the pads this tile owns.
 
-    A feature whose tool or cut fails in the kernel (any exception but :class:`InputError`) is
-    left out and named in the result's ``failed``; a tile whose cut fails altogether is the plain
+    A feature whose tool or cut fails in the kernel (any exception but bad data) is left out
+    and named in the result's ``failed``; a tile whose cut fails altogether is the plain
     block, every feature named; a hinge part that cannot be built is left out, named too.
     """
     tools = _Tools(job)
@@ -212,9 +213,9 @@ def _cut(job: TileJob, tools: _Tools) -> tuple[bd.Solid, list[float]]:
         block = block if block is not None else tile_solid(job.vertices)
     except Exception as exc:
         kernel_failure(f"tile {job.tile}: block", exc)
-        raise InputError(
+        raise InternalError(
             f"tile {job.tile}: the CAD kernel cannot make a solid of its 8 vertices "
-            f"({type(exc).__name__}); check the tile vertices"
+            f"({type(exc).__name__})"
         ) from exc
     failed_tools: list[int] = []
     dropped: list[float] = []

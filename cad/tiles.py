@@ -21,7 +21,7 @@ from scipy.spatial import ConvexHull, HalfspaceIntersection
 
 from drawstring.cad.kernel import polyhedron_solid
 from drawstring.cad.paths import FACE_BOTTOM, FACE_INDICES, FACE_TOP, TILE_FACES, face_planes
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.rigid import apply_rigid, rigid_fit
 from drawstring.geometry.core.tolerances import CAD_MAX_FACE_DEVIATION_MM, CAD_PLANAR_EXACT_MM
 
@@ -88,17 +88,17 @@ def tile_solid_vertices(vertices: NDArray[np.float64]) -> NDArray[np.float64]:
     where a face deviates from one by more than ``CAD_PLANAR_EXACT_MM``."""
     points = np.asarray(vertices, dtype=np.float64)
     if points.shape != (8, 3) or not np.all(np.isfinite(points)):
-        raise InputError(f"a tile needs (8, 3) finite vertices, got shape {points.shape}")
+        raise InternalError(f"a tile needs (8, 3) finite vertices, got shape {points.shape}")
     if mesh_volume(points) <= 0.0:
-        raise InputError(
+        raise InternalError(
             "tile has non-positive volume: order corners counter-clockwise seen from the top, "
             "top corners 0..3 then bottom corners 4..7"
         )
     deviation = face_deviation(points)
     if deviation > CAD_MAX_FACE_DEVIATION_MM:
-        raise InputError(
+        raise InternalError(
             f"tile face is not planar (deviation {deviation:.3g} mm > "
-            f"{CAD_MAX_FACE_DEVIATION_MM} mm); planarize the tiles before building solids"
+            f"{CAD_MAX_FACE_DEVIATION_MM} mm)"
         )
     if deviation > CAD_PLANAR_EXACT_MM:
         points = snap_to_planes(points)
@@ -119,7 +119,7 @@ def relieved_tile_solid(
 
     Raises
     ------
-    InputError
+    InternalError
         Where the tile is not a valid block (:func:`tile_solid`) or a plane leaves its centre.
     ValueError
         Where the kernel returns no valid solid (the caller keeps the plain block).
@@ -134,7 +134,7 @@ def relieved_tile_solid(
     offsets = np.concatenate([np.einsum("fd,fd->f", centroids, normals), -planes[:, 3]])
     centre = points.mean(axis=0)
     if np.any(planes[:, :3] @ centre - planes[:, 3] <= 0):
-        raise InputError("a relief plane cuts through the tile's centre; check the hinge reliefs")
+        raise InternalError("a relief plane cuts through the tile's centre")
     scale = 1.0 + float(np.ptp(points, axis=0).max())
     tol = _RELIEF_TOL * scale  # one tolerance for merging corners and for a corner on a plane
     if np.any(points @ normals.T - offsets[: len(normals)] > tol):
@@ -194,7 +194,7 @@ def tile_solids(tiles: NDArray[np.float64]) -> list[bd.Solid]:
     """:func:`tile_solid` for every tile of a (T, 8, 3) array (mm)."""
     array = np.asarray(tiles, dtype=np.float64)
     if array.ndim != 3 or array.shape[1:] != (8, 3):
-        raise InputError(f"tiles must be a (T, 8, 3) array, got shape {array.shape}")
+        raise InternalError(f"tiles must be a (T, 8, 3) array, got shape {array.shape}")
     return [tile_solid(t) for t in array]
 
 

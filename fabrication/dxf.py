@@ -21,7 +21,7 @@ import ezdxf
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InputError, InternalError
 
 LAYER_ENGRAVE = "ENGRAVE"
 LAYER_CUT_INNER = "CUT_INNER"
@@ -98,7 +98,7 @@ def text_strokes(
     """
     unknown = sorted(set(text) - set(_GLYPHS))
     if unknown:
-        raise InputError(f"the stroke font has no glyph for {''.join(unknown)!r}")
+        raise InternalError(f"the stroke font has no glyph for {''.join(unknown)!r}")
     width = text_width(text, height)
     rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
     strokes = []

@@ -15,7 +15,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal, get_args
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InputError, InternalError
 
 
 class Process(StrEnum):
@@ -359,7 +359,7 @@ def rough_estimate(profile: Profile, size_mm: float, tiles: int) -> RoughEstimat
     by the shape (a hemisphere takes a third more tiles' volume than the factor says).
     """
     if not (math.isfinite(size_mm) and size_mm > 0) or tiles < 1:
-        raise InputError("an estimate needs a positive size in mm and at least one tile")
+        raise InternalError("an estimate needs a positive size in mm and at least one tile")
     area = ESTIMATE_AREA_FACTOR * size_mm**2
     side = math.sqrt(area / tiles)
     if profile.process == Process.PLYWOOD_CNC:  # the panels of every box

@@ -53,7 +53,7 @@ from drawstring.cad.tiles import (  # noqa: E402
     tile_solids,
 )
 from drawstring.fabrication.profiles import Profile, load_profile  # noqa: E402
-from drawstring.geometry.core.errors import InputError  # noqa: E402
+from drawstring.geometry.core.errors import InternalError  # noqa: E402
 from drawstring.geometry.core.tolerances import CAD_OPENING_MATCH_MM  # noqa: E402
 
 
@@ -119,13 +119,13 @@ def test_near_planar_tile_is_snapped() -> None:
 
 
 def test_bad_tiles_raise() -> None:
-    with pytest.raises(InputError, match="counter-clockwise"):
+    with pytest.raises(InternalError, match="counter-clockwise"):
         tile_solid(_box()[[3, 2, 1, 0, 7, 6, 5, 4]])
     bent = _box(10.0)
     bent[2, 2] += 0.5
-    with pytest.raises(InputError, match="not planar"):
+    with pytest.raises(InternalError, match="not planar"):
         tile_solid(bent)
-    with pytest.raises(InputError, match=r"\(8, 3\)"):
+    with pytest.raises(InternalError, match=r"\(8, 3\)"):
         tile_solid(np.zeros((6, 3)))
 
 
@@ -161,7 +161,7 @@ def test_channel_meets_side_faces_along_their_normals(profile: Profile) -> None:
     assert straight.min_radius == np.inf
     tube = string_channel(tile, 3, 0, profile)
     assert tube.is_valid
-    with pytest.raises(InputError, match="same side"):
+    with pytest.raises(InternalError, match="same side"):
         channel_path(tile, 2, 2)
 
 
@@ -182,7 +182,7 @@ def test_label_is_sized_to_the_bottom_face(profile: Profile) -> None:
     assert max(abs(box.min.X - 6), abs(box.max.X - 6), abs(box.min.Y - 6), abs(box.max.Y - 6)) < 6
     assert len(engraving.solids()) == 2 + 7 + 3  # segments of "1", "8", "7"
     assert label_engraving(_box(1.0), 187, profile) is None  # too small to engrave
-    with pytest.raises(InputError):
+    with pytest.raises(InternalError):
         label_engraving(tile, -1, profile)
 
 
@@ -352,15 +352,15 @@ def test_assembled_pose_moves_tiles_rigidly(design: SampleDesign, profile: Profi
 
 
 def test_bad_design_inputs_raise(design: SampleDesign, profile: Profile) -> None:
-    with pytest.raises(InputError, match="tiles_2d"):
+    with pytest.raises(InternalError, match="tiles_2d"):
         build_design_solids(
             design.tiles_2d[:, :4], design.tiles_3d, [], [], [], [], [], None, profile
         )
-    with pytest.raises(InputError, match="outside"):
+    with pytest.raises(InternalError, match="outside"):
         build_design_solids(
             design.tiles_2d, design.tiles_3d, [], [], [(99, 0, 1)], [], [], None, profile
         )
-    with pytest.raises(InputError, match="hinge_side"):
+    with pytest.raises(InternalError, match="hinge_side"):
         build_design_solids(
             design.tiles_2d,
             design.tiles_3d,
