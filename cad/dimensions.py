@@ -1,7 +1,7 @@
 """What the CAD layer reads from a fabrication profile, as a structural type.
 
 ``drawstring.fabrication.profiles.Profile`` satisfies this protocol; the CAD layer names only
-the protocol, so it never imports the layer above it (ARCHITECTURE.md section 1).
+the protocol, so it never imports the layer above it (docs/architecture.md).
 """
 
 from __future__ import annotations

@@ -60,7 +60,7 @@ def strip_room(
     the face that holds a strip (``others``; None: any corner).  Two strips ending that far out
     on rays that far apart are a width and a wall apart; on a square face that is 0.71 (width
     + wall), more than half a width and a wall for any strip over 1.41 walls wide.  Recesses of
-    neighbouring corners' strips overlapping in thin slivers made OCCT's cut of a tile fail."""
+    neighbouring corners' strips overlapping in thin slivers make OCCT's cut of a tile fail."""
     width, wall = profile.hinge_width_mm, feature_wall_mm(profile)
     room = 0.5 * width + wall
     if ring is None:
@@ -127,8 +127,8 @@ def hinge_frame(
 ) -> HingeFrame:
     """The strip of a hinge: half the profile's pad length into each tile, less where its end
     would come within :func:`strip_room` of the centre of the tile's hinge face (the strips of
-    neighbouring corners met there: their recesses overlapping in thin slivers made OCCT's
-    cut of a tile fail)."""
+    neighbouring corners meet there, and recesses overlapping in thin slivers make OCCT's cut
+    of a tile fail)."""
     if side not in ("top", "bottom"):
         raise InternalError(f"hinge side {side!r} must be 'top' or 'bottom'")
     for corner, name in ((corner_a, "corner_a"), (corner_b, "corner_b")):

@@ -81,12 +81,12 @@ def _tpu_pad(
             if pin is None:
                 continue
             stop = pin.depth + (TOOL_OVERSHOOT_MM if pin.through else 0.0)
-            # the hole starts at the recess floor, like the pin: cutting it from above the
-            # surface through the recess left it uncut on some hinges (OCCT)
+            # the hole starts at the recess floor, like the pin: cut from above the surface
+            # through the recess, OCCT leaves it uncut on some hinges
             tools[index].append(cylinder_between(pin.point, frame.normal, radius, thickness, stop))
-            # The pin starts at the strip's underside: starting it inside the strip (which
-            # the union makes no different where the strip covers it) left OCCT's fuse
-            # non-manifold on some hinges.
+            # The pin starts at the strip's underside: a pin starting inside the strip (the
+            # same union where the strip covers it) leaves OCCT's fuse non-manifold on some
+            # hinges.
             keys.append(cylinder_between(pin.point, frame.normal, radius, thickness, pin.depth))
     else:
         for index, (tile, (corner, direction), half) in enumerate(

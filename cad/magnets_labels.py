@@ -371,7 +371,7 @@ def label_engraving(
     centred on the face and fits inside ``LABEL_FILL`` of the face's inscribed radius.  It is
     made smaller where it would come within :func:`feature_wall_mm` of a ``keep_out`` footprint
     on the bottom face (:func:`hinge_face_footprints`: hinge strips and pin holes, which would
-    cover or cut the digits, and whose recesses overlapping an engraving made OCCT's cut fail).
+    cover or cut the digits, and whose recesses overlapping an engraving make OCCT's cut fail).
     Returns ``None`` (and logs) when the strokes would be thinner than the machine can make
     (:func:`feature_wall_mm`: ``max(nozzle, 2 kerf, 0.3 mm)``).
     """

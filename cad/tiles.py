@@ -114,7 +114,7 @@ def relieved_tile_solid(
     A convex tile is made as one exact B-rep, the convex polyhedron of its six face planes and
     the cut planes (no boolean: the hinge reliefs of :mod:`drawstring.cad.clearance` pass
     within a fraction of a millimetre of the hinge strips' recesses, where OCCT's cuts of
-    tools that close failed).  A tile that is not convex (a dart-shaped face) is cut by a
+    tools that close fail).  A tile that is not convex (a dart-shaped face) is cut by a
     half-space box per plane instead.
 
     Raises

@@ -450,7 +450,7 @@ def write_3mf(
             f'<base name="{_escape(names[kind])}" displaycolor="{colour}"/>'
             for kind, colour in _MATERIAL_COLOUR.items()
             # the pad material (the last, index 1) only where a part uses it: a file of loose
-            # tiles (laser-epdm) declared a material no triangle had
+            # tiles (laser-epdm) declares no material that no triangle uses
             if kind == "tile" or any(p.kind == kind for obj in objects for p in obj.parts)
         )
         + "</basematerials>",

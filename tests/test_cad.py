@@ -1,4 +1,4 @@
-"""CAD layer: exact tiles, features and the checks measured on the solids (issue 7)."""
+"""CAD layer: exact tiles, features and the checks measured on the solids."""
 
 from __future__ import annotations
 
@@ -453,10 +453,10 @@ def test_strips_stop_short_of_the_tile_centre(profile: Profile) -> None:
     assert box.max.X - box.min.X < 2 * small[0] / np.sqrt(2) + profile.hinge_width_mm + 1e-6
 
 
-# Three tiles of the laser-epdm saddle at --size 100 before the fix (tile 18 and the tiles of
-# its bottom hinges at corners 0 and 3), to 6 decimals.  Their glue recesses overlapped near
-# tile 18's centre and its number engraving overlapped both: the batched cut raised "OCCT
-# boolean operation failed" and the build crashed.
+# Three tiles of the laser-epdm saddle at --size 100 (tile 18 and the tiles of its bottom
+# hinges at corners 0 and 3), to 6 decimals: a crowded bottom face, where glue recesses running
+# full length overlap near tile 18's centre and its number engraving overlaps both, which makes
+# OCCT's batched cut fail ("OCCT boolean operation failed").
 _CROWDED = np.array(
     [
         # tile 18
@@ -497,7 +497,8 @@ def test_crowded_bottom_face_cuts_in_one_go() -> None:
     first = hinge_pad(tile, 0, tile_a, 3, "bottom", laser, build_pad=False)
     second = hinge_pad(tile_b, 2, tile, 3, "bottom", laser, build_pad=False)
     recesses = [*first.tools_a, *second.tools_b]
-    # The strips of neighbouring corners stop a wall apart (they overlapped by 0.14 mm).
+    # The strips of neighbouring corners stop a wall apart (at full length they overlap by
+    # 0.14 mm).
     assert recesses[0].distance_to(recesses[1]) > wall - 1e-4
     # The number keeps a wall from the strips: on this 8.5 mm tile there is no room left.
     assert label_engraving(tile, 18, laser).distance_to(recesses[0]) == 0.0  # type: ignore[union-attr]
@@ -658,8 +659,8 @@ def test_small_tiles_build_or_are_refused_with_a_size_that_builds(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     # 3 x 3 tiles on a 12 mm saddle are 4 mm across: too small for the TPU pins and the numbers
-    # (left out, with notes), not for the channel and lift bores.  The CAD stage crashed here
-    # (an OCCT boolean failed on a tile with a channel, a lift bore and three hinges).
+    # (left out, with notes), not for the channel and lift bores; a tile holds a channel, a
+    # lift bore and three hinges, where an OCCT boolean can fail.
     from drawstring.app.cli import main
 
     args = ["design", "saddle", "--grid", "3", "3", "--resolution", "1500", "--no-simulate"]
@@ -679,8 +680,8 @@ def test_small_tiles_build_or_are_refused_with_a_size_that_builds(
 
 def test_lift_path_on_a_large_tile_with_leaning_sides() -> None:
     # Top face 40 mm, bottom face 36 mm: the inward direction from a side face rises, and the
-    # straight run towards the top face's centre used to climb past the top face
-    # ("tile too thin for a lift bore" on a 4 x 4 laser-epdm saddle).
+    # straight run towards the top face's centre, unchecked, would climb past the top face
+    # (as on a 4 x 4 laser-epdm saddle).
     tile = _tile(40.0)
     tile[4:] = _tile(36.0, at=(2.0, 2.0))[4:]
     path = lift_path(tile, 0)

@@ -747,8 +747,8 @@ def test_print_jobs_split_along_rows_or_refuse() -> None:
 
 
 def test_the_guide_names_the_tiles_without_a_number(built: Built, tmp_path: Path) -> None:
-    """Tiles too small for the engraved digits are named in the guide (it used to say every
-    tile carries its number)."""
+    """Tiles too small for the engraved digits are named in the guide, not said to carry
+    their number."""
     if built.profile.process == "plywood-cnc":
         pytest.skip("plywood panels are labelled on their inner faces")
     _write(
