@@ -93,7 +93,6 @@ __all__ = [
     "HingeLayout",
     "HingeTrim",
     "dual_hinge_faces",
-    "draw_flat",
     "hinge_overhangs",
     "hinge_sides",
     "hinge_vertex_json",
@@ -680,61 +679,3 @@ def hinge_vertex_json(layout: HingeLayout, linkage: Linkage) -> dict[str, Any]:
         ]
     json.dumps(out)  # fail early on anything not serializable
     return out
-
-
-def draw_flat(
-    ax: Any,
-    linkage: Linkage,
-    layout: HingeLayout,
-    flat: FlatResult | None = None,
-) -> None:
-    """Draw the flat layout on a matplotlib axis.
-
-    Tiles (top faces) coloured by component, bottom outlines thin, gaps shaded by opening angle,
-    hinges as filled dots (top) or hollow circles (bottom); a ``dual`` layout's trimmed pairs
-    (every ``top`` pair is trimmed where it overlaps) crossed.
-    """
-    from matplotlib import colormaps
-    from matplotlib.collections import PolyCollection
-
-    tiles = layout.tiles
-    comp_cmap = colormaps["Pastel1"]
-    colours = [comp_cmap(int(c) % 9) for c in linkage.tile_component]
-    if flat is not None and flat.junctions.elements.size:
-        gap_polys: list[FloatArray] = []
-        gap_vals: list[float] = []
-        from drawstring.geometry.flat.verify import gap_opening_angles_deg
-
-        measured = gap_opening_angles_deg(linkage, tiles, layout.bottom)
-        ang: dict[int, float] = {}
-        for g, value in zip(flat.junctions.gap[flat.junctions.is_end], measured, strict=True):
-            ang[int(g)] = min(ang.get(int(g), 90.0), float(value))
-        for g in range(linkage.n_gaps):
-            sides = linkage.gap_sides[g]
-            sides = sides[sides[:, 0] >= 0]
-            ring: list[FloatArray] = []
-            for t, s in sides:  # the void, traced along the final tiles' top sides
-                ring.append(tiles[t, (s + 1) % 4, :2])
-                ring.append(tiles[t, s, :2])
-            gap_polys.append(np.array(ring))
-            gap_vals.append(float(ang.get(g, 0.0)))
-        pc = PolyCollection(gap_polys, array=np.array(gap_vals), cmap="viridis", alpha=0.6)
-        pc.set_clim(0.0, 90.0)
-        ax.add_collection(pc)
-        ax.figure.colorbar(pc, ax=ax, label="gap opening angle (deg)", shrink=0.7)
-    ax.add_collection(
-        PolyCollection(list(tiles[:, 4:, :2]), facecolors="none", edgecolors="0.5", linewidths=0.3)
-    )
-    ax.add_collection(
-        PolyCollection(list(tiles[:, :4, :2]), facecolors=colours, edgecolors="k", linewidths=0.5)
-    )
-    pts = layout.hinge_points
-    top = ~layout.bottom
-    ax.plot(pts[top, 0], pts[top, 1], "o", ms=3, color="k", label="top hinge")
-    ax.plot(pts[~top, 0], pts[~top, 1], "o", ms=4, mfc="none", mec="r", label="bottom hinge")
-    if layout.strategy == "dual" and layout.trims:
-        cut = np.array([tr.hinge for tr in layout.trims])
-        ax.plot(pts[cut, 0], pts[cut, 1], "x", ms=7, color="m", label="trimmed pair")
-    ax.set_aspect("equal")
-    ax.autoscale_view()
-    ax.legend(loc="upper right", fontsize=7)

@@ -637,27 +637,3 @@ def nearby_lift_gaps(
     dist = [float(np.linalg.norm(pos[g] - pos[gap])) for g in found]
     order = sorted(range(len(found)), key=lambda i: (dist[i], found[i]))
     return np.array([found[i] for i in order], dtype=np.int64)
-
-
-# --------------------------------------------------------------------------------------------
-# picture
-
-
-def draw_lift(ax: Any, lift: LiftPoints, gap_centroids_flat: ArrayLike) -> None:
-    """Scatter gaps coloured by basin; mark peaks (black dots) and lift points (red stars).
-
-    Parameters
-    ----------
-    ax : a matplotlib Axes.
-    lift : the selection to draw.
-    gap_centroids_flat : (G, 2) float, mm, gap positions in the flat configuration.
-    """
-    pos = np.asarray(gap_centroids_flat, dtype=np.float64)
-    ax.scatter(pos[:, 0], pos[:, 1], c=lift.basin % 20, cmap="tab20", vmin=0, vmax=19, s=14)
-    pk = pos[lift.peaks]
-    ax.scatter(pk[:, 0], pk[:, 1], c="black", s=28, marker="o", label="peaks")
-    lp = pos[lift.lift_gaps]
-    ax.scatter(
-        lp[:, 0], lp[:, 1], c="red", s=160, marker="*", edgecolors="black", label="lift points"
-    )
-    ax.set_aspect("equal")

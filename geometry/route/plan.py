@@ -109,7 +109,6 @@ __all__ = [
     "contact_partners",
     "count_crossings",
     "crossing_edge_pairs",
-    "draw_route",
     "gap_graph",
     "node_labels",
     "plan_route",
@@ -679,34 +678,3 @@ def route_to_json(
         "lift_points": lifts,
         "notes": list(route.notes),
     }
-
-
-def draw_route(ax: Any, route: Route, gap_centroids_flat: ArrayLike, lift_points: Any = ()) -> None:
-    """Draw the closed route polyline and the lift points on a matplotlib Axes.
-
-    Parameters
-    ----------
-    ax : matplotlib Axes.
-    route : the route.
-    gap_centroids_flat : (G, 2) float, mm.
-    lift_points : gap ids, or an object with a ``lift_gaps`` attribute (``LiftPoints``).
-    """
-    pos = np.asarray(gap_centroids_flat, dtype=np.float64)[:, :2]
-    gaps = np.append(route.gaps, route.gaps[:1])
-    ax.plot(pos[gaps, 0], pos[gaps, 1], "-", color="crimson", lw=1.8, label="string", zorder=4)
-    ax.plot(pos[route.gaps, 0], pos[route.gaps, 1], ".", color="crimson", ms=4, zorder=4)
-    entr = route.gaps[route.labels == NODE_ENTRANCE]
-    ax.plot(pos[entr, 0], pos[entr, 1], "o", mfc="none", mec="k", ms=6, label="entrances", zorder=4)
-    lifts = np.asarray(getattr(lift_points, "lift_gaps", lift_points), dtype=np.int64)
-    if lifts.size:
-        ax.scatter(
-            pos[lifts, 0],
-            pos[lifts, 1],
-            s=180,
-            marker="*",
-            c="red",
-            edgecolors="black",
-            zorder=5,
-            label="lift points",
-        )
-    ax.set_aspect("equal")
