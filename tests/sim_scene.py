@@ -7,14 +7,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.simulate.groups import _kabsch, hinge_vertex_pairs
 from drawstring.geometry.tiling.linkage import Linkage, build_linkage, rotating_squares_layout
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 __all__ = ["DeploymentScene", "boundary_loop_route", "cylinder_scene"]
 

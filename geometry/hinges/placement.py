@@ -54,7 +54,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.core.errors import InputError
@@ -66,6 +66,7 @@ from drawstring.geometry.core.tolerances import (
     HINGE_LAYOUT_TOUCH_MM,
     HINGE_TRIM_GROW_MM,
 )
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.flat.layout import FlatResult
 from drawstring.geometry.flat.pose import HingeFaces, free_openings, hinge_faces, lay_flat
 from drawstring.geometry.flat.verify import (
@@ -79,8 +80,6 @@ from drawstring.geometry.tiling.linkage import TILE_FACES, Linkage, SlitEnds, sl
 
 logger = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 HingeSide = Literal["top", "bottom"]
 
 #: Where both faces clear at openings within this of each other, the overhangs decide.
@@ -157,9 +156,7 @@ def hinge_overhangs(linkage: Linkage, tiles_3d: ArrayLike) -> tuple[FloatArray, 
     return bot_a + bot_b, top_a + top_b
 
 
-def hinge_sides(
-    linkage: Linkage, tiles_3d: ArrayLike, min_gap_angle_deg: float = 0.0
-) -> NDArray[np.bool_]:
+def hinge_sides(linkage: Linkage, tiles_3d: ArrayLike, min_gap_angle_deg: float = 0.0) -> BoolArray:
     """Whether each hinge goes to the bottom: ``dual_hinge_faces(...).bottom``.
 
     Parameters
@@ -288,7 +285,7 @@ class HingeLayout:
 
     strategy: HingeStrategy
     tiles: FloatArray
-    bottom: NDArray[np.bool_]
+    bottom: BoolArray
     hinge_vertices: IntArray
     hinge_points: FloatArray
     hinge_gap_max_mm: float
@@ -304,7 +301,7 @@ class HingeLayout:
         return tuple("bottom" if b else "top" for b in self.bottom)
 
 
-def _hinge_vertex_ids(linkage: Linkage, bottom: NDArray[np.bool_]) -> IntArray:
+def _hinge_vertex_ids(linkage: Linkage, bottom: BoolArray) -> IntArray:
     h = linkage.hinges
     off = np.where(bottom, 4, 0)
     return np.stack([8 * h[:, 0] + h[:, 1] + off, 8 * h[:, 2] + h[:, 3] + off], axis=1)
@@ -608,8 +605,8 @@ HELD_APART_RATIO = 3.0
 
 
 def _held_apart(
-    gaps: FloatArray, tiles_2d: FloatArray, ids: IntArray, free: NDArray[np.bool_]
-) -> NDArray[np.bool_]:
+    gaps: FloatArray, tiles_2d: FloatArray, ids: IntArray, free: BoolArray
+) -> BoolArray:
     """Hinge pairs ``(H,)`` among ``free`` ones whose rigid-layout ``gaps`` (in-plane, mm) a
     separating plane holds open: those above the tolerance, and those near it
     (:data:`HELD_APART_SHARE`) and much wider than in T2D (:data:`HELD_APART_RATIO`) where no

@@ -20,7 +20,7 @@ from typing import Any, Literal
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tolerances import (
@@ -28,6 +28,7 @@ from drawstring.geometry.core.tolerances import (
     HINGE_LAYOUT_CLEARANCE_MM,
     HINGE_LAYOUT_FEASIBLE_MM,
 )
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.flat.verify import hinge_gaps
 from drawstring.geometry.hinges.separating_planes import (
     RigidPose,
@@ -42,8 +43,6 @@ from drawstring.geometry.tiling.linkage import Linkage, SlitEnds, slit_ends
 
 logger = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 HingeStrategy = Literal["dual", "top"]
 
 __all__ = ["HingeStrategy", "RigidLayoutResult", "rigid_layout"]
@@ -267,7 +266,7 @@ class RigidLayoutResult:
     tiles: FloatArray
     merged: FloatArray
     points: FloatArray
-    is_merged: NDArray[np.bool_]
+    is_merged: BoolArray
     gap_mm: FloatArray
     violation_mm: float
     iterations: int
@@ -511,7 +510,7 @@ def _normal_pattern(
 
 
 def _merged_tiles(
-    x: FloatArray, ids: IntArray, points: FloatArray, is_merged: NDArray[np.bool_]
+    x: FloatArray, ids: IntArray, points: FloatArray, is_merged: BoolArray
 ) -> FloatArray:
     """Tiles ``(T, 8, 3)`` with both vertices of every merged hinge moved to its point."""
     flat = x.reshape(-1, 3).copy()
@@ -520,9 +519,7 @@ def _merged_tiles(
     return flat.reshape(x.shape)
 
 
-def _hinges_of_ends(
-    ends: SlitEnds, bad: NDArray[np.bool_], ids: IntArray, faces: IntArray
-) -> NDArray[np.bool_]:
+def _hinges_of_ends(ends: SlitEnds, bad: BoolArray, ids: IntArray, faces: IntArray) -> BoolArray:
     """Hinges whose merged vertices enter the angle of any ``bad`` slit end."""
     t0, t1 = ends.tiles[bad, 0], ends.tiles[bad, 1]
     s0, s1 = ends.sides[bad, 0], ends.sides[bad, 1]
@@ -541,15 +538,15 @@ def _hinges_of_ends(
 def _broken_merges(
     layout: RigidPose,
     linkage: Linkage,
-    trim: NDArray[np.bool_],
+    trim: BoolArray,
     planes: SeparatingPlanes,
     ends: SlitEnds,
     faces: IntArray,
     merged: FloatArray,
     ids: IntArray,
-    is_merged: NDArray[np.bool_],
+    is_merged: BoolArray,
     min_gap_angle_deg: float,
-) -> NDArray[np.bool_]:
+) -> BoolArray:
     """Merged hinges to undo: those whose moved vertices leave two tiles without a separating
     plane, or a gap angle out of its bounds (checked on the merged tiles)."""
     tol = 1e-9

@@ -15,16 +15,13 @@ import hashlib
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.core import parallel
 from drawstring.geometry.core.tolerances import HINGE_LAYOUT_TOUCH_MM
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.flat.verify import convex_pieces
 from drawstring.geometry.tiling.linkage import Linkage
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 __all__ = [
     "RigidPose",
@@ -58,7 +55,7 @@ class SeparatingPlanes:
     score: FloatArray
     piece_a: IntArray
     piece_b: IntArray
-    trim: NDArray[np.bool_]  # (H,) the hinges treated as trimmed when choosing them
+    trim: BoolArray  # (H,) the hinges treated as trimmed when choosing them
     #: digest of what else the search saw (the vertices, clearance, touch, unhinged pairs on
     #: their top faces only): ``known`` planes are taken only from a search of the same
     made_with: bytes = b""
@@ -200,7 +197,7 @@ def select_planes(
     layout: RigidPose,
     linkage: Linkage,
     hinge_ids: IntArray,
-    trim: NDArray[np.bool_],
+    trim: BoolArray,
     clearance: float,
     reach: float,
     *,
@@ -362,7 +359,7 @@ def select_planes(
 
     new = row_key(a, b, piece_a, piece_b)
 
-    def match(old_planes: SeparatingPlanes) -> tuple[NDArray[np.bool_], IntArray]:
+    def match(old_planes: SeparatingPlanes) -> tuple[BoolArray, IntArray]:
         """Rows of this selection also in ``old_planes``, and where they are there."""
         old = row_key(old_planes.a, old_planes.b, old_planes.piece_a, old_planes.piece_b)
         order = np.argsort(old, kind="stable")

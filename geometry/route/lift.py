@@ -31,10 +31,11 @@ from typing import Any, Protocol
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tolerances import LIFT_SHARE_MIN, LIFT_SUPPORT_MIN
+from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.tiling.linkage import Linkage
 
 log = logging.getLogger(__name__)
@@ -48,7 +49,7 @@ class DeployCheck(Protocol):
     @property
     def name(self) -> str: ...
 
-    def __call__(self, lift_gaps: NDArray[np.int64]) -> bool: ...
+    def __call__(self, lift_gaps: IntArray) -> bool: ...
 
 
 @dataclass(frozen=True)
@@ -72,15 +73,15 @@ class LiftPoints:
     sweep : list of ``(tau, n_lift, passed)`` for every threshold tried.
     """
 
-    lift_gaps: NDArray[np.int64]
-    peaks: NDArray[np.int64]
-    basin: NDArray[np.int64]
-    gap_energy: NDArray[np.float64]
-    coupling: NDArray[np.float64]
-    clusters: NDArray[np.int64]
+    lift_gaps: IntArray
+    peaks: IntArray
+    basin: IntArray
+    gap_energy: FloatArray
+    coupling: FloatArray
+    clusters: IntArray
     tau: float
-    positions: NDArray[np.float64]
-    pull_directions: NDArray[np.float64]
+    positions: FloatArray
+    pull_directions: FloatArray
     check_name: str
     check_passed: bool
     sweep: tuple[tuple[float, int, bool], ...]
@@ -114,7 +115,7 @@ class LiftPoints:
 # masses and energies
 
 
-def tile_masses_from_volumes(tile_vertices: ArrayLike, density: float) -> NDArray[np.float64]:
+def tile_masses_from_volumes(tile_vertices: ArrayLike, density: float) -> FloatArray:
     """Mass of every closed 8-vertex tile from its exact volume.
 
     Parameters
@@ -150,7 +151,7 @@ def tile_masses_from_volumes(tile_vertices: ArrayLike, density: float) -> NDArra
     return np.asarray(volume_m3 * density, dtype=np.float64)
 
 
-def _unit(vector: ArrayLike, what: str) -> NDArray[np.float64]:
+def _unit(vector: ArrayLike, what: str) -> FloatArray:
     u = np.asarray(vector, dtype=np.float64).reshape(3)
     n = float(np.linalg.norm(u))
     if not np.isfinite(n) or n == 0.0:
@@ -168,7 +169,7 @@ def _gap_tile_matrix(linkage: Linkage) -> sp.csr_matrix:
     )
 
 
-def gap_adjacency(linkage: Linkage) -> NDArray[np.int64]:
+def gap_adjacency(linkage: Linkage) -> IntArray:
     """(E, 2) int pairs ``u < v`` of gaps that share at least one tile."""
     inc = _gap_tile_matrix(linkage)
     adj = sp.triu(inc @ inc.T, k=1).tocoo()
@@ -183,7 +184,7 @@ def gap_potential_energy(
     up: ArrayLike = (0.0, 0.0, 1.0),
     g: float = GRAVITY,
     z_min: float | None = None,
-) -> NDArray[np.float64]:
+) -> FloatArray:
     """Gravitational potential energy of every gap.
 
     ``g_i = sum over the tiles k around gap i of 1/4 m_k g (z_k - z_min)`` with ``z`` the height
@@ -222,7 +223,7 @@ def gap_potential_energy(
 # Morse-Smale segmentation, barriers, clusters
 
 
-def _rank(values: NDArray[np.float64]) -> NDArray[np.int64]:
+def _rank(values: FloatArray) -> IntArray:
     """Rank in the strict order 'higher' (0 is the highest): by value, ties by smaller index."""
     order = np.lexsort((np.arange(len(values)), -values))
     rank = np.empty(len(values), dtype=np.int64)
@@ -230,9 +231,7 @@ def _rank(values: NDArray[np.float64]) -> NDArray[np.int64]:
     return rank
 
 
-def morse_smale_basins(
-    energy: NDArray[np.float64], edges: NDArray[np.int64]
-) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+def morse_smale_basins(energy: FloatArray, edges: IntArray) -> tuple[IntArray, IntArray]:
     """Peaks and steepest-ascent basins of a scalar field on a graph.
 
     Parameters
@@ -275,9 +274,7 @@ def morse_smale_basins(
     return peaks, index[target]
 
 
-def peak_barriers(
-    energy: NDArray[np.float64], edges: NDArray[np.int64], peaks: NDArray[np.int64]
-) -> NDArray[np.float64]:
+def peak_barriers(energy: FloatArray, edges: IntArray, peaks: IntArray) -> FloatArray:
     """Barrier between every pair of peaks on the maximum spanning tree.
 
     Edge weight ``w(u, v) = min(g_u, g_v)``; Kruskal adds edges heaviest first, and the edge that
@@ -321,9 +318,7 @@ def peak_barriers(
     return barrier
 
 
-def peak_coupling(
-    energy: NDArray[np.float64], peaks: NDArray[np.int64], barrier: NDArray[np.float64]
-) -> NDArray[np.float64]:
+def peak_coupling(energy: FloatArray, peaks: IntArray, barrier: FloatArray) -> FloatArray:
     """``c[i, j] = barrier(i, j) / g_j`` where peak i is higher than peak j, else 0.
 
     ``peaks`` must be sorted highest first (as ``morse_smale_basins`` returns them), so the
@@ -335,9 +330,7 @@ def peak_coupling(
     return np.asarray(np.triu(c, k=1), dtype=np.float64)
 
 
-def cluster_peaks(
-    coupling: NDArray[np.float64], tau: float
-) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+def cluster_peaks(coupling: FloatArray, tau: float) -> tuple[IntArray, IntArray]:
     """Clusters of the coupling DAG at threshold ``tau`` and each cluster's root.
 
     Edge ``i -> j`` when ``c(i, j)`` is the largest coupling into ``j`` (ties: the higher peak i)
@@ -376,14 +369,14 @@ class _RidgeSupportCheck:
     """Callable behind ``geometric_deploy_check``."""
 
     name: str
-    peaks: NDArray[np.int64]
-    peak_energy: NDArray[np.float64]
-    basin_share: NDArray[np.float64]
-    barrier: NDArray[np.float64]
+    peaks: IntArray
+    peak_energy: FloatArray
+    basin_share: FloatArray
+    barrier: FloatArray
     share_min: float
     support_min: float
 
-    def __call__(self, lift_gaps: NDArray[np.int64]) -> bool:
+    def __call__(self, lift_gaps: IntArray) -> bool:
         lifted = np.isin(self.peaks, np.asarray(lift_gaps))
         if not lifted.any():
             return len(self.peaks) == 0
@@ -451,7 +444,7 @@ def geometric_deploy_check(
 # selection
 
 
-def _check_name(check: Callable[[NDArray[np.int64]], bool]) -> str:
+def _check_name(check: Callable[[IntArray], bool]) -> str:
     return str(getattr(check, "name", getattr(check, "__name__", type(check).__name__)))
 
 
@@ -463,7 +456,7 @@ def select_lift_points(
     up: ArrayLike = (0.0, 0.0, 1.0),
     tau0: float = 0.8,
     tau_step: float = 0.1,
-    deploy_check: Callable[[NDArray[np.int64]], bool] | None = None,
+    deploy_check: Callable[[IntArray], bool] | None = None,
     gap_positions: ArrayLike | None = None,
     gap_normals: ArrayLike | None = None,
 ) -> LiftPoints:
@@ -574,10 +567,10 @@ def select_lift_points(
 
 def interior_lift_gaps(
     linkage: Linkage,
-    energy: NDArray[np.float64],
-    edges: NDArray[np.int64],
-    gaps: NDArray[np.int64],
-) -> NDArray[np.int64]:
+    energy: FloatArray,
+    edges: IntArray,
+    gaps: IntArray,
+) -> IntArray:
     """Move lift points off split and boundary gaps onto the best interior gap next to them.
 
     The string reaches a lift point from the boundary through interior gaps and may not enter
@@ -601,9 +594,7 @@ def interior_lift_gaps(
     return np.array(moved, dtype=np.int64)
 
 
-def nearby_lift_gaps(
-    linkage: Linkage, gap: int, positions: ArrayLike, steps: int = 2
-) -> NDArray[np.int64]:
+def nearby_lift_gaps(linkage: Linkage, gap: int, positions: ArrayLike, steps: int = 2) -> IntArray:
     """Interior gaps of ``gap``'s part within ``steps`` hops of it (a hop joins two gaps that
     share a tile), nearest first: where a lift point may move when the string cannot reach it.
 

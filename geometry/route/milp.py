@@ -18,11 +18,11 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import NDArray
 from scipy.optimize import Bounds, LinearConstraint, milp
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.core.errors import DesignError
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 
 log = logging.getLogger(__name__)
 
@@ -57,7 +57,7 @@ class _Rules:
 # geometry helpers
 
 
-def turn_angle(a: NDArray[np.float64], b: NDArray[np.float64], c: NDArray[np.float64]) -> Any:
+def turn_angle(a: FloatArray, b: FloatArray, c: FloatArray) -> Any:
     """Angle (rad) between directions ``b - a`` and ``c - b``; broadcasts over leading axes."""
     d1, d2 = b - a, c - b
     cross = d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]
@@ -66,12 +66,12 @@ def turn_angle(a: NDArray[np.float64], b: NDArray[np.float64], c: NDArray[np.flo
 
 
 def _segments_cross(
-    p1: NDArray[np.float64],
-    p2: NDArray[np.float64],
-    q1: NDArray[np.float64],
-    q2: NDArray[np.float64],
+    p1: FloatArray,
+    p2: FloatArray,
+    q1: FloatArray,
+    q2: FloatArray,
     eps: float = 1e-9,
-) -> NDArray[np.bool_]:
+) -> BoolArray:
     """Proper intersection of segment pairs (shared endpoints and touching do not count)."""
 
     def orient(a: Any, b: Any, c: Any) -> Any:
@@ -89,7 +89,7 @@ def _segments_cross(
     )
 
 
-def crossing_edge_pairs(edges: NDArray[np.int64], pos: NDArray[np.float64]) -> NDArray[np.int64]:
+def crossing_edge_pairs(edges: IntArray, pos: FloatArray) -> IntArray:
     """(c, 2) indices of edge pairs whose straight segments cross properly."""
     if len(edges) < 2:
         return np.zeros((0, 2), dtype=np.int64)
@@ -134,7 +134,7 @@ class _Problem:
 
 def _build_problem(
     rules: _Rules,
-    pos: NDArray[np.float64],
+    pos: FloatArray,
     nodes: Iterable[int],
     required: set[int],
     cover: set[int],
@@ -168,9 +168,7 @@ def _build_problem(
     return problem
 
 
-def _crossing_pairs(
-    edges: list[tuple[int, int]], pos: NDArray[np.float64]
-) -> list[tuple[int, int]]:
+def _crossing_pairs(edges: list[tuple[int, int]], pos: FloatArray) -> list[tuple[int, int]]:
     """Pairs of edge indices whose segments cross (parallel edges share their geometry)."""
     if len(edges) < 2:
         return []
@@ -188,7 +186,7 @@ def _crossing_pairs(
 def _solve_cycle(
     problem: _Problem,
     rules: _Rules,
-    pos: NDArray[np.float64],
+    pos: FloatArray,
     node_limit: int,
     notes: list[str] | None = None,
 ) -> tuple[list[int], float, bool]:
@@ -380,7 +378,7 @@ def _solve_cycle(
     raise DesignError("string route program did not converge to one cycle")
 
 
-def _cycles_of(edges: list[tuple[int, int]], chosen: NDArray[np.int64]) -> list[list[int]]:
+def _cycles_of(edges: list[tuple[int, int]], chosen: IntArray) -> list[list[int]]:
     """Split a 2-regular edge set into cycles, each as an ordered list of edge indices."""
     at: dict[int, list[int]] = {}
     for e in chosen:

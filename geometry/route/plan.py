@@ -68,10 +68,11 @@ from typing import Any, Literal
 
 import networkx as nx
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.core.errors import DesignError, InputError
+from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.route.loops import (
     _band_loop_any,
     _boundary_loop_dp,
@@ -175,11 +176,11 @@ class Route:
     notes : what the solver had to give up or work around.
     """
 
-    gaps: NDArray[np.int64]
-    labels: NDArray[np.int64]
-    tiles: NDArray[np.int64]
-    enter_side: NDArray[np.int64]
-    leave_side: NDArray[np.int64]
+    gaps: IntArray
+    labels: IntArray
+    tiles: IntArray
+    enter_side: IntArray
+    leave_side: IntArray
     turn_angle_total_rad: float
     method: str
     lower_bound_rad: float | None
@@ -188,7 +189,7 @@ class Route:
     length_flat_mm: float
     channel_partners_ok: bool = True
     tiles_passed_once: bool = True
-    lifts_missed: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    lifts_missed: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     notes: tuple[str, ...] = field(default=())
 
 
@@ -196,12 +197,12 @@ class Route:
 # gap graph and contact partners
 
 
-def node_labels(linkage: Linkage) -> NDArray[np.int64]:
+def node_labels(linkage: Linkage) -> IntArray:
     """(G,) int label of every gap: 0 vertical, 1 horizontal, -1 entrance, -2 split."""
     return np.array([_LABEL[k] for k in linkage.gap_kind], dtype=np.int64)
 
 
-def contact_partners(linkage: Linkage) -> NDArray[np.int64]:
+def contact_partners(linkage: Linkage) -> IntArray:
     """Tile pairs the string may pass between, per gap.
 
     Two tiles are contact partners at gap ``g`` when their sides facing ``g`` are the same grid
@@ -319,7 +320,7 @@ def gap_graph(linkage: Linkage, gap_centroids_flat: ArrayLike) -> nx.Graph:
     return graph
 
 
-def _check_positions(linkage: Linkage, positions: ArrayLike) -> NDArray[np.float64]:
+def _check_positions(linkage: Linkage, positions: ArrayLike) -> FloatArray:
     pos = np.asarray(positions, dtype=np.float64)
     if pos.ndim != 2 or pos.shape[0] != linkage.n_gaps or pos.shape[1] < 2:
         raise InputError(
@@ -341,7 +342,7 @@ def _side_facing(linkage: Linkage, tile: int, gap: int) -> int:
 def _finish(
     linkage: Linkage,
     rules: _Rules,
-    pos: NDArray[np.float64],
+    pos: FloatArray,
     steps: list[Step],
     method: str,
     lower_bound: float | None,
@@ -385,7 +386,7 @@ def _finish(
     return dataclasses.replace(route, channel_partners_ok=not faults.size)
 
 
-def channel_partner_faults(route: Route, linkage: Linkage) -> NDArray[np.int64]:
+def channel_partner_faults(route: Route, linkage: Linkage) -> IntArray:
     """Steps ``k`` where the string does not pass straight between contact partners.
 
     Measured from the route alone: step ``k`` is fine when ``tiles[k - 1] != tiles[k]``, the
@@ -419,7 +420,7 @@ def channel_partners_ok(route: Route, linkage: Linkage) -> bool:
     return not channel_partner_faults(route, linkage).size
 
 
-def count_crossings(gaps: NDArray[np.int64], pos: NDArray[np.float64]) -> int:
+def count_crossings(gaps: IntArray, pos: FloatArray) -> int:
     """Gaps visited more than once plus pairs of non-adjacent route segments that cross."""
     r = len(gaps)
     repeats = int(r - len(np.unique(gaps)))
@@ -433,7 +434,7 @@ def count_crossings(gaps: NDArray[np.int64], pos: NDArray[np.float64]) -> int:
     return repeats + int(_segments_cross(a[i], b[i], a[j], b[j]).sum())
 
 
-def _median_spacing(pos: NDArray[np.float64]) -> float:
+def _median_spacing(pos: FloatArray) -> float:
     if len(pos) < 2:
         return 1.0
     d, _ = cKDTree(pos).query(pos, k=2)

@@ -59,11 +59,12 @@ from dataclasses import dataclass, replace
 from typing import Protocol, runtime_checkable
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.rigid import rigid_copies
 from drawstring.geometry.core.tolerances import SIM_STALL_PROGRESS
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.simulate.groups import (  # noqa: F401 (re-exported)
     SIDE_FACES,
     TILE_EDGES,
@@ -107,8 +108,6 @@ from drawstring.geometry.tiling.linkage import Linkage
 
 logger = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 __all__ = [
     "SimulationResult",
@@ -495,10 +494,10 @@ def simulate_deployment(
 
 @runtime_checkable
 class _RouteLike(Protocol):
-    gaps: NDArray[np.int64]
-    tiles: NDArray[np.int64]
-    enter_side: NDArray[np.int64]
-    leave_side: NDArray[np.int64]
+    gaps: IntArray
+    tiles: IntArray
+    enter_side: IntArray
+    leave_side: IntArray
 
 
 def route_steps(route: _RouteLike | ArrayLike) -> IntArray:
@@ -683,9 +682,7 @@ def _face_partners(goal: FloatArray, pairs: IntArray) -> IntArray:
     return np.asarray(np.argmin(dist, axis=2), dtype=np.int64)
 
 
-def face_on_face(
-    tiles: FloatArray, pairs: IntArray, partner: IntArray, limit: float
-) -> NDArray[np.bool_]:
+def face_on_face(tiles: FloatArray, pairs: IntArray, partner: IntArray, limit: float) -> BoolArray:
     """Which face pairs lie face on face: every corner within ``limit`` of its partner corner.
 
     Parameters
@@ -738,7 +735,7 @@ class _SimulationCheck:
     route_for: Callable[[IntArray], Sequence[tuple[int, int, int, int]]]
     options: dict[str, object]
 
-    def __call__(self, lift_gaps: NDArray[np.int64]) -> bool:
+    def __call__(self, lift_gaps: IntArray) -> bool:
         gaps = np.asarray(lift_gaps, dtype=np.int64).reshape(-1)
         pairs, pair_gaps = route_snap_pairs(self.route_for(gaps))
         verts, targets = lift_targets_for_gaps(self.linkage, self.tiles_assembled, gaps)
@@ -764,7 +761,7 @@ def deploy_check_from_simulation(
     route_for: Callable[[IntArray], Sequence[tuple[int, int, int, int]]]
     | Sequence[tuple[int, int, int, int]],
     **options: object,
-) -> Callable[[NDArray[np.int64]], bool]:
+) -> Callable[[IntArray], bool]:
     """A deployment check for ``select_lift_points(..., deploy_check=...)``.
 
     Parameters

@@ -13,10 +13,11 @@ from typing import Literal
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.rigid import rigid_fit
+from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.solve.solver import (
     ConstraintGroup,
     centering_matrix,
@@ -26,8 +27,6 @@ from drawstring.geometry.tiling.linkage import Linkage
 
 logger = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 SnapMode = Literal["face", "midpoint"]
 
 #: The 18 edges of a rigid tile: top ring, bottom ring, verticals, and one diagonal per face
