@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.simulate.groups import _kabsch, hinge_vertex_pairs
 from drawstring.geometry.tiling.linkage import Linkage, build_linkage, rotating_squares_layout
@@ -46,7 +46,7 @@ def boundary_loop_route(linkage: Linkage) -> tuple[tuple[int, int, int, int], ..
     """
     n_i, n_j = linkage.grid_shape
     if n_i < 2 or n_j < 2:
-        raise InputError("the boundary loop needs a grid of at least 2 x 2 tiles")
+        raise InternalError("the boundary loop needs a grid of at least 2 x 2 tiles")
     cells = (
         [(i, 0) for i in range(n_i)]
         + [(n_i - 1, j) for j in range(1, n_j)]
@@ -107,7 +107,7 @@ def cylinder_scene(
     opening : float, rad, gap angle of the flat layout.
     """
     if n_i < 2 or n_j < 2:
-        raise InputError("a cylinder scene needs at least 2 x 2 tiles")
+        raise InternalError("a cylinder scene needs at least 2 x 2 tiles")
     link = build_linkage(np.ones((n_i, n_j), dtype=bool))
     r_out = radius if radius is not None else 1.2 * n_i * side / (0.5 * np.pi)
     dtheta = 2.0 * np.arcsin(side / (2.0 * r_out))

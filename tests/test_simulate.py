@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from sim_scene import DeploymentScene, boundary_loop_route, cylinder_scene
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InputError, InternalError
 from drawstring.geometry.core.rigid import rigid_copies
 from drawstring.geometry.simulate import deploy as S
 from drawstring.geometry.simulate import groups as simgroups
@@ -149,9 +149,16 @@ def test_deploy_check_plugs_into_lift_sweep(scene2: DeploymentScene) -> None:
 
 def test_bad_input() -> None:
     scene = cylinder_scene(2, 2)
-    with pytest.raises(InputError):
+    with pytest.raises(InternalError):
         S.simulate_deployment(
             scene.linkage, scene.tiles_flat[:, :4], scene.tiles_assembled, scene.hinge_vertices, []
+        )
+    # a damaged tiles.npz (drawstring simulate FOLDER) is the user's input
+    broken = scene.tiles_flat.copy()
+    broken[0, 0, 0] = np.nan
+    with pytest.raises(InputError, match="finite"):
+        S.simulate_deployment(
+            scene.linkage, broken, scene.tiles_assembled, scene.hinge_vertices, []
         )
 
 

@@ -57,7 +57,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.tolerances import (
     HINGE_ANGLE_MARGIN_DEG,
     HINGE_GAP_TOL_MM,
@@ -191,7 +191,7 @@ def dual_hinge_faces(
     """
     tiles = np.asarray(tiles_3d, dtype=np.float64)
     if tiles.ndim != 3 or tiles.shape[1:] != (8, 3) or len(tiles) != linkage.n_tiles:
-        raise InputError(f"tiles_3d has shape {tiles.shape}; pass (T, 8, 3) T3D tiles")
+        raise InternalError(f"tiles_3d has shape {tiles.shape}; pass (T, 8, 3) T3D tiles")
     bottom, top = hinge_overhangs(linkage, tiles)
     thickness = float(np.mean(np.linalg.norm(tiles[:, :4] - tiles[:, 4:], axis=2)))
     by_overhang = bottom - top > HINGE_SIDE_TOL_REL * max(thickness, 1e-300)
@@ -449,9 +449,9 @@ def layout_hinges(
     t2 = np.asarray(tiles_2d, dtype=np.float64)
     t3 = np.asarray(tiles_3d, dtype=np.float64)
     if t2.shape != t3.shape or t2.shape[1:] != (8, 3) or len(t2) != linkage.n_tiles:
-        raise InputError("tiles_2d and tiles_3d must both be (T, 8, 3) for the linkage's tiles")
+        raise InternalError("tiles_2d and tiles_3d must both be (T, 8, 3) for the linkage's tiles")
     if strategy not in ("dual", "top"):
-        raise InputError(f"--hinges {strategy!r} is not known; use dual or top")
+        raise InternalError(f"hinge strategy {strategy!r} is not dual or top")
     theta = flat.min_gap_angle_deg if min_gap_angle_deg is None else float(min_gap_angle_deg)
     problems: list[str] = []
     if strategy == "top":
@@ -461,7 +461,7 @@ def layout_hinges(
     else:
         sides = np.asarray(bottom, dtype=bool)
         if sides.shape != (linkage.n_hinges,):
-            raise InputError(f"bottom has shape {sides.shape}; pass one flag per hinge")
+            raise InternalError(f"bottom has shape {sides.shape}; pass one flag per hinge")
     ids = _hinge_vertex_ids(linkage, sides)
     released = np.zeros(linkage.n_hinges, dtype=bool)
     if strategy == "top":

@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.tolerances import (
     HINGE_ANGLE_MARGIN_DEG,
     HINGE_LAYOUT_CLEARANCE_MM,
@@ -361,7 +361,7 @@ def rigid_layout(
     ids = np.asarray(hinge_ids, dtype=np.int64).reshape(-1, 2)
     cut = np.full(len(ids), strategy == "top") if trim is None else np.asarray(trim, dtype=bool)
     if cut.shape != (len(ids),):
-        raise InputError(f"trim has shape {cut.shape}; pass one flag per hinge")
+        raise InternalError(f"trim has shape {cut.shape}; pass one flag per hinge")
     layout = RigidPose(t2)
     layout.unhinged_top_only = strategy == "top"
     ends = slit_ends(linkage)

@@ -33,7 +33,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.tolerances import LIFT_SHARE_MIN, LIFT_SUPPORT_MIN
 from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.tiling.linkage import Linkage
@@ -133,11 +133,11 @@ def tile_masses_from_volumes(tile_vertices: ArrayLike, density: float) -> FloatA
     """
     v = np.asarray(tile_vertices, dtype=np.float64)
     if v.ndim != 3 or v.shape[1:] != (8, 3):
-        raise InputError(
+        raise InternalError(
             f"tile vertices have shape {v.shape}; pass a (T, 8, 3) array of tile corners in mm"
         )
     if not np.isfinite(density) or density <= 0:
-        raise InputError(f"density {density} kg/m^3 is not positive; use the material's density")
+        raise InternalError(f"density {density} kg/m^3 is not positive; use the material's density")
     # Closed surface, outward for a bottom cap 0-3 counter-clockwise seen from +z and top 4-7.
     quads = [(0, 3, 2, 1), (4, 5, 6, 7)] + [
         (k, (k + 1) % 4, (k + 1) % 4 + 4, k + 4) for k in range(4)
@@ -155,7 +155,7 @@ def _unit(vector: ArrayLike, what: str) -> FloatArray:
     u = np.asarray(vector, dtype=np.float64).reshape(3)
     n = float(np.linalg.norm(u))
     if not np.isfinite(n) or n == 0.0:
-        raise InputError(f"{what} {u.tolist()} is not a direction; pass a non-zero 3-vector")
+        raise InternalError(f"{what} {u.tolist()} is not a direction; pass a non-zero 3-vector")
     return u / n
 
 
@@ -207,12 +207,14 @@ def gap_potential_energy(
     c = np.asarray(tile_centroids, dtype=np.float64)
     m = np.asarray(tile_masses, dtype=np.float64)
     if c.shape != (linkage.n_tiles, 3) or m.shape != (linkage.n_tiles,):
-        raise InputError(
+        raise InternalError(
             f"tile centroids {c.shape} / masses {m.shape} do not match {linkage.n_tiles} tiles; "
             "pass (T, 3) centroids in mm and (T,) masses in kg"
         )
     if np.any(m < 0) or not np.all(np.isfinite(m)):
-        raise InputError("tile masses must be finite and non-negative; check density and volumes")
+        raise InternalError(
+            "tile masses must be finite and non-negative; check density and volumes"
+        )
     height = c @ _unit(up, "up axis")
     base = float(height.min()) if z_min is None else float(z_min)
     tile_energy = 0.25 * m * g * np.maximum(height - base, 0.0) * 1e-3  # mm -> m
@@ -485,7 +487,7 @@ def select_lift_points(
     """
     up_axis = _unit(up, "up axis")
     if not 0.0 < tau_step:
-        raise InputError(f"tau step {tau_step} must be positive; the paper uses 0.1")
+        raise InternalError(f"tau step {tau_step} must be positive; the paper uses 0.1")
     energy = gap_potential_energy(linkage, tile_centroids, tile_masses, up=up_axis)
     edges = gap_adjacency(linkage)
     peaks, basin = morse_smale_basins(energy, edges)

@@ -71,7 +71,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
-from drawstring.geometry.core.errors import DesignError, InputError
+from drawstring.geometry.core.errors import DesignError, InternalError
 from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.route.loops import (
     _band_loop_any,
@@ -323,7 +323,7 @@ def gap_graph(linkage: Linkage, gap_centroids_flat: ArrayLike) -> nx.Graph:
 def _check_positions(linkage: Linkage, positions: ArrayLike) -> FloatArray:
     pos = np.asarray(positions, dtype=np.float64)
     if pos.ndim != 2 or pos.shape[0] != linkage.n_gaps or pos.shape[1] < 2:
-        raise InputError(
+        raise InternalError(
             f"gap centroids have shape {pos.shape}; pass ({linkage.n_gaps}, 2) flat positions in mm"
         )
     return pos[:, :2]
@@ -482,7 +482,7 @@ def plan_route(
     pos = _check_positions(linkage, gap_centroids_flat)
     lifts = np.unique(np.asarray(lift_gaps, dtype=np.int64))
     if lifts.size and (lifts.min() < 0 or lifts.max() >= linkage.n_gaps):
-        raise InputError(f"lift gaps {lifts.tolist()} are not gap ids 0..{linkage.n_gaps - 1}")
+        raise InternalError(f"lift gaps {lifts.tolist()} are not gap ids 0..{linkage.n_gaps - 1}")
     lift_set = {int(g) for g in lifts}
     rules = _rules(linkage, lift_set, split_rule)
     cover = {int(t) for t in np.nonzero(linkage.boundary_tile)[0]}

@@ -61,7 +61,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InputError, InternalError
 from drawstring.geometry.core.rigid import rigid_copies
 from drawstring.geometry.core.tolerances import SIM_STALL_PROGRESS
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
@@ -150,17 +150,18 @@ def _check_inputs(
     tiles_flat: FloatArray, tiles_assembled: FloatArray, hinge_vertices: IntArray
 ) -> None:
     if tiles_flat.ndim != 3 or tiles_flat.shape[1:] != (8, 3):
-        raise InputError(f"flat tiles must be (T, 8, 3), got {tiles_flat.shape}")
+        raise InternalError(f"flat tiles must be (T, 8, 3), got {tiles_flat.shape}")
     if tiles_assembled.shape != tiles_flat.shape:
-        raise InputError(
+        raise InternalError(
             f"assembled tiles {tiles_assembled.shape} and flat tiles {tiles_flat.shape} differ; "
             "pass the same tiles in both poses"
         )
     if not (np.all(np.isfinite(tiles_flat)) and np.all(np.isfinite(tiles_assembled))):
+        # the user's tiles.npz can hold them (drawstring simulate FOLDER)
         raise InputError("tile vertices must be finite")
     n = tiles_flat.shape[0] * 8
     if hinge_vertices.size and (hinge_vertices.min() < 0 or hinge_vertices.max() >= n):
-        raise InputError("hinge vertex ids must be tile * 8 + vertex within the tile count")
+        raise InternalError("hinge vertex ids must be tile * 8 + vertex within the tile count")
 
 
 def simulate_deployment(
@@ -212,10 +213,10 @@ def simulate_deployment(
     hinges = np.asarray(hinge_vertices, dtype=np.int64).reshape(-1, 2)
     _check_inputs(flat, goal, hinges)
     if flat.shape[0] != linkage.n_tiles:
-        raise InputError(f"{flat.shape[0]} tiles given for a linkage of {linkage.n_tiles}")
+        raise InternalError(f"{flat.shape[0]} tiles given for a linkage of {linkage.n_tiles}")
     counts = (cfg.max_steps, cfg.ramp_steps, cfg.hinge_close_steps, cfg.check_every)
     if min(frame_every, cfg.stall_checks, *counts) < 1:
-        raise InputError(
+        raise InternalError(
             "frame_every, max_steps, ramp_steps, hinge_close_steps, check_every and "
             "stall_checks must be >= 1"
         )
@@ -226,7 +227,7 @@ def simulate_deployment(
     lift_v = np.asarray(lift_vertices, dtype=np.int64).reshape(-1)
     lift_t = np.asarray(lift_targets, dtype=np.float64).reshape(-1, 3)
     if len(lift_v) != len(lift_t):
-        raise InputError("give one lift target per lift vertex")
+        raise InternalError("give one lift target per lift vertex")
     side = mean_tile_side(goal)
     if thickness is not None:
         top_level = flat[:, :4, 2].mean() - flat[..., 2].min()

@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InputError, InternalError
 from drawstring.geometry.core.rigid import rigid_fit
 from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.solve.solver import (
@@ -219,7 +219,7 @@ def route_snap_pairs(
         Gap crossed by each pair (``-1`` for virtual entrances).
     """
     steps = np.asarray(route, dtype=np.int64).reshape(-1, 4)
-    if len(steps) < 2:
+    if len(steps) < 2:  # the user's route.json can say so (drawstring simulate FOLDER)
         raise InputError("a route needs at least two steps; pass the closed string route")
     nxt = np.roll(steps, -1, axis=0)
     keep = steps[:, 1] != nxt[:, 1]
@@ -243,7 +243,7 @@ def hinge_vertex_pairs(linkage: Linkage, hinge_side: Sequence[str] | None = None
     h = linkage.hinges
     sides = ["top"] * len(h) if hinge_side is None else list(hinge_side)
     if len(sides) != len(h) or any(s not in ("top", "bottom") for s in sides):
-        raise InputError("hinge_side must list 'top' or 'bottom' for every hinge")
+        raise InternalError("hinge_side must list 'top' or 'bottom' for every hinge")
     off = np.array([0 if s == "top" else 4 for s in sides], dtype=np.int64)
     return np.stack([h[:, 0] * 8 + h[:, 1] + off, h[:, 2] * 8 + h[:, 3] + off], axis=1)
 
@@ -267,7 +267,7 @@ def lift_targets_for_gaps(
     verts: list[int] = []
     for g in np.asarray(lift_gaps, dtype=np.int64).reshape(-1):
         if not 0 <= g < linkage.n_gaps:
-            raise InputError(f"lift gap {g} does not exist; the linkage has {linkage.n_gaps}")
+            raise InternalError(f"lift gap {g} does not exist; the linkage has {linkage.n_gaps}")
         gv = linkage.gap_vertex[g]
         for t in linkage.gap_tiles(int(g)):
             for c in np.flatnonzero(linkage.tile_corners[t] == gv):
