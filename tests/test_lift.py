@@ -9,16 +9,15 @@ import pytest
 from numpy.typing import NDArray
 
 from drawstring.geometry.core.errors import InternalError
-from drawstring.geometry.route.lift import (
+from drawstring.geometry.route.energy import (
     cluster_peaks,
     gap_adjacency,
     gap_potential_energy,
-    geometric_deploy_check,
     morse_smale_basins,
     peak_barriers,
-    select_lift_points,
     tile_masses_from_volumes,
 )
+from drawstring.geometry.route.lift import geometric_deploy_check, select_lift_points
 from drawstring.geometry.tiling.linkage import Linkage, build_linkage
 
 HeightField = Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
