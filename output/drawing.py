@@ -15,13 +15,13 @@ from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.types import FloatArray
 from drawstring.geometry.flat.verify import gap_opening_angles_deg
-from drawstring.geometry.route.plan import NODE_ENTRANCE
+from drawstring.geometry.route.rules import NODE_ENTRANCE
 
 if TYPE_CHECKING:
     from drawstring.geometry.flat.layout import FlatResult
     from drawstring.geometry.hinges.placement import HingeLayout
     from drawstring.geometry.route.lift import LiftPoints
-    from drawstring.geometry.route.plan import Route
+    from drawstring.geometry.route.result import Route
     from drawstring.geometry.tiling.linkage import Linkage
 
 __all__ = ["draw_flat", "draw_lift", "draw_route"]

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.geometry.route.plan import route_to_json
+from drawstring.geometry.route.result import route_to_json
 from drawstring.geometry.tiling.linkage import TILE_FACES, gap_centroids
 from drawstring.output import pictures
 from drawstring.pipeline.cad_stage import route_lengths

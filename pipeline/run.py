@@ -24,7 +24,7 @@ from drawstring.geometry.core.errors import InputError, ThicknessError
 from drawstring.geometry.flatten.conformal import Flattening, flatten
 from drawstring.geometry.route.energy import tile_masses_from_volumes
 from drawstring.geometry.route.lift import select_lift_points
-from drawstring.geometry.route.plan import Route
+from drawstring.geometry.route.result import Route
 from drawstring.geometry.simulate.deploy import SimulationResult, simulate_stage
 from drawstring.geometry.target.surface import Target, load_target
 from drawstring.geometry.tiling.grid import grid_shape_for, parts_in_place

@@ -1,7 +1,8 @@
 """Lift points and the string route (paper sections 5.2 and 5.3)."""
 
 from drawstring.geometry.route.lift import LiftPoints, select_lift_points
-from drawstring.geometry.route.plan import Route, plan_route
+from drawstring.geometry.route.plan import plan_route
+from drawstring.geometry.route.result import Route
 
 __all__ = [
     "LiftPoints",

@@ -1,4 +1,4 @@
-"""Loop builders for the string route, on top of the integer program in :mod:`.route_milp`.
+"""Loop builders for the string route, on top of the integer program in :mod:`.milp`.
 
 The heuristic for large instances: a dynamic program over the boundary tiles in their order along
 the outer boundary builds the minimum-turn boundary loop (:func:`_boundary_loop_dp`, with short
@@ -24,8 +24,8 @@ from drawstring.geometry.route.milp import (
     _cycle_steps,
     _reverse_steps,
     _Rules,
-    _segments_cross,
     _solve_cycle,
+    segments_cross,
 )
 from drawstring.geometry.tiling.linkage import Linkage
 
@@ -255,7 +255,7 @@ def _splice_lift(
     gaps ``p0``, ``q1`` (contact partners of the fixed tiles there, paying the turns there), uses
     none of its gaps or tiles, crosses none of its segments, and passes every boundary tile that
     the removed stretch passed.  Raises DesignError when the window holds no such path,
-    :class:`~.route_milp.NodeBudgetError` when its nodes found none (more nodes may).
+    :class:`~.milp.NodeBudgetError` when its nodes found none (more nodes may).
     """
     r = len(steps)
     cycle = [g for g, _ in steps]
@@ -298,7 +298,7 @@ def _splice_lift(
         ea = np.array(edges, dtype=np.int64)
         fa = np.array(fixed_path[:-1], dtype=np.int64)
         fb = np.array(fixed_path[1:], dtype=np.int64)
-        hit = _segments_cross(
+        hit = segments_cross(
             pos[ea[:, 0]][:, None], pos[ea[:, 1]][:, None], pos[fa][None], pos[fb][None]
         ).any(axis=1)
         problem.banned = {int(e) for e in np.nonzero(hit)[0]}

@@ -4,9 +4,8 @@ A problem instance (:class:`_Problem`) has one node per gap and one edge per ste
 gaps through a tile; :func:`_solve_cycle` solves it with ``scipy.optimize.milp`` (HiGHS), with
 binary edge, node and turn variables, one pass per tile, crossing-pair exclusions and
 connectivity cuts added until one cycle remains.  The geometric helpers the program needs (turn
-angles and segment crossings in the flat layout) live here too; :mod:`.route` re-exports the
-public ones.  Which steps are allowed comes from :class:`_Rules`, built by
-:func:`drawstring.geometry.route.plan._rules`.
+angles and segment crossings in the flat layout) live here too.  Which steps are allowed comes
+from :class:`_Rules`, built by :func:`drawstring.geometry.route.rules.route_rules`.
 """
 
 from __future__ import annotations
@@ -65,7 +64,7 @@ def turn_angle(a: FloatArray, b: FloatArray, c: FloatArray) -> Any:
     return np.abs(np.arctan2(cross, dot))
 
 
-def _segments_cross(
+def segments_cross(
     p1: FloatArray,
     p2: FloatArray,
     q1: FloatArray,
@@ -106,7 +105,7 @@ def crossing_edge_pairs(edges: IntArray, pos: FloatArray) -> IntArray:
         | (edges[i, 1] == edges[j, 0])
         | (edges[i, 1] == edges[j, 1])
     )
-    hit = ~share & _segments_cross(a[i], b[i], a[j], b[j])
+    hit = ~share & segments_cross(a[i], b[i], a[j], b[j])
     return np.asarray(pairs[hit], dtype=np.int64)
 
 

@@ -506,7 +506,7 @@ def route_steps(route: _RouteLike | ArrayLike) -> IntArray:
 
     Parameters
     ----------
-    route : a :class:`~drawstring.geometry.route.plan.Route` (``gaps``, ``tiles``, ``enter_side``,
+    route : a :class:`~drawstring.geometry.route.result.Route` (``gaps``, ``tiles``, ``enter_side``,
         ``leave_side``) or the steps themselves.
     """
     if isinstance(route, _RouteLike):
@@ -538,7 +538,7 @@ def simulate_stage(
     tiles_flat : (T, 8, 3) float, mm, T2D after the hinge layout (fabricated tiles).
     tiles_assembled : (T, 8, 3) float, mm, T3D.
     hinge_vertices : (H, 2) int, ``tile * 8 + vertex`` of both tiles of every hinge.
-    route : the closed string route (:class:`~drawstring.geometry.route.plan.Route` or ``(r, 4)``
+    route : the closed string route (:class:`~drawstring.geometry.route.result.Route` or ``(r, 4)``
         steps).
     lift_gaps : (L,) int, gap ids of the lift points; those the route does not pass are not
         pulled (the string leaves the structure only on its route).
