@@ -10,7 +10,8 @@ import numpy as np
 
 from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.types import FloatArray, IntArray
-from drawstring.geometry.simulate.groups import _kabsch, hinge_vertex_pairs
+from drawstring.geometry.simulate.inputs import hinge_vertex_pairs
+from drawstring.geometry.simulate.tiles import kabsch
 from drawstring.geometry.tiling.linkage import Linkage, build_linkage, rotating_squares_layout
 
 __all__ = ["DeploymentScene", "boundary_loop_route", "cylinder_scene"]
@@ -130,7 +131,7 @@ def cylinder_scene(
     flat = np.empty_like(assembled)
     for t in range(link.n_tiles):
         target = np.concatenate([squares[t], np.full((4, 1), thickness)], axis=1)
-        rot, shift = _kabsch(assembled[t, :4], target)
+        rot, shift = kabsch(assembled[t, :4], target)
         flat[t] = assembled[t] @ rot.T + shift
     flat[..., 2] -= flat[..., 2].min()
     return DeploymentScene(

@@ -56,7 +56,6 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -64,41 +63,41 @@ from numpy.typing import ArrayLike
 from drawstring.geometry.core.errors import InputError, InternalError
 from drawstring.geometry.core.rigid import rigid_copies
 from drawstring.geometry.core.tolerances import SIM_STALL_PROGRESS
-from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
-from drawstring.geometry.simulate.groups import (  # noqa: F401 (re-exported)
-    SIDE_FACES,
-    TILE_EDGES,
-    TILE_FACES,
+from drawstring.geometry.core.types import FloatArray, IntArray
+from drawstring.geometry.simulate.groups import (
     FaceContact,
     FaceSnap,
     Inertia,
     MovingTargets,
     PointCoincidence,
     RigidShape,
-    SnapMode,
-    _apply,
-    _kabsch,
-    best_rotations,
+)
+from drawstring.geometry.simulate.inputs import (
+    RouteLike,
+    apply_transform,
     contact_face_pairs,
-    hexahedron_overlap,
-    hinge_vertex_pairs,
-    kabsch_deviation,
     lift_targets_for_gaps,
-    max_penetration,
-    mean_tile_side,
-    neighbour_tile_pairs,
     place_on_table,
     route_snap_pairs,
-    side_face_midpoints,
+    route_steps,
     split_contact_pairs,
-    tile_edge_lengths,
 )
 from drawstring.geometry.simulate.result import (
     THOROUGH_SETTINGS,
     SimulationResult,
     SimulationSettings,
     SimulationTolerances,
-    save_deploy_npz,
+)
+from drawstring.geometry.simulate.tiles import (
+    face_on_face,
+    face_partners,
+    kabsch_deviation,
+    max_penetration,
+    mean_tile_side,
+    neighbour_tile_pairs,
+    snap_goal_length,
+    tile_edge_lengths,
+    tile_volumes,
 )
 from drawstring.geometry.solve.solver import (
     ConstraintGroup,
@@ -110,29 +109,10 @@ logger = logging.getLogger(__name__)
 
 
 __all__ = [
-    "SimulationResult",
-    "SimulationSettings",
-    "SimulationTolerances",
-    "THOROUGH_SETTINGS",
-    "TILE_EDGES",
-    "TILE_FACES",
-    "best_rotations",
+    "GRAVITY_MM_S2",
     "deploy_check_from_simulation",
-    "hinge_vertex_pairs",
-    "kabsch_deviation",
-    "lift_targets_for_gaps",
-    "max_penetration",
-    "contact_face_pairs",
-    "face_on_face",
-    "split_contact_pairs",
-    "route_snap_pairs",
-    "route_steps",
-    "save_deploy_npz",
-    "simulate_stage",
-    "snap_goal_length",
-    "side_face_midpoints",
     "simulate_deployment",
-    "tile_edge_lengths",
+    "simulate_stage",
 ]
 
 GRAVITY_MM_S2 = (0.0, 0.0, -9810.0)
@@ -246,7 +226,7 @@ def simulate_deployment(
     rest = tile_edge_lengths(flat)  # (T, 18): the fabricated pieces
 
     # Tile masses from volume (mean 1): a tetrahedral decomposition of the hexahedron.
-    masses = np.repeat(_tile_volumes(flat), 8)
+    masses = np.repeat(tile_volumes(flat), 8)
     masses = masses / masses.mean() if masses.mean() > 0 else np.ones(n)
 
     h = cfg.time_step_s
@@ -286,7 +266,7 @@ def simulate_deployment(
                 split_faces,
                 cfg.magnets * w_in,
                 mode="face",
-                partner=_face_partners(goal, split_faces),
+                partner=face_partners(goal, split_faces),
                 name="magnet",
             )
             groups.append(magnet)
@@ -297,12 +277,12 @@ def simulate_deployment(
     # Static friction (the settle only): contact faces pressed together stick.  The ``stick``
     # group holds the pairs that have stuck (rebuilt, one factorization, when more stick).
     use_stick = bool(len(faces)) and cfg.stick > 0
-    face_partner = _face_partners(goal, faces)
+    face_partner = face_partners(goal, faces)
     stuck = np.zeros(len(faces), dtype=bool)
     level = 1.0
     snap: FaceSnap | None = None
     if len(pairs):
-        partner = _face_partners(goal, pairs)
+        partner = face_partners(goal, pairs)
         touching = snap_goal_length(goal, pairs) <= tol.gap_closed_rel * side
         snap = FaceSnap(pairs, cfg.snap * w_in, mode=cfg.snap_mode, partner=partner, face=touching)
         groups.append(snap)
@@ -313,7 +293,7 @@ def simulate_deployment(
         lift = MovingTargets(lift_v, cfg.lift * w_in, height_only=cfg.lift_height_only)
         groups.append(lift)
         base["lift"] = cfg.lift
-        lift_goal = _apply(placement, lift_t)
+        lift_goal = apply_transform(placement, lift_t)
         lift_start = x[lift_v].copy()
     table = float(flat[..., 2].min())
     solver = LocalGlobalSolver(n, groups, lean=True)
@@ -493,34 +473,12 @@ def simulate_deployment(
     return result
 
 
-@runtime_checkable
-class _RouteLike(Protocol):
-    gaps: IntArray
-    tiles: IntArray
-    enter_side: IntArray
-    leave_side: IntArray
-
-
-def route_steps(route: _RouteLike | ArrayLike) -> IntArray:
-    """Route steps ``(gap, tile, enter_side, leave_side)`` as an ``(r, 4)`` int array.
-
-    Parameters
-    ----------
-    route : a :class:`~drawstring.geometry.route.result.Route` (``gaps``, ``tiles``, ``enter_side``,
-        ``leave_side``) or the steps themselves.
-    """
-    if isinstance(route, _RouteLike):
-        cols = [route.gaps, route.tiles, route.enter_side, route.leave_side]
-        return np.stack([np.asarray(c, dtype=np.int64).reshape(-1) for c in cols], axis=1)
-    return np.asarray(route, dtype=np.int64).reshape(-1, 4)
-
-
 def simulate_stage(
     linkage: Linkage,
     tiles_flat: ArrayLike,
     tiles_assembled: ArrayLike,
     hinge_vertices: ArrayLike,
-    route: _RouteLike | ArrayLike,
+    route: RouteLike | ArrayLike,
     lift_gaps: ArrayLike,
     thickness: float | None = None,
     *,
@@ -650,73 +608,6 @@ def _table_contact(
     if rigid:
         return _lift_above(out, level, len(rest))  # the last clamp, rigidly
     return out
-
-
-def snap_goal_length(tiles: FloatArray, pairs: IntArray) -> FloatArray:
-    """Distance between the paired side-face midpoints of every snap pair.
-
-    Parameters
-    ----------
-    tiles : (T, 8, 3) float, mm
-    pairs : (P, 4) int
-
-    Returns
-    -------
-    (P,) float, mm (zero in the assembled state for faces that touch there).
-    """
-    mids = side_face_midpoints(tiles)
-    return np.asarray(
-        np.linalg.norm(mids[pairs[:, 2], pairs[:, 3]] - mids[pairs[:, 0], pairs[:, 1]], axis=1)
-    )
-
-
-def _face_partners(goal: FloatArray, pairs: IntArray) -> IntArray:
-    """For each snap pair, the corner of face b nearest (in T3D) to each corner of face a.
-
-    Returns
-    -------
-    (P, 4) int, indices into ``SIDE_FACES[side_b]``.
-    """
-    fa = goal[pairs[:, 0, None], SIDE_FACES[pairs[:, 1]]]  # (P, 4, 3)
-    fb = goal[pairs[:, 2, None], SIDE_FACES[pairs[:, 3]]]
-    dist = np.linalg.norm(fa[:, :, None] - fb[:, None, :], axis=3)
-    return np.asarray(np.argmin(dist, axis=2), dtype=np.int64)
-
-
-def face_on_face(tiles: FloatArray, pairs: IntArray, partner: IntArray, limit: float) -> BoolArray:
-    """Which face pairs lie face on face: every corner within ``limit`` of its partner corner.
-
-    Parameters
-    ----------
-    tiles : (T, 8, 3) float, mm
-    pairs : (k, 4) int, ``(tile_a, side_a, tile_b, side_b)``.
-    partner : (k, 4) int, partner corner in face b of every corner of face a
-        (:func:`_face_partners` of the assembled tiles).
-    limit : float, mm.
-
-    Returns
-    -------
-    (k,) bool
-    """
-    fa = tiles[pairs[:, 0, None], SIDE_FACES[pairs[:, 1]]]  # (k, 4, 3)
-    fb = np.take_along_axis(
-        tiles[pairs[:, 2, None], SIDE_FACES[pairs[:, 3]]], partner[..., None], 1
-    )
-    return np.asarray(np.linalg.norm(fa - fb, axis=2).max(axis=1) < limit, dtype=bool)
-
-
-def _tile_volumes(tiles: FloatArray) -> FloatArray:
-    """Volumes ``(T,)`` of the hexahedral tiles (six tetrahedra around the 0-6 diagonal), mm^3."""
-    tets = np.array(
-        [[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [0, 7, 4, 6], [0, 4, 5, 6], [0, 5, 1, 6]]
-    )
-    p = tiles[:, tets]  # (T, 6, 4, 3)
-    vol = np.einsum(
-        "tki,tki->tk",
-        p[:, :, 1] - p[:, :, 0],
-        np.cross(p[:, :, 2] - p[:, :, 0], p[:, :, 3] - p[:, :, 0]),
-    )
-    return np.asarray(np.abs(vol.sum(axis=1)) / 6.0)
 
 
 # --------------------------------------------------------------------------------------------
