@@ -10,7 +10,6 @@ from sim_scene import DeploymentScene, boundary_loop_route, cylinder_scene
 
 from drawstring.geometry.core.errors import InputError, InternalError
 from drawstring.geometry.core.rigid import rigid_copies
-from drawstring.geometry.simulate import deploy as S
 from drawstring.geometry.simulate import groups as simgroups
 from drawstring.geometry.simulate.deploy import (
     deploy_check_from_simulation,
@@ -37,6 +36,7 @@ from drawstring.geometry.simulate.result import (
     SimulationSettings,
     save_deploy_npz,
 )
+from drawstring.geometry.simulate.stepping import table_contact
 from drawstring.geometry.simulate.tiles import (
     face_on_face,
     face_partners,
@@ -333,7 +333,7 @@ def test_table_contact_pivots_a_tile_instead_of_shoving_it() -> None:
     )
     tilted = (tile[0] - tile[0].mean(axis=0)) @ rot.T + tile[0].mean(axis=0)
     level = tilted[:, 2].min() + 1.0  # one vertex 1 mm below the table
-    out = S._table_contact(tilted, level, rest, rigid=True).reshape(1, 8, 3)
+    out = table_contact(tilted, level, rest, rigid=True).reshape(1, 8, 3)
     assert out[..., 2].min() >= level - 1e-12
     assert np.allclose(tile_edge_lengths(out), tile_edge_lengths(tile))
     top = np.argmax(tilted[:, 2])
