@@ -1,4 +1,4 @@
-"""Hinge sides, top-hinge trimming and the dual-hinge layout (issue 4)."""
+"""Hinge sides, top-hinge trimming and the dual-hinge layout (paper section 4.4)."""
 
 from __future__ import annotations
 

@@ -98,9 +98,9 @@ def test_sparse_eigensolve_agrees_with_the_dense_svd(
 
 def test_sparse_eigensolve_factors_a_gram_matrix_whose_shift_vanishes() -> None:
     """Two equal columns of norm 10 make ``R^T R`` singular, and a shift of ``tol ** 2``
-    vanishes next to its entries (100), so that factor is exactly singular (a 200-tile
-    seashell design crashed in its rigidity check).  A larger shift is tried then, and the
-    null vector is still found."""
+    vanishes next to its entries (100), so that factor is exactly singular (as a 200-tile
+    seashell design's can be).  A larger shift is tried then, and the null vector is still
+    found."""
     import scipy.sparse.linalg as spla
 
     from drawstring.geometry.assembled import rigidity

@@ -349,11 +349,9 @@ def _flat_pose_trims(
 
 
 #: The second layout (pairs held apart laid out on their hinge face only) runs only when at
-#: most this share of the pairs is apart: planes through the hinge hold pairs apart locally
-#: (three of 370 at the three-shell's split-line ends, 20 of 379 on the 200-tile wave whose
-#: co-optimization held the eq.-1 openings); when most pairs are apart, as on the 1600-tile
-#: wave before its co-optimization was kept (2067 of 3152), the flat tiles themselves are
-#: not congruent and a second layout only doubles the stage's time.
+#: most this share of the pairs is apart: planes through the hinge hold pairs apart locally (a
+#: few per cent of them, at split-line ends for instance); when most pairs are apart, the flat
+#: tiles themselves are not congruent and a second layout only doubles the stage's time.
 HINGE_RELAYOUT_MAX_SHARE = 0.1
 
 
@@ -367,9 +365,9 @@ def _pairs(count: int, kind: str = "", verb: str = "") -> str:
 #: A hinge pair of the rigid layout counts as held apart by its separating plane when it is
 #: more than the tolerance apart, or more than this share of it and :data:`HELD_APART_RATIO`
 #: times as far apart as its two tiles were in T2D (where the flat layout left them), provided
-#: no pair below the tolerance is wider (:func:`_held_apart`).  On the 1600-tile wave one pair was
-#: held 9.4e-4 mm apart (2e-6 mm in T2D): just inside the tolerance, it was not laid out again
-#: and a last-bit change elsewhere put it at 1.5e-3 mm; laid out again it meets within 2e-4 mm.
+#: no pair below the tolerance is wider (:func:`_held_apart`).  A pair held just inside the
+#: tolerance, far wider than the flat layout left it, is laid out again too: otherwise a change
+#: in the last bit elsewhere could push it past the tolerance.
 HELD_APART_SHARE = 0.5
 HELD_APART_RATIO = 3.0
 

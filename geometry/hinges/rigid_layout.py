@@ -119,10 +119,10 @@ def rigid_layout(
       the hinge may touch it; for ``top`` hinged pairs, and ``trim`` ones, only the hinge faces
       are separated (their 3D overlap is trimmed), and for ``top`` also unhinged pairs only
       on their top faces (the paper's ``top`` strategy trims whatever two tiles overlap in the
-      flat pose; planes through whole wedge-shaped tiles pulled the 300-tile wave's hinges
-      6.7e-3 mm apart over overlaps of 0.04 mm^3).  Planes are re-chosen (sampled max-margin,
-      never accepting a violation on the carrying tile's side when avoidable) in the first
-      rounds, warm-started from the previous planes.
+      flat pose; planes through whole wedge-shaped tiles would hold hinges apart over tiny
+      overlaps).  Planes are re-chosen (sampled max-margin, never accepting a violation on the
+      carrying tile's side when avoidable) in the first rounds, warm-started from the previous
+      planes.
 
     The solver is an augmented Lagrangian whose subproblems are solved by Levenberg-Marquardt.
     Hinge pairs are then merged at their midpoint moved horizontally onto the pair's plane; a

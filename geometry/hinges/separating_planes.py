@@ -63,8 +63,7 @@ class SeparatingPlanes:
 
 #: Most rows searched at once for separating planes, and fewest worth a block of their own on
 #: another core.  Their (rows, 8, 120, 5) heights, 4.9 MB at 128 rows, stay in the caches
-#: between the passes over them: 1600-tile hinge layout 2.18 s in blocks of 512 rows, 1.76 s
-#: in blocks of 128 (bitwise the same; 64 gains no more).
+#: between the passes over them; the planes found do not depend on the block size.
 _SEARCH_BLOCK_ROWS = 128
 _SEARCH_MIN_BLOCK_ROWS = 64
 

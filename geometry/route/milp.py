@@ -29,11 +29,9 @@ Step = tuple[int, int]  # (gap the string crosses into the tile, tile)
 
 #: Wall-clock safety net of one integer-program solve, s.  The solves are bounded by
 #: branch-and-bound nodes (HiGHS ``mip_max_nodes``, the callers' ``node_limit``), which stop
-#: them at the same point on every machine.  Bounded by time instead (5 s per window), the
-#: largest window programs of the face scan at the CLI defaults and of the 1600-tile dome and
-#: wave stopped after 2 to 11 nodes, or finished, depending on the machine's speed and load, so
-#: their routes could differ between runs.  A solve this limit stops keeps its best route and
-#: says so in the route's notes.
+#: them at the same point on every machine; a bound on time would stop the largest programs at
+#: a point that depends on the machine's speed and load, and so change their routes.  A solve
+#: this limit stops keeps its best route and says so in the route's notes.
 MILP_SAFETY_TIME_S = 60.0
 
 

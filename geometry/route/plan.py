@@ -78,14 +78,9 @@ SPLICE_WINDOWS: tuple[tuple[int, float], ...] = ((3, 2.0), (5, 3.0), (8, 4.5), (
 #: Node budgets of a window's integer program, tried in turn while the window neither yields a
 #: path nor is proved to hold none: first the root node alone (with HiGHS's heuristics there),
 #: then a few more.  A solve stopped at its budget with a valid path keeps it, not proven
-#: optimal.  Measured on the eight built-ins (200 tiles and the CLI defaults, both hinge
-#: strategies; 1600 tiles, dual hinges) and the three scans: all 41 routes are the ones the
-#: 5 s time limits per window gave before.  Most window programs finish at the root; the
-#: largest (1800-3700 variables: the face scan, the 1600-tile dome and wave) had kept the path
-#: found there whether or not they reached the time limit, which they did after 2 to 11 nodes
-#: or not, by the machine's speed.  Their route stages took 8.0, 5.1 and 5.1 s, now 7.5, 3.3
-#: and 1.8 s.  A window whose root neither finds a path nor proves that none exists costs its
-#: root twice (the face scan: 2.8 s, then 3.0 s to prove it).
+#: optimal.  Most window programs finish at the root, and the largest keep the path found
+#: there; a window whose root neither finds a path nor proves that none exists costs its root
+#: twice.
 SPLICE_NODE_LIMITS: tuple[int, ...] = (1, 16)
 
 

@@ -35,7 +35,7 @@ system is :class:`~drawstring.geometry.simulate.system.DeploySystem`, its time s
   string neither slide nor separate under static friction.  Without this the unilateral
   contacts alone fix the interior: after the boundary loop closes, the linkage is isostatic
   but its softest flex is nearly free (smallest nonzero singular value of the rigidity matrix
-  ~6e-6 relative), and the settle of a 40 x 40 linkage crept for hundreds of steps.  Pairs
+  ~6e-6 relative), and the settle of a 40 x 40 linkage creeps for hundreds of steps.  Pairs
   only stick once close to face on face, so nothing sticks in the flat pose or without the
   string; the group is rebuilt (one factorization) when more pairs stick;
 * the table -- tiles never dip below the lowest level of the flat pose (rigid push up).
