@@ -17,7 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.geometry.route.lift import select_lift_points
-from drawstring.geometry.route.plan import plan_route, route_metrics
+from drawstring.geometry.route.plan import plan_route
+from drawstring.geometry.route.result import route_metrics
 from drawstring.geometry.tiling.linkage import Linkage, build_linkage, rotating_squares_layout
 
 

@@ -28,19 +28,21 @@ sys.path.insert(0, str(_Path(__file__).resolve().parents[1] / "tests"))
 from sim_scene import cylinder_scene  # noqa: E402
 
 from drawstring.geometry.simulate import deploy as S
+from drawstring.geometry.simulate.inputs import lift_targets_for_gaps, route_snap_pairs
+from drawstring.geometry.simulate.result import SimulationSettings
 
 SIZES: tuple[tuple[int, int], ...] = ((4, 4), (8, 8), (10, 20), (40, 40))
 TARGET_S = {200: 20.0, 1600: 180.0}
 
 
-def run_one(n_i: int, n_j: int, settings: S.SimulationSettings | None = None) -> dict[str, Any]:
+def run_one(n_i: int, n_j: int, settings: SimulationSettings | None = None) -> dict[str, Any]:
     """Simulate one cylinder scene and return its benchmark row (wall and CPU seconds)."""
     scene = cylinder_scene(n_i, n_j)
     link = scene.linkage
-    pairs, gaps = S.route_snap_pairs(scene.route)
+    pairs, gaps = route_snap_pairs(scene.route)
     centre = np.array(link.grid_shape) / 2.0
     lift_gap = int(np.argmin(np.linalg.norm(link.vertex_ij[link.gap_vertex] - centre, axis=1)))
-    verts, targets = S.lift_targets_for_gaps(link, scene.tiles_assembled, [lift_gap])
+    verts, targets = lift_targets_for_gaps(link, scene.tiles_assembled, [lift_gap])
     cpu = time.process_time()
     res = S.simulate_deployment(
         link,

@@ -22,7 +22,7 @@ from mpl_toolkits.mplot3d import Axes3D  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 from numpy.typing import ArrayLike, NDArray  # noqa: E402
 
-from drawstring.geometry.simulate.deploy import TILE_FACES, side_face_midpoints  # noqa: E402
+from drawstring.geometry.simulate.tiles import TILE_FACES, side_face_midpoints  # noqa: E402
 
 logger = logging.getLogger(__name__)
 

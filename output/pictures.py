@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 
     from drawstring.geometry.hinges.placement import HingeLayout
     from drawstring.geometry.route.lift import LiftPoints
-    from drawstring.geometry.route.plan import Route
+    from drawstring.geometry.route.result import Route
     from drawstring.geometry.target.surface import Target
     from drawstring.geometry.tiling.grid import Tiling
     from drawstring.geometry.tiling.linkage import Linkage
@@ -296,7 +296,7 @@ def draw_flat_layout(
     lift_gaps : gap ids of the lift points (starred at the gap centroid).
     trimmed : hinge ids of trimmed pairs (crossed).
     """
-    from drawstring.geometry.route.plan import NODE_ENTRANCE
+    from drawstring.geometry.route.rules import NODE_ENTRANCE
     from drawstring.geometry.tiling.linkage import gap_centroids
 
     angle = np.asarray(gap_angle_deg, dtype=np.float64)

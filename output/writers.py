@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.geometry.route.plan import route_to_json
+from drawstring.geometry.route.result import route_to_json
 from drawstring.geometry.tiling.linkage import TILE_FACES, gap_centroids
 from drawstring.output import pictures
 from drawstring.pipeline.cad_stage import route_lengths
@@ -166,7 +166,8 @@ def write_deployment(result: Design, folder: Path) -> list[str]:
 def save_deployment(simulation: Any, route: Any, folder: Path) -> list[str]:
     """Write ``deploy.npz`` and ``deploy.gif`` of a simulation whose string follows ``route``
     (a ``Route`` or (S, 4) steps ``(gap, tile, enter_side, leave_side)``)."""
-    from drawstring.geometry.simulate.deploy import route_snap_pairs, route_steps, save_deploy_npz
+    from drawstring.geometry.simulate.inputs import route_snap_pairs, route_steps
+    from drawstring.geometry.simulate.result import save_deploy_npz
     from drawstring.output.deploy_pictures import route_polylines, save_deploy_gif
 
     save_deploy_npz(simulation, folder / "deploy.npz")

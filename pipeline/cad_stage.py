@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from drawstring.fabrication.profiles import Process, Profile, print_clearance_mm
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tolerances import PRINT_GAP_TOL_MM
-from drawstring.geometry.route.plan import Route
+from drawstring.geometry.route.result import Route
 from drawstring.geometry.tiling.linkage import SIDE_BOTTOM, SIDE_LEFT, SIDE_RIGHT, SIDE_TOP, Linkage
 from drawstring.pipeline.layout_stage import fabricated_tiles
 from drawstring.pipeline.record import Design

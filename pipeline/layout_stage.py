@@ -31,7 +31,8 @@ from drawstring.geometry.flat.coflat import CO_CONICAL, CoOptimizedTop
 from drawstring.geometry.flat.layout import FlatResult, extrude_flat
 from drawstring.geometry.flat.pose import HingeFaces
 from drawstring.geometry.flatten.conformal import Flattening
-from drawstring.geometry.hinges.placement import HingeLayout, dual_hinge_faces, layout_hinges
+from drawstring.geometry.hinges.placement import HingeLayout, layout_hinges
+from drawstring.geometry.hinges.sides import dual_hinge_faces
 from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling, tile_surface
 from drawstring.geometry.tiling.linkage import Linkage

@@ -32,8 +32,8 @@ from drawstring.geometry.flat import verify
 from drawstring.geometry.flat.layout import FlatResult
 from drawstring.geometry.hinges.placement import HingeLayout
 from drawstring.geometry.route.lift import LiftPoints
-from drawstring.geometry.route.plan import Route, route_metrics
-from drawstring.geometry.simulate.deploy import route_snap_pairs, route_steps, split_contact_pairs
+from drawstring.geometry.route.result import Route, route_metrics
+from drawstring.geometry.simulate.inputs import route_snap_pairs, route_steps, split_contact_pairs
 from drawstring.geometry.tiling.grid import Tiling, parts_in_place
 from drawstring.geometry.tiling.linkage import Linkage, gap_centroids
 from drawstring.pipeline.layout_stage import absorbable_ratio, fabricated_tiles, split_bound

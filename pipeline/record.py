@@ -38,9 +38,10 @@ from drawstring.geometry.core.tolerances import (
 )
 from drawstring.geometry.flat.layout import FlatResult
 from drawstring.geometry.flatten.conformal import Flattening
-from drawstring.geometry.hinges.placement import HingeLayout, HingeStrategy
+from drawstring.geometry.hinges.placement import HingeLayout
+from drawstring.geometry.hinges.rigid_layout import HingeStrategy
 from drawstring.geometry.route.lift import LiftPoints
-from drawstring.geometry.route.plan import Route
+from drawstring.geometry.route.result import Route
 from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling
 

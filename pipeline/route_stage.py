@@ -11,7 +11,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.geometry.route.lift import nearby_lift_gaps
-from drawstring.geometry.route.plan import Route, plan_route
+from drawstring.geometry.route.plan import plan_route
+from drawstring.geometry.route.result import Route
 from drawstring.geometry.tiling.linkage import Linkage
 
 

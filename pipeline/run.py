@@ -22,9 +22,11 @@ from threadpoolctl import threadpool_limits
 from drawstring.fabrication.profiles import MAX_TILES, MIN_GRID_SIDE, Profile, load_profile
 from drawstring.geometry.core.errors import InputError, ThicknessError
 from drawstring.geometry.flatten.conformal import Flattening, flatten
-from drawstring.geometry.route.lift import select_lift_points, tile_masses_from_volumes
-from drawstring.geometry.route.plan import Route
-from drawstring.geometry.simulate.deploy import SimulationResult, simulate_stage
+from drawstring.geometry.route.energy import tile_masses_from_volumes
+from drawstring.geometry.route.lift import select_lift_points
+from drawstring.geometry.route.result import Route
+from drawstring.geometry.simulate.deploy import simulate_stage
+from drawstring.geometry.simulate.result import SimulationResult
 from drawstring.geometry.target.surface import Target, load_target
 from drawstring.geometry.tiling.grid import grid_shape_for, parts_in_place
 from drawstring.geometry.tiling.linkage import gap_centroids

@@ -7,14 +7,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
-from drawstring.geometry.core.errors import InputError
-from drawstring.geometry.simulate.groups import _kabsch, hinge_vertex_pairs
+from drawstring.geometry.core.errors import InternalError
+from drawstring.geometry.core.types import FloatArray, IntArray
+from drawstring.geometry.simulate.inputs import hinge_vertex_pairs
+from drawstring.geometry.simulate.tiles import kabsch
 from drawstring.geometry.tiling.linkage import Linkage, build_linkage, rotating_squares_layout
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 __all__ = ["DeploymentScene", "boundary_loop_route", "cylinder_scene"]
 
@@ -49,7 +47,7 @@ def boundary_loop_route(linkage: Linkage) -> tuple[tuple[int, int, int, int], ..
     """
     n_i, n_j = linkage.grid_shape
     if n_i < 2 or n_j < 2:
-        raise InputError("the boundary loop needs a grid of at least 2 x 2 tiles")
+        raise InternalError("the boundary loop needs a grid of at least 2 x 2 tiles")
     cells = (
         [(i, 0) for i in range(n_i)]
         + [(n_i - 1, j) for j in range(1, n_j)]
@@ -110,7 +108,7 @@ def cylinder_scene(
     opening : float, rad, gap angle of the flat layout.
     """
     if n_i < 2 or n_j < 2:
-        raise InputError("a cylinder scene needs at least 2 x 2 tiles")
+        raise InternalError("a cylinder scene needs at least 2 x 2 tiles")
     link = build_linkage(np.ones((n_i, n_j), dtype=bool))
     r_out = radius if radius is not None else 1.2 * n_i * side / (0.5 * np.pi)
     dtheta = 2.0 * np.arcsin(side / (2.0 * r_out))
@@ -133,7 +131,7 @@ def cylinder_scene(
     flat = np.empty_like(assembled)
     for t in range(link.n_tiles):
         target = np.concatenate([squares[t], np.full((4, 1), thickness)], axis=1)
-        rot, shift = _kabsch(assembled[t, :4], target)
+        rot, shift = kabsch(assembled[t, :4], target)
         flat[t] = assembled[t] @ rot.T + shift
     flat[..., 2] -= flat[..., 2].min()
     return DeploymentScene(

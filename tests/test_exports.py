@@ -990,7 +990,7 @@ def test_assembly_sections_are_numbered_in_order(built: Built) -> None:
 
 def _ring_route() -> tuple[object, object, list[int]]:
     """A closed route round a 4 x 3 grid with two lift gaps, as the pipeline builds it."""
-    from drawstring.geometry.route.plan import Route
+    from drawstring.geometry.route.result import Route
     from drawstring.geometry.tiling.linkage import build_linkage
 
     link = build_linkage(np.ones((4, 3), dtype=bool))
@@ -1034,7 +1034,7 @@ def test_every_lift_exit_of_route_json_is_in_assembly_md(
 ) -> None:
     import re
 
-    from drawstring.geometry.route.plan import route_to_json
+    from drawstring.geometry.route.result import route_to_json
     from drawstring.geometry.tiling.linkage import gap_centroids, rotating_squares_layout
     from drawstring.output import assembly_guide
     from drawstring.pipeline.cad_stage import lift_exits, route_steps

@@ -407,7 +407,7 @@ def test_bottom_hinges_are_pulled_to_equal_depths_under_both_tiles() -> None:
     import types
 
     from drawstring.geometry.assembled.frustums import quad_mesh_edges, side_quads
-    from drawstring.geometry.hinges.placement import dual_hinge_faces
+    from drawstring.geometry.hinges.sides import dual_hinge_faces
     from drawstring.geometry.solve.solver import quad_planarity
     from drawstring.pipeline.layout_stage import _bottom_hinge_depths
 
@@ -486,7 +486,7 @@ def test_a_conical_top_lets_the_bottom_hinges_meet_in_depth() -> None:
     from drawstring.geometry.assembled.shape import reextrude, tile_vertices
     from drawstring.geometry.flat.coflat import co_optimize_top, vertex_stars
     from drawstring.geometry.flat.pose import hinge_faces
-    from drawstring.geometry.hinges.placement import dual_hinge_faces
+    from drawstring.geometry.hinges.sides import dual_hinge_faces
     from drawstring.pipeline.co_rounds import depth_pull
 
     linkage, assembled, _, target = _saddle_design()

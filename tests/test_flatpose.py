@@ -7,7 +7,7 @@ import pytest
 
 from drawstring.geometry.flat.pose import free_openings, hinge_faces, hinge_points, lay_flat
 from drawstring.geometry.flat.verify import heightfield_tiles, interpenetration
-from drawstring.geometry.hinges.placement import hinge_sides
+from drawstring.geometry.hinges.sides import hinge_sides
 from drawstring.geometry.tiling.linkage import build_linkage, slit_ends
 
 CLEARANCE = 0.1

@@ -1,4 +1,4 @@
-"""Hinge sides, top-hinge trimming and the dual-hinge layout (issue 4)."""
+"""Hinge sides, top-hinge trimming and the dual-hinge layout (paper section 4.4)."""
 
 from __future__ import annotations
 
@@ -12,12 +12,12 @@ from drawstring.geometry.flat.layout import extrude_flat, optimize_flat
 from drawstring.geometry.flat.verify import heightfield_tiles, hinge_gaps, interpenetration
 from drawstring.geometry.hinges.placement import (
     _held_apart,
-    hinge_sides,
-    hinge_trims,
     hinge_vertex_json,
     layout_hinges,
     write_flat_obj,
 )
+from drawstring.geometry.hinges.sides import hinge_sides
+from drawstring.geometry.hinges.trims import hinge_trims
 from drawstring.geometry.tiling.linkage import TILE_FACES, build_linkage
 
 

@@ -8,17 +8,16 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from drawstring.geometry.core.errors import InputError
-from drawstring.geometry.route.lift import (
+from drawstring.geometry.core.errors import InternalError
+from drawstring.geometry.route.energy import (
     cluster_peaks,
     gap_adjacency,
     gap_potential_energy,
-    geometric_deploy_check,
     morse_smale_basins,
     peak_barriers,
-    select_lift_points,
     tile_masses_from_volumes,
 )
+from drawstring.geometry.route.lift import geometric_deploy_check, select_lift_points
 from drawstring.geometry.tiling.linkage import Linkage, build_linkage
 
 HeightField = Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
@@ -190,7 +189,7 @@ def test_tile_mass_of_a_box_and_a_frustum() -> None:
     np.testing.assert_allclose(m[0], 1000 * 1000e-9)
     np.testing.assert_allclose(m[1], 1000 * (3 / 3 * (100 + 36 + 60)) * 1e-9)
     np.testing.assert_allclose(m[2], m[0])
-    with pytest.raises(InputError):
+    with pytest.raises(InternalError):
         tile_masses_from_volumes(np.zeros((2, 4, 3)), 1000.0)
 
 

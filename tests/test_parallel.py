@@ -13,7 +13,8 @@ from drawstring.geometry.core import parallel
 from drawstring.geometry.flat.layout import extrude_flat, optimize_flat
 from drawstring.geometry.flat.pose import free_openings, lay_flat
 from drawstring.geometry.flat.verify import heightfield_tiles
-from drawstring.geometry.hinges.placement import hinge_sides, layout_hinges
+from drawstring.geometry.hinges.placement import layout_hinges
+from drawstring.geometry.hinges.sides import hinge_sides
 from drawstring.geometry.tiling.linkage import build_linkage
 
 

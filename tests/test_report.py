@@ -689,7 +689,7 @@ def test_threading_starts_where_the_assembly_guide_does(tmp_path: Path) -> None:
 def test_flat_picture_legend_lists_only_the_hinges_and_trims_the_design_has() -> None:
     import matplotlib.pyplot as plt
 
-    from drawstring.geometry.hinges.placement import HingeTrim
+    from drawstring.geometry.hinges.trims import HingeTrim
     from drawstring.output import pictures
 
     points = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])

@@ -12,7 +12,7 @@ from drawstring.geometry.assembled.rigidity import (
     rigidity_matrix,
     rigidity_report,
 )
-from drawstring.geometry.simulate import deploy as S
+from drawstring.geometry.simulate.inputs import route_snap_pairs
 
 
 def generic(scene: DeploymentScene, seed: int = 0) -> np.ndarray:
@@ -24,7 +24,7 @@ def generic(scene: DeploymentScene, seed: int = 0) -> np.ndarray:
 @pytest.mark.parametrize("n", [3, 4])
 def test_boundary_string_makes_linkage_isostatic(n: int) -> None:
     scene = cylinder_scene(n, n)
-    pairs, _ = S.route_snap_pairs(scene.route)
+    pairs, _ = route_snap_pairs(scene.route)
     tiles = generic(scene)
     with_string = rigidity_report(tiles, scene.hinge_vertices, pairs)
     without = rigidity_report(tiles, scene.hinge_vertices)
@@ -38,7 +38,7 @@ def test_boundary_string_makes_linkage_isostatic(n: int) -> None:
 
 def test_rigid_motions_are_in_the_null_space() -> None:
     scene = cylinder_scene(3, 3)
-    pairs, _ = S.route_snap_pairs(scene.route)
+    pairs, _ = route_snap_pairs(scene.route)
     mat = rigidity_matrix(scene.tiles_assembled, scene.hinge_vertices, pairs)
     basis = rigid_motion_basis(scene.tiles_assembled)
     assert np.abs(mat @ basis).max() < 1e-9
@@ -64,10 +64,10 @@ def test_exact_cylinder_special_position() -> None:
     Face contact (three points per contact) removes them on small grids.
     """
     s3 = cylinder_scene(3, 3)
-    p3, _ = S.route_snap_pairs(s3.route)
+    p3, _ = route_snap_pairs(s3.route)
     assert rigidity_report(s3.tiles_assembled, s3.hinge_vertices, p3).null_dimension == 6
     s4 = cylinder_scene(4, 4)
-    p4, _ = S.route_snap_pairs(s4.route)
+    p4, _ = route_snap_pairs(s4.route)
     assert rigidity_report(s4.tiles_assembled, s4.hinge_vertices, p4).internal_flexes > 0
     face = rigidity_report(s4.tiles_assembled, s4.hinge_vertices, p4, contact="face")
     assert face.null_dimension == 6
@@ -81,7 +81,7 @@ def test_sparse_eigensolve_agrees_with_the_dense_svd(
     from drawstring.geometry.assembled import rigidity
 
     scene = cylinder_scene(4, 4)
-    pairs = S.route_snap_pairs(scene.route)[0] if with_string else np.zeros((0, 4), int)
+    pairs = route_snap_pairs(scene.route)[0] if with_string else np.zeros((0, 4), int)
     tiles = generic(scene, 2)
     dense = rigidity_report(tiles, scene.hinge_vertices, pairs)
     monkeypatch.setattr(rigidity, "DENSE_MAX_COLUMNS", 0)
@@ -98,9 +98,9 @@ def test_sparse_eigensolve_agrees_with_the_dense_svd(
 
 def test_sparse_eigensolve_factors_a_gram_matrix_whose_shift_vanishes() -> None:
     """Two equal columns of norm 10 make ``R^T R`` singular, and a shift of ``tol ** 2``
-    vanishes next to its entries (100), so that factor is exactly singular (a 200-tile
-    seashell design crashed in its rigidity check).  A larger shift is tried then, and the
-    null vector is still found."""
+    vanishes next to its entries (100), so that factor is exactly singular (as a 200-tile
+    seashell design's can be).  A larger shift is tried then, and the null vector is still
+    found."""
     import scipy.sparse.linalg as spla
 
     from drawstring.geometry.assembled import rigidity

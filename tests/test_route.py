@@ -11,19 +11,14 @@ import pytest
 from numpy.typing import NDArray
 
 from drawstring.geometry.core.errors import DesignError
-from drawstring.geometry.route.plan import (
-    MILP_NODE_LIMIT,
-    NODE_ENTRANCE,
-    NODE_SPLIT,
-    SPLICE_NODE_LIMITS,
+from drawstring.geometry.route.plan import MILP_NODE_LIMIT, SPLICE_NODE_LIMITS, plan_route
+from drawstring.geometry.route.result import (
     Route,
     channel_partner_faults,
-    contact_partners,
-    gap_graph,
-    plan_route,
     route_metrics,
     route_to_json,
 )
+from drawstring.geometry.route.rules import NODE_ENTRANCE, NODE_SPLIT, contact_partners, gap_graph
 from drawstring.geometry.tiling.grid import parts_in_place
 from drawstring.geometry.tiling.linkage import (
     Linkage,

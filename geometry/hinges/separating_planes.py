@@ -15,16 +15,13 @@ import hashlib
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.core import parallel
 from drawstring.geometry.core.tolerances import HINGE_LAYOUT_TOUCH_MM
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.flat.verify import convex_pieces
 from drawstring.geometry.tiling.linkage import Linkage
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 __all__ = [
     "RigidPose",
@@ -58,7 +55,7 @@ class SeparatingPlanes:
     score: FloatArray
     piece_a: IntArray
     piece_b: IntArray
-    trim: NDArray[np.bool_]  # (H,) the hinges treated as trimmed when choosing them
+    trim: BoolArray  # (H,) the hinges treated as trimmed when choosing them
     #: digest of what else the search saw (the vertices, clearance, touch, unhinged pairs on
     #: their top faces only): ``known`` planes are taken only from a search of the same
     made_with: bytes = b""
@@ -66,8 +63,7 @@ class SeparatingPlanes:
 
 #: Most rows searched at once for separating planes, and fewest worth a block of their own on
 #: another core.  Their (rows, 8, 120, 5) heights, 4.9 MB at 128 rows, stay in the caches
-#: between the passes over them: 1600-tile hinge layout 2.18 s in blocks of 512 rows, 1.76 s
-#: in blocks of 128 (bitwise the same; 64 gains no more).
+#: between the passes over them; the planes found do not depend on the block size.
 _SEARCH_BLOCK_ROWS = 128
 _SEARCH_MIN_BLOCK_ROWS = 64
 
@@ -200,7 +196,7 @@ def select_planes(
     layout: RigidPose,
     linkage: Linkage,
     hinge_ids: IntArray,
-    trim: NDArray[np.bool_],
+    trim: BoolArray,
     clearance: float,
     reach: float,
     *,
@@ -228,6 +224,209 @@ def select_planes(
     x = layout.positions() if x is None else x
     if pairs is None:
         pairs = close_pairs(x, reach + 2.0 * clearance)
+    rows = _plane_rows(layout, linkage, hinge_ids, trim, clearance, touch, x, pairs)
+    a, b, hinge, piece_a, piece_b = rows.a, rows.b, rows.hinge, rows.piece_a, rows.piece_b
+    best = _BestPlanes.empty(len(a))
+    todo = np.arange(len(a))
+    new = _row_key(layout.n, a, b, piece_a, piece_b)
+    if previous is not None and len(previous.a):
+        # warm start: rows also present before are searched near their previous plane
+        found, src = _match(layout.n, new, previous)
+        world = np.concatenate(
+            [rotate2(previous.normal[src, :2], layout.phi[a[found]]), previous.normal[src, 2:]],
+            axis=1,
+        )
+        warm = np.flatnonzero(found)
+        best.run(rows, warm, world)
+        todo = np.concatenate([np.flatnonzero(~found), warm[best.score[warm] < 0]])
+    reused = np.zeros(0, dtype=np.int64)
+    made_with = hashlib.sha1(
+        np.ascontiguousarray(x).tobytes()
+        + repr((clearance, touch, layout.unhinged_top_only)).encode()
+    ).digest()
+    if known is not None and len(known.a) and known.made_with == made_with:
+        found, src = _match(layout.n, new, known)
+        same = ~np.isin(hinge[found], np.flatnonzero(known.trim != trim))
+        reused, src = np.flatnonzero(found)[same], src[same]
+        todo = np.setdiff1d(todo, reused)
+    best.run(rows, np.sort(todo), None)
+    normal, score, offset = best.normal, best.score, best.offset
+    body = np.concatenate([rotate2(normal[:, :2], -layout.phi[a]), normal[:, 2:]], axis=1)
+    if len(reused):
+        assert known is not None
+        body[reused], offset[reused], score[reused] = (
+            known.normal[src],
+            known.offset[src],
+            known.score[src],
+        )
+    return SeparatingPlanes(
+        a,
+        b,
+        hinge,
+        body,
+        offset,
+        rows.delta_a,
+        rows.delta_b,
+        score,
+        piece_a,
+        piece_b,
+        trim.copy(),
+        made_with,
+    )
+
+
+def _row_key(n: int, pa: IntArray, pb: IntArray, ia: IntArray, ib: IntArray) -> IntArray:
+    """One integer per row: its tile pair and pair of convex pieces (``n`` tiles)."""
+    return ((pa * n + pb) * 2 + ia) * 2 + ib
+
+
+def _match(n: int, new: IntArray, old_planes: SeparatingPlanes) -> tuple[BoolArray, IntArray]:
+    """Rows (keys ``new``) also in ``old_planes``, and where they are there."""
+    old = _row_key(n, old_planes.a, old_planes.b, old_planes.piece_a, old_planes.piece_b)
+    order = np.argsort(old, kind="stable")
+    pos = np.minimum(np.searchsorted(old[order], new), len(old) - 1)
+    found = old[order][pos] == new
+    return found, order[pos[found]]
+
+
+@dataclass
+class _PlaneRows:
+    """The rows of a plane search, one per pair of convex pieces of a close tile pair: the
+    tiles (``a`` carries the plane), the hinge (-1: none), the pieces, the margins required of
+    every vertex (``inf``: not constrained), and the vertices relative to ``a``'s origin.
+
+    ``anchor >= 0``: the plane passes through that vertex of ``a`` (hinged rows); ``level``: the
+    plane is vertical (rows separated on one face only); ``dual_hinged``: hinged rows whose
+    tight vertices are the corners of the other face at the hinge, ``d_pa`` and ``d_pb`` ``(P,
+    3)`` those corners of ``a`` and ``b`` relative to ``a``'s hinge vertex."""
+
+    a: IntArray
+    b: IntArray
+    hinge: IntArray
+    piece_a: IntArray
+    piece_b: IntArray
+    delta_a: FloatArray
+    delta_b: FloatArray
+    anchor: IntArray
+    level: BoolArray
+    dual_hinged: BoolArray
+    rel_a: FloatArray
+    rel_b: FloatArray
+    d_pa: FloatArray
+    d_pb: FloatArray
+    clearance: float
+
+    def search(
+        self, sel: IntArray, az: FloatArray, spread: FloatArray, base: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Best of azimuths ``(p, K)`` x slopes for rows ``sel``: normals ``(p, 3)``, scores
+        and offsets ``(p,)``.
+
+        For a hinged row the tight vertices are the corners of the other face at the hinge: for
+        a horizontal direction e their margins are linear in the plane's vertical slope t, so
+        the best slope is found exactly (a's margin kept >= 0 since the plane moves with a)."""
+        c, s = np.cos(az), np.sin(az)
+        pa_, pb_ = self.d_pa[sel], self.d_pb[sel]
+        al1 = -(c * pa_[:, 0:1] + s * pa_[:, 1:2])
+        be1 = -pa_[:, 2:3]
+        al2 = c * pb_[:, 0:1] + s * pb_[:, 1:2]
+        be2 = pb_[:, 2:3]
+        den = be2 - be1
+        t = np.where(np.abs(den) > 1e-12, (al1 - al2) / np.where(den == 0, 1.0, den), 0.0)
+        low = al1 + be1 * t < 0
+        t = np.where(low & (np.abs(be1) > 1e-12), -al1 / np.where(be1 == 0, 1.0, be1), t)
+        exact = np.clip(t, -0.8, 0.8)[:, :, None] + 0.1 * spread
+        tilt = np.where(
+            self.dual_hinged[sel, None, None],
+            exact,
+            base[:, None, None] + spread + 0.0 * c[:, :, None],
+        )
+        tilt = np.where(self.level[sel, None, None], 0.0, tilt)  # (p, K, S)
+        norm = np.sqrt(1.0 + tilt * tilt)
+        ra, rb = self.rel_a[sel], self.rel_b[sel]
+
+        def heights(r: FloatArray) -> FloatArray:
+            flat_part = r[:, :, 0:1] * c[:, None] + r[:, :, 1:2] * s[:, None]  # (p, 8, K)
+            h = flat_part[..., None] + r[:, :, 2, None, None] * tilt[:, None]
+            return np.asarray((h / norm[:, None]).reshape(len(sel), 8, -1))
+
+        score, offset = _plane_scores(
+            heights(ra),
+            heights(rb),
+            self.anchor[sel],
+            self.delta_a[sel],
+            self.delta_b[sel],
+            self.clearance,
+        )
+        pick = np.argmax(score, axis=1)
+        kk, ss = np.unravel_index(pick, tilt.shape[1:])
+        q = np.arange(len(sel))
+        t_best = tilt[q, kk, ss]
+        nrm = np.sqrt(1.0 + t_best * t_best)
+        normal = np.stack([c[q, kk] / nrm, s[q, kk] / nrm, t_best / nrm], axis=1)
+        return normal, score[q, pick], offset[q, pick]
+
+    def refine(self, sel: IntArray, guess: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Azimuth +-3 deg by 0.25 deg, slope +-0.05 around ``guess`` normals ``(p, 3)``."""
+        az = np.arctan2(guess[:, 1], guess[:, 0])[:, None] + np.radians(np.arange(-3.0, 3.01, 0.25))
+        base = guess[:, 2] / np.sqrt(np.maximum(1.0 - guess[:, 2] ** 2, 1e-12))
+        return self.search(sel, az, np.array([0.0, 0.025, -0.025, 0.05, -0.05]), base)
+
+
+@dataclass
+class _BestPlanes:
+    """The best plane found so far for every row: world normal, score, offset."""
+
+    normal: FloatArray
+    score: FloatArray
+    offset: FloatArray
+
+    @classmethod
+    def empty(cls, n_rows: int) -> _BestPlanes:
+        return cls(np.zeros((n_rows, 3)), np.full(n_rows, -np.inf), np.zeros(n_rows))
+
+    def run(self, rows: _PlaneRows, sel: IntArray, guess: FloatArray | None) -> None:
+        """Search rows ``sel`` (near ``guess`` normals, or over all directions first) and keep
+        every plane that scores better than the one held."""
+        # Rows are searched independently, in blocks of at most _SEARCH_BLOCK_ROWS (caches)
+        # spread over the cores (:func:`map_blocks`; the result does not depend on the blocks).
+        count = -(-len(sel) // _SEARCH_BLOCK_ROWS)
+        count = max(count, min(parallel.thread_count(), -(-len(sel) // _SEARCH_MIN_BLOCK_ROWS)))
+        bounds = [int(v) for v in np.linspace(0, len(sel), count + 1)] if len(sel) else [0]
+        spans = list(zip(bounds[:-1], bounds[1:], strict=True))
+
+        def block(span: tuple[int, int]) -> tuple[FloatArray, FloatArray, FloatArray]:
+            part = sel[span[0] : span[1]]
+            if guess is None:
+                az = np.broadcast_to(np.radians(np.arange(0.0, 360.0, 3.0)), (len(part), 120))
+                spread = np.array([0.0, 0.15, -0.15, 0.35, -0.35])
+                g, _, _ = rows.search(part, az, spread, np.zeros(len(part)))
+            else:
+                g = guess[span[0] : span[1]]
+            return rows.refine(part, g)
+
+        for span, (n_new, s_new, o_new) in zip(
+            spans, parallel.map_blocks(block, spans), strict=True
+        ):
+            part = sel[span[0] : span[1]]
+            better = s_new > self.score[part]
+            part = part[better]
+            self.normal[part] = n_new[better]
+            self.score[part] = s_new[better]
+            self.offset[part] = o_new[better]
+
+
+def _plane_rows(
+    layout: RigidPose,
+    linkage: Linkage,
+    hinge_ids: IntArray,
+    trim: BoolArray,
+    clearance: float,
+    touch: float,
+    x: FloatArray,
+    pairs: IntArray,
+) -> _PlaneRows:
+    """The search rows of tile ``pairs`` at vertices ``x`` (see :func:`select_planes`)."""
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     a, b, hinge = _hinge_of_pairs(linkage, layout.n, pairs)
     # one row per pair of convex pieces
@@ -241,8 +440,7 @@ def select_planes(
     a, b, hinge = a[row_pair], b[row_pair], hinge[row_pair]
     mask_a = layout.pieces[a, piece_a]
     mask_b = layout.pieces[b, piece_b]
-    n_p = len(a)
-    k_all = np.arange(n_p)
+    k_all = np.arange(len(a))
     hk = np.maximum(hinge, 0)
     va = hinge_ids[hk, 0] % 8  # a's hinge vertex (tile a is hinges[:, 0])
     vb = hinge_ids[hk, 1] % 8
@@ -276,144 +474,12 @@ def select_planes(
     o3 = np.concatenate([origin, np.zeros((layout.n, 1))], axis=1)
     rel_a = x[a] - o3[a][:, None]
     rel_b = x[b] - o3[a][:, None]
-    # For a hinged pair the tight vertices are the corners of the other face at the hinge: for a
-    # horizontal direction e their margins are linear in the plane's vertical slope t, so the
-    # best slope is found exactly (a's margin kept >= 0 since the plane moves with a).
     d_pa = rel_a[k_all, (va + 4) % 8] - rel_a[k_all, va]
     d_pb = rel_b[k_all, (vb + 4) % 8] - rel_a[k_all, va]
-
-    def search(
-        sel: IntArray, az: FloatArray, spread: FloatArray, base: FloatArray
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Best of azimuths ``(p, K)`` x slopes for rows ``sel``: normals ``(p, 3)``, scores
-        and offsets ``(p,)``."""
-        c, s = np.cos(az), np.sin(az)
-        pa_, pb_ = d_pa[sel], d_pb[sel]
-        al1 = -(c * pa_[:, 0:1] + s * pa_[:, 1:2])
-        be1 = -pa_[:, 2:3]
-        al2 = c * pb_[:, 0:1] + s * pb_[:, 1:2]
-        be2 = pb_[:, 2:3]
-        den = be2 - be1
-        t = np.where(np.abs(den) > 1e-12, (al1 - al2) / np.where(den == 0, 1.0, den), 0.0)
-        low = al1 + be1 * t < 0
-        t = np.where(low & (np.abs(be1) > 1e-12), -al1 / np.where(be1 == 0, 1.0, be1), t)
-        exact = np.clip(t, -0.8, 0.8)[:, :, None] + 0.1 * spread
-        tilt = np.where(
-            dual_hinged[sel, None, None], exact, base[:, None, None] + spread + 0.0 * c[:, :, None]
-        )
-        tilt = np.where(level[sel, None, None], 0.0, tilt)  # (p, K, S)
-        norm = np.sqrt(1.0 + tilt * tilt)
-        ra, rb = rel_a[sel], rel_b[sel]
-
-        def heights(r: FloatArray) -> FloatArray:
-            flat_part = r[:, :, 0:1] * c[:, None] + r[:, :, 1:2] * s[:, None]  # (p, 8, K)
-            h = flat_part[..., None] + r[:, :, 2, None, None] * tilt[:, None]
-            return np.asarray((h / norm[:, None]).reshape(len(sel), 8, -1))
-
-        score, offset = _plane_scores(
-            heights(ra), heights(rb), anchor[sel], delta_a[sel], delta_b[sel], clearance
-        )
-        pick = np.argmax(score, axis=1)
-        kk, ss = np.unravel_index(pick, tilt.shape[1:])
-        q = np.arange(len(sel))
-        t_best = tilt[q, kk, ss]
-        nrm = np.sqrt(1.0 + t_best * t_best)
-        normal = np.stack([c[q, kk] / nrm, s[q, kk] / nrm, t_best / nrm], axis=1)
-        return normal, score[q, pick], offset[q, pick]
-
-    def refine(sel: IntArray, guess: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Azimuth +-3 deg by 0.25 deg, slope +-0.05 around ``guess`` normals ``(p, 3)``."""
-        az = np.arctan2(guess[:, 1], guess[:, 0])[:, None] + np.radians(np.arange(-3.0, 3.01, 0.25))
-        base = guess[:, 2] / np.sqrt(np.maximum(1.0 - guess[:, 2] ** 2, 1e-12))
-        return search(sel, az, np.array([0.0, 0.025, -0.025, 0.05, -0.05]), base)
-
-    normal = np.zeros((n_p, 3))
-    score = np.full(n_p, -np.inf)
-    offset = np.zeros(n_p)
-
-    def run(sel: IntArray, guess: FloatArray | None) -> None:
-        # Rows are searched independently, in blocks of at most _SEARCH_BLOCK_ROWS (caches)
-        # spread over the cores (:func:`map_blocks`; the result does not depend on the blocks).
-        count = -(-len(sel) // _SEARCH_BLOCK_ROWS)
-        count = max(count, min(parallel.thread_count(), -(-len(sel) // _SEARCH_MIN_BLOCK_ROWS)))
-        bounds = [int(v) for v in np.linspace(0, len(sel), count + 1)] if len(sel) else [0]
-        spans = list(zip(bounds[:-1], bounds[1:], strict=True))
-
-        def block(span: tuple[int, int]) -> tuple[FloatArray, FloatArray, FloatArray]:
-            part = sel[span[0] : span[1]]
-            if guess is None:
-                az = np.broadcast_to(np.radians(np.arange(0.0, 360.0, 3.0)), (len(part), 120))
-                spread = np.array([0.0, 0.15, -0.15, 0.35, -0.35])
-                g, _, _ = search(part, az, spread, np.zeros(len(part)))
-            else:
-                g = guess[span[0] : span[1]]
-            return refine(part, g)
-
-        for span, (n_new, s_new, o_new) in zip(
-            spans, parallel.map_blocks(block, spans), strict=True
-        ):
-            part = sel[span[0] : span[1]]
-            better = s_new > score[part]
-            part = part[better]
-            normal[part], score[part], offset[part] = n_new[better], s_new[better], o_new[better]
-
-    def row_key(pa: IntArray, pb: IntArray, ia: IntArray, ib: IntArray) -> IntArray:
-        return ((pa * layout.n + pb) * 2 + ia) * 2 + ib
-
-    new = row_key(a, b, piece_a, piece_b)
-
-    def match(old_planes: SeparatingPlanes) -> tuple[NDArray[np.bool_], IntArray]:
-        """Rows of this selection also in ``old_planes``, and where they are there."""
-        old = row_key(old_planes.a, old_planes.b, old_planes.piece_a, old_planes.piece_b)
-        order = np.argsort(old, kind="stable")
-        pos = np.minimum(np.searchsorted(old[order], new), len(old) - 1)
-        found = old[order][pos] == new
-        return found, order[pos[found]]
-
-    todo = k_all
-    if previous is not None and len(previous.a):
-        # warm start: rows also present before are searched near their previous plane
-        found, src = match(previous)
-        world = np.concatenate(
-            [rotate2(previous.normal[src, :2], layout.phi[a[found]]), previous.normal[src, 2:]],
-            axis=1,
-        )
-        warm = np.flatnonzero(found)
-        run(warm, world)
-        todo = np.concatenate([np.flatnonzero(~found), warm[score[warm] < 0]])
-    reused = np.zeros(0, dtype=np.int64)
-    made_with = hashlib.sha1(
-        np.ascontiguousarray(x).tobytes()
-        + repr((clearance, touch, layout.unhinged_top_only)).encode()
-    ).digest()
-    if known is not None and len(known.a) and known.made_with == made_with:
-        found, src = match(known)
-        same = ~np.isin(hinge[found], np.flatnonzero(known.trim != trim))
-        reused, src = np.flatnonzero(found)[same], src[same]
-        todo = np.setdiff1d(todo, reused)
-    run(np.sort(todo), None)
-    body = np.concatenate([rotate2(normal[:, :2], -layout.phi[a]), normal[:, 2:]], axis=1)
-    if len(reused):
-        assert known is not None
-        body[reused], offset[reused], score[reused] = (
-            known.normal[src],
-            known.offset[src],
-            known.score[src],
-        )
-    return SeparatingPlanes(
-        a,
-        b,
-        hinge,
-        body,
-        offset,
-        delta_a,
-        delta_b,
-        score,
-        piece_a,
-        piece_b,
-        trim.copy(),
-        made_with,
-    )
+    return _PlaneRows(
+        a, b, hinge, piece_a, piece_b, delta_a, delta_b, anchor, level, dual_hinged,
+        rel_a, rel_b, d_pa, d_pb, clearance,
+    )  # fmt: skip
 
 
 def plane_values(

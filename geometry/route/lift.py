@@ -1,25 +1,13 @@
 """Minimum lift points from the gaps' gravitational potential energy (paper section 5.2).
 
-Pipeline (one function each):
+:func:`select_lift_points` clusters the energy peaks of
+:mod:`~drawstring.geometry.route.energy` by their coupling and sweeps the threshold ``tau = tau0,
+tau0 + step, ... , 1.0`` and past 1.0 every peak on its own, stopping at the first ``tau`` whose
+deployment check passes.  Each cluster's root is a lift point, moved off split and boundary gaps
+onto the interior gap next to it (:func:`interior_lift_gaps`).
 
-1. ``tile_masses_from_volumes``: mass of every rigid tile from its closed 8-vertex solid.
-2. ``gap_potential_energy``: ``g_i = sum_k 1/4 m_k g (z_k - z_min)`` over the tiles around gap i.
-3. ``morse_smale_basins``: discrete Morse-Smale segmentation of ``g`` on the gap graph (gaps
-   adjacent when they share a tile): peaks and the basin (peak reached by steepest ascent) of
-   every gap.
-4. ``peak_barriers``: for every pair of peaks, the lightest edge on their path in the maximum
-   spanning tree whose edge weights are ``min(g_u, g_v)`` (Kruskal; computed while merging).
-5. ``cluster_peaks``: coupling ``c(i, j) = barrier(i, j) / g_j`` for ``g_i >= g_j``; a DAG edge
-   ``i -> j`` for the strongest coupling into ``j`` when it reaches ``tau``; weakly connected
-   components are clusters and each cluster's root (zero in-degree) is a lift point.
-6. ``select_lift_points``: the threshold sweep ``tau = tau0, tau0 + step, ... , 1.0`` and past
-   1.0 every peak on its own, stopping at the first ``tau`` whose deployment check passes.
-
-The deployment check is a callable so that the actuation simulation can plug in.  Until it
-exists ``geometric_deploy_check`` stands in; its name says so and is stored in the result.
-
-"Higher" is a strict total order on gaps: larger energy first, equal energies broken by the
-smaller gap index (deterministic).
+The deployment check is a callable: the design loop plugs in the deployment simulation; without
+it ``geometric_deploy_check`` stands in, and its name says so in the result.
 """
 
 from __future__ import annotations
@@ -30,16 +18,23 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
-import scipy.sparse as sp
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.tolerances import LIFT_SHARE_MIN, LIFT_SUPPORT_MIN
+from drawstring.geometry.core.types import FloatArray, IntArray
+from drawstring.geometry.route.energy import (
+    cluster_peaks,
+    gap_adjacency,
+    gap_potential_energy,
+    morse_smale_basins,
+    peak_barriers,
+    peak_coupling,
+    unit_direction,
+)
 from drawstring.geometry.tiling.linkage import Linkage
 
 log = logging.getLogger(__name__)
-
-GRAVITY = 9.81  # m/s^2
 
 
 class DeployCheck(Protocol):
@@ -48,7 +43,7 @@ class DeployCheck(Protocol):
     @property
     def name(self) -> str: ...
 
-    def __call__(self, lift_gaps: NDArray[np.int64]) -> bool: ...
+    def __call__(self, lift_gaps: IntArray) -> bool: ...
 
 
 @dataclass(frozen=True)
@@ -72,15 +67,15 @@ class LiftPoints:
     sweep : list of ``(tau, n_lift, passed)`` for every threshold tried.
     """
 
-    lift_gaps: NDArray[np.int64]
-    peaks: NDArray[np.int64]
-    basin: NDArray[np.int64]
-    gap_energy: NDArray[np.float64]
-    coupling: NDArray[np.float64]
-    clusters: NDArray[np.int64]
+    lift_gaps: IntArray
+    peaks: IntArray
+    basin: IntArray
+    gap_energy: FloatArray
+    coupling: FloatArray
+    clusters: IntArray
     tau: float
-    positions: NDArray[np.float64]
-    pull_directions: NDArray[np.float64]
+    positions: FloatArray
+    pull_directions: FloatArray
     check_name: str
     check_passed: bool
     sweep: tuple[tuple[float, int, bool], ...]
@@ -111,263 +106,6 @@ class LiftPoints:
 
 
 # --------------------------------------------------------------------------------------------
-# masses and energies
-
-
-def tile_masses_from_volumes(tile_vertices: ArrayLike, density: float) -> NDArray[np.float64]:
-    """Mass of every closed 8-vertex tile from its exact volume.
-
-    Parameters
-    ----------
-    tile_vertices : (T, 8, 3) float, mm.  Vertices 0-3 are one cap (corners BL, BR, TR, TL),
-        vertices 4-7 the other cap in the same corner order; side ``k`` is the quad
-        ``(k, k+1, k+5, k+4)``.  Faces may be non-planar: each quad is split into two triangles
-        along a fixed diagonal, the same one on both sides of every shared edge, so the surface
-        is closed and the divergence theorem gives its exact volume.
-    density : float, kg/m^3.
-
-    Returns
-    -------
-    (T,) float, kg.  The absolute volume is used, so either cap may come first.
-    """
-    v = np.asarray(tile_vertices, dtype=np.float64)
-    if v.ndim != 3 or v.shape[1:] != (8, 3):
-        raise InputError(
-            f"tile vertices have shape {v.shape}; pass a (T, 8, 3) array of tile corners in mm"
-        )
-    if not np.isfinite(density) or density <= 0:
-        raise InputError(f"density {density} kg/m^3 is not positive; use the material's density")
-    # Closed surface, outward for a bottom cap 0-3 counter-clockwise seen from +z and top 4-7.
-    quads = [(0, 3, 2, 1), (4, 5, 6, 7)] + [
-        (k, (k + 1) % 4, (k + 1) % 4 + 4, k + 4) for k in range(4)
-    ]
-    tris = np.array(
-        [t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], dtype=np.int64
-    )  # (12, 3)
-    p = v[:, tris]  # (T, 12, 3, 3)
-    signed = np.einsum("tfi,tfi->tf", p[:, :, 0], np.cross(p[:, :, 1], p[:, :, 2])).sum(1) / 6.0
-    volume_m3 = np.abs(signed) * 1e-9
-    return np.asarray(volume_m3 * density, dtype=np.float64)
-
-
-def _unit(vector: ArrayLike, what: str) -> NDArray[np.float64]:
-    u = np.asarray(vector, dtype=np.float64).reshape(3)
-    n = float(np.linalg.norm(u))
-    if not np.isfinite(n) or n == 0.0:
-        raise InputError(f"{what} {u.tolist()} is not a direction; pass a non-zero 3-vector")
-    return u / n
-
-
-def _gap_tile_matrix(linkage: Linkage) -> sp.csr_matrix:
-    """(G, T) 0/1 incidence of gaps and the tiles around them."""
-    tiles = linkage.gap_sides[:, :, 0]
-    rows, slots = np.nonzero(tiles >= 0)
-    data = np.ones(len(rows))
-    return sp.csr_matrix(
-        (data, (rows, tiles[rows, slots])), shape=(linkage.n_gaps, linkage.n_tiles)
-    )
-
-
-def gap_adjacency(linkage: Linkage) -> NDArray[np.int64]:
-    """(E, 2) int pairs ``u < v`` of gaps that share at least one tile."""
-    inc = _gap_tile_matrix(linkage)
-    adj = sp.triu(inc @ inc.T, k=1).tocoo()
-    pairs = np.stack([adj.row, adj.col], axis=1).astype(np.int64)
-    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
-
-
-def gap_potential_energy(
-    linkage: Linkage,
-    tile_centroids: ArrayLike,
-    tile_masses: ArrayLike,
-    up: ArrayLike = (0.0, 0.0, 1.0),
-    g: float = GRAVITY,
-    z_min: float | None = None,
-) -> NDArray[np.float64]:
-    """Gravitational potential energy of every gap.
-
-    ``g_i = sum over the tiles k around gap i of 1/4 m_k g (z_k - z_min)`` with ``z`` the height
-    along ``up``.
-
-    Parameters
-    ----------
-    linkage : topology (which tiles surround each gap).
-    tile_centroids : (T, 3) float, mm, tile centres of mass in the assembled configuration.
-    tile_masses : (T,) float, kg.
-    up : (3,) the resting up axis of the assembled shape (normalized here).
-    g : float, m/s^2.
-    z_min : float, mm, height of the lowest point of the structure; defaults to the lowest
-        tile centroid, so the lowest tiles contribute zero.
-
-    Returns
-    -------
-    (G,) float, J (non-negative).
-    """
-    c = np.asarray(tile_centroids, dtype=np.float64)
-    m = np.asarray(tile_masses, dtype=np.float64)
-    if c.shape != (linkage.n_tiles, 3) or m.shape != (linkage.n_tiles,):
-        raise InputError(
-            f"tile centroids {c.shape} / masses {m.shape} do not match {linkage.n_tiles} tiles; "
-            "pass (T, 3) centroids in mm and (T,) masses in kg"
-        )
-    if np.any(m < 0) or not np.all(np.isfinite(m)):
-        raise InputError("tile masses must be finite and non-negative; check density and volumes")
-    height = c @ _unit(up, "up axis")
-    base = float(height.min()) if z_min is None else float(z_min)
-    tile_energy = 0.25 * m * g * np.maximum(height - base, 0.0) * 1e-3  # mm -> m
-    return np.asarray(_gap_tile_matrix(linkage) @ tile_energy, dtype=np.float64)
-
-
-# --------------------------------------------------------------------------------------------
-# Morse-Smale segmentation, barriers, clusters
-
-
-def _rank(values: NDArray[np.float64]) -> NDArray[np.int64]:
-    """Rank in the strict order 'higher' (0 is the highest): by value, ties by smaller index."""
-    order = np.lexsort((np.arange(len(values)), -values))
-    rank = np.empty(len(values), dtype=np.int64)
-    rank[order] = np.arange(len(values))
-    return rank
-
-
-def morse_smale_basins(
-    energy: NDArray[np.float64], edges: NDArray[np.int64]
-) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """Peaks and steepest-ascent basins of a scalar field on a graph.
-
-    Parameters
-    ----------
-    energy : (G,) float, the field.
-    edges : (E, 2) int, undirected adjacency.
-
-    Returns
-    -------
-    peaks : (p,) int, nodes higher than all their neighbours, highest first.
-    basin : (G,) int, index into ``peaks`` reached from each node by always moving to its
-        highest neighbour while that neighbour is higher.
-    """
-    n = len(energy)
-    rank = _rank(energy)
-    # For every node, its highest neighbour (smallest rank), or itself if it is higher.
-    best = np.arange(n, dtype=np.int64)
-    if len(edges):
-        u = np.concatenate([edges[:, 0], edges[:, 1]])
-        v = np.concatenate([edges[:, 1], edges[:, 0]])
-        order = np.lexsort((rank[v], u))  # per u, neighbours by rank ascending
-        u, v = u[order], v[order]
-        first = np.ones(len(u), dtype=bool)
-        first[1:] = u[1:] != u[:-1]
-        cand = np.full(n, -1, dtype=np.int64)
-        cand[u[first]] = v[first]
-        up = (cand >= 0) & (rank[np.maximum(cand, 0)] < rank)
-        best[up] = cand[up]
-    # Pointer jumping to the peak at the end of every ascent.
-    target = best.copy()
-    while True:
-        nxt = target[target]
-        if np.array_equal(nxt, target):
-            break
-        target = nxt
-    peak_nodes = np.nonzero(best == np.arange(n))[0]
-    peaks = peak_nodes[np.argsort(rank[peak_nodes])].astype(np.int64)
-    index = -np.ones(n, dtype=np.int64)
-    index[peaks] = np.arange(len(peaks))
-    return peaks, index[target]
-
-
-def peak_barriers(
-    energy: NDArray[np.float64], edges: NDArray[np.int64], peaks: NDArray[np.int64]
-) -> NDArray[np.float64]:
-    """Barrier between every pair of peaks on the maximum spanning tree.
-
-    Edge weight ``w(u, v) = min(g_u, g_v)``; Kruskal adds edges heaviest first, and the edge that
-    first joins the components holding peaks i and j is the lightest edge of their tree path.
-
-    Returns
-    -------
-    (p, p) float, J, symmetric; 0 between peaks in different components of the graph, and the
-    peak's own energy on the diagonal.
-    """
-    p = len(peaks)
-    barrier = np.zeros((p, p))
-    barrier[np.arange(p), np.arange(p)] = energy[peaks]
-    if p < 2 or len(edges) == 0:
-        return barrier
-    weight = np.minimum(energy[edges[:, 0]], energy[edges[:, 1]])
-    order = np.lexsort((edges[:, 1], edges[:, 0], -weight))
-    parent = np.arange(len(energy))
-
-    def find(a: int) -> int:
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = int(parent[a])
-        return a
-
-    members: dict[int, list[int]] = {int(n): [k] for k, n in enumerate(peaks)}
-    for e in order:
-        ra, rb = find(int(edges[e, 0])), find(int(edges[e, 1]))
-        if ra == rb:
-            continue
-        a_peaks, b_peaks = members.pop(ra, []), members.pop(rb, [])
-        if a_peaks and b_peaks:
-            ia, ib = np.array(a_peaks), np.array(b_peaks)
-            barrier[np.ix_(ia, ib)] = weight[e]
-            barrier[np.ix_(ib, ia)] = weight[e]
-        if len(a_peaks) < len(b_peaks):
-            ra, rb = rb, ra
-        parent[rb] = ra
-        if a_peaks or b_peaks:
-            members[ra] = a_peaks + b_peaks
-    return barrier
-
-
-def peak_coupling(
-    energy: NDArray[np.float64], peaks: NDArray[np.int64], barrier: NDArray[np.float64]
-) -> NDArray[np.float64]:
-    """``c[i, j] = barrier(i, j) / g_j`` where peak i is higher than peak j, else 0.
-
-    ``peaks`` must be sorted highest first (as ``morse_smale_basins`` returns them), so the
-    coupling matrix is strictly upper triangular.  A peak of zero energy is fully coupled (1).
-    """
-    g = energy[peaks]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        c = np.where(g[None, :] > 0, barrier / np.where(g > 0, g, 1.0)[None, :], 1.0)
-    return np.asarray(np.triu(c, k=1), dtype=np.float64)
-
-
-def cluster_peaks(
-    coupling: NDArray[np.float64], tau: float
-) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """Clusters of the coupling DAG at threshold ``tau`` and each cluster's root.
-
-    Edge ``i -> j`` when ``c(i, j)`` is the largest coupling into ``j`` (ties: the higher peak i)
-    and ``c(i, j) >= tau``.  Every peak has in-degree at most one, so the DAG is a forest; its
-    roots (zero in-degree) are the lift points.
-
-    Returns
-    -------
-    clusters : (p,) int, cluster id per peak, clusters numbered by their root's rank.
-    roots : (k,) int, peak index of each cluster's root.
-    """
-    p = coupling.shape[0]
-    parent = np.arange(p, dtype=np.int64)
-    if p > 1:
-        strongest = np.argmax(coupling, axis=0)  # first maximum = highest peak on ties
-        value = coupling[strongest, np.arange(p)]
-        has = (np.arange(p) > 0) & (value >= tau)
-        parent[has] = strongest[has]
-    root = parent.copy()
-    while True:  # parents are always higher peaks (smaller index), so this ends
-        nxt = root[root]
-        if np.array_equal(nxt, root):
-            break
-        root = nxt
-    roots = np.unique(root)
-    cluster = np.searchsorted(roots, root).astype(np.int64)
-    return cluster, roots.astype(np.int64)
-
-
-# --------------------------------------------------------------------------------------------
 # deployment check stand-in
 
 
@@ -376,14 +114,14 @@ class _RidgeSupportCheck:
     """Callable behind ``geometric_deploy_check``."""
 
     name: str
-    peaks: NDArray[np.int64]
-    peak_energy: NDArray[np.float64]
-    basin_share: NDArray[np.float64]
-    barrier: NDArray[np.float64]
+    peaks: IntArray
+    peak_energy: FloatArray
+    basin_share: FloatArray
+    barrier: FloatArray
     share_min: float
     support_min: float
 
-    def __call__(self, lift_gaps: NDArray[np.int64]) -> bool:
+    def __call__(self, lift_gaps: IntArray) -> bool:
         lifted = np.isin(self.peaks, np.asarray(lift_gaps))
         if not lifted.any():
             return len(self.peaks) == 0
@@ -451,7 +189,7 @@ def geometric_deploy_check(
 # selection
 
 
-def _check_name(check: Callable[[NDArray[np.int64]], bool]) -> str:
+def _check_name(check: Callable[[IntArray], bool]) -> str:
     return str(getattr(check, "name", getattr(check, "__name__", type(check).__name__)))
 
 
@@ -463,7 +201,7 @@ def select_lift_points(
     up: ArrayLike = (0.0, 0.0, 1.0),
     tau0: float = 0.8,
     tau_step: float = 0.1,
-    deploy_check: Callable[[NDArray[np.int64]], bool] | None = None,
+    deploy_check: Callable[[IntArray], bool] | None = None,
     gap_positions: ArrayLike | None = None,
     gap_normals: ArrayLike | None = None,
 ) -> LiftPoints:
@@ -490,9 +228,9 @@ def select_lift_points(
     -------
     LiftPoints
     """
-    up_axis = _unit(up, "up axis")
+    up_axis = unit_direction(up, "up axis")
     if not 0.0 < tau_step:
-        raise InputError(f"tau step {tau_step} must be positive; the paper uses 0.1")
+        raise InternalError(f"tau step {tau_step} must be positive; the paper uses 0.1")
     energy = gap_potential_energy(linkage, tile_centroids, tile_masses, up=up_axis)
     edges = gap_adjacency(linkage)
     peaks, basin = morse_smale_basins(energy, edges)
@@ -500,15 +238,71 @@ def select_lift_points(
     coupling = peak_coupling(energy, peaks, barrier)
     check = deploy_check or geometric_deploy_check(linkage, energy)
     name = _check_name(check)
+    sweep: list[tuple[float, int, bool]] = []
+    chosen = _sweep_thresholds(
+        linkage, energy, edges, peaks, basin, coupling, check, _thresholds(tau0, tau_step), sweep
+    )
+    if not chosen.passed and linkage.n_components > 1:
+        chosen = _peaks_part_by_part(linkage, energy, edges, check, chosen, sweep)
+    if not chosen.passed:
+        # returned in ``sweep``; the pipeline lists it where the user reads it
+        log.info("lift points: deployment check '%s' failed for every threshold", name)
+    positions, pulls = _lift_pulls(
+        linkage, tile_centroids, chosen.lift_gaps, up_axis, gap_positions, gap_normals
+    )
+    return LiftPoints(
+        lift_gaps=chosen.lift_gaps.astype(np.int64),
+        peaks=chosen.peaks,
+        basin=chosen.basin,
+        gap_energy=energy,
+        coupling=chosen.coupling,
+        clusters=chosen.clusters,
+        tau=chosen.tau,
+        positions=np.asarray(positions, dtype=np.float64),
+        pull_directions=np.asarray(pulls, dtype=np.float64),
+        check_name=name,
+        check_passed=chosen.passed,
+        sweep=tuple(sweep),
+    )
 
+
+@dataclass(frozen=True)
+class _Selection:
+    """One candidate set of lift points: the peaks it clusters, and whether the check passed."""
+
+    lift_gaps: IntArray
+    peaks: IntArray
+    basin: IntArray
+    coupling: FloatArray
+    clusters: IntArray
+    tau: float
+    passed: bool
+
+
+def _thresholds(tau0: float, tau_step: float) -> list[float]:
+    """The coupling thresholds ``tau0, tau0 + tau_step, ...`` up to 1.0, then ``inf``."""
     taus: list[float] = []
     t = float(tau0)
     while t <= 1.0 + 1e-9:
         taus.append(round(t, 10))
         t += tau_step
     taus.append(float("inf"))
+    return taus
 
-    sweep: list[tuple[float, int, bool]] = []
+
+def _sweep_thresholds(
+    linkage: Linkage,
+    energy: FloatArray,
+    edges: IntArray,
+    peaks: IntArray,
+    basin: IntArray,
+    coupling: FloatArray,
+    check: Callable[[IntArray], bool],
+    taus: list[float],
+    sweep: list[tuple[float, int, bool]],
+) -> _Selection:
+    """The lift points of the first threshold whose check passes, else of the last; every
+    threshold tried is appended to ``sweep``."""
     for tau in taus:
         clusters, roots = cluster_peaks(coupling, tau)
         lift_gaps = interior_lift_gaps(linkage, energy, edges, peaks[roots])
@@ -517,32 +311,60 @@ def select_lift_points(
         log.info("lift points: tau=%s -> %d lift points, check passed=%s", tau, len(roots), passed)
         if passed:
             break
-    if not passed and linkage.n_components > 1:
-        # Split parts share no hinge, so each must rise on its own; but one peak's basin can
-        # reach across a seam (the 1600-tile dome: its one peak lies just right of the cut
-        # and drains the left part too).  Last try: peaks part by part, every one lifted.
-        seam = np.asarray(linkage.gap_kind) == "split"
-        field = energy.copy()
-        field[seam] = energy.min() - 1.0  # nothing climbs through a seam gap
-        part_peaks, part_basin = morse_smale_basins(field, edges)
-        part_lifts = interior_lift_gaps(linkage, energy, edges, part_peaks)
-        if set(part_lifts.tolist()) != set(lift_gaps.tolist()):
-            part_passed = bool(check(part_lifts))
-            sweep.append((float("inf"), int(len(part_lifts)), part_passed))
-            log.info(
-                "lift points: peaks part by part -> %d lift points, check passed=%s",
-                len(part_lifts),
-                part_passed,
-            )
-            if part_passed:
-                passed, lift_gaps, peaks, basin = True, part_lifts, part_peaks, part_basin
-                coupling = np.zeros((len(peaks), len(peaks)))
-                clusters = np.arange(len(peaks), dtype=np.int64)
-                tau = float("inf")
-    if not passed:
-        # returned in ``sweep``; the pipeline lists it where the user reads it
-        log.info("lift points: deployment check '%s' failed for every threshold", name)
+    return _Selection(lift_gaps, peaks, basin, coupling, clusters, tau, passed)
 
+
+def _peaks_part_by_part(
+    linkage: Linkage,
+    energy: FloatArray,
+    edges: IntArray,
+    check: Callable[[IntArray], bool],
+    failed: _Selection,
+    sweep: list[tuple[float, int, bool]],
+) -> _Selection:
+    """Last try on a split linkage: the peaks of every part on its own, every one lifted.
+
+    Split parts share no hinge, so each must rise on its own; but one peak's basin can reach
+    across a seam (the 1600-tile dome: its one peak lies just right of the cut and drains the
+    left part too).  Kept only when the check passes (and then appended to ``sweep``)."""
+    seam = np.asarray(linkage.gap_kind) == "split"
+    field = energy.copy()
+    field[seam] = energy.min() - 1.0  # nothing climbs through a seam gap
+    part_peaks, part_basin = morse_smale_basins(field, edges)
+    part_lifts = interior_lift_gaps(linkage, energy, edges, part_peaks)
+    if set(part_lifts.tolist()) == set(failed.lift_gaps.tolist()):
+        return failed
+    part_passed = bool(check(part_lifts))
+    sweep.append((float("inf"), int(len(part_lifts)), part_passed))
+    log.info(
+        "lift points: peaks part by part -> %d lift points, check passed=%s",
+        len(part_lifts),
+        part_passed,
+    )
+    if not part_passed:
+        return failed
+    n_peaks = len(part_peaks)
+    return _Selection(
+        part_lifts,
+        part_peaks,
+        part_basin,
+        np.zeros((n_peaks, n_peaks)),
+        np.arange(n_peaks, dtype=np.int64),
+        float("inf"),
+        True,
+    )
+
+
+def _lift_pulls(
+    linkage: Linkage,
+    tile_centroids: ArrayLike,
+    lift_gaps: IntArray,
+    up_axis: FloatArray,
+    gap_positions: ArrayLike | None,
+    gap_normals: ArrayLike | None,
+) -> tuple[FloatArray, FloatArray]:
+    """Position ``(k, 3)`` and pull direction ``(k, 3)`` of every lift point (see
+    :func:`select_lift_points`)."""
     if gap_positions is None:
         tiles = linkage.gap_sides[:, :, 0]
         cent = np.asarray(tile_centroids, dtype=np.float64)
@@ -556,28 +378,15 @@ def select_lift_points(
     else:
         nrm = np.asarray(gap_normals, dtype=np.float64)[lift_gaps]
         pulls = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
-    return LiftPoints(
-        lift_gaps=lift_gaps.astype(np.int64),
-        peaks=peaks,
-        basin=basin,
-        gap_energy=energy,
-        coupling=coupling,
-        clusters=clusters,
-        tau=tau,
-        positions=np.asarray(positions, dtype=np.float64),
-        pull_directions=np.asarray(pulls, dtype=np.float64),
-        check_name=name,
-        check_passed=passed,
-        sweep=tuple(sweep),
-    )
+    return positions, pulls
 
 
 def interior_lift_gaps(
     linkage: Linkage,
-    energy: NDArray[np.float64],
-    edges: NDArray[np.int64],
-    gaps: NDArray[np.int64],
-) -> NDArray[np.int64]:
+    energy: FloatArray,
+    edges: IntArray,
+    gaps: IntArray,
+) -> IntArray:
     """Move lift points off split and boundary gaps onto the best interior gap next to them.
 
     The string reaches a lift point from the boundary through interior gaps and may not enter
@@ -601,9 +410,7 @@ def interior_lift_gaps(
     return np.array(moved, dtype=np.int64)
 
 
-def nearby_lift_gaps(
-    linkage: Linkage, gap: int, positions: ArrayLike, steps: int = 2
-) -> NDArray[np.int64]:
+def nearby_lift_gaps(linkage: Linkage, gap: int, positions: ArrayLike, steps: int = 2) -> IntArray:
     """Interior gaps of ``gap``'s part within ``steps`` hops of it (a hop joins two gaps that
     share a tile), nearest first: where a lift point may move when the string cannot reach it.
 
@@ -637,27 +444,3 @@ def nearby_lift_gaps(
     dist = [float(np.linalg.norm(pos[g] - pos[gap])) for g in found]
     order = sorted(range(len(found)), key=lambda i: (dist[i], found[i]))
     return np.array([found[i] for i in order], dtype=np.int64)
-
-
-# --------------------------------------------------------------------------------------------
-# picture
-
-
-def draw_lift(ax: Any, lift: LiftPoints, gap_centroids_flat: ArrayLike) -> None:
-    """Scatter gaps coloured by basin; mark peaks (black dots) and lift points (red stars).
-
-    Parameters
-    ----------
-    ax : a matplotlib Axes.
-    lift : the selection to draw.
-    gap_centroids_flat : (G, 2) float, mm, gap positions in the flat configuration.
-    """
-    pos = np.asarray(gap_centroids_flat, dtype=np.float64)
-    ax.scatter(pos[:, 0], pos[:, 1], c=lift.basin % 20, cmap="tab20", vmin=0, vmax=19, s=14)
-    pk = pos[lift.peaks]
-    ax.scatter(pk[:, 0], pk[:, 1], c="black", s=28, marker="o", label="peaks")
-    lp = pos[lift.lift_gaps]
-    ax.scatter(
-        lp[:, 0], lp[:, 1], c="red", s=160, marker="*", edgecolors="black", label="lift points"
-    )
-    ax.set_aspect("equal")

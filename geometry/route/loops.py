@@ -1,4 +1,4 @@
-"""Loop builders for the string route, on top of the integer program in :mod:`.route_milp`.
+"""Loop builders for the string route, on top of the integer program in :mod:`.milp`.
 
 The heuristic for large instances: a dynamic program over the boundary tiles in their order along
 the outer boundary builds the minimum-turn boundary loop (:func:`_boundary_loop_dp`, with short
@@ -14,9 +14,9 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-from numpy.typing import NDArray
 
 from drawstring.geometry.core.errors import DesignError
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.route.milp import (
     NodeBudgetError,
     Step,
@@ -24,8 +24,8 @@ from drawstring.geometry.route.milp import (
     _cycle_steps,
     _reverse_steps,
     _Rules,
-    _segments_cross,
     _solve_cycle,
+    segments_cross,
 )
 from drawstring.geometry.tiling.linkage import Linkage
 
@@ -75,7 +75,7 @@ def boundary_tile_order(linkage: Linkage) -> list[int]:
                 d = ij[b] - ij[a]
                 base = math.atan2(float(d[1]), float(d[0]))
 
-                def key(t: int, base: float = base, centre: NDArray[np.float64] = centre) -> float:
+                def key(t: int, base: float = base, centre: FloatArray = centre) -> float:
                     c = linkage.tile_cells[t] + 0.5 - centre
                     return (math.atan2(float(c[1]), float(c[0])) - base) % (2 * math.pi)
 
@@ -91,7 +91,7 @@ def boundary_tile_order(linkage: Linkage) -> list[int]:
     return best
 
 
-def _turn(pos: NDArray[np.float64], a: int, b: int, c: int) -> float:
+def _turn(pos: FloatArray, a: int, b: int, c: int) -> float:
     """Turn angle (rad) at gap ``b`` between gaps ``a`` and ``c``."""
     d1x, d1y = pos[b, 0] - pos[a, 0], pos[b, 1] - pos[a, 1]
     d2x, d2y = pos[c, 0] - pos[b, 0], pos[c, 1] - pos[b, 1]
@@ -100,8 +100,8 @@ def _turn(pos: NDArray[np.float64], a: int, b: int, c: int) -> float:
 
 def _bridges(
     rules: _Rules,
-    pos: NDArray[np.float64],
-    boundary: NDArray[np.bool_],
+    pos: FloatArray,
+    boundary: BoolArray,
     tile: int,
     target: int,
     a: int,
@@ -132,7 +132,7 @@ def _bridges(
 
 
 def _boundary_loop_dp(
-    rules: _Rules, pos: NDArray[np.float64], order: list[int], boundary: NDArray[np.bool_]
+    rules: _Rules, pos: FloatArray, order: list[int], boundary: BoolArray
 ) -> list[Step]:
     """Minimum-turn closed loop passing the boundary tiles once each, in ``order``.
 
@@ -151,7 +151,7 @@ def _boundary_loop_dp(
         if len(gs) < 2:
             raise DesignError(f"boundary tile {t} has fewer than two gaps the string may use")
         states.append([(a, b) for a in gs for b in gs if a != b])
-    mats: list[NDArray[np.float64]] = []
+    mats: list[FloatArray] = []
     bridges: list[dict[tuple[int, int], list[Step]]] = []
     for k in range(n_b):
         tile, nxt = order[k], order[(k + 1) % n_b]
@@ -187,7 +187,7 @@ def _boundary_loop_dp(
     n0 = len(states[0])
     dist = np.full((n0, n0), np.inf)
     np.fill_diagonal(dist, 0.0)
-    back: list[NDArray[np.int64]] = []
+    back: list[IntArray] = []
     for mat in mats:
         chain = dist[:, :, None] + mat[None, :, :]
         back.append(np.asarray(chain.argmin(axis=1), dtype=np.int64))
@@ -210,7 +210,7 @@ def _boundary_loop_dp(
 
 def _band_loop(
     rules: _Rules,
-    pos: NDArray[np.float64],
+    pos: FloatArray,
     cover: set[int],
     groups: Sequence[set[int]],
     layers: int,
@@ -230,7 +230,7 @@ def _band_loop(
 
 def _splice_lift(
     rules: _Rules,
-    pos: NDArray[np.float64],
+    pos: FloatArray,
     steps: list[Step],
     lift: int,
     cover: set[int],
@@ -239,7 +239,7 @@ def _splice_lift(
     node_limit: int,
     half_window: int,
     corridor: float,
-    component: NDArray[np.int64] | None = None,
+    component: IntArray | None = None,
     notes: list[str] | None = None,
 ) -> list[Step]:
     """Re-route a window of the loop so that it passes ``lift``, solving the window's program
@@ -255,7 +255,7 @@ def _splice_lift(
     gaps ``p0``, ``q1`` (contact partners of the fixed tiles there, paying the turns there), uses
     none of its gaps or tiles, crosses none of its segments, and passes every boundary tile that
     the removed stretch passed.  Raises DesignError when the window holds no such path,
-    :class:`~.route_milp.NodeBudgetError` when its nodes found none (more nodes may).
+    :class:`~.milp.NodeBudgetError` when its nodes found none (more nodes may).
     """
     r = len(steps)
     cycle = [g for g, _ in steps]
@@ -298,7 +298,7 @@ def _splice_lift(
         ea = np.array(edges, dtype=np.int64)
         fa = np.array(fixed_path[:-1], dtype=np.int64)
         fb = np.array(fixed_path[1:], dtype=np.int64)
-        hit = _segments_cross(
+        hit = segments_cross(
             pos[ea[:, 0]][:, None], pos[ea[:, 1]][:, None], pos[fa][None], pos[fb][None]
         ).any(axis=1)
         problem.banned = {int(e) for e in np.nonzero(hit)[0]}
@@ -333,7 +333,7 @@ def _splice_lift(
 
 def _band_loop_any(
     rules: _Rules,
-    pos: NDArray[np.float64],
+    pos: FloatArray,
     cover: set[int],
     groups: Sequence[set[int]],
     node_limit: int,
@@ -354,7 +354,7 @@ def _band_loop_any(
 
 def _exact(
     rules: _Rules,
-    pos: NDArray[np.float64],
+    pos: FloatArray,
     n_gaps: int,
     lifts: set[int],
     cover: set[int],

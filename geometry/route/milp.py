@@ -4,9 +4,8 @@ A problem instance (:class:`_Problem`) has one node per gap and one edge per ste
 gaps through a tile; :func:`_solve_cycle` solves it with ``scipy.optimize.milp`` (HiGHS), with
 binary edge, node and turn variables, one pass per tile, crossing-pair exclusions and
 connectivity cuts added until one cycle remains.  The geometric helpers the program needs (turn
-angles and segment crossings in the flat layout) live here too; :mod:`.route` re-exports the
-public ones.  Which steps are allowed comes from :class:`_Rules`, built by
-:func:`drawstring.geometry.route.plan._rules`.
+angles and segment crossings in the flat layout) live here too.  Which steps are allowed comes
+from :class:`_Rules`, built by :func:`drawstring.geometry.route.rules.route_rules`.
 """
 
 from __future__ import annotations
@@ -18,11 +17,11 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import NDArray
 from scipy.optimize import Bounds, LinearConstraint, milp
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.core.errors import DesignError
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 
 log = logging.getLogger(__name__)
 
@@ -30,11 +29,9 @@ Step = tuple[int, int]  # (gap the string crosses into the tile, tile)
 
 #: Wall-clock safety net of one integer-program solve, s.  The solves are bounded by
 #: branch-and-bound nodes (HiGHS ``mip_max_nodes``, the callers' ``node_limit``), which stop
-#: them at the same point on every machine.  Bounded by time instead (5 s per window), the
-#: largest window programs of the face scan at the CLI defaults and of the 1600-tile dome and
-#: wave stopped after 2 to 11 nodes, or finished, depending on the machine's speed and load, so
-#: their routes could differ between runs.  A solve this limit stops keeps its best route and
-#: says so in the route's notes.
+#: them at the same point on every machine; a bound on time would stop the largest programs at
+#: a point that depends on the machine's speed and load, and so change their routes.  A solve
+#: this limit stops keeps its best route and says so in the route's notes.
 MILP_SAFETY_TIME_S = 60.0
 
 
@@ -57,7 +54,7 @@ class _Rules:
 # geometry helpers
 
 
-def turn_angle(a: NDArray[np.float64], b: NDArray[np.float64], c: NDArray[np.float64]) -> Any:
+def turn_angle(a: FloatArray, b: FloatArray, c: FloatArray) -> Any:
     """Angle (rad) between directions ``b - a`` and ``c - b``; broadcasts over leading axes."""
     d1, d2 = b - a, c - b
     cross = d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]
@@ -65,13 +62,13 @@ def turn_angle(a: NDArray[np.float64], b: NDArray[np.float64], c: NDArray[np.flo
     return np.abs(np.arctan2(cross, dot))
 
 
-def _segments_cross(
-    p1: NDArray[np.float64],
-    p2: NDArray[np.float64],
-    q1: NDArray[np.float64],
-    q2: NDArray[np.float64],
+def segments_cross(
+    p1: FloatArray,
+    p2: FloatArray,
+    q1: FloatArray,
+    q2: FloatArray,
     eps: float = 1e-9,
-) -> NDArray[np.bool_]:
+) -> BoolArray:
     """Proper intersection of segment pairs (shared endpoints and touching do not count)."""
 
     def orient(a: Any, b: Any, c: Any) -> Any:
@@ -89,7 +86,7 @@ def _segments_cross(
     )
 
 
-def crossing_edge_pairs(edges: NDArray[np.int64], pos: NDArray[np.float64]) -> NDArray[np.int64]:
+def crossing_edge_pairs(edges: IntArray, pos: FloatArray) -> IntArray:
     """(c, 2) indices of edge pairs whose straight segments cross properly."""
     if len(edges) < 2:
         return np.zeros((0, 2), dtype=np.int64)
@@ -106,7 +103,7 @@ def crossing_edge_pairs(edges: NDArray[np.int64], pos: NDArray[np.float64]) -> N
         | (edges[i, 1] == edges[j, 0])
         | (edges[i, 1] == edges[j, 1])
     )
-    hit = ~share & _segments_cross(a[i], b[i], a[j], b[j])
+    hit = ~share & segments_cross(a[i], b[i], a[j], b[j])
     return np.asarray(pairs[hit], dtype=np.int64)
 
 
@@ -134,7 +131,7 @@ class _Problem:
 
 def _build_problem(
     rules: _Rules,
-    pos: NDArray[np.float64],
+    pos: FloatArray,
     nodes: Iterable[int],
     required: set[int],
     cover: set[int],
@@ -168,9 +165,7 @@ def _build_problem(
     return problem
 
 
-def _crossing_pairs(
-    edges: list[tuple[int, int]], pos: NDArray[np.float64]
-) -> list[tuple[int, int]]:
+def _crossing_pairs(edges: list[tuple[int, int]], pos: FloatArray) -> list[tuple[int, int]]:
     """Pairs of edge indices whose segments cross (parallel edges share their geometry)."""
     if len(edges) < 2:
         return []
@@ -188,7 +183,7 @@ def _crossing_pairs(
 def _solve_cycle(
     problem: _Problem,
     rules: _Rules,
-    pos: NDArray[np.float64],
+    pos: FloatArray,
     node_limit: int,
     notes: list[str] | None = None,
 ) -> tuple[list[int], float, bool]:
@@ -200,14 +195,82 @@ def _solve_cycle(
     exists or none was found otherwise.  A solve stopped by :data:`MILP_SAFETY_TIME_S`, with a
     cycle or without, adds a note (once) to ``notes``.
     """
-    edges, edge_tile = problem.edges, problem.edge_tile
+    program = _cycle_program(problem, rules, pos)
+    edges = problem.edges
     n_e = len(edges)
-    node_index = {v: k for k, v in enumerate(problem.nodes)}
-    n_v = len(problem.nodes)
-    incident: list[list[int]] = [[] for _ in range(n_v)]
-    for e, (u, v) in enumerate(edges):
-        incident[node_index[u]].append(e)
-        incident[node_index[v]].append(e)
+    optimal = True
+    for _round in range(500):
+        res = milp(
+            program.objective,
+            constraints=[program.matrix()],
+            integrality=program.integrality,
+            bounds=Bounds(program.lb, program.ub),
+            options={"node_limit": node_limit, "time_limit": MILP_SAFETY_TIME_S, "disp": False},
+        )
+        # milp's status 1: the time (or an iteration) limit; 4 with HiGHS's "solution limit":
+        # the node limit
+        timed_out = res.status == 1
+        out_of_nodes = res.status == 4 and "Solution limit" in str(res.message)
+        if timed_out and notes is not None:
+            note = (
+                f"a route program stopped at its {MILP_SAFETY_TIME_S:g} s safety limit before "
+                "its node budget: on another machine the route may differ"
+            )
+            if note not in notes:
+                notes.append(note)
+        if res.x is None:
+            raise _no_route(res, out_of_nodes, node_limit)
+        if res.status != 0:
+            optimal = False
+        z = res.x[:n_e] > 0.5
+        cycles = _cycles_of(edges, np.nonzero(z)[0])
+        if len(cycles) == 1:
+            log.debug("route program: %d rounds, %d variables", _round + 1, program.n_var)
+            return cycles[0], float(res.fun), optimal
+        _add_connectivity_cuts(program, problem, cycles)
+    raise DesignError("string route program did not converge to one cycle")
+
+
+@dataclass
+class _Program:
+    """The cycle program's constraint rows (sparse: ``({variable: coefficient}, lo, hi)``),
+    variable bounds, integrality and objective.
+
+    Variables: edges ``[0, n_e)``, turns from ``off_y``, nodes from ``off_x`` (then, with a flow,
+    two flow variables per edge)."""
+
+    n_var: int
+    off_y: int
+    off_x: int
+    node_index: dict[int, int]
+    rows: list[tuple[dict[int, float], float, float]] = field(default_factory=list)
+    integrality: FloatArray = field(default_factory=lambda: np.zeros(0))
+    lb: FloatArray = field(default_factory=lambda: np.zeros(0))
+    ub: FloatArray = field(default_factory=lambda: np.zeros(0))
+    objective: FloatArray = field(default_factory=lambda: np.zeros(0))
+
+    def add(self, coefs: dict[int, float], lo: float, hi: float) -> None:
+        self.rows.append((coefs, lo, hi))
+
+    def matrix(self) -> LinearConstraint:
+        r_idx, c_idx, vals = [], [], []
+        for r, (coefs, _lo, _hi) in enumerate(self.rows):
+            for c, v in coefs.items():
+                r_idx.append(r)
+                c_idx.append(c)
+                vals.append(v)
+        mat = sp.csr_matrix((vals, (r_idx, c_idx)), shape=(len(self.rows), self.n_var))
+        return LinearConstraint(
+            mat, np.array([r[1] for r in self.rows]), np.array([r[2] for r in self.rows])
+        )
+
+
+def _turns(
+    problem: _Problem, rules: _Rules, pos: FloatArray, incident: list[list[int]]
+) -> tuple[list[tuple[int, int, int]], list[float]]:
+    """Every turn ``(node index, edge, edge)`` at a gap whose two tiles are contact partners
+    there, and its cost: the turn angle (0 next to the virtual edge)."""
+    edges, edge_tile = problem.edges, problem.edge_tile
     turns: list[tuple[int, int, int]] = []
     cost: list[float] = []
     for k, v in enumerate(problem.nodes):
@@ -226,14 +289,24 @@ def _solve_cycle(
                     u = edges[e1][0] if edges[e1][1] == v else edges[e1][1]
                     w = edges[e2][0] if edges[e2][1] == v else edges[e2][1]
                     cost.append(float(turn_angle(pos[u], pos[v], pos[w])))
+    return turns, cost
+
+
+def _cycle_program(problem: _Problem, rules: _Rules, pos: FloatArray) -> _Program:
+    """The program's rows before any connectivity cut: degree and turn rows per node, one
+    pass per tile, the tile groups, the crossing pairs and (``problem.flow``) the flow."""
+    edges, edge_tile = problem.edges, problem.edge_tile
+    n_e = len(edges)
+    node_index = {v: k for k, v in enumerate(problem.nodes)}
+    n_v = len(problem.nodes)
+    incident: list[list[int]] = [[] for _ in range(n_v)]
+    for e, (u, v) in enumerate(edges):
+        incident[node_index[u]].append(e)
+        incident[node_index[v]].append(e)
+    turns, cost = _turns(problem, rules, pos, incident)
     n_t = len(turns)
-    off_y, off_x = n_e, n_e + n_t
-    n_var = off_x + n_v
-    rows: list[tuple[dict[int, float], float, float]] = []
-
-    def add(coefs: dict[int, float], lo: float, hi: float) -> None:
-        rows.append((coefs, lo, hi))
-
+    program = _Program(n_var=n_e + n_t + n_v, off_y=n_e, off_x=n_e + n_t, node_index=node_index)
+    off_y, off_x, add = program.off_y, program.off_x, program.add
     turns_at_edge: list[dict[int, list[int]]] = [dict() for _ in range(n_v)]
     for t, (k, e1, e2) in enumerate(turns):
         turns_at_edge[k].setdefault(e1, []).append(t)
@@ -262,125 +335,103 @@ def _solve_cycle(
         add(coefs, 1.0, np.inf)
     for e1, e2 in problem.forbid_pairs:
         add({e1: 1.0, e2: 1.0}, -np.inf, 1.0)
-    integrality = np.ones(n_var)
-    upper = np.ones(n_var)
+    program.integrality = np.ones(program.n_var)
+    program.ub = np.ones(program.n_var)
     if problem.flow and problem.required:
-        # single-commodity flow from a required gap to every visited gap: one cycle at once
-        off_f, source, cap = n_var, node_index[min(problem.required)], float(n_v - 1)
-        n_var += 2 * n_e
-        integrality = np.concatenate([integrality, np.zeros(2 * n_e)])
-        upper = np.concatenate([upper, np.full(2 * n_e, cap)])
-        net: list[dict[int, float]] = [dict() for _ in range(n_v)]
-        for e, (u, v) in enumerate(edges):
-            add({off_f + 2 * e: 1.0, off_f + 2 * e + 1: 1.0, e: -cap}, -np.inf, 0.0)
-            iu, iv = node_index[u], node_index[v]
-            net[iv][off_f + 2 * e] = 1.0  # u -> v flows into v
-            net[iu][off_f + 2 * e] = -1.0
-            net[iu][off_f + 2 * e + 1] = 1.0  # v -> u flows into u
-            net[iv][off_f + 2 * e + 1] = -1.0
-        for k in range(n_v):
-            if k != source:
-                coefs = dict(net[k])
-                coefs[off_x + k] = -1.0
-                add(coefs, 0.0, 0.0)
-
-    lb = np.zeros(n_var)
-    ub = upper
+        _add_flow(program, problem, n_v)
+    program.lb = np.zeros(program.n_var)
     for e in problem.fixed:
-        lb[e] = 1.0
+        program.lb[e] = 1.0
     for e in problem.banned:
-        ub[e] = 0.0
+        program.ub[e] = 0.0
     for v in problem.required:
-        lb[off_x + node_index[v]] = 1.0
-    objective = np.zeros(n_var)
-    objective[off_y : off_y + n_t] = cost
+        program.lb[off_x + node_index[v]] = 1.0
+    program.objective = np.zeros(program.n_var)
+    program.objective[off_y : off_y + n_t] = cost
     for e, c_e in problem.edge_cost.items():
-        objective[e] += c_e
+        program.objective[e] += c_e
+    return program
 
-    def matrix(rs: list[tuple[dict[int, float], float, float]]) -> LinearConstraint:
-        r_idx, c_idx, vals = [], [], []
-        for r, (coefs, _lo, _hi) in enumerate(rs):
-            for c, v in coefs.items():
-                r_idx.append(r)
-                c_idx.append(c)
-                vals.append(v)
-        mat = sp.csr_matrix((vals, (r_idx, c_idx)), shape=(len(rs), n_var))
-        return LinearConstraint(mat, np.array([r[1] for r in rs]), np.array([r[2] for r in rs]))
 
-    optimal = True
-    for _round in range(500):
-        res = milp(
-            objective,
-            constraints=[matrix(rows)],
-            integrality=integrality,
-            bounds=Bounds(lb, ub),
-            options={"node_limit": node_limit, "time_limit": MILP_SAFETY_TIME_S, "disp": False},
+def _add_flow(program: _Program, problem: _Problem, n_v: int) -> None:
+    """A single-commodity flow from a required gap to every visited gap: one cycle at once."""
+    edges, node_index = problem.edges, program.node_index
+    n_e = len(edges)
+    off_f, source, cap = program.n_var, node_index[min(problem.required)], float(n_v - 1)
+    program.n_var += 2 * n_e
+    program.integrality = np.concatenate([program.integrality, np.zeros(2 * n_e)])
+    program.ub = np.concatenate([program.ub, np.full(2 * n_e, cap)])
+    net: list[dict[int, float]] = [dict() for _ in range(n_v)]
+    for e, (u, v) in enumerate(edges):
+        program.add({off_f + 2 * e: 1.0, off_f + 2 * e + 1: 1.0, e: -cap}, -np.inf, 0.0)
+        iu, iv = node_index[u], node_index[v]
+        net[iv][off_f + 2 * e] = 1.0  # u -> v flows into v
+        net[iu][off_f + 2 * e] = -1.0
+        net[iu][off_f + 2 * e + 1] = 1.0  # v -> u flows into u
+        net[iv][off_f + 2 * e + 1] = -1.0
+    for k in range(n_v):
+        if k != source:
+            coefs = dict(net[k])
+            coefs[program.off_x + k] = -1.0
+            program.add(coefs, 0.0, 0.0)
+
+
+def _no_route(res: Any, out_of_nodes: bool, node_limit: int) -> DesignError:
+    """The error of a solve that returned no cycle: proved infeasible, out of nodes
+    (:class:`NodeBudgetError`), or stopped by the safety time limit or a solver failure."""
+    rule = (
+        "that passes every boundary tile and each tile and gap at most once between "
+        "contact partners without crossing itself"
+    )
+    if res.status == 2:  # proved infeasible
+        return DesignError(
+            f"no closed string route exists {rule}; a shape part only one or two tiles "
+            "wide has none: use more tiles (--tiles or --grid)"
         )
-        # milp's status 1: the time (or an iteration) limit; 4 with HiGHS's "solution limit":
-        # the node limit
-        timed_out = res.status == 1
-        out_of_nodes = res.status == 4 and "Solution limit" in str(res.message)
-        if timed_out and notes is not None:
-            note = (
-                f"a route program stopped at its {MILP_SAFETY_TIME_S:g} s safety limit before "
-                "its node budget: on another machine the route may differ"
-            )
-            if note not in notes:
-                notes.append(note)
-        if res.x is None:
-            rule = (
-                "that passes every boundary tile and each tile and gap at most once between "
-                "contact partners without crossing itself"
-            )
-            if res.status == 2:  # proved infeasible
-                raise DesignError(
-                    f"no closed string route exists {rule}; a shape part only one or two tiles "
-                    "wide has none: use more tiles (--tiles or --grid)"
-                )
-            too_large = "the route program is too large: use fewer tiles (--tiles or --grid)"
-            if out_of_nodes:
-                raise NodeBudgetError(
-                    f"no closed string route was found within {node_limit} branch-and-bound "
-                    f"nodes {rule}; {too_large}"
-                )
-            # the safety time limit (more nodes would take longer still) or a solver failure
-            raise DesignError(
-                f"no closed string route was found {rule} (HiGHS: {res.message}); {too_large}"
-            )
-        if res.status != 0:
-            optimal = False
-        z = res.x[:n_e] > 0.5
-        cycles = _cycles_of(edges, np.nonzero(z)[0])
-        if len(cycles) == 1:
-            log.debug("route program: %d rounds, %d variables", _round + 1, n_var)
-            return cycles[0], float(res.fun), optimal
-        sets = [{u for e in cyc for u in edges[e]} for cyc in cycles]
-        for a, s_a in enumerate(sets):
-            cut = {e: 1.0 for e, (u, v) in enumerate(edges) if (u in s_a) != (v in s_a)}
-            inside_tiles = {edge_tile[e] for e, (u, v) in enumerate(edges) if u in s_a and v in s_a}
-            must_leave = (
-                bool(problem.required - s_a)
-                or any(not set(edges[e]) <= s_a for e in problem.fixed)
-                or bool(problem.cover - inside_tiles)
-                or any(not (g & inside_tiles) for g in problem.groups)
-            )
-            if must_leave:
-                for v in s_a:
+    too_large = "the route program is too large: use fewer tiles (--tiles or --grid)"
+    if out_of_nodes:
+        return NodeBudgetError(
+            f"no closed string route was found within {node_limit} branch-and-bound "
+            f"nodes {rule}; {too_large}"
+        )
+    # the safety time limit (more nodes would take longer still) or a solver failure
+    return DesignError(
+        f"no closed string route was found {rule} (HiGHS: {res.message}); {too_large}"
+    )
+
+
+def _add_connectivity_cuts(program: _Program, problem: _Problem, cycles: list[list[int]]) -> None:
+    """Cuts that forbid each of several disjoint ``cycles`` on its own: a cycle that must reach
+    beyond its gaps (a required gap, fixed edge, cover tile or group outside it) has every
+    visited gap of it joined to the outside; otherwise it may not coexist with another one."""
+    edges, edge_tile = problem.edges, problem.edge_tile
+    off_x, node_index = program.off_x, program.node_index
+    sets = [{u for e in cyc for u in edges[e]} for cyc in cycles]
+    for a, s_a in enumerate(sets):
+        cut = {e: 1.0 for e, (u, v) in enumerate(edges) if (u in s_a) != (v in s_a)}
+        inside_tiles = {edge_tile[e] for e, (u, v) in enumerate(edges) if u in s_a and v in s_a}
+        must_leave = (
+            bool(problem.required - s_a)
+            or any(not set(edges[e]) <= s_a for e in problem.fixed)
+            or bool(problem.cover - inside_tiles)
+            or any(not (g & inside_tiles) for g in problem.groups)
+        )
+        if must_leave:
+            for v in s_a:
+                c = dict(cut)
+                c[off_x + node_index[v]] = -2.0
+                program.add(c, 0.0, np.inf)
+        else:
+            v0 = min(s_a)
+            for b, s_b in enumerate(sets):
+                if b != a:
                     c = dict(cut)
-                    c[off_x + node_index[v]] = -2.0
-                    add(c, 0.0, np.inf)
-            else:
-                v0 = min(s_a)
-                for b, s_b in enumerate(sets):
-                    if b != a:
-                        c = dict(cut)
-                        c[off_x + node_index[v0]] = -2.0
-                        c[off_x + node_index[min(s_b)]] = -2.0
-                        add(c, -2.0, np.inf)
-    raise DesignError("string route program did not converge to one cycle")
+                    c[off_x + node_index[v0]] = -2.0
+                    c[off_x + node_index[min(s_b)]] = -2.0
+                    program.add(c, -2.0, np.inf)
 
 
-def _cycles_of(edges: list[tuple[int, int]], chosen: NDArray[np.int64]) -> list[list[int]]:
+def _cycles_of(edges: list[tuple[int, int]], chosen: IntArray) -> list[list[int]]:
     """Split a 2-regular edge set into cycles, each as an ordered list of edge indices."""
     at: dict[int, list[int]] = {}
     for e in chosen:

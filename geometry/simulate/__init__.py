@@ -2,11 +2,8 @@
 section 5.4).
 """
 
-from drawstring.geometry.simulate.deploy import (
-    SimulationResult,
-    simulate_deployment,
-    simulate_stage,
-)
+from drawstring.geometry.simulate.deploy import simulate_deployment, simulate_stage
+from drawstring.geometry.simulate.result import SimulationResult
 
 __all__ = [
     "SimulationResult",

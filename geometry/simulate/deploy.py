@@ -6,7 +6,9 @@ Projective dynamics (Bouaziz et al. 2014) on the shared local-global solver
     sum_i m_i / h^2 |x_i - y_i|^2  +  sum_groups w ||A X - P(X)||^2,   y = x + h v + h^2 g,
 
 with the inertia term written as closeness to moving targets ``y`` (one constant matrix, so the
-factor is reused), and these groups, each with its own module-level class below:
+factor is reused), and these groups (:mod:`~drawstring.geometry.simulate.groups`; the run's
+system is :class:`~drawstring.geometry.simulate.system.DeploySystem`, its time stepping
+:mod:`~drawstring.geometry.simulate.stepping`):
 
 * ``rigid`` -- :class:`RigidShape`: each tile's eight vertices projected onto the closest rigid
   copy of the fabricated (flat) tile (batched Kabsch);
@@ -15,8 +17,9 @@ factor is reused), and these groups, each with its own module-level class below:
   assembled state) do not pass through each other; half-space rows along an axis frozen once
   per step, so the matrix is constant and a step costs no collision search;
 * ``split_contact`` -- the same for the faces that touch across a split line
-  (:func:`split_contact_pairs`); such a pair engages (for good) once its faces come within half
-  a tile side, since far apart in the flat layout a half-space between them means nothing;
+  (:func:`~.inputs.split_contact_pairs`); such a pair engages (for good) once its faces come
+  within half a tile side, since far apart in the flat layout a half-space between them means
+  nothing;
 * ``magnet`` -- the magnets across splits: an engaged split pair is reeled in corner by corner
   (``magnet_rate`` tile sides per step) until its faces touch;
 * ``snap`` -- the string: for consecutive tiles on the route, the paired side faces are reeled
@@ -27,12 +30,12 @@ factor is reused), and these groups, each with its own module-level class below:
   assembled height (the assembled tiles placed on the table under the flat layout);
 * ``stick`` -- static friction in the settle: once the string is reeled in, a hinged neighbour
   pair whose contact faces lie face on face (every corner within ``stick_rel``, 3 % of a tile
-  side, of its assembled partner corner; :func:`face_on_face`) sticks: its corners are held
+  side, of its assembled partner corner; :func:`~.tiles.face_on_face`) sticks: its corners are held
   together from then on, as in the assembled state.  Faces pressed together by the taut
   string neither slide nor separate under static friction.  Without this the unilateral
   contacts alone fix the interior: after the boundary loop closes, the linkage is isostatic
   but its softest flex is nearly free (smallest nonzero singular value of the rigidity matrix
-  ~6e-6 relative), and the settle of a 40 x 40 linkage crept for hundreds of steps.  Pairs
+  ~6e-6 relative), and the settle of a 40 x 40 linkage creeps for hundreds of steps.  Pairs
   only stick once close to face on face, so nothing sticks in the flat pose or without the
   string; the group is rebuilt (one factorization) when more pairs stick;
 * the table -- tiles never dip below the lowest level of the flat pose (rigid push up).
@@ -56,90 +59,40 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Protocol, runtime_checkable
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from drawstring.geometry.core.errors import InputError
-from drawstring.geometry.core.rigid import rigid_copies
-from drawstring.geometry.core.tolerances import SIM_STALL_PROGRESS
-from drawstring.geometry.simulate.groups import (  # noqa: F401 (re-exported)
-    SIDE_FACES,
-    TILE_EDGES,
-    TILE_FACES,
-    FaceContact,
-    FaceSnap,
-    Inertia,
-    MovingTargets,
-    PointCoincidence,
-    RigidShape,
-    SnapMode,
-    _apply,
-    _kabsch,
-    best_rotations,
-    contact_face_pairs,
-    hexahedron_overlap,
-    hinge_vertex_pairs,
-    kabsch_deviation,
+from drawstring.geometry.core.errors import InputError, InternalError
+from drawstring.geometry.core.types import FloatArray, IntArray
+from drawstring.geometry.simulate.inputs import (
+    RouteLike,
     lift_targets_for_gaps,
-    max_penetration,
-    mean_tile_side,
-    neighbour_tile_pairs,
-    place_on_table,
     route_snap_pairs,
-    side_face_midpoints,
-    split_contact_pairs,
-    tile_edge_lengths,
+    route_steps,
 )
 from drawstring.geometry.simulate.result import (
     THOROUGH_SETTINGS,
     SimulationResult,
     SimulationSettings,
     SimulationTolerances,
-    save_deploy_npz,
 )
-from drawstring.geometry.solve.solver import (
-    ConstraintGroup,
-    LocalGlobalSolver,
-)
+from drawstring.geometry.simulate.stepping import SuccessCheck, run_steps
+from drawstring.geometry.simulate.system import DeploySystem
+from drawstring.geometry.simulate.tiles import mean_tile_side, neighbour_tile_pairs
 from drawstring.geometry.tiling.linkage import Linkage
 
 logger = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 __all__ = [
-    "SimulationResult",
-    "SimulationSettings",
-    "SimulationTolerances",
-    "THOROUGH_SETTINGS",
-    "TILE_EDGES",
-    "TILE_FACES",
-    "best_rotations",
+    "GRAVITY_MM_S2",
     "deploy_check_from_simulation",
-    "hinge_vertex_pairs",
-    "kabsch_deviation",
-    "lift_targets_for_gaps",
-    "max_penetration",
-    "contact_face_pairs",
-    "face_on_face",
-    "split_contact_pairs",
-    "route_snap_pairs",
-    "route_steps",
-    "save_deploy_npz",
-    "simulate_stage",
-    "snap_goal_length",
-    "side_face_midpoints",
     "simulate_deployment",
-    "tile_edge_lengths",
+    "simulate_stage",
 ]
 
 GRAVITY_MM_S2 = (0.0, 0.0, -9810.0)
-
-#: Snap radius of a row that exerts no pull (a magnet pair that has not engaged yet), mm.
-_FREE = 1e30
 
 
 # --------------------------------------------------------------------------------------------
@@ -151,17 +104,18 @@ def _check_inputs(
     tiles_flat: FloatArray, tiles_assembled: FloatArray, hinge_vertices: IntArray
 ) -> None:
     if tiles_flat.ndim != 3 or tiles_flat.shape[1:] != (8, 3):
-        raise InputError(f"flat tiles must be (T, 8, 3), got {tiles_flat.shape}")
+        raise InternalError(f"flat tiles must be (T, 8, 3), got {tiles_flat.shape}")
     if tiles_assembled.shape != tiles_flat.shape:
-        raise InputError(
+        raise InternalError(
             f"assembled tiles {tiles_assembled.shape} and flat tiles {tiles_flat.shape} differ; "
             "pass the same tiles in both poses"
         )
     if not (np.all(np.isfinite(tiles_flat)) and np.all(np.isfinite(tiles_assembled))):
+        # the user's tiles.npz can hold them (drawstring simulate FOLDER)
         raise InputError("tile vertices must be finite")
     n = tiles_flat.shape[0] * 8
     if hinge_vertices.size and (hinge_vertices.min() < 0 or hinge_vertices.max() >= n):
-        raise InputError("hinge vertex ids must be tile * 8 + vertex within the tile count")
+        raise InternalError("hinge vertex ids must be tile * 8 + vertex within the tile count")
 
 
 def simulate_deployment(
@@ -213,10 +167,10 @@ def simulate_deployment(
     hinges = np.asarray(hinge_vertices, dtype=np.int64).reshape(-1, 2)
     _check_inputs(flat, goal, hinges)
     if flat.shape[0] != linkage.n_tiles:
-        raise InputError(f"{flat.shape[0]} tiles given for a linkage of {linkage.n_tiles}")
+        raise InternalError(f"{flat.shape[0]} tiles given for a linkage of {linkage.n_tiles}")
     counts = (cfg.max_steps, cfg.ramp_steps, cfg.hinge_close_steps, cfg.check_every)
     if min(frame_every, cfg.stall_checks, *counts) < 1:
-        raise InputError(
+        raise InternalError(
             "frame_every, max_steps, ramp_steps, hinge_close_steps, check_every and "
             "stall_checks must be >= 1"
         )
@@ -227,292 +181,63 @@ def simulate_deployment(
     lift_v = np.asarray(lift_vertices, dtype=np.int64).reshape(-1)
     lift_t = np.asarray(lift_targets, dtype=np.float64).reshape(-1, 3)
     if len(lift_v) != len(lift_t):
-        raise InputError("give one lift target per lift vertex")
+        raise InternalError("give one lift target per lift vertex")
     side = mean_tile_side(goal)
     if thickness is not None:
-        top_level = flat[:, :4, 2].mean() - flat[..., 2].min()
-        if abs(top_level - thickness) > 0.05 * thickness:
-            # a sanity check of the caller's pose; on a strongly non-conical quad mesh the
-            # tiles' own thicknesses (design.json thickness_min/max_mm) spread this far
-            logger.info(
-                "flat tiles' tops are %.3f mm above the table, thickness is %.3f mm",
-                top_level,
-                thickness,
-            )
-
-    n_tiles = flat.shape[0]
-    n = n_tiles * 8
-    x = flat.reshape(-1, 3).copy()
-    rest = tile_edge_lengths(flat)  # (T, 18): the fabricated pieces
-
-    # Tile masses from volume (mean 1): a tetrahedral decomposition of the hexahedron.
-    masses = np.repeat(_tile_volumes(flat), 8)
-    masses = masses / masses.mean() if masses.mean() > 0 else np.ones(n)
-
-    h = cfg.time_step_s
-    w_in = 1.0 / h**2
-    inertia = Inertia(masses, w_in)
-    base = {"rigid": cfg.rigid}
-    rigid_shape = RigidShape(flat, cfg.rigid * w_in)
-    groups: list[ConstraintGroup] = [inertia, rigid_shape]
-    hinge: PointCoincidence | None = None
-    if len(hinges):
-        hinge = PointCoincidence(hinges, cfg.hinge * w_in)
-        groups.append(hinge)
-        base["hinge"] = cfg.hinge
-        hinge_gap0 = np.linalg.norm(x[hinges[:, 1]] - x[hinges[:, 0]], axis=1) / np.sqrt(2.0)
-    contact_groups: list[FaceContact] = []
-    split_contact: FaceContact | None = None
-    magnet: FaceSnap | None = None
-    faces = contact_face_pairs(linkage)
-    contact_pairs = neighbour_tile_pairs(linkage)
-    if len(faces) and cfg.contact > 0:
-        contact = FaceContact(faces, cfg.contact * w_in)
-        groups.append(contact)
-        contact_groups.append(contact)
-        base["contact"] = cfg.contact
-    split_faces = split_contact_pairs(linkage)
-    if len(split_faces) and cfg.contact > 0 and cfg.split_contact:
-        split_contact = FaceContact(
-            split_faces, cfg.contact * w_in, name="split_contact", engage_distance=0.5 * side
-        )
-        groups.append(split_contact)
-        base["split_contact"] = cfg.contact
-        contact_groups.append(split_contact)
-        if cfg.magnets > 0:
-            # The magnets across the split: once a pair engaged, its faces are pulled together
-            # corner by corner (rows of a snap pair with radius 0; free before).
-            magnet = FaceSnap(
-                split_faces,
-                cfg.magnets * w_in,
-                mode="face",
-                partner=_face_partners(goal, split_faces),
-                name="magnet",
-            )
-            groups.append(magnet)
-            base["magnet"] = cfg.magnets
-            magnet_rows = magnet.matrix(n)
-            magnet.radius = np.full(len(magnet.row_pair), _FREE)
-            magnet_start = np.linalg.norm(magnet_rows @ x, axis=1)
-    # Static friction (the settle only): contact faces pressed together stick.  The ``stick``
-    # group holds the pairs that have stuck (rebuilt, one factorization, when more stick).
-    use_stick = bool(len(faces)) and cfg.stick > 0
-    face_partner = _face_partners(goal, faces)
-    stuck = np.zeros(len(faces), dtype=bool)
-    level = 1.0
-    snap: FaceSnap | None = None
-    if len(pairs):
-        partner = _face_partners(goal, pairs)
-        touching = snap_goal_length(goal, pairs) <= tol.gap_closed_rel * side
-        snap = FaceSnap(pairs, cfg.snap * w_in, mode=cfg.snap_mode, partner=partner, face=touching)
-        groups.append(snap)
-        base["snap"] = cfg.snap
-    lift: MovingTargets | None = None
-    placement = place_on_table(goal, flat)
-    if len(lift_v):
-        lift = MovingTargets(lift_v, cfg.lift * w_in, height_only=cfg.lift_height_only)
-        groups.append(lift)
-        base["lift"] = cfg.lift
-        lift_goal = _apply(placement, lift_t)
-        lift_start = x[lift_v].copy()
-    table = float(flat[..., 2].min())
-    solver = LocalGlobalSolver(n, groups, lean=True)
-    rest_centred = flat - flat.mean(axis=1, keepdims=True)
-
-    goal_len = snap_goal_length(goal, pairs)
-    goal_pen = max_penetration(goal, contact_pairs)
-
-    def snap_distances(pos: FloatArray) -> FloatArray:
-        """How far every pair is from its assembled midpoint distance, mm."""
-        if not len(pairs):
-            return np.zeros(0)
-        return np.asarray(np.abs(snap_goal_length(pos.reshape(n_tiles, 8, 3), pairs) - goal_len))
-
-    def failures(pos: FloatArray) -> tuple[list[str], FloatArray, FloatArray, float]:
-        """Unmet success criteria at ``pos``, with the gap distances, deviations, penetration."""
-        tiles = pos.reshape(n_tiles, 8, 3)
-        dist = snap_distances(pos)
-        dev = kabsch_deviation(tiles, goal)
-        pen = max_penetration(tiles, contact_pairs)
-        reasons = []
-        n_open = int(np.count_nonzero(dist > tol.gap_closed_rel * side))
-        if n_open:
-            reasons.append(f"{n_open} route pairs open (> {tol.gap_closed_rel * side:.3g} mm)")
-        if dev.max() > tol.deviation_rel * side:
-            reasons.append(f"deviation {dev.max():.3g} mm > {tol.deviation_rel * side:.3g} mm")
-        if pen > tol.penetration_rel * side:
-            note = (
-                f" (the assembled tiles themselves overlap by {goal_pen:.3g} mm)"
-                if goal_pen > tol.penetration_rel * side
-                else ""
-            )
-            reasons.append(f"penetration {pen:.3g} mm > {tol.penetration_rel * side:.3g} mm{note}")
-        return reasons, dist, dev, pen
-
-    d0 = d_end = np.zeros(0)
-    if snap is not None:
-        snap_rows = snap.matrix(n)
-        d0 = np.linalg.norm(snap_rows @ x, axis=1)
-        d_end = np.linalg.norm(snap_rows @ goal.reshape(-1, 3), axis=1)
-    g_vec = np.asarray(gravity, dtype=np.float64)
-    v = np.zeros_like(x)
-    frames = [x.reshape(n_tiles, 8, 3).astype(np.float32)]
-    max_edge_err = 0.0
-    iterations = factorizations = 0
-    settle = tol.settle_rel * side
-    lock_at = {
-        cfg.ramp_steps + cfg.lock_every * (i + 1): level for i, level in enumerate(cfg.lock_levels)
-    }
-    check_from = max(lock_at, default=cfg.ramp_steps)
-    quiet = 0
-    progress: list[float] = []
-    step = 0
-    verdict: tuple[list[str], FloatArray, FloatArray, float] | None = None
-    for step in range(1, cfg.max_steps + 1):
-        ramp = min(1.0, step / cfg.ramp_steps)
-        smooth = ramp * ramp * (3.0 - 2.0 * ramp)
-        if snap is not None:
-            snap.radius = d0 + smooth * (d_end - d0)
-        if hinge is not None:
-            hinge.radius = hinge_gap0 * max(0.0, 1.0 - step / cfg.hinge_close_steps)
-        if lift is not None:
-            lift.targets = lift_start + smooth * (lift_goal - lift_start)
-        if step in lock_at:
-            level = lock_at[step]
-            for name, weight in base.items():
-                if weight > 0:
-                    solver.set_weight(name, weight * lock_at[step] * w_in)
-        for group in contact_groups:
-            group.set_axes(x)
-        if magnet is not None and split_contact is not None:
-            # An engaged magnet reels its pair in no faster than the string (the same ramp from
-            # the flat length) and, engaging late, from the length it had then by ``magnet_rate``
-            # tile sides per step instead of snapping it shut in one step.
-            length = np.linalg.norm(magnet_rows @ x, axis=1)
-            engaged = split_contact.active[magnet.row_pair]
-            reeled = np.maximum(np.minimum(magnet.radius, length) - cfg.magnet_rate * side, 0.0)
-            magnet.radius = np.where(
-                engaged, np.maximum(reeled, (1.0 - smooth) * magnet_start), _FREE
-            )
-        if use_stick and step > cfg.ramp_steps:
-            tiles_now = x.reshape(n_tiles, 8, 3)
-            newly = ~stuck & face_on_face(tiles_now, faces, face_partner, cfg.stick_rel * side)
-            if newly.any():
-                stuck |= newly
-                stick = FaceSnap(
-                    faces[stuck],
-                    cfg.stick * level * w_in,
-                    mode="face",
-                    partner=face_partner[stuck],
-                    name="stick",
-                )
-                if "stick" in base:
-                    solver.replace_group(stick)
-                else:
-                    solver.add_group(stick)
-                    base["stick"] = cfg.stick
-        on_table = cfg.table and step <= cfg.ramp_steps
-        # After the reel-in the string holds the structure: the settle is quasi-static, without
-        # the table (which pins a corner the lift heights may not agree with) and gravity.
-        y = x + h * v + (h * h * g_vec if on_table or not cfg.table else 0.0)
-        inertia.set_targets(y)
-        n_iter = cfg.iterations if step <= cfg.ramp_steps else cfg.settle_iterations
-        res = solver.solve(y, max_iter=n_iter, anderson=cfg.anderson, rel_tol=1e-12)
-        iterations += res.iterations
-        factorizations += res.factorizations
-        x_new = res.X
-        if cfg.rigid_projection:
-            x_new = rigid_shape.rigid_copies(x_new)
-        if on_table:
-            x_new = _table_contact(x_new, table, rest_centred, cfg.rigid_projection)
-        move = float(np.linalg.norm(x_new - x, axis=1).max())
-        v = (1.0 - cfg.damping) * (x_new - x) / h
-        x = x_new
-        err = float(np.abs(tile_edge_lengths(x.reshape(n_tiles, 8, 3)) - rest).max())
-        max_edge_err = max(max_edge_err, err)
-        if step % frame_every == 0:
-            frames.append(x.reshape(n_tiles, 8, 3).astype(np.float32))
-        quiet = quiet + 1 if move < settle else 0
-        if step >= check_from and (step - check_from) % cfg.check_every == 0:
-            verdict = failures(x)
-            logger.debug("step %d: %s", step, "; ".join(verdict[0]) or "deployed")
-            if not verdict[0]:
-                break
-            if (
-                goal_pen > tol.penetration_rel * side
-                and len(verdict[0]) == 1
-                and verdict[3] <= goal_pen + tol.penetration_rel * side
-            ):
-                break  # at the assembled shape, which overlaps itself: nothing left to gain
-            progress.append(float(verdict[2].max()))
-            if len(progress) > cfg.stall_checks and min(progress[-cfg.stall_checks :]) > (
-                1.0 - SIM_STALL_PROGRESS
-            ) * min(progress[: -cfg.stall_checks]):
-                break  # stuck: the deviation stopped shrinking
-        verdict = None
-        if step >= check_from and quiet >= 5:
-            break
-    final = x.reshape(n_tiles, 8, 3)
-    if step % frame_every != 0:
-        frames.append(final.astype(np.float32))
-
-    reasons, dist, dev, pen = verdict if verdict is not None else failures(x)
+        _check_thickness(flat, thickness)
+    system = DeploySystem.build(linkage, flat, goal, hinges, pairs, lift_v, lift_t, side, cfg, tol)
+    check = SuccessCheck.of(goal, pairs, neighbour_tile_pairs(linkage), side, tol)
+    run = run_steps(system, check, flat, gravity, frame_every)
+    reasons, dist, dev, pen = run.verdict if run.verdict is not None else check.failures(run.x)
     open_mask = dist > tol.gap_closed_rel * side
     open_gaps = tuple(sorted({int(g) for g in gaps_of_pairs[open_mask]}))
-    if max_edge_err > tol.edge_length_rel * side:
-        reasons.append(f"edge error {max_edge_err:.3g} mm > {tol.edge_length_rel * side:.3g} mm")
+    if run.max_edge_err > tol.edge_length_rel * side:
+        reasons.append(
+            f"edge error {run.max_edge_err:.3g} mm > {tol.edge_length_rel * side:.3g} mm"
+        )
     if len(pairs) == 0 and len(lift_v) == 0:
         reasons.append("no string: nothing pulls")
     elapsed = time.perf_counter() - start
     result = SimulationResult(
         deployed=not reasons,
-        steps=step,
+        steps=run.step,
         final_max_deviation_mm=float(dev.max()),
         max_penetration_mm=pen,
         time_s=elapsed,
         open_gaps=open_gaps,
-        frames=np.stack(frames).astype(np.float32),
-        max_edge_error_mm=max_edge_err,
+        frames=np.stack(run.frames).astype(np.float32),
+        max_edge_error_mm=run.max_edge_err,
         gap_distance_mm=dist,
-        per_step_ms=1e3 * elapsed / max(step, 1),
-        iterations=iterations,
-        factorizations=factorizations,
+        per_step_ms=1e3 * elapsed / max(run.step, 1),
+        iterations=run.iterations,
+        factorizations=run.factorizations,
         tile_deviation_mm=dev,
         reasons=tuple(reasons),
     )
     logger.info(
         "simulation: deployed=%s steps=%d dev=%.3g mm pen=%.3g mm edge=%.3g mm %.2f s %s",
         result.deployed,
-        step,
+        run.step,
         result.final_max_deviation_mm,
         pen,
-        max_edge_err,
+        run.max_edge_err,
         elapsed,
         "; ".join(reasons),
     )
     return result
 
 
-@runtime_checkable
-class _RouteLike(Protocol):
-    gaps: NDArray[np.int64]
-    tiles: NDArray[np.int64]
-    enter_side: NDArray[np.int64]
-    leave_side: NDArray[np.int64]
-
-
-def route_steps(route: _RouteLike | ArrayLike) -> IntArray:
-    """Route steps ``(gap, tile, enter_side, leave_side)`` as an ``(r, 4)`` int array.
-
-    Parameters
-    ----------
-    route : a :class:`~drawstring.geometry.route.plan.Route` (``gaps``, ``tiles``, ``enter_side``,
-        ``leave_side``) or the steps themselves.
-    """
-    if isinstance(route, _RouteLike):
-        cols = [route.gaps, route.tiles, route.enter_side, route.leave_side]
-        return np.stack([np.asarray(c, dtype=np.int64).reshape(-1) for c in cols], axis=1)
-    return np.asarray(route, dtype=np.int64).reshape(-1, 4)
+def _check_thickness(flat: FloatArray, thickness: float) -> None:
+    """Log when the flat tiles' tops do not sit ``thickness`` above the table."""
+    top_level = flat[:, :4, 2].mean() - flat[..., 2].min()
+    if abs(top_level - thickness) > 0.05 * thickness:
+        # a sanity check of the caller's pose; on a strongly non-conical quad mesh the
+        # tiles' own thicknesses (design.json thickness_min/max_mm) spread this far
+        logger.info(
+            "flat tiles' tops are %.3f mm above the table, thickness is %.3f mm",
+            top_level,
+            thickness,
+        )
 
 
 def simulate_stage(
@@ -520,7 +245,7 @@ def simulate_stage(
     tiles_flat: ArrayLike,
     tiles_assembled: ArrayLike,
     hinge_vertices: ArrayLike,
-    route: _RouteLike | ArrayLike,
+    route: RouteLike | ArrayLike,
     lift_gaps: ArrayLike,
     thickness: float | None = None,
     *,
@@ -538,7 +263,7 @@ def simulate_stage(
     tiles_flat : (T, 8, 3) float, mm, T2D after the hinge layout (fabricated tiles).
     tiles_assembled : (T, 8, 3) float, mm, T3D.
     hinge_vertices : (H, 2) int, ``tile * 8 + vertex`` of both tiles of every hinge.
-    route : the closed string route (:class:`~drawstring.geometry.route.plan.Route` or ``(r, 4)``
+    route : the closed string route (:class:`~drawstring.geometry.route.result.Route` or ``(r, 4)``
         steps).
     lift_gaps : (L,) int, gap ids of the lift points; those the route does not pass are not
         pulled (the string leaves the structure only on its route).
@@ -595,132 +320,6 @@ def simulate_stage(
     return replace(result, time_s=total)
 
 
-def _lift_above(x: FloatArray, level: float, n_tiles: int) -> FloatArray:
-    """Translate every tile that dips below ``level`` straight up until it touches it (rigid).
-
-    Parameters
-    ----------
-    x : (T * 8, 3) float, mm
-
-    Returns
-    -------
-    (T * 8, 3) float, mm
-    """
-    tiles = x.reshape(n_tiles, 8, 3)
-    dip = np.maximum(level - tiles[:, :, 2].min(axis=1), 0.0)
-    if not np.any(dip):
-        return x
-    out = tiles.copy()
-    out[:, :, 2] += dip[:, None]
-    return out.reshape(-1, 3)
-
-
-def _table_contact(
-    x: FloatArray, level: float, rest: FloatArray, rigid: bool, rounds: int = 4
-) -> FloatArray:
-    """Keep the tiles above the table by alternating projections (position-based contact).
-
-    Vertices below ``level`` are raised to it, then every tile is made rigid again (closest
-    rigid copy of its rest shape); a few rounds let a tile that carries the structure pivot on
-    its lowest corner instead of being shoved up as a whole (which jams the hinges).
-
-    Parameters
-    ----------
-    x : (T * 8, 3) float, mm
-    level : table height, mm.
-    rest : (T, 8, 3) float, centred rest shapes.
-    rigid : re-rigidify after each clamp (else one clamp).
-
-    Returns
-    -------
-    (T * 8, 3) float, mm
-    """
-    if x[:, 2].min() >= level:
-        return x
-    out = x.copy()
-    for _ in range(rounds if rigid else 1):
-        low = out[:, 2] < level
-        if not low.any():
-            break
-        out[low, 2] = level
-        if rigid:
-            tiles = out.reshape(-1, 8, 3)
-            hit = np.flatnonzero(low.reshape(-1, 8).any(axis=1))
-            tiles[hit] = rigid_copies(rest[hit], tiles[hit])
-    if rigid:
-        return _lift_above(out, level, len(rest))  # the last clamp, rigidly
-    return out
-
-
-def snap_goal_length(tiles: FloatArray, pairs: IntArray) -> FloatArray:
-    """Distance between the paired side-face midpoints of every snap pair.
-
-    Parameters
-    ----------
-    tiles : (T, 8, 3) float, mm
-    pairs : (P, 4) int
-
-    Returns
-    -------
-    (P,) float, mm (zero in the assembled state for faces that touch there).
-    """
-    mids = side_face_midpoints(tiles)
-    return np.asarray(
-        np.linalg.norm(mids[pairs[:, 2], pairs[:, 3]] - mids[pairs[:, 0], pairs[:, 1]], axis=1)
-    )
-
-
-def _face_partners(goal: FloatArray, pairs: IntArray) -> IntArray:
-    """For each snap pair, the corner of face b nearest (in T3D) to each corner of face a.
-
-    Returns
-    -------
-    (P, 4) int, indices into ``SIDE_FACES[side_b]``.
-    """
-    fa = goal[pairs[:, 0, None], SIDE_FACES[pairs[:, 1]]]  # (P, 4, 3)
-    fb = goal[pairs[:, 2, None], SIDE_FACES[pairs[:, 3]]]
-    dist = np.linalg.norm(fa[:, :, None] - fb[:, None, :], axis=3)
-    return np.asarray(np.argmin(dist, axis=2), dtype=np.int64)
-
-
-def face_on_face(
-    tiles: FloatArray, pairs: IntArray, partner: IntArray, limit: float
-) -> NDArray[np.bool_]:
-    """Which face pairs lie face on face: every corner within ``limit`` of its partner corner.
-
-    Parameters
-    ----------
-    tiles : (T, 8, 3) float, mm
-    pairs : (k, 4) int, ``(tile_a, side_a, tile_b, side_b)``.
-    partner : (k, 4) int, partner corner in face b of every corner of face a
-        (:func:`_face_partners` of the assembled tiles).
-    limit : float, mm.
-
-    Returns
-    -------
-    (k,) bool
-    """
-    fa = tiles[pairs[:, 0, None], SIDE_FACES[pairs[:, 1]]]  # (k, 4, 3)
-    fb = np.take_along_axis(
-        tiles[pairs[:, 2, None], SIDE_FACES[pairs[:, 3]]], partner[..., None], 1
-    )
-    return np.asarray(np.linalg.norm(fa - fb, axis=2).max(axis=1) < limit, dtype=bool)
-
-
-def _tile_volumes(tiles: FloatArray) -> FloatArray:
-    """Volumes ``(T,)`` of the hexahedral tiles (six tetrahedra around the 0-6 diagonal), mm^3."""
-    tets = np.array(
-        [[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [0, 7, 4, 6], [0, 4, 5, 6], [0, 5, 1, 6]]
-    )
-    p = tiles[:, tets]  # (T, 6, 4, 3)
-    vol = np.einsum(
-        "tki,tki->tk",
-        p[:, :, 1] - p[:, :, 0],
-        np.cross(p[:, :, 2] - p[:, :, 0], p[:, :, 3] - p[:, :, 0]),
-    )
-    return np.asarray(np.abs(vol.sum(axis=1)) / 6.0)
-
-
 # --------------------------------------------------------------------------------------------
 # Plug-in for the lift-point threshold sweep
 # --------------------------------------------------------------------------------------------
@@ -738,7 +337,7 @@ class _SimulationCheck:
     route_for: Callable[[IntArray], Sequence[tuple[int, int, int, int]]]
     options: dict[str, object]
 
-    def __call__(self, lift_gaps: NDArray[np.int64]) -> bool:
+    def __call__(self, lift_gaps: IntArray) -> bool:
         gaps = np.asarray(lift_gaps, dtype=np.int64).reshape(-1)
         pairs, pair_gaps = route_snap_pairs(self.route_for(gaps))
         verts, targets = lift_targets_for_gaps(self.linkage, self.tiles_assembled, gaps)
@@ -764,7 +363,7 @@ def deploy_check_from_simulation(
     route_for: Callable[[IntArray], Sequence[tuple[int, int, int, int]]]
     | Sequence[tuple[int, int, int, int]],
     **options: object,
-) -> Callable[[NDArray[np.int64]], bool]:
+) -> Callable[[IntArray], bool]:
     """A deployment check for ``select_lift_points(..., deploy_check=...)``.
 
     Parameters

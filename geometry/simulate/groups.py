@@ -1,310 +1,37 @@
-"""The simulation's geometry helpers, its inputs (route, hinges, lift targets) and its
-constraint groups (:mod:`drawstring.geometry.simulate.deploy` runs them).
-
-Tiles are ``(T, 8, 3)`` arrays in the vertex order of ``assembled.obj``: top corners 0..3, the
-bottom corners 4..7 under them.
+"""The deployment simulation's constraint groups (:mod:`drawstring.geometry.simulate.deploy` runs
+them): inertia, rigid tiles, hinges, the string's snap pairs and magnets, lift targets and face
+contacts, each a :class:`~drawstring.geometry.solve.solver.ConstraintGroup` of the local-global
+solver.
 """
 
 from __future__ import annotations
 
-import logging
-from collections.abc import Sequence
 from typing import Literal
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from drawstring.geometry.core.errors import InputError
-from drawstring.geometry.core.rigid import rigid_fit
+from drawstring.geometry.core.types import FloatArray, IntArray
+from drawstring.geometry.simulate.tiles import SIDE_FACES
 from drawstring.geometry.solve.solver import (
     ConstraintGroup,
     centering_matrix,
     difference_matrix,
 )
-from drawstring.geometry.tiling.linkage import Linkage
 
-logger = logging.getLogger(__name__)
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 SnapMode = Literal["face", "midpoint"]
 
-#: The 18 edges of a rigid tile: top ring, bottom ring, verticals, and one diagonal per face
-#: (top 0-2, bottom 5-7, sides 0-5, 2-5, 2-7, 0-7: the tetrahedron 0, 2, 5, 7).
-TILE_EDGES: IntArray = np.array(
-    [
-        [0, 1], [1, 2], [2, 3], [3, 0],
-        [4, 5], [5, 6], [6, 7], [7, 4],
-        [0, 4], [1, 5], [2, 6], [3, 7],
-        [0, 2], [5, 7], [0, 5], [2, 5], [2, 7], [0, 7],
-    ],
-    dtype=np.int64,
-)  # fmt: skip
-
-#: The six faces of a tile: top, bottom, then side faces 0..3 (vertices k, k+1, 4+k+1, 4+k).
-TILE_FACES: IntArray = np.array(
-    [[0, 1, 2, 3], [4, 7, 6, 5]] + [[k, (k + 1) % 4, 4 + (k + 1) % 4, 4 + k] for k in range(4)],
-    dtype=np.int64,
-)
-
-#: Side face k of a tile as vertex indices.
-SIDE_FACES: IntArray = TILE_FACES[2:]
-
-
-# --------------------------------------------------------------------------------------------
-# Small geometric helpers
-# --------------------------------------------------------------------------------------------
-
-
-def side_face_midpoints(tiles: FloatArray) -> FloatArray:
-    """Midpoints (vertex means) of the four side faces of every tile.
-
-    Parameters
-    ----------
-    tiles : (T, 8, 3) float, mm
-
-    Returns
-    -------
-    (T, 4, 3) float, mm
-    """
-    return np.asarray(tiles[:, SIDE_FACES].mean(axis=2))
-
-
-def tile_edge_lengths(tiles: FloatArray) -> FloatArray:
-    """Lengths of the 18 rigid edges of every tile.
-
-    Parameters
-    ----------
-    tiles : (..., T, 8, 3) float, mm
-
-    Returns
-    -------
-    (..., T, 18) float, mm
-    """
-    diff = tiles[..., TILE_EDGES[:, 1], :] - tiles[..., TILE_EDGES[:, 0], :]
-    return np.asarray(np.linalg.norm(diff, axis=-1))
-
-
-def mean_tile_side(tiles: FloatArray) -> float:
-    """Mean length of the top-face sides, mm."""
-    top = tiles[:, :4]
-    return float(np.linalg.norm(np.roll(top, -1, axis=1) - top, axis=2).mean())
-
-
-def _kabsch(source: FloatArray, target: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Rotation ``R`` and shift ``t`` with ``R @ p + t`` closest to ``target`` (no reflection).
-
-    Parameters
-    ----------
-    source, target : (n, d) float
-    """
-    rot, shift = rigid_fit(source[None], target[None])
-    return rot[0], shift[0]
-
-
-def kabsch_deviation(tiles: FloatArray, reference: FloatArray) -> FloatArray:
-    """Per-tile maximum vertex distance after one rigid alignment over all vertices.
-
-    Parameters
-    ----------
-    tiles, reference : (T, 8, 3) float, mm
-
-    Returns
-    -------
-    (T,) float, mm
-        ``max_v |R x_tv + t - ref_tv|`` with ``(R, t)`` the best rigid map of all vertices.
-    """
-    src = tiles.reshape(-1, 3)
-    dst = reference.reshape(-1, 3)
-    rot, shift = _kabsch(src, dst)
-    moved = src @ rot.T + shift
-    return np.asarray(np.linalg.norm(moved - dst, axis=1).reshape(tiles.shape[0], 8).max(axis=1))
-
-
-def _face_normals(pts: FloatArray) -> FloatArray:
-    """Unit normals ``(k, 6, 3)`` of the six faces of hexahedra ``(k, 8, 3)``."""
-    d1 = pts[:, TILE_FACES[:, 2]] - pts[:, TILE_FACES[:, 0]]  # (k, 6, 3)
-    d2 = pts[:, TILE_FACES[:, 3]] - pts[:, TILE_FACES[:, 1]]
-    n = np.empty_like(d1)
-    n[..., 0] = d1[..., 1] * d2[..., 2] - d1[..., 2] * d2[..., 1]
-    n[..., 1] = d1[..., 2] * d2[..., 0] - d1[..., 0] * d2[..., 2]
-    n[..., 2] = d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]
-    norm = np.sqrt(n[..., 0] ** 2 + n[..., 1] ** 2 + n[..., 2] ** 2)
-    return np.asarray(n / np.maximum(norm, 1e-300)[..., None])
-
-
-def hexahedron_overlap(pa: FloatArray, pb: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Overlap depth and push axis of hexahedron pairs (separating axes: the 12 face normals).
-
-    Parameters
-    ----------
-    pa, pb : (k, 8, 3) float, mm
-        Convex hexahedra (tiles).
-
-    Returns
-    -------
-    depth : (k,) float, mm
-        Smallest projection overlap over the 12 axes; ``<= 0`` when a face plane separates them.
-        Without the edge-edge axes this is an upper bound of the true penetration depth.
-    axis : (k, 3) float
-        Unit axis of that overlap, pointing from ``pa`` towards ``pb``.
-    """
-    axes = np.concatenate([_face_normals(pa), _face_normals(pb)], axis=1)  # (k, 12, 3)
-    axes_t = axes.transpose(0, 2, 1)
-    proj_a = np.matmul(pa, axes_t)  # (k, 8, 12); reduce over the strided vertex axis (fast)
-    proj_b = np.matmul(pb, axes_t)
-    over_pos = proj_a.max(axis=1) - proj_b.min(axis=1)
-    over_neg = proj_b.max(axis=1) - proj_a.min(axis=1)
-    use_pos = over_pos <= over_neg
-    overlap = np.where(use_pos, over_pos, over_neg)
-    best = np.argmin(overlap, axis=1)
-    k = np.arange(len(pa))
-    sign = np.where(use_pos[k, best], 1.0, -1.0)
-    return np.asarray(overlap[k, best]), np.asarray(axes[k, best] * sign[:, None])
-
-
-def neighbour_tile_pairs(linkage: Linkage) -> IntArray:
-    """Tile pairs whose grid cells share an edge or a vertex (candidate contacts).
-
-    Returns
-    -------
-    (k, 2) int, ``a < b``.
-    """
-    cells = linkage.tile_cells
-    index = {(int(i), int(j)): t for t, (i, j) in enumerate(cells)}
-    pairs = []
-    for t, (i, j) in enumerate(cells):
-        for di, dj in ((1, 0), (0, 1), (1, 1), (1, -1)):
-            other = index.get((int(i) + di, int(j) + dj))
-            if other is not None:
-                pairs.append((min(t, other), max(t, other)))
-    return np.array(sorted(set(pairs)), dtype=np.int64).reshape(-1, 2)
-
-
-def max_penetration(tiles: FloatArray, pairs: IntArray) -> float:
-    """Largest conservative overlap depth (mm) over the given tile pairs (0 when none overlap).
-
-    Parameters
-    ----------
-    tiles : (T, 8, 3) float, mm
-    pairs : (k, 2) int
-    """
-    if len(pairs) == 0:
-        return 0.0
-    depth, _ = hexahedron_overlap(tiles[pairs[:, 0]], tiles[pairs[:, 1]])
-    return float(max(depth.max(), 0.0))
-
-
-# --------------------------------------------------------------------------------------------
-# Route, hinges and lift targets as simulation inputs
-# --------------------------------------------------------------------------------------------
-
-
-def route_snap_pairs(
-    route: Sequence[tuple[int, int, int, int]] | ArrayLike,
-) -> tuple[IntArray, IntArray]:
-    """Contact pairs the string pulls together, from a closed route.
-
-    Step ``i`` is ``(gap, tile, enter_side, leave_side)``: the string crosses ``gap`` (``-1``: a
-    virtual entrance) to enter ``tile`` through ``enter_side`` and leaves it through
-    ``leave_side``.  Consecutive steps ``i, i + 1`` (cyclically) give the pair
-    ``(tile_i, leave_side_i, tile_{i+1}, enter_side_{i+1})`` across ``gap_{i+1}``.  Steps that
-    stay on the same tile are skipped.
-
-    Returns
-    -------
-    pairs : (P, 4) int
-        ``(tile_a, side_a, tile_b, side_b)``.
-    gaps : (P,) int
-        Gap crossed by each pair (``-1`` for virtual entrances).
-    """
-    steps = np.asarray(route, dtype=np.int64).reshape(-1, 4)
-    if len(steps) < 2:
-        raise InputError("a route needs at least two steps; pass the closed string route")
-    nxt = np.roll(steps, -1, axis=0)
-    keep = steps[:, 1] != nxt[:, 1]
-    pairs = np.stack([steps[:, 1], steps[:, 3], nxt[:, 1], nxt[:, 2]], axis=1)[keep]
-    return pairs.astype(np.int64), nxt[keep, 0].astype(np.int64)
-
-
-def hinge_vertex_pairs(linkage: Linkage, hinge_side: Sequence[str] | None = None) -> IntArray:
-    """Vertex ids ``tile * 8 + vertex`` joined by every hinge.
-
-    Parameters
-    ----------
-    linkage : topology; hinge rows ``(tile_a, corner_a, tile_b, corner_b)``.
-    hinge_side : (H,) ``"top"`` | ``"bottom"``; default all ``"top"``.  A top hinge at corner
-        ``c`` joins vertex ``c``; a bottom hinge joins vertex ``4 + c``.
-
-    Returns
-    -------
-    (H, 2) int
-    """
-    h = linkage.hinges
-    sides = ["top"] * len(h) if hinge_side is None else list(hinge_side)
-    if len(sides) != len(h) or any(s not in ("top", "bottom") for s in sides):
-        raise InputError("hinge_side must list 'top' or 'bottom' for every hinge")
-    off = np.array([0 if s == "top" else 4 for s in sides], dtype=np.int64)
-    return np.stack([h[:, 0] * 8 + h[:, 1] + off, h[:, 2] * 8 + h[:, 3] + off], axis=1)
-
-
-def lift_targets_for_gaps(
-    linkage: Linkage, tiles_assembled: FloatArray, lift_gaps: ArrayLike
-) -> tuple[IntArray, FloatArray]:
-    """Lift vertices and targets: the top corners around each lift gap and their T3D positions.
-
-    Parameters
-    ----------
-    linkage : topology.
-    tiles_assembled : (T, 8, 3) float, mm
-    lift_gaps : (L,) int, gap ids.
-
-    Returns
-    -------
-    vertices : (k,) int, ``tile * 8 + corner``.
-    targets : (k, 3) float, mm, in the frame of ``tiles_assembled``.
-    """
-    verts: list[int] = []
-    for g in np.asarray(lift_gaps, dtype=np.int64).reshape(-1):
-        if not 0 <= g < linkage.n_gaps:
-            raise InputError(f"lift gap {g} does not exist; the linkage has {linkage.n_gaps}")
-        gv = linkage.gap_vertex[g]
-        for t in linkage.gap_tiles(int(g)):
-            for c in np.flatnonzero(linkage.tile_corners[t] == gv):
-                verts.append(int(t) * 8 + int(c))
-    v = np.unique(np.array(verts, dtype=np.int64))
-    return v, np.asarray(tiles_assembled.reshape(-1, 3)[v], dtype=np.float64)
-
-
-def place_on_table(tiles_assembled: FloatArray, tiles_flat: FloatArray) -> FloatArray:
-    """Rigid map of the assembled tiles onto the table under the flat layout.
-
-    Rotation about z and translation in xy from a 2D Kabsch fit of the tile centroids (top view),
-    then a vertical shift so the lowest vertex sits on the flat layout's lowest level.
-
-    Returns
-    -------
-    (4, 4) float, homogeneous transform.
-    """
-    c3 = tiles_assembled.mean(axis=1)
-    c2 = tiles_flat.mean(axis=1)
-    rot2, t2 = _kabsch(c3[:, :2], c2[:, :2])
-    mat = np.eye(4)
-    mat[:2, :2] = rot2
-    mat[:2, 3] = t2
-    z_low = tiles_assembled[..., 2].min()
-    mat[2, 3] = tiles_flat[..., 2].min() - z_low
-    return mat
-
-
-def _apply(mat: FloatArray, pts: FloatArray) -> FloatArray:
-    return np.asarray(pts @ mat[:3, :3].T + mat[:3, 3])
-
-
-# --------------------------------------------------------------------------------------------
-# Constraint groups of the simulation
-# --------------------------------------------------------------------------------------------
+__all__ = [
+    "FaceContact",
+    "FaceSnap",
+    "Inertia",
+    "MovingTargets",
+    "PointCoincidence",
+    "RigidShape",
+    "SnapMode",
+    "best_rotations",
+]
 
 
 class Inertia(ConstraintGroup):
@@ -588,50 +315,6 @@ class RigidShape(ConstraintGroup):
         return np.asarray((np.matmul(self.rest, rot) + centre).reshape(-1, 3))
 
 
-def contact_face_pairs(linkage: Linkage) -> IntArray:
-    """Side faces of grid-neighbour tiles that touch in the assembled state.
-
-    Tiles in cells ``(i, j)`` and ``(i + 1, j)`` meet with sides 1 and 3, tiles in ``(i, j)``
-    and ``(i, j + 1)`` with sides 2 and 0.  Only hinged neighbours are listed: across a split
-    line the two parts may lie anywhere in the flat layout, where a face half-space would be
-    meaningless (the string's snap pairs bring them together).
-
-    Returns
-    -------
-    (k, 4) int, ``(tile_a, side_a, tile_b, side_b)``.
-    """
-    return _neighbour_sides(linkage, hinged=True)
-
-
-def split_contact_pairs(linkage: Linkage) -> IntArray:
-    """Side faces of edge-neighbour tiles that touch across a split (no hinge joins them).
-
-    Same orientation as :func:`contact_face_pairs`: cells ``(i, j)`` and ``(i + 1, j)`` give
-    ``(a, 1, b, 3)``, cells ``(i, j)`` and ``(i, j + 1)`` give ``(a, 2, b, 0)``.
-
-    Returns
-    -------
-    (k, 4) int, ``(tile_a, side_a, tile_b, side_b)``.
-    """
-    return _neighbour_sides(linkage, hinged=False)
-
-
-def _neighbour_sides(linkage: Linkage, *, hinged: bool) -> IntArray:
-    """``(tile_a, side_a, tile_b, side_b)`` of the edge-neighbour tiles that a hinge joins
-    (``hinged``) or that a split separates: cells ``(i, j)``, ``(i + 1, j)`` meet with sides 1
-    and 3, cells ``(i, j)``, ``(i, j + 1)`` with sides 2 and 0."""
-    cells = linkage.tile_cells
-    index = {(int(i), int(j)): t for t, (i, j) in enumerate(cells)}
-    joined = {(int(min(a, b)), int(max(a, b))) for a, _, b, _ in linkage.hinges}
-    out = []
-    for t, (i, j) in enumerate(cells):
-        for (di, dj), sides in (((1, 0), (1, 3)), ((0, 1), (2, 0))):
-            other = index.get((int(i) + di, int(j) + dj))
-            if other is not None and ((min(t, other), max(t, other)) in joined) == hinged:
-                out.append((t, sides[0], other, sides[1]))
-    return np.array(out, dtype=np.int64).reshape(-1, 4)
-
-
 def _side_normals(tiles: FloatArray, tile: IntArray, side: IntArray) -> FloatArray:
     """Unit normals ``(k, 3)`` of side faces, pointing into their tiles."""
     face = tiles[tile[:, None], SIDE_FACES[side]]  # (k, 4, 3)
@@ -651,7 +334,7 @@ class FaceContact(ConstraintGroup):
 
     Parameters
     ----------
-    pairs : (k, 4) int, ``(tile_a, side_a, tile_b, side_b)`` (:func:`contact_face_pairs`).
+    pairs : (k, 4) int, ``(tile_a, side_a, tile_b, side_b)`` (:func:`~.inputs.contact_face_pairs`).
     """
 
     def __init__(

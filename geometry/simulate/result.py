@@ -19,9 +19,8 @@ from drawstring.geometry.core.tolerances import (
     SIM_PENETRATION_REL,
     SIM_STILL_REL,
 )
+from drawstring.geometry.core.types import FloatArray
 from drawstring.geometry.simulate.groups import SnapMode
-
-FloatArray = NDArray[np.float64]
 
 __all__ = [
     "SimulationResult",
