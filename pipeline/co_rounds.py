@@ -4,9 +4,9 @@
 flat tiles become congruent to the assembled ones (the joint solve,
 :func:`~drawstring.geometry.flat.coflat.co_optimize_top`), extrudes the tiles again under the moved
 top and solves the flat layout again with its true bounds (:func:`flat_layout`), for up to
-:data:`CO_REFINEMENTS` more rounds.  :class:`RoundJudge` decides when the rounds stop.  The
-layout stage (:mod:`~drawstring.pipeline.layout_stage`) runs it, through the ladder of
-conical weights (:mod:`~drawstring.pipeline.co_ladder`).
+:attr:`~.policy.LayoutPolicy.co_refinements` more rounds.  :class:`RoundJudge` decides when
+the rounds stop.  The layout stage (:mod:`~drawstring.pipeline.layout_stage`) runs it, through
+the ladder of conical weights (:mod:`~drawstring.pipeline.co_ladder`).
 """
 
 from __future__ import annotations
@@ -36,19 +36,12 @@ from drawstring.geometry.solve.solver import LinearPull
 from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling, component_flattenings
 from drawstring.geometry.tiling.linkage import Linkage
+from drawstring.pipeline.policy import DEFAULT_POLICY, LayoutPolicy
 from drawstring.pipeline.record import ResolvedOptions
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
-    "CO_GIVE_UP_RATIO",
-    "CO_REFINEMENTS",
-    "CO_SLOW_REACH",
-    "CO_STALL_GAIN",
-    "CO_STOP_NEAR",
-    "CO_STOP_NEAR_CONICAL",
-    "CO_STOP_RATIO",
-    "CO_STOP_SHARE",
     "RoundJudge",
     "co_optimized",
     "depth_pull",
@@ -65,55 +58,11 @@ def depth_pull(shape: AssembledResult, linkage: Linkage, bottom: NDArray[np.bool
     return hinge_depth_pull(shape, vertex, hinges[:, 0], hinges[:, 2])
 
 
-#: Extra rounds of :func:`co_optimized` on the extruded T3D when re-solving the flat layout
-#: with its true bounds loses most of what the joint solve gained.  Each round shrinks the error
-#: by about 3x where it converges (peanut at 200 tiles: 0.03, 0.01, 3e-3, 1e-3, 4e-4 mm);
-#: two rounds in a row without a new best stop it, and so do the stop rules below, so more
-#: rounds run only where the error is still above them.  At 4 the 200-tile seashell's two
-#: parts ended at 1.2e-3 mm (met through the hinge layout, 4.2e-4 mm), and with numpy's AVX2
-#: kernels instead of AVX-512 (other last bits) at 2.3e-3 mm, a miss (3.1e-3 mm measured);
-#: at 7 they reach 3.1e-4 and 6.0e-4 mm, and every 200-tile row meets the targets with
-#: either kernel set.
-CO_REFINEMENTS = 7
-#: :func:`co_optimized` stops when the re-solved flat layout's edge error is within this share
-#: of the tolerance, or within the tolerance and this ratio of the joint solve's.  At 0.1 the
-#: 200-tile saddle ran a third round from 1.1e-4 mm, and the 1600-tile wave ran on to 4e-5 mm
-#: and then missed by one hinge (2.1e-3 mm) in the rigid hinge layout; at 0.3 they stop at
-#: 7.9e-5 and 1.8e-4 mm and their hinges meet within 2.1e-4 mm (the other 200-tile rows,
-#: both hinge strategies, and the 1600-tile dome are unchanged).
-CO_STOP_SHARE = 0.3
-CO_STOP_RATIO = 10.0
-#: ... (that second rule only within this share of the tolerance: the hinge layout can add to
-#: a re-solve that ends near the tolerance; the CLI-default three-shell with dual hinges
-#: stopped at 8.4e-4 mm and ended at 1.1e-3 mm, exit 4; with one more round, 8.3e-5 mm)
-CO_STOP_NEAR = 0.6
-#: The same with bottom hinges, whose rounds pull the bottom corners to equal depths (see
-#: co_optimized): the re-solve then follows the moved hinge points, and rounds stopped at 0.6
-#: left the 200-tile cloud's hinged layout at 9.9e-4 mm; 0.35 leaves it at 5.8e-4.
-CO_STOP_NEAR_CONICAL = 0.35
-#: ... and once a re-solve within ``CO_STOP_NEAR`` (``CO_STOP_NEAR_CONICAL``) of the
-#: tolerance gains less than this factor on the best before it: the 200-tile seashell's
-#: one-part tiling went 0.85, 0.68, 0.65, 0.67, 0.67 um (its joint solves 7e-5 .. 8e-6 mm)
-#: where released ends had taken its window drift away.  Within the whole tolerance, the
-#: 200-tile wave (AVX-512 kernels) stopped at 9.4e-4 mm, and its hinge layout missed at
-#: 1.2e-3 mm; within 0.6 of it, it goes on to 3.8e-4 mm, its hinges 4.9e-4 mm.
-CO_STALL_GAIN = 0.9
-#: A tiling that may still be split (``give_up_slow``) stops co-optimizing when, shrinking at
-#: the rate of its last round for the rounds left, its re-solved error would stay above this
-#: many times the tolerance (the rigid hinge layout takes off about 4x: 200-tile seashell
-#: 2e-3 -> 4.9e-4 mm).  The 200-tile seashell's first tiling (0.052, 0.039, 0.032, 0.012,
-#: 0.025 mm) and the one-part chair's (0.29, 0.42, 2.9 mm) were split in the end; the peanut's
-#: (0.031, 0.010, 3.1e-3, 1.1e-3, 3.4e-4 mm) goes on.
-CO_SLOW_REACH = 4.0
-#: ... and gives up after its first round when that re-solve is this many times worse than
-#: the plain layout.  Runs that never recovered: 200-tile wave 130x (1.55 mm against 0.012),
-#: one-part chair 6.5x, 1600-tile wave 9x; one that did: the 200-tile wave holding the eq.-1
-#: openings, 2.8x (0.032 mm, then 2.3e-3, 2e-4, 9e-5).
-CO_GIVE_UP_RATIO = 5.0
-
-
 def too_slow(
-    previous_mm: float, error_mm: float, rounds_left: int, reach: float = CO_SLOW_REACH
+    previous_mm: float,
+    error_mm: float,
+    rounds_left: int,
+    reach: float = DEFAULT_POLICY.co_slow_reach,
 ) -> bool:
     """Whether co-optimization rounds that took the re-solved edge error from ``previous_mm``
     to ``error_mm`` would, at that rate for ``rounds_left`` more rounds, still end above
@@ -133,12 +82,14 @@ class RoundJudge:
     plain_mm : the plain layout's flat edge error (the result must beat it to be used).
     conical : the rounds make the bottom hinges meet in depth too (see :func:`co_optimized`).
     give_up_slow : stop when the rounds shrink the error too slowly to reach the tolerance
-        (:data:`CO_SLOW_REACH`); ``cut_short`` then says so.
+        (``policy.co_slow_reach``); ``cut_short`` then says so.
+    policy : the stop rules' thresholds (:class:`~.policy.LayoutPolicy`).
     """
 
     plain_mm: float
     conical: bool = False
     give_up_slow: bool = False
+    policy: LayoutPolicy = DEFAULT_POLICY
     best_mm: float = math.inf
     #: rounds in a row below neither the best round nor the plain layout
     worse: int = 0
@@ -157,7 +108,8 @@ class RoundJudge:
         if progress:
             self.best_mm = error_mm
         self.worse = 0 if progress and error_mm < self.plain_mm else self.worse + 1
-        stop_near = CO_STOP_NEAR_CONICAL if self.conical else CO_STOP_NEAR
+        policy = self.policy
+        stop_near = policy.co_stop_near_conical if self.conical else policy.co_stop_near
         # Stop once the re-solve is well inside the tolerance, or within the tolerance and
         # close to what the joint solve reached (more rounds would not gain much).  A re-solve
         # that misses the tolerance goes on even when it is close to a poor joint solve: the
@@ -165,12 +117,12 @@ class RoundJudge:
         # (7.3e-4 mm) where it stopped at 3.2e-3 mm and was split once more.
         if (
             self.worse >= 2
-            or (first_round and error_mm > CO_GIVE_UP_RATIO * self.plain_mm)
-            or error_mm <= CO_STOP_SHARE * FLAT_EDGE_ERROR_TOL_MM
-            or error_mm <= min(stop_near * FLAT_EDGE_ERROR_TOL_MM, CO_STOP_RATIO * joint_mm)
+            or (first_round and error_mm > policy.co_give_up_ratio * self.plain_mm)
+            or error_mm <= policy.co_stop_share * FLAT_EDGE_ERROR_TOL_MM
+            or error_mm <= min(stop_near * FLAT_EDGE_ERROR_TOL_MM, policy.co_stop_ratio * joint_mm)
             or (
                 error_mm <= stop_near * FLAT_EDGE_ERROR_TOL_MM
-                and error_mm > CO_STALL_GAIN * best_before
+                and error_mm > policy.co_stall_gain * best_before
             )
         ):
             return progress, True
@@ -181,8 +133,12 @@ class RoundJudge:
         # (plain 0.117), and given up at once it kept a 0.032 mm hinge gap in depth; judged
         # by the next rounds it meets its hinges in 3D (3.8e-4 mm).
         judged = (progress and error_mm < previous) or not self.conical
-        left = CO_REFINEMENTS + 1 - self.rounds
-        if self.give_up_slow and judged and too_slow(previous, error_mm, left):
+        left = policy.co_refinements + 1 - self.rounds
+        if (
+            self.give_up_slow
+            and judged
+            and too_slow(previous, error_mm, left, policy.co_slow_reach)
+        ):
             self.cut_short = True
             return progress, True
         if self.conical and judged and too_slow(previous, error_mm, left, reach=1.0):
@@ -235,6 +191,7 @@ def co_optimized(
     conical: bool = False,
     conical_weight: float | None = None,
     between_rounds: Callable[[], None] | None = None,
+    policy: LayoutPolicy = DEFAULT_POLICY,
 ) -> tuple[AssembledResult, FlatResult, dict[str, Any]]:
     """K3D and K2D moved together so the flat tiles are congruent to the assembled ones
     (:func:`~drawstring.geometry.flat.coflat.co_optimize_top`; with ``faces``, at their hinge points
@@ -245,13 +202,13 @@ def co_optimized(
     layout keeps every hard bound; otherwise the inputs come back unchanged with the reason
     (at once when round 1's joint solve ends no lower than the plain layout).
     With ``give_up_slow`` the rounds stop early when they converge too slowly to reach the
-    tolerance (:data:`CO_SLOW_REACH`; the block then says ``cut_short``).  ``first_solves``
+    tolerance (``policy.co_slow_reach``; the block then says ``cut_short``).  ``first_solves``
     keeps the first joint solve, which runs on the eq.-1 tiles and openings either way, for
     another call on the same inputs (the held-openings run after a tracked one).  With
     ``conical`` (``faces`` with bottom hinges) every joint solve also makes K3D conical and
     every round pulls the bottom hinges' corners to equal depths under both their tiles'
     top faces (:func:`depth_pull`), so that those corners meet in 3D, not only seen from
-    above; the rounds then stop only within ``CO_STOP_NEAR_CONICAL`` of the tolerance.
+    above; the rounds then stop only within ``policy.co_stop_near_conical`` of the tolerance.
     ``conical_weight`` replaces ``coflat.CO_CONICAL``, the weight of that condition.
     ``between_rounds`` is called after every round that does not end the run (the ladder
     starts work ahead there once a core is spare, :meth:`~.co_ladder.CoLadder.poll`)."""
@@ -289,12 +246,14 @@ def co_optimized(
     # 200-tile seashell's two parts stalled at 1.5e-3 mm and it was split into four, where now
     # two meet 4e-4 mm.
     block: dict[str, Any] = {"accepted": False, "reason": "", "steps": 0}
-    judge = RoundJudge(flat.edge_error_max_mm, conical=conical, give_up_slow=give_up_slow)
+    judge = RoundJudge(
+        flat.edge_error_max_mm, conical=conical, give_up_slow=give_up_slow, policy=policy
+    )
 
     current, nodes = assembled, None
     rounds: list[tuple[tuple[float, float], ...]] = [CO_STAGES, CO_STAGES[-1:]]
     best: tuple[AssembledResult, FlatResult] | None = None
-    for _ in range(CO_REFINEMENTS + 1):
+    for _ in range(policy.co_refinements + 1):
         for stages in rounds:
             first = current is assembled  # round 1's first joint solve: the eq.-1 inputs
             if first and first_solves is not None and "eq1" in first_solves:

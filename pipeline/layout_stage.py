@@ -3,7 +3,8 @@
 :func:`shape_and_layout` tiles the flattened target, shapes the assembled tiles (paper eq. 1
 and extrusion), lays them flat, co-optimizes both (:func:`~.co_rounds.co_optimized`) and
 places the hinges; where the flat tiles then miss their hinges by more than the targets it
-tiles again with tighter splits (:data:`RETILE_ATTEMPTS`) and keeps the most accurate result.
+tiles again with tighter splits (:attr:`~.policy.LayoutPolicy.retile_attempts`) and keeps the
+most accurate result.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from drawstring.geometry.core.tolerances import (
     HINGE_GAP_TOL_MM,
 )
 from drawstring.geometry.flat import verify
-from drawstring.geometry.flat.coflat import CO_CONICAL, CoOptimizedTop
+from drawstring.geometry.flat.coflat import CoOptimizedTop
 from drawstring.geometry.flat.layout import FlatResult, extrude_flat
 from drawstring.geometry.flat.pose import HingeFaces
 from drawstring.geometry.flatten.conformal import Flattening
@@ -37,7 +38,8 @@ from drawstring.geometry.tiling.grid import Tiling, tile_surface
 from drawstring.geometry.tiling.linkage import Linkage
 from drawstring.pipeline.ahead import Ahead as _Ahead
 from drawstring.pipeline.co_ladder import CoLadder
-from drawstring.pipeline.co_rounds import CO_SLOW_REACH, co_optimized, depth_pull, flat_layout
+from drawstring.pipeline.co_rounds import co_optimized, depth_pull, flat_layout
+from drawstring.pipeline.policy import LayoutPolicy
 from drawstring.pipeline.record import Progress, ResolvedOptions
 
 logger = logging.getLogger(__name__)
@@ -63,40 +65,6 @@ def absorbable_ratio(min_gap_angle_deg: float) -> float:
     """``2 / (1 + sin(theta_min))``: the largest tile area ratio gaps opening between
     ``min_gap_angle_deg`` and 90 degrees can absorb (see :func:`split_bound`)."""
     return 2.0 / (1.0 + math.sin(math.radians(min_gap_angle_deg)))
-
-
-#: Extra tilings tried, each with a tighter split bound, when the flat layout misses its
-#: accuracy targets (flat edge error or hinge gap above 1e-3 mm).  The scale bound of
-#: a split is necessary, not sufficient: a part whose area scale varies within it can still
-#: leave the tiles no flat layout that keeps their shape (the 200-tile chair: one part of
-#: ratio 1.55 < 1.66, 0.5 mm off; two parts of ratio 1.15, 1.5e-4 mm).
-RETILE_ATTEMPTS = 2
-
-#: Each extra tiling keeps this share of the current largest part ratio's excess over 1.
-RETILE_SHRINK = 0.7
-
-#: Tiling again is tried only when the first tiling's largest part ratio uses at least this
-#: share of the bound's excess over 1 (of the 0.66 at 12 deg: 200-tile chair 0.84, seashell
-#: 0.58; the 1600-tile wave, whose miss has another cause, 0.05).
-RETILE_MIN_SHARE = 0.5
-
-#: A first tiling that may still be split is co-optimized with the first conical weight
-#: alone at first; where that misses the flat targets, the first tighter tiling is laid out
-#: (ahead, where a core is spare) and kept if it meets every accuracy target, before the
-#: first tiling's further weights and its run without the condition are tried.  Those meet
-#: the targets, where they do, only by the last bits of the arithmetic (see
-#: ``co_ladder.CONICAL_RETRY_WEIGHTS``) or with the bottom hinges apart in depth; a split
-#: that meets them with the first weight is the sounder design, at the cost of a part.
-#: Where the split misses, the first tiling's ladder goes on from its next step.  The
-#: 200-tile seashell in one part missed with weight 3 (2.9e-3 mm), then weight 10 (3.3e-3 mm)
-#: and then its hinges in depth (0.011 mm) without the condition, where its two parts meet
-#: the targets (8.3e-4 mm): 3.0 s of layout, 1.9 s now (the same design).
-PREFER_SPLIT_AT_FIRST_WEIGHT = True
-
-#: A tighter tiling is kept only when it at least halves the accuracy figure or meets the
-#: accuracy targets (more parts cost a longer route and more assembly, so a marginal gain that
-#: still misses them does not pay for them); one that does neither ends the search.
-RETILE_GAIN = 0.5
 
 
 @dataclass(frozen=True)
@@ -153,11 +121,16 @@ MeshKey = tuple[tuple[int, ...], bytes, tuple[int, ...], bytes]
 
 
 def shape_and_layout(
-    loaded: Target, flat_map: Flattening, options: ResolvedOptions, progress: Progress
+    loaded: Target,
+    flat_map: Flattening,
+    options: ResolvedOptions,
+    progress: Progress,
+    *,
+    policy: LayoutPolicy,
 ) -> ShapedLayout:
     """Tile, shape and lay out the target (stages tiling to hinges), tiling again with a
-    tighter split bound (:data:`RETILE_ATTEMPTS`) while the layout misses its accuracy
-    targets; the most accurate result is kept (see :data:`RETILE_GAIN`)."""
+    tighter split bound (``policy.retile_attempts``) while the layout misses its accuracy
+    targets; the most accurate result is kept (see ``policy.retile_gain``)."""
 
     def tiled(bound: float) -> Tiling:
         with progress.stage("tiling"):
@@ -175,28 +148,33 @@ def shape_and_layout(
     shapes: dict[MeshKey, AssembledResult] = {}
     bound = split_bound(options)
     first_tiling = tiled(bound)
-    if first_tiling.scale_factor_max - 1.0 < RETILE_MIN_SHARE * (bound - 1.0):
+    if first_tiling.scale_factor_max - 1.0 < policy.retile_min_share * (bound - 1.0):
         # its area scale hardly varies: more splits are not what it lacks
-        return _shaped(first_tiling, bound, loaded, options, progress, shapes, spare_core=True)
+        return _shaped(
+            first_tiling, bound, loaded, options, progress, shapes, policy=policy, spare_core=True
+        )
     # A tiling that may be split again goes without the held-openings fallback: its
     # co-optimization is refused for its area scale, which more splits mend (the 200-tile
     # chair in one part: the fallback took 4.5 s and still missed by 0.2 mm).  It runs after
     # all if the first tiling is the one kept.
     ahead: _Ahead[ShapedLayout] | None = None
     prepared: Tiling | None = None  # the first tighter tiling, when tiled ahead of the loop
-    if RETILE_AHEAD and _can_fork() and RETILE_ATTEMPTS > 0:
+    if policy.retile_ahead and _can_fork() and policy.retile_attempts > 0:
         # The first tighter tiling, which the loop below lays out if the first tiling misses,
         # is laid out meanwhile in a second process (the 200-tile seashell and chair).
-        next_bound = _tighter(bound, first_tiling)
+        next_bound = _tighter(bound, first_tiling, policy)
         prepared = next_tiling = tiled(next_bound)
         if not _same_parts(next_tiling, first_tiling):
             _assembled_shape(first_tiling, loaded, options, progress, shapes)  # shared by both
 
             def work(child_progress: Progress) -> ShapedLayout:
-                return _shaped(next_tiling, next_bound, loaded, options, child_progress, shapes)
+                return _shaped(
+                    next_tiling, next_bound, loaded, options, child_progress, shapes,
+                    policy=policy,
+                )  # fmt: skip
 
             try:
-                ahead = _Ahead(work, "the tiling laid out ahead")
+                ahead = _Ahead(work, "the tiling laid out ahead", niceness=policy.ahead_niceness)
             except OSError as exc:  # no process to spare (fork refused): laid out in turn
                 logger.warning("could not lay the tighter tiling out ahead (%s)", exc)
     target = min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
@@ -205,14 +183,15 @@ def shape_and_layout(
     first: ShapedLayout | None = None
     try:
         first = _shaped(
-            first_tiling, bound, loaded, options, progress, shapes, fallback=False,
-            spare_core=ahead is None, core_freed=None if ahead is None else ahead.ready,
-            pause_after_miss=PREFER_SPLIT_AT_FIRST_WEIGHT and RETILE_ATTEMPTS > 0,
+            first_tiling, bound, loaded, options, progress, shapes, policy=policy,
+            fallback=False, spare_core=ahead is None,
+            core_freed=None if ahead is None else ahead.ready,
+            pause_after_miss=policy.prefer_split_at_first_weight and policy.retile_attempts > 0,
         )  # fmt: skip
         if first.unfinished:
             # Its first conical co-optimization missed the flat targets: the first tighter
             # tiling decides whether the first one's co-optimizations go on.
-            next_bound = _tighter(bound, first_tiling)
+            next_bound = _tighter(bound, first_tiling, policy)
             prepared = prepared if prepared is not None else tiled(next_bound)
             if not _same_parts(prepared, first_tiling):
                 assert first.paused is not None
@@ -222,12 +201,12 @@ def shape_and_layout(
                     # (a core is spare unless the paused ladder runs a step ahead on it)
                     laid_out = _shaped(
                         prepared, next_bound, loaded, options, progress, shapes,
-                        spare_core=not first.paused.ladder.running_ahead,
+                        policy=policy, spare_core=not first.paused.ladder.running_ahead,
                     )  # fmt: skip
                 if laid_out.accuracy_mm <= target:
                     note = (
                         f"tiling: with split bound {bound:.3g} ({_parts(first_tiling)}) the "
-                        f"conical co-optimization (weight {CO_CONICAL:g}) missed "
+                        f"conical co-optimization (weight {policy.conical_weights[0]:g}) missed "
                         f"({first.paused.ladder.missed}); tighter splits gave "
                         f"{_parts(prepared)} at bound {next_bound:.3g}: "
                         f"{laid_out.accuracy_mm:.2g} mm; kept {_parts(prepared)}, without "
@@ -235,16 +214,16 @@ def shape_and_layout(
                     )
                     return replace(laid_out, notes=(*laid_out.notes, note))
             first = _shaped(
-                first_tiling, bound, loaded, options, progress, shapes, fallback=False,
-                paused=first,
+                first_tiling, bound, loaded, options, progress, shapes, policy=policy,
+                fallback=False, paused=first,
             )  # fmt: skip
         best = first
         first_accuracy = best_accuracy = first.accuracy_mm
         tried: list[str] = []
-        for _ in range(RETILE_ATTEMPTS):
+        for _ in range(policy.retile_attempts):
             if best_accuracy <= target:
                 break
-            bound = _tighter(bound, best.tiling)
+            bound = _tighter(bound, best.tiling, policy)
             tiling = prepared if prepared is not None else tiled(bound)
             prepared = None
             trial, laid_out = laid_out, None  # laid out already (the first tighter tiling)
@@ -253,10 +232,13 @@ def shape_and_layout(
             if _same_parts(tiling, best.tiling):
                 break  # no further split keeps enough cells on each side
             if trial is None:
-                trial = _shaped(tiling, bound, loaded, options, progress, shapes, spare_core=True)
+                trial = _shaped(
+                    tiling, bound, loaded, options, progress, shapes, policy=policy,
+                    spare_core=True,
+                )  # fmt: skip
             accuracy = trial.accuracy_mm
             tried.append(f"{_parts(tiling)} at bound {bound:.3g}: {accuracy:.2g} mm")
-            if not (accuracy < RETILE_GAIN * best_accuracy or accuracy <= target):
+            if not (accuracy < policy.retile_gain * best_accuracy or accuracy <= target):
                 break  # splitting does not help this design (e.g. errors at split-line ends)
             best, best_accuracy = trial, accuracy
     finally:
@@ -267,8 +249,9 @@ def shape_and_layout(
     if best is first and first.fallback_skipped and first_accuracy > target:
         # kept after all: co-optimized in full, with the held-openings fallback
         best = first = _shaped(
-            first_tiling, first.split_bound, loaded, options, progress, shapes, spare_core=True
-        )
+            first_tiling, first.split_bound, loaded, options, progress, shapes, policy=policy,
+            spare_core=True,
+        )  # fmt: skip
     if not tried:
         return first
     outcome = f"kept {_parts(best.tiling)}" if best is not first else "kept the first tiling"
@@ -280,9 +263,9 @@ def shape_and_layout(
     return replace(best, notes=(*best.notes, note))
 
 
-def _tighter(bound: float, tiling: Tiling) -> float:
+def _tighter(bound: float, tiling: Tiling, policy: LayoutPolicy) -> float:
     """The split bound of the tiling tried after ``tiling`` (split with ``bound``)."""
-    return 1.0 + RETILE_SHRINK * (min(bound, tiling.scale_factor_max) - 1.0)
+    return 1.0 + policy.retile_shrink * (min(bound, tiling.scale_factor_max) - 1.0)
 
 
 def _parts(tiling: Tiling) -> str:
@@ -314,6 +297,7 @@ def _shaped(
     progress: Progress,
     shapes: dict[MeshKey, AssembledResult],
     *,
+    policy: LayoutPolicy,
     fallback: bool = True,
     spare_core: bool = False,
     core_freed: Callable[[], bool] | None = None,
@@ -351,34 +335,38 @@ def _shaped(
             if options.hinges == "dual"
             else None
         )
-        if faces is not None and HINGE_DEPTHS and faces.bottom.any():
+        if faces is not None and policy.hinge_depths and faces.bottom.any():
             assembled = _bottom_hinge_depths(assembled, linkage, faces.bottom, loaded)
             faces = dual_hinge_faces(linkage, assembled.tiles, options.min_gap_angle_deg)
         with progress.stage("flat"):
-            # only a seed when the co-optimization follows (FLAT_SEED_STEPS)
-            seed_steps = FLAT_SEED_STEPS if options.co_optimize else None
+            # only a seed when the co-optimization follows (policy.flat_seed_steps)
+            seed_steps = policy.flat_seed_steps if options.co_optimize else None
             flat = flat_layout(linkage, tiling, assembled, options, faces, seed_steps=seed_steps)
         if options.co_optimize:
             plain = (assembled, flat)
             # With bottom hinges the top is made conical too (their corners then meet in
             # depth); where that costs the flat layout its targets, it is co-optimized again
-            # with the next weight of the condition (CONICAL_RETRY_WEIGHTS), and after the
+            # with the next weight of the condition (policy.conical_weights), and after the
             # last without it (the face scan: 0.012 mm conical, within 1e-3 mm without).
             conical = (
-                HINGE_DEPTHS and CO_CONICAL > 0 and faces is not None and bool(faces.bottom.any())
+                policy.hinge_depths
+                and bool(policy.conical_weights)
+                and faces is not None
+                and bool(faces.bottom.any())
             )
             ladder = CoLadder(
                 lambda step: _co_optimized_with_fallback(
                     linkage, tiling, *plain, loaded, options, faces, fallback, *step,
-                    between_rounds=ladder.poll if ladder is not None else None,
+                    between_rounds=ladder.poll if ladder is not None else None, policy=policy,
                 ),
                 conical,
                 spare_core and _can_fork(),
                 core_freed if core_freed is not None and _can_fork() else None,
+                policy=policy,
             )  # fmt: skip
     if ladder is not None:
         with progress.stage("co-optimize"):
-            far = None if fallback else CO_SLOW_REACH * FLAT_EDGE_ERROR_TOL_MM
+            far = None if fallback else policy.co_slow_reach * FLAT_EDGE_ERROR_TOL_MM
             assembled, flat, co_block, skipped, note = ladder.run(far, pause_after_miss)
             if note:
                 notes.append(note)
@@ -390,7 +378,7 @@ def _shaped(
             )  # fmt: skip
         if not co_block["accepted"]:
             notes.append(f"co-optimization not used: {co_block['reason']}")
-            if flat.iterations >= FLAT_SEED_STEPS:
+            if flat.iterations >= policy.flat_seed_steps:
                 with progress.stage("flat"):  # the seed is the layout now: finish it
                     flat = flat_layout(
                         linkage, tiling, assembled, options, faces, initial_nodes=flat.nodes
@@ -398,10 +386,10 @@ def _shaped(
     else:
         co_block = {"accepted": False, "reason": "off (--no-co-optimize)"}
     hinge_layout: HingeLayout | None = None
-    if not fallback and flat.edge_error_max_mm > CO_SLOW_REACH * FLAT_EDGE_ERROR_TOL_MM:
+    if not fallback and flat.edge_error_max_mm > policy.co_slow_reach * FLAT_EDGE_ERROR_TOL_MM:
         # A tiling that may still be split skips the hinge stage when its flat layout is too
         # far off for the rigid hinge layout to reach the targets (it takes off about 4x, see
-        # CO_SLOW_REACH; on a layout this far off it can add: 200-tile seashell in one part,
+        # policy.co_slow_reach; on a layout this far off it can add: 200-tile seashell in one part,
         # 0.052 mm flat, 0.082 mm hinged): it is tiled again, and laid out in full if kept.
         skipped = True
     else:
@@ -421,11 +409,6 @@ def _shaped(
         notes=tuple(notes),
         fallback_skipped=skipped,
     )
-
-
-#: Pull the bottom hinges' corners to equal depths before the flat layout (dual hinges; see
-#: :func:`_bottom_hinge_depths`).
-HINGE_DEPTHS = True
 
 
 def _bottom_hinge_depths(
@@ -459,6 +442,7 @@ def _co_optimized_with_fallback(
     conical_weight: float | None = None,
     *,
     between_rounds: Callable[[], None] | None = None,
+    policy: LayoutPolicy,
 ) -> tuple[AssembledResult, FlatResult, dict[str, Any], bool]:
     """:func:`co_optimized` tracking the clear openings and, when that is refused and
     ``fallback`` (and not ``conical``: the caller tries that again otherwise), again holding the
@@ -468,7 +452,7 @@ def _co_optimized_with_fallback(
     new_assembled, new_flat, co_block = co_optimized(
         linkage, tiling, assembled, flat, loaded, options, faces, give_up_slow=not fallback,
         first_solves=first_solves, conical=conical, conical_weight=conical_weight,
-        between_rounds=between_rounds,
+        between_rounds=between_rounds, policy=policy,
     )  # fmt: skip
     refused = not co_block["accepted"] and faces is not None
     skipped = (refused and not fallback) or bool(co_block.get("cut_short"))
@@ -480,6 +464,7 @@ def _co_optimized_with_fallback(
         held = co_optimized(
             linkage, tiling, assembled, flat, loaded, options, faces, track_openings=False,
             first_solves=first_solves, conical=conical, between_rounds=between_rounds,
+            policy=policy,
         )  # fmt: skip
         if held[2]["accepted"]:
             new_assembled, new_flat = held[0], held[1]
@@ -519,17 +504,9 @@ def _assembled_shape(
         return shapes[key]
 
 
-#: Lay out the first tighter tiling in a second process while the first tiling is laid out
-#: (:class:`~drawstring.pipeline.ahead.Ahead`), where the machine has two cores or more
-#: and processes can be forked.
-#: Its result is the one the serial run would compute: it is used only if the first tiling
-#: misses the targets, and thrown away otherwise.
-RETILE_AHEAD = True
-
-
 def _can_fork() -> bool:
-    """Whether work may be run ahead in a forked child (a tiling, :data:`RETILE_AHEAD`; a
-    co-optimization, :data:`~.co_ladder.CO_SPECULATE`): two cores or more, Linux (forking a
+    """Whether work may be run ahead in a forked child (a tiling, ``policy.retile_ahead``; a
+    co-optimization, ``policy.co_speculate``): two cores or more, Linux (forking a
     process that has loaded macOS system frameworks is unsafe), and not inside a daemonic
     process (e.g. a ``multiprocessing`` pool worker: it may not fork)."""
     return (
@@ -538,18 +515,3 @@ def _can_fork() -> bool:
         and "fork" in multiprocessing.get_all_start_methods()
         and not multiprocessing.current_process().daemon
     )
-
-
-#: Gauss-Newton steps after which the flat layout that only seeds the co-optimization (which
-#: moves it anyway) stops, at the end of the first augmented-Lagrangian round whose bounds all
-#: hold (a seed that breaks them would make the co-optimization's "keeps every hard bound"
-#: test meaningless).  The 200-tile built-ins' plain layouts settle within 125 steps, both
-#: hinge strategies, except the three-shell's with dual hinges: its bounds hold after 120
-#: steps and it then polished its 0.27 mm least-squares optimum up to the 400-step cap
-#: (1.2 s); it now stops at 251 steps and still meets the targets (7 parts; flat edge error
-#: 6.2e-5 mm, was 5.7e-5; in-plane hinge gap 7.4e-4 mm as before).  The other fifteen rows
-#: are bitwise unchanged.  At 1600 tiles the wave's plain layout stops at 262 steps instead
-#: of 308, and its hinges meet within 1.9e-4 mm.  (Those step counts were measured before the
-#: flat solver's line search, with which the 1600-tile wave's seed settles after 113.)  Where
-#: the co-optimization is not used, the seed is finished.
-FLAT_SEED_STEPS = 150

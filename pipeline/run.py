@@ -30,6 +30,7 @@ from drawstring.geometry.tiling.grid import grid_shape_for, parts_in_place
 from drawstring.geometry.tiling.linkage import gap_centroids
 from drawstring.pipeline.layout_stage import fabricated_tiles, shape_and_layout
 from drawstring.pipeline.measure import cad_problems, cad_warnings, design_rigidity, measure_design
+from drawstring.pipeline.policy import DEFAULT_POLICY, LayoutPolicy
 from drawstring.pipeline.record import (
     Design,
     DesignOptions,
@@ -184,11 +185,13 @@ def design(
     *,
     quiet: bool = True,
     progress: Progress | None = None,
+    policy: LayoutPolicy = DEFAULT_POLICY,
 ) -> Design:
     """Run the design pipeline on a mesh path or built-in target name.
 
     BLAS runs on one thread meanwhile (:data:`BLAS_THREADS`), so the result does not depend on
-    the machine's core count.
+    the machine's core count.  ``policy`` steers the tiling ladder, the co-optimization and
+    the work run ahead (:class:`~drawstring.pipeline.policy.LayoutPolicy`).
 
     Raises
     ------
@@ -196,7 +199,7 @@ def design(
         For bad input (the CLI prints its one-line message and exits with status 2).
     """
     with threadpool_limits(limits=BLAS_THREADS, user_api="blas"):
-        return _design(target, options, quiet=quiet, progress=progress)
+        return _design(target, options, quiet=quiet, progress=progress, policy=policy)
 
 
 def _design(
@@ -205,6 +208,7 @@ def _design(
     *,
     quiet: bool,
     progress: Progress | None,
+    policy: LayoutPolicy,
 ) -> Design:
     options = options or DesignOptions()
     options.validate()
@@ -239,7 +243,7 @@ def _design(
         )
     check_grid(resolved, flat_map, from_profile=options.tiles is None and options.grid is None)
     try:
-        shaped = shape_and_layout(loaded, flat_map, resolved, progress)
+        shaped = shape_and_layout(loaded, flat_map, resolved, progress, policy=policy)
     except ThicknessError as exc:
         refusal = size_refusal(exc, resolved)
         if refusal is None:
