@@ -213,79 +213,19 @@ def co_optimized(
     ``between_rounds`` is called after every round that does not end the run (the ladder
     starts work ahead there once a core is spare, :meth:`~.co_ladder.CoLadder.poll`)."""
 
-    last: list[tuple[NDArray[np.float64], HingeFaces]] = []
-    # the openings of the last re-solved layout on its hinge faces, and the slit ends released
-    # from their clear windows so far (see HingeFaces.closing)
-    held: list[NDArray[np.float64]] = []
-    released = np.zeros(len(faces.clear_lo) if faces is not None else 0, dtype=bool)
-
-    def openings(tiles: NDArray[np.float64]) -> HingeFaces | None:
-        if faces is None or not track_openings:
-            return faces
-        # a round's joint solve starts on the tiles the previous re-solve was given
-        if not (last and np.array_equal(last[0][0], tiles)):
-            fresh = hinge_faces(linkage, tiles, faces.bottom)
-            if last and held:
-                # A window that closed on the opening laid out in it is released: the joint
-                # solve presses the opening against it, its move of K3D closes it further,
-                # and the re-solve has to give way every round.
-                released[:] |= last[0][1].closing(fresh, held[0])
-            fresh = replace(fresh, released=released.copy()) if released.any() else fresh
-            last[:] = [(tiles.copy(), fresh)]
-        return last[0][1]
-
-    # Round 1 runs the whole continuation. The bottom faces decide the bottom-face angle bounds,
-    # so round 2 repeats the last stage with T3D moved along with the new top (a translation of
-    # each bottom vertex with its top vertex is usually close enough for those bounds). T3D is
-    # then extruded under the new top and the flat layout re-solved with the true bounds; when
-    # that costs much of what the joint solve gained, the last stage runs once more on the
-    # extruded T3D, starting from the re-solved layout: it holds the extruded tiles' bounds
-    # already, so the joint solve need only correct it where the re-extrusion moved the hinge
-    # points (the bottom corners).  Started from the last joint solve's nodes instead, it had
-    # to undo that shift too and moved K3D further, which moved the bottom corners again: the
-    # 200-tile seashell's two parts stalled at 1.5e-3 mm and it was split into four, where now
-    # two meet 4e-4 mm.
+    openings = _Openings(linkage, faces, track_openings)
     block: dict[str, Any] = {"accepted": False, "reason": "", "steps": 0}
     judge = RoundJudge(
         flat.edge_error_max_mm, conical=conical, give_up_slow=give_up_slow, policy=policy
     )
-
     current, nodes = assembled, None
     rounds: list[tuple[tuple[float, float], ...]] = [CO_STAGES, CO_STAGES[-1:]]
     best: tuple[AssembledResult, FlatResult] | None = None
     for _ in range(policy.co_refinements + 1):
-        for stages in rounds:
-            first = current is assembled  # round 1's first joint solve: the eq.-1 inputs
-            if first and first_solves is not None and "eq1" in first_solves:
-                co = first_solves["eq1"]
-            else:
-                co = co_optimize_top(
-                    linkage,
-                    flat,
-                    current.top,
-                    current.quads,
-                    target.vertices,
-                    target.faces,
-                    tiles_3d=current.tiles,
-                    w_surface=options.weights[2],
-                    stages=stages,
-                    start_nodes=nodes,
-                    hinges=faces if first else openings(current.tiles),
-                    conical=conical,
-                    conical_weight=conical_weight,
-                )
-                if first and first_solves is not None:
-                    co.top.flags.writeable = co.nodes.flags.writeable = False  # shared
-                    first_solves["eq1"] = co
-            block["steps"] += co.steps
-            moved_bottom = current.bottom + (co.top - current.top)
-            current = replace(
-                current,
-                top=co.top,
-                bottom=moved_bottom,
-                tiles=tile_vertices(co.top, moved_bottom, current.quads),
-            )
-            nodes = co.nodes
+        current, co = _joint_round(
+            rounds, linkage, assembled, current, nodes, flat, target, options, openings,
+            first_solves, conical, conical_weight, block,
+        )  # fmt: skip
         if best is None and not co.edge_error_max_mm < flat.edge_error_max_mm:
             # The first round's joint solve, in its own model, ends above the plain layout:
             # the re-solve under the true bounds does no better (1600-tile wave, tracked
@@ -310,7 +250,7 @@ def co_optimized(
             return assembled, flat, block
         current = extruded
         new_flat = flat_layout(
-            linkage, tiling, current, options, openings(current.tiles), initial_nodes=nodes
+            linkage, tiling, current, options, openings(current.tiles), initial_nodes=co.nodes
         )
         # A round counts as progress only below both the best round and the plain layout:
         # the result must beat the plain layout to be used, and re-solves that stay above it
@@ -318,8 +258,7 @@ def co_optimized(
         # 1.9 mm against a plain 0.69 mm).
         error = new_flat.edge_error_max_mm
         nodes = new_flat.nodes
-        if new_flat.hinges is not None and track_openings:
-            held[:] = [hinge_face_openings(linkage, new_flat, current.tiles)]
+        openings.hold(new_flat, current.tiles)
         logger.info(
             "co-optimization round: joint %.3g mm, re-solved %.3g mm", co.edge_error_max_mm, error
         )
@@ -335,9 +274,135 @@ def co_optimized(
         block["cut_short"] = True
     # a refinement round can lose (its re-solve may settle elsewhere): keep the best round
     assert best is not None
+    return _verdict(assembled, flat, best, co, target, block)
+
+
+class _Openings:
+    """The hinge faces each solve of :func:`co_optimized` lays out on: ``faces`` as given,
+    or with ``track`` those of the current tiles (their clear openings), where the slit ends
+    whose windows closed on their openings are released (see ``HingeFaces.closing``).
+    Calling it with the tiles gives their faces."""
+
+    def __init__(self, linkage: Linkage, faces: HingeFaces | None, track: bool) -> None:
+        self._linkage, self._faces, self._track = linkage, faces, track
+        #: the tiles last given, and their faces
+        self._last: tuple[NDArray[np.float64], HingeFaces] | None = None
+        #: the openings of the last re-solved layout on its hinge faces
+        self._held: NDArray[np.float64] | None = None
+        #: the slit ends released from their clear windows so far
+        self._released = np.zeros(len(faces.clear_lo) if faces is not None else 0, dtype=bool)
+
+    def __call__(self, tiles: NDArray[np.float64]) -> HingeFaces | None:
+        faces = self._faces
+        if faces is None or not self._track:
+            return faces
+        last = self._last
+        # a round's joint solve starts on the tiles the previous re-solve was given
+        if last is None or not np.array_equal(last[0], tiles):
+            fresh = hinge_faces(self._linkage, tiles, faces.bottom)
+            if last is not None and self._held is not None:
+                # A window that closed on the opening laid out in it is released: the joint
+                # solve presses the opening against it, its move of K3D closes it further,
+                # and the re-solve has to give way every round.
+                self._released |= last[1].closing(fresh, self._held)
+            released = self._released
+            fresh = replace(fresh, released=released.copy()) if released.any() else fresh
+            self._last = last = (tiles.copy(), fresh)
+        return last[1]
+
+    @property
+    def faces_given(self) -> HingeFaces | None:
+        """The hinge faces of the eq.-1 tiles, as given."""
+        return self._faces
+
+    def hold(self, flat: FlatResult, tiles: NDArray[np.float64]) -> None:
+        """Keep the openings of the re-solved ``flat`` on its hinge faces (tracked faces)."""
+        if flat.hinges is not None and self._track:
+            self._held = hinge_face_openings(self._linkage, flat, tiles)
+
+
+def _joint_round(
+    rounds: list[tuple[tuple[float, float], ...]],
+    linkage: Linkage,
+    assembled: AssembledResult,
+    current: AssembledResult,
+    nodes: NDArray[np.float64] | None,
+    flat: FlatResult,
+    target: Target,
+    options: ResolvedOptions,
+    openings: _Openings,
+    first_solves: dict[str, CoOptimizedTop] | None,
+    conical: bool,
+    conical_weight: float | None,
+    block: dict[str, Any],
+) -> tuple[AssembledResult, CoOptimizedTop]:
+    """The joint solves of one round of :func:`co_optimized`, one per continuation schedule
+    in ``rounds``, each from the last: the moved assembled shape (T3D moved along with its new
+    top) and the last joint solve.  Their steps are added to ``block``.
+
+    Round 1 runs the whole continuation. The bottom faces decide the bottom-face angle bounds,
+    so round 2 repeats the last stage with T3D moved along with the new top (a translation of
+    each bottom vertex with its top vertex is usually close enough for those bounds). T3D is
+    then extruded under the new top and the flat layout re-solved with the true bounds; when
+    that costs much of what the joint solve gained, the last stage runs once more on the
+    extruded T3D, starting from the re-solved layout: it holds the extruded tiles' bounds
+    already, so the joint solve need only correct it where the re-extrusion moved the hinge
+    points (the bottom corners).  Started from the last joint solve's nodes instead, it had
+    to undo that shift too and moved K3D further, which moved the bottom corners again: the
+    200-tile seashell's two parts stalled at 1.5e-3 mm and it was split into four, where now
+    two meet 4e-4 mm.
+    """
+    co: CoOptimizedTop | None = None
+    for stages in rounds:
+        first = current is assembled  # round 1's first joint solve: the eq.-1 inputs
+        if first and first_solves is not None and "eq1" in first_solves:
+            co = first_solves["eq1"]
+        else:
+            co = co_optimize_top(
+                linkage,
+                flat,
+                current.top,
+                current.quads,
+                target.vertices,
+                target.faces,
+                tiles_3d=current.tiles,
+                w_surface=options.weights[2],
+                stages=stages,
+                start_nodes=nodes,
+                hinges=openings.faces_given if first else openings(current.tiles),
+                conical=conical,
+                conical_weight=conical_weight,
+            )
+            if first and first_solves is not None:
+                co.top.flags.writeable = co.nodes.flags.writeable = False  # shared
+                first_solves["eq1"] = co
+        block["steps"] += co.steps
+        moved_bottom = current.bottom + (co.top - current.top)
+        current = replace(
+            current,
+            top=co.top,
+            bottom=moved_bottom,
+            tiles=tile_vertices(co.top, moved_bottom, current.quads),
+        )
+        nodes = co.nodes
+    assert co is not None
+    return current, co
+
+
+def _verdict(
+    assembled: AssembledResult,
+    flat: FlatResult,
+    best: tuple[AssembledResult, FlatResult],
+    co: CoOptimizedTop,
+    target: Target,
+    block: dict[str, Any],
+) -> tuple[AssembledResult, FlatResult, dict[str, Any]]:
+    """:func:`co_optimized`'s outcome: the ``best`` round (measured) where it keeps every
+    tile's orientation and every hard bound of the plain ``flat`` layout and lowers its edge
+    error, else the inputs with the reason in ``block`` (``co``: the last joint solve)."""
     new_assembled, new_flat = best
-    if best[1].hinges is not None and best[1].hinges.released is not None:
-        block["released_ends"] = int(best[1].hinges.released.sum())
+    if new_flat.hinges is not None and new_flat.hinges.released is not None:
+        block["released_ends"] = int(new_flat.hinges.released.sum())
     block["move_max_mm"] = round(
         float(np.linalg.norm(new_assembled.top - assembled.top, axis=1).max()), 6
     )
@@ -348,21 +413,9 @@ def co_optimized(
         co.edge_error_max_mm,
         new_flat.edge_error_max_mm,
     )
-    # A tile is turned over when its top face turned by more than 90 deg from the eq.-1 shape.
-    # (Not the target-normal count ``flipped_tiles``: on a scan, the one closest triangle at a
-    # tile's centre can face another way; the scanned face had 1 such tile before and 2 after
-    # a co-optimization that turned no tile by more than 2.5 deg, and was wrongly refused.)
-    turned = int(
-        np.sum(
-            np.einsum(
-                "ki,ki->k",
-                quad_vector_areas(assembled.top, assembled.quads),
-                quad_vector_areas(new_assembled.top, new_assembled.quads),
-            )
-            <= 0
-        )
-    )
-    if new_assembled.metrics.get("corner_margin_min", 1.0) <= 0 or turned:
+    if new_assembled.metrics.get("corner_margin_min", 1.0) <= 0 or _turned_over(
+        assembled, new_assembled
+    ):
         block["reason"] = "the new assembled shape would fold a tile or turn one over"
         return assembled, flat, block
     hard = [p for p in new_flat.problems if "edge error" not in p]
@@ -378,3 +431,18 @@ def co_optimized(
         return assembled, flat, block
     block["accepted"] = True
     return remeasured(new_assembled, target.vertices, target.faces), new_flat, block
+
+
+def _turned_over(before: AssembledResult, after: AssembledResult) -> int:
+    """How many tiles turned over: their top face turned by more than 90 deg.
+
+    (Not the target-normal count ``flipped_tiles``: on a scan, the one closest triangle at a
+    tile's centre can face another way; the scanned face had 1 such tile before and 2 after
+    a co-optimization that turned no tile by more than 2.5 deg, and was wrongly refused.)
+    """
+    turns = np.einsum(
+        "ki,ki->k",
+        quad_vector_areas(before.top, before.quads),
+        quad_vector_areas(after.top, after.quads),
+    )
+    return int(np.sum(turns <= 0))
