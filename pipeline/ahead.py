@@ -15,6 +15,7 @@ import contextlib
 import logging
 import multiprocessing
 import os
+import sys
 import time
 from collections.abc import Callable
 from multiprocessing.connection import Connection
@@ -27,6 +28,20 @@ from drawstring.pipeline.record import Progress
 logger = logging.getLogger(__name__)
 
 T = TypeVar("T")
+
+
+def can_fork() -> bool:
+    """Whether work may be run ahead in a forked child (a tiling,
+    :attr:`~drawstring.pipeline.policy.LayoutPolicy.retile_ahead`; a co-optimization,
+    :attr:`~drawstring.pipeline.policy.LayoutPolicy.co_speculate`): two cores or more, Linux
+    (forking a process that has loaded macOS system frameworks is unsafe), and not inside a
+    daemonic process (e.g. a ``multiprocessing`` pool worker: it may not fork)."""
+    return (
+        sys.platform.startswith("linux")
+        and parallel.thread_count() >= 2
+        and "fork" in multiprocessing.get_all_start_methods()
+        and not multiprocessing.current_process().daemon
+    )
 
 
 class Ahead(Generic[T]):

@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import logging
 import math
-import multiprocessing
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
@@ -21,7 +19,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.geometry.assembled.shape import AssembledResult, optimize_assembled, reextrude
-from drawstring.geometry.core import parallel
 from drawstring.geometry.core.rigid import rigid_copies
 from drawstring.geometry.core.tolerances import (
     FLAT_EDGE_ERROR_TOL_MM,
@@ -37,6 +34,7 @@ from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling, tile_surface
 from drawstring.geometry.tiling.linkage import Linkage
 from drawstring.pipeline.ahead import Ahead as _Ahead
+from drawstring.pipeline.ahead import can_fork
 from drawstring.pipeline.co_ladder import CoLadder
 from drawstring.pipeline.co_rounds import co_optimized, depth_pull, flat_layout
 from drawstring.pipeline.policy import LayoutPolicy
@@ -131,136 +129,200 @@ def shape_and_layout(
     """Tile, shape and lay out the target (stages tiling to hinges), tiling again with a
     tighter split bound (``policy.retile_attempts``) while the layout misses its accuracy
     targets; the most accurate result is kept (see ``policy.retile_gain``)."""
-
-    def tiled(bound: float) -> Tiling:
-        with progress.stage("tiling"):
-            return tile_surface(
-                loaded.vertices,
-                loaded.faces,
-                flat_map.uv,
-                tiles=options.tiles,
-                grid=options.grid,
-                max_scale_factor=bound,
-            )
-
-    # Tighter split bounds cut the linkage but keep the quad mesh, so eq. 1 and the extrusion
-    # are solved once per distinct mesh (1-2 s each at 200 tiles; the chair re-tiles twice).
-    shapes: dict[MeshKey, AssembledResult] = {}
+    run = _Retiling(loaded, flat_map, options, progress, policy)
     bound = split_bound(options)
-    first_tiling = tiled(bound)
+    first_tiling = run.tiled(bound)
     if first_tiling.scale_factor_max - 1.0 < policy.retile_min_share * (bound - 1.0):
         # its area scale hardly varies: more splits are not what it lacks
-        return _shaped(
-            first_tiling, bound, loaded, options, progress, shapes, policy=policy, spare_core=True
-        )
+        return run.shaped(first_tiling, bound, spare_core=True)
     # A tiling that may be split again goes without the held-openings fallback: its
     # co-optimization is refused for its area scale, which more splits mend (the 200-tile
     # chair in one part: the fallback took 4.5 s and still missed by 0.2 mm).  It runs after
     # all if the first tiling is the one kept.
-    ahead: _Ahead[ShapedLayout] | None = None
-    prepared: Tiling | None = None  # the first tighter tiling, when tiled ahead of the loop
-    if policy.retile_ahead and _can_fork() and policy.retile_attempts > 0:
-        # The first tighter tiling, which the loop below lays out if the first tiling misses,
-        # is laid out meanwhile in a second process (the 200-tile seashell and chair).
-        next_bound = _tighter(bound, first_tiling, policy)
-        prepared = next_tiling = tiled(next_bound)
-        if not _same_parts(next_tiling, first_tiling):
-            _assembled_shape(first_tiling, loaded, options, progress, shapes)  # shared by both
-
-            def work(child_progress: Progress) -> ShapedLayout:
-                return _shaped(
-                    next_tiling, next_bound, loaded, options, child_progress, shapes,
-                    policy=policy,
-                )  # fmt: skip
-
-            try:
-                ahead = _Ahead(work, "the tiling laid out ahead", niceness=policy.ahead_niceness)
-            except OSError as exc:  # no process to spare (fork refused): laid out in turn
-                logger.warning("could not lay the tighter tiling out ahead (%s)", exc)
-    target = min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
-    # the first tighter tiling's layout where the first tiling paused for it (used once)
-    laid_out: ShapedLayout | None = None
+    if policy.retile_ahead and can_fork() and policy.retile_attempts > 0:
+        run.lay_out_ahead(bound, first_tiling)
     first: ShapedLayout | None = None
     try:
-        first = _shaped(
-            first_tiling, bound, loaded, options, progress, shapes, policy=policy,
-            fallback=False, spare_core=ahead is None,
+        ahead = run.ahead
+        first = run.shaped(
+            first_tiling, bound, fallback=False, spare_core=ahead is None,
             core_freed=None if ahead is None else ahead.ready,
             pause_after_miss=policy.prefer_split_at_first_weight and policy.retile_attempts > 0,
         )  # fmt: skip
         if first.unfinished:
             # Its first conical co-optimization missed the flat targets: the first tighter
             # tiling decides whether the first one's co-optimizations go on.
-            next_bound = _tighter(bound, first_tiling, policy)
-            prepared = prepared if prepared is not None else tiled(next_bound)
-            if not _same_parts(prepared, first_tiling):
-                assert first.paused is not None
-                if ahead is not None:
-                    laid_out, ahead = ahead.result(progress), None
-                if laid_out is None:
-                    # (a core is spare unless the paused ladder runs a step ahead on it)
-                    laid_out = _shaped(
-                        prepared, next_bound, loaded, options, progress, shapes,
-                        policy=policy, spare_core=not first.paused.ladder.running_ahead,
-                    )  # fmt: skip
-                if laid_out.accuracy_mm <= target:
-                    note = (
-                        f"tiling: with split bound {bound:.3g} ({_parts(first_tiling)}) the "
-                        f"conical co-optimization (weight {policy.conical_weights[0]:g}) missed "
-                        f"({first.paused.ladder.missed}); tighter splits gave "
-                        f"{_parts(prepared)} at bound {next_bound:.3g}: "
-                        f"{laid_out.accuracy_mm:.2g} mm; kept {_parts(prepared)}, without "
-                        "trying the first tiling with another weight or without the condition"
-                    )
-                    return replace(laid_out, notes=(*laid_out.notes, note))
-            first = _shaped(
-                first_tiling, bound, loaded, options, progress, shapes, policy=policy,
-                fallback=False, paused=first,
-            )  # fmt: skip
-        best = first
-        first_accuracy = best_accuracy = first.accuracy_mm
+            split = run.split_meeting_targets(bound, first_tiling, first)
+            if split is not None:
+                return split
+            first = run.shaped(first_tiling, bound, fallback=False, paused=first)
+        first_accuracy = first.accuracy_mm
+        best, tried = run.tighter_tilings(bound, first, first_accuracy)
+    finally:
+        run.cancel()  # the work run ahead, where its result is not needed
+        if first is not None:
+            first.abandon()  # (a paused ladder, on the way out)
+    return run.kept(first_tiling, first, first_accuracy, best, tried)
+
+
+class _Retiling:
+    """One run of :func:`shape_and_layout`: what its steps share, and the first tighter
+    tiling where it was tiled, or laid out, before the loop over tighter tilings needs it."""
+
+    def __init__(
+        self,
+        loaded: Target,
+        flat_map: Flattening,
+        options: ResolvedOptions,
+        progress: Progress,
+        policy: LayoutPolicy,
+    ) -> None:
+        self.loaded, self.flat_map, self.options = loaded, flat_map, options
+        self.progress, self.policy = progress, policy
+        #: the accuracy figure (:attr:`ShapedLayout.accuracy_mm`) that meets the targets
+        self.target = min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
+        # Tighter split bounds cut the linkage but keep the quad mesh, so eq. 1 and the
+        # extrusion are solved once per distinct mesh (1-2 s each at 200 tiles; the chair
+        # re-tiles twice).
+        self.shapes: dict[MeshKey, AssembledResult] = {}
+        #: the first tighter tiling laid out in a second process (:meth:`lay_out_ahead`)
+        self.ahead: _Ahead[ShapedLayout] | None = None
+        #: the first tighter tiling, when tiled ahead of the loop
+        self.prepared: Tiling | None = None
+        #: the first tighter tiling's layout where the first tiling paused for it (used once)
+        self.laid_out: ShapedLayout | None = None
+
+    def tiled(self, bound: float) -> Tiling:
+        """Stage tiling: the flattened target tiled with split bound ``bound``."""
+        with self.progress.stage("tiling"):
+            return tile_surface(
+                self.loaded.vertices,
+                self.loaded.faces,
+                self.flat_map.uv,
+                tiles=self.options.tiles,
+                grid=self.options.grid,
+                max_scale_factor=bound,
+            )
+
+    def shaped(
+        self, tiling: Tiling, bound: float, progress: Progress | None = None, **kwargs: Any
+    ) -> ShapedLayout:
+        """:func:`_shaped` on ``tiling`` (split with ``bound``), its keywords passed on."""
+        return _shaped(
+            tiling, bound, self.loaded, self.options,
+            self.progress if progress is None else progress, self.shapes, policy=self.policy,
+            **kwargs,
+        )  # fmt: skip
+
+    def lay_out_ahead(self, bound: float, first_tiling: Tiling) -> None:
+        """Tile the first tighter tiling, which the loop over tighter tilings lays out if the
+        first tiling misses, and lay it out meanwhile in a second process where it splits
+        the grid otherwise than ``first_tiling`` (the 200-tile seashell and chair)."""
+        next_bound = _tighter(bound, first_tiling, self.policy)
+        self.prepared = next_tiling = self.tiled(next_bound)
+        if _same_parts(next_tiling, first_tiling):
+            return
+        # shared by both
+        _assembled_shape(first_tiling, self.loaded, self.options, self.progress, self.shapes)
+
+        def work(child_progress: Progress) -> ShapedLayout:
+            return self.shaped(next_tiling, next_bound, child_progress)
+
+        try:
+            self.ahead = _Ahead(
+                work, "the tiling laid out ahead", niceness=self.policy.ahead_niceness
+            )
+        except OSError as exc:  # no process to spare (fork refused): laid out in turn
+            logger.warning("could not lay the tighter tiling out ahead (%s)", exc)
+
+    def split_meeting_targets(
+        self, bound: float, first_tiling: Tiling, first: ShapedLayout
+    ) -> ShapedLayout | None:
+        """After the first tiling's ladder paused on a miss (``first``): the first tighter
+        tiling's layout, with a note, if it meets every accuracy target; None otherwise (the
+        layout is then kept for the loop over tighter tilings)."""
+        next_bound = _tighter(bound, first_tiling, self.policy)
+        prepared = self.prepared if self.prepared is not None else self.tiled(next_bound)
+        self.prepared = prepared
+        if _same_parts(prepared, first_tiling):
+            return None
+        assert first.paused is not None
+        if self.ahead is not None:
+            self.laid_out, self.ahead = self.ahead.result(self.progress), None
+        if self.laid_out is None:
+            # (a core is spare unless the paused ladder runs a step ahead on it)
+            self.laid_out = self.shaped(
+                prepared, next_bound, spare_core=not first.paused.ladder.running_ahead
+            )
+        laid_out = self.laid_out
+        if laid_out.accuracy_mm > self.target:
+            return None
+        note = (
+            f"tiling: with split bound {bound:.3g} ({_parts(first_tiling)}) the "
+            f"conical co-optimization (weight {self.policy.conical_weights[0]:g}) missed "
+            f"({first.paused.ladder.missed}); tighter splits gave "
+            f"{_parts(prepared)} at bound {next_bound:.3g}: "
+            f"{laid_out.accuracy_mm:.2g} mm; kept {_parts(prepared)}, without "
+            "trying the first tiling with another weight or without the condition"
+        )
+        return replace(laid_out, notes=(*laid_out.notes, note))
+
+    def tighter_tilings(
+        self, bound: float, first: ShapedLayout, first_accuracy: float
+    ) -> tuple[ShapedLayout, list[str]]:
+        """The most accurate layout of ``first`` (split with ``bound``) and the tighter
+        tilings tried while it misses the targets, and a line on each tiling tried."""
+        best, best_accuracy = first, first_accuracy
         tried: list[str] = []
-        for _ in range(policy.retile_attempts):
-            if best_accuracy <= target:
+        for _ in range(self.policy.retile_attempts):
+            if best_accuracy <= self.target:
                 break
-            bound = _tighter(bound, best.tiling, policy)
-            tiling = prepared if prepared is not None else tiled(bound)
-            prepared = None
-            trial, laid_out = laid_out, None  # laid out already (the first tighter tiling)
-            if ahead is not None:  # laid out meanwhile (its tiling is ``prepared``)
-                trial, ahead = ahead.result(progress), None
+            bound = _tighter(bound, best.tiling, self.policy)
+            tiling = self.prepared if self.prepared is not None else self.tiled(bound)
+            self.prepared = None
+            # laid out already (the first tighter tiling)
+            trial, self.laid_out = self.laid_out, None
+            if self.ahead is not None:  # laid out meanwhile (its tiling is ``prepared``)
+                trial, self.ahead = self.ahead.result(self.progress), None
             if _same_parts(tiling, best.tiling):
                 break  # no further split keeps enough cells on each side
             if trial is None:
-                trial = _shaped(
-                    tiling, bound, loaded, options, progress, shapes, policy=policy,
-                    spare_core=True,
-                )  # fmt: skip
+                trial = self.shaped(tiling, bound, spare_core=True)
             accuracy = trial.accuracy_mm
             tried.append(f"{_parts(tiling)} at bound {bound:.3g}: {accuracy:.2g} mm")
-            if not (accuracy < policy.retile_gain * best_accuracy or accuracy <= target):
+            if not (accuracy < self.policy.retile_gain * best_accuracy or accuracy <= self.target):
                 break  # splitting does not help this design (e.g. errors at split-line ends)
             best, best_accuracy = trial, accuracy
-    finally:
-        if ahead is not None:
-            ahead.cancel()  # the first tiling met the targets: its result is not needed
-        if first is not None:
-            first.abandon()  # (a paused ladder, on the way out)
-    if best is first and first.fallback_skipped and first_accuracy > target:
-        # kept after all: co-optimized in full, with the held-openings fallback
-        best = first = _shaped(
-            first_tiling, first.split_bound, loaded, options, progress, shapes, policy=policy,
-            spare_core=True,
-        )  # fmt: skip
-    if not tried:
-        return first
-    outcome = f"kept {_parts(best.tiling)}" if best is not first else "kept the first tiling"
-    note = (
-        f"tiling: with split bound {first.split_bound:.3g} ({_parts(first.tiling)}) the flat "
-        f"tiles met their hinges with their assembled shapes only to {first_accuracy:.2g} mm; "
-        f"tighter splits gave {'; '.join(tried)}; {outcome}"
-    )
-    return replace(best, notes=(*best.notes, note))
+        return best, tried
+
+    def cancel(self) -> None:
+        """Stop the tiling laid out ahead (the first tiling met the targets, or the run
+        ends)."""
+        if self.ahead is not None:
+            self.ahead.cancel()
+
+    def kept(
+        self,
+        first_tiling: Tiling,
+        first: ShapedLayout,
+        first_accuracy: float,
+        best: ShapedLayout,
+        tried: list[str],
+    ) -> ShapedLayout:
+        """The layout kept, ``best``, with a note on the tighter tilings ``tried``; the first
+        tiling (``first``) laid out in full if it is the one kept and was not."""
+        if best is first and first.fallback_skipped and first_accuracy > self.target:
+            # kept after all: co-optimized in full, with the held-openings fallback
+            best = first = self.shaped(first_tiling, first.split_bound, spare_core=True)
+        if not tried:
+            return first
+        outcome = f"kept {_parts(best.tiling)}" if best is not first else "kept the first tiling"
+        note = (
+            f"tiling: with split bound {first.split_bound:.3g} ({_parts(first.tiling)}) the flat "
+            f"tiles met their hinges with their assembled shapes only to {first_accuracy:.2g} mm; "
+            f"tighter splits gave {'; '.join(tried)}; {outcome}"
+        )
+        return replace(best, notes=(*best.notes, note))
 
 
 def _tighter(bound: float, tiling: Tiling, policy: LayoutPolicy) -> float:
@@ -326,43 +388,11 @@ def _shaped(
         ladder, faces, notes = paused.paused.ladder, paused.paused.faces, list(paused.notes)
     else:
         notes = list(tiling.notes)
-        assembled = _assembled_shape(tiling, loaded, options, progress, shapes)
-        # Hinge sides are decided on the eq.-1 tiles (and again once their bottom corners are
-        # pulled to equal depths, which can move a side); the flat layout makes the hinged
-        # corners meet on the face that carries each hinge.
-        faces = (
-            dual_hinge_faces(linkage, assembled.tiles, options.min_gap_angle_deg)
-            if options.hinges == "dual"
-            else None
-        )
-        if faces is not None and policy.hinge_depths and faces.bottom.any():
-            assembled = _bottom_hinge_depths(assembled, linkage, faces.bottom, loaded)
-            faces = dual_hinge_faces(linkage, assembled.tiles, options.min_gap_angle_deg)
-        with progress.stage("flat"):
-            # only a seed when the co-optimization follows (policy.flat_seed_steps)
-            seed_steps = policy.flat_seed_steps if options.co_optimize else None
-            flat = flat_layout(linkage, tiling, assembled, options, faces, seed_steps=seed_steps)
+        assembled, faces, flat = _plain_layout(tiling, loaded, options, progress, shapes, policy)
         if options.co_optimize:
-            plain = (assembled, flat)
-            # With bottom hinges the top is made conical too (their corners then meet in
-            # depth); where that costs the flat layout its targets, it is co-optimized again
-            # with the next weight of the condition (policy.conical_weights), and after the
-            # last without it (the face scan: 0.012 mm conical, within 1e-3 mm without).
-            conical = (
-                policy.hinge_depths
-                and bool(policy.conical_weights)
-                and faces is not None
-                and bool(faces.bottom.any())
-            )
-            ladder = CoLadder(
-                lambda step: _co_optimized_with_fallback(
-                    linkage, tiling, *plain, loaded, options, faces, fallback, *step,
-                    between_rounds=ladder.poll if ladder is not None else None, policy=policy,
-                ),
-                conical,
-                spare_core and _can_fork(),
-                core_freed if core_freed is not None and _can_fork() else None,
-                policy=policy,
+            ladder = _co_ladder(
+                tiling, assembled, flat, loaded, options, faces, policy, fallback=fallback,
+                spare_core=spare_core, core_freed=core_freed,
             )  # fmt: skip
     if ladder is not None:
         with progress.stage("co-optimize"):
@@ -409,6 +439,77 @@ def _shaped(
         notes=tuple(notes),
         fallback_skipped=skipped,
     )
+
+
+def _plain_layout(
+    tiling: Tiling,
+    loaded: Target,
+    options: ResolvedOptions,
+    progress: Progress,
+    shapes: dict[MeshKey, AssembledResult],
+    policy: LayoutPolicy,
+) -> tuple[AssembledResult, HingeFaces | None, FlatResult]:
+    """Stages assembled and flat on one tiling: the assembled shape (eq. 1 and extrusion,
+    the bottom hinges' corners pulled to equal depths), the hinge faces (dual hinges) and the
+    plain flat layout (only a seed when the co-optimization follows)."""
+    linkage = tiling.linkage
+    assembled = _assembled_shape(tiling, loaded, options, progress, shapes)
+    # Hinge sides are decided on the eq.-1 tiles (and again once their bottom corners are
+    # pulled to equal depths, which can move a side); the flat layout makes the hinged
+    # corners meet on the face that carries each hinge.
+    faces = (
+        dual_hinge_faces(linkage, assembled.tiles, options.min_gap_angle_deg)
+        if options.hinges == "dual"
+        else None
+    )
+    if faces is not None and policy.hinge_depths and faces.bottom.any():
+        assembled = _bottom_hinge_depths(assembled, linkage, faces.bottom, loaded)
+        faces = dual_hinge_faces(linkage, assembled.tiles, options.min_gap_angle_deg)
+    with progress.stage("flat"):
+        # only a seed when the co-optimization follows (policy.flat_seed_steps)
+        seed_steps = policy.flat_seed_steps if options.co_optimize else None
+        flat = flat_layout(linkage, tiling, assembled, options, faces, seed_steps=seed_steps)
+    return assembled, faces, flat
+
+
+def _co_ladder(
+    tiling: Tiling,
+    assembled: AssembledResult,
+    flat: FlatResult,
+    loaded: Target,
+    options: ResolvedOptions,
+    faces: HingeFaces | None,
+    policy: LayoutPolicy,
+    *,
+    fallback: bool,
+    spare_core: bool,
+    core_freed: Callable[[], bool] | None,
+) -> CoLadder:
+    """The co-optimizations of one tiling from its plain layout (``assembled``, ``flat``),
+    in turn (see :func:`_shaped` for the keywords)."""
+    plain = (assembled, flat)
+    # With bottom hinges the top is made conical too (their corners then meet in
+    # depth); where that costs the flat layout its targets, it is co-optimized again
+    # with the next weight of the condition (policy.conical_weights), and after the
+    # last without it (the face scan: 0.012 mm conical, within 1e-3 mm without).
+    conical = (
+        policy.hinge_depths
+        and bool(policy.conical_weights)
+        and faces is not None
+        and bool(faces.bottom.any())
+    )
+    ladder: CoLadder | None = None
+    ladder = CoLadder(
+        lambda step: _co_optimized_with_fallback(
+            tiling.linkage, tiling, *plain, loaded, options, faces, fallback, *step,
+            between_rounds=ladder.poll if ladder is not None else None, policy=policy,
+        ),
+        conical,
+        spare_core and can_fork(),
+        core_freed if core_freed is not None and can_fork() else None,
+        policy=policy,
+    )  # fmt: skip
+    return ladder
 
 
 def _bottom_hinge_depths(
@@ -502,16 +603,3 @@ def _assembled_shape(
             for array in (shapes[key].top, shapes[key].bottom, shapes[key].tiles):
                 array.flags.writeable = False  # shared between tilings: nothing may edit it
         return shapes[key]
-
-
-def _can_fork() -> bool:
-    """Whether work may be run ahead in a forked child (a tiling, ``policy.retile_ahead``; a
-    co-optimization, ``policy.co_speculate``): two cores or more, Linux (forking a
-    process that has loaded macOS system frameworks is unsafe), and not inside a daemonic
-    process (e.g. a ``multiprocessing`` pool worker: it may not fork)."""
-    return (
-        sys.platform.startswith("linux")
-        and parallel.thread_count() >= 2
-        and "fork" in multiprocessing.get_all_start_methods()
-        and not multiprocessing.current_process().daemon
-    )

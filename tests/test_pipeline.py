@@ -17,6 +17,7 @@ from drawstring.geometry.core import parallel
 from drawstring.geometry.route.plan import plan_route
 from drawstring.geometry.tiling.linkage import build_linkage, gap_centroids, rotating_squares_layout
 from drawstring.pipeline import co_rounds, layout_stage
+from drawstring.pipeline.ahead import can_fork
 from drawstring.pipeline.layout_stage import split_bound
 from drawstring.pipeline.measure import channel_turn_assembled
 from drawstring.pipeline.policy import DEFAULT_POLICY, LayoutPolicy
@@ -399,7 +400,7 @@ def test_the_pause_gives_the_design_laid_out_in_turn_where_work_runs_ahead(monke
     monkeypatch.setattr(parallel, "thread_count", lambda: 2)  # ahead even on one core
     run_ahead = LayoutPolicy(retile_min_share=0.0, retile_ahead=True, co_speculate=True)
     in_turn = replace(run_ahead, retile_ahead=False, co_speculate=False)
-    if not layout_stage._can_fork():
+    if not can_fork():
         pytest.skip("processes cannot fork here")
     tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
     _conical_runs(monkeypatch, {FIRST}, missed_mm=2.0 * tol)
@@ -630,7 +631,7 @@ def test_the_co_optimization_run_ahead_gives_the_design_run_in_turn(monkeypatch)
     # forked child meanwhile, is taken from it, and the design is bitwise the serial one.
     monkeypatch.setattr(parallel, "thread_count", lambda: 2)  # a spare core even on one
     in_turn = replace(IN_TURN, retile_min_share=10.0)  # one tiling, no other process
-    if not layout_stage._can_fork():
+    if not can_fork():
         pytest.skip("processes cannot fork here")
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
     first, retry = FIRST, RETRY
