@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,6 +43,10 @@ from drawstring.geometry.route.lift import LiftPoints
 from drawstring.geometry.route.plan import Route
 from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling
+
+if TYPE_CHECKING:  # the solids' type: build123d is loaded only where solids are built
+    from drawstring.cad.design import CadResult
+    from drawstring.geometry.simulate import SimulationResult
 
 log = logging.getLogger(__name__)
 
@@ -229,9 +233,11 @@ class Design:
     lift: LiftPoints
     route: Route
     measured: dict[str, Any] = field(default_factory=dict)
-    cad_flat: Any = None
-    cad_assembled: Any = None
-    simulation: Any = None
+    #: the solids in the fabrication pose and the assembled pose (None with ``--no-cad``)
+    cad_flat: CadResult | None = None
+    cad_assembled: CadResult | None = None
+    #: the simulated deployment of the chosen route (None with ``--no-simulate``)
+    simulation: SimulationResult | None = None
     timings_s: dict[str, float] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
     problems: tuple[str, ...] = ()
