@@ -39,10 +39,8 @@ class CoLadder:
     and taken from it if it is needed.  Every run depends on the tiling's plain layout alone,
     so the outcome is the one of the runs in turn.  Where the first weight meets the targets
     (most designs) the child is stopped and its work thrown away; where the conical runs miss,
-    the wait for the last run is cut by the time they took (the 1600-tile wave: 2.4 s for
-    its first weight, whose joint solve is refused, then 4.8 s without the condition; 7.3 s
-    in turn, 5.5 s so).  Only the last run goes ahead: running the retry weight too made the
-    two children share the spare core, and the wave gained 0.6 s.  Without ``ahead`` but with
+    the wait for the last run is cut by the time they took.  Only the last run goes ahead, so
+    that one child has the spare core to itself.  Without ``ahead`` but with
     ``core_freed`` (another process lays out a tiling and holds the spare core), :meth:`poll`,
     called between rounds, starts that child once ``core_freed()`` says the core is spare.
     """
@@ -75,9 +73,8 @@ class CoLadder:
 
     def poll(self) -> None:
         """Between the rounds of a run: once the core another process held is spare
-        (``core_freed``), start the last step ahead, as where it was spare from the start (the
-        200-tile seashell's two-part tiling is laid out ahead and done while its one-part
-        tiling is still on its second conical weight)."""
+        (``core_freed``), start the last step ahead, as where it was spare from the start (a
+        tighter tiling laid out ahead can be done while this tiling's conical runs go on)."""
         if self._ahead or self._core_freed is None or not self._policy.co_speculate:
             return
         if not self._core_freed():

@@ -112,9 +112,9 @@ class RoundJudge:
         stop_near = policy.co_stop_near_conical if self.conical else policy.co_stop_near
         # Stop once the re-solve is well inside the tolerance, or within the tolerance and
         # close to what the joint solve reached (more rounds would not gain much).  A re-solve
-        # that misses the tolerance goes on even when it is close to a poor joint solve: the
-        # 200-tile seashell with top hinges then meets the targets with its first tiling
-        # (7.3e-4 mm) where it stopped at 3.2e-3 mm and was split once more.
+        # that misses the tolerance goes on even when it is close to a poor joint solve: later
+        # rounds can still bring it within, where stopping would leave the tiling to be
+        # split.
         if (
             self.worse >= 2
             or (first_round and error_mm > policy.co_give_up_ratio * self.plain_mm)
@@ -126,12 +126,10 @@ class RoundJudge:
             )
         ):
             return progress, True
-        # A conical round that lost ground is judged by the rounds after it (``worse``): the
-        # CLI-default three-shell's went 0.020, 0.060, 1.1e-3, 3.9e-4, 1.4e-4 mm, where a
-        # rate taken from the lost round had given it up after two.  So is a first round
-        # above the plain layout: with AVX-512 kernels the same three-shell's went 0.197 mm
-        # (plain 0.117), and given up at once it kept a 0.032 mm hinge gap in depth; judged
-        # by the next rounds it meets its hinges in 3D (3.8e-4 mm).
+        # A conical round that lost ground is judged by the rounds after it (``worse``), and
+        # so is a conical first round above the plain layout: conical rounds can lose ground
+        # once and then converge, and a rate taken from the lost round would give them up
+        # (and the bottom hinges their depth) too early.
         judged = (progress and error_mm < previous) or not self.conical
         left = policy.co_refinements + 1 - self.rounds
         if (
@@ -143,8 +141,7 @@ class RoundJudge:
             return progress, True
         if self.conical and judged and too_slow(previous, error_mm, left, reach=1.0):
             # it would miss the tolerance: the caller co-optimizes again without the conical
-            # condition (the 1600-tile wave: 0.29, 0.016, 0.0099, 0.0065 mm, ... 0.0027 mm
-            # after eight rounds; without, 1.4e-4 mm after four)
+            # condition
             return progress, True
         self.previous_mm = error_mm
         return progress, False
@@ -228,8 +225,7 @@ def co_optimized(
         )  # fmt: skip
         if best is None and not co.edge_error_max_mm < flat.edge_error_max_mm:
             # The first round's joint solve, in its own model, ends above the plain layout:
-            # the re-solve under the true bounds does no better (1600-tile wave, tracked
-            # openings: joint 0.35 mm against a plain 0.13, re-solved 0.63 mm, then 0.66).
+            # the re-solve under the true bounds does no better.
             block["reason"] = (
                 f"the joint solve did not lower the flat edge error "
                 f"({flat.edge_error_max_mm:.3g} -> {co.edge_error_max_mm:.3g} mm)"
@@ -252,10 +248,9 @@ def co_optimized(
         new_flat = flat_layout(
             linkage, tiling, current, options, openings(current.tiles), initial_nodes=co.nodes
         )
-        # A round counts as progress only below both the best round and the plain layout:
-        # the result must beat the plain layout to be used, and re-solves that stay above it
-        # do not come down in later rounds (the 200-tile chair in one part: 4.5, 2.7, 2.0,
-        # 1.9 mm against a plain 0.69 mm).
+        # A round counts as progress only below both the best round and the plain layout
+        # (RoundJudge): the result must beat the plain layout to be used, and re-solves that
+        # stay above it do not come down in later rounds.
         error = new_flat.edge_error_max_mm
         nodes = new_flat.nodes
         openings.hold(new_flat, current.tiles)
@@ -347,10 +342,9 @@ def _joint_round(
     that costs much of what the joint solve gained, the last stage runs once more on the
     extruded T3D, starting from the re-solved layout: it holds the extruded tiles' bounds
     already, so the joint solve need only correct it where the re-extrusion moved the hinge
-    points (the bottom corners).  Started from the last joint solve's nodes instead, it had
-    to undo that shift too and moved K3D further, which moved the bottom corners again: the
-    200-tile seashell's two parts stalled at 1.5e-3 mm and it was split into four, where now
-    two meet 4e-4 mm.
+    points (the bottom corners).  A start from the last joint solve's nodes would have to
+    undo that shift too and move K3D further, which moves the bottom corners again, so that
+    the rounds stall.
     """
     co: CoOptimizedTop | None = None
     for stages in rounds:
@@ -436,9 +430,8 @@ def _verdict(
 def _turned_over(before: AssembledResult, after: AssembledResult) -> int:
     """How many tiles turned over: their top face turned by more than 90 deg.
 
-    (Not the target-normal count ``flipped_tiles``: on a scan, the one closest triangle at a
-    tile's centre can face another way; the scanned face had 1 such tile before and 2 after
-    a co-optimization that turned no tile by more than 2.5 deg, and was wrongly refused.)
+    (Not the target-normal count ``flipped_tiles``: on a scanned mesh the one closest
+    triangle at a tile's centre can face another way, which says nothing of the tile.)
     """
     turns = np.einsum(
         "ki,ki->k",

@@ -99,12 +99,11 @@ class ShapedLayout:
     @property
     def accuracy_mm(self) -> float:
         """The larger of the flat edge error and the hinge gap, mm, as measured on the output
-        (:func:`~drawstring.pipeline.run.measure_design`): how far the flat tiles are
+        (:func:`~drawstring.pipeline.measure.measure_design`): how far the flat tiles are
         from meeting at their hinges with their assembled shapes (the flat layout's edge error
         where the hinge stage was skipped).  The gap is the whole one, its vertical part too:
         a tighter tiling whose conical co-optimization succeeds closes that part where the
-        first tiling's had to go without (the seashell at the CLI defaults: 0.011 mm in one
-        part, 5.0e-4 mm in two)."""
+        first tiling's had to go without."""
         if self.hinge_layout is None:
             return self.flat.edge_error_max_mm
         tiles = self.assembled.tiles
@@ -136,9 +135,8 @@ def shape_and_layout(
         # its area scale hardly varies: more splits are not what it lacks
         return run.shaped(first_tiling, bound, spare_core=True)
     # A tiling that may be split again goes without the held-openings fallback: its
-    # co-optimization is refused for its area scale, which more splits mend (the 200-tile
-    # chair in one part: the fallback took 4.5 s and still missed by 0.2 mm).  It runs after
-    # all if the first tiling is the one kept.
+    # co-optimization is refused for its area scale, which more splits mend, and the fallback
+    # would not.  It runs after all if the first tiling is the one kept.
     if policy.retile_ahead and can_fork() and policy.retile_attempts > 0:
         run.lay_out_ahead(bound, first_tiling)
     first: ShapedLayout | None = None
@@ -181,9 +179,7 @@ class _Retiling:
         self.progress, self.policy = progress, policy
         #: the accuracy figure (:attr:`ShapedLayout.accuracy_mm`) that meets the targets
         self.target = min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
-        # Tighter split bounds cut the linkage but keep the quad mesh, so eq. 1 and the
-        # extrusion are solved once per distinct mesh (1-2 s each at 200 tiles; the chair
-        # re-tiles twice).
+        #: assembled shapes by quad mesh (tighter split bounds cut the linkage, not the mesh)
         self.shapes: dict[MeshKey, AssembledResult] = {}
         #: the first tighter tiling laid out in a second process (:meth:`lay_out_ahead`)
         self.ahead: _Ahead[ShapedLayout] | None = None
@@ -217,12 +213,12 @@ class _Retiling:
     def lay_out_ahead(self, bound: float, first_tiling: Tiling) -> None:
         """Tile the first tighter tiling, which the loop over tighter tilings lays out if the
         first tiling misses, and lay it out meanwhile in a second process where it splits
-        the grid otherwise than ``first_tiling`` (the 200-tile seashell and chair)."""
+        the grid otherwise than ``first_tiling`` (the assembled shape, which both tilings
+        share, is solved here first)."""
         next_bound = _tighter(bound, first_tiling, self.policy)
         self.prepared = next_tiling = self.tiled(next_bound)
         if _same_parts(next_tiling, first_tiling):
             return
-        # shared by both
         _assembled_shape(first_tiling, self.loaded, self.options, self.progress, self.shapes)
 
         def work(child_progress: Progress) -> ShapedLayout:
@@ -296,8 +292,7 @@ class _Retiling:
         return best, tried
 
     def cancel(self) -> None:
-        """Stop the tiling laid out ahead (the first tiling met the targets, or the run
-        ends)."""
+        """Stop the tiling laid out ahead (its result is not needed, or the run ends)."""
         if self.ahead is not None:
             self.ahead.cancel()
 
@@ -418,9 +413,9 @@ def _shaped(
     hinge_layout: HingeLayout | None = None
     if not fallback and flat.edge_error_max_mm > policy.co_slow_reach * FLAT_EDGE_ERROR_TOL_MM:
         # A tiling that may still be split skips the hinge stage when its flat layout is too
-        # far off for the rigid hinge layout to reach the targets (it takes off about 4x, see
-        # policy.co_slow_reach; on a layout this far off it can add: 200-tile seashell in one part,
-        # 0.052 mm flat, 0.082 mm hinged): it is tiled again, and laid out in full if kept.
+        # far off for the rigid hinge layout to reach the targets (policy.co_slow_reach; on a
+        # layout this far off it can add to the error): it is tiled again, and laid out in
+        # full if kept.
         skipped = True
     else:
         tiles_2d = extrude_flat(flat, assembled.tiles, options.thickness_mm)
@@ -488,10 +483,9 @@ def _co_ladder(
     """The co-optimizations of one tiling from its plain layout (``assembled``, ``flat``),
     in turn (see :func:`_shaped` for the keywords)."""
     plain = (assembled, flat)
-    # With bottom hinges the top is made conical too (their corners then meet in
-    # depth); where that costs the flat layout its targets, it is co-optimized again
-    # with the next weight of the condition (policy.conical_weights), and after the
-    # last without it (the face scan: 0.012 mm conical, within 1e-3 mm without).
+    # With bottom hinges the top is made conical too (their corners then meet in depth);
+    # where that costs the flat layout its targets, it is co-optimized again with the next
+    # weight of the condition (policy.conical_weights), and after the last without it.
     conical = (
         policy.hinge_depths
         and bool(policy.conical_weights)
@@ -559,9 +553,9 @@ def _co_optimized_with_fallback(
     skipped = (refused and not fallback) or bool(co_block.get("cut_short"))
     if refused and fallback and not conical:
         # On the moved tiles some slit ends no longer clear where they did, and the windows
-        # that shift between rounds can leave the re-solve stranded (1600-tile wave: 0.14 mm
-        # -> 1.4 mm); the clear openings of the eq.-1 tiles held throughout reach 7.5e-4 mm
-        # there.  The hinge stage separates the final tiles exactly either way.
+        # that shift between rounds can leave the re-solve stranded; the clear openings of
+        # the eq.-1 tiles, held throughout, do not move.  The hinge stage separates the final
+        # tiles exactly either way.
         held = co_optimized(
             linkage, tiling, assembled, flat, loaded, options, faces, track_openings=False,
             first_solves=first_solves, conical=conical, between_rounds=between_rounds,

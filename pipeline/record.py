@@ -58,8 +58,8 @@ def rounded(value: float, digits: int = 6) -> float:
 
 def above(value: float, bound: float) -> str:
     """``value`` with two significant digits, or as many more (up to six) as it takes to read
-    above ``bound`` (a hinge gap of 0.001005 mm printed as 0.001 did not read as exceeding
-    0.001 mm)."""
+    above ``bound`` (a hinge gap of 0.001005 mm reads 0.001005, not 0.001, against a 0.001 mm
+    bound)."""
     for digits in range(2, 7):
         text = f"{value:.{digits}g}"
         if float(text) > bound:
@@ -285,7 +285,7 @@ class Design:
         return misses
 
     def metrics(self) -> dict[str, Any]:
-        """Numbers measured on the output geometry (ARCHITECTURE.md section 4)."""
+        """Numbers measured on the output geometry (``metrics`` in docs/output.md)."""
         return {
             "scale_factor_max": round(self.tiling.scale_factor_max, 6),
             "scale_factor_max_before_splits": round(self.tiling.scale_factor_max_unsplit, 6),

@@ -131,9 +131,8 @@ def size_refusal(exc: ThicknessError, options: ResolvedOptions) -> InputError | 
 
 
 #: BLAS threads while designing.  A multi-threaded BLAS sums in an order that depends on its
-#: thread count; the eq.-1 solve and the layouts amplify that rounding (the 200-tile chair:
-#: assembled tiles 0.019 mm apart, flat edge error 0.0009 mm on two threads against 0.49 mm on
-#: one), and the BLAS calls here are small enough that one thread costs nothing measurable.
+#: thread count, and the eq.-1 solve and the layouts amplify that rounding into a different
+#: design; the BLAS calls here are small enough that one thread costs nothing measurable.
 BLAS_THREADS = 1
 
 
