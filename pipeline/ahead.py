@@ -3,9 +3,9 @@
 :class:`Ahead` forks this process; the child computes what the parent would compute, from
 a copy of its state, and sends back the result and its stage times through a pipe.  The
 layout stage uses it to lay out the first tighter tiling while the first one is laid out
-(:data:`~drawstring.pipeline.layout_stage.RETILE_AHEAD`), and to co-optimize without the
-conical condition while the conical co-optimizations run
-(:data:`~drawstring.pipeline.co_ladder.CO_SPECULATE`); :meth:`Ahead.ready` tells, without
+(:attr:`~drawstring.pipeline.policy.LayoutPolicy.retile_ahead`), and to co-optimize without
+the conical condition while the conical co-optimizations run
+(:attr:`~drawstring.pipeline.policy.LayoutPolicy.co_speculate`); :meth:`Ahead.ready` tells, without
 waiting, whether the child is done (its core spare).
 """
 
@@ -15,12 +15,14 @@ import contextlib
 import logging
 import multiprocessing
 import os
+import sys
 import time
 from collections.abc import Callable
 from multiprocessing.connection import Connection
 from typing import Generic, TypeVar, cast
 
 from drawstring.geometry.core import parallel
+from drawstring.pipeline.policy import DEFAULT_POLICY
 from drawstring.pipeline.record import Progress
 
 logger = logging.getLogger(__name__)
@@ -28,11 +30,18 @@ logger = logging.getLogger(__name__)
 T = TypeVar("T")
 
 
-#: Scheduling niceness added in :class:`Ahead`'s child.  The child's result is often thrown
-#: away (the tiling laid out here meets the targets), so where the two processes and this
-#: one's worker threads want more cores than there are, the parent goes first; the child
-#: still gets every core the parent leaves idle.  Its result does not depend on it.
-AHEAD_NICENESS = 19
+def can_fork() -> bool:
+    """Whether work may be run ahead in a forked child (a tiling,
+    :attr:`~drawstring.pipeline.policy.LayoutPolicy.retile_ahead`; a co-optimization,
+    :attr:`~drawstring.pipeline.policy.LayoutPolicy.co_speculate`): two cores or more, Linux
+    (forking a process that has loaded macOS system frameworks is unsafe), and not inside a
+    daemonic process (e.g. a ``multiprocessing`` pool worker: it may not fork)."""
+    return (
+        sys.platform.startswith("linux")
+        and parallel.thread_count() >= 2
+        and "fork" in multiprocessing.get_all_start_methods()
+        and not multiprocessing.current_process().daemon
+    )
 
 
 class Ahead(Generic[T]):
@@ -41,13 +50,21 @@ class Ahead(Generic[T]):
     The child starts from a copy of this process (fork), so it computes what ``work``
     would compute here; it sends back the result and its stage times through a pipe.  If the
     child fails or dies, :meth:`result` gives None and the caller does the work itself.
+    The child runs ``niceness`` steps nicer than this process
+    (:attr:`~drawstring.pipeline.policy.LayoutPolicy.ahead_niceness`).
     """
 
-    def __init__(self, work: Callable[[Progress], T], what: str = "the work done ahead") -> None:
+    def __init__(
+        self,
+        work: Callable[[Progress], T],
+        what: str = "the work done ahead",
+        *,
+        niceness: int = DEFAULT_POLICY.ahead_niceness,
+    ) -> None:
         self._what = what
         context = multiprocessing.get_context("fork")
         self._receive, send = context.Pipe(duplex=False)
-        self._process = context.Process(target=_run_ahead, args=(work, send), daemon=True)
+        self._process = context.Process(target=_run_ahead, args=(work, send, niceness), daemon=True)
         try:
             with parallel.sigint_held():  # the child takes Ctrl-C once its quiet exit is set
                 self._process.start()
@@ -99,11 +116,11 @@ def tag_ahead(record: logging.LogRecord) -> bool:
     return True
 
 
-def _run_ahead(work: Callable[[Progress], object], send: Connection) -> None:
+def _run_ahead(work: Callable[[Progress], object], send: Connection, niceness: int) -> None:
     """Body of :class:`Ahead`'s child process."""
     parallel.exit_quietly_on_interrupt()
-    with contextlib.suppress(OSError):  # AHEAD_NICENESS: yield to the parent
-        os.nice(AHEAD_NICENESS)
+    with contextlib.suppress(OSError):  # yield to the parent
+        os.nice(niceness)
 
     for handler in logging.getLogger().handlers:  # -v: tell this process's lines apart
         handler.addFilter(tag_ahead)

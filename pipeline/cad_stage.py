@@ -259,10 +259,8 @@ def _shortfalls(result: Design) -> list[_Shortfall]:
 
 #: The size a refusal suggests is this much more than the size that scales the worst shortfall
 #: away: tiles do not scale exactly with --size (their thickness stays, and the tiling and the
-#: co-optimization change).  Measured on the 150-tile plywood-cnc saddle from 400 to 600 mm,
-#: the worst hinged corner's room over what its strip needs, per mm of size, varies by 3 %
-#: (not monotonically: 510 mm is worse than 500); without the margin 400 and 500 mm asked for
-#: 520 mm, which was refused in turn.
+#: co-optimization change), so the room a feature has per mm of size varies by a few percent,
+#: and not monotonically; without a margin the size suggested can be refused in turn.
 SIZE_MARGIN = 1.04
 
 
@@ -299,18 +297,12 @@ def feature_fit_refusal(result: Design) -> InputError | None:
     :data:`SIZE_MARGIN`.
 
     The bounds keep a :func:`~drawstring.cad.feature_common.feature_wall_mm` (one nozzle) of
-    material around each feature.  Measured on the saddle, fdm-dual, 200 tiles, with the full
-    CLI: the lift bores decide (their bend rises 3 mm, half the 6 mm thickness, so it needs
-    3.83 mm of tile whatever the size).  ``--size 46`` (lift tiles 3.81 mm deep) is refused;
-    ``--size 47`` (3.88 mm) builds, meshes and writes with no problem.  With the check lifted,
-    the bore cuts a notch out of the far side face from about ``--size 41`` down (``--size 40``:
-    3.27 mm deep) and, from ``--size 35`` down, the channel checks find openings missing; in
-    between, the wall left is thinner than a nozzle.  The channel faces alone (2.40 mm) would
-    refuse only below ``--size 39``.  Later (with the conical co-optimization) ``--size 46``
-    was refused for its channel faces (2.32 mm) with ``--size 50`` suggested, which was refused
-    in turn: its lift point had moved to tiles whose bore bends the other way (4.21 mm deep,
-    4.27 needed), and ``--size 53`` built.  Where the lift points go at another size is not
-    known before that design is made, so the refusal says the check may name a next size.
+    material around each feature: below them a lift bore cuts a notch out of the far side
+    face, or the channel checks find openings missing, and in between the wall left is
+    thinner than a nozzle.  On small fdm-dual tiles the lift bores usually decide (their bend
+    rises half the tile thickness).  Where the lift points go at another size is not known
+    before that design is made (they can move to tiles whose bore bends the other way), so
+    the refusal says the check may name a next size.
     """
     profile, options = result.profile, result.options
     too_thin = thickness_refusal(profile, options.thickness_mm)

@@ -1,9 +1,10 @@
 """The co-optimizations of one tiling in turn: conical with each weight, then without.
 
 With bottom hinges the layout stage co-optimizes the assembled top with the flat layout under
-the conical condition (``coflat.CO_CONICAL``, then :data:`CONICAL_RETRY_WEIGHTS`) and, where
-every weight misses the flat targets, without it.  :class:`CoLadder` runs them in turn and
-runs the last one ahead in a forked child where a core is spare (:data:`CO_SPECULATE`).
+the conical condition (each of :attr:`~.policy.LayoutPolicy.conical_weights` in turn) and,
+where every weight misses the flat targets, without it.  :class:`CoLadder` runs them in turn
+and runs the last one ahead in a forked child where a core is spare
+(:attr:`~.policy.LayoutPolicy.co_speculate`).
 """
 
 from __future__ import annotations
@@ -14,48 +15,14 @@ from typing import Any
 
 from drawstring.geometry.assembled.shape import AssembledResult
 from drawstring.geometry.core.tolerances import FLAT_EDGE_ERROR_TOL_MM
-from drawstring.geometry.flat.coflat import CO_CONICAL
 from drawstring.geometry.flat.layout import FlatResult
 from drawstring.pipeline.ahead import Ahead
+from drawstring.pipeline.policy import DEFAULT_POLICY, LayoutPolicy
 from drawstring.pipeline.record import Progress
 
 logger = logging.getLogger(__name__)
 
-__all__ = [
-    "CONICAL_RETRY_FAR",
-    "CONICAL_RETRY_JOINT_MISS",
-    "CONICAL_RETRY_WEIGHTS",
-    "CO_SPECULATE",
-    "CoLadder",
-]
-
-#: Weights of the conical condition (see ``coflat.CO_CONICAL``, tried first) a design with
-#: bottom hinges is co-optimized with again, in turn, where the last one missed the flat
-#: targets, before it goes without the condition.  Which weight reaches them depends on the
-#: design and on the last bits of the arithmetic: on an AMD EPYC machine (200 tiles, dual
-#: hinges) 3 left the seashell 0.024 mm apart in depth with OpenBLAS's AVX-512 kernels, the
-#: wave 4.2e-3 mm with its AVX2 ones, where 10 met them; 10 alone missed the seashell with
-#: AVX2 (0.011 mm), where 3 met it.
-CONICAL_RETRY_WEIGHTS: tuple[float, ...] = (10.0,)
-#: ... except in a tiling that may still be split (``fallback=False``), where a run that was
-#: used but missed by more than ``co_rounds.CO_SLOW_REACH`` times the tolerance
-#: (``CoLadder.run``'s ``far_mm``) ends the weights at once: splitting mends such misses,
-#: and the tiling is laid out in full, every weight tried, if it is kept after all.
-#: The 200-tile chair in one part missed by 0.68 mm with weight 3, then spent 1.5 s to miss
-#: by 0.029 mm with 10, while its two-part tiling, laid out ahead, met the targets with 3.
-CONICAL_RETRY_FAR = True
-#: Whether the next weight is tried after one whose first joint solve, in its own model,
-#: already ended no lower than the plain layout (``co_optimized`` refuses it at once).  It is not: a
-#: larger weight holds the conical condition tighter against the flat tiles' congruence.  The
-#: 1600-tile wave: weight 3 ended at 0.30 mm against a plain 0.13 mm, weight 10 at 0.35 mm,
-#: 2.8 s for nothing.
-CONICAL_RETRY_JOINT_MISS = False
-
-
-#: Run the co-optimization without the conical condition, which follows where the conical
-#: ones miss, in a forked child process while they run, where a core is spare
-#: (:class:`CoLadder`).
-CO_SPECULATE = True
+__all__ = ["CoLadder"]
 
 #: One co-optimization of :class:`CoLadder`: conical or not, and the conical weight.
 _Step = tuple[bool, float | None]
@@ -64,19 +31,16 @@ _Outcome = tuple[AssembledResult, FlatResult, dict[str, Any], bool]
 
 class CoLadder:
     """The co-optimizations of one tiling in turn: with bottom hinges (``conical``) conical
-    with each weight of ``(CO_CONICAL, *CONICAL_RETRY_WEIGHTS)`` until one meets the flat
-    targets, and if none does, without the condition; without bottom hinges only the run
-    without it.
+    with each weight of ``policy.conical_weights`` until one meets the flat targets, and if
+    none does, without the condition; without bottom hinges only the run without it.
 
     With ``ahead``, the run without the condition is computed meanwhile in a forked child
     (:class:`~drawstring.pipeline.ahead.Ahead`, which yields the cores to this process),
     and taken from it if it is needed.  Every run depends on the tiling's plain layout alone,
     so the outcome is the one of the runs in turn.  Where the first weight meets the targets
     (most designs) the child is stopped and its work thrown away; where the conical runs miss,
-    the wait for the last run is cut by the time they took (the 1600-tile wave: 2.4 s for
-    its first weight, whose joint solve is refused, then 4.8 s without the condition; 7.3 s
-    in turn, 5.5 s so).  Only the last run goes ahead: running the retry weight too made the
-    two children share the spare core, and the wave gained 0.6 s.  Without ``ahead`` but with
+    the wait for the last run is cut by the time they took.  Only the last run goes ahead, so
+    that one child has the spare core to itself.  Without ``ahead`` but with
     ``core_freed`` (another process lays out a tiling and holds the spare core), :meth:`poll`,
     called between rounds, starts that child once ``core_freed()`` says the core is spare.
     """
@@ -87,12 +51,15 @@ class CoLadder:
         conical: bool,
         ahead: bool,
         core_freed: Callable[[], bool] | None = None,
+        *,
+        policy: LayoutPolicy = DEFAULT_POLICY,
     ) -> None:
         self._run = run
-        weights = (CO_CONICAL, *CONICAL_RETRY_WEIGHTS)
+        self._policy = policy
+        weights = policy.conical_weights
         self.steps: list[_Step] = [(True, w) for w in weights] if conical else []
         self.steps.append((False, None))
-        self._ahead = ahead and CO_SPECULATE
+        self._ahead = ahead and policy.co_speculate
         self._children: dict[int, Ahead[_Outcome]] = {}
         #: whether a core that another process held (a tiling laid out ahead) is spare now
         self._core_freed = core_freed
@@ -106,10 +73,9 @@ class CoLadder:
 
     def poll(self) -> None:
         """Between the rounds of a run: once the core another process held is spare
-        (``core_freed``), start the last step ahead, as where it was spare from the start (the
-        200-tile seashell's two-part tiling is laid out ahead and done while its one-part
-        tiling is still on its second conical weight)."""
-        if self._ahead or self._core_freed is None or not CO_SPECULATE:
+        (``core_freed``), start the last step ahead, as where it was spare from the start (a
+        tighter tiling laid out ahead can be done while this tiling's conical runs go on)."""
+        if self._ahead or self._core_freed is None or not self._policy.co_speculate:
             return
         if not self._core_freed():
             return
@@ -122,7 +88,8 @@ class CoLadder:
     ) -> tuple[AssembledResult, FlatResult, dict[str, Any], bool, str]:
         """The outcome (assembled, flat, co-optimization block, full run owed) and a note
         when the conical condition was given up.  ``far_mm``: a tiling that may still be
-        split gives the weights up after a miss by more than that (see CONICAL_RETRY_FAR).
+        split gives the weights up after a miss by more than that (see
+        ``policy.conical_retry_far``).
         With ``pause_after_miss``, a step that misses the flat targets and is not the last
         ends the call with its own outcome and :attr:`paused` set: a later call goes on with
         the next step (the work run ahead meanwhile goes on too), or :meth:`cancel` stops it.
@@ -144,18 +111,18 @@ class CoLadder:
                 )
                 logger.info("conical co-optimization (weight %g) missed (%s)", weight, self.missed)
                 i, without = i + 1, len(self.steps) - 1
-                if block.get("joint_refused") and not CONICAL_RETRY_JOINT_MISS:
+                if block.get("joint_refused") and not self._policy.conical_retry_joint_miss:
                     i = without
                 elif (
-                    CONICAL_RETRY_FAR
+                    self._policy.conical_retry_far
                     and far_mm is not None
                     and i < without  # a weight is left
                     and block["accepted"]  # (a refused run hands back the plain layout)
                     and flat.edge_error_max_mm > far_mm
                 ):
                     # A tiling that may still be split tries no further weight after a miss
-                    # this far off (see CONICAL_RETRY_FAR): it is tiled again, and laid out
-                    # in full if kept after all.
+                    # this far off (``policy.conical_retry_far``): it is tiled again, and laid
+                    # out in full if kept after all.
                     self._retries_skipped, i = True, without
                 if i == without:
                     logger.info("conical co-optimization missed (%s): again without", self.missed)
@@ -213,7 +180,9 @@ class CoLadder:
             if j not in self._children:
                 what = f"the co-optimization {_step_name(self.steps[j])} run ahead"
                 try:
-                    self._children[j] = Ahead(self._work(self.steps[j]), what)
+                    self._children[j] = Ahead(
+                        self._work(self.steps[j]), what, niceness=self._policy.ahead_niceness
+                    )
                 except OSError as exc:  # no process to spare (fork refused)
                     logger.warning("could not start %s (%s): running it in turn", what, exc)
                     self._ahead = False

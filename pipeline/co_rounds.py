@@ -4,9 +4,9 @@
 flat tiles become congruent to the assembled ones (the joint solve,
 :func:`~drawstring.geometry.flat.coflat.co_optimize_top`), extrudes the tiles again under the moved
 top and solves the flat layout again with its true bounds (:func:`flat_layout`), for up to
-:data:`CO_REFINEMENTS` more rounds.  :class:`RoundJudge` decides when the rounds stop.  The
-layout stage (:mod:`~drawstring.pipeline.layout_stage`) runs it, through the ladder of
-conical weights (:mod:`~drawstring.pipeline.co_ladder`).
+:attr:`~.policy.LayoutPolicy.co_refinements` more rounds.  :class:`RoundJudge` decides when
+the rounds stop.  The layout stage (:mod:`~drawstring.pipeline.layout_stage`) runs it, through
+the ladder of conical weights (:mod:`~drawstring.pipeline.co_ladder`).
 """
 
 from __future__ import annotations
@@ -36,19 +36,12 @@ from drawstring.geometry.solve.solver import LinearPull
 from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling, component_flattenings
 from drawstring.geometry.tiling.linkage import Linkage
+from drawstring.pipeline.policy import DEFAULT_POLICY, LayoutPolicy
 from drawstring.pipeline.record import ResolvedOptions
 
 logger = logging.getLogger(__name__)
 
 __all__ = [
-    "CO_GIVE_UP_RATIO",
-    "CO_REFINEMENTS",
-    "CO_SLOW_REACH",
-    "CO_STALL_GAIN",
-    "CO_STOP_NEAR",
-    "CO_STOP_NEAR_CONICAL",
-    "CO_STOP_RATIO",
-    "CO_STOP_SHARE",
     "RoundJudge",
     "co_optimized",
     "depth_pull",
@@ -65,55 +58,11 @@ def depth_pull(shape: AssembledResult, linkage: Linkage, bottom: NDArray[np.bool
     return hinge_depth_pull(shape, vertex, hinges[:, 0], hinges[:, 2])
 
 
-#: Extra rounds of :func:`co_optimized` on the extruded T3D when re-solving the flat layout
-#: with its true bounds loses most of what the joint solve gained.  Each round shrinks the error
-#: by about 3x where it converges (peanut at 200 tiles: 0.03, 0.01, 3e-3, 1e-3, 4e-4 mm);
-#: two rounds in a row without a new best stop it, and so do the stop rules below, so more
-#: rounds run only where the error is still above them.  At 4 the 200-tile seashell's two
-#: parts ended at 1.2e-3 mm (met through the hinge layout, 4.2e-4 mm), and with numpy's AVX2
-#: kernels instead of AVX-512 (other last bits) at 2.3e-3 mm, a miss (3.1e-3 mm measured);
-#: at 7 they reach 3.1e-4 and 6.0e-4 mm, and every 200-tile row meets the targets with
-#: either kernel set.
-CO_REFINEMENTS = 7
-#: :func:`co_optimized` stops when the re-solved flat layout's edge error is within this share
-#: of the tolerance, or within the tolerance and this ratio of the joint solve's.  At 0.1 the
-#: 200-tile saddle ran a third round from 1.1e-4 mm, and the 1600-tile wave ran on to 4e-5 mm
-#: and then missed by one hinge (2.1e-3 mm) in the rigid hinge layout; at 0.3 they stop at
-#: 7.9e-5 and 1.8e-4 mm and their hinges meet within 2.1e-4 mm (the other 200-tile rows,
-#: both hinge strategies, and the 1600-tile dome are unchanged).
-CO_STOP_SHARE = 0.3
-CO_STOP_RATIO = 10.0
-#: ... (that second rule only within this share of the tolerance: the hinge layout can add to
-#: a re-solve that ends near the tolerance; the CLI-default three-shell with dual hinges
-#: stopped at 8.4e-4 mm and ended at 1.1e-3 mm, exit 4; with one more round, 8.3e-5 mm)
-CO_STOP_NEAR = 0.6
-#: The same with bottom hinges, whose rounds pull the bottom corners to equal depths (see
-#: co_optimized): the re-solve then follows the moved hinge points, and rounds stopped at 0.6
-#: left the 200-tile cloud's hinged layout at 9.9e-4 mm; 0.35 leaves it at 5.8e-4.
-CO_STOP_NEAR_CONICAL = 0.35
-#: ... and once a re-solve within ``CO_STOP_NEAR`` (``CO_STOP_NEAR_CONICAL``) of the
-#: tolerance gains less than this factor on the best before it: the 200-tile seashell's
-#: one-part tiling went 0.85, 0.68, 0.65, 0.67, 0.67 um (its joint solves 7e-5 .. 8e-6 mm)
-#: where released ends had taken its window drift away.  Within the whole tolerance, the
-#: 200-tile wave (AVX-512 kernels) stopped at 9.4e-4 mm, and its hinge layout missed at
-#: 1.2e-3 mm; within 0.6 of it, it goes on to 3.8e-4 mm, its hinges 4.9e-4 mm.
-CO_STALL_GAIN = 0.9
-#: A tiling that may still be split (``give_up_slow``) stops co-optimizing when, shrinking at
-#: the rate of its last round for the rounds left, its re-solved error would stay above this
-#: many times the tolerance (the rigid hinge layout takes off about 4x: 200-tile seashell
-#: 2e-3 -> 4.9e-4 mm).  The 200-tile seashell's first tiling (0.052, 0.039, 0.032, 0.012,
-#: 0.025 mm) and the one-part chair's (0.29, 0.42, 2.9 mm) were split in the end; the peanut's
-#: (0.031, 0.010, 3.1e-3, 1.1e-3, 3.4e-4 mm) goes on.
-CO_SLOW_REACH = 4.0
-#: ... and gives up after its first round when that re-solve is this many times worse than
-#: the plain layout.  Runs that never recovered: 200-tile wave 130x (1.55 mm against 0.012),
-#: one-part chair 6.5x, 1600-tile wave 9x; one that did: the 200-tile wave holding the eq.-1
-#: openings, 2.8x (0.032 mm, then 2.3e-3, 2e-4, 9e-5).
-CO_GIVE_UP_RATIO = 5.0
-
-
 def too_slow(
-    previous_mm: float, error_mm: float, rounds_left: int, reach: float = CO_SLOW_REACH
+    previous_mm: float,
+    error_mm: float,
+    rounds_left: int,
+    reach: float = DEFAULT_POLICY.co_slow_reach,
 ) -> bool:
     """Whether co-optimization rounds that took the re-solved edge error from ``previous_mm``
     to ``error_mm`` would, at that rate for ``rounds_left`` more rounds, still end above
@@ -133,12 +82,14 @@ class RoundJudge:
     plain_mm : the plain layout's flat edge error (the result must beat it to be used).
     conical : the rounds make the bottom hinges meet in depth too (see :func:`co_optimized`).
     give_up_slow : stop when the rounds shrink the error too slowly to reach the tolerance
-        (:data:`CO_SLOW_REACH`); ``cut_short`` then says so.
+        (``policy.co_slow_reach``); ``cut_short`` then says so.
+    policy : the stop rules' thresholds (:class:`~.policy.LayoutPolicy`).
     """
 
     plain_mm: float
     conical: bool = False
     give_up_slow: bool = False
+    policy: LayoutPolicy = DEFAULT_POLICY
     best_mm: float = math.inf
     #: rounds in a row below neither the best round nor the plain layout
     worse: int = 0
@@ -157,38 +108,40 @@ class RoundJudge:
         if progress:
             self.best_mm = error_mm
         self.worse = 0 if progress and error_mm < self.plain_mm else self.worse + 1
-        stop_near = CO_STOP_NEAR_CONICAL if self.conical else CO_STOP_NEAR
+        policy = self.policy
+        stop_near = policy.co_stop_near_conical if self.conical else policy.co_stop_near
         # Stop once the re-solve is well inside the tolerance, or within the tolerance and
         # close to what the joint solve reached (more rounds would not gain much).  A re-solve
-        # that misses the tolerance goes on even when it is close to a poor joint solve: the
-        # 200-tile seashell with top hinges then meets the targets with its first tiling
-        # (7.3e-4 mm) where it stopped at 3.2e-3 mm and was split once more.
+        # that misses the tolerance goes on even when it is close to a poor joint solve: later
+        # rounds can still bring it within, where stopping would leave the tiling to be
+        # split.
         if (
             self.worse >= 2
-            or (first_round and error_mm > CO_GIVE_UP_RATIO * self.plain_mm)
-            or error_mm <= CO_STOP_SHARE * FLAT_EDGE_ERROR_TOL_MM
-            or error_mm <= min(stop_near * FLAT_EDGE_ERROR_TOL_MM, CO_STOP_RATIO * joint_mm)
+            or (first_round and error_mm > policy.co_give_up_ratio * self.plain_mm)
+            or error_mm <= policy.co_stop_share * FLAT_EDGE_ERROR_TOL_MM
+            or error_mm <= min(stop_near * FLAT_EDGE_ERROR_TOL_MM, policy.co_stop_ratio * joint_mm)
             or (
                 error_mm <= stop_near * FLAT_EDGE_ERROR_TOL_MM
-                and error_mm > CO_STALL_GAIN * best_before
+                and error_mm > policy.co_stall_gain * best_before
             )
         ):
             return progress, True
-        # A conical round that lost ground is judged by the rounds after it (``worse``): the
-        # CLI-default three-shell's went 0.020, 0.060, 1.1e-3, 3.9e-4, 1.4e-4 mm, where a
-        # rate taken from the lost round had given it up after two.  So is a first round
-        # above the plain layout: with AVX-512 kernels the same three-shell's went 0.197 mm
-        # (plain 0.117), and given up at once it kept a 0.032 mm hinge gap in depth; judged
-        # by the next rounds it meets its hinges in 3D (3.8e-4 mm).
+        # A conical round that lost ground is judged by the rounds after it (``worse``), and
+        # so is a conical first round above the plain layout: conical rounds can lose ground
+        # once and then converge, and a rate taken from the lost round would give them up
+        # (and the bottom hinges their depth) too early.
         judged = (progress and error_mm < previous) or not self.conical
-        left = CO_REFINEMENTS + 1 - self.rounds
-        if self.give_up_slow and judged and too_slow(previous, error_mm, left):
+        left = policy.co_refinements + 1 - self.rounds
+        if (
+            self.give_up_slow
+            and judged
+            and too_slow(previous, error_mm, left, policy.co_slow_reach)
+        ):
             self.cut_short = True
             return progress, True
         if self.conical and judged and too_slow(previous, error_mm, left, reach=1.0):
             # it would miss the tolerance: the caller co-optimizes again without the conical
-            # condition (the 1600-tile wave: 0.29, 0.016, 0.0099, 0.0065 mm, ... 0.0027 mm
-            # after eight rounds; without, 1.4e-4 mm after four)
+            # condition
             return progress, True
         self.previous_mm = error_mm
         return progress, False
@@ -235,6 +188,7 @@ def co_optimized(
     conical: bool = False,
     conical_weight: float | None = None,
     between_rounds: Callable[[], None] | None = None,
+    policy: LayoutPolicy = DEFAULT_POLICY,
 ) -> tuple[AssembledResult, FlatResult, dict[str, Any]]:
     """K3D and K2D moved together so the flat tiles are congruent to the assembled ones
     (:func:`~drawstring.geometry.flat.coflat.co_optimize_top`; with ``faces``, at their hinge points
@@ -245,92 +199,33 @@ def co_optimized(
     layout keeps every hard bound; otherwise the inputs come back unchanged with the reason
     (at once when round 1's joint solve ends no lower than the plain layout).
     With ``give_up_slow`` the rounds stop early when they converge too slowly to reach the
-    tolerance (:data:`CO_SLOW_REACH`; the block then says ``cut_short``).  ``first_solves``
+    tolerance (``policy.co_slow_reach``; the block then says ``cut_short``).  ``first_solves``
     keeps the first joint solve, which runs on the eq.-1 tiles and openings either way, for
     another call on the same inputs (the held-openings run after a tracked one).  With
     ``conical`` (``faces`` with bottom hinges) every joint solve also makes K3D conical and
     every round pulls the bottom hinges' corners to equal depths under both their tiles'
     top faces (:func:`depth_pull`), so that those corners meet in 3D, not only seen from
-    above; the rounds then stop only within ``CO_STOP_NEAR_CONICAL`` of the tolerance.
+    above; the rounds then stop only within ``policy.co_stop_near_conical`` of the tolerance.
     ``conical_weight`` replaces ``coflat.CO_CONICAL``, the weight of that condition.
     ``between_rounds`` is called after every round that does not end the run (the ladder
     starts work ahead there once a core is spare, :meth:`~.co_ladder.CoLadder.poll`)."""
 
-    last: list[tuple[NDArray[np.float64], HingeFaces]] = []
-    # the openings of the last re-solved layout on its hinge faces, and the slit ends released
-    # from their clear windows so far (see HingeFaces.closing)
-    held: list[NDArray[np.float64]] = []
-    released = np.zeros(len(faces.clear_lo) if faces is not None else 0, dtype=bool)
-
-    def openings(tiles: NDArray[np.float64]) -> HingeFaces | None:
-        if faces is None or not track_openings:
-            return faces
-        # a round's joint solve starts on the tiles the previous re-solve was given
-        if not (last and np.array_equal(last[0][0], tiles)):
-            fresh = hinge_faces(linkage, tiles, faces.bottom)
-            if last and held:
-                # A window that closed on the opening laid out in it is released: the joint
-                # solve presses the opening against it, its move of K3D closes it further,
-                # and the re-solve has to give way every round.
-                released[:] |= last[0][1].closing(fresh, held[0])
-            fresh = replace(fresh, released=released.copy()) if released.any() else fresh
-            last[:] = [(tiles.copy(), fresh)]
-        return last[0][1]
-
-    # Round 1 runs the whole continuation. The bottom faces decide the bottom-face angle bounds,
-    # so round 2 repeats the last stage with T3D moved along with the new top (a translation of
-    # each bottom vertex with its top vertex is usually close enough for those bounds). T3D is
-    # then extruded under the new top and the flat layout re-solved with the true bounds; when
-    # that costs much of what the joint solve gained, the last stage runs once more on the
-    # extruded T3D, starting from the re-solved layout: it holds the extruded tiles' bounds
-    # already, so the joint solve need only correct it where the re-extrusion moved the hinge
-    # points (the bottom corners).  Started from the last joint solve's nodes instead, it had
-    # to undo that shift too and moved K3D further, which moved the bottom corners again: the
-    # 200-tile seashell's two parts stalled at 1.5e-3 mm and it was split into four, where now
-    # two meet 4e-4 mm.
+    openings = _Openings(linkage, faces, track_openings)
     block: dict[str, Any] = {"accepted": False, "reason": "", "steps": 0}
-    judge = RoundJudge(flat.edge_error_max_mm, conical=conical, give_up_slow=give_up_slow)
-
+    judge = RoundJudge(
+        flat.edge_error_max_mm, conical=conical, give_up_slow=give_up_slow, policy=policy
+    )
     current, nodes = assembled, None
     rounds: list[tuple[tuple[float, float], ...]] = [CO_STAGES, CO_STAGES[-1:]]
     best: tuple[AssembledResult, FlatResult] | None = None
-    for _ in range(CO_REFINEMENTS + 1):
-        for stages in rounds:
-            first = current is assembled  # round 1's first joint solve: the eq.-1 inputs
-            if first and first_solves is not None and "eq1" in first_solves:
-                co = first_solves["eq1"]
-            else:
-                co = co_optimize_top(
-                    linkage,
-                    flat,
-                    current.top,
-                    current.quads,
-                    target.vertices,
-                    target.faces,
-                    tiles_3d=current.tiles,
-                    w_surface=options.weights[2],
-                    stages=stages,
-                    start_nodes=nodes,
-                    hinges=faces if first else openings(current.tiles),
-                    conical=conical,
-                    conical_weight=conical_weight,
-                )
-                if first and first_solves is not None:
-                    co.top.flags.writeable = co.nodes.flags.writeable = False  # shared
-                    first_solves["eq1"] = co
-            block["steps"] += co.steps
-            moved_bottom = current.bottom + (co.top - current.top)
-            current = replace(
-                current,
-                top=co.top,
-                bottom=moved_bottom,
-                tiles=tile_vertices(co.top, moved_bottom, current.quads),
-            )
-            nodes = co.nodes
+    for _ in range(policy.co_refinements + 1):
+        current, co = _joint_round(
+            rounds, linkage, assembled, current, nodes, flat, target, options, openings,
+            first_solves, conical, conical_weight, block,
+        )  # fmt: skip
         if best is None and not co.edge_error_max_mm < flat.edge_error_max_mm:
             # The first round's joint solve, in its own model, ends above the plain layout:
-            # the re-solve under the true bounds does no better (1600-tile wave, tracked
-            # openings: joint 0.35 mm against a plain 0.13, re-solved 0.63 mm, then 0.66).
+            # the re-solve under the true bounds does no better.
             block["reason"] = (
                 f"the joint solve did not lower the flat edge error "
                 f"({flat.edge_error_max_mm:.3g} -> {co.edge_error_max_mm:.3g} mm)"
@@ -351,16 +246,14 @@ def co_optimized(
             return assembled, flat, block
         current = extruded
         new_flat = flat_layout(
-            linkage, tiling, current, options, openings(current.tiles), initial_nodes=nodes
+            linkage, tiling, current, options, openings(current.tiles), initial_nodes=co.nodes
         )
-        # A round counts as progress only below both the best round and the plain layout:
-        # the result must beat the plain layout to be used, and re-solves that stay above it
-        # do not come down in later rounds (the 200-tile chair in one part: 4.5, 2.7, 2.0,
-        # 1.9 mm against a plain 0.69 mm).
+        # A round counts as progress only below both the best round and the plain layout
+        # (RoundJudge): the result must beat the plain layout to be used, and re-solves that
+        # stay above it do not come down in later rounds.
         error = new_flat.edge_error_max_mm
         nodes = new_flat.nodes
-        if new_flat.hinges is not None and track_openings:
-            held[:] = [hinge_face_openings(linkage, new_flat, current.tiles)]
+        openings.hold(new_flat, current.tiles)
         logger.info(
             "co-optimization round: joint %.3g mm, re-solved %.3g mm", co.edge_error_max_mm, error
         )
@@ -376,9 +269,134 @@ def co_optimized(
         block["cut_short"] = True
     # a refinement round can lose (its re-solve may settle elsewhere): keep the best round
     assert best is not None
+    return _verdict(assembled, flat, best, co, target, block)
+
+
+class _Openings:
+    """The hinge faces each solve of :func:`co_optimized` lays out on: ``faces`` as given,
+    or with ``track`` those of the current tiles (their clear openings), where the slit ends
+    whose windows closed on their openings are released (see ``HingeFaces.closing``).
+    Calling it with the tiles gives their faces."""
+
+    def __init__(self, linkage: Linkage, faces: HingeFaces | None, track: bool) -> None:
+        self._linkage, self._faces, self._track = linkage, faces, track
+        #: the tiles last given, and their faces
+        self._last: tuple[NDArray[np.float64], HingeFaces] | None = None
+        #: the openings of the last re-solved layout on its hinge faces
+        self._held: NDArray[np.float64] | None = None
+        #: the slit ends released from their clear windows so far
+        self._released = np.zeros(len(faces.clear_lo) if faces is not None else 0, dtype=bool)
+
+    def __call__(self, tiles: NDArray[np.float64]) -> HingeFaces | None:
+        faces = self._faces
+        if faces is None or not self._track:
+            return faces
+        last = self._last
+        # a round's joint solve starts on the tiles the previous re-solve was given
+        if last is None or not np.array_equal(last[0], tiles):
+            fresh = hinge_faces(self._linkage, tiles, faces.bottom)
+            if last is not None and self._held is not None:
+                # A window that closed on the opening laid out in it is released: the joint
+                # solve presses the opening against it, its move of K3D closes it further,
+                # and the re-solve has to give way every round.
+                self._released |= last[1].closing(fresh, self._held)
+            released = self._released
+            fresh = replace(fresh, released=released.copy()) if released.any() else fresh
+            self._last = last = (tiles.copy(), fresh)
+        return last[1]
+
+    @property
+    def faces_given(self) -> HingeFaces | None:
+        """The hinge faces of the eq.-1 tiles, as given."""
+        return self._faces
+
+    def hold(self, flat: FlatResult, tiles: NDArray[np.float64]) -> None:
+        """Keep the openings of the re-solved ``flat`` on its hinge faces (tracked faces)."""
+        if flat.hinges is not None and self._track:
+            self._held = hinge_face_openings(self._linkage, flat, tiles)
+
+
+def _joint_round(
+    rounds: list[tuple[tuple[float, float], ...]],
+    linkage: Linkage,
+    assembled: AssembledResult,
+    current: AssembledResult,
+    nodes: NDArray[np.float64] | None,
+    flat: FlatResult,
+    target: Target,
+    options: ResolvedOptions,
+    openings: _Openings,
+    first_solves: dict[str, CoOptimizedTop] | None,
+    conical: bool,
+    conical_weight: float | None,
+    block: dict[str, Any],
+) -> tuple[AssembledResult, CoOptimizedTop]:
+    """The joint solves of one round of :func:`co_optimized`, one per continuation schedule
+    in ``rounds``, each from the last: the moved assembled shape (T3D moved along with its new
+    top) and the last joint solve.  Their steps are added to ``block``.
+
+    Round 1 runs the whole continuation. The bottom faces decide the bottom-face angle bounds,
+    so round 2 repeats the last stage with T3D moved along with the new top (a translation of
+    each bottom vertex with its top vertex is usually close enough for those bounds). T3D is
+    then extruded under the new top and the flat layout re-solved with the true bounds; when
+    that costs much of what the joint solve gained, the last stage runs once more on the
+    extruded T3D, starting from the re-solved layout: it holds the extruded tiles' bounds
+    already, so the joint solve need only correct it where the re-extrusion moved the hinge
+    points (the bottom corners).  A start from the last joint solve's nodes would have to
+    undo that shift too and move K3D further, which moves the bottom corners again, so that
+    the rounds stall.
+    """
+    co: CoOptimizedTop | None = None
+    for stages in rounds:
+        first = current is assembled  # round 1's first joint solve: the eq.-1 inputs
+        if first and first_solves is not None and "eq1" in first_solves:
+            co = first_solves["eq1"]
+        else:
+            co = co_optimize_top(
+                linkage,
+                flat,
+                current.top,
+                current.quads,
+                target.vertices,
+                target.faces,
+                tiles_3d=current.tiles,
+                w_surface=options.weights[2],
+                stages=stages,
+                start_nodes=nodes,
+                hinges=openings.faces_given if first else openings(current.tiles),
+                conical=conical,
+                conical_weight=conical_weight,
+            )
+            if first and first_solves is not None:
+                co.top.flags.writeable = co.nodes.flags.writeable = False  # shared
+                first_solves["eq1"] = co
+        block["steps"] += co.steps
+        moved_bottom = current.bottom + (co.top - current.top)
+        current = replace(
+            current,
+            top=co.top,
+            bottom=moved_bottom,
+            tiles=tile_vertices(co.top, moved_bottom, current.quads),
+        )
+        nodes = co.nodes
+    assert co is not None
+    return current, co
+
+
+def _verdict(
+    assembled: AssembledResult,
+    flat: FlatResult,
+    best: tuple[AssembledResult, FlatResult],
+    co: CoOptimizedTop,
+    target: Target,
+    block: dict[str, Any],
+) -> tuple[AssembledResult, FlatResult, dict[str, Any]]:
+    """:func:`co_optimized`'s outcome: the ``best`` round (measured) where it keeps every
+    tile's orientation and every hard bound of the plain ``flat`` layout and lowers its edge
+    error, else the inputs with the reason in ``block`` (``co``: the last joint solve)."""
     new_assembled, new_flat = best
-    if best[1].hinges is not None and best[1].hinges.released is not None:
-        block["released_ends"] = int(best[1].hinges.released.sum())
+    if new_flat.hinges is not None and new_flat.hinges.released is not None:
+        block["released_ends"] = int(new_flat.hinges.released.sum())
     block["move_max_mm"] = round(
         float(np.linalg.norm(new_assembled.top - assembled.top, axis=1).max()), 6
     )
@@ -389,21 +407,9 @@ def co_optimized(
         co.edge_error_max_mm,
         new_flat.edge_error_max_mm,
     )
-    # A tile is turned over when its top face turned by more than 90 deg from the eq.-1 shape.
-    # (Not the target-normal count ``flipped_tiles``: on a scan, the one closest triangle at a
-    # tile's centre can face another way; the scanned face had 1 such tile before and 2 after
-    # a co-optimization that turned no tile by more than 2.5 deg, and was wrongly refused.)
-    turned = int(
-        np.sum(
-            np.einsum(
-                "ki,ki->k",
-                quad_vector_areas(assembled.top, assembled.quads),
-                quad_vector_areas(new_assembled.top, new_assembled.quads),
-            )
-            <= 0
-        )
-    )
-    if new_assembled.metrics.get("corner_margin_min", 1.0) <= 0 or turned:
+    if new_assembled.metrics.get("corner_margin_min", 1.0) <= 0 or _turned_over(
+        assembled, new_assembled
+    ):
         block["reason"] = "the new assembled shape would fold a tile or turn one over"
         return assembled, flat, block
     hard = [p for p in new_flat.problems if "edge error" not in p]
@@ -419,3 +425,17 @@ def co_optimized(
         return assembled, flat, block
     block["accepted"] = True
     return remeasured(new_assembled, target.vertices, target.faces), new_flat, block
+
+
+def _turned_over(before: AssembledResult, after: AssembledResult) -> int:
+    """How many tiles turned over: their top face turned by more than 90 deg.
+
+    (Not the target-normal count ``flipped_tiles``: on a scanned mesh the one closest
+    triangle at a tile's centre can face another way, which says nothing of the tile.)
+    """
+    turns = np.einsum(
+        "ki,ki->k",
+        quad_vector_areas(before.top, before.quads),
+        quad_vector_areas(after.top, after.quads),
+    )
+    return int(np.sum(turns <= 0))

@@ -3,15 +3,14 @@
 :func:`shape_and_layout` tiles the flattened target, shapes the assembled tiles (paper eq. 1
 and extrusion), lays them flat, co-optimizes both (:func:`~.co_rounds.co_optimized`) and
 places the hinges; where the flat tiles then miss their hinges by more than the targets it
-tiles again with tighter splits (:data:`RETILE_ATTEMPTS`) and keeps the most accurate result.
+tiles again with tighter splits (:attr:`~.policy.LayoutPolicy.retile_attempts`) and keeps the
+most accurate result.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import multiprocessing
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
@@ -20,14 +19,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.geometry.assembled.shape import AssembledResult, optimize_assembled, reextrude
-from drawstring.geometry.core import parallel
 from drawstring.geometry.core.rigid import rigid_copies
 from drawstring.geometry.core.tolerances import (
     FLAT_EDGE_ERROR_TOL_MM,
     HINGE_GAP_TOL_MM,
 )
 from drawstring.geometry.flat import verify
-from drawstring.geometry.flat.coflat import CO_CONICAL, CoOptimizedTop
+from drawstring.geometry.flat.coflat import CoOptimizedTop
 from drawstring.geometry.flat.layout import FlatResult, extrude_flat
 from drawstring.geometry.flat.pose import HingeFaces
 from drawstring.geometry.flatten.conformal import Flattening
@@ -37,8 +35,10 @@ from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling, tile_surface
 from drawstring.geometry.tiling.linkage import Linkage
 from drawstring.pipeline.ahead import Ahead as _Ahead
+from drawstring.pipeline.ahead import can_fork
 from drawstring.pipeline.co_ladder import CoLadder
-from drawstring.pipeline.co_rounds import CO_SLOW_REACH, co_optimized, depth_pull, flat_layout
+from drawstring.pipeline.co_rounds import co_optimized, depth_pull, flat_layout
+from drawstring.pipeline.policy import LayoutPolicy
 from drawstring.pipeline.record import Progress, ResolvedOptions
 
 logger = logging.getLogger(__name__)
@@ -64,40 +64,6 @@ def absorbable_ratio(min_gap_angle_deg: float) -> float:
     """``2 / (1 + sin(theta_min))``: the largest tile area ratio gaps opening between
     ``min_gap_angle_deg`` and 90 degrees can absorb (see :func:`split_bound`)."""
     return 2.0 / (1.0 + math.sin(math.radians(min_gap_angle_deg)))
-
-
-#: Extra tilings tried, each with a tighter split bound, when the flat layout misses its
-#: accuracy targets (flat edge error or hinge gap above 1e-3 mm).  The scale bound of
-#: a split is necessary, not sufficient: a part whose area scale varies within it can still
-#: leave the tiles no flat layout that keeps their shape (the 200-tile chair: one part of
-#: ratio 1.55 < 1.66, 0.5 mm off; two parts of ratio 1.15, 1.5e-4 mm).
-RETILE_ATTEMPTS = 2
-
-#: Each extra tiling keeps this share of the current largest part ratio's excess over 1.
-RETILE_SHRINK = 0.7
-
-#: Tiling again is tried only when the first tiling's largest part ratio uses at least this
-#: share of the bound's excess over 1 (of the 0.66 at 12 deg: 200-tile chair 0.84, seashell
-#: 0.58; the 1600-tile wave, whose miss has another cause, 0.05).
-RETILE_MIN_SHARE = 0.5
-
-#: A first tiling that may still be split is co-optimized with the first conical weight
-#: alone at first; where that misses the flat targets, the first tighter tiling is laid out
-#: (ahead, where a core is spare) and kept if it meets every accuracy target, before the
-#: first tiling's further weights and its run without the condition are tried.  Those meet
-#: the targets, where they do, only by the last bits of the arithmetic (see
-#: ``co_ladder.CONICAL_RETRY_WEIGHTS``) or with the bottom hinges apart in depth; a split
-#: that meets them with the first weight is the sounder design, at the cost of a part.
-#: Where the split misses, the first tiling's ladder goes on from its next step.  The
-#: 200-tile seashell in one part missed with weight 3 (2.9e-3 mm), then weight 10 (3.3e-3 mm)
-#: and then its hinges in depth (0.011 mm) without the condition, where its two parts meet
-#: the targets (8.3e-4 mm): 3.0 s of layout, 1.9 s now (the same design).
-PREFER_SPLIT_AT_FIRST_WEIGHT = True
-
-#: A tighter tiling is kept only when it at least halves the accuracy figure or meets the
-#: accuracy targets (more parts cost a longer route and more assembly, so a marginal gain that
-#: still misses them does not pay for them); one that does neither ends the search.
-RETILE_GAIN = 0.5
 
 
 @dataclass(frozen=True)
@@ -134,12 +100,11 @@ class ShapedLayout:
     @property
     def accuracy_mm(self) -> float:
         """The larger of the flat edge error and the hinge gap, mm, as measured on the output
-        (:func:`~drawstring.pipeline.run.measure_design`): how far the flat tiles are
+        (:func:`~drawstring.pipeline.measure.measure_design`): how far the flat tiles are
         from meeting at their hinges with their assembled shapes (the flat layout's edge error
         where the hinge stage was skipped).  The gap is the whole one, its vertical part too:
         a tighter tiling whose conical co-optimization succeeds closes that part where the
-        first tiling's had to go without (the seashell at the CLI defaults: 0.011 mm in one
-        part, 5.0e-4 mm in two)."""
+        first tiling's had to go without."""
         if self.hinge_layout is None:
             return self.flat.edge_error_max_mm
         tiles = self.assembled.tiles
@@ -154,136 +119,211 @@ MeshKey = tuple[tuple[int, ...], bytes, tuple[int, ...], bytes]
 
 
 def shape_and_layout(
-    loaded: Target, flat_map: Flattening, options: ResolvedOptions, progress: Progress
+    loaded: Target,
+    flat_map: Flattening,
+    options: ResolvedOptions,
+    progress: Progress,
+    *,
+    policy: LayoutPolicy,
 ) -> ShapedLayout:
     """Tile, shape and lay out the target (stages tiling to hinges), tiling again with a
-    tighter split bound (:data:`RETILE_ATTEMPTS`) while the layout misses its accuracy
-    targets; the most accurate result is kept (see :data:`RETILE_GAIN`)."""
-
-    def tiled(bound: float) -> Tiling:
-        with progress.stage("tiling"):
-            return tile_surface(
-                loaded.vertices,
-                loaded.faces,
-                flat_map.uv,
-                tiles=options.tiles,
-                grid=options.grid,
-                max_scale_factor=bound,
-            )
-
-    # Tighter split bounds cut the linkage but keep the quad mesh, so eq. 1 and the extrusion
-    # are solved once per distinct mesh (1-2 s each at 200 tiles; the chair re-tiles twice).
-    shapes: dict[MeshKey, AssembledResult] = {}
+    tighter split bound (``policy.retile_attempts``) while the layout misses its accuracy
+    targets; the most accurate result is kept (see ``policy.retile_gain``)."""
+    run = _Retiling(loaded, flat_map, options, progress, policy)
     bound = split_bound(options)
-    first_tiling = tiled(bound)
-    if first_tiling.scale_factor_max - 1.0 < RETILE_MIN_SHARE * (bound - 1.0):
+    first_tiling = run.tiled(bound)
+    if first_tiling.scale_factor_max - 1.0 < policy.retile_min_share * (bound - 1.0):
         # its area scale hardly varies: more splits are not what it lacks
-        return _shaped(first_tiling, bound, loaded, options, progress, shapes, spare_core=True)
+        return run.shaped(first_tiling, bound, spare_core=True)
     # A tiling that may be split again goes without the held-openings fallback: its
-    # co-optimization is refused for its area scale, which more splits mend (the 200-tile
-    # chair in one part: the fallback took 4.5 s and still missed by 0.2 mm).  It runs after
-    # all if the first tiling is the one kept.
-    ahead: _Ahead[ShapedLayout] | None = None
-    prepared: Tiling | None = None  # the first tighter tiling, when tiled ahead of the loop
-    if RETILE_AHEAD and _can_fork() and RETILE_ATTEMPTS > 0:
-        # The first tighter tiling, which the loop below lays out if the first tiling misses,
-        # is laid out meanwhile in a second process (the 200-tile seashell and chair).
-        next_bound = _tighter(bound, first_tiling)
-        prepared = next_tiling = tiled(next_bound)
-        if not _same_parts(next_tiling, first_tiling):
-            _assembled_shape(first_tiling, loaded, options, progress, shapes)  # shared by both
-
-            def work(child_progress: Progress) -> ShapedLayout:
-                return _shaped(next_tiling, next_bound, loaded, options, child_progress, shapes)
-
-            try:
-                ahead = _Ahead(work, "the tiling laid out ahead")
-            except OSError as exc:  # no process to spare (fork refused): laid out in turn
-                logger.warning("could not lay the tighter tiling out ahead (%s)", exc)
-    target = min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
-    # the first tighter tiling's layout where the first tiling paused for it (used once)
-    laid_out: ShapedLayout | None = None
+    # co-optimization is refused for its area scale, which more splits mend, and the fallback
+    # would not.  It runs after all if the first tiling is the one kept.
+    if policy.retile_ahead and can_fork() and policy.retile_attempts > 0:
+        run.lay_out_ahead(bound, first_tiling)
     first: ShapedLayout | None = None
     try:
-        first = _shaped(
-            first_tiling, bound, loaded, options, progress, shapes, fallback=False,
-            spare_core=ahead is None, core_freed=None if ahead is None else ahead.ready,
-            pause_after_miss=PREFER_SPLIT_AT_FIRST_WEIGHT and RETILE_ATTEMPTS > 0,
+        ahead = run.ahead
+        first = run.shaped(
+            first_tiling, bound, fallback=False, spare_core=ahead is None,
+            core_freed=None if ahead is None else ahead.ready,
+            pause_after_miss=policy.prefer_split_at_first_weight and policy.retile_attempts > 0,
         )  # fmt: skip
         if first.unfinished:
             # Its first conical co-optimization missed the flat targets: the first tighter
             # tiling decides whether the first one's co-optimizations go on.
-            next_bound = _tighter(bound, first_tiling)
-            prepared = prepared if prepared is not None else tiled(next_bound)
-            if not _same_parts(prepared, first_tiling):
-                assert first.paused is not None
-                if ahead is not None:
-                    laid_out, ahead = ahead.result(progress), None
-                if laid_out is None:
-                    # (a core is spare unless the paused ladder runs a step ahead on it)
-                    laid_out = _shaped(
-                        prepared, next_bound, loaded, options, progress, shapes,
-                        spare_core=not first.paused.ladder.running_ahead,
-                    )  # fmt: skip
-                if laid_out.accuracy_mm <= target:
-                    note = (
-                        f"tiling: with split bound {bound:.3g} ({_parts(first_tiling)}) the "
-                        f"conical co-optimization (weight {CO_CONICAL:g}) missed "
-                        f"({first.paused.ladder.missed}); tighter splits gave "
-                        f"{_parts(prepared)} at bound {next_bound:.3g}: "
-                        f"{laid_out.accuracy_mm:.2g} mm; kept {_parts(prepared)}, without "
-                        "trying the first tiling with another weight or without the condition"
-                    )
-                    return replace(laid_out, notes=(*laid_out.notes, note))
-            first = _shaped(
-                first_tiling, bound, loaded, options, progress, shapes, fallback=False,
-                paused=first,
-            )  # fmt: skip
-        best = first
-        first_accuracy = best_accuracy = first.accuracy_mm
+            split = run.split_meeting_targets(bound, first_tiling, first)
+            if split is not None:
+                return split
+            first = run.shaped(first_tiling, bound, fallback=False, paused=first)
+        first_accuracy = first.accuracy_mm
+        best, tried = run.tighter_tilings(bound, first, first_accuracy)
+    finally:
+        run.cancel()  # the work run ahead, where its result is not needed
+        if first is not None:
+            first.abandon()  # (a paused ladder, on the way out)
+    return run.kept(first_tiling, first, first_accuracy, best, tried)
+
+
+class _Retiling:
+    """One run of :func:`shape_and_layout`: what its steps share, and the first tighter
+    tiling where it was tiled, or laid out, before the loop over tighter tilings needs it."""
+
+    def __init__(
+        self,
+        loaded: Target,
+        flat_map: Flattening,
+        options: ResolvedOptions,
+        progress: Progress,
+        policy: LayoutPolicy,
+    ) -> None:
+        self.loaded, self.flat_map, self.options = loaded, flat_map, options
+        self.progress, self.policy = progress, policy
+        #: the accuracy figure (:attr:`ShapedLayout.accuracy_mm`) that meets the targets
+        self.target = min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
+        #: assembled shapes by quad mesh (tighter split bounds cut the linkage, not the mesh)
+        self.shapes: dict[MeshKey, AssembledResult] = {}
+        #: the first tighter tiling laid out in a second process (:meth:`lay_out_ahead`)
+        self.ahead: _Ahead[ShapedLayout] | None = None
+        #: the first tighter tiling, when tiled ahead of the loop
+        self.prepared: Tiling | None = None
+        #: the first tighter tiling's layout where the first tiling paused for it (used once)
+        self.laid_out: ShapedLayout | None = None
+
+    def tiled(self, bound: float) -> Tiling:
+        """Stage tiling: the flattened target tiled with split bound ``bound``."""
+        with self.progress.stage("tiling"):
+            return tile_surface(
+                self.loaded.vertices,
+                self.loaded.faces,
+                self.flat_map.uv,
+                tiles=self.options.tiles,
+                grid=self.options.grid,
+                max_scale_factor=bound,
+            )
+
+    def shaped(
+        self, tiling: Tiling, bound: float, progress: Progress | None = None, **kwargs: Any
+    ) -> ShapedLayout:
+        """:func:`_shaped` on ``tiling`` (split with ``bound``), its keywords passed on."""
+        return _shaped(
+            tiling, bound, self.loaded, self.options,
+            self.progress if progress is None else progress, self.shapes, policy=self.policy,
+            **kwargs,
+        )  # fmt: skip
+
+    def lay_out_ahead(self, bound: float, first_tiling: Tiling) -> None:
+        """Tile the first tighter tiling, which the loop over tighter tilings lays out if the
+        first tiling misses, and lay it out meanwhile in a second process where it splits
+        the grid otherwise than ``first_tiling`` (the assembled shape, which both tilings
+        share, is solved here first)."""
+        next_bound = _tighter(bound, first_tiling, self.policy)
+        self.prepared = next_tiling = self.tiled(next_bound)
+        if _same_parts(next_tiling, first_tiling):
+            return
+        _assembled_shape(first_tiling, self.loaded, self.options, self.progress, self.shapes)
+
+        def work(child_progress: Progress) -> ShapedLayout:
+            return self.shaped(next_tiling, next_bound, child_progress)
+
+        try:
+            self.ahead = _Ahead(
+                work, "the tiling laid out ahead", niceness=self.policy.ahead_niceness
+            )
+        except OSError as exc:  # no process to spare (fork refused): laid out in turn
+            logger.warning("could not lay the tighter tiling out ahead (%s)", exc)
+
+    def split_meeting_targets(
+        self, bound: float, first_tiling: Tiling, first: ShapedLayout
+    ) -> ShapedLayout | None:
+        """After the first tiling's ladder paused on a miss (``first``): the first tighter
+        tiling's layout, with a note, if it meets every accuracy target; None otherwise (the
+        layout is then kept for the loop over tighter tilings)."""
+        next_bound = _tighter(bound, first_tiling, self.policy)
+        prepared = self.prepared if self.prepared is not None else self.tiled(next_bound)
+        self.prepared = prepared
+        if _same_parts(prepared, first_tiling):
+            return None
+        assert first.paused is not None
+        if self.ahead is not None:
+            self.laid_out, self.ahead = self.ahead.result(self.progress), None
+        if self.laid_out is None:
+            # (a core is spare unless the paused ladder runs a step ahead on it)
+            self.laid_out = self.shaped(
+                prepared, next_bound, spare_core=not first.paused.ladder.running_ahead
+            )
+        laid_out = self.laid_out
+        if laid_out.accuracy_mm > self.target:
+            return None
+        note = (
+            f"tiling: with split bound {bound:.3g} ({_parts(first_tiling)}) the "
+            f"conical co-optimization (weight {self.policy.conical_weights[0]:g}) missed "
+            f"({first.paused.ladder.missed}); tighter splits gave "
+            f"{_parts(prepared)} at bound {next_bound:.3g}: "
+            f"{laid_out.accuracy_mm:.2g} mm; kept {_parts(prepared)}, without "
+            "trying the first tiling with another weight or without the condition"
+        )
+        return replace(laid_out, notes=(*laid_out.notes, note))
+
+    def tighter_tilings(
+        self, bound: float, first: ShapedLayout, first_accuracy: float
+    ) -> tuple[ShapedLayout, list[str]]:
+        """The most accurate layout of ``first`` (split with ``bound``) and the tighter
+        tilings tried while it misses the targets, and a line on each tiling tried."""
+        best, best_accuracy = first, first_accuracy
         tried: list[str] = []
-        for _ in range(RETILE_ATTEMPTS):
-            if best_accuracy <= target:
+        for _ in range(self.policy.retile_attempts):
+            if best_accuracy <= self.target:
                 break
-            bound = _tighter(bound, best.tiling)
-            tiling = prepared if prepared is not None else tiled(bound)
-            prepared = None
-            trial, laid_out = laid_out, None  # laid out already (the first tighter tiling)
-            if ahead is not None:  # laid out meanwhile (its tiling is ``prepared``)
-                trial, ahead = ahead.result(progress), None
+            bound = _tighter(bound, best.tiling, self.policy)
+            tiling = self.prepared if self.prepared is not None else self.tiled(bound)
+            self.prepared = None
+            # laid out already (the first tighter tiling)
+            trial, self.laid_out = self.laid_out, None
+            if self.ahead is not None:  # laid out meanwhile (its tiling is ``prepared``)
+                trial, self.ahead = self.ahead.result(self.progress), None
             if _same_parts(tiling, best.tiling):
                 break  # no further split keeps enough cells on each side
             if trial is None:
-                trial = _shaped(tiling, bound, loaded, options, progress, shapes, spare_core=True)
+                trial = self.shaped(tiling, bound, spare_core=True)
             accuracy = trial.accuracy_mm
             tried.append(f"{_parts(tiling)} at bound {bound:.3g}: {accuracy:.2g} mm")
-            if not (accuracy < RETILE_GAIN * best_accuracy or accuracy <= target):
+            if not (accuracy < self.policy.retile_gain * best_accuracy or accuracy <= self.target):
                 break  # splitting does not help this design (e.g. errors at split-line ends)
             best, best_accuracy = trial, accuracy
-    finally:
-        if ahead is not None:
-            ahead.cancel()  # the first tiling met the targets: its result is not needed
-        if first is not None:
-            first.abandon()  # (a paused ladder, on the way out)
-    if best is first and first.fallback_skipped and first_accuracy > target:
-        # kept after all: co-optimized in full, with the held-openings fallback
-        best = first = _shaped(
-            first_tiling, first.split_bound, loaded, options, progress, shapes, spare_core=True
+        return best, tried
+
+    def cancel(self) -> None:
+        """Stop the tiling laid out ahead (its result is not needed, or the run ends)."""
+        if self.ahead is not None:
+            self.ahead.cancel()
+
+    def kept(
+        self,
+        first_tiling: Tiling,
+        first: ShapedLayout,
+        first_accuracy: float,
+        best: ShapedLayout,
+        tried: list[str],
+    ) -> ShapedLayout:
+        """The layout kept, ``best``, with a note on the tighter tilings ``tried``; the first
+        tiling (``first``) laid out in full if it is the one kept and was not."""
+        if best is first and first.fallback_skipped and first_accuracy > self.target:
+            # kept after all: co-optimized in full, with the held-openings fallback
+            best = first = self.shaped(first_tiling, first.split_bound, spare_core=True)
+        if not tried:
+            return first
+        outcome = f"kept {_parts(best.tiling)}" if best is not first else "kept the first tiling"
+        note = (
+            f"tiling: with split bound {first.split_bound:.3g} ({_parts(first.tiling)}) the flat "
+            f"tiles met their hinges with their assembled shapes only to {first_accuracy:.2g} mm; "
+            f"tighter splits gave {'; '.join(tried)}; {outcome}"
         )
-    if not tried:
-        return first
-    outcome = f"kept {_parts(best.tiling)}" if best is not first else "kept the first tiling"
-    note = (
-        f"tiling: with split bound {first.split_bound:.3g} ({_parts(first.tiling)}) the flat "
-        f"tiles met their hinges with their assembled shapes only to {first_accuracy:.2g} mm; "
-        f"tighter splits gave {'; '.join(tried)}; {outcome}"
-    )
-    return replace(best, notes=(*best.notes, note))
+        return replace(best, notes=(*best.notes, note))
 
 
-def _tighter(bound: float, tiling: Tiling) -> float:
+def _tighter(bound: float, tiling: Tiling, policy: LayoutPolicy) -> float:
     """The split bound of the tiling tried after ``tiling`` (split with ``bound``)."""
-    return 1.0 + RETILE_SHRINK * (min(bound, tiling.scale_factor_max) - 1.0)
+    return 1.0 + policy.retile_shrink * (min(bound, tiling.scale_factor_max) - 1.0)
 
 
 def _parts(tiling: Tiling) -> str:
@@ -315,6 +355,7 @@ def _shaped(
     progress: Progress,
     shapes: dict[MeshKey, AssembledResult],
     *,
+    policy: LayoutPolicy,
     fallback: bool = True,
     spare_core: bool = False,
     core_freed: Callable[[], bool] | None = None,
@@ -343,43 +384,15 @@ def _shaped(
         ladder, faces, notes = paused.paused.ladder, paused.paused.faces, list(paused.notes)
     else:
         notes = list(tiling.notes)
-        assembled = _assembled_shape(tiling, loaded, options, progress, shapes)
-        # Hinge sides are decided on the eq.-1 tiles (and again once their bottom corners are
-        # pulled to equal depths, which can move a side); the flat layout makes the hinged
-        # corners meet on the face that carries each hinge.
-        faces = (
-            dual_hinge_faces(linkage, assembled.tiles, options.min_gap_angle_deg)
-            if options.hinges == "dual"
-            else None
-        )
-        if faces is not None and HINGE_DEPTHS and faces.bottom.any():
-            assembled = _bottom_hinge_depths(assembled, linkage, faces.bottom, loaded)
-            faces = dual_hinge_faces(linkage, assembled.tiles, options.min_gap_angle_deg)
-        with progress.stage("flat"):
-            # only a seed when the co-optimization follows (FLAT_SEED_STEPS)
-            seed_steps = FLAT_SEED_STEPS if options.co_optimize else None
-            flat = flat_layout(linkage, tiling, assembled, options, faces, seed_steps=seed_steps)
+        assembled, faces, flat = _plain_layout(tiling, loaded, options, progress, shapes, policy)
         if options.co_optimize:
-            plain = (assembled, flat)
-            # With bottom hinges the top is made conical too (their corners then meet in
-            # depth); where that costs the flat layout its targets, it is co-optimized again
-            # with the next weight of the condition (CONICAL_RETRY_WEIGHTS), and after the
-            # last without it (the face scan: 0.012 mm conical, within 1e-3 mm without).
-            conical = (
-                HINGE_DEPTHS and CO_CONICAL > 0 and faces is not None and bool(faces.bottom.any())
-            )
-            ladder = CoLadder(
-                lambda step: _co_optimized_with_fallback(
-                    linkage, tiling, *plain, loaded, options, faces, fallback, *step,
-                    between_rounds=ladder.poll if ladder is not None else None,
-                ),
-                conical,
-                spare_core and _can_fork(),
-                core_freed if core_freed is not None and _can_fork() else None,
+            ladder = _co_ladder(
+                tiling, assembled, flat, loaded, options, faces, policy, fallback=fallback,
+                spare_core=spare_core, core_freed=core_freed,
             )  # fmt: skip
     if ladder is not None:
         with progress.stage("co-optimize"):
-            far = None if fallback else CO_SLOW_REACH * FLAT_EDGE_ERROR_TOL_MM
+            far = None if fallback else policy.co_slow_reach * FLAT_EDGE_ERROR_TOL_MM
             assembled, flat, co_block, skipped, note = ladder.run(far, pause_after_miss)
             if note:
                 notes.append(note)
@@ -391,7 +404,7 @@ def _shaped(
             )  # fmt: skip
         if not co_block["accepted"]:
             notes.append(f"co-optimization not used: {co_block['reason']}")
-            if flat.iterations >= FLAT_SEED_STEPS:
+            if flat.iterations >= policy.flat_seed_steps:
                 with progress.stage("flat"):  # the seed is the layout now: finish it
                     flat = flat_layout(
                         linkage, tiling, assembled, options, faces, initial_nodes=flat.nodes
@@ -399,11 +412,11 @@ def _shaped(
     else:
         co_block = {"accepted": False, "reason": "off (--no-co-optimize)"}
     hinge_layout: HingeLayout | None = None
-    if not fallback and flat.edge_error_max_mm > CO_SLOW_REACH * FLAT_EDGE_ERROR_TOL_MM:
+    if not fallback and flat.edge_error_max_mm > policy.co_slow_reach * FLAT_EDGE_ERROR_TOL_MM:
         # A tiling that may still be split skips the hinge stage when its flat layout is too
-        # far off for the rigid hinge layout to reach the targets (it takes off about 4x, see
-        # CO_SLOW_REACH; on a layout this far off it can add: 200-tile seashell in one part,
-        # 0.052 mm flat, 0.082 mm hinged): it is tiled again, and laid out in full if kept.
+        # far off for the rigid hinge layout to reach the targets (policy.co_slow_reach; on a
+        # layout this far off it can add to the error): it is tiled again, and laid out in
+        # full if kept.
         skipped = True
     else:
         tiles_2d = extrude_flat(flat, assembled.tiles, options.thickness_mm)
@@ -424,9 +437,74 @@ def _shaped(
     )
 
 
-#: Pull the bottom hinges' corners to equal depths before the flat layout (dual hinges; see
-#: :func:`_bottom_hinge_depths`).
-HINGE_DEPTHS = True
+def _plain_layout(
+    tiling: Tiling,
+    loaded: Target,
+    options: ResolvedOptions,
+    progress: Progress,
+    shapes: dict[MeshKey, AssembledResult],
+    policy: LayoutPolicy,
+) -> tuple[AssembledResult, HingeFaces | None, FlatResult]:
+    """Stages assembled and flat on one tiling: the assembled shape (eq. 1 and extrusion,
+    the bottom hinges' corners pulled to equal depths), the hinge faces (dual hinges) and the
+    plain flat layout (only a seed when the co-optimization follows)."""
+    linkage = tiling.linkage
+    assembled = _assembled_shape(tiling, loaded, options, progress, shapes)
+    # Hinge sides are decided on the eq.-1 tiles (and again once their bottom corners are
+    # pulled to equal depths, which can move a side); the flat layout makes the hinged
+    # corners meet on the face that carries each hinge.
+    faces = (
+        dual_hinge_faces(linkage, assembled.tiles, options.min_gap_angle_deg)
+        if options.hinges == "dual"
+        else None
+    )
+    if faces is not None and policy.hinge_depths and faces.bottom.any():
+        assembled = _bottom_hinge_depths(assembled, linkage, faces.bottom, loaded)
+        faces = dual_hinge_faces(linkage, assembled.tiles, options.min_gap_angle_deg)
+    with progress.stage("flat"):
+        # only a seed when the co-optimization follows (policy.flat_seed_steps)
+        seed_steps = policy.flat_seed_steps if options.co_optimize else None
+        flat = flat_layout(linkage, tiling, assembled, options, faces, seed_steps=seed_steps)
+    return assembled, faces, flat
+
+
+def _co_ladder(
+    tiling: Tiling,
+    assembled: AssembledResult,
+    flat: FlatResult,
+    loaded: Target,
+    options: ResolvedOptions,
+    faces: HingeFaces | None,
+    policy: LayoutPolicy,
+    *,
+    fallback: bool,
+    spare_core: bool,
+    core_freed: Callable[[], bool] | None,
+) -> CoLadder:
+    """The co-optimizations of one tiling from its plain layout (``assembled``, ``flat``),
+    in turn (see :func:`_shaped` for the keywords)."""
+    plain = (assembled, flat)
+    # With bottom hinges the top is made conical too (their corners then meet in depth);
+    # where that costs the flat layout its targets, it is co-optimized again with the next
+    # weight of the condition (policy.conical_weights), and after the last without it.
+    conical = (
+        policy.hinge_depths
+        and bool(policy.conical_weights)
+        and faces is not None
+        and bool(faces.bottom.any())
+    )
+    ladder: CoLadder | None = None
+    ladder = CoLadder(
+        lambda step: _co_optimized_with_fallback(
+            tiling.linkage, tiling, *plain, loaded, options, faces, fallback, *step,
+            between_rounds=ladder.poll if ladder is not None else None, policy=policy,
+        ),
+        conical,
+        spare_core and can_fork(),
+        core_freed if core_freed is not None and can_fork() else None,
+        policy=policy,
+    )  # fmt: skip
+    return ladder
 
 
 def _bottom_hinge_depths(
@@ -460,6 +538,7 @@ def _co_optimized_with_fallback(
     conical_weight: float | None = None,
     *,
     between_rounds: Callable[[], None] | None = None,
+    policy: LayoutPolicy,
 ) -> tuple[AssembledResult, FlatResult, dict[str, Any], bool]:
     """:func:`co_optimized` tracking the clear openings and, when that is refused and
     ``fallback`` (and not ``conical``: the caller tries that again otherwise), again holding the
@@ -469,18 +548,19 @@ def _co_optimized_with_fallback(
     new_assembled, new_flat, co_block = co_optimized(
         linkage, tiling, assembled, flat, loaded, options, faces, give_up_slow=not fallback,
         first_solves=first_solves, conical=conical, conical_weight=conical_weight,
-        between_rounds=between_rounds,
+        between_rounds=between_rounds, policy=policy,
     )  # fmt: skip
     refused = not co_block["accepted"] and faces is not None
     skipped = (refused and not fallback) or bool(co_block.get("cut_short"))
     if refused and fallback and not conical:
         # On the moved tiles some slit ends no longer clear where they did, and the windows
-        # that shift between rounds can leave the re-solve stranded (1600-tile wave: 0.14 mm
-        # -> 1.4 mm); the clear openings of the eq.-1 tiles held throughout reach 7.5e-4 mm
-        # there.  The hinge stage separates the final tiles exactly either way.
+        # that shift between rounds can leave the re-solve stranded; the clear openings of
+        # the eq.-1 tiles, held throughout, do not move.  The hinge stage separates the final
+        # tiles exactly either way.
         held = co_optimized(
             linkage, tiling, assembled, flat, loaded, options, faces, track_openings=False,
             first_solves=first_solves, conical=conical, between_rounds=between_rounds,
+            policy=policy,
         )  # fmt: skip
         if held[2]["accepted"]:
             new_assembled, new_flat = held[0], held[1]
@@ -518,39 +598,3 @@ def _assembled_shape(
             for array in (shapes[key].top, shapes[key].bottom, shapes[key].tiles):
                 array.flags.writeable = False  # shared between tilings: nothing may edit it
         return shapes[key]
-
-
-#: Lay out the first tighter tiling in a second process while the first tiling is laid out
-#: (:class:`~drawstring.pipeline.ahead.Ahead`), where the machine has two cores or more
-#: and processes can be forked.
-#: Its result is the one the serial run would compute: it is used only if the first tiling
-#: misses the targets, and thrown away otherwise.
-RETILE_AHEAD = True
-
-
-def _can_fork() -> bool:
-    """Whether work may be run ahead in a forked child (a tiling, :data:`RETILE_AHEAD`; a
-    co-optimization, :data:`~.co_ladder.CO_SPECULATE`): two cores or more, Linux (forking a
-    process that has loaded macOS system frameworks is unsafe), and not inside a daemonic
-    process (e.g. a ``multiprocessing`` pool worker: it may not fork)."""
-    return (
-        sys.platform.startswith("linux")
-        and parallel.thread_count() >= 2
-        and "fork" in multiprocessing.get_all_start_methods()
-        and not multiprocessing.current_process().daemon
-    )
-
-
-#: Gauss-Newton steps after which the flat layout that only seeds the co-optimization (which
-#: moves it anyway) stops, at the end of the first augmented-Lagrangian round whose bounds all
-#: hold (a seed that breaks them would make the co-optimization's "keeps every hard bound"
-#: test meaningless).  The 200-tile built-ins' plain layouts settle within 125 steps, both
-#: hinge strategies, except the three-shell's with dual hinges: its bounds hold after 120
-#: steps and it then polished its 0.27 mm least-squares optimum up to the 400-step cap
-#: (1.2 s); it now stops at 251 steps and still meets the targets (7 parts; flat edge error
-#: 6.2e-5 mm, was 5.7e-5; in-plane hinge gap 7.4e-4 mm as before).  The other fifteen rows
-#: are bitwise unchanged.  At 1600 tiles the wave's plain layout stops at 262 steps instead
-#: of 308, and its hinges meet within 1.9e-4 mm.  (Those step counts were measured before the
-#: flat solver's line search, with which the 1600-tile wave's seed settles after 113.)  Where
-#: the co-optimization is not used, the seed is finished.
-FLAT_SEED_STEPS = 150

@@ -9,6 +9,7 @@ the tight string locks the assembled shape.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -203,9 +204,45 @@ def measure_design(
     equations per tile).
     """
     linkage = tiling.linkage
-    a = assembled.metrics
+    clash = verify.assembled_overlap(assembled.tiles, linkage)
+    flat_pose = _measure_flat(linkage, assembled, hinge_layout)
+    channel_turn = channel_turn_assembled(route, assembled.tiles)
     metrics: dict[str, Any] = {
-        key: rounded(float(a[key]), 9)
+        **_assembled_metrics(assembled.metrics, clash),
+        **flat_pose.to_json(),
+        "hinges_bottom": int(np.count_nonzero(hinge_layout.bottom)),
+        "mass_g": rounded(float(masses.sum()) * 1000.0, 3),
+        # top hinges trim every overlapping pair; dual ones only pairs that clear on neither
+        # face
+        "contact_area_lost_mm2": rounded(hinge_layout.contact_area_lost_mm2, 6),
+        "lift_points": lift.to_json(),
+        "route": _route_metrics(
+            route, tiling, assembled, hinge_layout, flat_pose.fabricated, lift, profile,
+            channel_turn,
+        ),
+    }  # fmt: skip
+    problems = _shape_problems(clash, flat_pose, options)
+    warnings = [
+        *_edge_error_warnings(flat_pose),
+        *_surface_warnings(assembled.metrics, target_diagonal_mm),
+        *_hinge_gap_warnings(flat_pose, options),
+    ]
+    scale_problems, scale_warnings = _scale_findings(
+        tiling, options, flat_pose, shape_ok=not problems
+    )
+    problems.extend(scale_problems)
+    warnings.extend(scale_warnings)
+    problems.extend(route_problems(route, linkage))
+    capstan = float(metrics["route"]["capstan_factor_channels_assembled"])
+    warnings.extend(_string_warnings(options, profile, lift, route, channel_turn, capstan))
+    return metrics, problems, warnings
+
+
+def _assembled_metrics(measured: dict[str, Any], clash: verify.AssembledOverlap) -> dict[str, Any]:
+    """design.json's metrics of the assembled tiles: the assembled stage's own measures
+    (``measured``) and how far the tiles clash (``clash``)."""
+    metrics: dict[str, Any] = {
+        key: rounded(float(measured[key]), 9)
         for key in (
             "planarity_max_mm",
             "planarity_max_before_mm",
@@ -218,12 +255,53 @@ def measure_design(
             "thickness_min_mm",
             "thickness_max_mm",
         )
-        if key in a
+        if key in measured
     }
-    clash = verify.assembled_overlap(assembled.tiles, linkage)
     metrics.update(
         {k: rounded(v, 9) if isinstance(v, float) else v for k, v in clash.to_json().items()}
     )
+    return metrics
+
+
+@dataclass(frozen=True)
+class _FlatPose:
+    """The flat tiles (after the hinge layout) as measured: how they overlap, how far they are
+    from the assembled tiles' shapes, how their gaps open and how their hinges meet."""
+
+    overlap_area_mm2: float
+    interpenetration_mm3: float
+    edge_error_mm: float
+    #: (G,) each slit end's opening angle, measured on the face that carries its hinge
+    gap_angles_deg: NDArray[np.float64]
+    #: the whole hinge gap, and the one seen from above
+    hinge_gap_mm: float
+    hinge_gap_in_plane_mm: float
+    merge_shift_mm: float
+    #: (T, 8, 3) the tiles as fabricated (:func:`~.layout_stage.fabricated_tiles`)
+    fabricated: NDArray[np.float64]
+
+    def to_json(self) -> dict[str, float]:
+        """The ``flat_*`` and ``hinge_gap_*`` metrics of design.json."""
+        angles = self.gap_angles_deg
+        return {
+            "flat_overlap_area_mm2": rounded(self.overlap_area_mm2, 9),
+            "flat_interpenetration_mm3": rounded(self.interpenetration_mm3, 9),
+            "flat_edge_error_max_mm": rounded(self.edge_error_mm, 9),
+            "flat_gap_angle_min_deg": rounded(float(angles.min(initial=90.0)), 6),
+            "flat_gap_angle_max_deg": rounded(float(angles.max(initial=0.0)), 6),
+            "hinge_gap_max_mm": rounded(self.hinge_gap_mm, 9),
+            "hinge_gap_in_plane_max_mm": rounded(self.hinge_gap_in_plane_mm, 9),
+            # flat.obj holds the merged tiles: how far merging moved a vertex off its rigid
+            # copy of the assembled tile (about the largest hinge gap at most: a pair merges at
+            # its midpoint moved sideways onto the plane that separates its tiles)
+            "flat_merge_shift_max_mm": rounded(self.merge_shift_mm, 9),
+        }
+
+
+def _measure_flat(
+    linkage: Linkage, assembled: AssembledResult, hinge_layout: HingeLayout
+) -> _FlatPose:
+    """The flat pose of ``hinge_layout`` measured against the ``assembled`` tiles."""
     tiles_2d = hinge_layout.tiles
     top_2d = tiles_2d[:, :4, :2]
     _, overlapping, areas = verify.flat_overlap(top_2d)
@@ -232,43 +310,46 @@ def measure_design(
     # trims below checks that independently.
     trimmed_pairs = {(trim.other, trim.tile) for trim in hinge_layout.trims}
     kept = [k for k, (a, b) in enumerate(overlapping.tolist()) if (a, b) not in trimmed_pairs]
-    overlap_area = float(areas[kept].sum())
     trims = [(trim.tile, trim.vertices) for trim in hinge_layout.trims]
     volume, _, _ = verify.interpenetration(tiles_2d, trims=trims)
     edge_error = float(verify.flat_edge_errors(top_2d, assembled.tiles[:, :4]).max(initial=0.0))
-    # Each slit end measured on the face that carries its hinge (top or bottom).
-    angles = verify.gap_opening_angles_deg(linkage, tiles_2d, hinge_layout.bottom)
     # Hinge gap measured on the tiles as fabricated (rigid copies of T3D, before merging).
     fabricated = fabricated_tiles(hinge_layout, assembled.tiles)
     gaps = verify.hinge_gaps(fabricated, hinge_layout.hinge_vertices)
-    hinge_gap = float(gaps.max(initial=0.0))
     in_plane = verify.hinge_gaps(fabricated, hinge_layout.hinge_vertices, in_plane=True)
-    metrics.update(
-        {
-            "flat_overlap_area_mm2": rounded(overlap_area, 9),
-            "flat_interpenetration_mm3": rounded(volume, 9),
-            "flat_edge_error_max_mm": rounded(edge_error, 9),
-            "flat_gap_angle_min_deg": rounded(float(angles.min(initial=90.0)), 6),
-            "flat_gap_angle_max_deg": rounded(float(angles.max(initial=0.0)), 6),
-            "hinge_gap_max_mm": rounded(hinge_gap, 9),
-            "hinge_gap_in_plane_max_mm": rounded(float(in_plane.max(initial=0.0)), 9),
-            # flat.obj holds the merged tiles: how far merging moved a vertex off its rigid
-            # copy of the assembled tile (about the largest hinge gap at most: a pair merges at
-            # its midpoint moved sideways onto the plane that separates its tiles)
-            "flat_merge_shift_max_mm": rounded(
-                float(np.linalg.norm(hinge_layout.tiles - fabricated, axis=2).max(initial=0.0)),
-                9,
-            ),
-            "hinges_bottom": int(np.count_nonzero(hinge_layout.bottom)),
-            "mass_g": rounded(float(masses.sum()) * 1000.0, 3),
-        }
+    return _FlatPose(
+        overlap_area_mm2=float(areas[kept].sum()),
+        interpenetration_mm3=volume,
+        edge_error_mm=edge_error,
+        gap_angles_deg=verify.gap_opening_angles_deg(linkage, tiles_2d, hinge_layout.bottom),
+        hinge_gap_mm=float(gaps.max(initial=0.0)),
+        hinge_gap_in_plane_mm=float(in_plane.max(initial=0.0)),
+        merge_shift_mm=float(
+            np.linalg.norm(hinge_layout.tiles - fabricated, axis=2).max(initial=0.0)
+        ),
+        fabricated=fabricated,
     )
-    # top hinges trim every overlapping pair; dual ones only pairs that clear on neither face
-    metrics["contact_area_lost_mm2"] = rounded(hinge_layout.contact_area_lost_mm2, 6)
-    metrics["lift_points"] = lift.to_json()
+
+
+def _route_metrics(
+    route: Route,
+    tiling: Tiling,
+    assembled: AssembledResult,
+    hinge_layout: HingeLayout,
+    fabricated: NDArray[np.float64],
+    lift: LiftPoints,
+    profile: Profile,
+    channel_turn: float,
+) -> dict[str, Any]:
+    """design.json's ``metrics.route``: the planned route's measures, the string's length
+    along its channels and how much the channels bend in the assembled pose (``channel_turn``,
+    :func:`channel_turn_assembled`)."""
+    linkage = tiling.linkage
     assembled_gaps = gap_centroids(linkage, assembled.tiles[:, :4])
-    flat_gaps = gap_centroids(linkage, parts_in_place(linkage, top_2d, tiling.uv))
-    metrics["route"] = jsonable(
+    flat_gaps = gap_centroids(
+        linkage, parts_in_place(linkage, hinge_layout.tiles[:, :4, :2], tiling.uv)
+    )
+    block: dict[str, Any] = jsonable(
         route_metrics(route, linkage, flat_gaps, assembled_gaps, profile.friction_coefficient)
     )
     # the string's length along its channels on the fabricated tiles, as every other output
@@ -279,14 +360,20 @@ def measure_design(
     flat_length, assembled_length = route_lengths(
         fabricated, assembled.tiles, route_steps(route), lift_exits(route, lift.lift_gaps)
     )
-    metrics["route"]["length_mm"] = {"flat": flat_length, "assembled": assembled_length}
-    channel_turn = channel_turn_assembled(route, assembled.tiles)
-    metrics["route"]["turn_angle_channels_assembled_rad"] = rounded(channel_turn, 6)
-    metrics["route"]["capstan_factor_channels_assembled"] = rounded(
+    block["length_mm"] = {"flat": flat_length, "assembled": assembled_length}
+    block["turn_angle_channels_assembled_rad"] = rounded(channel_turn, 6)
+    block["capstan_factor_channels_assembled"] = rounded(
         math.exp(profile.friction_coefficient * channel_turn), 6
     )
-    problems: list[str] = []
-    warnings: list[str] = []
+    return block
+
+
+def _shape_problems(
+    clash: verify.AssembledOverlap, flat_pose: _FlatPose, options: ResolvedOptions
+) -> list[str]:
+    """Problems of the tiles' shapes: folded or clashing assembled tiles, overlapping flat
+    tiles, gaps that open outside their angle bounds."""
+    problems = []
     folded = len(clash.nonconvex_top) + len(clash.nonconvex_bottom)
     if folded:
         problems.append(f"{folded} assembled tile faces are folded (non-convex)")
@@ -295,27 +382,41 @@ def measure_design(
             f"assembled tiles interpenetrate up to {clash.depth_max_mm:.3g} mm "
             f"({len(clash.pairs)} pairs)"
         )
+    overlap_area, volume = flat_pose.overlap_area_mm2, flat_pose.interpenetration_mm3
     if overlap_area > FLAT_OVERLAP_TOL_MM2:
         problems.append(f"flat tiles overlap by {overlap_area:.3g} mm^2")
     if volume > FLAT_INTERPENETRATION_TOL_MM3:
         problems.append(f"flat tiles interpenetrate by {volume:.3g} mm^3")
-    if edge_error > FLAT_EDGE_ERROR_TOL_MM:
-        warnings.append(
-            f"flat edge error {above(edge_error, FLAT_EDGE_ERROR_TOL_MM)} mm exceeds "
-            f"{FLAT_EDGE_ERROR_TOL_MM:g} mm: a "
-            "curved target's tiles cannot all keep their assembled shape with every hinge "
-            "meeting in the plane; the printed tiles are exact copies of the assembled ones, "
-            "and more tiles shrink the error"
-        )
+    angles = flat_pose.gap_angles_deg
     low = options.min_gap_angle_deg - FLAT_GAP_ANGLE_TOL_DEG
     if angles.size and (angles.min() < low or angles.max() > 90 + FLAT_GAP_ANGLE_TOL_DEG):
         problems.append(
             f"gap angles {angles.min():.2f}..{angles.max():.2f} deg leave "
             f"[{options.min_gap_angle_deg:g}, 90]"
         )
-    side = float(a.get("tile_side_mean_mm", 0.0))
-    mean_distance = float(a.get("surface_distance_mean_mm", 0.0))
-    max_distance = float(a.get("surface_distance_max_mm", 0.0))
+    return problems
+
+
+def _edge_error_warnings(flat_pose: _FlatPose) -> list[str]:
+    """A warning where the flat tiles miss the assembled tiles' shapes (the flat edge error)."""
+    edge_error = flat_pose.edge_error_mm
+    if edge_error <= FLAT_EDGE_ERROR_TOL_MM:
+        return []
+    return [
+        f"flat edge error {above(edge_error, FLAT_EDGE_ERROR_TOL_MM)} mm exceeds "
+        f"{FLAT_EDGE_ERROR_TOL_MM:g} mm: a "
+        "curved target's tiles cannot all keep their assembled shape with every hinge "
+        "meeting in the plane; the printed tiles are exact copies of the assembled ones, "
+        "and more tiles shrink the error"
+    ]
+
+
+def _surface_warnings(measured: dict[str, Any], target_diagonal_mm: float) -> list[str]:
+    """A warning where the assembled tiles sit far from the target surface, on average (by
+    the mean tile side) or anywhere (by the target's diagonal)."""
+    side = float(measured.get("tile_side_mean_mm", 0.0))
+    mean_distance = float(measured.get("surface_distance_mean_mm", 0.0))
+    max_distance = float(measured.get("surface_distance_max_mm", 0.0))
     far: list[str] = []
     if side > 0 and mean_distance > SURFACE_MEAN_REL * side:
         far.append(
@@ -327,65 +428,95 @@ def measure_design(
             f"up to {max_distance:.2f} mm (over {100 * SURFACE_MAX_REL:g} % of the target's "
             f"diagonal, {SURFACE_MAX_REL * target_diagonal_mm:.2f} mm)"
         )
-    if far:
-        warnings.append(
-            f"tiles sit far from the target: {', '.join(far)}; raise the surface weight "
-            "(--weights 1e4 1 100 fits closely) or use more tiles"
+    if not far:
+        return []
+    return [
+        f"tiles sit far from the target: {', '.join(far)}; raise the surface weight "
+        "(--weights 1e4 1 100 fits closely) or use more tiles"
+    ]
+
+
+def _hinge_gap_warnings(flat_pose: _FlatPose, options: ResolvedOptions) -> list[str]:
+    """A warning where the hinged corners of the fabricated tiles do not meet, with its cause
+    and what closes it."""
+    hinge_gap, in_plane_gap = flat_pose.hinge_gap_mm, flat_pose.hinge_gap_in_plane_mm
+    if hinge_gap <= HINGE_GAP_TOL_MM:
+        return []
+    if in_plane_gap <= HINGE_GAP_TOL_MM:
+        cause = (
+            f"seen from above the hinges meet to {in_plane_gap:.2g} mm; the rest is the "
+            "tiles' thickness difference at bottom hinges (the quad mesh is not conical); "
+            "--hinges top puts every hinge on the top faces, where it closes"
         )
-    in_plane_gap = float(in_plane.max(initial=0.0))
-    if hinge_gap > HINGE_GAP_TOL_MM:
-        if in_plane_gap <= HINGE_GAP_TOL_MM:
-            cause = (
-                f"seen from above the hinges meet to {in_plane_gap:.2g} mm; the rest is the "
-                "tiles' thickness difference at bottom hinges (the quad mesh is not conical); "
-                "--hinges top puts every hinge on the top faces, where it closes"
-            )
-        elif not options.co_optimize:
-            cause = (
-                "without the co-optimization (--no-co-optimize) the flat layout only "
-                "approximates the assembled tiles; drop that option to close it"
-            )
-        elif options.hinges == "dual":
-            cause = "more tiles shrink it, and --hinges top reaches 1e-3 mm on most built-ins"
-        else:
-            cause = "more tiles shrink it"
-        warnings.append(
-            f"hinge gap {above(hinge_gap, HINGE_GAP_TOL_MM)} mm exceeds {HINGE_GAP_TOL_MM:g} mm: "
-            f"{cause}"
+    elif not options.co_optimize:
+        cause = (
+            "without the co-optimization (--no-co-optimize) the flat layout only "
+            "approximates the assembled tiles; drop that option to close it"
         )
-    if tiling.scale_factor_max > split_bound(options):
-        absorbable = absorbable_ratio(options.min_gap_angle_deg)
-        if options.max_scale_factor < absorbable:
-            bound_fix = f"a --max-scale-factor up to {absorbable:.3g}"
-        else:
-            bound_fix = "a smaller --min-gap-angle (the bound is 2 / (1 + sin of it))"
-        excess = (
-            f"scale factor {tiling.scale_factor_max:.3f} exceeds {split_bound(options):.6g} "
-            "in a part no split can divide (see the notes)"
-        )
-        fixes = (
-            "use more tiles, which gives splits more places to go, other --corners, "
-            f"{bound_fix} or a flatter target"
-        )
-        # The bound predicts gaps the flat layout cannot keep within their angles; it is read
-        # off the target's conformal map, not the assembled tiles.  Where the flat layout,
-        # measured, keeps every gap within its bounds and meets its targets, it is a warning.
-        layout_met = (
-            not problems
-            and angles.size > 0
-            and edge_error <= FLAT_EDGE_ERROR_TOL_MM
-            and in_plane_gap <= HINGE_GAP_TOL_MM
-        )
-        if layout_met:
-            warnings.append(
-                f"{excess}, yet the flat layout keeps every gap within "
-                f"[{options.min_gap_angle_deg:g}, 90] deg ({angles.min():.1f}.."
-                f"{angles.max():.1f}) and meets its targets in the plane (the bound is read "
-                f"off the target's conformal map, not the tiles); if it does not deploy, {fixes}"
-            )
-        else:
-            problems.append(f"{excess}; {fixes}")
-    problems.extend(route_problems(route, linkage))
+    elif options.hinges == "dual":
+        cause = "more tiles shrink it, and --hinges top reaches 1e-3 mm on most built-ins"
+    else:
+        cause = "more tiles shrink it"
+    return [
+        f"hinge gap {above(hinge_gap, HINGE_GAP_TOL_MM)} mm exceeds {HINGE_GAP_TOL_MM:g} mm: "
+        f"{cause}"
+    ]
+
+
+def _scale_findings(
+    tiling: Tiling, options: ResolvedOptions, flat_pose: _FlatPose, *, shape_ok: bool
+) -> tuple[list[str], list[str]]:
+    """A problem (or, where the flat layout keeps its gaps and meets its targets anyway, a
+    warning) for a part whose area scale exceeds the split bound; ``shape_ok``: the tiles'
+    shapes have no problem (:func:`_shape_problems`)."""
+    bound = split_bound(options)
+    if tiling.scale_factor_max <= bound:
+        return [], []
+    absorbable = absorbable_ratio(options.min_gap_angle_deg)
+    if options.max_scale_factor < absorbable:
+        bound_fix = f"a --max-scale-factor up to {absorbable:.3g}"
+    else:
+        bound_fix = "a smaller --min-gap-angle (the bound is 2 / (1 + sin of it))"
+    excess = (
+        f"scale factor {tiling.scale_factor_max:.3f} exceeds {bound:.6g} "
+        "in a part no split can divide (see the notes)"
+    )
+    fixes = (
+        "use more tiles, which gives splits more places to go, other --corners, "
+        f"{bound_fix} or a flatter target"
+    )
+    # The bound predicts gaps the flat layout cannot keep within their angles; it is read
+    # off the target's conformal map, not the assembled tiles.  Where the flat layout,
+    # measured, keeps every gap within its bounds and meets its targets, it is a warning.
+    angles = flat_pose.gap_angles_deg
+    layout_met = (
+        shape_ok
+        and angles.size > 0
+        and flat_pose.edge_error_mm <= FLAT_EDGE_ERROR_TOL_MM
+        and flat_pose.hinge_gap_in_plane_mm <= HINGE_GAP_TOL_MM
+    )
+    if not layout_met:
+        return [f"{excess}; {fixes}"], []
+    return [], [
+        f"{excess}, yet the flat layout keeps every gap within "
+        f"[{options.min_gap_angle_deg:g}, 90] deg ({angles.min():.1f}.."
+        f"{angles.max():.1f}) and meets its targets in the plane (the bound is read "
+        f"off the target's conformal map, not the tiles); if it does not deploy, {fixes}"
+    ]
+
+
+def _string_warnings(
+    options: ResolvedOptions,
+    profile: Profile,
+    lift: LiftPoints,
+    route: Route,
+    channel_turn: float,
+    capstan: float,
+) -> list[str]:
+    """Warnings on the part as made and pulled: a size the profile does not suit, channels
+    that bend so much (``channel_turn``, rad, giving the ``capstan`` factor) that the pull may
+    not close the far tiles, lift gaps the string cannot reach."""
+    warnings = []
     if not profile.size_min_mm <= options.size_mm <= profile.size_max_mm:
         warnings.append(
             f"--size {options.size_mm:g} mm is outside the {profile.size_min_mm:g}-"
@@ -393,7 +524,6 @@ def measure_design(
             "thickness, hinge parts and machine are made for that range); choose a profile "
             "for this size (drawstring profiles --size ...) or a size within it"
         )
-    capstan = float(metrics["route"]["capstan_factor_channels_assembled"])
     if capstan > CAPSTAN_FACTOR_WARN:
         warnings.append(
             f"the string's channels bend {channel_turn:.3g} rad in all, so with friction "
@@ -414,7 +544,7 @@ def measure_design(
         warnings.append(
             f"the string route cannot reach lift gap(s) {missed} under the routing rules; {pull}"
         )
-    return metrics, problems, warnings
+    return warnings
 
 
 def route_problems(route: Route, linkage: Linkage) -> list[str]:

@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,6 +45,10 @@ from drawstring.geometry.route.result import Route
 from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling
 
+if TYPE_CHECKING:  # the solids' type: build123d is loaded only where solids are built
+    from drawstring.cad.design import CadResult
+    from drawstring.geometry.simulate import SimulationResult
+
 log = logging.getLogger(__name__)
 
 
@@ -55,8 +59,8 @@ def rounded(value: float, digits: int = 6) -> float:
 
 def above(value: float, bound: float) -> str:
     """``value`` with two significant digits, or as many more (up to six) as it takes to read
-    above ``bound`` (a hinge gap of 0.001005 mm printed as 0.001 did not read as exceeding
-    0.001 mm)."""
+    above ``bound`` (a hinge gap of 0.001005 mm reads 0.001005, not 0.001, against a 0.001 mm
+    bound)."""
     for digits in range(2, 7):
         text = f"{value:.{digits}g}"
         if float(text) > bound:
@@ -230,9 +234,11 @@ class Design:
     lift: LiftPoints
     route: Route
     measured: dict[str, Any] = field(default_factory=dict)
-    cad_flat: Any = None
-    cad_assembled: Any = None
-    simulation: Any = None
+    #: the solids in the fabrication pose and the assembled pose (None with ``--no-cad``)
+    cad_flat: CadResult | None = None
+    cad_assembled: CadResult | None = None
+    #: the simulated deployment of the chosen route (None with ``--no-simulate``)
+    simulation: SimulationResult | None = None
     timings_s: dict[str, float] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
     problems: tuple[str, ...] = ()
@@ -280,7 +286,7 @@ class Design:
         return misses
 
     def metrics(self) -> dict[str, Any]:
-        """Numbers measured on the output geometry (ARCHITECTURE.md section 4)."""
+        """Numbers measured on the output geometry (``metrics`` in docs/output.md)."""
         return {
             "scale_factor_max": round(self.tiling.scale_factor_max, 6),
             "scale_factor_max_before_splits": round(self.tiling.scale_factor_max_unsplit, 6),

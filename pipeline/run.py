@@ -22,16 +22,18 @@ from threadpoolctl import threadpool_limits
 from drawstring.fabrication.profiles import MAX_TILES, MIN_GRID_SIDE, Profile, load_profile
 from drawstring.geometry.core.errors import InputError, ThicknessError
 from drawstring.geometry.flatten.conformal import Flattening, flatten
+from drawstring.geometry.hinges.placement import HingeLayout
 from drawstring.geometry.route.energy import tile_masses_from_volumes
-from drawstring.geometry.route.lift import select_lift_points
+from drawstring.geometry.route.lift import LiftPoints, select_lift_points
 from drawstring.geometry.route.result import Route
 from drawstring.geometry.simulate.deploy import simulate_stage
 from drawstring.geometry.simulate.result import SimulationResult
 from drawstring.geometry.target.surface import Target, load_target
 from drawstring.geometry.tiling.grid import grid_shape_for, parts_in_place
 from drawstring.geometry.tiling.linkage import gap_centroids
-from drawstring.pipeline.layout_stage import fabricated_tiles, shape_and_layout
+from drawstring.pipeline.layout_stage import ShapedLayout, fabricated_tiles, shape_and_layout
 from drawstring.pipeline.measure import cad_problems, cad_warnings, design_rigidity, measure_design
+from drawstring.pipeline.policy import DEFAULT_POLICY, LayoutPolicy
 from drawstring.pipeline.record import (
     Design,
     DesignOptions,
@@ -131,9 +133,8 @@ def size_refusal(exc: ThicknessError, options: ResolvedOptions) -> InputError | 
 
 
 #: BLAS threads while designing.  A multi-threaded BLAS sums in an order that depends on its
-#: thread count; the eq.-1 solve and the layouts amplify that rounding (the 200-tile chair:
-#: assembled tiles 0.019 mm apart, flat edge error 0.0009 mm on two threads against 0.49 mm on
-#: one), and the BLAS calls here are small enough that one thread costs nothing measurable.
+#: thread count, and the eq.-1 solve and the layouts amplify that rounding into a different
+#: design; the BLAS calls here are small enough that one thread costs nothing measurable.
 BLAS_THREADS = 1
 
 
@@ -186,11 +187,13 @@ def design(
     *,
     quiet: bool = True,
     progress: Progress | None = None,
+    policy: LayoutPolicy = DEFAULT_POLICY,
 ) -> Design:
     """Run the design pipeline on a mesh path or built-in target name.
 
     BLAS runs on one thread meanwhile (:data:`BLAS_THREADS`), so the result does not depend on
-    the machine's core count.
+    the machine's core count.  ``policy`` steers the tiling ladder, the co-optimization and
+    the work run ahead (:class:`~drawstring.pipeline.policy.LayoutPolicy`).
 
     Raises
     ------
@@ -198,7 +201,7 @@ def design(
         For bad input (the CLI prints its one-line message and exits with status 2).
     """
     with threadpool_limits(limits=BLAS_THREADS, user_api="blas"):
-        return _design(target, options, quiet=quiet, progress=progress)
+        return _design(target, options, quiet=quiet, progress=progress, policy=policy)
 
 
 def _design(
@@ -207,150 +210,39 @@ def _design(
     *,
     quiet: bool,
     progress: Progress | None,
+    policy: LayoutPolicy,
 ) -> Design:
     options = options or DesignOptions()
     options.validate()
     profile = load_profile(options.profile)
     resolved = resolve_options(options, profile)
     progress = progress or Progress(quiet=quiet)
-    notes: list[str] = []
-
-    with progress.stage("target"):
-        loaded = load_target(
-            target, size_mm=resolved.size_mm, resolution=resolved.resolution,
-            repair=resolved.repair,
-        )  # fmt: skip
-    with progress.stage("flatten"):
-        try:
-            flat_map = flatten(
-                loaded.vertices, loaded.faces, mode="rectangle",
-                corners=mesh_corners(loaded, resolved),
-            )  # fmt: skip
-        except InputError as unflattened:
-            if loaded.source == "builtin":
-                raise
-            # a mesh the loader accepted but that cannot be flattened: name the file, as the
-            # loader's own refusals do
-            raise InputError(f"{loaded.source}: {unflattened}") from None
-    if flat_map.flipped:
-        notes.append(
-            f"flattening: the conformal map turns {flat_map.flipped} of the target's "
-            f"{len(loaded.faces)} triangles over (slivers or a coarse mesh where the surface "
-            "bends sharply); the tiles are lifted from this map and checked as measured, and "
-            "a finer, cleaner target mesh or other --corners avoids it"
-        )
+    loaded, flat_map, notes = _target_and_flattening(target, resolved, progress)
     check_grid(resolved, flat_map, from_profile=options.tiles is None and options.grid is None)
-    try:
-        shaped = shape_and_layout(loaded, flat_map, resolved, progress)
-    except ThicknessError as exc:
-        refusal = size_refusal(exc, resolved)
-        if refusal is None:
-            raise
-        raise refusal from exc
+    shaped = _laid_out(loaded, flat_map, resolved, progress, policy)
     notes.extend(shaped.notes)
     tiling, assembled, flat = shaped.tiling, shaped.assembled, shaped.flat
-    co_block, hinge_layout, linkage = shaped.co_block, shaped.hinge_layout, shaped.tiling.linkage
+    hinge_layout = shaped.hinge_layout
     assert hinge_layout is not None  # only a tiling that was tiled again goes without
     masses = tile_masses_from_volumes(
         assembled.tiles, profile.density_kg_m3 * profile.infill_fraction
     )
-    # the route is planned with the parts side by side as they meet in the assembled shape
-    flat_gap_xy = gap_centroids(
-        linkage, parts_in_place(linkage, hinge_layout.tiles[:, :4, :2], tiling.uv)
-    )
-    fabricated = fabricated_tiles(hinge_layout, assembled.tiles)
-    routes: dict[tuple[int, ...], tuple[Route, str | None, NDArray[np.int64]]] = {}
-    runs: dict[tuple[int, ...], SimulationResult] = {}
-
-    def route_for(
-        lift_gaps: NDArray[np.int64],
-    ) -> tuple[Route, str | None, NDArray[np.int64]]:
-        key = tuple(int(g) for g in lift_gaps)
-        if key not in routes:
-            with progress.stage("route"):
-                routes[key] = plan_lift_route(linkage, flat_gap_xy, lift_gaps)
-        return routes[key]
-
-    def simulated(lift_gaps: NDArray[np.int64]) -> SimulationResult:
-        key = tuple(int(g) for g in lift_gaps)
-        if key not in runs:
-            route_steps, _, served = route_for(lift_gaps)
-            with progress.stage("simulate"):
-                runs[key] = simulate_stage(
-                    linkage,
-                    fabricated,
-                    assembled.tiles,
-                    hinge_layout.hinge_vertices,
-                    route_steps,
-                    served,
-                    resolved.thickness_mm,
-                )
-        return runs[key]
-
-    deploy_check = None
-    if resolved.simulate:
-        # The lift-point sweep raises its threshold while the simulated deployment fails
-        # (paper sec. 5.2); every lift set is routed and simulated once.
-        deploy_check = NamedCheck(
-            "projective-dynamics deployment simulation",
-            lambda gaps: simulated(gaps).deployed,
-        )
-    assembled_gap_xyz = gap_centroids(linkage, assembled.tiles[:, :4])
-    with progress.stage("lift"):
-        lift = select_lift_points(
-            linkage,
-            assembled.tiles.mean(axis=1),
-            masses,
-            up=resolved.up,
-            gap_positions=assembled_gap_xyz,
-            deploy_check=deploy_check,
-        )
-    if not resolved.simulate and lift.sweep and not any(ok for _, _, ok in lift.sweep):
-        notes.append(
-            f"lift points: the check '{lift.check_name}' failed for every threshold, so every "
-            "energy peak is a lift point (run with the deployment simulation to check the pull)"
-        )
-    # the lift set the sweep chose; a lift gap the string cannot reach is served next to it
-    chosen = lift.lift_gaps
-    route, route_note, served = route_for(chosen)
-    if route_note:
-        notes.append(route_note)
-    if not np.array_equal(served, chosen):
-        lift = replace(lift, lift_gaps=served, positions=assembled_gap_xyz[served])
+    deployment = _Deployment(shaped, hinge_layout, resolved.thickness_mm, progress)
+    lift, route, chosen = _lift_and_route(shaped, deployment, resolved, masses, progress, notes)
     measured, problems, warnings = measure_design(
         resolved, profile, tiling, assembled, flat, hinge_layout, lift, route, masses,
         target_diagonal_mm=loaded.bbox_diagonal_mm,
     )  # fmt: skip
-    measured["co_optimization"] = co_block
+    measured["co_optimization"] = shaped.co_block
     measured["split_bound"] = rounded(shaped.split_bound, 6)
     notes.extend(f"flat stage: {p}" for p in flat.problems)
     notes.extend(f"hinge stage: {p}" for p in hinge_layout.problems)
-    with progress.stage("rigidity"):
-        rigidity = design_rigidity(linkage, assembled.tiles, hinge_layout.hinge_vertices, route)
-    measured["rigidity"] = rigidity
-    if not rigidity["isostatic"]:
-        warnings.append(
-            f"the assembled linkage with its string keeps {rigidity['internal_flexes']} internal "
-            "flex(es) (metrics.rigidity); it may wobble when the string is tight"
-        )
+    measured["rigidity"] = _rigidity(shaped, hinge_layout, route, progress, warnings)
     simulation = None
     if resolved.simulate:
-        simulation = simulated(chosen)  # the run of this route, already made by the sweep
-        block = jsonable(simulation.to_json())
-        # Wall-clock numbers go to timings_s, so everything else in design.json is reproducible.
-        block.pop("time_s", None)
-        progress.timings["simulate_per_step"] = float(block.pop("per_step_ms", 0.0)) / 1000.0
-        block["runs"] = len(runs)
-        measured["simulation"] = block
-        if not simulation.deployed:
-            warnings.append(
-                "the deployment simulation got stuck ("
-                f"{len(simulation.open_gaps)} route gaps open, tiles up to "
-                f"{simulation.final_max_deviation_mm:.2f} mm from the assembled shape, worst "
-                f"tiles {', '.join(str(w['tile']) for w in simulation.worst_tiles(3))}) with "
-                f"every lift-point set the sweep tried ({len(runs)}); see design.json "
-                "metrics.simulation"
-            )
+        # the run of this route, already made by the sweep
+        simulation = deployment.simulated(chosen)
+        measured["simulation"] = _simulation_block(simulation, deployment, progress, warnings)
     result = Design(
         options=resolved,
         profile=profile,
@@ -372,6 +264,205 @@ def _design(
     if resolved.cad:
         result = with_cad(result, progress)
     return result
+
+
+def _target_and_flattening(
+    target: str | os.PathLike[str], options: ResolvedOptions, progress: Progress
+) -> tuple[Target, Flattening, list[str]]:
+    """Stages target and flatten: the loaded target, its conformal map onto a rectangle, and
+    the design's notes so far."""
+    notes: list[str] = []
+    with progress.stage("target"):
+        loaded = load_target(
+            target, size_mm=options.size_mm, resolution=options.resolution,
+            repair=options.repair,
+        )  # fmt: skip
+    with progress.stage("flatten"):
+        try:
+            flat_map = flatten(
+                loaded.vertices, loaded.faces, mode="rectangle",
+                corners=mesh_corners(loaded, options),
+            )  # fmt: skip
+        except InputError as unflattened:
+            if loaded.source == "builtin":
+                raise
+            # a mesh the loader accepted but that cannot be flattened: name the file, as the
+            # loader's own refusals do
+            raise InputError(f"{loaded.source}: {unflattened}") from None
+    if flat_map.flipped:
+        notes.append(
+            f"flattening: the conformal map turns {flat_map.flipped} of the target's "
+            f"{len(loaded.faces)} triangles over (slivers or a coarse mesh where the surface "
+            "bends sharply); the tiles are lifted from this map and checked as measured, and "
+            "a finer, cleaner target mesh or other --corners avoids it"
+        )
+    return loaded, flat_map, notes
+
+
+def _laid_out(
+    loaded: Target,
+    flat_map: Flattening,
+    options: ResolvedOptions,
+    progress: Progress,
+    policy: LayoutPolicy,
+) -> ShapedLayout:
+    """Stages tiling to hinges (:func:`shape_and_layout`), a size too small for the tiles'
+    thickness refused in one line (:func:`size_refusal`)."""
+    try:
+        return shape_and_layout(loaded, flat_map, options, progress, policy=policy)
+    except ThicknessError as exc:
+        refusal = size_refusal(exc, options)
+        if refusal is None:
+            raise
+        raise refusal from exc
+
+
+class _Deployment:
+    """The string routes and deployment simulations of a laid-out design, by lift set: the
+    lift-point sweep and the design share them, so each lift set is routed and simulated
+    once."""
+
+    def __init__(
+        self,
+        shaped: ShapedLayout,
+        hinge_layout: HingeLayout,
+        thickness_mm: float,
+        progress: Progress,
+    ) -> None:
+        linkage = shaped.tiling.linkage
+        self._linkage = linkage
+        self._tiles_3d = shaped.assembled.tiles
+        self._hinge_vertices = hinge_layout.hinge_vertices
+        self._thickness_mm = thickness_mm
+        self._progress = progress
+        # the route is planned with the parts side by side as they meet in the assembled shape
+        self._flat_gap_xy = gap_centroids(
+            linkage, parts_in_place(linkage, hinge_layout.tiles[:, :4, :2], shaped.tiling.uv)
+        )
+        self._fabricated = fabricated_tiles(hinge_layout, shaped.assembled.tiles)
+        self._routes: dict[tuple[int, ...], tuple[Route, str | None, NDArray[np.int64]]] = {}
+        #: the simulated deployments, by lift set
+        self.runs: dict[tuple[int, ...], SimulationResult] = {}
+
+    def route(self, lift_gaps: NDArray[np.int64]) -> tuple[Route, str | None, NDArray[np.int64]]:
+        """The string route through ``lift_gaps``, a note on it, and the lift gaps it serves
+        (:func:`~.route_stage.plan_lift_route`)."""
+        key = tuple(int(g) for g in lift_gaps)
+        if key not in self._routes:
+            with self._progress.stage("route"):
+                self._routes[key] = plan_lift_route(self._linkage, self._flat_gap_xy, lift_gaps)
+        return self._routes[key]
+
+    def simulated(self, lift_gaps: NDArray[np.int64]) -> SimulationResult:
+        """The deployment pulled by the string routed through ``lift_gaps``."""
+        key = tuple(int(g) for g in lift_gaps)
+        if key not in self.runs:
+            route_steps, _, served = self.route(lift_gaps)
+            with self._progress.stage("simulate"):
+                self.runs[key] = simulate_stage(
+                    self._linkage,
+                    self._fabricated,
+                    self._tiles_3d,
+                    self._hinge_vertices,
+                    route_steps,
+                    served,
+                    self._thickness_mm,
+                )
+        return self.runs[key]
+
+
+def _lift_and_route(
+    shaped: ShapedLayout,
+    deployment: _Deployment,
+    options: ResolvedOptions,
+    masses: NDArray[np.float64],
+    progress: Progress,
+    notes: list[str],
+) -> tuple[LiftPoints, Route, NDArray[np.int64]]:
+    """Stages lift and route: the lift points (each lift set the sweep tries checked by a
+    simulated deployment, with ``--simulate``), the string route through them, and the lift
+    set the sweep chose (the route may serve a lift gap it cannot reach next to it).  Notes
+    on them are added to ``notes``."""
+    linkage, assembled = shaped.tiling.linkage, shaped.assembled
+    deploy_check = None
+    if options.simulate:
+        # The lift-point sweep raises its threshold while the simulated deployment fails
+        # (paper sec. 5.2); every lift set is routed and simulated once.
+        deploy_check = NamedCheck(
+            "projective-dynamics deployment simulation",
+            lambda gaps: deployment.simulated(gaps).deployed,
+        )
+    assembled_gap_xyz = gap_centroids(linkage, assembled.tiles[:, :4])
+    with progress.stage("lift"):
+        lift = select_lift_points(
+            linkage,
+            assembled.tiles.mean(axis=1),
+            masses,
+            up=options.up,
+            gap_positions=assembled_gap_xyz,
+            deploy_check=deploy_check,
+        )
+    if not options.simulate and lift.sweep and not any(ok for _, _, ok in lift.sweep):
+        notes.append(
+            f"lift points: the check '{lift.check_name}' failed for every threshold, so every "
+            "energy peak is a lift point (run with the deployment simulation to check the pull)"
+        )
+    # the lift set the sweep chose; a lift gap the string cannot reach is served next to it
+    chosen = lift.lift_gaps
+    route, route_note, served = deployment.route(chosen)
+    if route_note:
+        notes.append(route_note)
+    if not np.array_equal(served, chosen):
+        lift = replace(lift, lift_gaps=served, positions=assembled_gap_xyz[served])
+    return lift, route, chosen
+
+
+def _rigidity(
+    shaped: ShapedLayout,
+    hinge_layout: HingeLayout,
+    route: Route,
+    progress: Progress,
+    warnings: list[str],
+) -> dict[str, Any]:
+    """Stage rigidity: design.json's ``metrics.rigidity`` (:func:`design_rigidity`); a
+    linkage the string does not lock adds a warning to ``warnings``."""
+    linkage = shaped.tiling.linkage
+    with progress.stage("rigidity"):
+        rigidity = design_rigidity(
+            linkage, shaped.assembled.tiles, hinge_layout.hinge_vertices, route
+        )
+    if not rigidity["isostatic"]:
+        warnings.append(
+            f"the assembled linkage with its string keeps {rigidity['internal_flexes']} internal "
+            "flex(es) (metrics.rigidity); it may wobble when the string is tight"
+        )
+    return rigidity
+
+
+def _simulation_block(
+    simulation: SimulationResult,
+    deployment: _Deployment,
+    progress: Progress,
+    warnings: list[str],
+) -> dict[str, Any]:
+    """design.json's ``metrics.simulation`` for the deployment of the chosen route; one that
+    got stuck adds a warning to ``warnings``."""
+    block = jsonable(simulation.to_json())
+    # Wall-clock numbers go to timings_s, so everything else in design.json is reproducible.
+    block.pop("time_s", None)
+    progress.timings["simulate_per_step"] = float(block.pop("per_step_ms", 0.0)) / 1000.0
+    runs = len(deployment.runs)
+    block["runs"] = runs
+    if not simulation.deployed:
+        warnings.append(
+            "the deployment simulation got stuck ("
+            f"{len(simulation.open_gaps)} route gaps open, tiles up to "
+            f"{simulation.final_max_deviation_mm:.2f} mm from the assembled shape, worst "
+            f"tiles {', '.join(str(w['tile']) for w in simulation.worst_tiles(3))}) with "
+            f"every lift-point set the sweep tried ({runs}); see design.json "
+            "metrics.simulation"
+        )
+    return block
 
 
 def with_cad(result: Design, progress: Progress) -> Design:

@@ -1,4 +1,4 @@
-"""The tiling laid out ahead in a forked child process (fabrication/ahead.py)."""
+"""The tiling laid out ahead in a forked child process (pipeline/ahead.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ import time
 
 import pytest
 
-from drawstring.pipeline.ahead import AHEAD_NICENESS, Ahead
+from drawstring.pipeline.ahead import Ahead
+from drawstring.pipeline.policy import DEFAULT_POLICY
 from drawstring.pipeline.record import Progress
 
 pytestmark = pytest.mark.skipif(
@@ -22,8 +23,11 @@ def test_the_child_yields_the_cores_to_the_parent() -> None:
     # Its result is often not needed: it runs at a lower priority than the parent.
     parent = os.nice(0)
     ahead: Ahead[int] = Ahead(lambda progress: os.nice(0))
-    assert ahead.result(Progress(quiet=True)) == min(parent + AHEAD_NICENESS, 19)
+    assert ahead.result(Progress(quiet=True)) == min(parent + DEFAULT_POLICY.ahead_niceness, 19)
     assert os.nice(0) == parent
+    # as nice as the policy says
+    gentle: Ahead[int] = Ahead(lambda progress: os.nice(0), niceness=3)
+    assert gentle.result(Progress(quiet=True)) == min(parent + 3, 19)
 
 
 def test_a_child_that_fails_gives_no_result() -> None:

@@ -9,12 +9,12 @@ from types import SimpleNamespace
 
 import pytest
 
-from drawstring.geometry.flat.coflat import CO_CONICAL
 from drawstring.pipeline import co_ladder
-from drawstring.pipeline.co_ladder import CONICAL_RETRY_WEIGHTS, CoLadder
+from drawstring.pipeline.co_ladder import CoLadder
+from drawstring.pipeline.policy import DEFAULT_POLICY
 
 TOL = co_ladder.FLAT_EDGE_ERROR_TOL_MM
-FIRST, RETRY = CO_CONICAL, CONICAL_RETRY_WEIGHTS[0]
+FIRST, RETRY = DEFAULT_POLICY.conical_weights[:2]
 #: a test of work run ahead in forked children
 FORKS = pytest.mark.skipif(
     not sys.platform.startswith("linux") or "fork" not in multiprocessing.get_all_start_methods(),

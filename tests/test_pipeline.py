@@ -14,12 +14,13 @@ import pytest
 from drawstring.app import cli
 from drawstring.fabrication.profiles import load_profile
 from drawstring.geometry.core import parallel
-from drawstring.geometry.flat.coflat import CO_CONICAL
 from drawstring.geometry.route.plan import plan_route
 from drawstring.geometry.tiling.linkage import build_linkage, gap_centroids, rotating_squares_layout
-from drawstring.pipeline import co_ladder, co_rounds, layout_stage
+from drawstring.pipeline import co_rounds, layout_stage
+from drawstring.pipeline.ahead import can_fork
 from drawstring.pipeline.layout_stage import split_bound
 from drawstring.pipeline.measure import channel_turn_assembled
+from drawstring.pipeline.policy import DEFAULT_POLICY, LayoutPolicy
 from drawstring.pipeline.record import DesignOptions, Progress
 from drawstring.pipeline.run import cad_problems, cad_warnings, design
 
@@ -95,9 +96,7 @@ def test_magnet_pockets_breaking_out_are_a_warning() -> None:
     assert f"smaller magnets than {profile.magnet_diameter_mm:g} mm" in warning
 
 
-def test_a_part_whose_flat_layout_misses_is_tiled_again_and_a_miss_is_never_silent(
-    monkeypatch,
-) -> None:
+def test_a_part_whose_flat_layout_misses_is_tiled_again_and_a_miss_is_never_silent() -> None:
     # The 200-tile seashell stays one part under the default bound (ratio 1.37 < 1.66), yet
     # with the plain co-optimization its one-part layout misses the 1e-3 mm targets: by
     # 0.023 mm in the plane with numpy's AVX2 kernels, 0.024 mm in depth with AVX-512 ones.
@@ -105,9 +104,9 @@ def test_a_part_whose_flat_layout_misses_is_tiled_again_and_a_miss_is_never_sile
     # meet the targets, with AVX-512 they gain too little and the first tiling is kept; the
     # rule itself is tested on set accuracies below).  Either way the note gives the miss,
     # and what is kept either meets the targets or says in a warning by how much it misses.
-    monkeypatch.setattr(layout_stage, "CO_CONICAL", 0.0)
+    plain = LayoutPolicy(conical_weights=())  # the plain co-optimization, never conical
     options = DesignOptions(tiles=200, size_mm=200.0, simulate=False, cad=False)
-    result = design("seashell", options)
+    result = design("seashell", options, policy=plain)
     default_bound = split_bound(result.options)
     metrics = result.metrics()
     assert result.tiling.scale_factor_max_unsplit < default_bound  # no split at the default
@@ -126,16 +125,16 @@ def test_a_part_whose_flat_layout_misses_is_tiled_again_and_a_miss_is_never_sile
     assert result.problems == ()
 
 
-def test_a_part_whose_hinges_miss_only_in_depth_is_split_further(monkeypatch) -> None:
+def test_a_part_whose_hinges_miss_only_in_depth_is_split_further() -> None:
     # The 100-tile chair in one part: its conical co-optimization misses the flat target, so
-    # (laid out in full, not paused for the split, PREFER_SPLIT_AT_FIRST_WEIGHT) it is
+    # (laid out in full, not paused for the split, prefer_split_at_first_weight) it is
     # co-optimized without, and its bottom hinges then meet seen from above (1.3e-4 mm) but
     # not in depth (0.020 mm with numpy's AVX2 kernels, 0.005 mm with AVX-512 ones).  The
     # tiling is judged by the whole hinge gap: split once more, the conical co-optimization
     # succeeds and the hinges meet in 3D.
-    monkeypatch.setattr(layout_stage, "PREFER_SPLIT_AT_FIRST_WEIGHT", False)
+    policy = LayoutPolicy(prefer_split_at_first_weight=False)
     options = DesignOptions(tiles=100, size_mm=200.0, simulate=False, cad=False)
-    result = design("chair", options)
+    result = design("chair", options, policy=policy)
     metrics = result.metrics()
     assert result.tiling.linkage.n_components == 2
     (note,) = [n for n in result.notes if n.startswith("tiling:")]
@@ -204,7 +203,7 @@ def test_co_optimization_rounds_stop_where_they_no_longer_pay() -> None:
     # within the tolerance and gaining less than 10 % on the best round
     judge = co_rounds.RoundJudge(0.1)
     assert [judge.judge(e, 1e-6) for e in (5e-4, 4.6e-4)] == [(True, False), (True, True)]
-    # ... but not where it is within the tolerance by less than CO_STOP_NEAR: the hinge
+    # ... but not where it is within the tolerance by less than co_stop_near: the hinge
     # layout can add to it (the AVX-512 wave stopped at 9.4e-4 mm and missed at 1.2e-3 mm)
     judge = co_rounds.RoundJudge(0.1)
     assert [judge.judge(e, 1e-6) for e in (9.4e-4, 9.8e-4)] == [(True, False), (False, False)]
@@ -218,15 +217,22 @@ def test_co_optimization_rounds_stop_where_they_no_longer_pay() -> None:
     )
 
 
+#: The default policy with every co-optimization run in this process (none run ahead).
+IN_TURN = LayoutPolicy(co_speculate=False)
+#: The conical weights the ladder tries first and next.
+FIRST, RETRY = DEFAULT_POLICY.conical_weights[:2]
+
+
 def _conical_runs(
     monkeypatch, refused: set[float], missed_mm: float | None = None, joint: bool = False
 ) -> list[tuple[bool, float | None, bool]]:
     """Record the co-optimizations ``_shaped`` runs as ``(conical, weight, fallback)``; a
     conical one with a weight in ``refused`` comes back refused (``joint``: for its first
-    joint solve), or with ``missed_mm`` used but that far off the flat targets."""
+    joint solve), or with ``missed_mm`` used but that far off the flat targets.  Only the
+    calls made in this process are recorded: the design runs with :data:`IN_TURN` (or
+    another policy with ``co_speculate=False``) to make every co-optimization here."""
     calls: list[tuple[bool, float | None, bool]] = []
     real = layout_stage._co_optimized_with_fallback
-    monkeypatch.setattr(co_ladder, "CO_SPECULATE", False)  # every call in this process
 
     def recorded(*args, **kwargs):
         conical, weight = args[8], args[9] if len(args) > 9 else None
@@ -251,11 +257,11 @@ def test_a_conical_co_optimization_that_misses_is_tried_with_the_next_weight(mon
     # first weight, it runs again at the retry weight, and only where that is refused too
     # without the condition, with a note giving the last reason.  (Laid out in full: a
     # tiling that may still be split pauses for its split after the first weight.)
-    monkeypatch.setattr(layout_stage, "PREFER_SPLIT_AT_FIRST_WEIGHT", False)
+    policy = replace(IN_TURN, prefer_split_at_first_weight=False)
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
-    first, retry = CO_CONICAL, co_ladder.CONICAL_RETRY_WEIGHTS[0]
+    first, retry = FIRST, RETRY
     calls = _conical_runs(monkeypatch, {first})
-    result = design("saddle", options)
+    result = design("saddle", options, policy=policy)
     assert [c[:2] for c in calls[:2]] == [(True, first), (True, retry)]
     without = [n for n in result.notes if "without the conical condition" in n]
     if [c[:2] for c in calls[2:3]] == [
@@ -265,7 +271,7 @@ def test_a_conical_co_optimization_that_misses_is_tried_with_the_next_weight(mon
     else:
         assert not without
     calls = _conical_runs(monkeypatch, {first, retry})
-    result = design("saddle", options)
+    result = design("saddle", options, policy=policy)
     assert [c[:2] for c in calls[:3]] == [(True, first), (True, retry), (False, None)]
     (note,) = [n for n in result.notes if "without the conical condition" in n]
     assert f"(refused at weight {retry:g} with it)" in note
@@ -276,23 +282,26 @@ def test_a_tiling_that_may_still_be_split_tries_no_second_weight_after_a_far_mis
 ) -> None:
     # The 60-tile saddle is made a tiling that may be split again; its conical
     # co-optimization is used but misses by 0.5 mm at the first weight: it goes without the
-    # condition at once.  A miss within CO_SLOW_REACH of the tolerance still gets the retry
+    # condition at once.  A miss within co_slow_reach of the tolerance still gets the retry
     # weight, and so does the same far miss in a tiling that is laid out in full.
-    monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 0.0)
-    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)
-    monkeypatch.setattr(layout_stage, "PREFER_SPLIT_AT_FIRST_WEIGHT", False)  # (no pause)
+    policy = replace(
+        IN_TURN,
+        retile_min_share=0.0,
+        retile_ahead=False,
+        prefer_split_at_first_weight=False,  # (no pause)
+    )
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
-    first, retry = CO_CONICAL, co_ladder.CONICAL_RETRY_WEIGHTS[0]
+    first, retry = FIRST, RETRY
     calls = _conical_runs(monkeypatch, {first}, missed_mm=0.5)
-    design("saddle", options)
+    design("saddle", options, policy=policy)
     assert calls[:2] == [(True, first, False), (False, None, False)]
-    near = 0.5 * co_rounds.CO_SLOW_REACH * layout_stage.FLAT_EDGE_ERROR_TOL_MM
+    near = 0.5 * policy.co_slow_reach * layout_stage.FLAT_EDGE_ERROR_TOL_MM
     calls = _conical_runs(monkeypatch, {first}, missed_mm=near)
-    design("saddle", options)
+    design("saddle", options, policy=policy)
     assert calls[:2] == [(True, first, False), (True, retry, False)]
-    monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 10.0)  # laid out in full
+    in_full = replace(policy, retile_min_share=10.0)  # laid out in full
     calls = _conical_runs(monkeypatch, {first}, missed_mm=0.5)
-    design("saddle", options)
+    design("saddle", options, policy=in_full)
     assert calls[:2] == [(True, first, True), (True, retry, True)]
 
 
@@ -302,15 +311,15 @@ def test_a_split_meeting_the_targets_is_kept_before_the_first_tiling_tries_more(
     # The 60-tile saddle as a tiling that may still be split: its first conical weight misses
     # the flat targets, so its ladder pauses and the first tighter tiling is laid out; that
     # meets every target, so it is kept and the first tiling tries no further co-optimization
-    # (PREFER_SPLIT_AT_FIRST_WEIGHT).
-    monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 0.0)
-    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)  # calls are counted here
+    # (prefer_split_at_first_weight).
+    # (calls are counted here: nothing is laid out or co-optimized ahead)
+    policy = replace(IN_TURN, retile_min_share=0.0, retile_ahead=False)
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(_two_parts_meet))
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
-    first = CO_CONICAL
+    first = FIRST
     tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
     calls = _conical_runs(monkeypatch, {first}, missed_mm=2.0 * tol)
-    result = design("saddle", options)
+    result = design("saddle", options, policy=policy)
     assert result.tiling.linkage.n_components == 2
     assert [c for c in calls if not c[2]] == [(True, first, False)]  # the first tiling's
     assert calls[1] == (True, first, True)  # then the split, laid out in full
@@ -322,31 +331,28 @@ def test_a_split_meeting_the_targets_is_kept_before_the_first_tiling_tries_more(
         "without trying the first tiling with another weight or without the condition"
     )
     # with no tighter tiling to try, nothing pauses: the first tiling runs its whole ladder
-    monkeypatch.setattr(layout_stage, "RETILE_ATTEMPTS", 0)
     calls.clear()
-    result = design("saddle", options)
+    result = design("saddle", options, policy=replace(policy, retile_attempts=0))
     assert result.tiling.linkage.n_components == 1
-    assert calls[:2] == [(True, first, False), (True, co_ladder.CONICAL_RETRY_WEIGHTS[0], False)]
+    assert calls[:2] == [(True, first, False), (True, RETRY, False)]
 
 
 def test_a_paused_first_tiling_goes_on_where_the_split_misses(monkeypatch) -> None:
     # Where the split misses too, the first tiling's ladder goes on from its next weight (the
     # first is not run again) and the design is bitwise the one laid out without the pause.
-    monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 0.0)
-    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)
+    policy = replace(IN_TURN, retile_min_share=0.0, retile_ahead=False)
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(lambda _s: 1.0))
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
-    first, retry = CO_CONICAL, co_ladder.CONICAL_RETRY_WEIGHTS[0]
+    first, retry = FIRST, RETRY
     tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
     calls = _conical_runs(monkeypatch, {first}, missed_mm=2.0 * tol)
-    paused = design("saddle", options)
+    paused = design("saddle", options, policy=policy)
     ones = [c for c in calls if not c[2]]  # the first tiling's, in this process
     assert ones[:2] == [(True, first, False), (True, retry, False)]
     assert calls.index((True, retry, False)) > calls.index((True, first, True))  # after the split
     assert paused.tiling.linkage.n_components == 1
-    monkeypatch.setattr(layout_stage, "PREFER_SPLIT_AT_FIRST_WEIGHT", False)
     calls.clear()
-    straight = design("saddle", options)
+    straight = design("saddle", options, policy=replace(policy, prefer_split_at_first_weight=False))
     assert [c for c in calls if not c[2]] == ones
     assert paused.notes == straight.notes
     for a, b in zip(_design_arrays(paused), _design_arrays(straight), strict=True):
@@ -357,10 +363,10 @@ def test_after_a_pause_each_tighter_tiling_is_laid_out_once(monkeypatch) -> None
     # The 60-tile saddle pauses in one part; its two parts halve the accuracy figure but miss
     # the targets, so the first tiling goes on, the two parts (laid out once) are kept over
     # it, and the next split (four parts) is laid out in its own right and meets them.
-    monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 0.0)
-    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)  # calls are counted here
+    # (calls are counted here: nothing is laid out or co-optimized ahead)
+    policy = replace(IN_TURN, retile_min_share=0.0, retile_ahead=False)
     tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
-    _conical_runs(monkeypatch, {CO_CONICAL}, missed_mm=2.0 * tol)
+    _conical_runs(monkeypatch, {FIRST}, missed_mm=2.0 * tol)
     by_parts = {1: 1.0, 2: 0.4}
     monkeypatch.setattr(
         layout_stage.ShapedLayout,
@@ -376,7 +382,8 @@ def test_after_a_pause_each_tighter_tiling_is_laid_out_once(monkeypatch) -> None
         return out
 
     monkeypatch.setattr(layout_stage, "_shaped", recorded)
-    result = design("saddle", DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False))
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    result = design("saddle", options, policy=policy)
     assert laid == [(1, True), (2, False), (1, False), (4, False)]
     assert result.tiling.linkage.n_components == 4
     (note,) = [n for n in result.notes if n.startswith("tiling:")]
@@ -391,20 +398,17 @@ def test_the_pause_gives_the_design_laid_out_in_turn_where_work_runs_ahead(monke
     # first tiling gives the serial design bitwise, where the split is kept and where the
     # first tiling goes on, and no child is left behind.
     monkeypatch.setattr(parallel, "thread_count", lambda: 2)  # ahead even on one core
-    monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 0.0)
-    if not layout_stage._can_fork():
+    run_ahead = LayoutPolicy(retile_min_share=0.0, retile_ahead=True, co_speculate=True)
+    in_turn = replace(run_ahead, retile_ahead=False, co_speculate=False)
+    if not can_fork():
         pytest.skip("processes cannot fork here")
     tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
-    _conical_runs(monkeypatch, {CO_CONICAL}, missed_mm=2.0 * tol)
+    _conical_runs(monkeypatch, {FIRST}, missed_mm=2.0 * tol)
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
     for accuracy, parts in ((_two_parts_meet, 2), (lambda _s: 1.0, 1)):
         monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(accuracy))
-        monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)
-        monkeypatch.setattr(co_ladder, "CO_SPECULATE", False)
-        serial = design("saddle", options)
-        monkeypatch.setattr(layout_stage, "RETILE_AHEAD", True)
-        monkeypatch.setattr(co_ladder, "CO_SPECULATE", True)
-        ahead = design("saddle", options)
+        serial = design("saddle", options, policy=in_turn)
+        ahead = design("saddle", options, policy=run_ahead)
         assert ahead.tiling.linkage.n_components == serial.tiling.linkage.n_components == parts
         assert ahead.notes == serial.notes
         for a, b in zip(_design_arrays(ahead), _design_arrays(serial), strict=True):
@@ -418,11 +422,11 @@ def test_no_larger_conical_weight_follows_a_joint_solve_above_the_plain_layout(
     # Refused for its first joint solve, the conical co-optimization is run without the
     # condition next: a larger weight would pull the joint solve further off.
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
-    calls = _conical_runs(monkeypatch, {CO_CONICAL}, joint=True)
-    result = design("saddle", options)
-    assert [c[:2] for c in calls[:2]] == [(True, CO_CONICAL), (False, None)]
+    calls = _conical_runs(monkeypatch, {FIRST}, joint=True)
+    result = design("saddle", options, policy=IN_TURN)
+    assert [c[:2] for c in calls[:2]] == [(True, FIRST), (False, None)]
     (note,) = [n for n in result.notes if "without the conical condition" in n]
-    assert f"(refused at weight {CO_CONICAL:g} with it)" in note
+    assert f"(refused at weight {FIRST:g} with it)" in note
 
 
 def test_the_cli_default_three_shell_meets_its_hinges_in_3d() -> None:
@@ -463,18 +467,15 @@ def test_a_layout_that_meets_its_targets_keeps_the_default_split_bound() -> None
     assert not [n for n in result.notes if n.startswith("tiling:")]
 
 
-def test_hinged_pairs_that_planes_through_the_hinge_hold_apart_are_laid_out_again(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+def test_hinged_pairs_that_planes_through_the_hinge_hold_apart_are_laid_out_again() -> None:
     # At the ends of the three-shell's split lines three hinged pairs do not collide, yet no
     # plane through their hinge separates the two whole tiles: held to such planes they stay
     # 0.01 mm apart (two more stay just inside the tolerance, where T2D had them much closer:
     # laid out again too).  Separated on the hinge face only, they meet and nothing interpenetrates.
     # (With the bottom hinges' depths matched first the three-shell's pairs all meet without
     # this; the eq.-1 bottoms keep the case.)
-    monkeypatch.setattr(layout_stage, "HINGE_DEPTHS", False)
     options = DesignOptions(tiles=200, size_mm=200.0, simulate=False, cad=False)
-    result = design("three-shell", options)
+    result = design("three-shell", options, policy=LayoutPolicy(hinge_depths=False))
     metrics = result.metrics()
     assert metrics["hinge_gap_in_plane_max_mm"] <= 1e-3
     assert metrics["flat_interpenetration_mm3"] <= 1e-6
@@ -595,7 +596,7 @@ def test_a_part_whose_scale_hardly_varies_is_not_split_further(monkeypatch) -> N
     calls.clear()
     result = design("saddle", options)
     bound = split_bound(result.options)
-    assert result.tiling.scale_factor_max - 1 >= layout_stage.RETILE_MIN_SHARE * (bound - 1)
+    assert result.tiling.scale_factor_max - 1 >= DEFAULT_POLICY.retile_min_share * (bound - 1)
     assert len(calls) == 2 and calls[1] < calls[0]
     assert any(n.startswith("tiling:") and "kept the first tiling" in n for n in result.notes)
 
@@ -629,17 +630,16 @@ def test_the_co_optimization_run_ahead_gives_the_design_run_in_turn(monkeypatch)
     # Both conical weights refused: the co-optimization without the condition, run in a
     # forked child meanwhile, is taken from it, and the design is bitwise the serial one.
     monkeypatch.setattr(parallel, "thread_count", lambda: 2)  # a spare core even on one
-    monkeypatch.setattr(layout_stage, "RETILE_MIN_SHARE", 10.0)  # one tiling, no other process
-    if not layout_stage._can_fork():
+    in_turn = replace(IN_TURN, retile_min_share=10.0)  # one tiling, no other process
+    if not can_fork():
         pytest.skip("processes cannot fork here")
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
-    first, retry = CO_CONICAL, co_ladder.CONICAL_RETRY_WEIGHTS[0]
+    first, retry = FIRST, RETRY
     calls = _conical_runs(monkeypatch, {first, retry})
-    serial = design("saddle", options)
+    serial = design("saddle", options, policy=in_turn)
     assert [c[:2] for c in calls] == [(True, first), (True, retry), (False, None)]
-    monkeypatch.setattr(co_ladder, "CO_SPECULATE", True)
     calls.clear()
-    ahead = design("saddle", options)
+    ahead = design("saddle", options, policy=replace(in_turn, co_speculate=True))
     assert [c[:2] for c in calls] == [(True, first), (True, retry)]  # the last in the child
     assert ahead.notes == serial.notes
     for a, b in zip(_design_arrays(ahead), _design_arrays(serial), strict=True):
@@ -656,9 +656,7 @@ def test_the_tighter_tiling_laid_out_ahead_gives_the_design_laid_out_in_turn(
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(_two_parts_meet))
     monkeypatch.setattr(parallel, "thread_count", lambda: 2)  # ahead even on one core
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
-    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)
-    serial = design("saddle", options)
-    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", True)
+    serial = design("saddle", options, policy=LayoutPolicy(retile_ahead=False))
     taken: list[bool] = []
     result_of = layout_stage._Ahead.result
 
@@ -669,7 +667,7 @@ def test_the_tighter_tiling_laid_out_ahead_gives_the_design_laid_out_in_turn(
         return out
 
     monkeypatch.setattr(layout_stage._Ahead, "result", result)
-    ahead = design("saddle", options)
+    ahead = design("saddle", options, policy=LayoutPolicy(retile_ahead=True))
     assert taken == [True]
     assert ahead.tiling.linkage.n_components == serial.tiling.linkage.n_components == 2
     assert ahead.notes == serial.notes
@@ -707,8 +705,7 @@ def test_a_tiling_that_may_be_split_again_skips_the_held_openings_run(monkeypatc
         return assembled, flat, {"accepted": False, "reason": "refused", "steps": 0}
 
     monkeypatch.setattr(layout_stage, "co_optimized", refused)
-    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)  # calls are counted here
-    monkeypatch.setattr(co_ladder, "CO_SPECULATE", False)
+    policy = replace(IN_TURN, retile_ahead=False)  # calls are counted here
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
 
     def split_wins(shaped: layout_stage.ShapedLayout) -> float:
@@ -723,7 +720,7 @@ def test_a_tiling_that_may_be_split_again_skips_the_held_openings_run(monkeypatc
         return solve(vertices, quads, *args, **kwargs)
 
     monkeypatch.setattr(layout_stage, "optimize_assembled", counted)
-    result = design("saddle", options)
+    result = design("saddle", options, policy=policy)
     assert result.tiling.linkage.n_components == 2
     assert held == [2]  # the trial tiling ran it, the first one did not
     # the split tiling cuts the linkage, not the quad mesh: eq. 1 is solved once
@@ -731,7 +728,7 @@ def test_a_tiling_that_may_be_split_again_skips_the_held_openings_run(monkeypatc
     assert not result.assembled.tiles.flags.writeable
     held.clear()
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(lambda _s: 1.0))
-    result = design("saddle", options)
+    result = design("saddle", options, policy=policy)
     assert result.tiling.linkage.n_components == 1
     assert held == [2, 1]  # the first tiling, kept, ran it after all
 
@@ -756,12 +753,11 @@ def test_a_first_tiling_far_off_skips_the_hinge_stage_unless_kept(monkeypatch) -
 
     monkeypatch.setattr(layout_stage, "co_optimized", far_off_in_one_part)
     monkeypatch.setattr(layout_stage, "layout_hinges", counted)
-    # (its ladder goes on after the first weight's miss instead of pausing for the split)
-    monkeypatch.setattr(layout_stage, "PREFER_SPLIT_AT_FIRST_WEIGHT", False)
-    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)  # calls are counted here
-    monkeypatch.setattr(co_ladder, "CO_SPECULATE", False)
+    # (its ladder goes on after the first weight's miss instead of pausing for the split;
+    # calls are counted here)
+    policy = replace(IN_TURN, prefer_split_at_first_weight=False, retile_ahead=False)
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
-    result = design("saddle", options)
+    result = design("saddle", options, policy=policy)
     assert result.tiling.linkage.n_components == 2
     assert hinged == [2]
     note = next(n for n in result.notes if n.startswith("tiling:"))
@@ -770,7 +766,7 @@ def test_a_first_tiling_far_off_skips_the_hinge_stage_unless_kept(monkeypatch) -
     )
     hinged.clear()
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(lambda _s: 1.0))
-    result = design("saddle", options)
+    result = design("saddle", options, policy=policy)
     assert result.tiling.linkage.n_components == 1
     assert hinged == [2, 1]  # the first tiling, kept, got its hinge stage after all
     assert result.hinge_layout.tiles.shape == (result.tiling.linkage.n_tiles, 8, 3)
@@ -794,7 +790,7 @@ def test_co_optimization_gives_up_when_its_first_re_solve_is_far_worse(monkeypat
     # A first re-solve many times worse than the plain layout has never recovered: the run
     # stops after one round and is refused.
     shaped, eq1, faces, plain = _saddle_before_co_optimization()
-    assert co_rounds.CO_GIVE_UP_RATIO < 100.0
+    assert DEFAULT_POLICY.co_give_up_ratio < 100.0
     resolves = _re_solves_reporting(monkeypatch, 100.0 * plain.edge_error_max_mm)
     _, flat, block = co_rounds.co_optimized(
         shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces
@@ -871,9 +867,8 @@ def test_the_design_hands_the_first_joint_solve_to_the_held_openings_run(monkeyp
         return assembled, flat, {"accepted": False, "reason": "refused", "steps": 0}
 
     monkeypatch.setattr(layout_stage, "co_optimized", refused)
-    monkeypatch.setattr(layout_stage, "RETILE_AHEAD", False)
-    monkeypatch.setattr(co_ladder, "CO_SPECULATE", False)
-    design("saddle", DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False))
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    design("saddle", options, policy=replace(IN_TURN, retile_ahead=False))
     # per laid-out tiling: the tracked run, then (where held openings are tried) the held one
     # with the same dictionary
     tracked = [k for k, (track, _) in enumerate(memos) if track]
@@ -894,7 +889,7 @@ def test_co_optimization_stops_once_a_re_solve_is_well_inside_the_tolerance(monk
     def exact_joint(*args: object, **kwargs: object):
         return replace(joint(*args, **kwargs), edge_error_max_mm=1e-9)
 
-    assert co_rounds.CO_STOP_SHARE > 0.25
+    assert DEFAULT_POLICY.co_stop_share > 0.25
     monkeypatch.setattr(co_rounds, "co_optimize_top", exact_joint)
     _, flat, block = co_rounds.co_optimized(
         shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options, faces
@@ -905,16 +900,17 @@ def test_co_optimization_stops_once_a_re_solve_is_well_inside_the_tolerance(monk
 
 
 def test_co_optimization_stops_when_rounds_inside_the_tolerance_stall(monkeypatch) -> None:
-    # Re-solves within CO_STOP_NEAR of the tolerance but above the stop share: the rounds go
-    # on while each gains more than CO_STALL_GAIN on the best before it, and stop at the first
+    # Re-solves within co_stop_near of the tolerance but above the stop share: the rounds go
+    # on while each gains more than co_stall_gain on the best before it, and stop at the first
     # that does not.
     shaped, eq1, faces, plain = _saddle_before_co_optimization()
     tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
     reported = [0.58 * tol, 0.5 * tol, 0.49 * tol, 0.35 * tol]
-    assert reported[2] > co_rounds.CO_STALL_GAIN * reported[1]
-    assert reported[1] < co_rounds.CO_STALL_GAIN * reported[0]
-    assert min(reported[:3]) > co_rounds.CO_STOP_SHARE * tol
-    assert max(reported[:3]) <= co_rounds.CO_STOP_NEAR * tol
+    policy = DEFAULT_POLICY
+    assert reported[2] > policy.co_stall_gain * reported[1]
+    assert reported[1] < policy.co_stall_gain * reported[0]
+    assert min(reported[:3]) > policy.co_stop_share * tol
+    assert max(reported[:3]) <= policy.co_stop_near * tol
     flat_layout, joint = co_rounds.flat_layout, co_rounds.co_optimize_top
     resolves: list[float] = []
 
@@ -938,7 +934,7 @@ def test_co_optimization_stops_when_rounds_inside_the_tolerance_stall(monkeypatc
 def test_slow_rounds_are_projected_from_their_last_gain() -> None:
     # Re-solved errors (mm) of real runs at 200 tiles: the seashell's first tiling shrank 1.3x
     # a round and was split in the end; the peanut's shrinks 3x a round and meets 1e-3 mm.
-    left = co_rounds.CO_REFINEMENTS + 1
+    left = DEFAULT_POLICY.co_refinements + 1
     assert co_rounds.too_slow(0.0516, 0.0386, left - 2)
     assert not co_rounds.too_slow(0.0306, 0.0102, left - 2)
     assert not co_rounds.too_slow(0.0102, 0.00306, left - 3)
@@ -968,7 +964,7 @@ def test_a_tiling_that_may_be_split_again_stops_slow_co_optimization(monkeypatch
     assert block["accepted"] and flat.edge_error_max_mm == resolves[0]
     resolves.clear()
     _, flat, block = co_rounds.co_optimized(*args, faces)
-    assert len(resolves) == co_rounds.CO_REFINEMENTS + 1 and "cut_short" not in block
+    assert len(resolves) == DEFAULT_POLICY.co_refinements + 1 and "cut_short" not in block
     assert flat.edge_error_max_mm == resolves[-1]
 
 
@@ -998,8 +994,8 @@ def test_refinement_rounds_start_from_the_re_solved_layout(monkeypatch) -> None:
     co_rounds.co_optimized(*args, faces)
     # round 1 runs every stage, then its last one again; each later round one stage
     assert starts[0] is None
-    assert len(starts) == 2 + co_rounds.CO_REFINEMENTS
-    assert len(resolved) == 1 + co_rounds.CO_REFINEMENTS
+    assert len(starts) == 2 + DEFAULT_POLICY.co_refinements
+    assert len(resolved) == 1 + DEFAULT_POLICY.co_refinements
     for start, before in zip(starts[2:], resolved[:-1], strict=True):
         assert start is not None and np.array_equal(start, before)
 
@@ -1049,7 +1045,7 @@ def test_clear_windows_closing_on_their_openings_are_released(monkeypatch) -> No
 
 def test_the_flat_seed_of_a_refused_co_optimization_is_finished(monkeypatch) -> None:
     # The flat layout that seeds the co-optimization stops once its bounds hold after
-    # FLAT_SEED_STEPS; where the co-optimization is not used, that seed would be the design's
+    # flat_seed_steps; where the co-optimization is not used, that seed would be the design's
     # layout, so it is finished.
     calls: list[tuple[int | None, bool, object]] = []
     flat_layout = layout_stage.flat_layout
@@ -1064,8 +1060,8 @@ def test_the_flat_seed_of_a_refused_co_optimization_is_finished(monkeypatch) -> 
 
     monkeypatch.setattr(layout_stage, "flat_layout", recorded)
     monkeypatch.setattr(layout_stage, "co_optimized", refused)
-    monkeypatch.setattr(layout_stage, "FLAT_SEED_STEPS", 5)
-    result = design("saddle", DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False))
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    result = design("saddle", options, policy=LayoutPolicy(flat_seed_steps=5))
     # every layout (the first tiling is laid out twice: see the held-openings test) is a seed
     # and then its finish
     assert len(calls) % 2 == 0

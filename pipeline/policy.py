@@ -1,0 +1,143 @@
+"""The switches that steer the design loop: the tiling ladder, the co-optimization and the
+work run ahead.
+
+:class:`LayoutPolicy` holds them; :data:`DEFAULT_POLICY` is the one
+:func:`~drawstring.pipeline.run.design` uses unless given another.  ``design`` hands it down
+explicitly (:func:`~.layout_stage.shape_and_layout`, :class:`~.co_ladder.CoLadder`,
+:func:`~.co_rounds.co_optimized`, :class:`~.ahead.Ahead`), so a test or a script changes a
+switch by passing a policy, e.g. ``design(target, options, policy=LayoutPolicy(retile_ahead=
+False))``.  The physical accuracy targets are not policy: they live in
+:mod:`drawstring.geometry.core.tolerances`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from drawstring.geometry.flat.coflat import CO_CONICAL
+
+
+@dataclass(frozen=True)
+class LayoutPolicy:
+    """How the layout stage searches for a design that meets the accuracy targets."""
+
+    # -- the tiling ladder (pipeline/layout_stage.py) --
+
+    #: Extra tilings tried, each with a tighter split bound, while the flat layout misses its
+    #: accuracy targets (flat edge error or hinge gap above 1e-3 mm).  The split bound is
+    #: necessary, not sufficient: a part whose area scale varies within it can still leave
+    #: the tiles no flat layout that keeps their shape, where smaller parts have one.
+    retile_attempts: int = 2
+
+    #: Each extra tiling keeps this share of the current largest part ratio's excess over 1.
+    retile_shrink: float = 0.7
+
+    #: Tiling again is tried only when the first tiling's largest part ratio uses at least this
+    #: share of the bound's excess over 1: a part whose area scale hardly varies misses its
+    #: targets for another reason, which more splits do not mend.
+    retile_min_share: float = 0.5
+
+    #: A first tiling that may still be split is co-optimized with the first conical weight
+    #: alone at first; where that misses the flat targets, the first tighter tiling is laid out
+    #: (ahead, where a core is spare) and kept if it meets every accuracy target, before the
+    #: first tiling's further weights and its run without the condition are tried.  Those meet
+    #: the targets, where they do, only by the last bits of the arithmetic (see
+    #: ``conical_weights``) or with the bottom hinges apart in depth; a split that meets them
+    #: with the first weight is the sounder design, at the cost of a part.  Where the split
+    #: misses, the first tiling's ladder goes on from its next step, and the design is the one
+    #: laid out without the pause.
+    prefer_split_at_first_weight: bool = True
+
+    #: A tighter tiling is kept only when it at least halves the accuracy figure or meets the
+    #: accuracy targets (more parts cost a longer route and more assembly, so a marginal gain that
+    #: still misses them does not pay for them); one that does neither ends the search.
+    retile_gain: float = 0.5
+
+    #: Pull the bottom hinges' corners to equal depths before the flat layout (dual hinges; see
+    #: ``layout_stage._bottom_hinge_depths``).
+    hinge_depths: bool = True
+
+    #: Lay out the first tighter tiling in a second process while the first tiling is laid out
+    #: (:class:`~drawstring.pipeline.ahead.Ahead`), where the machine has two cores or more
+    #: and processes can be forked.
+    #: Its result is the one the serial run would compute: it is used only if the first tiling
+    #: misses the targets, and thrown away otherwise.
+    retile_ahead: bool = True
+
+    #: Gauss-Newton steps after which the flat layout that only seeds the co-optimization (which
+    #: moves it anyway) stops, at the end of the first augmented-Lagrangian round whose bounds all
+    #: hold (a seed that breaks them would make the co-optimization's "keeps every hard bound"
+    #: test meaningless).  A plain layout that settles sooner is not cut; one that would go on
+    #: polishing its least-squares optimum up to the solver's step cap stops here.  Where the
+    #: co-optimization is not used, the seed is finished.
+    flat_seed_steps: int = 150
+
+    # -- the co-optimization ladder (pipeline/co_ladder.py) --
+
+    #: Weights of the conical condition (relative to planarity) a design with bottom hinges is
+    #: co-optimized with, in turn while the last one missed the flat targets, before it goes
+    #: without the condition; none: never conical.  The first is the joint solve's own default
+    #: (``coflat.CO_CONICAL``).  Which weight reaches the targets depends on the design and on
+    #: the last bits of the arithmetic (the BLAS kernels a machine runs), so a second one is
+    #: tried before the condition is given up.
+    conical_weights: tuple[float, ...] = (CO_CONICAL, 10.0)
+    #: In a tiling that may still be split (``fallback=False``), a run that was used but missed
+    #: by more than ``co_slow_reach`` times the tolerance (``CoLadder.run``'s ``far_mm``) ends
+    #: the weights at once: splitting mends such misses, and the tiling is laid out in full,
+    #: every weight tried, if it is kept after all.
+    conical_retry_far: bool = True
+    #: Whether the next weight is tried after one whose first joint solve, in its own model,
+    #: already ended no lower than the plain layout (``co_optimized`` refuses it at once).  It
+    #: is not: a larger weight holds the conical condition tighter against the flat tiles'
+    #: congruence, so its joint solve ends no lower either.
+    conical_retry_joint_miss: bool = False
+    #: Run the co-optimization without the conical condition, which follows where the conical
+    #: ones miss, in a forked child process while they run, where a core is spare
+    #: (:class:`~.co_ladder.CoLadder`).
+    co_speculate: bool = True
+
+    # -- the rounds of one co-optimization (pipeline/co_rounds.py) --
+
+    #: Extra rounds of ``co_optimized`` on the extruded T3D when re-solving the flat layout
+    #: with its true bounds loses most of what the joint solve gained.  Each round shrinks the
+    #: error by about 3x where it converges; two rounds in a row without a new best stop it,
+    #: and so do the stop rules below, so more rounds run only where the error is still above
+    #: them.
+    co_refinements: int = 7
+    #: ``co_optimized`` stops when the re-solved flat layout's edge error is within this share
+    #: of the tolerance, or within ``co_stop_near`` of it and ``co_stop_ratio`` times the joint
+    #: solve's: further rounds would gain little, and each moves the bottom corners again,
+    #: which the rigid hinge layout has to absorb.
+    co_stop_share: float = 0.3
+    co_stop_ratio: float = 10.0
+    #: ... (that second rule only within this share of the tolerance: the hinge layout can add
+    #: to a re-solve that ends near the tolerance, so one there goes on)
+    co_stop_near: float = 0.6
+    #: The same with bottom hinges, whose rounds pull the bottom corners to equal depths (see
+    #: ``co_optimized``): the re-solve then follows the moved hinge points, and the hinge layout
+    #: needs a wider margin.
+    co_stop_near_conical: float = 0.35
+    #: ... and once a re-solve within ``co_stop_near`` (``co_stop_near_conical``) of the
+    #: tolerance gains less than this factor on the best before it: the rounds have stalled.
+    co_stall_gain: float = 0.9
+    #: A tiling that may still be split (``give_up_slow``) stops co-optimizing when, shrinking
+    #: at the rate of its last round for the rounds left, its re-solved error would stay above
+    #: this many times the tolerance: about what the rigid hinge layout takes off, so such a
+    #: tiling would miss the targets, and it is split instead.
+    co_slow_reach: float = 4.0
+    #: ... and gives up after its first round when that re-solve is this many times worse than
+    #: the plain layout: such runs do not come back below it.
+    co_give_up_ratio: float = 5.0
+
+    # -- the work run ahead (pipeline/ahead.py) --
+
+    #: Scheduling niceness added in :class:`~.ahead.Ahead`'s child.  The child's result is
+    #: often thrown away (the tiling laid out here meets the targets), so where the two
+    #: processes and this one's worker threads want more cores than there are, the parent goes
+    #: first; the child still gets every core the parent leaves idle.  Its result does not
+    #: depend on it.
+    ahead_niceness: int = 19
+
+
+#: The policy :func:`~drawstring.pipeline.run.design` uses by default.
+DEFAULT_POLICY = LayoutPolicy()
