@@ -570,10 +570,10 @@ def _threading_steps(route: Route) -> list[str]:
     """The threading, lift-point and pulling steps, in the assembly guide's order: the guide
     (``fabrication/assembly.md``) starts the closed route at the lift point where both string
     ends stand up, and this page names the same start (the guide's own function decides it)."""
-    from drawstring.output.assembly_guide import _guide
+    from drawstring.output.assembly_order import plan_guide
     from drawstring.pipeline.cad_stage import lift_bores
 
-    guide = _guide(route.steps, lift_bores(route.steps, route.lift[:, 0]))
+    guide = plan_guide(route.steps, lift_bores(route.steps, route.lift[:, 0]))
     first = guide.order[0]
     gap, tile, enter, _ = (int(v) for v in route.steps[first])
     tails = next((stop for stop in guide.stops if stop.in_step == 0), None)
