@@ -434,7 +434,7 @@ def _summary(result: Design) -> str:
 
 def _print_jobs(folder: Path) -> str:
     """``; printed in 7 jobs on 6 beds (...)`` when the fabrication files split the layout."""
-    from drawstring.output.report import print_job_counts
+    from drawstring.output.design_folder import print_job_counts
 
     jobs, beds = print_job_counts(folder)
     if jobs <= 1:

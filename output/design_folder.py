@@ -1,9 +1,10 @@
 """Reading a design's output folder, and the geometry the report measures on it.
 
 Readers for the folder's files (``assembled.obj``, ``flat.obj``, ``lifted.obj``,
-``deploy.npz``, ``route.json``) and the measurements the report derives from the tiles: hinges
-of the flat layout, touching tiles of the assembled pose, neighbour lists, tile volumes and the
-subsampling of deployment frames.  Used by :mod:`drawstring.output.report`.
+``deploy.npz``, ``route.json``, the print jobs of ``fabrication/manifest.json``) and the
+measurements the report derives from the tiles: hinges of the flat layout, touching tiles of the
+assembled pose, neighbour lists, tile volumes and the subsampling of deployment frames.  Used by
+the report (:mod:`drawstring.output.report`) and the command line.
 """
 
 from __future__ import annotations
@@ -211,6 +212,17 @@ def read_route(path: Path) -> Route:
 
 def _first(mapping: dict[str, Any], *keys: str) -> Any:
     return next((mapping[k] for k in keys if k in mapping), None)
+
+
+def print_job_counts(folder: Path) -> tuple[int, int]:
+    """Print jobs and beds listed in a design folder's ``fabrication/manifest.json`` (0, 0
+    without one)."""
+    try:
+        manifest = json.loads((folder / "fabrication" / "manifest.json").read_text())
+        jobs = [job for job in manifest.get("print_jobs", []) if isinstance(job, dict)]
+    except (OSError, ValueError, AttributeError):
+        return 0, 0
+    return len(jobs), len({job.get("bed", 1) for job in jobs})
 
 
 # ----------------------------------------------------------------------------------------------
