@@ -621,7 +621,7 @@ def test_flat_picture_shades_no_gap_between_parts() -> None:
     import matplotlib.pyplot as plt
     from matplotlib.collections import PolyCollection
 
-    from drawstring.output import pictures
+    from drawstring.output import flat_picture
 
     link, tiles = _two_part_layout()
     assert link.n_components == 2
@@ -630,15 +630,15 @@ def test_flat_picture_shades_no_gap_between_parts() -> None:
     ]
     assert split_gaps, "the split leaves gaps with tiles of both parts"
     bottom = np.zeros(link.n_hinges, dtype=bool)
-    angle = pictures.flat_gap_angles(link, tiles, bottom)
+    angle = flat_picture.flat_gap_angles(link, tiles, bottom)
     # The moved part's split gaps measure an angle or none; either way they are not drawn.
     points = tiles[link.hinges[:, 0], link.hinges[:, 1], :2]
     fig, ax = plt.subplots()
-    pictures.draw_flat_layout(ax, link, tiles, points, bottom, angle)
+    flat_picture.draw_flat_layout(ax, link, tiles, points, bottom, angle)
     (shaded,) = [c for c in ax.collections if c.get_gid() == "gaps"]
     assert isinstance(shaded, PolyCollection)
     drawn = [p.vertices[: len(p.vertices) - 1] for p in shaded.get_paths()]
-    rings = pictures.gap_rings(link, tiles)
+    rings = flat_picture.gap_rings(link, tiles)
     one_part = [g for g in range(link.n_gaps) if g not in split_gaps and np.isfinite(angle[g])]
     assert len(drawn) == len(one_part) > 0
     for g in split_gaps:
@@ -652,15 +652,15 @@ def test_flat_picture_shades_no_gap_between_parts() -> None:
 
 
 def test_flat_picture_dashes_the_string_between_parts() -> None:
-    from drawstring.output import pictures
+    from drawstring.output import flat_picture
 
     link, tiles = _two_part_layout()
     loop = boundary_loop(build_linkage(np.ones((4, 3), dtype=bool)))
     cells = link.tile_cells
     enter = [side_towards(cells[t], cells[loop[k - 1]]) for k, t in enumerate(loop)]
     leave = [side_towards(cells[t], cells[loop[(k + 1) % len(loop)]]) for k, t in enumerate(loop)]
-    within, between = pictures.route_runs(
-        pictures.side_openings(tiles),
+    within, between = flat_picture.route_runs(
+        flat_picture.side_openings(tiles),
         np.array(loop),
         np.array(enter),
         np.array(leave),
@@ -696,7 +696,7 @@ def test_flat_picture_legend_lists_only_the_hinges_and_trims_the_design_has() ->
     import matplotlib.pyplot as plt
 
     from drawstring.geometry.hinges.placement import HingeTrim
-    from drawstring.output import pictures
+    from drawstring.output import flat_picture, pictures
 
     points = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
     fig, ax = plt.subplots()
@@ -713,11 +713,11 @@ def test_flat_picture_legend_lists_only_the_hinges_and_trims_the_design_has() ->
         trims: tuple[HingeTrim, ...] = ()
 
     fig, ax = plt.subplots()
-    pictures.draw_trims(ax, Layout())  # type: ignore[arg-type]
+    flat_picture.draw_trims(ax, Layout())  # type: ignore[arg-type]
     assert not ax.collections
     cube = np.array([[x, y, z] for x in (0, 2) for y in (0, 1) for z in (0, 3)], dtype=float)
     Layout.trims = (HingeTrim(0, 1, cube, 6.0, 2.0, 0),)
-    pictures.draw_trims(ax, Layout())  # type: ignore[arg-type]
+    flat_picture.draw_trims(ax, Layout())  # type: ignore[arg-type]
     outline, crosses = ax.collections
     drawn = outline.get_paths()[0].vertices[:-1]
     assert len(drawn) == 4 and np.allclose(np.ptp(drawn, axis=0), [2.0, 1.0])
