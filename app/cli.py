@@ -372,7 +372,7 @@ def _run_profiles(args: argparse.Namespace) -> int:
 def _run_simulate(args: argparse.Namespace) -> int:
     import json
 
-    from drawstring.output.folder import simulate_folder
+    from drawstring.output.folder_simulation import simulate_folder
 
     folder = simulate_folder(args.folder, quiet=args.quiet)
     block = json.loads((folder / "design.json").read_text())["metrics"]["simulation"]

@@ -935,7 +935,7 @@ def test_simulate_refuses_a_folder_it_cannot_write_before_simulating(
 ) -> None:
     import tempfile
 
-    from drawstring.output import folder as out_folder
+    from drawstring.output import folder_simulation
 
     out = tmp_path / "d"
     args = ["design", "saddle", "--grid", "6", "5", "--resolution", "1500", "--no-cad"]
@@ -950,7 +950,7 @@ def test_simulate_refuses_a_folder_it_cannot_write_before_simulating(
 
     ran = []
     monkeypatch.setattr(tempfile, "mkdtemp", read_only)
-    monkeypatch.setattr(out_folder, "simulate_stage", lambda *a, **k: ran.append(1))
+    monkeypatch.setattr(folder_simulation, "simulate_stage", lambda *a, **k: ran.append(1))
     capsys.readouterr()
     assert main(["simulate", str(out), "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
