@@ -15,10 +15,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.tiling.linkage import TILE_FACES
 
 #: At most this many coordinates of deployment frames are inlined (F * T * 24); more frames are
@@ -27,10 +27,6 @@ MAX_FRAME_VALUES = 1_000_000
 #: Tile corners of different tiles closer than this fraction of the median tile edge coincide
 #: (a hinge in the flat pose, a shared corner in the assembled pose).
 COINCIDENT_CORNER_REL = 0.02
-
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 
 # ----------------------------------------------------------------------------------------------

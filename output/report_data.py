@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.types import FloatArray
 from drawstring.output.design_folder import (
     DESIGN_JSON_TYPES,
-    FloatArray,
     Route,
     design_json_faults,
     hinges_from_flat,
