@@ -193,7 +193,7 @@ BAD_INPUTS = {
     "nan": (lambda p: write(p, "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n"), "finite"),
     "empty": (lambda p: write(p, ""), "empty"),
     # two triangles: every boundary vertex sits beside a triangle with two boundary edges, so
-    # no rectangle corners can be chosen (was an IndexError traceback)
+    # no rectangle corners can be chosen: refused in one line, not with a traceback
     "coarse": (
         lambda p: write(p, "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 4\nf 1 4 3\n"),
         "too coarse",
@@ -398,7 +398,7 @@ def test_simulate_an_existing_design(
         ("design.json", changed(metrics=5), "design.json's 'metrics' is a number, not an object"),
         ("design.json", changed(target=None), "design.json's 'target' is null, not an object"),
         ("design.json", changed(files=3), "design.json's 'files' is a number, not an array"),
-        # a tile count the cells do not make (was simulated and reported as 31 tiles)
+        # a tile count the cells do not make: refused, not simulated and reported
         ("design.json", changed(linkage=more_tiles), "gives 31 tiles but its cells make 30"),
         ("design.json", changed(linkage={**doc["linkage"], "tiles": "30"}), "is '30', not a count"),
     ):
