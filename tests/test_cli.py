@@ -742,7 +742,7 @@ def test_a_route_failure_found_late_is_one_line_without_solver_internals(
     "argv", [["-v", "design", "saddle"], ["design", "saddle", "-v"], ["design", "saddle"]]
 )
 def test_verbose_is_accepted_before_and_after_the_subcommand(argv: list[str]) -> None:
-    from drawstring.app.cli import build_parser
+    from drawstring.app.parser import build_parser
 
     assert build_parser().parse_args(argv).verbose is ("-v" in argv)
     done = run_cli("targets", "-v")
