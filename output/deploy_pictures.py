@@ -20,13 +20,13 @@ from matplotlib.animation import FuncAnimation, PillowWriter  # noqa: E402
 from matplotlib.artist import Artist  # noqa: E402
 from mpl_toolkits.mplot3d import Axes3D  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
-from numpy.typing import ArrayLike, NDArray  # noqa: E402
+from numpy.typing import ArrayLike  # noqa: E402
 
+from drawstring.geometry.core.types import FloatArray  # noqa: E402
 from drawstring.geometry.simulate.tiles import TILE_FACES, side_face_midpoints  # noqa: E402
 
 logger = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
 
 __all__ = ["route_polylines", "save_deploy_frame", "save_deploy_gif"]
 

@@ -1,9 +1,10 @@
 """Reading a design's output folder, and the geometry the report measures on it.
 
 Readers for the folder's files (``assembled.obj``, ``flat.obj``, ``lifted.obj``,
-``deploy.npz``, ``route.json``) and the measurements the report derives from the tiles: hinges
-of the flat layout, touching tiles of the assembled pose, neighbour lists, tile volumes and the
-subsampling of deployment frames.  Used by :mod:`drawstring.output.report`.
+``deploy.npz``, ``route.json``, the print jobs of ``fabrication/manifest.json``) and the
+measurements the report derives from the tiles: hinges of the flat layout, touching tiles of the
+assembled pose, neighbour lists, tile volumes and the subsampling of deployment frames.  Used by
+the report (:mod:`drawstring.output.report`) and the command line.
 """
 
 from __future__ import annotations
@@ -14,10 +15,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.tiling.linkage import TILE_FACES
 
 #: At most this many coordinates of deployment frames are inlined (F * T * 24); more frames are
@@ -26,10 +27,6 @@ MAX_FRAME_VALUES = 1_000_000
 #: Tile corners of different tiles closer than this fraction of the median tile edge coincide
 #: (a hinge in the flat pose, a shared corner in the assembled pose).
 COINCIDENT_CORNER_REL = 0.02
-
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -211,6 +208,17 @@ def read_route(path: Path) -> Route:
 
 def _first(mapping: dict[str, Any], *keys: str) -> Any:
     return next((mapping[k] for k in keys if k in mapping), None)
+
+
+def print_job_counts(folder: Path) -> tuple[int, int]:
+    """Print jobs and beds listed in a design folder's ``fabrication/manifest.json`` (0, 0
+    without one)."""
+    try:
+        manifest = json.loads((folder / "fabrication" / "manifest.json").read_text())
+        jobs = [job for job in manifest.get("print_jobs", []) if isinstance(job, dict)]
+    except (OSError, ValueError, AttributeError):
+        return 0, 0
+    return len(jobs), len({job.get("bed", 1) for job in jobs})
 
 
 # ----------------------------------------------------------------------------------------------

@@ -17,6 +17,8 @@ from numpy.typing import NDArray
 from drawstring.geometry.route.result import route_to_json
 from drawstring.geometry.tiling.linkage import TILE_FACES, gap_centroids
 from drawstring.output import pictures
+from drawstring.output.flat_picture import save_flat
+from drawstring.output.lift_picture import save_lift
 from drawstring.pipeline.cad_stage import route_lengths
 from drawstring.pipeline.layout_stage import fabricated_tiles
 from drawstring.pipeline.record import Design, Writer
@@ -140,8 +142,8 @@ def _rounded(value: Any, digits: int = 6) -> Any:
 def write_stage_pictures(result: Design, folder: Path) -> list[str]:
     """``assembled.png``, ``flat.png`` (tiles, hinges, gaps, route, lift points), ``lift.png``."""
     pictures.save_assembled(result, folder / "assembled.png")
-    pictures.save_flat(result, folder / "flat.png")
-    pictures.save_lift(result, folder / "lift.png")
+    save_flat(result, folder / "flat.png")
+    save_lift(result, folder / "lift.png")
     return ["assembled.png", "flat.png", "lift.png"]
 
 

@@ -193,7 +193,7 @@ BAD_INPUTS = {
     "nan": (lambda p: write(p, "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n"), "finite"),
     "empty": (lambda p: write(p, ""), "empty"),
     # two triangles: every boundary vertex sits beside a triangle with two boundary edges, so
-    # no rectangle corners can be chosen (was an IndexError traceback)
+    # no rectangle corners can be chosen: refused in one line, not with a traceback
     "coarse": (
         lambda p: write(p, "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 4\nf 1 4 3\n"),
         "too coarse",
@@ -398,7 +398,7 @@ def test_simulate_an_existing_design(
         ("design.json", changed(metrics=5), "design.json's 'metrics' is a number, not an object"),
         ("design.json", changed(target=None), "design.json's 'target' is null, not an object"),
         ("design.json", changed(files=3), "design.json's 'files' is a number, not an array"),
-        # a tile count the cells do not make (was simulated and reported as 31 tiles)
+        # a tile count the cells do not make: refused, not simulated and reported
         ("design.json", changed(linkage=more_tiles), "gives 31 tiles but its cells make 30"),
         ("design.json", changed(linkage={**doc["linkage"], "tiles": "30"}), "is '30', not a count"),
     ):
@@ -523,7 +523,7 @@ def test_the_fix_for_a_missed_layout_target_names_tiles_and_a_split_bound_that_s
     # (in depth it misses, 0.029 mm; --hinges top meets them all).
     from types import SimpleNamespace
 
-    from drawstring.app.cli import _closer_fit
+    from drawstring.app.commands import closer_fit
 
     edge = ["flat edge error 0.0015 mm exceeds 0.001 mm"]
 
@@ -542,7 +542,7 @@ def test_the_fix_for_a_missed_layout_target_names_tiles_and_a_split_bound_that_s
             profile=SimpleNamespace(min_gap_angle_deg=12.0),
             layout_misses=lambda: misses,
         )
-        return _closer_fit(design)  # type: ignore[arg-type]
+        return closer_fit(design)  # type: ignore[arg-type]
 
     assert fix(150, 1.034009) == (
         "try more tiles (e.g. --tiles 300) or a --max-scale-factor below 1.03, this design's "
@@ -742,7 +742,7 @@ def test_a_route_failure_found_late_is_one_line_without_solver_internals(
     "argv", [["-v", "design", "saddle"], ["design", "saddle", "-v"], ["design", "saddle"]]
 )
 def test_verbose_is_accepted_before_and_after_the_subcommand(argv: list[str]) -> None:
-    from drawstring.app.cli import build_parser
+    from drawstring.app.parser import build_parser
 
     assert build_parser().parse_args(argv).verbose is ("-v" in argv)
     done = run_cli("targets", "-v")
@@ -798,19 +798,20 @@ def test_library_warnings_are_logged_with_verbose_and_kept_off_the_terminal_with
 ) -> None:
     import warnings
 
-    from drawstring.app import cli
+    from drawstring.app import commands
+    from drawstring.app.terminal import LIBRARY_LOGGER
 
     def noisy() -> int:
         warnings.warn("overflow encountered in multiply", RuntimeWarning, stacklevel=1)
         return 0
 
-    monkeypatch.setattr(cli, "_run_targets", noisy)
+    monkeypatch.setattr(commands, "run_targets", noisy)
     assert main(["targets"]) == 0
     assert "overflow" not in capsys.readouterr().err
-    assert not [r for r in caplog.records if r.name == cli.LIBRARY_LOGGER]
+    assert not [r for r in caplog.records if r.name == LIBRARY_LOGGER]
     assert len(recwarn) == 0  # not passed on to Python's own display either
     assert main(["-v", "targets"]) == 0
-    logged = [r.getMessage() for r in caplog.records if r.name == cli.LIBRARY_LOGGER]
+    logged = [r.getMessage() for r in caplog.records if r.name == LIBRARY_LOGGER]
     assert len(logged) == 1 and logged[0].startswith("RuntimeWarning: overflow encountered")
     # the caller's warning state is back: a warning after main reaches the caller again
     warnings.warn("after", UserWarning, stacklevel=1)
@@ -935,7 +936,7 @@ def test_simulate_refuses_a_folder_it_cannot_write_before_simulating(
 ) -> None:
     import tempfile
 
-    from drawstring.output import folder as out_folder
+    from drawstring.output import folder_simulation
 
     out = tmp_path / "d"
     args = ["design", "saddle", "--grid", "6", "5", "--resolution", "1500", "--no-cad"]
@@ -950,7 +951,7 @@ def test_simulate_refuses_a_folder_it_cannot_write_before_simulating(
 
     ran = []
     monkeypatch.setattr(tempfile, "mkdtemp", read_only)
-    monkeypatch.setattr(out_folder, "simulate_stage", lambda *a, **k: ran.append(1))
+    monkeypatch.setattr(folder_simulation, "simulate_stage", lambda *a, **k: ran.append(1))
     capsys.readouterr()
     assert main(["simulate", str(out), "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -1145,19 +1146,19 @@ def test_design_help_states_every_default_and_range(capsys) -> None:
 
 
 def test_the_wrote_line_names_the_print_jobs_of_a_layout_larger_than_the_bed(tmp_path) -> None:
-    from drawstring.app.cli import _print_jobs
+    from drawstring.app.commands import print_jobs_note
 
-    assert _print_jobs(tmp_path) == ""  # --no-cad: no fabrication files
+    assert print_jobs_note(tmp_path) == ""  # --no-cad: no fabrication files
     (tmp_path / "fabrication").mkdir()
     manifest = tmp_path / "fabrication" / "manifest.json"
     manifest.write_text(json.dumps({"print_jobs": [{"job": 1, "bed": 1}]}))
-    assert _print_jobs(tmp_path) == ""  # one job: nothing to say
+    assert print_jobs_note(tmp_path) == ""  # one job: nothing to say
     jobs = [{"job": 1, "bed": 1}, {"job": 2, "bed": 2}, {"job": 3, "bed": 2, "loose": True}]
     manifest.write_text(json.dumps({"print_jobs": jobs}))
-    assert "printed in 3 jobs on 2 beds" in _print_jobs(tmp_path)
+    assert "printed in 3 jobs on 2 beds" in print_jobs_note(tmp_path)
     jobs = [{"job": 1, "bed": 1}, {"job": 2, "bed": 2}]  # nested loose tiles: a job per bed
     manifest.write_text(json.dumps({"print_jobs": jobs}))
-    assert "; printed on 2 beds (" in _print_jobs(tmp_path)
+    assert "; printed on 2 beds (" in print_jobs_note(tmp_path)
 
 
 def test_the_wrote_line_goes_to_stdout_and_the_warnings_to_stderr(
@@ -1260,7 +1261,7 @@ def test_version_names_the_installed_package(capsys: pytest.CaptureFixture[str])
 
 
 def test_progress_distances_read_as_millimetres() -> None:
-    from drawstring.app.cli import _mm
+    from drawstring.app.commands import mm_text
 
-    assert _mm(6.5e-11) == "under 0.001 mm" and _mm(1e-4) == "under 0.001 mm"
-    assert _mm(0.1181) == "0.118 mm" and _mm(123.4) == "123.400 mm"
+    assert mm_text(6.5e-11) == "under 0.001 mm" and mm_text(1e-4) == "under 0.001 mm"
+    assert mm_text(0.1181) == "0.118 mm" and mm_text(123.4) == "123.400 mm"

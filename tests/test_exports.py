@@ -1036,7 +1036,9 @@ def test_every_lift_exit_of_route_json_is_in_assembly_md(
 
     from drawstring.geometry.route.result import route_to_json
     from drawstring.geometry.tiling.linkage import gap_centroids, rotating_squares_layout
-    from drawstring.output import assembly_guide
+    from drawstring.output import pictures as picture_files
+    from drawstring.output.assembly_pictures import write_pictures
+    from drawstring.output.assembly_text import write_assembly
     from drawstring.pipeline.cad_stage import lift_exits, route_steps
 
     link, route, lift_gaps = _ring_route()
@@ -1049,9 +1051,9 @@ def test_every_lift_exit_of_route_json_is_in_assembly_md(
     steps, lifts = route_steps(route), lift_exits(route, np.array(lift_gaps))
     figures = []
     monkeypatch.setattr(
-        assembly_guide, "_figure_png", lambda fig, path: figures.append((fig, path.name))
+        picture_files, "save", lambda fig, path, **_: figures.append((fig, path.name))
     )
-    pictures = assembly_guide.write_pictures(
+    pictures = write_pictures(
         tmp_path, tiles, tiles, link.hinges, ["top"] * link.n_hinges, steps, lifts
     )
     record = ExportRecord(
@@ -1063,7 +1065,7 @@ def test_every_lift_exit_of_route_json_is_in_assembly_md(
         }
     )
     record.sheets = {"hinges": {"sheets": 1}}
-    assembly_guide._write_assembly(
+    write_assembly(
         tmp_path / "assembly.md",
         load_profile("laser-epdm"),
         "ring",
@@ -1177,9 +1179,9 @@ def test_placement_marks_hinges_as_every_picture_does(built: Built) -> None:
 
 
 def test_stops_past_z_get_two_letters() -> None:
-    from drawstring.output.assembly_guide import _stop_label
+    from drawstring.output.assembly_order import stop_label
 
-    labels = [_stop_label(k) for k in range(30)]
+    labels = [stop_label(k) for k in range(30)]
     assert labels[:3] == ["A", "B", "C"] and labels[25:28] == ["Z", "AA", "AB"]
     assert len(set(labels)) == 30
 

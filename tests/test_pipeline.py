@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from drawstring.app import cli
+from drawstring.app.commands import design_summary
 from drawstring.fabrication.profiles import load_profile
 from drawstring.geometry.core import parallel
 from drawstring.geometry.route.plan import plan_route
@@ -146,7 +146,7 @@ def test_a_part_whose_hinges_miss_only_in_depth_is_split_further() -> None:
     assert metrics["flat_edge_error_max_mm"] <= 1e-3
     assert result.problems == ()
     # the summary line says why the bound is below what one part can absorb
-    summary = cli._summary(result)
+    summary = design_summary(result)
     bound = metrics["split_bound"]
     assert f"exceeds {bound:.3g}, tightened from {split_bound(result.options):.3g}" in summary
 
@@ -157,7 +157,7 @@ def test_the_summary_names_the_gap_angle_bound_where_no_retiling_tightened_it() 
     result = design("dome", DesignOptions(grid=(8, 8), resolution=1500, simulate=False, cad=False))
     assert result.tiling.linkage.n_components == 2
     assert not any(n.startswith("tiling:") for n in result.notes)
-    summary = cli._summary(result)
+    summary = design_summary(result)
     assert "exceeds 1.66, what one part's gaps can absorb opening within [12, 90] deg" in summary
     assert "tightened" not in summary
 

@@ -27,8 +27,14 @@ import numpy as np
 import pytest
 
 from drawstring.geometry.core.errors import InputError
-from drawstring.geometry.tiling.linkage import Linkage, build_linkage, rotating_squares_layout
-from drawstring.output import report
+from drawstring.geometry.tiling.linkage import (
+    TILE_FACES,
+    Linkage,
+    build_linkage,
+    rotating_squares_layout,
+)
+from drawstring.output import design_folder, metric_rules, report, report_sections
+from drawstring.output.report_data import FolderContents
 
 SIDE = 20.0  # mm, tile edge of the fake design
 THICKNESS = 6.0  # mm
@@ -59,7 +65,7 @@ def write_obj(path: Path, tiles: np.ndarray) -> None:
     lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in tiles.reshape(-1, 3)]
     for t in range(len(tiles)):
         lines.append(f"g tile_{t}")
-        for face in report.TILE_FACES:
+        for face in TILE_FACES:
             lines.append("f " + " ".join(str(8 * t + int(v) + 1) for v in face))
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
@@ -127,23 +133,23 @@ def test_obj_round_trip_and_volume(tmp_path: Path) -> None:
     link = build_linkage(np.ones((2, 2), dtype=bool))
     tiles = fake_tiles(link, OPENING, 0.0)
     write_obj(tmp_path / "flat.obj", tiles)
-    back = report.read_obj_tiles(tmp_path / "flat.obj")
+    back = design_folder.read_obj_tiles(tmp_path / "flat.obj")
     np.testing.assert_allclose(back, tiles, atol=1e-6)
     # Frustum volume h/3 (A1 + A2 + sqrt(A1 A2)) with A1 = 400, A2 = 0.81 * 400.
     a1, a2 = SIDE**2, 0.81 * SIDE**2
     expected = THICKNESS / 3 * (a1 + a2 + np.sqrt(a1 * a2))
-    np.testing.assert_allclose(report.tile_volumes(tiles), expected, rtol=1e-9)
+    np.testing.assert_allclose(design_folder.tile_volumes(tiles), expected, rtol=1e-9)
 
 
 def test_obj_with_wrong_vertex_count_is_refused(tmp_path: Path) -> None:
     (tmp_path / "flat.obj").write_text("v 0 0 0\nv 1 0 0\n", encoding="utf-8")
     with pytest.raises(InputError, match="8 per tile"):
-        report.read_obj_tiles(tmp_path / "flat.obj")
+        design_folder.read_obj_tiles(tmp_path / "flat.obj")
 
 
 def test_hinges_from_flat_layout_match_the_linkage() -> None:
     link = build_linkage(np.ones((4, 3), dtype=bool))
-    hinges, side = report.hinges_from_flat(fake_tiles(link, OPENING, 0.0))
+    hinges, side = design_folder.hinges_from_flat(fake_tiles(link, OPENING, 0.0))
     # Canonical (tile_a < tile_b) rows of the linkage's own hinges.
     known = link.hinges.copy()
     swap = known[:, 0] > known[:, 2]
@@ -154,7 +160,7 @@ def test_hinges_from_flat_layout_match_the_linkage() -> None:
 
 def test_touching_tiles_in_assembled_pose_are_edge_neighbours() -> None:
     link = build_linkage(np.ones((3, 3), dtype=bool))
-    pairs = report.touching_tiles(fake_tiles(link, 0.0, 0.0))
+    pairs = design_folder.touching_tiles(fake_tiles(link, 0.0, 0.0))
     cells = link.tile_cells
     steps = np.abs(cells[pairs[:, 0]] - cells[pairs[:, 1]]).sum(axis=1)
     assert len(pairs) == 12 and (steps == 1).all()  # 3x3 grid: 12 shared edges, no diagonals
@@ -162,7 +168,7 @@ def test_touching_tiles_in_assembled_pose_are_edge_neighbours() -> None:
 
 def test_subsample_frames_keeps_ends() -> None:
     frames = np.arange(10 * 2 * 8 * 3, dtype=float).reshape(10, 2, 8, 3)
-    kept = report.subsample_frames(frames, max_values=4 * 48)
+    kept = design_folder.subsample_frames(frames, max_values=4 * 48)
     assert len(kept) == 4
     np.testing.assert_array_equal(kept[0], frames[0])
     np.testing.assert_array_equal(kept[-1], frames[-1])
@@ -171,12 +177,12 @@ def test_subsample_frames_keeps_ends() -> None:
 def test_route_reader_accepts_lists_and_gap_only_lift_points(tmp_path: Path) -> None:
     path = tmp_path / "route.json"
     path.write_text(json.dumps({"steps": [[-1, 0, 3, 1], [5, 1, 3, 2]], "lift": [5]}))
-    route = report.read_route(path)
+    route = design_folder.read_route(path)
     assert route.steps.tolist() == [[-1, 0, 3, 1], [5, 1, 3, 2]]
     assert route.lift.tolist() == [[5, 1]]  # the tile the route passes at gap 5
     path.write_text("{not json")
     with pytest.raises(InputError, match="route.json"):
-        report.read_route(path)
+        design_folder.read_route(path)
 
 
 def test_scale_factor_is_checked_against_the_bound_design_json_judges_it_by() -> None:
@@ -187,14 +193,14 @@ def test_scale_factor_is_checked_against_the_bound_design_json_judges_it_by() ->
         "options": {"max_scale_factor": 2.0, "min_gap_angle_deg": 12.0},
         "metrics": {"scale_factor_max": 1.5, "split_bound": 1.38},  # tightened after a miss
     }
-    marks = {row.name: row.passed for row in report.evaluate_metrics(design)}
+    marks = {row.name: row.passed for row in metric_rules.evaluate_metrics(design)}
     assert marks == {"scale_factor_max": True, "split_bound": True}
     design["metrics"] = {"scale_factor_max": 1.7, "split_bound": 1.38}
-    marks = {row.name: row.passed for row in report.evaluate_metrics(design)}
+    marks = {row.name: row.passed for row in metric_rules.evaluate_metrics(design)}
     assert marks == {"scale_factor_max": False, "split_bound": True}
     design["options"] = {"max_scale_factor": 1.6, "min_gap_angle_deg": 12.0}
     design["metrics"] = {"scale_factor_max": 1.62}
-    marks = {row.name: row.passed for row in report.evaluate_metrics(design)}
+    marks = {row.name: row.passed for row in metric_rules.evaluate_metrics(design)}
     assert marks == {"scale_factor_max": False}
 
 
@@ -216,7 +222,7 @@ def test_metric_marks() -> None:
             "something_new": 1.0,
         },
     }
-    marks = {row.name: row.passed for row in report.evaluate_metrics(design)}
+    marks = {row.name: row.passed for row in metric_rules.evaluate_metrics(design)}
     assert marks == {
         "scale_factor_max": False,  # above --max-scale-factor
         "flat_gap_angle_min_deg": True,
@@ -229,7 +235,7 @@ def test_metric_marks() -> None:
         "something_new": None,
     }
     design["metrics"]["cad"]["tile_gap_min_mm"] = 0.6
-    marks = {row.name: row.passed for row in report.evaluate_metrics(design)}
+    marks = {row.name: row.passed for row in metric_rules.evaluate_metrics(design)}
     assert marks["cad.tile_gap_min_mm"] is True
 
 
@@ -239,9 +245,9 @@ def test_metric_marks() -> None:
 
 
 def test_quality_targets_missed_are_not_failures(tmp_path: Path) -> None:
-    # Every default design missed the surface-distance targets (the paper's weights; a
-    # warning, exit 0) and the page said "✗ 2 of 22 checks fail ... Look at these before
-    # printing" (a user-acceptance review): such targets are marked off target, in amber.
+    # A design that misses only quality targets (the surface distance with the paper's
+    # weights: a warning, exit 0) does not fail its checks: such targets are marked off
+    # target, in amber, not "✗ ... checks fail ... Look at these before printing".
     make_design_folder(tmp_path)
     doc = json.loads((tmp_path / "design.json").read_text())
     doc["metrics"]["flat_overlap_area_mm2"] = 0.0
@@ -272,7 +278,7 @@ def test_report_of_a_full_folder(tmp_path: Path) -> None:
     assert "✗ 1 of 4 checks fail: flat_overlap_area_mm2" in page
     assert "mystery_number" in page and "data:image/png;base64," in page
     assert "321 mm" in page and "of string (bom.csv)" not in page  # route length; no CAD yet
-    # with the fabrication files, the length to cut too (the route alone misled a review)
+    # with the fabrication files, the length of string to cut too, not the route's alone
     doc = json.loads((tmp_path / "design.json").read_text())
     doc["metrics"]["cad"] = {"string_length_mm": 1360.4}
     (tmp_path / "design.json").write_text(json.dumps(doc))
@@ -615,7 +621,7 @@ def test_flat_picture_shades_no_gap_between_parts() -> None:
     import matplotlib.pyplot as plt
     from matplotlib.collections import PolyCollection
 
-    from drawstring.output import pictures
+    from drawstring.output import flat_picture
 
     link, tiles = _two_part_layout()
     assert link.n_components == 2
@@ -624,15 +630,15 @@ def test_flat_picture_shades_no_gap_between_parts() -> None:
     ]
     assert split_gaps, "the split leaves gaps with tiles of both parts"
     bottom = np.zeros(link.n_hinges, dtype=bool)
-    angle = pictures.flat_gap_angles(link, tiles, bottom)
+    angle = flat_picture.flat_gap_angles(link, tiles, bottom)
     # The moved part's split gaps measure an angle or none; either way they are not drawn.
     points = tiles[link.hinges[:, 0], link.hinges[:, 1], :2]
     fig, ax = plt.subplots()
-    pictures.draw_flat_layout(ax, link, tiles, points, bottom, angle)
+    flat_picture.draw_flat_layout(ax, link, tiles, points, bottom, angle)
     (shaded,) = [c for c in ax.collections if c.get_gid() == "gaps"]
     assert isinstance(shaded, PolyCollection)
     drawn = [p.vertices[: len(p.vertices) - 1] for p in shaded.get_paths()]
-    rings = pictures.gap_rings(link, tiles)
+    rings = flat_picture.gap_rings(link, tiles)
     one_part = [g for g in range(link.n_gaps) if g not in split_gaps and np.isfinite(angle[g])]
     assert len(drawn) == len(one_part) > 0
     for g in split_gaps:
@@ -646,15 +652,15 @@ def test_flat_picture_shades_no_gap_between_parts() -> None:
 
 
 def test_flat_picture_dashes_the_string_between_parts() -> None:
-    from drawstring.output import pictures
+    from drawstring.output import flat_picture
 
     link, tiles = _two_part_layout()
     loop = boundary_loop(build_linkage(np.ones((4, 3), dtype=bool)))
     cells = link.tile_cells
     enter = [side_towards(cells[t], cells[loop[k - 1]]) for k, t in enumerate(loop)]
     leave = [side_towards(cells[t], cells[loop[(k + 1) % len(loop)]]) for k, t in enumerate(loop)]
-    within, between = pictures.route_runs(
-        pictures.side_openings(tiles),
+    within, between = flat_picture.route_runs(
+        flat_picture.side_openings(tiles),
         np.array(loop),
         np.array(enter),
         np.array(leave),
@@ -689,8 +695,8 @@ def test_threading_starts_where_the_assembly_guide_does(tmp_path: Path) -> None:
 def test_flat_picture_legend_lists_only_the_hinges_and_trims_the_design_has() -> None:
     import matplotlib.pyplot as plt
 
-    from drawstring.geometry.hinges.trims import HingeTrim
-    from drawstring.output import pictures
+    from drawstring.geometry.hinges.placement import HingeTrim
+    from drawstring.output import flat_picture, pictures
 
     points = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
     fig, ax = plt.subplots()
@@ -707,11 +713,11 @@ def test_flat_picture_legend_lists_only_the_hinges_and_trims_the_design_has() ->
         trims: tuple[HingeTrim, ...] = ()
 
     fig, ax = plt.subplots()
-    pictures.draw_trims(ax, Layout())  # type: ignore[arg-type]
+    flat_picture.draw_trims(ax, Layout())  # type: ignore[arg-type]
     assert not ax.collections
     cube = np.array([[x, y, z] for x in (0, 2) for y in (0, 1) for z in (0, 3)], dtype=float)
     Layout.trims = (HingeTrim(0, 1, cube, 6.0, 2.0, 0),)
-    pictures.draw_trims(ax, Layout())  # type: ignore[arg-type]
+    flat_picture.draw_trims(ax, Layout())  # type: ignore[arg-type]
     outline, crosses = ax.collections
     drawn = outline.get_paths()[0].vertices[:-1]
     assert len(drawn) == 4 and np.allclose(np.ptp(drawn, axis=0), [2.0, 1.0])
@@ -729,29 +735,29 @@ def test_a_layout_larger_than_the_bed_names_its_print_jobs(tmp_path: Path) -> No
     flat = np.zeros((2, 8, 3))
     flat[1, :, 0] = 1.5 * bed.bed_x_mm  # wider than the bed either way round
     flat[1, :, 1] = 1.5 * bed.bed_y_mm
-    found = report._Folder(
+    found = FolderContents(
         tmp_path, {"options": {"profile": "fdm-dual"}}, None, flat, None, None, ()
     )
-    without = report._bed_note(found)
+    without = report_sections.bed_note(found)
     assert "does not fit the" in without and "split it into print jobs" in without
     (tmp_path / "fabrication").mkdir()
     jobs = [{"job": 1, "bed": 1}, {"job": 2, "bed": 2}, {"job": 3, "bed": 1, "loose": True}]
     (tmp_path / "fabrication" / "manifest.json").write_text(json.dumps({"print_jobs": jobs}))
-    assert "splits it into 3 print jobs on 2 beds" in report._bed_note(found)
-    laser = report._Folder(
+    assert "splits it into 3 print jobs on 2 beds" in report_sections.bed_note(found)
+    laser = FolderContents(
         tmp_path, {"options": {"profile": "laser-epdm"}}, None, flat, None, None, ()
     )
-    assert "the loose tiles print nested on 2 beds" in report._bed_note(laser)
-    plywood = report._Folder(
+    assert "the loose tiles print nested on 2 beds" in report_sections.bed_note(laser)
+    plywood = FolderContents(
         tmp_path, {"options": {"profile": "plywood-cnc"}}, None, flat, None, None, ()
     )
-    assert "fit" not in report._bed_note(plywood)  # panels on sheets: no bed to fit
-    assert "cut as panels nested on the sheets" in report._bed_note(plywood)
+    assert "fit" not in report_sections.bed_note(plywood)  # panels on sheets: no bed to fit
+    assert "cut as panels nested on the sheets" in report_sections.bed_note(plywood)
     flat[1] = 0.1 * flat[1]
-    assert "(fits the" in report._bed_note(found)
+    assert "(fits the" in report_sections.bed_note(found)
     # the planner's free border counts: a layout as large as the bed does not fit it
     from drawstring.fabrication.profiles import BED_MARGIN_MM
 
     flat[1, :, 0] = bed.bed_x_mm - BED_MARGIN_MM
     flat[1, :, 1] = 0.5 * bed.bed_y_mm
-    assert "does not fit" in report._bed_note(found)
+    assert "does not fit" in report_sections.bed_note(found)
