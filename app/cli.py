@@ -76,6 +76,10 @@ def _run_command(parser: argparse.ArgumentParser, args: argparse.Namespace) -> i
             return commands.run_view(args)
         if args.command == "simulate":
             return commands.run_simulate(args)
+        if args.command == "studio":
+            from drawstring.app.studio.serve import run_studio
+
+            return run_studio(args, args.subparsers["design"])
     except InputError as exc:
         print(f"drawstring: error: {exc}", file=sys.stderr)
         return EXIT_INPUT

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import NoReturn
 
 from drawstring.app.status import EXIT_INPUT
+from drawstring.app.studio.serve import add_studio_options
 
 #: Help of ``-v``, before the subcommand and after it.
 VERBOSE_HELP = "log what each stage does, and every warning a library raises"
@@ -61,6 +62,10 @@ def build_parser() -> argparse.ArgumentParser:
         "view", parents=[verbose], help="open a design's report.html in the browser"
     )
     view.add_argument("folder", type=Path, help="a design folder written by `drawstring design`")
+    studio = sub.add_parser(
+        "studio", parents=[verbose], help="design in the browser: serve the local web app"
+    )
+    add_studio_options(studio)
     prof = sub.add_parser("profiles", parents=[verbose], help="list the fabrication profiles")
     prof.add_argument("--show", metavar="NAME", help="print a profile as TOML to copy and edit")
     prof.add_argument("--size", type=float, help="estimate for a design this size (mm)")
