@@ -172,6 +172,7 @@ def create_app(config: StudioConfig) -> FastAPI:
     _page_routes(app)
     _catalogue_routes(app, studio_of)
     _design_routes(app, studio_of)
+    _design_file_routes(app, studio_of)
     return app
 
 
@@ -297,6 +298,8 @@ def _design_routes(app: FastAPI, studio_of: Callable[[Request], Studio]) -> None
         studio_of(request).remove(design_id)
         return Response(status_code=204)
 
+
+def _design_file_routes(app: FastAPI, studio_of: Callable[[Request], Studio]) -> None:
     @app.get("/api/designs/{design_id}/report")
     def report(request: Request, design_id: str) -> FileResponse:
         studio = studio_of(request)
