@@ -104,6 +104,7 @@ class ProcessExecutor:
         self._queued: collections.deque[JobSpec] = collections.deque()
         self._running: dict[str, _Running] = {}
         self._stopping = False
+        self._closed = False
         self._wake_read, self._wake_write = os.pipe()
         os.set_blocking(self._wake_write, False)
         self._thread = threading.Thread(target=self._watch, name="studio-jobs", daemon=True)
@@ -153,15 +154,21 @@ class ProcessExecutor:
         self._thread.join(timeout=10)
         for job in running:
             job.process.join(timeout=5)
-        with contextlib.suppress(OSError):
+        if self._thread.is_alive():  # still busy with a listener: it keeps its pipe
+            return
+        with self._lock:
+            self._closed = True
             os.close(self._wake_read)
             os.close(self._wake_write)
 
     # -- the watcher thread ----------------------------------------------------------------
 
     def _wake(self) -> None:
-        with contextlib.suppress(OSError):  # full (a wake is pending) or closed (shut down)
-            os.write(self._wake_write, b"x")
+        with self._lock:
+            if self._closed:
+                return
+            with contextlib.suppress(BlockingIOError):  # full: a wake is pending already
+                os.write(self._wake_write, b"x")
 
     def _watch(self) -> None:
         if self._context.get_start_method() == "forkserver":
