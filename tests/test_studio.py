@@ -22,7 +22,8 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from drawstring.app.cli import build_parser, main
+from drawstring.app.cli import main
+from drawstring.app.parser import build_parser
 from drawstring.app.studio.executor import default_max_running
 from drawstring.app.studio.serve import check_bind
 from drawstring.app.studio.server import create_app

@@ -17,7 +17,7 @@ from typing import Any
 
 import pytest
 
-from drawstring.app.cli import build_parser
+from drawstring.app.parser import build_parser
 from drawstring.app.studio.serve import LOOPBACK_NAMES
 from drawstring.app.studio.server import create_app
 from drawstring.app.studio.service import StudioConfig

@@ -23,7 +23,7 @@ from drawstring.fabrication.profiles import Profile, load_profile
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.target.meshfiles import SUPPORTED_EXTENSIONS
 from drawstring.geometry.target.surface import Target, load_target
-from drawstring.output.report import print_job_counts
+from drawstring.output.design_folder import print_job_counts
 
 #: The largest request body (a mesh upload), bytes.
 MAX_UPLOAD_BYTES = 64 * 1024 * 1024
