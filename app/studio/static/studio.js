@@ -201,8 +201,8 @@ function profileDefaults() {
   for (const spec of state.options) {
     if (!spec.profile_default) continue;
     const input = $(`opt-${spec.name}`);
-    const key = spec.name === "tiles" ? "tiles" : spec.name === "size_mm" ? "size_mm" : spec.name;
-    if (input && profile.defaults[key] !== undefined) input.placeholder = `${profile.defaults[key]} (profile)`;
+    const value = profile.defaults[spec.name];
+    if (input && value !== undefined) input.placeholder = `${value} (profile)`;
   }
 }
 
