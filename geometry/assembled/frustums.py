@@ -11,17 +11,13 @@ from dataclasses import dataclass
 
 import igl
 import numpy as np
-from numpy.typing import NDArray
 
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.solve.solver import (
     plane_fit,
 )
 from drawstring.geometry.tiling.linkage import TILE_FACES
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-
 
 #: Side faces in the order of the top edges ``k -> k+1`` (rows 2.. of :data:`TILE_FACES`).
 TILE_SIDE_FACES: IntArray = TILE_FACES[2:]
@@ -46,7 +42,7 @@ class QuadMeshEdges:
     sides: IntArray
 
     @property
-    def interior(self) -> NDArray[np.bool_]:
+    def interior(self) -> BoolArray:
         return np.asarray(self.quads[:, 1] >= 0)
 
 

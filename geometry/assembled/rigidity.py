@@ -25,13 +25,12 @@ from typing import Literal
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tolerances import RIGIDITY_SVD_REL
+from drawstring.geometry.core.types import FloatArray, IntArray
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 ContactMode = Literal["midpoint", "face"]
 
 __all__ = [

@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from drawstring.geometry.assembled.frustums import (
     corner_margins,
@@ -61,6 +61,7 @@ from drawstring.geometry.core.tolerances import (
     ASSEMBLED_PLANARITY_REL,
     ASSEMBLED_SOLVER_REL_TOL,
 )
+from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.solve.solver import (
     ClosenessToPlanes,
     ClosenessToPoints,
@@ -81,8 +82,6 @@ from drawstring.geometry.solve.solver import (
 
 logger = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Paper eq. 1 weights (w_planar, w_square, w_surface) from section 5.4.
 PAPER_WEIGHTS: tuple[float, float, float] = (1e4, 10.0, 0.1)

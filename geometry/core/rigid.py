@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
+
+from drawstring.geometry.core.types import FloatArray
 
 
-def rigid_fit(
-    source: ArrayLike, target: ArrayLike
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def rigid_fit(source: ArrayLike, target: ArrayLike) -> tuple[FloatArray, FloatArray]:
     """Rotation and translation taking each source set onto its target set (least squares).
 
     Parameters
@@ -32,15 +32,13 @@ def rigid_fit(
     return rotation, translation
 
 
-def apply_rigid(
-    rotation: NDArray[np.float64], translation: NDArray[np.float64], points: ArrayLike
-) -> NDArray[np.float64]:
+def apply_rigid(rotation: FloatArray, translation: FloatArray, points: ArrayLike) -> FloatArray:
     """(T, k, 3) ``points`` moved by each set's rotation and translation."""
     pts = np.asarray(points, dtype=np.float64)
     return np.asarray(np.matmul(pts, rotation.transpose(0, 2, 1)) + translation[:, None])
 
 
-def rigid_copies(rest: ArrayLike, points: ArrayLike) -> NDArray[np.float64]:
+def rigid_copies(rest: ArrayLike, points: ArrayLike) -> FloatArray:
     """(T, k, 3) the rigid copies of each ``rest`` set closest to ``points`` (least squares)."""
     rotation, translation = rigid_fit(rest, points)
     return apply_rigid(rotation, translation, rest)

@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tolerances import FLAT_SOLVER_ANGLE_TOL_DEG
+from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.flat.layout import (
     TILE_EDGES,
     FlatResult,
@@ -35,8 +36,6 @@ from drawstring.geometry.tiling.linkage import Linkage
 
 logger = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 __all__ = [
     "CO_CONICAL",

@@ -53,7 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.core.errors import InputError
@@ -66,6 +66,7 @@ from drawstring.geometry.core.tolerances import (
     FLAT_SEPARATION_MARGIN_REL,
     FLAT_SOLVER_ANGLE_TOL_DEG,
 )
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.flat.pose import HingeFaces, hinge_points
 from drawstring.geometry.solve.constrained_lsq import (
     AngleRows,
@@ -83,8 +84,6 @@ from drawstring.geometry.tiling.linkage import Linkage, slit_ends
 
 logger = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Tile edges as corner pairs: 4 sides (side k from corner k to k+1), then the 2 diagonals.
 TILE_EDGES: IntArray = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [0, 2], [1, 3]], dtype=np.int64)
@@ -125,7 +124,7 @@ class GapJunctions:
 
     elements: IntArray
     gap: IntArray
-    is_end: NDArray[np.bool_]
+    is_end: BoolArray
     tiles: IntArray
     sides: IntArray
 

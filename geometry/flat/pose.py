@@ -34,7 +34,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.parallel import map_blocks, thread_count
 from drawstring.geometry.core.rigid import apply_rigid, rigid_fit
@@ -43,10 +43,8 @@ from drawstring.geometry.core.tolerances import (
     HINGE_LAYOUT_CLEARANCE_MM,
     HINGE_LAYOUT_TOUCH_MM,
 )
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.tiling.linkage import Linkage, slit_ends
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 __all__ = ["HingeFaces", "free_openings", "hinge_faces", "hinge_points", "lay_flat"]
 
@@ -89,14 +87,12 @@ class HingeFaces:
         next (:meth:`closing`); the hinge stage trims such a pair's overlap.
     """
 
-    bottom: NDArray[np.bool_]
+    bottom: BoolArray
     clear_lo: FloatArray
     clear_hi: FloatArray
-    released: NDArray[np.bool_] | None = None
+    released: BoolArray | None = None
 
-    def window(
-        self, lo: ArrayLike, hi: ArrayLike
-    ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+    def window(self, lo: ArrayLike, hi: ArrayLike) -> tuple[FloatArray, FloatArray, BoolArray]:
         """The openings within the bounds ``lo``, ``hi`` (rad, per slit end or one for all) at
         which each slit end's tiles clear each other, ``FLAT_FREE_MARGIN_DEG`` inside the clear
         interval: ``(E,)`` lower and upper ends, and whether that window is not empty."""
@@ -108,7 +104,7 @@ class HingeFaces:
             fits &= ~self.released
         return new_lo, new_hi, np.asarray(fits)
 
-    def closing(self, newer: HingeFaces, opening: ArrayLike) -> NDArray[np.bool_]:
+    def closing(self, newer: HingeFaces, opening: ArrayLike) -> BoolArray:
         """Slit ends ``(E,)`` whose ``opening`` (rad, on the hinge face, laid out in this
         window) stands at an end of the window, within :data:`CLOSING_BIND_DEG`, and whose
         window in ``newer`` (the same hinges on moved tiles) moved inwards past that end by more
@@ -194,7 +190,7 @@ def _separable(
     need_b: FloatArray,
     clearance: float,
     turn: FloatArray,
-) -> NDArray[np.bool_]:
+) -> BoolArray:
     """Whether each pair ``(E,)`` is separable once tile ``b`` turned by ``turn`` about ``H``.
 
     The separating line through ``H`` runs through the void between the two hinge-face sides
@@ -304,7 +300,7 @@ def free_openings(
     need_b[e, c1] = -touch
     current = ends.angles(np.asarray(tiles, dtype=np.float64), face)
 
-    def ok(opening: FloatArray, sel: IntArray | slice = slice(None)) -> NDArray[np.bool_]:
+    def ok(opening: FloatArray, sel: IntArray | slice = slice(None)) -> BoolArray:
         # turning t1 about the hinge by d lowers the opening by d (ends ``sel`` only)
         return _separable(
             a_hinge[sel], b_hinge[sel], a_other[sel], b_other[sel], need_a[sel], need_b[sel],

@@ -33,16 +33,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.spatial import ConvexHull, cKDTree
 
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.solve.constraints import quad_overlap_mtv
 from drawstring.geometry.tiling.linkage import TILE_FACES, Linkage, slit_ends
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-
 
 #: The 18 rigidity edges of a tile (3 * 8 - 6, Maxwell): 4 top, 4 bottom, 4 vertical edges and
 #: one diagonal on each of the 6 faces.
@@ -121,7 +118,7 @@ def reflex_corners(quads: ArrayLike, *, in_plane: bool = False) -> IntArray:
     return np.asarray(np.where(reflex, worst, -1), dtype=np.int64)
 
 
-def convex_pieces(tiles: ArrayLike, *, in_plane: bool = False) -> NDArray[np.bool_]:
+def convex_pieces(tiles: ArrayLike, *, in_plane: bool = False) -> BoolArray:
     """Vertex masks ``(T, 2, 8)`` of the convex pieces of every 8-vertex tile.
 
     A tile whose top face (x, y) is convex is one piece (second mask all False).  A tile with
@@ -248,7 +245,7 @@ def flat_overlap(footprints: ArrayLike) -> tuple[float, IntArray, FloatArray]:
     return float(areas.sum()), cand[hit].astype(np.int64), areas[hit]
 
 
-def _hull_separated(tiles: FloatArray, pairs: IntArray) -> NDArray[np.bool_]:
+def _hull_separated(tiles: FloatArray, pairs: IntArray) -> BoolArray:
     """Pairs of 8-vertex tiles separated along some face normal of either tile (conservative)."""
     a, b = tiles[pairs[:, 0]], tiles[pairs[:, 1]]
 
@@ -613,7 +610,7 @@ class AssembledOverlap:
     pairs: IntArray
     volumes: FloatArray
     depths: FloatArray
-    neighbours: NDArray[np.bool_]
+    neighbours: BoolArray
     nonconvex_top: IntArray
     nonconvex_bottom: IntArray
 

@@ -12,9 +12,10 @@ from dataclasses import dataclass
 
 import igl
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.flatten.bff import _System
 
 log = logging.getLogger(__name__)
@@ -24,18 +25,18 @@ log = logging.getLogger(__name__)
 class _Curvature:
     """Per-face second fundamental form, for scoring grid alignment (internal)."""
 
-    tensor: NDArray[np.float64]  # (m, 3, 3) mean of the vertices' shape operators, 1/mm
-    normal: NDArray[np.float64]  # (m, 3) unit face normals
-    area: NDArray[np.float64]  # (m,) face areas, mm^2
+    tensor: FloatArray  # (m, 3, 3) mean of the vertices' shape operators, 1/mm
+    normal: FloatArray  # (m, 3) unit face normals
+    area: FloatArray  # (m,) face areas, mm^2
     anisotropy: float  # int ((k1 - k2) / 2)^2 dA over the surface, dimensionless
     # For d = a e1 + b e2 (e1, e2 the face's edges from its first corner): the torsion's
     # numerator d^T S (n x d) and |d|^2 as quadratic forms in (a, b), (m, 3) each:
     # coefficients of a^2, a b, b^2.
-    torsion_form: NDArray[np.float64]
-    length_form: NDArray[np.float64]
+    torsion_form: FloatArray
+    length_form: FloatArray
 
 
-def _face_curvature(V: NDArray[np.float64], F: NDArray[np.int64]) -> _Curvature | None:
+def _face_curvature(V: FloatArray, F: IntArray) -> _Curvature | None:
     """Shape operators from ``igl.principal_curvature``, averaged to faces; None if it fails.
 
     Each vertex's operator ``k1 d1 d1^T + k2 d2 d2^T`` is averaged over the face's corners (no
@@ -91,9 +92,7 @@ def _face_curvature(V: NDArray[np.float64], F: NDArray[np.int64]) -> _Curvature 
     )
 
 
-def _grid_directions(
-    V: NDArray[np.float64], F: NDArray[np.int64], uv: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+def _grid_directions(V: FloatArray, F: IntArray, uv: FloatArray) -> tuple[FloatArray, BoolArray]:
     """(m, 3) unit 3D direction mapped to the uv x-axis in each face, and which faces are valid."""
     e1 = V[F[:, 1]] - V[F[:, 0]]
     e2 = V[F[:, 2]] - V[F[:, 0]]
@@ -109,9 +108,7 @@ def _grid_directions(
     return direction / np.where(valid, length, 1.0)[:, None], valid
 
 
-def _grid_torsion(
-    curvature: _Curvature, direction: NDArray[np.float64], valid: NDArray[np.bool_]
-) -> NDArray[np.float64]:
+def _grid_torsion(curvature: _Curvature, direction: FloatArray, valid: BoolArray) -> FloatArray:
     """(m,) 1/mm, geodesic torsion ``II(d, n x d)`` of the grid line along ``direction``.
 
     Zero when the grid follows principal directions; both grid families have the same value
@@ -126,9 +123,7 @@ def _grid_torsion(
     return np.asarray(np.where(valid, tau, 0.0), dtype=np.float64)
 
 
-def _grid_torsion_integral(
-    system: _System, curvature: _Curvature, uv: NDArray[np.float64]
-) -> float:
+def _grid_torsion_integral(system: _System, curvature: _Curvature, uv: FloatArray) -> float:
     """Dimensionless ``int tau^2 dA`` of the uv grid lines (see ``_grid_torsion``).
 
     The grid direction of a face is ``d = a e1 + b e2`` with ``(a, b)`` from the uv edges
@@ -152,7 +147,7 @@ def _grid_torsion_integral(
 
 def principal_misalignment(
     vertices: ArrayLike, faces: ArrayLike, uv: ArrayLike
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+) -> tuple[FloatArray, FloatArray]:
     """How far the grid lines of a flat map are from the principal curvature directions.
 
     Parameters

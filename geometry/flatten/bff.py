@@ -28,6 +28,7 @@ from drawstring.geometry.core.tolerances import (
     FLATTEN_MIN_CLOSED_LENGTH_REL,
     FLATTEN_SCHUR_NULL_REL,
 )
+from drawstring.geometry.core.types import FloatArray, IntArray
 
 #: Right-hand sides per SuperLU triangular solve call (see ``_solve_interior``).
 SOLVE_BLOCK_COLUMNS = 4
@@ -44,26 +45,26 @@ class _System:
     """Everything BFF needs about one mesh, computed once (internal)."""
 
     n: int
-    faces: NDArray[np.int64]  # (m, 3)
-    interior: NDArray[np.int64]  # (nI,) vertex ids
-    boundary: NDArray[np.int64]  # (k,) vertex ids, counter-clockwise loop
+    faces: IntArray  # (m, 3)
+    interior: IntArray  # (nI,) vertex ids
+    boundary: IntArray  # (k,) vertex ids, counter-clockwise loop
     A_IB: sp.csc_matrix  # (nI, k) block of the positive semi-definite cotangent Laplacian
     A_BB: sp.csc_matrix  # (k, k)
     lu: spla.SuperLU | None  # factorization of A_II (None when there is no interior vertex)
-    omega: NDArray[np.float64]  # (nI,) angle defect, rad
-    turning: NDArray[np.float64]  # (k,) boundary exterior angle pi - angle sum, rad
-    edge_length: NDArray[np.float64]  # (k,) length of boundary edge b[i] -> b[i+1], mm
-    face_area: NDArray[np.float64]  # (m,) 3D face area, mm^2
-    mass: NDArray[np.float64]  # (n,) vertex area (a third of the incident face areas), mm^2
+    omega: FloatArray  # (nI,) angle defect, rad
+    turning: FloatArray  # (k,) boundary exterior angle pi - angle sum, rad
+    edge_length: FloatArray  # (k,) length of boundary edge b[i] -> b[i+1], mm
+    face_area: FloatArray  # (m,) 3D face area, mm^2
+    mass: FloatArray  # (n,) vertex area (a third of the incident face areas), mm^2
     area: float  # total surface area, mm^2
-    vertices: NDArray[np.float64] | None = None  # (n, 3) 3D positions, mm
+    vertices: FloatArray | None = None  # (n, 3) 3D positions, mm
 
 
 # --------------------------------------------------------------------------------------------
 # mesh checks and precomputation
 
 
-def _boundary_loop(V: NDArray[np.float64], F: NDArray[np.generic]) -> NDArray[np.int64]:
+def _boundary_loop(V: FloatArray, F: NDArray[np.generic]) -> IntArray:
     """Check that (V, F) is a disk and return its boundary loop, counter-clockwise.
 
     The loop follows the direction the boundary edges have in their faces, so the surface lies to
@@ -126,7 +127,7 @@ def _boundary_loop(V: NDArray[np.float64], F: NDArray[np.generic]) -> NDArray[np
     return np.roll(ring, -int(np.argmax(reach)))
 
 
-def _corner_angles(V: NDArray[np.float64], F: NDArray[np.int64]) -> NDArray[np.float64]:
+def _corner_angles(V: FloatArray, F: IntArray) -> FloatArray:
     """(m, 3) float, rad, interior angle of each face at each of its corners."""
     P = V[F]
     angles = np.empty(F.shape, dtype=np.float64)
@@ -139,9 +140,7 @@ def _corner_angles(V: NDArray[np.float64], F: NDArray[np.int64]) -> NDArray[np.f
     return angles
 
 
-def _build_system(
-    V: NDArray[np.float64], F: NDArray[np.int64], boundary: NDArray[np.int64]
-) -> _System:
+def _build_system(V: FloatArray, F: IntArray, boundary: IntArray) -> _System:
     """Cotangent Laplacian blocks, curvatures, lengths and the one factorization of ``A_II``."""
     n = len(V)
     double_area = np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
@@ -183,7 +182,7 @@ def _build_system(
     )
 
 
-def _order_corners(boundary: NDArray[np.int64], corners: Sequence[int]) -> NDArray[np.int64]:
+def _order_corners(boundary: IntArray, corners: Sequence[int]) -> IntArray:
     """Positions in the boundary loop of four named corners, ``corners[0]`` first, then CCW."""
     ids = np.asarray(corners).ravel()
     if ids.shape != (4,) or not np.issubdtype(ids.dtype, np.integer):
@@ -205,7 +204,7 @@ def _order_corners(boundary: NDArray[np.int64], corners: Sequence[int]) -> NDArr
 # linear algebra on the one factorization
 
 
-def _solve_interior(system: _System, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+def _solve_interior(system: _System, rhs: FloatArray) -> FloatArray:
     """Solve ``A_II x = rhs`` for one or more right-hand sides, (nI,) or (nI, c).
 
     Columns go to SuperLU a few at a time (``SOLVE_BLOCK_COLUMNS``): as fast as one wide solve
@@ -223,7 +222,7 @@ def _solve_interior(system: _System, rhs: NDArray[np.float64]) -> NDArray[np.flo
     return out
 
 
-def _schur_complement(system: _System) -> NDArray[np.float64]:
+def _schur_complement(system: _System) -> FloatArray:
     """(k, k) dense Dirichlet-to-Neumann matrix ``S = A_BB - A_BI A_II^-1 A_IB``.
 
     Uses ``P A_II P^T = L D L^T`` from the symmetric LU: the solve ``Z = L^-1 P A_IB`` is confined
@@ -275,7 +274,7 @@ def _schur_complement(system: _System) -> NDArray[np.float64]:
     return np.asarray(0.5 * (S + S.T), dtype=np.float64)
 
 
-def _neumann_solve(S: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+def _neumann_solve(S: FloatArray, rhs: FloatArray) -> FloatArray:
     """Solve ``S x = rhs`` on the boundary, with ``S`` singular only along the constants.
 
     Uses a Cholesky factorization of ``S + c 1 1^T`` (``c`` the mean diagonal entry over ``k``),
@@ -306,9 +305,7 @@ def _neumann_solve(S: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[
 # boundary curve and extension
 
 
-def _close_lengths(
-    lengths: NDArray[np.float64], tangents: NDArray[np.float64], weights: NDArray[np.float64]
-) -> NDArray[np.float64]:
+def _close_lengths(lengths: FloatArray, tangents: FloatArray, weights: FloatArray) -> FloatArray:
     """Closest lengths ``x`` to ``lengths`` with ``sum x_e T_e = 0``.
 
     Minimizes ``sum_e (x_e - l_e)^2 / w_e`` subject to the closing condition (BFF eq. for the
@@ -326,7 +323,7 @@ def _close_lengths(
     return np.asarray(lengths - weights * (T.T @ lam), dtype=np.float64)
 
 
-def _harmonic_extension(system: _System, boundary_uv: NDArray[np.float64]) -> NDArray[np.float64]:
+def _harmonic_extension(system: _System, boundary_uv: FloatArray) -> FloatArray:
     """(n, 2) float: boundary positions extended harmonically (cotangent weights) inside."""
     uv = np.empty((system.n, 2), dtype=np.float64)
     uv[system.boundary] = boundary_uv
@@ -335,12 +332,12 @@ def _harmonic_extension(system: _System, boundary_uv: NDArray[np.float64]) -> ND
     return uv
 
 
-def _scaled_lengths(system: _System, u_boundary: NDArray[np.float64]) -> NDArray[np.float64]:
+def _scaled_lengths(system: _System, u_boundary: FloatArray) -> FloatArray:
     """(k,) float, mm: boundary edge lengths scaled by ``exp`` of the mean endpoint factor."""
     return np.asarray(
         system.edge_length * np.exp(0.5 * (u_boundary + np.roll(u_boundary, -1))), dtype=np.float64
     )
 
 
-def _check_lengths(closed: NDArray[np.float64], target: NDArray[np.float64]) -> bool:
+def _check_lengths(closed: FloatArray, target: FloatArray) -> bool:
     return bool(np.all(closed > FLATTEN_MIN_CLOSED_LENGTH_REL * target))

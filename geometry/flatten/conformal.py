@@ -33,9 +33,10 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.flatten.alignment import (
     _Curvature,
     _face_curvature,
@@ -118,10 +119,10 @@ class Flattening:
         any as a note).
     """
 
-    uv: NDArray[np.float64]
-    log_scale: NDArray[np.float64]
-    boundary: NDArray[np.int64]
-    corners: NDArray[np.int64] | None
+    uv: FloatArray
+    log_scale: FloatArray
+    boundary: IntArray
+    corners: IntArray | None
     mode: Mode
     flipped: int = 0
 
@@ -216,9 +217,7 @@ def flatten(
     )
 
 
-def quasi_conformal_distortion(
-    vertices: ArrayLike, faces: ArrayLike, uv: ArrayLike
-) -> NDArray[np.float64]:
+def quasi_conformal_distortion(vertices: ArrayLike, faces: ArrayLike, uv: ArrayLike) -> FloatArray:
     """Per-face quasi-conformal distortion of a piecewise-linear map to the plane.
 
     Parameters
@@ -258,7 +257,7 @@ def quasi_conformal_distortion(
     return np.asarray(np.maximum(ratio, 1.0), dtype=np.float64)
 
 
-def flipped_faces(faces: ArrayLike, uv: ArrayLike) -> NDArray[np.bool_]:
+def flipped_faces(faces: ArrayLike, uv: ArrayLike) -> BoolArray:
     """Faces whose flat image has non-positive signed area.
 
     Parameters
@@ -283,7 +282,7 @@ def flipped_faces(faces: ArrayLike, uv: ArrayLike) -> NDArray[np.bool_]:
 
 def _flatten_free(
     system: _System,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], None]:
+) -> tuple[FloatArray, FloatArray, IntArray, None]:
     """Free boundary: ``u = 0`` on the boundary, turning angles from Dirichlet-to-Neumann."""
     u = np.zeros(system.n)
     u_interior = _solve_interior(system, -system.omega)
@@ -314,8 +313,8 @@ _SIDE_DIRECTIONS = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
 
 
 def _rectangle_curve(
-    system: _System, u_boundary: NDArray[np.float64], corner_pos: NDArray[np.int64]
-) -> tuple[NDArray[np.float64], bool]:
+    system: _System, u_boundary: FloatArray, corner_pos: IntArray
+) -> tuple[FloatArray, bool]:
     """Rectangle through the scaled boundary lengths, starting at ``corner_pos[0]``.
 
     Returns the (k, 2) boundary positions in loop order and whether the length closing kept every
@@ -344,7 +343,7 @@ def _rectangle_curve(
     return points, ok
 
 
-def _turning_peaks(system: _System, arc: NDArray[np.float64], window: float) -> NDArray[np.int64]:
+def _turning_peaks(system: _System, arc: FloatArray, window: float) -> IntArray:
     """Loop positions of up to ``CORNER_TURNING_PEAKS`` well-separated peaks of boundary turning.
 
     The turning angle is summed over an arc-length window of half-width ``window``; ties go to
@@ -366,7 +365,7 @@ def _turning_peaks(system: _System, arc: NDArray[np.float64], window: float) -> 
     return np.asarray(chosen, dtype=np.int64)
 
 
-def _corner_allowed(system: _System) -> NDArray[np.bool_]:
+def _corner_allowed(system: _System) -> BoolArray:
     """(k,) bool per loop position: may be a corner.
 
     A boundary vertex in one triangle only (an ear) has its two loop neighbours in that same
@@ -383,7 +382,7 @@ def _corner_allowed(system: _System) -> NDArray[np.bool_]:
     return allowed
 
 
-def _corner_samples(system: _System) -> NDArray[np.int64]:
+def _corner_samples(system: _System) -> IntArray:
     """Sorted loop positions sampled as corner candidates (equal arc length + turning peaks).
 
     Short boundaries use every vertex. Turning is summed over windows of half-width
@@ -408,9 +407,7 @@ def _corner_samples(system: _System) -> NDArray[np.int64]:
     return np.unique(np.concatenate([even, peaks[allowed[peaks]]]))
 
 
-def _quadruples(
-    samples: NDArray[np.int64], arc: NDArray[np.float64], perimeter: float
-) -> NDArray[np.int64]:
+def _quadruples(samples: IntArray, arc: FloatArray, perimeter: float) -> IntArray:
     """(q, 4) indices into ``samples`` of increasing quadruples with every arc long enough."""
     d = len(samples)
     combos = np.fromiter(
@@ -424,9 +421,7 @@ def _quadruples(
     return combos[good] if np.any(good) else combos
 
 
-def _landscape_start(
-    system: _System, u_boundary: NDArray[np.float64], corner_pos: NDArray[np.int64]
-) -> NDArray[np.int64]:
+def _landscape_start(system: _System, u_boundary: FloatArray, corner_pos: IntArray) -> IntArray:
     """Rotate increasing corner positions so the side ``corners[0] -> corners[1]`` is the longer."""
     lengths = _scaled_lengths(system, u_boundary)
     cum = np.concatenate([[0.0], np.cumsum(lengths)])
@@ -437,7 +432,7 @@ def _landscape_start(
     return corner_pos
 
 
-def _log_scale_offset(system: _System, u: NDArray[np.float64], uv: NDArray[np.float64]) -> float:
+def _log_scale_offset(system: _System, u: FloatArray, uv: FloatArray) -> float:
     """Constant ``c`` fitting ``exp(u + c)`` to the flat map's area scale (least squares).
 
     Minimizes ``sum_f A_f (log(A~_f / A_f) / 2 - mean_f(u) - c)^2`` over unflipped faces, with
@@ -455,8 +450,8 @@ def _log_scale_offset(system: _System, u: NDArray[np.float64], uv: NDArray[np.fl
 
 
 def _corner_responses(
-    system: _System, samples: NDArray[np.int64], schur: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    system: _System, samples: IntArray, schur: FloatArray
+) -> tuple[FloatArray, FloatArray]:
     """Log scale factor as an affine function of which sampled boundary vertices are corners.
 
     With target turning ``pi/2`` at the corners and 0 elsewhere, the Neumann-to-Dirichlet solve
@@ -495,10 +490,10 @@ def _corner_responses(
 
 def _corner_scores(
     system: _System,
-    a: NDArray[np.float64],
-    Y: NDArray[np.float64],
-    corner_sets: NDArray[np.int64],
-) -> NDArray[np.float64]:
+    a: FloatArray,
+    Y: FloatArray,
+    corner_sets: IntArray,
+) -> FloatArray:
     """(q,) float: area-weighted variance of ``u`` over the surface for each corner quadruple.
 
     ``u = a + (pi/2) Y x`` with ``x`` the indicator of the quadruple, so the variance is a
@@ -508,8 +503,8 @@ def _corner_scores(
 
 
 def _variance_terms(
-    system: _System, a: NDArray[np.float64], Y: NDArray[np.float64]
-) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+    system: _System, a: FloatArray, Y: FloatArray
+) -> tuple[float, FloatArray, FloatArray]:
     """The constant, linear (d,) and quadratic (d, d) terms of :func:`_corner_scores`."""
     weight = system.mass / system.mass.sum()
     a_c = a - weight @ a
@@ -519,9 +514,7 @@ def _variance_terms(
     return float(weight @ a_c**2), g, Q
 
 
-def _variances(
-    terms: tuple[float, NDArray[np.float64], NDArray[np.float64]], corner_sets: NDArray[np.int64]
-) -> NDArray[np.float64]:
+def _variances(terms: tuple[float, FloatArray, FloatArray], corner_sets: IntArray) -> FloatArray:
     """(q,) variance of ``u`` for each quadruple of sample columns, from :func:`_variance_terms`."""
     constant, g, Q = terms
     c = corner_sets
@@ -532,10 +525,10 @@ def _variances(
 
 def _rectangle_candidate(
     system: _System,
-    u: NDArray[np.float64],
-    corner_pos: NDArray[np.int64],
+    u: FloatArray,
+    corner_pos: IntArray,
     fit: bool = True,
-) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+) -> tuple[FloatArray, FloatArray] | None:
     """Rectangle flattening for given corners and log scale ``u``: (uv, fitted u) or None.
 
     None when the boundary length closing fails for these corners.  Without ``fit`` the
@@ -551,11 +544,11 @@ def _rectangle_candidate(
 
 
 def _diverse_candidates(
-    order: NDArray[np.int64],
-    scores: NDArray[np.float64],
-    positions: NDArray[np.float64],
+    order: IntArray,
+    scores: FloatArray,
+    positions: FloatArray,
     slack: float,
-) -> NDArray[np.int64]:
+) -> IntArray:
     """Up to ``CORNER_ALIGN_CANDIDATES`` quadruples worth scoring for alignment.
 
     Walks the quadruples by increasing variance and keeps one if its corners differ from every
@@ -592,12 +585,12 @@ def _diverse_candidates(
 def _shift_corners(
     system: _System,
     curvature: _Curvature,
-    a: NDArray[np.float64],
-    best: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]],
+    a: FloatArray,
+    best: tuple[FloatArray, FloatArray, IntArray],
     best_score: float,
     reference_torsion: float,
-    schur: NDArray[np.float64],
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+    schur: FloatArray,
+) -> tuple[FloatArray, FloatArray, IntArray]:
     """The aligned choice moved along the boundary, all four corners by the same number of
     vertices, up to a sample spacing either way, if that scores lower.
 
@@ -646,10 +639,10 @@ def _shift_corners(
 
 def _flatten_rectangle(
     system: _System,
-    named: NDArray[np.int64] | None,
+    named: IntArray | None,
     curvature: _Curvature | None = None,
-    schur: NDArray[np.float64] | None = None,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    schur: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray, IntArray, IntArray]:
     """Rectangle mode: target turning pi/2 at four corners, 0 elsewhere (Neumann-to-Dirichlet).
 
     Named corners are used as given. Otherwise quadruples of sampled boundary vertices are ranked
@@ -708,8 +701,8 @@ def _flatten_rectangle(
         )
     # The first closed candidate is the fallback; a candidate without flipped triangles replaces
     # it (the first such one, or with alignment the best-scoring such one).
-    fallback: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]] | None = None
-    best: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]] | None = None
+    fallback: tuple[FloatArray, FloatArray, IntArray] | None = None
+    best: tuple[FloatArray, FloatArray, IntArray] | None = None
     best_score = math.inf
     reference_torsion = math.inf
     for attempt, index in enumerate(order):

@@ -18,13 +18,12 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.solve.constraints import signed_angles
 from drawstring.geometry.solve.spd import SpdSolver, upper_triangle, with_diagonal
 
 logger = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 __all__ = [
     "AngleRows",

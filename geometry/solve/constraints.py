@@ -19,13 +19,11 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.types import FloatArray
 from drawstring.geometry.solve.solver import ConstraintGroup, difference_matrix
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 __all__ = [
     "GapAngleBounds",

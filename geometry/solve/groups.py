@@ -18,14 +18,13 @@ from collections.abc import Callable, Sequence
 import igl
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 
 logger = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 # --------------------------------------------------------------------------------------------
 # Sparse operators shared by the groups
@@ -151,7 +150,7 @@ def _smallest_eigenvectors_3(
     a01: FloatArray,
     a02: FloatArray,
     a12: FloatArray,
-    matrices_of: Callable[[NDArray[np.bool_]], FloatArray],
+    matrices_of: Callable[[BoolArray], FloatArray],
 ) -> FloatArray:
     """:func:`smallest_eigenvectors` of 3x3 symmetric matrices given by their six entries.
 

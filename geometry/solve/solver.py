@@ -68,10 +68,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tolerances import SOLVER_REL_ENERGY_TOL
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 
 # The groups live in their own module; they are re-exported here, where every stage imports them.
 from drawstring.geometry.solve.groups import (
@@ -96,8 +97,6 @@ from drawstring.geometry.solve.groups import (
 
 logger = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Iterations over which the relative energy decrease is averaged by the stopping test.
 STOP_WINDOW = 10
@@ -630,7 +629,7 @@ class LinearPull:
         np.add.at(out, self.vertices, self.weight * self.residuals(x)[:, None] * self.directions)
         return out.reshape(-1)
 
-    def metric_inverse(self, n: int, movable: NDArray[np.bool_]) -> sp.csr_matrix:
+    def metric_inverse(self, n: int, movable: BoolArray) -> sp.csr_matrix:
         """``(I + weight C^T C)^-1`` over the movable coordinates (block diagonal)."""
         blocks = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
         outer = self.weight * self.directions[:, :, None] * self.directions[:, None, :]

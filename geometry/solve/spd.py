@@ -31,8 +31,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+from drawstring.geometry.core.types import FloatArray, IntArray
 
 __all__ = [
     "BACKWARD_ERROR_TOL",

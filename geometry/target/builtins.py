@@ -13,11 +13,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+
+from drawstring.geometry.core.types import FloatArray, IntArray
 
 #: A surface map: parameters ``u, v`` (same shape, each in [0, 1]) to coordinates ``x, y, z``.
-XYZ = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
-SurfaceMap = Callable[[NDArray[np.float64], NDArray[np.float64]], XYZ]
+XYZ = tuple[FloatArray, FloatArray, FloatArray]
+SurfaceMap = Callable[[FloatArray, FloatArray], XYZ]
 
 #: Fewest grid cells along a parameter direction, whatever the requested resolution.
 _MIN_CELLS = 2
@@ -42,7 +43,7 @@ class BuiltinTarget:
 
     name: str
     description: str
-    make: Callable[[int], tuple[NDArray[np.float64], NDArray[np.int64]]]
+    make: Callable[[int], tuple[FloatArray, IntArray]]
 
 
 def grid_shape(n_triangles: int, aspect: float) -> tuple[int, int]:
@@ -66,7 +67,7 @@ def grid_shape(n_triangles: int, aspect: float) -> tuple[int, int]:
     return n_u, n_v
 
 
-def alternating_grid(n_u: int, n_v: int) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+def alternating_grid(n_u: int, n_v: int) -> tuple[FloatArray, IntArray]:
     """Triangulate the unit square with a structured grid and alternating diagonals.
 
     Cell ``(i, j)`` is split along its ``(i, j)-(i+1, j+1)`` diagonal when ``i + j`` is even and
@@ -103,16 +104,14 @@ def alternating_grid(n_u: int, n_v: int) -> tuple[NDArray[np.float64], NDArray[n
     return uv, faces
 
 
-def _line_length(surface: SurfaceMap, u: NDArray[np.float64], v: NDArray[np.float64]) -> float:
+def _line_length(surface: SurfaceMap, u: FloatArray, v: FloatArray) -> float:
     """3D length of the polyline ``surface(u, v)`` sampled along one parameter line."""
     x, y, z = surface(u, v)
     points = np.column_stack([x, y, z])
     return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
 
 
-def parametric_patch(
-    surface: SurfaceMap, n_triangles: int
-) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+def parametric_patch(surface: SurfaceMap, n_triangles: int) -> tuple[FloatArray, IntArray]:
     """Mesh a parametric surface over [0, 1]^2 with about ``n_triangles`` triangles.
 
     The grid shape follows the ratio of the mean 3D lengths of the u and v parameter lines so
@@ -144,7 +143,7 @@ def parametric_patch(
     return vertices, orient_up(vertices, faces)
 
 
-def orient_up(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> NDArray[np.int64]:
+def orient_up(vertices: FloatArray, faces: IntArray) -> IntArray:
     """Flip all faces if the area-weighted normal points down.
 
     Parameters
@@ -164,7 +163,7 @@ def orient_up(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> NDArra
     return faces
 
 
-def _smoothstep(edge0: float, edge1: float, x: NDArray[np.float64]) -> NDArray[np.float64]:
+def _smoothstep(edge0: float, edge1: float, x: FloatArray) -> FloatArray:
     """C1 ramp from 0 (x <= edge0) to 1 (x >= edge1)."""
     t = np.clip((x - edge0) / (edge1 - edge0), 0.0, 1.0)
     return t * t * (3.0 - 2.0 * t)
@@ -173,7 +172,7 @@ def _smoothstep(edge0: float, edge1: float, x: NDArray[np.float64]) -> NDArray[n
 # --- the surfaces -------------------------------------------------------------------------
 
 
-def _saddle(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
+def _saddle(u: FloatArray, v: FloatArray) -> XYZ:
     """Hyperbolic paraboloid z = c (x^2 - y^2) over a square."""
     x = 2.0 * u - 1.0
     y = 2.0 * v - 1.0
@@ -184,7 +183,7 @@ def _saddle(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
 _DOME_CHART_HALF_SIDE = 0.7
 
 
-def _dome(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
+def _dome(u: FloatArray, v: FloatArray) -> XYZ:
     """Deep spherical cap: inverse stereographic image of a square (conformal, so the grid
     cells stay square on the sphere).
 
@@ -198,7 +197,7 @@ def _dome(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
     return 2.0 * px / denominator, 2.0 * py / denominator, (1.0 - rho2) / denominator
 
 
-def _peanut(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
+def _peanut(u: FloatArray, v: FloatArray) -> XYZ:
     """Two domes joined by a saddle-shaped waist, over a peanut-shaped footprint.
 
     The footprint is the union of two overlapping ellipses, rounded at the waist. Towards the
@@ -219,7 +218,7 @@ def _peanut(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
     return x, s * half_width, z
 
 
-def _seashell(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
+def _seashell(u: FloatArray, v: FloatArray) -> XYZ:
     """Scallop fan: log-polar grid, radial ribs deepening towards a rising, convex rim.
 
     The fan starts at 0.45 of its outer radius: a narrower hinge end makes tiles there so
@@ -239,7 +238,7 @@ def _seashell(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
     return x, y, crown + rim + ribs
 
 
-def _three_shell(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
+def _three_shell(u: FloatArray, v: FloatArray) -> XYZ:
     """Three overlapping shell vaults around a centre (trefoil pavilion), as a height field.
 
     Each lobe is a paraboloid vault that flattens out beyond its footprint circle; a smooth
@@ -276,7 +275,7 @@ _CLOUD_BUMPS = np.array(
 )
 
 
-def _cloud(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
+def _cloud(u: FloatArray, v: FloatArray) -> XYZ:
     """Irregular height field: soft bumps of different heights and widths (mixed curvature)."""
     x = 2.8 * u - 1.4
     y = 2.0 * v - 1.0
@@ -286,7 +285,7 @@ def _cloud(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
     return x, y, z
 
 
-def _wave(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
+def _wave(u: FloatArray, v: FloatArray) -> XYZ:
     """Sinusoidal wave sheet with gently bent crests (curvature changing sign across x)."""
     x = 2.6 * u - 1.3
     y = 2.0 * v - 1.0
@@ -296,7 +295,7 @@ def _wave(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
 
 def _chair_profile(
     n_samples: int = 2049,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Arc-length parametrized J profile of the chair in the (y, z) plane.
 
     Starts at the front edge of the seat (which rolls down), runs back along a slightly
@@ -328,7 +327,7 @@ def _chair_profile(
     return s, points, normals
 
 
-def _chair(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
+def _chair(u: FloatArray, v: FloatArray) -> XYZ:
     """Seat and backrest as one sheet: J profile swept across the width, dished sideways."""
     s_table, points, normals = _chair_profile()
     s = u * s_table[-1]
@@ -342,10 +341,10 @@ def _chair(u: NDArray[np.float64], v: NDArray[np.float64]) -> XYZ:
     return x, py + dish * ny, pz + dish * nz
 
 
-def _maker(surface: SurfaceMap) -> Callable[[int], tuple[NDArray[np.float64], NDArray[np.int64]]]:
+def _maker(surface: SurfaceMap) -> Callable[[int], tuple[FloatArray, IntArray]]:
     """Bind a surface map into a ``make(n_triangles)`` function."""
 
-    def make(n_triangles: int) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    def make(n_triangles: int) -> tuple[FloatArray, IntArray]:
         return parametric_patch(surface, int(n_triangles))
 
     return make

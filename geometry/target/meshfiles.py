@@ -12,12 +12,12 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tolerances import COINCIDENT_VERTEX_REL_DIST
+from drawstring.geometry.core.types import FloatArray, IntArray
 
 logger = logging.getLogger(__name__)
 
@@ -27,7 +27,7 @@ __all__ = ["SUPPORTED_EXTENSIONS", "merge_coincident_vertices", "read_mesh"]
 SUPPORTED_EXTENSIONS = (".obj", ".off", ".ply", ".stl")
 
 
-def read_mesh(path: str | os.PathLike[str]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+def read_mesh(path: str | os.PathLike[str]) -> tuple[FloatArray, IntArray]:
     """Read a triangle mesh from an OBJ, OFF, PLY (ascii or binary) or STL (ascii or binary).
 
     Polygons are fan-triangulated. STL corners are merged into shared vertices (distance below
@@ -84,7 +84,7 @@ def read_mesh(path: str | os.PathLike[str]) -> tuple[NDArray[np.float64], NDArra
     return vertices, faces
 
 
-def _fan_triangulate(polygons: list[list[int]]) -> NDArray[np.int64]:
+def _fan_triangulate(polygons: list[list[int]]) -> IntArray:
     """Triangles ``(p0, p[i], p[i+1])`` of each polygon, shape (m, 3)."""
     if all(len(polygon) == 3 for polygon in polygons):
         return np.array(polygons, dtype=np.int64).reshape(-1, 3)
@@ -98,7 +98,7 @@ def _fan_triangulate(polygons: list[list[int]]) -> NDArray[np.int64]:
 
 def _to_vertex_array(
     rows: list[list[str]], what: str, lines: list[int] | None = None
-) -> NDArray[np.float64]:
+) -> FloatArray:
     """Convert rows of three coordinate strings to an (n, 3) float array (``lines``: the
     file line of each row, for the message)."""
     try:
@@ -116,7 +116,7 @@ def _to_vertex_array(
         raise
 
 
-def _read_obj(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+def _read_obj(data: bytes) -> tuple[FloatArray, IntArray]:
     """Parse Wavefront OBJ text: ``v`` and ``f`` statements; everything else is ignored."""
     text = data.decode("utf-8", errors="replace")
     vertex_rows: list[list[str]] = []
@@ -150,7 +150,7 @@ def _read_obj(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     return _to_vertex_array(vertex_rows, "vertex", vertex_lines), _fan_triangulate(polygons)
 
 
-def _read_off(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+def _read_off(data: bytes) -> tuple[FloatArray, IntArray]:
     """Parse ASCII OFF (also COFF, NOFF, CNOFF, STOFF): one vertex or face per line."""
     text = data.decode("utf-8", errors="replace")
     lines = [line.split("#", 1)[0].split() for line in text.splitlines()]
@@ -243,13 +243,13 @@ def _parse_ply_header(data: bytes) -> tuple[str, list[_PlyElement], int]:
     return file_format, elements, match.end()
 
 
-def _read_ply(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+def _read_ply(data: bytes) -> tuple[FloatArray, IntArray]:
     """Parse PLY (ascii, binary little or big endian): vertex x, y, z and face index lists."""
     file_format, elements, offset = _parse_ply_header(data)
     names = [element.name for element in elements]
     if "vertex" not in names:
         raise InputError("PLY file has no vertex element")
-    columns: dict[str, dict[str, NDArray[np.float64]]] = {}
+    columns: dict[str, dict[str, FloatArray]] = {}
     lists: dict[str, list[list[int]]] = {}
     if file_format == "ascii":
         tokens = data[offset:].split()
@@ -281,7 +281,7 @@ def _read_ply_ascii_element(
     element: _PlyElement,
     tokens: list[bytes],
     position: int,
-    columns: dict[str, dict[str, NDArray[np.float64]]],
+    columns: dict[str, dict[str, FloatArray]],
     lists: dict[str, list[list[int]]],
 ) -> int:
     """Consume one ASCII element from the token stream; return the new position."""
@@ -318,7 +318,7 @@ def _read_ply_binary_element(
     data: bytes,
     offset: int,
     endian: str,
-    columns: dict[str, dict[str, NDArray[np.float64]]],
+    columns: dict[str, dict[str, FloatArray]],
     lists: dict[str, list[list[int]]],
 ) -> int:
     """Decode one binary element starting at ``offset``; return the offset after it."""
@@ -408,7 +408,7 @@ _STL_BINARY_DTYPE = np.dtype(
 _STL_VERTEX = re.compile(rb"vertex\s+(\S+)\s+(\S+)\s+(\S+)")
 
 
-def _read_stl(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+def _read_stl(data: bytes) -> tuple[FloatArray, IntArray]:
     """Parse STL, binary (detected by its exact size) or ASCII; one vertex per corner."""
     if len(data) >= 84:
         n_triangles = int(np.frombuffer(data, dtype="<u4", count=1, offset=80)[0])
@@ -439,10 +439,10 @@ def _read_stl(data: bytes) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
 
 
 def merge_coincident_vertices(
-    vertices: NDArray[np.float64],
-    faces: NDArray[np.int64],
+    vertices: FloatArray,
+    faces: IntArray,
     rel_distance: float = COINCIDENT_VERTEX_REL_DIST,
-) -> tuple[NDArray[np.float64], NDArray[np.int64], int]:
+) -> tuple[FloatArray, IntArray, int]:
     """Merge vertices closer than ``rel_distance`` times the bounding-box diagonal.
 
     Clusters are the connected components of the "closer than" relation; each keeps the
@@ -470,8 +470,8 @@ def merge_coincident_vertices(
 
 
 def _coincident_remap(
-    vertices: NDArray[np.float64], rel_distance: float = COINCIDENT_VERTEX_REL_DIST
-) -> tuple[NDArray[np.int64], NDArray[np.int64] | None]:
+    vertices: FloatArray, rel_distance: float = COINCIDENT_VERTEX_REL_DIST
+) -> tuple[IntArray, IntArray | None]:
     """The vertices :func:`merge_coincident_vertices` keeps ``(k,)`` and the new index of
     every vertex ``(n,)`` (None when none merge)."""
     n = len(vertices)

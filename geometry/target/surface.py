@@ -29,13 +29,13 @@ from pathlib import Path
 import igl
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tolerances import (
     DEGENERATE_FACE_REL_AREA,
 )
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.target.builtins import BUILTIN_TARGETS
 from drawstring.geometry.target.meshfiles import (
     SUPPORTED_EXTENSIONS,
@@ -74,11 +74,11 @@ class Target:
     """
 
     name: str
-    vertices: NDArray[np.float64]
-    faces: NDArray[np.int64]
+    vertices: FloatArray
+    faces: IntArray
     source: str
     notes: tuple[str, ...]
-    vertex_of_input: NDArray[np.int64] | None = None
+    vertex_of_input: IntArray | None = None
 
     @property
     def bbox_diagonal_mm(self) -> float:
@@ -181,7 +181,7 @@ def _check_resolution(resolution: object) -> None:
         )
 
 
-def scale_to_size(vertices: NDArray[np.float64], size_mm: float) -> NDArray[np.float64]:
+def scale_to_size(vertices: FloatArray, size_mm: float) -> FloatArray:
     """Scale uniformly to a longest bounding-box side of ``size_mm`` and place on the ground.
 
     Parameters
@@ -215,8 +215,8 @@ def _count(n: int, singular: str, plural: str | None = None) -> str:
 
 
 def validate_disk_mesh(
-    vertices: NDArray[np.float64], faces: NDArray[np.int64], *, repair: bool = False
-) -> tuple[NDArray[np.float64], NDArray[np.int64], tuple[str, ...]]:
+    vertices: FloatArray, faces: IntArray, *, repair: bool = False
+) -> tuple[FloatArray, IntArray, tuple[str, ...]]:
     """Check that a triangle mesh is a clean topological disk; make safe repairs.
 
     Repairs (each recorded in the notes): drop unreferenced vertices, merge coincident
@@ -248,8 +248,8 @@ def validate_disk_mesh(
 
 
 def _clean_disk_mesh(
-    vertices: NDArray[np.float64], faces: NDArray[np.int64], *, repair: bool
-) -> tuple[NDArray[np.float64], NDArray[np.int64], tuple[str, ...], NDArray[np.int64]]:
+    vertices: FloatArray, faces: IntArray, *, repair: bool
+) -> tuple[FloatArray, IntArray, tuple[str, ...], IntArray]:
     """:func:`validate_disk_mesh`, and where each input vertex went (``vertex_of_input`` of
     :class:`Target`)."""
     V = np.asarray(vertices, dtype=np.float64)
@@ -266,7 +266,7 @@ def _clean_disk_mesh(
     notes: list[str] = []
     where = np.arange(len(V))  # input vertex -> current index, -1 once dropped
 
-    def follow(new_index: NDArray[np.int64]) -> None:
+    def follow(new_index: IntArray) -> None:
         where[where >= 0] = new_index[where[where >= 0]]
 
     out_of_range = np.any((F < 0) | (F >= len(V)), axis=1)
@@ -342,8 +342,8 @@ def _clean_disk_mesh(
 
 
 def canonical_order(
-    vertices: NDArray[np.float64], faces: NDArray[np.int64], vertex_of_input: NDArray[np.int64]
-) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    vertices: FloatArray, faces: IntArray, vertex_of_input: IntArray
+) -> tuple[FloatArray, IntArray, IntArray]:
     """The mesh renumbered by its geometry alone: vertices sorted by x, then y, then z; each
     face turned (keeping its orientation) to start at its smallest vertex; faces sorted.
 
@@ -364,10 +364,10 @@ def canonical_order(
 
 
 def _drop_unreferenced(
-    vertices: NDArray[np.float64],
-    faces: NDArray[np.int64],
-    follow: Callable[[NDArray[np.int64]], None],
-) -> tuple[NDArray[np.float64], NDArray[np.int64], int]:
+    vertices: FloatArray,
+    faces: IntArray,
+    follow: Callable[[IntArray], None],
+) -> tuple[FloatArray, IntArray, int]:
     """Remove vertices no face uses; keep the order of the rest.  ``follow`` gets each old
     vertex's new index (-1: removed)."""
     used = np.zeros(len(vertices), dtype=bool)
@@ -379,14 +379,14 @@ def _drop_unreferenced(
     return vertices[used], new_index[faces], int((~used).sum())
 
 
-def _repeats_vertex(faces: NDArray[np.int64]) -> NDArray[np.bool_]:
+def _repeats_vertex(faces: IntArray) -> BoolArray:
     """(m,) bool: the face uses some vertex twice."""
     return (
         (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 2] == faces[:, 0])
     )
 
 
-def _degenerate_faces(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> NDArray[np.bool_]:
+def _degenerate_faces(vertices: FloatArray, faces: IntArray) -> BoolArray:
     """(m,) bool: repeated vertex or area at most ``DEGENERATE_FACE_REL_AREA`` of the mean."""
     p0, p1, p2 = (vertices[faces[:, k]] for k in range(3))
     areas = 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1)
@@ -394,7 +394,7 @@ def _degenerate_faces(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -
     return _repeats_vertex(faces) | (areas <= threshold)
 
 
-def _duplicated_faces(faces: NDArray[np.int64]) -> NDArray[np.bool_]:
+def _duplicated_faces(faces: IntArray) -> BoolArray:
     """(m,) bool: the face repeats the vertex set of an earlier face (either orientation)."""
     if len(faces) == 0:
         return np.zeros(0, dtype=bool)
@@ -412,15 +412,15 @@ class _Edges:
     corner ``h`` and ends at corner ``3 f + (k + 1) % 3`` (corner = index into ``F.ravel()``).
     """
 
-    start: NDArray[np.int64]  # (3m,) start vertex of each half-edge
-    end: NDArray[np.int64]  # (3m,) end vertex
-    edge: NDArray[np.int64]  # (3m,) undirected edge id of each half-edge
-    valence: NDArray[np.int64]  # (e,) faces per edge
-    pair_first: NDArray[np.int64]  # (i,) one half-edge of each two-face edge
-    pair_second: NDArray[np.int64]  # (i,) the other one
+    start: IntArray  # (3m,) start vertex of each half-edge
+    end: IntArray  # (3m,) end vertex
+    edge: IntArray  # (3m,) undirected edge id of each half-edge
+    valence: IntArray  # (e,) faces per edge
+    pair_first: IntArray  # (i,) one half-edge of each two-face edge
+    pair_second: IntArray  # (i,) the other one
 
 
-def _edges(faces: NDArray[np.int64], n_vertices: int) -> _Edges:
+def _edges(faces: IntArray, n_vertices: int) -> _Edges:
     """Build the half-edge / edge tables (vectorized)."""
     start = faces.ravel()
     end = faces[:, [1, 2, 0]].ravel()
@@ -443,7 +443,7 @@ def _edges(faces: NDArray[np.int64], n_vertices: int) -> _Edges:
     )
 
 
-def _is_closed(faces: NDArray[np.int64], n_vertices: int) -> bool:
+def _is_closed(faces: IntArray, n_vertices: int) -> bool:
     """True when every edge has exactly two faces."""
     return bool(np.all(_edges(faces, n_vertices).valence == 2))
 
@@ -461,7 +461,7 @@ def _closed_message(genus: int = 0) -> str:
 MIN_BOUNDARY_VERTICES = 4
 
 
-def check_disk_topology(faces: NDArray[np.int64], n_vertices: int) -> None:
+def check_disk_topology(faces: IntArray, n_vertices: int) -> None:
     """Raise InputError unless the faces form an oriented topological disk.
 
     Checks, in this order: edge-manifold, one connected piece, vertex-manifold, consistent
@@ -536,7 +536,7 @@ def check_disk_topology(faces: NDArray[np.int64], n_vertices: int) -> None:
         )
 
 
-def _count_pinched_vertices(faces: NDArray[np.int64], edges: _Edges, n_vertices: int) -> int:
+def _count_pinched_vertices(faces: IntArray, edges: _Edges, n_vertices: int) -> int:
     """Number of vertices whose incident faces form more than one edge-connected fan."""
     n_corners = 3 * len(faces)
     first, second = edges.pair_first, edges.pair_second
@@ -553,7 +553,7 @@ def _count_pinched_vertices(faces: NDArray[np.int64], edges: _Edges, n_vertices:
     return int((np.bincount(fans, minlength=n_vertices) > 1).sum())
 
 
-def _orientation_message(faces: NDArray[np.int64], n_vertices: int) -> str:
+def _orientation_message(faces: IntArray, n_vertices: int) -> str:
     """InputError text for inconsistent orientation: how many faces are flipped, or Möbius."""
     oriented, _ = igl.bfs_orient(np.ascontiguousarray(faces, dtype=np.int64))
     reoriented = _edges(oriented, n_vertices)
@@ -576,7 +576,7 @@ def _orientation_message(faces: NDArray[np.int64], n_vertices: int) -> str:
     )
 
 
-def _count_boundary_loops(start: NDArray[np.int64], end: NDArray[np.int64], n_vertices: int) -> int:
+def _count_boundary_loops(start: IntArray, end: IntArray, n_vertices: int) -> int:
     """Number of connected components of the boundary-edge graph."""
     graph = sp.coo_matrix((np.ones(len(start)), (start, end)), shape=(n_vertices, n_vertices))
     _, labels = connected_components(graph, directed=False)

@@ -13,11 +13,11 @@ from dataclasses import dataclass
 
 import igl
 import numpy as np
-from numpy.typing import NDArray
 from scipy import ndimage
 
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tolerances import MAX_SCALE_FACTOR
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.flatten.conformal import flatten
 from drawstring.geometry.tiling.linkage import Linkage, Split, build_linkage
 
@@ -54,19 +54,19 @@ class Tiling:
     """
 
     linkage: Linkage
-    uv: NDArray[np.float64]
-    vertices: NDArray[np.float64]
+    uv: FloatArray
+    vertices: FloatArray
     cell_size: float
-    tile_area_scale: NDArray[np.float64]
-    tile_conformal_scale: NDArray[np.float64]
-    layout_uv: NDArray[np.float64]
-    vertex_gaussian_curvature: NDArray[np.float64]
+    tile_area_scale: FloatArray
+    tile_conformal_scale: FloatArray
+    layout_uv: FloatArray
+    vertex_gaussian_curvature: FloatArray
     scale_factor_max: float
     scale_factor_max_unsplit: float
     notes: tuple[str, ...]
 
     @property
-    def quads(self) -> NDArray[np.int64]:
+    def quads(self) -> IntArray:
         """(T, 4) int, grid-vertex ids of each tile, counter-clockwise in the flat domain."""
         return self.linkage.tile_corners
 
@@ -90,12 +90,12 @@ def grid_shape_for(width: float, height: float, tiles: int) -> tuple[int, int]:
 
 
 def lift_points(
-    points_uv: NDArray[np.float64],
-    uv: NDArray[np.float64],
-    vertices: NDArray[np.float64],
-    faces: NDArray[np.int64],
-    values: NDArray[np.float64] | None = None,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]:
+    points_uv: FloatArray,
+    uv: FloatArray,
+    vertices: FloatArray,
+    faces: IntArray,
+    values: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray | None]:
     """Map flat-domain points to 3D through the piecewise-linear inverse of the flattening.
 
     Parameters
@@ -136,17 +136,13 @@ def lift_points(
     return lifted, np.sqrt(sqr_dist), interpolated
 
 
-def quad_vector_area(
-    vertices: NDArray[np.float64], quads: NDArray[np.int64]
-) -> NDArray[np.float64]:
+def quad_vector_area(vertices: FloatArray, quads: IntArray) -> FloatArray:
     """(T,) area of possibly non-planar quads: half the norm of the cross product of diagonals."""
     p = vertices[quads]
     return 0.5 * np.linalg.norm(np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1]), axis=1)
 
 
-def part_flattening(
-    vertices: NDArray[np.float64], quads: NDArray[np.int64]
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def part_flattening(vertices: FloatArray, quads: IntArray) -> tuple[FloatArray, FloatArray]:
     """A part of the lifted grid flattened on its own, and its per-tile area scale.
 
     The part (its lifted quads, each split into two triangles) is flattened with free-boundary
@@ -174,14 +170,14 @@ def part_flattening(
     return flat.uv[local], np.asarray(scale / scale.max())
 
 
-def part_area_scale(vertices: NDArray[np.float64], quads: NDArray[np.int64]) -> NDArray[np.float64]:
+def part_area_scale(vertices: FloatArray, quads: IntArray) -> FloatArray:
     """(t,) normalized per-tile area scale of a part in its own flattening (see above)."""
     return part_flattening(vertices, quads)[1]
 
 
 def component_flattenings(
-    linkage: Linkage, vertices: NDArray[np.float64], grid_uv: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    linkage: Linkage, vertices: FloatArray, grid_uv: FloatArray
+) -> tuple[FloatArray, FloatArray]:
     """Flatten every component of a tile mesh on its own (see :func:`part_flattening`).
 
     Parameters
@@ -208,8 +204,8 @@ def component_flattenings(
 
 
 def _fit_similarity(
-    source: NDArray[np.float64], target: NDArray[np.float64], *, scaling: bool = True
-) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+    source: FloatArray, target: FloatArray, *, scaling: bool = True
+) -> tuple[float, FloatArray, FloatArray]:
     """Scale, rotation (2, 2) and translation (2,) that best map 2D points ``source`` onto
     ``target`` in the least-squares sense (Umeyama; reflections excluded; ``scaling=False``:
     a rigid motion)."""
@@ -225,16 +221,12 @@ def _fit_similarity(
     return scale, rotation, mu_d - scale * rotation @ mu_s
 
 
-def _apply_similarity(
-    fit: tuple[float, NDArray[np.float64], NDArray[np.float64]], points: NDArray[np.float64]
-) -> NDArray[np.float64]:
+def _apply_similarity(fit: tuple[float, FloatArray, FloatArray], points: FloatArray) -> FloatArray:
     scale, rotation, shift = fit
     return np.asarray(scale * points @ rotation.T + shift)
 
 
-def align_similarity(
-    source: NDArray[np.float64], target: NDArray[np.float64]
-) -> NDArray[np.float64]:
+def align_similarity(source: FloatArray, target: FloatArray) -> FloatArray:
     """Move 2D points ``source`` by the rotation, uniform scale and translation that best fit
     them to ``target`` in the least-squares sense (Umeyama; reflections excluded).
 
@@ -252,9 +244,7 @@ def align_similarity(
     return np.asarray((scale * a @ rotation.T + mu_d).reshape(source.shape))
 
 
-def parts_in_place(
-    linkage: Linkage, corners: NDArray[np.float64], grid_uv: NDArray[np.float64]
-) -> NDArray[np.float64]:
+def parts_in_place(linkage: Linkage, corners: FloatArray, grid_uv: FloatArray) -> FloatArray:
     """Flat tile corners with the parts of a split design moved together where they meet.
 
     A flat layout of several parts spreads them apart for cutting, so a gap on a split line
@@ -311,11 +301,11 @@ def parts_in_place(
     return result
 
 
-def _scale_ratio(scale: NDArray[np.float64]) -> float:
+def _scale_ratio(scale: FloatArray) -> float:
     return float(scale.max() / scale.min()) if scale.size else 1.0
 
 
-def _largest_component(cells: NDArray[np.bool_]) -> NDArray[np.bool_]:
+def _largest_component(cells: BoolArray) -> BoolArray:
     labels, count = ndimage.label(cells)
     if count <= 1:
         return cells
@@ -324,9 +314,9 @@ def _largest_component(cells: NDArray[np.bool_]) -> NDArray[np.bool_]:
 
 
 def tile_surface(
-    vertices: NDArray[np.float64],
-    faces: NDArray[np.int64],
-    uv: NDArray[np.float64],
+    vertices: FloatArray,
+    faces: IntArray,
+    uv: FloatArray,
     *,
     tiles: int | None = None,
     grid: tuple[int, int] | None = None,
@@ -418,9 +408,7 @@ def tile_surface(
     )
 
 
-def _vertex_gaussian_curvature(
-    vertices: NDArray[np.float64], faces: NDArray[np.int64]
-) -> NDArray[np.float64]:
+def _vertex_gaussian_curvature(vertices: FloatArray, faces: IntArray) -> FloatArray:
     """Pointwise Gaussian curvature: angle defect over Voronoi area, boundary vertices zero."""
     defect = igl.gaussian_curvature(vertices, faces)
     mass = igl.massmatrix(vertices, faces, igl.MASSMATRIX_TYPE_VORONOI)
@@ -432,10 +420,10 @@ def _vertex_gaussian_curvature(
 
 
 def _choose_splits(
-    cells: NDArray[np.bool_],
+    cells: BoolArray,
     base: Linkage,
-    tile_xyz: NDArray[np.float64],
-    vertex_gauss: NDArray[np.float64],
+    tile_xyz: FloatArray,
+    vertex_gauss: FloatArray,
     bound: float,
 ) -> tuple[tuple[Split, ...], int]:
     """Split hierarchically until every part's scale ratio is within ``bound``.
@@ -457,14 +445,14 @@ def _choose_splits(
     outer[base.tile_cells[base.boundary_tile, 0], base.tile_cells[base.boundary_tile, 1]] = True
     cache: dict[bytes, float] = {}
 
-    def ratio_of(mask: NDArray[np.bool_]) -> float:
+    def ratio_of(mask: BoolArray) -> float:
         key = np.packbits(mask).tobytes()
         if key not in cache:
             quads = base.tile_corners[tile_of_cell[mask]]
             cache[key] = _scale_ratio(part_area_scale(tile_xyz, quads))
         return cache[key]
 
-    def halves(mask: NDArray[np.bool_], axis: str, line: int) -> list[NDArray[np.bool_]]:
+    def halves(mask: BoolArray, axis: str, line: int) -> list[BoolArray]:
         low = mask.copy()
         high = mask.copy()
         if axis == "x":
@@ -473,20 +461,20 @@ def _choose_splits(
         else:
             low[:, line:] = False
             high[:, :line] = False
-        parts: list[NDArray[np.bool_]] = []
+        parts: list[BoolArray] = []
         for half in (low, high):
             labels, count = ndimage.label(half)
             parts.extend(np.asarray(labels == k) for k in range(1, count + 1))
         return parts
 
-    def cut_range(mask: NDArray[np.bool_], axis: str, line: int) -> tuple[int, int]:
+    def cut_range(mask: BoolArray, axis: str, line: int) -> tuple[int, int]:
         if axis == "x":
             rows = np.nonzero(mask[line - 1, :] & mask[line, :])[0]
         else:
             rows = np.nonzero(mask[:, line - 1] & mask[:, line])[0]
         return int(rows.min()), int(rows.max()) + 1
 
-    def candidate_lines(mask: NDArray[np.bool_]) -> list[tuple[str, int]]:
+    def candidate_lines(mask: BoolArray) -> list[tuple[str, int]]:
         ii, jj = np.nonzero(mask)
         lines: list[tuple[str, int]] = []
         # Leave at least MIN_PART_CELLS columns (rows) of the part on each side of a cut.
@@ -508,7 +496,7 @@ def _choose_splits(
                 valid.append((axis, line))
         return valid
 
-    def score(mask: NDArray[np.bool_], axis: str, line: int) -> tuple[float, int]:
+    def score(mask: BoolArray, axis: str, line: int) -> tuple[float, int]:
         parts = halves(mask, axis, line)
         sizes = [int(p.sum()) for p in parts]
         return max(ratio_of(p) for p in parts), max(sizes) - min(sizes)

@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 from typing import Any, Literal, TypeVar, cast
 
 import numpy as np
-from numpy.typing import NDArray
+
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 
 GapKind = Literal["vertical", "horizontal", "boundary", "split"]
 GAP_KINDS: tuple[GapKind, ...] = ("vertical", "horizontal", "boundary", "split")
@@ -33,7 +34,7 @@ SIDE_BOTTOM, SIDE_RIGHT, SIDE_TOP, SIDE_LEFT = 0, 1, 2, 3
 #: The six faces of a tile's eight vertices (top corners 0..3 counter-clockwise seen from
 #: above, bottom corners 4..7 under them), each counter-clockwise seen from outside: top,
 #: bottom, then side ``k`` under the top edge ``k -> k + 1``.
-TILE_FACES: NDArray[np.int64] = np.array(
+TILE_FACES: IntArray = np.array(
     [[0, 1, 2, 3], [4, 7, 6, 5]] + [[k, 4 + k, 4 + (k + 1) % 4, (k + 1) % 4] for k in range(4)],
     dtype=np.int64,
 )
@@ -112,19 +113,19 @@ class Linkage:
     """
 
     grid_shape: tuple[int, int]
-    tile_cells: NDArray[np.int64]
-    tile_corners: NDArray[np.int64]
-    vertex_ij: NDArray[np.int64]
-    hinges: NDArray[np.int64]
-    hinge_vertex: NDArray[np.int64]
-    corner_node: NDArray[np.int64]
+    tile_cells: IntArray
+    tile_corners: IntArray
+    vertex_ij: IntArray
+    hinges: IntArray
+    hinge_vertex: IntArray
+    corner_node: IntArray
     n_nodes: int
-    gap_vertex: NDArray[np.int64]
+    gap_vertex: IntArray
     gap_kind: tuple[GapKind, ...]
-    gap_sides: NDArray[np.int64]
+    gap_sides: IntArray
     gap_slit: tuple[str, ...]
-    tile_component: NDArray[np.int64]
-    boundary_tile: NDArray[np.bool_]
+    tile_component: IntArray
+    boundary_tile: BoolArray
     splits: tuple[Split, ...] = field(default=())
 
     @property
@@ -143,12 +144,12 @@ class Linkage:
     def n_components(self) -> int:
         return int(self.tile_component.max()) + 1 if self.n_tiles else 0
 
-    def gap_tiles(self, gap: int) -> NDArray[np.int64]:
+    def gap_tiles(self, gap: int) -> IntArray:
         """Distinct tiles around gap ``gap``, in counter-clockwise order."""
         tiles = self.gap_sides[gap, :, 0]
         return tiles[tiles >= 0]
 
-    def hinge_edges(self) -> NDArray[np.int64]:
+    def hinge_edges(self) -> IntArray:
         """(H, 2) tile pairs joined by a hinge."""
         return self.hinges[:, [0, 2]]
 
@@ -199,7 +200,7 @@ def slit_direction(i: int, j: int) -> str:
     return "h" if (i + j) % 2 == 0 else "v"
 
 
-def build_linkage(cells: NDArray[np.bool_], splits: tuple[Split, ...] = ()) -> Linkage:
+def build_linkage(cells: BoolArray, splits: tuple[Split, ...] = ()) -> Linkage:
     """Build the linkage topology of the tiles marked in ``cells``.
 
     Parameters
@@ -300,7 +301,7 @@ def build_linkage(cells: NDArray[np.bool_], splits: tuple[Split, ...] = ()) -> L
     )
 
 
-def _corner_nodes(n_tiles: int, hinges: NDArray[np.int64]) -> NDArray[np.int64]:
+def _corner_nodes(n_tiles: int, hinges: IntArray) -> IntArray:
     """Number tile corners so that the two corners of a hinge share one node."""
     node = np.arange(n_tiles * 4, dtype=np.int64).reshape(n_tiles, 4)
     for ta, ca, tb, cb in hinges:
@@ -309,7 +310,7 @@ def _corner_nodes(n_tiles: int, hinges: NDArray[np.int64]) -> NDArray[np.int64]:
     return relabelled.reshape(n_tiles, 4).astype(np.int64)
 
 
-def _components(n_tiles: int, hinges: NDArray[np.int64]) -> NDArray[np.int64]:
+def _components(n_tiles: int, hinges: IntArray) -> IntArray:
     """Connected components of the tile graph whose edges are hinges."""
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
@@ -328,7 +329,7 @@ def _components(n_tiles: int, hinges: NDArray[np.int64]) -> NDArray[np.int64]:
     return remap[labels].astype(np.int64)
 
 
-def _boundary_tiles(cells: NDArray[np.bool_], tile_cells: NDArray[np.int64]) -> NDArray[np.bool_]:
+def _boundary_tiles(cells: BoolArray, tile_cells: IntArray) -> BoolArray:
     """Tiles with at least one corner on the outer boundary of the tile set.
 
     A grid vertex is on the boundary when fewer than four of its cells carry tiles.
@@ -344,9 +345,7 @@ def _boundary_tiles(cells: NDArray[np.bool_], tile_cells: NDArray[np.int64]) -> 
     return np.asarray(corners | on_boundary[i + 1, j + 1] | on_boundary[i, j + 1])
 
 
-def rotating_squares_layout(
-    linkage: Linkage, opening: float, side: float = 1.0
-) -> NDArray[np.float64]:
+def rotating_squares_layout(linkage: Linkage, opening: float, side: float = 1.0) -> FloatArray:
     """Flat layout of a uniform linkage opened by ``opening`` radians (the gap angle).
 
     Tile ``(i, j)`` is a square of side ``side`` turned by ``-(-1)**(i + j) * opening / 2``
@@ -370,7 +369,7 @@ def rotating_squares_layout(
     return np.asarray(centres[:, None, :] + np.einsum("tij,kj->tki", rot, square))
 
 
-def gap_centroids(linkage: Linkage, corners: NDArray[np.float64]) -> NDArray[np.float64]:
+def gap_centroids(linkage: Linkage, corners: FloatArray) -> FloatArray:
     """Centroid of every gap: the mean of the endpoints of the tile sides bounding it.
 
     Parameters
@@ -410,13 +409,11 @@ class SlitEnds:
     hinge : (E,) int, index into ``linkage.hinges`` of the hinge at the slit end.
     """
 
-    tiles: NDArray[np.int64]
-    sides: NDArray[np.int64]
-    hinge: NDArray[np.int64]
+    tiles: IntArray
+    sides: IntArray
+    hinge: IntArray
 
-    def angles(
-        self, tiles: NDArray[np.float64], face: NDArray[np.int64] | int
-    ) -> NDArray[np.float64]:
+    def angles(self, tiles: FloatArray, face: IntArray | int) -> FloatArray:
         """Opening angles ``(E,)`` in rad of tiles ``(T, 8, 2+)`` (or top corners
         ``(T, 4, 2+)`` with ``face`` 0) on ``face`` (0 top or 4 bottom, per end)."""
         f = np.broadcast_to(np.asarray(face, dtype=np.int64), (len(self.hinge),))
