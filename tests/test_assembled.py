@@ -308,7 +308,8 @@ def test_convex_corners_unfold_a_dart_and_leave_convex_quads_alone() -> None:
     """Regression (three-shell, ~210 tiles): the K3D solve folded quads into darts. The convexity
     group pushes a reflex corner back out past the margin and is inert on convex quads."""
     from drawstring.geometry.assembled.shape import CONVEX_MARGIN, ConvexCorners, corner_margins
-    from drawstring.geometry.solve.solver import ClosenessToPoints, LocalGlobalSolver, Plane
+    from drawstring.geometry.solve.groups import ClosenessToPoints, Plane
+    from drawstring.geometry.solve.solver import LocalGlobalSolver
 
     square = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
     dart = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 4.0, 0.0]])

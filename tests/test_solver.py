@@ -6,19 +6,16 @@ import numpy as np
 import pytest
 
 from drawstring.geometry.core.errors import InputError
-from drawstring.geometry.solve.solver import (
+from drawstring.geometry.solve.groups import (
     ClosenessToPlanes,
     ClosenessToPoints,
     ClosenessToSurface,
     EdgeLength,
-    LocalGlobalSolver,
     Plane,
-    SimilarityToSquare,
-    Slab,
-    planarize_quads,
-    quad_planarity,
-    smallest_eigenvectors,
 )
+from drawstring.geometry.solve.linalg import smallest_eigenvectors
+from drawstring.geometry.solve.shape_groups import SimilarityToSquare, Slab
+from drawstring.geometry.solve.solver import LocalGlobalSolver, planarize_quads, quad_planarity
 
 
 def grid(nx: int, ny: int, step: float = 5.0) -> tuple[np.ndarray, np.ndarray]:

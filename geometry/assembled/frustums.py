@@ -14,9 +14,7 @@ import numpy as np
 
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
-from drawstring.geometry.solve.solver import (
-    plane_fit,
-)
+from drawstring.geometry.solve.linalg import plane_fit
 from drawstring.geometry.tiling.linkage import TILE_FACES
 
 #: Side faces in the order of the top edges ``k -> k+1`` (rows 2.. of :data:`TILE_FACES`).

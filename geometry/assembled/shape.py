@@ -10,7 +10,7 @@ Paper section 4.2, equations 1-4. Two optimizations run through the shared local
    fixed during the solve, so each solve is a fixed-energy problem that converges
    monotonically). The closest points of E_surface are re-queried lazily (only for vertices
    that moved more than ``SURFACE_REQUERY_REL`` of their distance to the target, see
-   :class:`~drawstring.geometry.solve.solver.ClosenessToSurface`). A plain solve that folds a
+   :class:`~drawstring.geometry.solve.groups.ClosenessToSurface`). A plain solve that folds a
    quad is replaced by one with :class:`ConvexCorners` (see :func:`optimize_assembled`). Then
    :func:`~drawstring.geometry.solve.solver.planarize_quads` moves the vertices by the least amount
    that makes every quad exactly planar.
@@ -62,21 +62,21 @@ from drawstring.geometry.core.tolerances import (
     ASSEMBLED_SOLVER_REL_TOL,
 )
 from drawstring.geometry.core.types import FloatArray, IntArray
-from drawstring.geometry.solve.solver import (
+from drawstring.geometry.solve.groups import (
     ClosenessToPlanes,
     ClosenessToPoints,
     ClosenessToSurface,
     ConstraintGroup,
     EdgeLength,
+    Plane,
+)
+from drawstring.geometry.solve.linalg import centering_matrix, cross3
+from drawstring.geometry.solve.shape_groups import SimilarityToSquare, Slab
+from drawstring.geometry.solve.solver import (
     LinearPull,
     LocalGlobalSolver,
     PlanarizeResult,
-    Plane,
-    SimilarityToSquare,
-    Slab,
     SolverResult,
-    centering_matrix,
-    cross3,
     planarize_quads,
 )
 
@@ -449,7 +449,7 @@ def optimize_top(
     convex_margin : float
         Its margin.
     requery_rel : float
-        :class:`~drawstring.geometry.solve.solver.ClosenessToSurface` lazy re-query threshold (0:
+        :class:`~drawstring.geometry.solve.groups.ClosenessToSurface` lazy re-query threshold (0:
         query every vertex in every iteration).
     callback : callable, optional
         Passed to :meth:`~drawstring.geometry.solve.solver.LocalGlobalSolver.solve` (may stop it).
@@ -615,7 +615,7 @@ def optimize_assembled(
     rel_tol, max_iter, anderson : local-global solver options (each solve).
     requery_rel : float
         Lazy closest-point re-query of the K3D surface term (see
-        :class:`~drawstring.geometry.solve.solver.ClosenessToSurface`; 0 queries every vertex in
+        :class:`~drawstring.geometry.solve.groups.ClosenessToSurface`; 0 queries every vertex in
         every iteration).
 
     Returns

@@ -31,7 +31,7 @@ from drawstring.geometry.flat.layout import (
 )
 from drawstring.geometry.flat.pose import HingeFaces, hinge_points
 from drawstring.geometry.solve.constrained_lsq import constrained_least_squares
-from drawstring.geometry.solve.solver import plane_fit
+from drawstring.geometry.solve.linalg import plane_fit
 from drawstring.geometry.tiling.linkage import Linkage
 
 logger = logging.getLogger(__name__)

@@ -1,6 +1,6 @@
 """The deployment simulation's constraint groups (:mod:`drawstring.geometry.simulate.deploy` runs
 them): inertia, rigid tiles, hinges, the string's snap pairs and magnets, lift targets and face
-contacts, each a :class:`~drawstring.geometry.solve.solver.ConstraintGroup` of the local-global
+contacts, each a :class:`~drawstring.geometry.solve.groups.ConstraintGroup` of the local-global
 solver.
 """
 
@@ -14,11 +14,8 @@ from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.simulate.tiles import SIDE_FACES
-from drawstring.geometry.solve.solver import (
-    ConstraintGroup,
-    centering_matrix,
-    difference_matrix,
-)
+from drawstring.geometry.solve.groups import ConstraintGroup
+from drawstring.geometry.solve.linalg import centering_matrix, difference_matrix
 
 SnapMode = Literal["face", "midpoint"]
 

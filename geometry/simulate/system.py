@@ -34,7 +34,8 @@ from drawstring.geometry.simulate.tiles import (
     tile_edge_lengths,
     tile_volumes,
 )
-from drawstring.geometry.solve.solver import ConstraintGroup, LocalGlobalSolver
+from drawstring.geometry.solve.groups import ConstraintGroup
+from drawstring.geometry.solve.solver import LocalGlobalSolver
 from drawstring.geometry.tiling.linkage import Linkage
 
 __all__ = ["DeploySystem"]

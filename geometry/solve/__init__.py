@@ -3,12 +3,8 @@ least squares under inequality rows, and repeated sparse SPD factorizations.
 """
 
 from drawstring.geometry.solve.constrained_lsq import constrained_least_squares
-from drawstring.geometry.solve.solver import (
-    ConstraintGroup,
-    LocalGlobalSolver,
-    SolverResult,
-    planarize_quads,
-)
+from drawstring.geometry.solve.groups import ConstraintGroup
+from drawstring.geometry.solve.solver import LocalGlobalSolver, SolverResult, planarize_quads
 from drawstring.geometry.solve.spd import SpdSolver
 
 __all__ = [

@@ -1,6 +1,6 @@
 """Constraint groups of the flat layout and the hinge layout (paper sections 4.3 and 4.4).
 
-Every group follows :class:`drawstring.geometry.solve.solver.ConstraintGroup`: a constant sparse
+Every group follows :class:`drawstring.geometry.solve.groups.ConstraintGroup`: a constant sparse
 matrix ``A`` and a batched projection of ``A X`` onto the constraint set.  Inequalities return
 the current value of ``A X`` where they hold, so their matrix never changes and the solver's
 factor is reused.
@@ -23,7 +23,8 @@ from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.types import FloatArray
-from drawstring.geometry.solve.solver import ConstraintGroup, difference_matrix
+from drawstring.geometry.solve.groups import ConstraintGroup
+from drawstring.geometry.solve.linalg import centering_matrix, difference_matrix
 
 __all__ = [
     "GapAngleBounds",
@@ -205,8 +206,6 @@ class QuadSeparation2D(ConstraintGroup):
         self.margin = float(margin)
 
     def matrix(self, n_vertices: int) -> sp.csr_matrix:
-        from drawstring.geometry.solve.solver import centering_matrix
-
         return centering_matrix(np.hstack([self.quads_a, self.quads_b]), n_vertices)
 
     def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:

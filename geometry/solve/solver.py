@@ -73,27 +73,8 @@ from numpy.typing import ArrayLike
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tolerances import SOLVER_REL_ENERGY_TOL
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
-
-# The groups live in their own module; they are re-exported here, where every stage imports them.
-from drawstring.geometry.solve.groups import (
-    ClosenessToPlanes,
-    ClosenessToPoints,
-    ClosenessToSurface,
-    ConstraintGroup,
-    EdgeLength,
-    Plane,
-    SimilarityToSquare,
-    Slab,
-    centering_matrix,
-    centred_normals,
-    closest_points_on_triangles,
-    covariances,
-    cross3,
-    difference_matrix,
-    plane_fit,
-    selection_matrix,
-    smallest_eigenvectors,
-)
+from drawstring.geometry.solve.groups import ConstraintGroup
+from drawstring.geometry.solve.linalg import cross3, plane_fit
 
 logger = logging.getLogger(__name__)
 
@@ -106,28 +87,12 @@ STOP_WINDOW = 10
 ANDERSON_MAX_BACKOFF = 16
 
 __all__ = [
-    "centering_matrix",
-    "centred_normals",
-    "closest_points_on_triangles",
-    "covariances",
-    "cross3",
-    "difference_matrix",
-    "selection_matrix",
-    "ClosenessToPlanes",
-    "ClosenessToPoints",
-    "ClosenessToSurface",
-    "ConstraintGroup",
-    "EdgeLength",
+    "LinearPull",
     "LocalGlobalSolver",
     "PlanarizeResult",
-    "Plane",
-    "SimilarityToSquare",
-    "Slab",
     "SolverResult",
     "planarize_quads",
-    "plane_fit",
     "quad_planarity",
-    "smallest_eigenvectors",
 ]
 
 
