@@ -44,7 +44,8 @@ from drawstring.geometry.assembled.shape import (
 )
 from drawstring.geometry.flatten.conformal import Flattening, flatten, principal_misalignment
 from drawstring.geometry.solve.groups import ClosenessToPoints, Plane
-from drawstring.geometry.solve.solver import LocalGlobalSolver, planarize_quads, quad_planarity
+from drawstring.geometry.solve.planarity import planarize_quads, quad_planarity
+from drawstring.geometry.solve.solver import LocalGlobalSolver
 from drawstring.geometry.target.builtins import BUILTIN_TARGETS
 from drawstring.geometry.target.surface import Target, load_target
 from drawstring.geometry.tiling.grid import Tiling, tile_surface

@@ -32,7 +32,7 @@ from drawstring.geometry.core.tolerances import FLAT_EDGE_ERROR_TOL_MM, HINGE_AN
 from drawstring.geometry.flat.coflat import CO_STAGES, CoOptimizedTop, co_optimize_top
 from drawstring.geometry.flat.layout import FlatResult, hinge_face_openings, optimize_flat
 from drawstring.geometry.flat.pose import HingeFaces, hinge_faces
-from drawstring.geometry.solve.solver import LinearPull
+from drawstring.geometry.solve.planarity import LinearPull
 from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling, component_flattenings
 from drawstring.geometry.tiling.linkage import Linkage

@@ -408,7 +408,7 @@ def test_bottom_hinges_are_pulled_to_equal_depths_under_both_tiles() -> None:
 
     from drawstring.geometry.assembled.frustums import quad_mesh_edges, side_quads
     from drawstring.geometry.hinges.sides import dual_hinge_faces
-    from drawstring.geometry.solve.solver import quad_planarity
+    from drawstring.geometry.solve.planarity import quad_planarity
     from drawstring.pipeline.layout_stage import _bottom_hinge_depths
 
     linkage, assembled, _, target = _saddle_design()

@@ -14,8 +14,9 @@ from drawstring.geometry.solve.groups import (
     Plane,
 )
 from drawstring.geometry.solve.linalg import smallest_eigenvectors
+from drawstring.geometry.solve.planarity import planarize_quads, quad_planarity
 from drawstring.geometry.solve.shape_groups import SimilarityToSquare, Slab
-from drawstring.geometry.solve.solver import LocalGlobalSolver, planarize_quads, quad_planarity
+from drawstring.geometry.solve.solver import LocalGlobalSolver
 
 
 def grid(nx: int, ny: int, step: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
@@ -418,7 +419,7 @@ def test_planarize_quads_exact_and_respects_fixed() -> None:
 def test_planarize_quads_pull_trades_a_wanted_move_against_distance() -> None:
     """A pull the planarity allows is met to w / (1 + w) (nearest point of |s|^2 + w (s - d)^2);
     one the planarity forbids moves nothing out of the plane."""
-    from drawstring.geometry.solve.solver import LinearPull
+    from drawstring.geometry.solve.planarity import LinearPull
 
     square = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
     quads = np.array([[0, 1, 2, 3]])

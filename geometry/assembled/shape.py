@@ -12,8 +12,8 @@ Paper section 4.2, equations 1-4. Two optimizations run through the shared local
    that moved more than ``SURFACE_REQUERY_REL`` of their distance to the target, see
    :class:`~drawstring.geometry.solve.groups.ClosenessToSurface`). A plain solve that folds a
    quad is replaced by one with :class:`ConvexCorners` (see :func:`optimize_assembled`). Then
-   :func:`~drawstring.geometry.solve.solver.planarize_quads` moves the vertices by the least amount
-   that makes every quad exactly planar.
+   :func:`~drawstring.geometry.solve.planarity.planarize_quads` moves the vertices by the least
+   amount that makes every quad exactly planar.
 2. **T3D** (extrusion): bottom vertices start at the top offset along area-weighted vertex
    normals (inwards, by ``thickness / mean cos`` to the adjacent face normals). Then top and
    bottom vertices are optimized together: every top, bottom and side (contact) face planar,
@@ -71,14 +71,9 @@ from drawstring.geometry.solve.groups import (
     Plane,
 )
 from drawstring.geometry.solve.linalg import centering_matrix, cross3
+from drawstring.geometry.solve.planarity import LinearPull, PlanarizeResult, planarize_quads
 from drawstring.geometry.solve.shape_groups import SimilarityToSquare, Slab
-from drawstring.geometry.solve.solver import (
-    LinearPull,
-    LocalGlobalSolver,
-    PlanarizeResult,
-    SolverResult,
-    planarize_quads,
-)
+from drawstring.geometry.solve.solver import LocalGlobalSolver, SolverResult
 
 logger = logging.getLogger(__name__)
 

@@ -42,8 +42,9 @@ for a wasted projection every iteration.
 Exact planarity
 ---------------
 Soft planarity converges linearly and leaves a residual of order ``w_other / w_planar``;
-:func:`planarize_quads` removes it with a few Gauss-Newton minimum-norm steps on the quads'
-coplanarity constraints (used after the solves of the assembled stage).
+:func:`~drawstring.geometry.solve.planarity.planarize_quads` removes it with a few Gauss-Newton
+minimum-norm steps on the quads' coplanarity constraints (used after the solves of the assembled
+stage).
 
 Adding a group
 --------------
@@ -72,9 +73,8 @@ from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tolerances import SOLVER_REL_ENERGY_TOL
-from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
+from drawstring.geometry.core.types import FloatArray
 from drawstring.geometry.solve.groups import ConstraintGroup
-from drawstring.geometry.solve.linalg import cross3, plane_fit
 
 logger = logging.getLogger(__name__)
 
@@ -86,14 +86,7 @@ STOP_WINDOW = 10
 #: after consecutive rejections, at most this many (reset by an accepted step).
 ANDERSON_MAX_BACKOFF = 16
 
-__all__ = [
-    "LinearPull",
-    "LocalGlobalSolver",
-    "PlanarizeResult",
-    "SolverResult",
-    "planarize_quads",
-    "quad_planarity",
-]
+__all__ = ["LocalGlobalSolver", "SolverResult"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -171,7 +164,7 @@ class LocalGlobalSolver:
         (the views ``np.split`` gives, without its overhead), and when no vertex is fixed the
         global and Anderson steps work on the whole position arrays instead of gathering and
         scattering the free rows (and hand SuperLU the right-hand side without a Fortran
-        copy: it makes its own). Off by default (the former code paths).
+        copy: it makes its own). Off by default.
     """
 
     def __init__(
@@ -403,97 +396,31 @@ class LocalGlobalSolver:
         anderson_gram : bool
             Solve Anderson's least-squares problem ``min |F theta - f|`` through its small
             ``m x m`` Gram matrix ``F^T F`` instead of LAPACK's ``lstsq`` on the tall ``F``: the
-            same mixing up to round-off (the energy safeguard rejects a poor one), and much
-            cheaper for long vectors. ``lstsq`` on a tall matrix is also where a multithreaded
-            BLAS sharing the cores with other work can stall: 15-25 ms instead of 0.3 ms for a
-            (5000, 8) problem on a 2-core machine. Off by default (bitwise the former
-            iterations).
+            same mixing up to round-off (the energy safeguard rejects a poor one), much cheaper
+            for long vectors, and clear of the tall ``lstsq``, which stalls when a multithreaded
+            BLAS shares the cores with other work. Off by default.
 
         Returns
         -------
         SolverResult
         """
         start = time.perf_counter()
-        x = np.array(x0, dtype=np.float64)
-        if x.ndim != 2 or x.shape[0] != self.n_vertices or not np.all(np.isfinite(x)):
-            raise InputError(
-                f"start positions must be a finite ({self.n_vertices}, dim) array, got {x.shape}"
-            )
+        x = self._start_positions(x0)
         if max_iter < 0 or anderson < 0 or max_backoff < 0:
             raise InputError("max_iter, anderson and max_backoff must be >= 0")
         factorizations = self._assemble()
-        if self.fixed.size:
-            rhs_fixed = np.asarray(self._m_fc @ x[self.fixed])
-        else:
-            rhs_fixed = np.zeros((len(self.free), x.shape[1]))
-
+        rhs_fixed = self._fixed_rhs(x)
         proj, energies = self._local(x)
         before = self._energy_dict(energies)
         energy = float(energies.sum())
         history = [energy]
-        accepted = rejected = 0
+        mixing = _AndersonMixing(anderson, max_backoff, anderson_gram)
         converged = energy <= abs_tol
-        dim = x.shape[1]
-        diff_f: list[FloatArray] = []
-        diff_g: list[FloatArray] = []
-        prev_f: FloatArray | None = None
-        prev_g: FloatArray | None = None
-        skip = backoff = 0
         iterations = 0
         stopped = False
-        whole = self.lean and not self.fixed.size  # Anderson vectors are views of whole arrays
         while not converged and not stopped and iterations < max_iter:
             iterations += 1
-            plain = self._global(proj, x, rhs_fixed)
-            if anderson > 0:
-                if whole:
-                    g_vec = plain.reshape(-1)
-                    f_vec = g_vec - x.reshape(-1)
-                else:
-                    g_vec = plain[self.free].reshape(-1)
-                    f_vec = g_vec - x[self.free].reshape(-1)
-                if prev_f is not None and prev_g is not None:
-                    diff_f.append(f_vec - prev_f)
-                    diff_g.append(g_vec - prev_g)
-                    if len(diff_f) > anderson:
-                        diff_f.pop(0)
-                        diff_g.pop(0)
-                prev_f, prev_g = f_vec, g_vec
-                if diff_f and skip == 0:
-                    if anderson_gram:
-                        rows_f = np.stack(diff_f)
-                        theta = np.linalg.lstsq(rows_f @ rows_f.T, rows_f @ f_vec, rcond=None)[0]
-                        mixed = g_vec - theta @ np.stack(diff_g)
-                    else:
-                        mat_f = np.stack(diff_f, axis=1)
-                        theta = np.linalg.lstsq(mat_f, f_vec, rcond=None)[0]
-                        mixed = g_vec - np.stack(diff_g, axis=1) @ theta
-                    if whole:
-                        candidate = mixed.reshape(-1, dim)
-                    else:
-                        candidate = x.copy()
-                        candidate[self.free] = mixed.reshape(-1, dim)
-                    cand_proj, cand_energies = self._local(candidate, proj)
-                    cand_energy = float(cand_energies.sum())
-                    if np.isfinite(cand_energy) and cand_energy < energy:
-                        accepted += 1
-                        backoff = 0
-                        x, proj, energies = candidate, cand_proj, cand_energies
-                    else:
-                        rejected += 1
-                        backoff = min(2 * backoff if backoff else 1, max_backoff)
-                        skip = backoff
-                        diff_f.clear()
-                        diff_g.clear()
-                        x = plain
-                        proj, energies = self._local(x, proj)
-                else:
-                    skip = max(skip - 1, 0)
-                    x = plain
-                    proj, energies = self._local(x, proj)
-            else:
-                x = plain
-                proj, energies = self._local(x, proj)
+            x, proj, energies = self._iterate(x, proj, energy, rhs_fixed, mixing)
             new_energy = float(energies.sum())
             history.append(new_energy)
             # relative decrease per iteration, averaged over a window so that one unlucky
@@ -514,8 +441,8 @@ class LocalGlobalSolver:
             history[0],
             history[-1],
             elapsed,
-            accepted,
-            rejected,
+            mixing.accepted,
+            mixing.rejected,
         )
         return SolverResult(
             X=x,
@@ -525,185 +452,134 @@ class LocalGlobalSolver:
             energy_after=self._energy_dict(energies),
             energy_history=np.asarray(history),
             time_s=elapsed,
-            accelerated_accepted=accepted,
-            accelerated_rejected=rejected,
+            accelerated_accepted=mixing.accepted,
+            accelerated_rejected=mixing.rejected,
             factorizations=factorizations,
             stopped=stopped,
         )
 
+    def _start_positions(self, x0: ArrayLike) -> FloatArray:
+        """``x0`` as a float copy, checked to be finite and one row per vertex."""
+        x = np.array(x0, dtype=np.float64)
+        if x.ndim != 2 or x.shape[0] != self.n_vertices or not np.all(np.isfinite(x)):
+            raise InputError(
+                f"start positions must be a finite ({self.n_vertices}, dim) array, got {x.shape}"
+            )
+        return x
 
-# --------------------------------------------------------------------------------------------
-# Exact planarity by Gauss-Newton projection
-# --------------------------------------------------------------------------------------------
+    def _fixed_rhs(self, x: FloatArray) -> FloatArray:
+        """The fixed vertices' constant share ``M_fc X_c`` of the free block's right-hand side."""
+        if self.fixed.size:
+            return np.asarray(self._m_fc @ x[self.fixed])
+        return np.zeros((len(self.free), x.shape[1]))
 
-
-@dataclass(frozen=True)
-class PlanarizeResult:
-    """Outcome of :func:`planarize_quads`.
-
-    Attributes
-    ----------
-    X : (n, 3) float, mm
-    iterations : int
-    planarity_before_mm, planarity_after_mm : float
-        Max vertex distance to its face's best-fit plane over all quads.
-    max_move_mm : float
-        Largest vertex displacement.
-    """
-
-    X: FloatArray
-    iterations: int
-    planarity_before_mm: float
-    planarity_after_mm: float
-    max_move_mm: float
-
-
-def quad_planarity(x: FloatArray, quads: IntArray) -> FloatArray:
-    """Max distance of each quad's vertices to the quad's best-fit plane.
-
-    Parameters
-    ----------
-    x : (n, 3) float, mm
-    quads : (k, 4) int
-
-    Returns
-    -------
-    distance : (k,) float, mm
-    """
-    pts = x[quads]
-    centroids, normals = plane_fit(pts)
-    return np.max(np.abs(np.einsum("ksi,ki->ks", pts - centroids[:, None], normals)), axis=1)
-
-
-@dataclass(frozen=True)
-class LinearPull:
-    """Conditions ``directions[i] . X[vertices[i]] = targets[i]`` wanted with ``weight`` by
-    :func:`planarize_quads` (each on one vertex, so its metric is block diagonal)."""
-
-    vertices: IntArray
-    directions: FloatArray
-    targets: FloatArray
-    weight: float
-
-    def residuals(self, x: FloatArray) -> FloatArray:
-        return np.asarray(np.einsum("ki,ki->k", self.directions, x[self.vertices]) - self.targets)
-
-    def gradient(self, x: FloatArray) -> FloatArray:
-        """``weight * C^T (C x - targets)``, flattened like ``x``."""
-        out = np.zeros_like(x)
-        np.add.at(out, self.vertices, self.weight * self.residuals(x)[:, None] * self.directions)
-        return out.reshape(-1)
-
-    def metric_inverse(self, n: int, movable: BoolArray) -> sp.csr_matrix:
-        """``(I + weight C^T C)^-1`` over the movable coordinates (block diagonal)."""
-        blocks = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-        outer = self.weight * self.directions[:, :, None] * self.directions[:, None, :]
-        np.add.at(blocks, self.vertices, outer)
-        inverse = np.linalg.inv(blocks)
-        rows = (3 * np.arange(n)[:, None, None] + np.arange(3)[None, :, None]).repeat(3, axis=2)
-        cols = (3 * np.arange(n)[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)
-        full = sp.csr_matrix((inverse.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * n, 3 * n))
-        keep = np.flatnonzero(np.repeat(movable, 3))
-        return full[keep][:, keep].tocsr()
-
-
-def planarize_quads(
-    x: ArrayLike,
-    quads: ArrayLike,
-    *,
-    fixed: ArrayLike | None = None,
-    tol_mm: float = 0.0,
-    max_iter: int = 8,
-    pull: LinearPull | None = None,
-) -> PlanarizeResult:
-    """Nearest configuration with every quad exactly planar (Gauss-Newton, minimum-norm steps).
-
-    Each quad contributes the scalar constraint ``det[v1 - v0, v2 - v0, v3 - v0] = 0`` (scaled by
-    its size). Every step moves the vertices by the least-norm correction
-    ``dX = -J^T (J J^T + delta I)^{-1} c`` of the linearized constraints, so the result stays as
-    close as possible to ``x``; convergence is quadratic from a nearly planar start, as left by
-    the local-global solver. Intended as a final polish, not as a design energy.
-
-    Parameters
-    ----------
-    x : (n, 3) float, mm
-    quads : (k, 4) int
-    fixed : (f,) int, optional
-        Vertices that must not move.
-    tol_mm : float
-        Stop when every quad's planarity (max vertex-to-plane distance) is at most this.
-    max_iter : int
-    pull : LinearPull, optional
-        Linear conditions on single vertices, wanted in the least-squares sense: the result is
-        then the planar configuration nearest ``x`` in ``|X - x|^2 + pull.weight *
-        |pull residual|^2`` (each step minimizes that for the linearized constraints, from the
-        current point), and it runs all ``max_iter`` steps unless they stop moving.
-
-    Returns
-    -------
-    PlanarizeResult
-    """
-    x_start = np.array(x, dtype=np.float64)
-    pos = x_start.copy()
-    quad_arr = np.asarray(quads, dtype=np.int64)
-    n = len(pos)
-    movable = np.ones(n, dtype=bool)
-    if fixed is not None:
-        movable[np.asarray(fixed, dtype=np.int64)] = False
-    col_mask = np.repeat(movable, 3)
-    before = float(quad_planarity(pos, quad_arr).max(initial=0.0))
-    size = np.linalg.norm(pos[quad_arr[:, 2]] - pos[quad_arr[:, 0]], axis=1)
-    size = np.maximum(size, 1e-300)
-    scale = 1.0 / size**2
-    k = len(quad_arr)
-    rows = np.repeat(np.arange(k), 12)
-    cols = (3 * quad_arr[:, :, None] + np.arange(3)[None, None, :]).reshape(k, 12).reshape(-1)
-    iterations = 0
-    after = before
-    metric_inv = None if pull is None else pull.metric_inverse(n, movable)
-    while iterations < max_iter and (after > tol_mm or pull is not None):
-        p0, p1, p2, p3 = (pos[quad_arr[:, a]] for a in range(4))
-        e1, e2, e3 = p1 - p0, p2 - p0, p3 - p0
-        g1 = cross3(e2, e3)
-        g2 = cross3(e3, e1)
-        g3 = cross3(e1, e2)
-        value = np.einsum("ki,ki->k", e1, g1) * scale
-        grads = np.stack([-(g1 + g2 + g3), g1, g2, g3], axis=1) * scale[:, None, None]
-        jac = sp.csr_matrix((grads.reshape(-1), (rows, cols)), shape=(k, 3 * n))
-        jac = jac[:, np.flatnonzero(col_mask)] if not movable.all() else jac
-        if pull is None or metric_inv is None:
-            normal_eq = (jac @ jac.T).tocsc()
-            delta = 1e-12 * float(normal_eq.diagonal().mean())
-            normal_eq = normal_eq + delta * sp.identity(k, format="csc")
-            lam = spla.splu(normal_eq, permc_spec="MMD_AT_PLUS_A").solve(value)
-            step = jac.T @ lam
+    def _iterate(
+        self,
+        x: FloatArray,
+        proj: FloatArray,
+        energy: float,
+        rhs_fixed: FloatArray,
+        mixing: _AndersonMixing,
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """One iteration from the accepted iterate ``x`` (its projections ``proj`` and total
+        ``energy``): the global step, then the Anderson-mixed iterate when the history allows
+        one and the safeguard accepts it, else the plain step. Returns the new accepted iterate,
+        its projections and its per-group energies."""
+        plain = self._global(proj, x, rhs_fixed)
+        if mixing.depth == 0:
+            return (plain, *self._local(plain, proj))
+        whole = self.lean and not self.fixed.size  # Anderson vectors are views of whole arrays
+        if whole:
+            g_vec = plain.reshape(-1)
+            f_vec = g_vec - x.reshape(-1)
         else:
-            # min |s|_M^2 + 2 grad.s  subject to  jac s = -value  (M = I + w C^T C)
-            grad = (pos - x_start).reshape(-1)[col_mask] + pull.gradient(pos)[col_mask]
-            scaled_grad = metric_inv @ grad
-            normal_eq = (jac @ metric_inv @ jac.T).tocsc()
-            delta = 1e-12 * float(normal_eq.diagonal().mean())
-            normal_eq = normal_eq + delta * sp.identity(k, format="csc")
-            lam = spla.splu(normal_eq, permc_spec="MMD_AT_PLUS_A").solve(value - jac @ scaled_grad)
-            step = scaled_grad + metric_inv @ (jac.T @ lam)
-        flat = pos.reshape(-1)
-        flat[col_mask] -= step
-        pos = flat.reshape(n, 3)
-        iterations += 1
-        new_after = float(quad_planarity(pos, quad_arr).max(initial=0.0))
-        if pull is not None:
-            after = new_after
-            if after <= tol_mm and float(np.abs(step).max(initial=0.0)) <= tol_mm:
-                break
-            continue
-        if new_after >= after and iterations > 1:
-            after = new_after
-            break
-        after = new_after
-    return PlanarizeResult(
-        X=pos,
-        iterations=iterations,
-        planarity_before_mm=before,
-        planarity_after_mm=after,
-        max_move_mm=float(np.linalg.norm(pos - x_start, axis=1).max(initial=0.0)),
-    )
+            g_vec = plain[self.free].reshape(-1)
+            f_vec = g_vec - x[self.free].reshape(-1)
+        mixing.push(f_vec, g_vec)
+        if not mixing.ready():
+            mixing.wait()
+            return (plain, *self._local(plain, proj))
+        mixed = mixing.mixed(f_vec, g_vec)
+        if whole:
+            candidate = mixed.reshape(-1, x.shape[1])
+        else:
+            candidate = x.copy()
+            candidate[self.free] = mixed.reshape(-1, x.shape[1])
+        cand_proj, cand_energies = self._local(candidate, proj)
+        cand_energy = float(cand_energies.sum())
+        if np.isfinite(cand_energy) and cand_energy < energy:
+            mixing.accept()
+            return candidate, cand_proj, cand_energies
+        mixing.reject()
+        return (plain, *self._local(plain, proj))
+
+
+class _AndersonMixing:
+    """Anderson acceleration state of one solve: the last ``depth`` differences of the residuals
+    ``f = G(x) - x`` and of the images ``g = G(x)``, and the backoff after rejected steps.
+
+    Parameters
+    ----------
+    depth : int
+        History length ``m``; 0 switches acceleration off.
+    max_backoff : int
+        Most plain steps taken before the next attempt after consecutive rejections.
+    gram : bool
+        Solve the mixing least-squares problem through its ``m x m`` Gram matrix.
+    """
+
+    def __init__(self, depth: int, max_backoff: int, gram: bool) -> None:
+        self.depth = depth
+        self.max_backoff = max_backoff
+        self.gram = gram
+        self.diff_f: list[FloatArray] = []
+        self.diff_g: list[FloatArray] = []
+        self.prev_f: FloatArray | None = None
+        self.prev_g: FloatArray | None = None
+        self.skip = 0
+        self.backoff = 0
+        #: Mixed iterates kept / discarded by the energy safeguard.
+        self.accepted = 0
+        self.rejected = 0
+
+    def push(self, f_vec: FloatArray, g_vec: FloatArray) -> None:
+        """Record this iteration's residual and image (keeps the last ``depth`` differences)."""
+        if self.prev_f is not None and self.prev_g is not None:
+            self.diff_f.append(f_vec - self.prev_f)
+            self.diff_g.append(g_vec - self.prev_g)
+            if len(self.diff_f) > self.depth:
+                self.diff_f.pop(0)
+                self.diff_g.pop(0)
+        self.prev_f, self.prev_g = f_vec, g_vec
+
+    def ready(self) -> bool:
+        """A mixed iterate can be tried now (a history exists and no backoff is pending)."""
+        return bool(self.diff_f) and self.skip == 0
+
+    def wait(self) -> None:
+        """One plain step taken instead of a mixed one (counts down the backoff)."""
+        self.skip = max(self.skip - 1, 0)
+
+    def mixed(self, f_vec: FloatArray, g_vec: FloatArray) -> FloatArray:
+        """The Anderson-mixed image ``g - dG theta`` with ``theta = argmin |dF theta - f|``."""
+        if self.gram:
+            rows_f = np.stack(self.diff_f)
+            theta = np.linalg.lstsq(rows_f @ rows_f.T, rows_f @ f_vec, rcond=None)[0]
+            return np.asarray(g_vec - theta @ np.stack(self.diff_g))
+        mat_f = np.stack(self.diff_f, axis=1)
+        theta = np.linalg.lstsq(mat_f, f_vec, rcond=None)[0]
+        return np.asarray(g_vec - np.stack(self.diff_g, axis=1) @ theta)
+
+    def accept(self) -> None:
+        """The mixed iterate lowered the energy and was kept."""
+        self.accepted += 1
+        self.backoff = 0
+
+    def reject(self) -> None:
+        """The mixed iterate did not lower the energy: wait 1, 2, 4, ... plain steps (at most
+        ``max_backoff``) before the next attempt, and start a new history."""
+        self.rejected += 1
+        self.backoff = min(2 * self.backoff if self.backoff else 1, self.max_backoff)
+        self.skip = self.backoff
+        self.diff_f.clear()
+        self.diff_g.clear()
