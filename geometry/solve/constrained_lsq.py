@@ -11,7 +11,7 @@ step.  :class:`EdgeLeastSquares` is the flat layout's objective (edge lengths to
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -36,12 +36,9 @@ __all__ = [
 
 
 #: Largest Levenberg-Marquardt damping (relative to the diagonal of ``J^T J``).  Its steps are
-#: already 1e-12 of a gradient step; without the bound, a subproblem that cannot descend (the
-#: three-shell's joint solve at the CLI's default size) multiplied it by 8 for every refused
-#: trial of every multiplier round until it overflowed, and each round then spent eight
-#: factorizations on an infinite matrix.  The largest damping a built-in reached otherwise was
-#: about 5e10 (the CLI's saddle, measured before the flat layout's line search), so no other
-#: design changed.
+#: already 1e-12 of a gradient step.  A subproblem that cannot descend (the three-shell's joint
+#: solve at the CLI's default size) stops at this bound instead of multiplying the damping by 8
+#: for every refused trial until it overflows and every round factors an infinite matrix.
 LM_DAMPING_MAX = 1e12
 
 
@@ -241,6 +238,181 @@ def _secant_minimum(
     return float(candidates[int(np.argmin(value))])
 
 
+class _Subproblem:
+    """The least-squares subproblem of the augmented Lagrangian: the objective's residuals and,
+    for multipliers ``lam`` and penalty ``rho``, the penalty rows
+    ``max(0, lam - rho g) / sqrt(2 rho)`` of the constraint blocks' values ``g``.
+
+    The residuals and row values of the last point evaluated are kept: a trial that is accepted
+    becomes the next step's point, whose row values (and, at a multiplier update, residuals)
+    are then not computed again.  Points are never changed in place.
+    """
+
+    def __init__(
+        self, objective: LeastSquares, constraints: list[AngleRows | SeparationRows]
+    ) -> None:
+        self.objective = objective
+        self.constraints = constraints
+        sizes = [c.n_rows for c in constraints]
+        self.offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        #: Constraint rows over all blocks.
+        self.n_rows = int(self.offsets[-1])
+        self._last: list[tuple[FloatArray, FloatArray, FloatArray]] = []
+
+    def values(self, x: FloatArray) -> FloatArray:
+        """Every block's row values at ``x``, stacked."""
+        if not self.constraints:
+            return np.zeros(0)
+        return np.concatenate([c.values(x) for c in self.constraints])
+
+    def jacobian_rows(self, x: FloatArray, act: IntArray) -> list[sp.csr_matrix]:
+        """Gradient rows of the stacked rows ``act``, one matrix per block that has some."""
+        out = []
+        for k, c in enumerate(self.constraints):
+            sel = act[(act >= self.offsets[k]) & (act < self.offsets[k + 1])] - self.offsets[k]
+            if sel.size:
+                out.append(c.jacobian(x, sel))
+        return out
+
+    def evaluated(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The residuals and row values at ``x`` (kept for the last point asked)."""
+        if not (self._last and self._last[0][0] is x):
+            self._last[:] = [(x, self.objective.residual(x), self.values(x))]
+        return self._last[0][1], self._last[0][2]
+
+    def cost(self, x: FloatArray, lam: FloatArray, rho: float) -> float:
+        """The subproblem's cost: squared residuals plus squared penalty rows."""
+        r, g = self.evaluated(x)
+        pen, _ = _penalty_rows(g, lam, rho)
+        return float(r @ r + pen @ pen)
+
+    def normal_system(self, x: FloatArray, lam: FloatArray, rho: float) -> _NormalSystem:
+        """The Gauss-Newton system ``J^T J s = -J^T r`` of the subproblem at ``x``."""
+        r, jac = self.objective.residual_jacobian(x)
+        pen, act = _penalty_rows(self.evaluated(x)[1], lam, rho)
+        blocks = [jac]
+        if act.size:
+            blocks += self.jacobian_rows(x, act)
+            for block in blocks[1:]:
+                block.data *= -np.sqrt(0.5 * rho)
+        jr = sp.vstack(blocks, format="csr")
+        res = np.concatenate([r, pen])
+        jtj = (jr.T @ jr).tocsc()
+        grad = jr.T @ res
+        diag = jtj.diagonal()
+        scale = float(diag.mean()) if diag.size else 1.0
+        # The upper triangle once per step; the damping changes only its diagonal, the
+        # last entry of every column once every diagonal entry is stored (a variable no
+        # residual touches, e.g. the joint solve's padding, has none in J^T J: it gets an
+        # explicit zero, the same matrix as adding the damping as a diagonal matrix).
+        jtj.sum_duplicates()  # sorted for upper_triangle: the product may leave them unsorted
+        upper = with_diagonal(upper_triangle(jtj))
+        at = upper.indptr[1:] - 1
+        return _NormalSystem(upper, at, upper.data[at].copy(), diag, scale, grad)
+
+
+@dataclass(frozen=True)
+class _NormalSystem:
+    """Upper triangle of ``J^T J`` (``upper``; its diagonal entries at ``upper.data[at]``, their
+    undamped values ``base``), the diagonal ``diag`` and its mean ``scale``, and ``J^T r``."""
+
+    upper: sp.csc_matrix
+    at: IntArray
+    base: FloatArray
+    diag: FloatArray
+    scale: float
+    grad: FloatArray
+
+
+def _penalty_rows(g: FloatArray, lam: FloatArray, rho: float) -> tuple[FloatArray, IntArray]:
+    """The active penalty rows ``max(0, lam - rho g) / sqrt(2 rho)`` and their row ids."""
+    c = np.maximum(0.0, lam - rho * g)
+    act = np.flatnonzero(c > 0)
+    return c[act] / np.sqrt(2.0 * rho), act
+
+
+def _row_tolerances(
+    constraints: list[AngleRows | SeparationRows], angle_tol: float, length_tol: float
+) -> FloatArray:
+    """Violation tolerance of each row, mm (angle rows: angle tolerance times the arm)."""
+    return np.concatenate(
+        [
+            np.tile(c.arm * angle_tol, 2)
+            if isinstance(c, AngleRows)
+            else np.full(c.n_rows, length_tol)
+            for c in constraints
+        ]
+        or [np.zeros(0)]
+    )
+
+
+@dataclass
+class _LevenbergMarquardt:
+    """Levenberg-Marquardt on the subproblems of one solve: the damping ``mu`` and the count of
+    factorizations carry over from one multiplier round to the next."""
+
+    max_steps: int
+    line_search: bool
+    mu: float = 1e-4
+    steps: int = 0
+    factor: SpdSolver = field(default_factory=SpdSolver)
+
+    def minimize(
+        self, problem: _Subproblem, x: FloatArray, lam: FloatArray, rho: float
+    ) -> tuple[FloatArray, float]:
+        """Steps from ``x`` until the cost stops falling (or the factorizations run out);
+        returns the point reached and the largest coordinate move of a step taken."""
+        moved = 0.0
+        c0 = problem.cost(x, lam, rho)
+        for _inner in range(40):
+            if self.steps >= self.max_steps:
+                break
+            x, improved, decrease, c0, step = self._step(problem, x, lam, rho, c0)
+            if improved:
+                moved = max(moved, float(np.abs(step).max()))
+            if not improved or decrease <= 1e-14 * max(c0, 1e-30) or np.abs(step).max() < 1e-10:
+                break
+        return x, moved
+
+    def _step(
+        self, problem: _Subproblem, x: FloatArray, lam: FloatArray, rho: float, c0: float
+    ) -> tuple[FloatArray, bool, float, float, FloatArray]:
+        """One step from ``x`` (cost ``c0``), raising the damping until a trial lowers the cost.
+
+        Returns the new point, whether it moved, the cost decrease, the new cost and the step
+        (the one taken when it moved, else the last one tried).
+        """
+        n = len(x)
+        system = problem.normal_system(x, lam, rho)
+        r0, g0 = problem.evaluated(x)
+        for _try in range(8):
+            system.upper.data[system.at] = system.base + (
+                self.mu * system.diag + 1e-10 * system.scale
+            )
+            step = self.factor.solve_upper(system.upper, -system.grad)
+            self.steps += 1
+            trial = x + step.reshape(n, 2)
+            c1 = problem.cost(trial, lam, rho)
+            if not c1 < c0 and self.line_search:
+                # Most failed steps run into rows that were inactive where the step was
+                # computed; the point along it where the residuals and rows, interpolated
+                # between its ends, cost least is tried before a damped step is factored.
+                r1, g1 = problem.evaluated(trial)
+                alpha = _secant_minimum(r0, r1, lam - rho * g0, lam - rho * g1, rho)
+                if SECANT_MIN_STEP < alpha < 1.0 - 1e-12:  # (at 1: the trial itself)
+                    short = x + alpha * step.reshape(n, 2)
+                    c_short = problem.cost(short, lam, rho)
+                    if c_short < c0:
+                        return short, True, c0 - c_short, c_short, alpha * step
+            if c1 < c0:
+                self.mu = max(self.mu / 3.0, 1e-12)
+                return trial, True, c0 - c1, c1, step
+            if self.mu >= LM_DAMPING_MAX:
+                break  # stalled: a larger damping only repeats a vanishing step
+            self.mu = min(self.mu * 8.0, LM_DAMPING_MAX)
+        return x, False, 0.0, c0, step
+
+
 def constrained_least_squares(
     x0: FloatArray,
     objective: LeastSquares,
@@ -266,10 +438,8 @@ def constrained_least_squares(
     hold, settled or not (a feasible start for another solver, e.g. the co-optimization's).  With
     ``line_search``, a step that raises the cost is first shortened to the least of the cost along
     it, modelled from its two ends (:func:`_secant_minimum`), before the damping is raised and the
-    system factored again: about a third of the flat layout's steps failed, nearly all of them by
-    running into rows inactive where the step was computed, and the damping then took several
-    refactorizations to rise and several steps to fall again (1600-tile wave's flat layout: 343
-    factorizations, 124 of them for failed steps; with it 113 and 2.7 -> 1.1 s).
+    system factored again: most failed steps run into rows inactive where the step was computed,
+    and a raised damping takes several refactorizations to rise and several steps to fall again.
 
     Returns
     -------
@@ -280,127 +450,18 @@ def constrained_least_squares(
         Largest remaining violation in units of the row tolerances (``<= 1``: converged).
     """
     x = x0.copy()
-    n = len(x)
-    sizes = [c.n_rows for c in constraints]
-    offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-    m = int(offsets[-1])
-    # Violation tolerance of each row, mm (angle rows: angle tolerance times the arm).
-    row_tol = np.concatenate(
-        [
-            np.tile(c.arm * angle_tol, 2)
-            if isinstance(c, AngleRows)
-            else np.full(c.n_rows, length_tol)
-            for c in constraints
-        ]
-        or [np.zeros(0)]
-    )
-
-    def values(x: FloatArray) -> FloatArray:
-        if not constraints:
-            return np.zeros(0)
-        return np.concatenate([c.values(x) for c in constraints])
-
-    def penalty_rows(g: FloatArray, lam: FloatArray, rho: float) -> tuple[FloatArray, IntArray]:
-        c = np.maximum(0.0, lam - rho * g)
-        act = np.flatnonzero(c > 0)
-        return c[act] / np.sqrt(2.0 * rho), act
-
-    def jac_rows(x: FloatArray, act: IntArray) -> list[sp.csr_matrix]:
-        out = []
-        for k, c in enumerate(constraints):
-            sel = act[(act >= offsets[k]) & (act < offsets[k + 1])] - offsets[k]
-            if sel.size:
-                out.append(c.jacobian(x, sel))
-        return out
-
-    # The residuals and row values of the last point evaluated: a trial that is accepted
-    # becomes the next step's point, whose row values (and, at a multiplier update, residuals)
-    # are then not computed again.  Points are never changed in place.
-    last: list[tuple[FloatArray, FloatArray, FloatArray]] = []
-
-    def evaluated(x: FloatArray) -> tuple[FloatArray, FloatArray]:
-        if not (last and last[0][0] is x):
-            last[:] = [(x, objective.residual(x), values(x))]
-        return last[0][1], last[0][2]
-
-    def cost(x: FloatArray, lam: FloatArray, rho: float) -> float:
-        r, g = evaluated(x)
-        pen, _ = penalty_rows(g, lam, rho)
-        return float(r @ r + pen @ pen)
-
+    problem = _Subproblem(objective, constraints)
+    m = problem.n_rows
+    row_tol = _row_tolerances(constraints, angle_tol, length_tol)
     lam = np.zeros(m)
     rho = rho0
-    steps = 0
-    factor = SpdSolver()
+    solver = _LevenbergMarquardt(max_steps, line_search)
     prev_viol = np.inf
-    mu = 1e-4
     violation = 0.0
     for _outer in range(60):
-        # --- Levenberg-Marquardt on the augmented Lagrangian subproblem -----------------
-        moved = 0.0
-        c0 = cost(x, lam, rho)
-        for _inner in range(40):
-            if steps >= max_steps:
-                break
-            r, jac = objective.residual_jacobian(x)
-            pen, act = penalty_rows(evaluated(x)[1], lam, rho)
-            blocks = [jac]
-            if act.size:
-                blocks += jac_rows(x, act)
-                for block in blocks[1:]:
-                    block.data *= -np.sqrt(0.5 * rho)
-            jr = sp.vstack(blocks, format="csr")
-            res = np.concatenate([r, pen])
-            jtj = (jr.T @ jr).tocsc()
-            grad = jr.T @ res
-            diag = jtj.diagonal()
-            scale = float(diag.mean()) if diag.size else 1.0
-            # The upper triangle once per step; the damping changes only its diagonal, the
-            # last entry of every column once every diagonal entry is stored (a variable no
-            # residual touches, e.g. the joint solve's padding, has none in J^T J: it gets an
-            # explicit zero, the same matrix as adding the damping as a diagonal matrix).
-            jtj.sum_duplicates()  # sorted for upper_triangle: the product may leave them unsorted
-            upper = with_diagonal(upper_triangle(jtj))
-            at = upper.indptr[1:] - 1
-            base = upper.data[at].copy()
-            improved = False
-            r0, g0 = evaluated(x)
-            for _try in range(8):
-                upper.data[at] = base + (mu * diag + 1e-10 * scale)
-                step = factor.solve_upper(upper, -grad)
-                steps += 1
-                trial = x + step.reshape(n, 2)
-                c1 = cost(trial, lam, rho)
-                if not c1 < c0 and line_search:
-                    # Most failed steps run into rows that were inactive where the step was
-                    # computed; the point along it where the residuals and rows, interpolated
-                    # between its ends, cost least is tried before a damped step is factored.
-                    r1, g1 = evaluated(trial)
-                    alpha = _secant_minimum(r0, r1, lam - rho * g0, lam - rho * g1, rho)
-                    if SECANT_MIN_STEP < alpha < 1.0 - 1e-12:  # (at 1: the trial itself)
-                        short = x + alpha * step.reshape(n, 2)
-                        c_short = cost(short, lam, rho)
-                        if c_short < c0:
-                            x, improved = short, True
-                            decrease = c0 - c_short
-                            c0 = c_short
-                            step = alpha * step  # the step taken
-                            moved = max(moved, float(np.abs(step).max()))
-                            break
-                if c1 < c0:
-                    x, improved = trial, True
-                    decrease = c0 - c1
-                    c0 = c1
-                    mu = max(mu / 3.0, 1e-12)
-                    moved = max(moved, float(np.abs(step).max()))
-                    break
-                if mu >= LM_DAMPING_MAX:
-                    break  # stalled: a larger damping only repeats a vanishing step
-                mu = min(mu * 8.0, LM_DAMPING_MAX)
-            if not improved or decrease <= 1e-14 * max(c0, 1e-30) or np.abs(step).max() < 1e-10:
-                break
+        x, moved = solver.minimize(problem, x, lam, rho)
         # --- multiplier update ------------------------------------------------------------
-        g = evaluated(x)[1]
+        g = problem.evaluated(x)[1]
         viol_rows = np.maximum(-g, 0.0) / row_tol if m else np.zeros(0)
         violation = float(viol_rows.max(initial=0.0))  # in units of the tolerance
         lam = np.maximum(0.0, lam - rho * g)
@@ -409,15 +470,15 @@ def constrained_least_squares(
             _outer,
             violation,
             rho,
-            steps,
+            solver.steps,
         )
-        if steps >= max_steps:
+        if solver.steps >= max_steps:
             break
         if violation <= 1.0 and moved < 1e-7:
             break
-        if feasible_stop is not None and steps >= feasible_stop and violation <= 1.0:
+        if feasible_stop is not None and solver.steps >= feasible_stop and violation <= 1.0:
             break
         if violation > 0.25 * prev_viol:
             rho = min(rho * 10.0, 1e8 * rho0)
         prev_viol = violation
-    return x, steps, violation
+    return x, solver.steps, violation
