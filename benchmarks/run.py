@@ -29,7 +29,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from drawstring.geometry.assembled.shape import CLOSE_FIT_WEIGHTS  # noqa: E402
+from drawstring.geometry.assembled.top import CLOSE_FIT_WEIGHTS  # noqa: E402
 from drawstring.geometry.flatten.conformal import flatten  # noqa: E402
 from drawstring.geometry.target.builtins import BUILTIN_TARGETS  # noqa: E402
 from drawstring.geometry.target.surface import load_target  # noqa: E402

@@ -20,14 +20,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.geometry.assembled.shape import (
-    AssembledResult,
-    hinge_depth_pull,
-    quad_vector_areas,
-    reextrude,
-    remeasured,
-    tile_vertices,
-)
+from drawstring.geometry.assembled.frustums import quad_vector_areas, tile_vertices
+from drawstring.geometry.assembled.reextrude import hinge_depth_pull, reextrude, remeasured
+from drawstring.geometry.assembled.shape import AssembledResult
 from drawstring.geometry.core.tolerances import FLAT_EDGE_ERROR_TOL_MM, HINGE_ANGLE_MARGIN_DEG
 from drawstring.geometry.flat.coflat import CO_STAGES, CoOptimizedTop, co_optimize_top
 from drawstring.geometry.flat.layout import FlatResult, hinge_face_openings, optimize_flat
@@ -52,7 +47,7 @@ __all__ = [
 
 def depth_pull(shape: AssembledResult, linkage: Linkage, bottom: NDArray[np.bool_]) -> LinearPull:
     """The pull of the ``bottom`` hinges' corners of ``shape`` to equal depths under both
-    tiles' top faces (:func:`~drawstring.geometry.assembled.shape.hinge_depth_pull`)."""
+    tiles' top faces (:func:`~drawstring.geometry.assembled.reextrude.hinge_depth_pull`)."""
     hinges = linkage.hinges[bottom]
     vertex = shape.quads[hinges[:, 0], hinges[:, 1]]
     return hinge_depth_pull(shape, vertex, hinges[:, 0], hinges[:, 2])

@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.geometry.assembled.shape import AssembledResult, optimize_assembled, reextrude
+from drawstring.geometry.assembled.reextrude import reextrude
+from drawstring.geometry.assembled.shape import AssembledResult, optimize_assembled
 from drawstring.geometry.core.rigid import rigid_copies
 from drawstring.geometry.core.tolerances import (
     FLAT_EDGE_ERROR_TOL_MM,
@@ -512,7 +513,7 @@ def _bottom_hinge_depths(
 ) -> AssembledResult:
     """The assembled tiles with their bottom vertices moved (tops held, every face planar) so
     that the ``bottom`` hinges' corners lie as deep under both tiles' top faces as they can
-    (:func:`~drawstring.geometry.assembled.shape.hinge_depth_pull`).  Read-only like the eq.-1
+    (:func:`~drawstring.geometry.assembled.reextrude.hinge_depth_pull`).  Read-only like the eq.-1
     tiles it stands for (a design whose co-optimization is refused keeps it)."""
     moved = reextrude(
         assembled, assembled.top, loaded.vertices, loaded.faces, start_bottom=assembled.bottom,

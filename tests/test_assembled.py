@@ -7,17 +7,14 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from drawstring.geometry.assembled.shape import (
-    CLOSE_FIT_WEIGHTS,
-    PAPER_WEIGHTS,
-    eq1_energy,
-    extrude_tiles,
+from drawstring.geometry.assembled.extrusion import extrude_tiles, thickness_advice
+from drawstring.geometry.assembled.frustums import (
     measure_assembled,
-    optimize_assembled,
     quad_mesh_edges,
     square_edge_targets,
-    thickness_advice,
 )
+from drawstring.geometry.assembled.shape import optimize_assembled
+from drawstring.geometry.assembled.top import CLOSE_FIT_WEIGHTS, PAPER_WEIGHTS, eq1_energy
 from drawstring.geometry.core.errors import DesignError, InputError
 from drawstring.geometry.tiling.linkage import TILE_FACES
 
@@ -307,7 +304,8 @@ def test_bad_inputs_raise() -> None:
 def test_convex_corners_unfold_a_dart_and_leave_convex_quads_alone() -> None:
     """Regression (three-shell, ~210 tiles): the K3D solve folded quads into darts. The convexity
     group pushes a reflex corner back out past the margin and is inert on convex quads."""
-    from drawstring.geometry.assembled.shape import CONVEX_MARGIN, ConvexCorners, corner_margins
+    from drawstring.geometry.assembled.frustums import corner_margins
+    from drawstring.geometry.assembled.top import CONVEX_MARGIN, ConvexCorners
     from drawstring.geometry.solve.groups import ClosenessToPoints, Plane
     from drawstring.geometry.solve.solver import LocalGlobalSolver
 

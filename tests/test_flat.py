@@ -483,7 +483,8 @@ def test_a_conical_top_lets_the_bottom_hinges_meet_in_depth() -> None:
     pulled to equal depths under both tiles of every bottom hinge (the 3D hinge gap)."""
     from dataclasses import replace
 
-    from drawstring.geometry.assembled.shape import reextrude, tile_vertices
+    from drawstring.geometry.assembled.frustums import tile_vertices
+    from drawstring.geometry.assembled.reextrude import reextrude
     from drawstring.geometry.flat.coflat import co_optimize_top, vertex_stars
     from drawstring.geometry.flat.pose import hinge_faces
     from drawstring.geometry.hinges.sides import dual_hinge_faces

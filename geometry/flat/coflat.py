@@ -113,7 +113,7 @@ class VertexStars:
     side face of that extrusion bisects the dihedral angle of its two tiles' top faces, so a
     corner of it lies as deep under one tile's top face as under the other's: the bottom
     hinges' corners meet when the tiles lie flat
-    (:func:`~drawstring.geometry.assembled.shape.hinge_depth_pull`).
+    (:func:`~drawstring.geometry.assembled.reextrude.hinge_depth_pull`).
 
     Attributes
     ----------

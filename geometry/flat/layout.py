@@ -26,8 +26,8 @@ Co-optimization
 tile side and diagonal equal in both poses, K3D quads planar, K3D pulled to its start and to
 the target, the same hard rows), which removes that residual: the assembled shape has freedom
 to spare that the flat layout alone has not.  The pipeline extrudes T3D again under the new
-K3D (:func:`~drawstring.geometry.assembled.shape.reextrude`) and re-solves the flat layout from the
-joint one (``initial_nodes``).
+K3D (:func:`~drawstring.geometry.assembled.reextrude.reextrude`) and re-solves the flat layout
+from the joint one (``initial_nodes``).
 
 Initial layout
 --------------
