@@ -230,7 +230,7 @@ def flat_gap_angles(
 ) -> NDArray[np.float64]:
     """(G,) float, deg: the smallest opening angle at the slit ends of each gap, measured on the
     face that carries each hinge; NaN where a gap has no hinged slit end."""
-    from drawstring.geometry.flat.layout import gap_junctions
+    from drawstring.geometry.flat.junctions import gap_junctions
     from drawstring.geometry.flat.verify import gap_opening_angles_deg
 
     angle = np.full(linkage.n_gaps, np.nan)

@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 import drawstring.geometry.flat.layout as flat_module
+import drawstring.geometry.flat.separation as separation_module
 from drawstring.geometry.core.tolerances import FLAT_GAP_ANGLE_TOL_DEG
-from drawstring.geometry.flat.layout import extrude_flat, gap_junctions, optimize_flat
+from drawstring.geometry.flat.junctions import gap_junctions
+from drawstring.geometry.flat.layout import extrude_flat, optimize_flat
 from drawstring.geometry.flat.verify import (
     convex_polygon_overlap,
     flat_edge_errors,
@@ -244,7 +246,7 @@ def test_an_area_ratio_prediction_alone_is_not_a_problem(monkeypatch) -> None:
 def test_split_parts_are_laid_out_in_the_order_in_which_they_meet() -> None:
     # three parts in a row, the outer ones larger: the middle one stays and the outer ones
     # move outwards, so the string between parts never has to cross one (placed largest
-    # first, the middle part used to slide past an outer one)
+    # first, the middle part would slide past an outer one)
     from drawstring.geometry.tiling.linkage import rotating_squares_layout
 
     splits = (Split("x", 5, 0, 6), Split("x", 8, 0, 6))
@@ -254,7 +256,7 @@ def test_split_parts_are_laid_out_in_the_order_in_which_they_meet() -> None:
     nodes = np.zeros((linkage.n_nodes, 2))
     nodes[linkage.corner_node] = corners
     cells_uv = (linkage.tile_cells[:, None, :] + [[0, 0], [1, 0], [1, 1], [0, 1]]) * 10.0
-    moved, offsets = flat_module._separate_components(linkage, nodes, cells_uv, 2.0)
+    moved, offsets = separation_module.separate_components(linkage, nodes, cells_uv, 2.0)
     parts = [linkage.tile_component[linkage.tile_cells[:, 0] == i][0] for i in (0, 6, 13)]
     assert np.all(offsets[parts[1]] == 0.0)  # the middle part, nearest the centre, stays
     assert offsets[parts[0], 0] < 0 < offsets[parts[2], 0]
@@ -287,10 +289,10 @@ def test_split_parts_clear_each_other_with_their_bottoms_too() -> None:
         on_left = linkage.tile_component == left
         return float(moved_shadows[~on_left][..., 0].min() - moved_shadows[on_left][..., 0].max())
 
-    tops_only, offsets = flat_module._separate_components(linkage, nodes, cells_uv, 2.0)
+    tops_only, offsets = separation_module.separate_components(linkage, nodes, cells_uv, 2.0)
     moved = shadows + offsets[linkage.tile_component][:, None]
     assert gap(moved) < 0  # placed by their top faces, the bottoms overlap
-    _, offsets = flat_module._separate_components(linkage, nodes, cells_uv, 2.0, shadows)
+    _, offsets = separation_module.separate_components(linkage, nodes, cells_uv, 2.0, shadows)
     moved = shadows + offsets[linkage.tile_component][:, None]
     assert gap(moved) >= 2.0
 
@@ -305,13 +307,13 @@ def test_parts_are_separated_by_the_outlines_of_the_tiles_as_laid_out(monkeypatc
     cells = uv[linkage.tile_corners].copy()
     cells[linkage.tile_component == 1] -= [0.0, 20.0]
     seen = []
-    real = flat_module._separate_components
+    real = separation_module.separate_components
 
     def spy(*args, **kwargs):
         seen.append(args[4] if len(args) > 4 else kwargs["shadows"])
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(flat_module, "_separate_components", spy)
+    monkeypatch.setattr(separation_module, "separate_components", spy)
     flat = optimize_flat(linkage, top, uv=cells, tiles_3d=tiles, min_gap_angle_deg=12.0)
     (outlines,) = seen
     moved = outlines + flat.component_offset[linkage.tile_component][:, None]
@@ -325,7 +327,7 @@ def test_tile_outlines_seen_from_above_share_the_top_faces_frame() -> None:
     """A tilted 10 mm square tile whose bottom lies 3 mm under its top and 2 mm out along its
     first side: seen from above once laid flat, the top corners are the plane coordinates and
     the bottom ones are those moved 2 mm along the first side."""
-    from drawstring.geometry.flat.layout import tile_plane_coordinates
+    from drawstring.geometry.flat.initial import shadow_coordinates, tile_plane_coordinates
 
     rng = np.random.default_rng(5)
     q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
@@ -333,7 +335,7 @@ def test_tile_outlines_seen_from_above_share_the_top_faces_frame() -> None:
     top = square @ q.T + [5.0, -2.0, 7.0]
     bottom = (square + [2.0, 0.0, -3.0]) @ q.T + [5.0, -2.0, 7.0]
     tile = np.concatenate([top, bottom])[None]
-    outline = flat_module._shadow_coordinates(top[None], tile)
+    outline = shadow_coordinates(top[None], tile)
     plane = tile_plane_coordinates(top[None])
     np.testing.assert_allclose(outline[0, :4], plane[0], atol=1e-12)
     side = (plane[0, 1] - plane[0, 0]) / 10.0

@@ -148,7 +148,7 @@ def test_cropped_grid_has_three_tile_gap() -> None:
 
 
 def test_derived_tables_are_built_once_per_linkage_and_read_only() -> None:
-    from drawstring.geometry.flat.layout import gap_junctions
+    from drawstring.geometry.flat.junctions import gap_junctions
     from drawstring.geometry.tiling.linkage import slit_ends
 
     linkage = build_linkage(np.ones((4, 3), dtype=bool))

@@ -22,13 +22,10 @@ from numpy.typing import ArrayLike, NDArray
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tolerances import FLAT_SOLVER_ANGLE_TOL_DEG
 from drawstring.geometry.core.types import FloatArray, IntArray
-from drawstring.geometry.flat.layout import (
-    TILE_EDGES,
-    FlatResult,
-    _flat_constraints,
-    gap_junctions,
-    tile_plane_coordinates,
-)
+from drawstring.geometry.flat.bounds import flat_constraints
+from drawstring.geometry.flat.initial import tile_plane_coordinates
+from drawstring.geometry.flat.junctions import TILE_EDGES, gap_junctions
+from drawstring.geometry.flat.layout import FlatResult
 from drawstring.geometry.flat.pose import HingeFaces, hinge_points
 from drawstring.geometry.solve.constrained_lsq import constrained_least_squares
 from drawstring.geometry.solve.linalg import plane_fit
@@ -496,7 +493,7 @@ def co_optimize_top(
     theta_min = np.radians(flat.min_gap_angle_deg + CO_ANGLE_MARGIN_DEG)
     side = float(np.mean(flat.edge_targets[:, :4]))
     junctions = gap_junctions(linkage)
-    constraints = _flat_constraints(
+    constraints = flat_constraints(
         linkage,
         junctions,
         plane,
