@@ -454,7 +454,7 @@ def _rotational_grid(rows: int = 5, cols: int = 6) -> tuple[np.ndarray, np.ndarr
 def test_vertex_stars_find_the_conical_vertices_of_a_grid_of_revolution() -> None:
     # Mirror symmetry about each meridian plane makes the angles of opposite quads at every
     # inner vertex sum equal (a conical mesh); moving one vertex breaks it in its stars only.
-    from drawstring.geometry.flat.coflat import vertex_stars
+    from drawstring.geometry.flat.conical import vertex_stars
 
     x, quads = _rotational_grid()
     stars = vertex_stars(quads)
@@ -487,7 +487,8 @@ def test_a_conical_top_lets_the_bottom_hinges_meet_in_depth() -> None:
 
     from drawstring.geometry.assembled.frustums import tile_vertices
     from drawstring.geometry.assembled.reextrude import reextrude
-    from drawstring.geometry.flat.coflat import co_optimize_top, vertex_stars
+    from drawstring.geometry.flat.coflat import co_optimize_top
+    from drawstring.geometry.flat.conical import vertex_stars
     from drawstring.geometry.flat.pose import hinge_faces
     from drawstring.geometry.hinges.sides import dual_hinge_faces
     from drawstring.pipeline.co_rounds import depth_pull

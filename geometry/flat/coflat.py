@@ -23,11 +23,16 @@ from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tolerances import FLAT_SOLVER_ANGLE_TOL_DEG
 from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.flat.bounds import flat_constraints
+from drawstring.geometry.flat.conical import VertexStars, vertex_stars
 from drawstring.geometry.flat.initial import tile_plane_coordinates
 from drawstring.geometry.flat.junctions import TILE_EDGES, gap_junctions
 from drawstring.geometry.flat.layout import FlatResult
 from drawstring.geometry.flat.pose import HingeFaces, hinge_points
-from drawstring.geometry.solve.constrained_lsq import constrained_least_squares
+from drawstring.geometry.solve.constrained_lsq import (
+    AngleRows,
+    SeparationRows,
+    constrained_least_squares,
+)
 from drawstring.geometry.solve.linalg import plane_fit
 from drawstring.geometry.tiling.linkage import Linkage
 
@@ -40,7 +45,6 @@ __all__ = [
     "CO_STEPS",
     "CoOptimizedTop",
     "co_optimize_top",
-    "vertex_stars",
 ]
 
 #: Continuation of :func:`co_optimize_top`: (planarity weight, edge weight) per stage, both
@@ -98,96 +102,6 @@ class CoOptimizedTop:
     move_max_mm: float
     steps: int
     time_s: float
-
-
-@dataclass(frozen=True)
-class VertexStars:
-    """Inner vertices of a quad mesh in exactly four quads, for the conical condition.
-
-    A quad mesh is conical when at every inner vertex the angles of opposite quads sum
-    equal, ``a0 + a2 = a1 + a3``: its faces then touch a cone there, and moving every face
-    along its normal by one distance gives an offset mesh with the same planar faces.  Each
-    side face of that extrusion bisects the dihedral angle of its two tiles' top faces, so a
-    corner of it lies as deep under one tile's top face as under the other's: the bottom
-    hinges' corners meet when the tiles lie flat
-    (:func:`~drawstring.geometry.assembled.reextrude.hinge_depth_pull`).
-
-    Attributes
-    ----------
-    members : (S, 5) int
-        The vertex and its four neighbours (sorted).
-    prev_local, next_local : (S, 4) int
-        Per quad, in the order 0, 1, 2, 3 around the vertex (0, 2 and 1, 3 opposite), the
-        column of ``members`` of the corner before and after the vertex.
-    """
-
-    members: IntArray
-    prev_local: IntArray
-    next_local: IntArray
-
-    def angle_sums(
-        self, x: FloatArray, with_jacobian: bool = False
-    ) -> tuple[FloatArray, FloatArray | None]:
-        """``a0 - a1 + a2 - a3`` (rad) per star, and its gradient ``(S, 5, 3)`` by member."""
-        p = x[self.members]  # (S, 5, 3)
-        s = np.arange(len(p))[:, None]
-        u = p[s, self.prev_local] - p[:, :1]  # (S, 4, 3)
-        w = p[s, self.next_local] - p[:, :1]
-        lu = np.linalg.norm(u, axis=2)
-        lw = np.linalg.norm(w, axis=2)
-        uh = u / np.maximum(lu, 1e-300)[..., None]
-        wh = w / np.maximum(lw, 1e-300)[..., None]
-        cos = np.einsum("ski,ski->sk", uh, wh)
-        sin = np.linalg.norm(np.cross(uh, wh), axis=2)
-        sign = np.array([1.0, -1.0, 1.0, -1.0])
-        sums = np.arctan2(sin, cos) @ sign
-        if not with_jacobian:
-            return sums, None
-        sin = np.maximum(sin, 1e-12)
-        d_u = -(wh - cos[..., None] * uh) / (lu * sin)[..., None] * sign[:, None]
-        d_w = -(uh - cos[..., None] * wh) / (lw * sin)[..., None] * sign[:, None]
-        cols = np.arange(5)
-        at_prev = (self.prev_local[..., None] == cols).astype(np.float64)  # (S, 4, 5)
-        at_next = (self.next_local[..., None] == cols).astype(np.float64)
-        grads = np.einsum("skm,ski->smi", at_prev, d_u) + np.einsum("skm,ski->smi", at_next, d_w)
-        grads[:, 0] = -(d_u.sum(axis=1) + d_w.sum(axis=1))
-        return sums, grads
-
-
-def vertex_stars(quads: ArrayLike) -> VertexStars:
-    """The :class:`VertexStars` of ``quads`` ``(T, 4)``: every vertex in exactly four quads
-    that meet around it edge to edge (a regular grid vertex)."""
-    q = np.asarray(quads, dtype=np.int64)
-    corner_vertex = q.ravel()
-    prev = np.roll(q, 1, axis=1).ravel()
-    after = np.roll(q, -1, axis=1).ravel()
-    order = np.argsort(corner_vertex, kind="stable")
-    count = np.bincount(corner_vertex)
-    first = np.concatenate([[0], np.cumsum(count)[:-1]])
-    centres = np.flatnonzero(count == 4)
-    slots = order[first[centres][:, None] + np.arange(4)]  # (S, 4) corners around each
-    pv, nv = prev[slots], after[slots]
-    # the quad opposite quad 0 shares no neighbour with it
-    shares = (pv == pv[:, :1]) | (pv == nv[:, :1]) | (nv == pv[:, :1]) | (nv == nv[:, :1])
-    alone = ~shares[:, 1:]
-    regular = alone.sum(axis=1) == 1
-    opposite = 1 + np.argmax(alone, axis=1)
-    others = np.sort(np.where(np.arange(1, 4) == opposite[:, None], 9, np.arange(1, 4)), axis=1)
-    turn = np.stack(
-        [np.zeros(len(centres), dtype=np.int64), others[:, 0], opposite, others[:, 1]], 1
-    )
-    rows = np.arange(len(centres))[:, None]
-    pv, nv = pv[rows, turn], nv[rows, turn]
-    around = np.sort(np.concatenate([pv, nv], axis=1), axis=1)
-    regular &= np.all(around[:, 0::2] == around[:, 1::2], axis=1)
-    regular &= np.all(np.diff(around[:, 0::2], axis=1) > 0, axis=1)
-    nbrs = around[:, 0::2]
-    members = np.concatenate([centres[:, None], nbrs], axis=1)[regular]
-    nbrs = nbrs[regular]
-    pv, nv = pv[regular], nv[regular]
-    prev_local = 1 + np.argmax(pv[..., None] == nbrs[:, None, :], axis=2)
-    next_local = 1 + np.argmax(nv[..., None] == nbrs[:, None, :], axis=2)
-    return VertexStars(members, prev_local, next_local)
 
 
 #: Targets searched lately, by their bytes: the arrays, their AABB tree and face normals.
@@ -317,104 +231,132 @@ class _JointTopLeastSquares:
         self, z: FloatArray, with_jacobian: bool
     ) -> tuple[FloatArray, sp.csr_matrix | None]:
         nodes, top = self.unpack(z)
-        base = 2 * self.n_nodes  # column of the first K3D coordinate
-        res: list[FloatArray] = []
-        rows: list[IntArray] = []
-        cols: list[IntArray] = []
-        vals: list[FloatArray] = []
-        row0 = 0
+        acc = _Rows()
+        self._edge_rows(acc, nodes, top, with_jacobian)
+        centroid, normal, closest, fn = self._planes_and_closest(top)
+        self._planar_rows(acc, top, centroid, normal, with_jacobian)
+        if self.sqrt_surface > 0:
+            self._surface_rows(acc, top, closest, fn, with_jacobian)
+        if self.stars is not None and self.sqrt_conical > 0:
+            self._conical_rows(acc, self.stars, top, with_jacobian)
+        self._keep_rows(acc, top, with_jacobian)
+        out = np.concatenate(acc.res)
+        if not with_jacobian:
+            return out, None
+        return out, self._jacobian(acc)
 
-        # sides and diagonals: K2D length minus K3D length
+    def _edge_rows(self, acc: _Rows, nodes: FloatArray, top: FloatArray, jac: bool) -> None:
+        """Sides and diagonals: K2D length minus K3D length."""
+        base = 2 * self.n_nodes  # column of the first K3D coordinate
         w = self.sqrt_edge
         ni, nj, vi, vj = self.node_i, self.node_j, self.vert_i, self.vert_j
         d2 = nodes[nj] - nodes[ni]
         l2 = np.linalg.norm(d2, axis=1)
         d3 = top[vj] - top[vi] + self.edge_shift
         l3 = np.linalg.norm(d3, axis=1)
-        res.append(w * (l2 - l3))
-        if with_jacobian:
+        acc.res.append(w * (l2 - l3))
+        if jac:
             u2 = d2 / np.maximum(l2, 1e-300)[:, None]
             u3 = d3 / np.maximum(l3, 1e-300)[:, None]
-            r = row0 + np.arange(len(ni))
+            r = acc.row0 + np.arange(len(ni))
             for c in range(2):
-                rows += [r, r]
-                cols += [2 * ni + c, 2 * nj + c]
-                vals += [-w * u2[:, c], w * u2[:, c]]
+                acc.rows += [r, r]
+                acc.cols += [2 * ni + c, 2 * nj + c]
+                acc.vals += [-w * u2[:, c], w * u2[:, c]]
             for c in range(3):
-                rows += [r, r]
-                cols += [base + 3 * vi + c, base + 3 * vj + c]
-                vals += [w * u3[:, c], -w * u3[:, c]]
-        row0 += len(ni)
+                acc.rows += [r, r]
+                acc.cols += [base + 3 * vi + c, base + 3 * vj + c]
+                acc.vals += [w * u3[:, c], -w * u3[:, c]]
+        acc.row0 += len(ni)
 
-        # planarity: distances to the best-fit plane (Jacobian by the envelope theorem)
+    def _planar_rows(
+        self, acc: _Rows, top: FloatArray, centroid: FloatArray, normal: FloatArray, jac: bool
+    ) -> None:
+        """Planarity: distances to the best-fit plane (Jacobian by the envelope theorem)."""
+        base = 2 * self.n_nodes
         w = self.sqrt_planar
         pts = top[self.quads]
-        centroid, normal, closest, fn = self._planes_and_closest(top)
         dist = np.einsum("qki,qi->qk", pts - centroid[:, None], normal)
-        res.append(w * dist.ravel())
-        if with_jacobian:
-            r = (row0 + np.arange(dist.size)).reshape(dist.shape)
+        acc.res.append(w * dist.ravel())
+        if jac:
+            r = (acc.row0 + np.arange(dist.size)).reshape(dist.shape)
             coef = np.eye(4) - 0.25  # d dist_k / d p_m = normal (delta_km - 1/4)
             for m in range(4):
                 for c in range(3):
-                    rows.append(r.ravel())
-                    cols.append(np.repeat(base + 3 * self.quads[:, m] + c, 4))
-                    vals.append((w * coef[None, :, m] * normal[:, None, c]).ravel())
-        row0 += dist.size
+                    acc.rows.append(r.ravel())
+                    acc.cols.append(np.repeat(base + 3 * self.quads[:, m] + c, 4))
+                    acc.vals.append((w * coef[None, :, m] * normal[:, None, c]).ravel())
+        acc.row0 += dist.size
 
-        # closeness to the target along the closest face's normal
-        if self.sqrt_surface > 0:
-            w = self.sqrt_surface
-            res.append(w * np.einsum("vi,vi->v", top - closest, fn))
-            if with_jacobian:
-                r = row0 + np.arange(self.n)
+    def _surface_rows(
+        self, acc: _Rows, top: FloatArray, closest: FloatArray, fn: FloatArray, jac: bool
+    ) -> None:
+        """Closeness to the target along the closest face's normal."""
+        base = 2 * self.n_nodes
+        w = self.sqrt_surface
+        acc.res.append(w * np.einsum("vi,vi->v", top - closest, fn))
+        if jac:
+            r = acc.row0 + np.arange(self.n)
+            for c in range(3):
+                acc.rows.append(r)
+                acc.cols.append(base + 3 * np.arange(self.n) + c)
+                acc.vals.append(w * fn[:, c])
+        acc.row0 += self.n
+
+    def _conical_rows(self, acc: _Rows, stars: VertexStars, top: FloatArray, jac: bool) -> None:
+        """Conical: opposite angles at every inner vertex sum equal (scaled by the mean side)."""
+        base = 2 * self.n_nodes
+        sums, grads = stars.angle_sums(top, jac)
+        w = self.sqrt_conical * self.side
+        acc.res.append(w * sums)
+        if jac:
+            assert grads is not None
+            r = acc.row0 + np.arange(len(sums))
+            members = stars.members
+            for j in range(members.shape[1]):
                 for c in range(3):
-                    rows.append(r)
-                    cols.append(base + 3 * np.arange(self.n) + c)
-                    vals.append(w * fn[:, c])
-            row0 += self.n
+                    acc.rows.append(r)
+                    acc.cols.append(base + 3 * members[:, j] + c)
+                    acc.vals.append(w * grads[:, j, c])
+        acc.row0 += len(sums)
 
-        # conical: opposite angles at every inner vertex sum equal (scaled by the mean side)
-        if self.stars is not None and self.sqrt_conical > 0:
-            sums, grads = self.stars.angle_sums(top, with_jacobian)
-            w = self.sqrt_conical * self.side
-            res.append(w * sums)
-            if with_jacobian:
-                assert grads is not None
-                r = row0 + np.arange(len(sums))
-                members = self.stars.members
-                for j in range(members.shape[1]):
-                    for c in range(3):
-                        rows.append(r)
-                        cols.append(base + 3 * members[:, j] + c)
-                        vals.append(w * grads[:, j, c])
-            row0 += len(sums)
-
-        # pull towards the starting K3D
+    def _keep_rows(self, acc: _Rows, top: FloatArray, jac: bool) -> None:
+        """Pull towards the starting K3D."""
+        base = 2 * self.n_nodes
         w = float(np.sqrt(CO_KEEP))
-        res.append(w * (top - self.top0).ravel())
-        if with_jacobian:
+        acc.res.append(w * (top - self.top0).ravel())
+        if jac:
             idx = np.arange(3 * self.n)
-            rows.append(row0 + idx)
-            cols.append(base + idx)
-            vals.append(np.full(3 * self.n, w))
-        row0 += 3 * self.n
+            acc.rows.append(acc.row0 + idx)
+            acc.cols.append(base + idx)
+            acc.vals.append(np.full(3 * self.n, w))
+        acc.row0 += 3 * self.n
 
-        out = np.concatenate(res)
-        if not with_jacobian:
-            return out, None
+    def _jacobian(self, acc: _Rows) -> sp.csr_matrix:
+        """The Jacobian of the gathered triplets in CSR form."""
         if self._pattern is None:
             # The pattern never changes and no row repeats a column: sort the coordinates
             # into CSR order once; every later Jacobian only reorders its values.
-            r_all, c_all = np.concatenate(rows), np.concatenate(cols)
+            r_all, c_all = np.concatenate(acc.rows), np.concatenate(acc.cols)
             order = np.lexsort((c_all, r_all))
-            indptr = np.concatenate([[0], np.cumsum(np.bincount(r_all, minlength=row0))])
+            indptr = np.concatenate([[0], np.cumsum(np.bincount(r_all, minlength=acc.row0))])
             self._pattern = (order, c_all[order].astype(np.int32), indptr.astype(np.int32))
         order, indices, indptr = self._pattern
-        jac = sp.csr_matrix(
-            (np.concatenate(vals)[order], indices, indptr), shape=(row0, 2 * self.rows)
+        return sp.csr_matrix(
+            (np.concatenate(acc.vals)[order], indices, indptr), shape=(acc.row0, 2 * self.rows)
         )
-        return out, jac
+
+
+class _Rows:
+    """Residuals and Jacobian triplets (rows, columns, values) gathered term by term; ``row0``
+    is the first row of the next term."""
+
+    def __init__(self) -> None:
+        self.res: list[FloatArray] = []
+        self.rows: list[IntArray] = []
+        self.cols: list[IntArray] = []
+        self.vals: list[FloatArray] = []
+        self.row0 = 0
 
 
 def co_optimize_top(
@@ -479,42 +421,10 @@ def co_optimize_top(
     """
     start = time.perf_counter()
     top0 = np.asarray(top, dtype=np.float64)
-    q = np.asarray(quads, dtype=np.int64)
-    if q.shape != (linkage.n_tiles, 4) or top0.ndim != 2 or top0.shape[1] != 3:
-        raise InputError("co_optimize_top needs (n, 3) K3D vertices and (T, 4) quads")
-    shift = None
-    if hinges is not None:
-        if tiles_3d is None or hinges.bottom.shape != (linkage.n_hinges,):
-            raise InputError("hinges needs one face per hinge and the T3D tiles_3d")
-        t3 = np.asarray(tiles_3d, dtype=np.float64)
-        shift = hinge_points(linkage, t3, hinges.bottom) - t3[:, :4]
-    corners = top0[q] if shift is None else top0[q] + shift
-    plane = tile_plane_coordinates(corners)
-    theta_min = np.radians(flat.min_gap_angle_deg + CO_ANGLE_MARGIN_DEG)
-    side = float(np.mean(flat.edge_targets[:, :4]))
-    junctions = gap_junctions(linkage)
-    constraints = flat_constraints(
-        linkage,
-        junctions,
-        plane,
-        tiles_3d,
-        theta_min,
-        side,
-        True,
-        True,
-        theta_max=np.radians(90.0 - CO_ANGLE_MARGIN_DEG),
-        hinges=hinges,
-    )
-    problem = _JointTopLeastSquares(
-        linkage,
-        q,
-        top0,
-        np.asarray(target_vertices),
-        np.asarray(target_faces),
-        w_surface,
-        shift,
-        vertex_stars(q) if conical and hinges is not None and hinges.bottom.any() else None,
-    )
+    problem, constraints, side = _joint_problem(
+        linkage, flat, top0, quads, (target_vertices, target_faces), tiles_3d, w_surface,
+        hinges, conical,
+    )  # fmt: skip
     nodes0 = flat.nodes if start_nodes is None else np.asarray(start_nodes, dtype=np.float64)
     z = problem.pack(nodes0, top0)
     angle_tol = np.radians(FLAT_SOLVER_ANGLE_TOL_DEG)
@@ -547,3 +457,56 @@ def co_optimize_top(
         steps=steps,
         time_s=elapsed,
     )
+
+
+def _joint_problem(
+    linkage: Linkage,
+    flat: FlatResult,
+    top0: FloatArray,
+    quads: ArrayLike,
+    target: tuple[ArrayLike, ArrayLike],
+    tiles_3d: ArrayLike | None,
+    w_surface: float,
+    hinges: HingeFaces | None,
+    conical: bool,
+) -> tuple[_JointTopLeastSquares, list[AngleRows | SeparationRows], float]:
+    """The least squares of :func:`co_optimize_top` (its arguments checked), the flat layout's
+    hard rows on the tiles' corners (the hinge points of a dual layout), ``CO_ANGLE_MARGIN_DEG``
+    inside the gap-angle bounds, and the mean tile side (mm)."""
+    q = np.asarray(quads, dtype=np.int64)
+    if q.shape != (linkage.n_tiles, 4) or top0.ndim != 2 or top0.shape[1] != 3:
+        raise InputError("co_optimize_top needs (n, 3) K3D vertices and (T, 4) quads")
+    shift = None
+    if hinges is not None:
+        if tiles_3d is None or hinges.bottom.shape != (linkage.n_hinges,):
+            raise InputError("hinges needs one face per hinge and the T3D tiles_3d")
+        t3 = np.asarray(tiles_3d, dtype=np.float64)
+        shift = hinge_points(linkage, t3, hinges.bottom) - t3[:, :4]
+    corners = top0[q] if shift is None else top0[q] + shift
+    plane = tile_plane_coordinates(corners)
+    theta_min = np.radians(flat.min_gap_angle_deg + CO_ANGLE_MARGIN_DEG)
+    side = float(np.mean(flat.edge_targets[:, :4]))
+    junctions = gap_junctions(linkage)
+    constraints = flat_constraints(
+        linkage,
+        junctions,
+        plane,
+        tiles_3d,
+        theta_min,
+        side,
+        True,
+        True,
+        theta_max=np.radians(90.0 - CO_ANGLE_MARGIN_DEG),
+        hinges=hinges,
+    )
+    problem = _JointTopLeastSquares(
+        linkage,
+        q,
+        top0,
+        np.asarray(target[0]),
+        np.asarray(target[1]),
+        w_surface,
+        shift,
+        vertex_stars(q) if conical and hinges is not None and hinges.bottom.any() else None,
+    )
+    return problem, constraints, side
