@@ -269,43 +269,11 @@ def free_openings(
         separable openings within ``[0, pi / 2]`` (``lo > hi`` where there is none).  A low
         ``hi`` means the tiles meet on the hinge's far side when the gap opens wide.
     """
-    t = np.asarray(tiles, dtype=np.float64)[..., :2]
-    side = np.asarray(bottom, dtype=bool)
-    ends = slit_ends(linkage)
-    n_ends = len(ends.hinge)
-    if n_ends == 0:
+    pairs = _slit_end_pairs(linkage, tiles, bottom, clearance, touch)
+    if pairs is None:
         return np.zeros(0), np.zeros(0)
-    h = linkage.hinges[ends.hinge]
-    t0, t1 = ends.tiles[:, 0], ends.tiles[:, 1]
-    # the hinge corner of each tile of the end (hinge rows are (tile_a, corner_a, tile_b, ...))
-    c0 = np.where(h[:, 0] == t0, h[:, 1], h[:, 3])
-    c1 = np.where(h[:, 0] == t1, h[:, 1], h[:, 3])
-    face = np.where(side[ends.hinge], 4, 0)
-    e = np.arange(n_ends)
-
-    def pick(tile: IntArray, corner: IntArray) -> tuple[FloatArray, FloatArray]:
-        """Hinge-face vertices other than the hinge (E, 3, 2) and the other face (E, 4, 2),
-        relative to the hinge vertex."""
-        apex = t[tile, face + corner]
-        rest = (corner[:, None] + np.arange(1, 4)[None, :]) % 4
-        hinge_face = t[tile[:, None], face[:, None] + rest] - apex[:, None]
-        other_face = t[tile[:, None], (4 - face)[:, None] + np.arange(4)[None, :]] - apex[:, None]
-        return hinge_face, other_face
-
-    a_hinge, a_other = pick(t0, c0)
-    b_hinge, b_other = pick(t1, c1)
-    need_a = np.full((n_ends, 4), clearance)
-    need_b = np.full((n_ends, 4), clearance)
-    need_a[e, c0] = -touch
-    need_b[e, c1] = -touch
-    current = ends.angles(np.asarray(tiles, dtype=np.float64), face)
-
-    def ok(opening: FloatArray, sel: IntArray | slice = slice(None)) -> BoolArray:
-        # turning t1 about the hinge by d lowers the opening by d (ends ``sel`` only)
-        return _separable(
-            a_hinge[sel], b_hinge[sel], a_other[sel], b_other[sel], need_a[sel], need_b[sel],
-            clearance, current[sel] - opening,
-        )  # fmt: skip
+    n_ends = len(pairs.current)
+    ok = pairs.separable
 
     # Every end is checked on its own (row by row), so all the openings on the grid are
     # checked in one batch, split into blocks of at most _CHECK_BLOCK_ROWS spread over the
@@ -343,3 +311,66 @@ def free_openings(
     lo = np.where(first == 0, 0.0, lo_in)
     hi = np.where(stop == len(grid) - 1, 0.5 * np.pi, hi_in)
     return np.where(anywhere, lo, 0.5 * np.pi), np.where(anywhere, hi, 0.0)
+
+
+@dataclass(frozen=True)
+class _SlitEndPairs:
+    """The two tiles at every slit end seen from above, relative to the hinge vertex: tile
+    ``a``'s (``t0``) and tile ``b``'s (``t1``) hinge-face vertices other than the hinge
+    ``(E, 3, 2)`` and their other faces ``(E, 4, 2)``, the distances each other-face vertex
+    must keep from the separating line ``(E, 4)`` (``-touch`` at the hinge corner), and the
+    openings of the pose the tiles were given in ``current`` ``(E,)``, rad."""
+
+    a_hinge: FloatArray
+    b_hinge: FloatArray
+    a_other: FloatArray
+    b_other: FloatArray
+    need_a: FloatArray
+    need_b: FloatArray
+    clearance: float
+    current: FloatArray
+
+    def separable(self, opening: FloatArray, sel: IntArray | slice = slice(None)) -> BoolArray:
+        """Whether the pairs of the ends ``sel`` are separable at ``opening`` (rad)."""
+        # turning t1 about the hinge by d lowers the opening by d (ends ``sel`` only)
+        return _separable(
+            self.a_hinge[sel], self.b_hinge[sel], self.a_other[sel], self.b_other[sel],
+            self.need_a[sel], self.need_b[sel], self.clearance, self.current[sel] - opening,
+        )  # fmt: skip
+
+
+def _slit_end_pairs(
+    linkage: Linkage, tiles: ArrayLike, bottom: ArrayLike, clearance: float, touch: float
+) -> _SlitEndPairs | None:
+    """The :class:`_SlitEndPairs` of :func:`free_openings`' arguments (None: no slit end)."""
+    t = np.asarray(tiles, dtype=np.float64)[..., :2]
+    side = np.asarray(bottom, dtype=bool)
+    ends = slit_ends(linkage)
+    n_ends = len(ends.hinge)
+    if n_ends == 0:
+        return None
+    h = linkage.hinges[ends.hinge]
+    t0, t1 = ends.tiles[:, 0], ends.tiles[:, 1]
+    # the hinge corner of each tile of the end (hinge rows are (tile_a, corner_a, tile_b, ...))
+    c0 = np.where(h[:, 0] == t0, h[:, 1], h[:, 3])
+    c1 = np.where(h[:, 0] == t1, h[:, 1], h[:, 3])
+    face = np.where(side[ends.hinge], 4, 0)
+    e = np.arange(n_ends)
+
+    def pick(tile: IntArray, corner: IntArray) -> tuple[FloatArray, FloatArray]:
+        """Hinge-face vertices other than the hinge (E, 3, 2) and the other face (E, 4, 2),
+        relative to the hinge vertex."""
+        apex = t[tile, face + corner]
+        rest = (corner[:, None] + np.arange(1, 4)[None, :]) % 4
+        hinge_face = t[tile[:, None], face[:, None] + rest] - apex[:, None]
+        other_face = t[tile[:, None], (4 - face)[:, None] + np.arange(4)[None, :]] - apex[:, None]
+        return hinge_face, other_face
+
+    a_hinge, a_other = pick(t0, c0)
+    b_hinge, b_other = pick(t1, c1)
+    need_a = np.full((n_ends, 4), clearance)
+    need_b = np.full((n_ends, 4), clearance)
+    need_a[e, c0] = -touch
+    need_b[e, c1] = -touch
+    current = ends.angles(np.asarray(tiles, dtype=np.float64), face)
+    return _SlitEndPairs(a_hinge, b_hinge, a_other, b_other, need_a, need_b, clearance, current)
