@@ -10,8 +10,8 @@ import drawstring.geometry.flat.separation as separation_module
 from drawstring.geometry.core.tolerances import FLAT_GAP_ANGLE_TOL_DEG
 from drawstring.geometry.flat.junctions import gap_junctions
 from drawstring.geometry.flat.layout import extrude_flat, optimize_flat
+from drawstring.geometry.flat.polygons import convex_polygon_overlap
 from drawstring.geometry.flat.verify import (
-    convex_polygon_overlap,
     flat_edge_errors,
     flat_overlap,
     gap_opening_angles_deg,

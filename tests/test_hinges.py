@@ -277,7 +277,8 @@ def test_dart_tile_is_measured_as_its_convex_pieces() -> None:
     """Regression (three-shell): a non-convex tile is not its convex hull.  A square resting in
     the notch of a dart-shaped tile touches it at one point only; the hull would report an
     overlap.  Pushed ``d`` into the dart, the overlap is an L-shaped band: ``4 d - d^2``."""
-    from drawstring.geometry.flat.verify import convex_pieces, flat_overlap, reflex_corners
+    from drawstring.geometry.flat.polygons import convex_pieces, reflex_corners
+    from drawstring.geometry.flat.verify import flat_overlap
 
     tiles = _dart_and_square(0.0)
     assert list(reflex_corners(tiles[:, :4])) == [2, -1]

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drawstring.geometry.flat.verify import (
-    assembled_overlap,
+from drawstring.geometry.flat.polygons import (
     convex_penetration_depth,
     polygon_in_convex_polyhedron_area,
     reflex_corners,
 )
+from drawstring.geometry.flat.verify import assembled_overlap
 
 
 def box(x0: float, y0: float, z0: float, dx: float, dy: float, dz: float) -> np.ndarray:

@@ -113,7 +113,7 @@ def rigid_layout(
       ``dual``, on the bottom faces (linear in the rotations);
     * every close pair of tiles separated by a plane attached to one of them (exact
       non-interpenetration for convex tiles; a non-convex, dart-shaped tile takes part as its
-      two convex pieces, :func:`~drawstring.geometry.flat.verify.convex_pieces`, each separated on
+      two convex pieces, :func:`~drawstring.geometry.flat.polygons.convex_pieces`, each separated on
       its own, since its hull would fill the notch): with ``clearance_mm`` to spare, except that a
       hinged pair's plane passes through the hinge, which with the corner of the other face at
       the hinge may touch it; for ``top`` hinged pairs, and ``trim`` ones, only the hinge faces

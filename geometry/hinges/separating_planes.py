@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 from drawstring.geometry.core import parallel
 from drawstring.geometry.core.tolerances import HINGE_LAYOUT_TOUCH_MM
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
-from drawstring.geometry.flat.verify import convex_pieces
+from drawstring.geometry.flat.polygons import convex_pieces
 from drawstring.geometry.tiling.linkage import Linkage
 
 __all__ = [
