@@ -37,7 +37,8 @@ from numpy.typing import NDArray
 from drawstring.fabrication.profiles import load_profile
 from drawstring.geometry.assembled.shape import ANDERSON_HISTORY, optimize_assembled
 from drawstring.geometry.assembled.top import CLOSE_FIT_WEIGHTS, PAPER_WEIGHTS, eq1_energy
-from drawstring.geometry.flatten.conformal import Flattening, flatten, principal_misalignment
+from drawstring.geometry.flatten.alignment import principal_misalignment
+from drawstring.geometry.flatten.conformal import Flattening, flatten
 from drawstring.geometry.solve.groups import ClosenessToPoints, Plane
 from drawstring.geometry.solve.planarity import planarize_quads, quad_planarity
 from drawstring.geometry.solve.solver import LocalGlobalSolver

@@ -10,14 +10,10 @@ import pytest
 from scipy.spatial import Delaunay
 
 from drawstring.geometry.core.errors import InputError
-from drawstring.geometry.flatten.conformal import (
-    _build_system,
-    _schur_complement,
-    flatten,
-    flipped_faces,
-    principal_misalignment,
-    quasi_conformal_distortion,
-)
+from drawstring.geometry.flatten.alignment import principal_misalignment
+from drawstring.geometry.flatten.bff import _build_system, _schur_complement
+from drawstring.geometry.flatten.conformal import flatten
+from drawstring.geometry.flatten.distortion import flipped_faces, quasi_conformal_distortion
 
 DATA = Path(__file__).parent / "data"
 
@@ -497,14 +493,14 @@ def test_corners_beside_an_ear_would_collapse_its_triangle_and_are_never_chosen(
     # triangle's area came out 0 and the tiling lifted NaN points).
     from threadpoolctl import threadpool_limits
 
-    from drawstring.geometry.flatten.conformal import _corner_allowed
+    from drawstring.geometry.flatten.corner_scores import corner_allowed
     from drawstring.geometry.target.surface import load_target
 
     points, faces = grid(8, 6, 80.0, 60.0)
     vertices = np.c_[points, np.zeros(len(points))]
     idx = np.arange(9 * 7).reshape(7, 9)
     system = _build_system(vertices, faces, flatten(vertices, faces).boundary)
-    allowed = dict(zip(system.boundary.tolist(), _corner_allowed(system).tolist(), strict=True))
+    allowed = dict(zip(system.boundary.tolist(), corner_allowed(system).tolist(), strict=True))
     assert allowed[int(idx[0, 8])] and not allowed[int(idx[0, 7])] and not allowed[int(idx[1, 8])]
     beside = flatten(vertices, faces, corners=[idx[0, 0], idx[0, 7], idx[6, 8], idx[6, 0]])
     assert beside.flipped >= 1
