@@ -20,15 +20,12 @@ from drawstring.geometry.core.tolerances import MAX_SCALE_FACTOR
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.flatten.conformal import flatten
 from drawstring.geometry.tiling.linkage import Linkage, Split, build_linkage
+from drawstring.geometry.tiling.splits import MIN_PART_CELLS, choose_splits
 
 log = logging.getLogger(__name__)
 
 #: Grid vertices farther than this fraction of a cell from the flattened mesh count as outside.
 CROP_TOLERANCE_CELLS = 1e-6
-
-#: A split never leaves a part narrower than this many cells across the cut (a thinner strip has
-#: no interior gaps to pull shut and would hang off its neighbours by magnets alone).
-MIN_PART_CELLS = 3
 
 
 @dataclass(frozen=True)
@@ -380,7 +377,13 @@ def tile_surface(
     notes: list[str] = []
     splits: tuple[Split, ...] = ()
     if split and unsplit > max_scale_factor:
-        splits, unmet = _choose_splits(cells, base, tile_xyz, vertex_gauss, max_scale_factor)
+        splits, unmet = choose_splits(
+            cells,
+            base,
+            vertex_gauss,
+            max_scale_factor,
+            lambda quads: _scale_ratio(part_area_scale(tile_xyz, quads)),
+        )
         if unmet:
             notes.append(
                 f"{unmet} part(s) still exceed the scale-factor bound {max_scale_factor:g}: no "
@@ -417,121 +420,3 @@ def _vertex_gaussian_curvature(vertices: FloatArray, faces: IntArray) -> FloatAr
     boundary = igl.boundary_loop(faces)
     curvature[boundary] = 0.0
     return np.asarray(curvature, dtype=np.float64)
-
-
-def _choose_splits(
-    cells: BoolArray,
-    base: Linkage,
-    tile_xyz: FloatArray,
-    vertex_gauss: FloatArray,
-    bound: float,
-) -> tuple[tuple[Split, ...], int]:
-    """Split hierarchically until every part's scale ratio is within ``bound``.
-
-    Each part that exceeds the bound is cut along the grid line (vertical or horizontal) through
-    its interior grid vertex of highest absolute Gaussian curvature, choosing the direction whose
-    worse half has the smaller ratio.  When neither line through that point helps, every grid line
-    across the part is tried.  Only cuts that leave every piece with a tile on the outer boundary
-    count: the string never enters a part through a cut (paper, "Connecting splits"), so a piece
-    enclosed by other parts could not be pulled into shape.  Returns the splits and how many
-    parts still exceed the bound.
-    """
-    n_i, n_j = cells.shape
-    tile_of_cell = -np.ones((n_i, n_j), dtype=np.int64)
-    tile_of_cell[base.tile_cells[:, 0], base.tile_cells[:, 1]] = np.arange(base.n_tiles)
-    vertex_of_ij = {(int(a), int(b)): k for k, (a, b) in enumerate(base.vertex_ij)}
-
-    outer = np.zeros_like(cells)
-    outer[base.tile_cells[base.boundary_tile, 0], base.tile_cells[base.boundary_tile, 1]] = True
-    cache: dict[bytes, float] = {}
-
-    def ratio_of(mask: BoolArray) -> float:
-        key = np.packbits(mask).tobytes()
-        if key not in cache:
-            quads = base.tile_corners[tile_of_cell[mask]]
-            cache[key] = _scale_ratio(part_area_scale(tile_xyz, quads))
-        return cache[key]
-
-    def halves(mask: BoolArray, axis: str, line: int) -> list[BoolArray]:
-        low = mask.copy()
-        high = mask.copy()
-        if axis == "x":
-            low[line:, :] = False
-            high[:line, :] = False
-        else:
-            low[:, line:] = False
-            high[:, :line] = False
-        parts: list[BoolArray] = []
-        for half in (low, high):
-            labels, count = ndimage.label(half)
-            parts.extend(np.asarray(labels == k) for k in range(1, count + 1))
-        return parts
-
-    def cut_range(mask: BoolArray, axis: str, line: int) -> tuple[int, int]:
-        if axis == "x":
-            rows = np.nonzero(mask[line - 1, :] & mask[line, :])[0]
-        else:
-            rows = np.nonzero(mask[:, line - 1] & mask[:, line])[0]
-        return int(rows.min()), int(rows.max()) + 1
-
-    def candidate_lines(mask: BoolArray) -> list[tuple[str, int]]:
-        ii, jj = np.nonzero(mask)
-        lines: list[tuple[str, int]] = []
-        # Leave at least MIN_PART_CELLS columns (rows) of the part on each side of a cut.
-        lines += [
-            ("x", int(x)) for x in range(ii.min() + MIN_PART_CELLS, ii.max() + 2 - MIN_PART_CELLS)
-        ]
-        lines += [
-            ("y", int(y)) for y in range(jj.min() + MIN_PART_CELLS, jj.max() + 2 - MIN_PART_CELLS)
-        ]
-        # Keep only lines that actually separate cells of the part, into pieces that each
-        # reach the outer boundary.
-        valid = []
-        for axis, line in lines:
-            if axis == "x":
-                across = mask[line - 1, :] & mask[line, :]
-            else:
-                across = mask[:, line - 1] & mask[:, line]
-            if np.any(across) and all((p & outer).any() for p in halves(mask, axis, line)):
-                valid.append((axis, line))
-        return valid
-
-    def score(mask: BoolArray, axis: str, line: int) -> tuple[float, int]:
-        parts = halves(mask, axis, line)
-        sizes = [int(p.sum()) for p in parts]
-        return max(ratio_of(p) for p in parts), max(sizes) - min(sizes)
-
-    splits: list[Split] = []
-    unmet = 0
-    queue = [cells.copy()]
-    while queue:
-        mask = queue.pop(0)
-        if ratio_of(mask) <= bound:
-            continue
-        lines = candidate_lines(mask)
-        if not lines:
-            unmet += 1
-            continue
-        # Interior grid vertex of the part with the largest |K|.
-        best_vertex: tuple[int, int] | None = None
-        best_k = -1.0
-        ii, jj = np.nonzero(mask)
-        for i, j in zip(ii.tolist(), jj.tolist(), strict=True):
-            for vi, vj in ((i + 1, j + 1),):
-                if vi < n_i and vj < n_j and mask[i : i + 2, j : j + 2].all():
-                    k = abs(float(vertex_gauss[vertex_of_ij[(vi, vj)]]))
-                    if k > best_k:
-                        best_k, best_vertex = k, (vi, vj)
-        through_peak = []
-        if best_vertex is not None:
-            through_peak = [c for c in (("x", best_vertex[0]), ("y", best_vertex[1])) if c in lines]
-        current = ratio_of(mask)
-        scored = sorted((score(mask, a, ln), a, ln) for a, ln in through_peak)
-        if not scored or scored[0][0][0] >= current:
-            scored = sorted((score(mask, a, ln), a, ln) for a, ln in lines)
-        (_, _), axis, line = scored[0]
-        lo, hi = cut_range(mask, axis, line)
-        splits.append(Split("x" if axis == "x" else "y", line, lo, hi))
-        log.info("split along %s = %d (cells %d..%d)", axis, line, lo, hi)
-        queue.extend(halves(mask, axis, line))
-    return tuple(splits), unmet
