@@ -15,7 +15,7 @@ from drawstring.geometry.assembled.frustums import (
 )
 from drawstring.geometry.assembled.shape import optimize_assembled
 from drawstring.geometry.assembled.top import CLOSE_FIT_WEIGHTS, PAPER_WEIGHTS, eq1_energy
-from drawstring.geometry.core.errors import DesignError, InputError
+from drawstring.geometry.core.errors import DesignError, InputError, InternalError
 from drawstring.geometry.tiling.linkage import TILE_FACES
 
 
@@ -289,13 +289,15 @@ def test_eq1_energy_is_zero_on_a_square_grid_on_its_target_and_counts_a_lifted_v
 
 def test_bad_inputs_raise() -> None:
     vertices, quads, target, tris = height_field_case(FIELDS["saddle"], n=3)
+    # thickness and weights are the user's (--thickness, a profile, --weights); the meshes come
+    # from drawstring's own stages, so a malformed one is a bug
     with pytest.raises(InputError):
         optimize_assembled(vertices, quads, target, tris, thickness=0.0)
-    with pytest.raises(InputError):
+    with pytest.raises(InternalError):
         optimize_assembled(vertices, quads + 100, target, tris, thickness=2.0)
     inconsistent = quads.copy()
     inconsistent[0] = inconsistent[0, ::-1]
-    with pytest.raises(InputError):
+    with pytest.raises(InternalError):
         optimize_assembled(vertices, inconsistent, target, tris, thickness=2.0)
     with pytest.raises(InputError):
         optimize_assembled(vertices, quads, target, tris, thickness=2.0, w_square=-1.0)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial import Delaunay
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InputError, InternalError
 from drawstring.geometry.flatten.alignment import principal_misalignment
 from drawstring.geometry.flatten.bff import _build_system, _schur_complement
 from drawstring.geometry.flatten.conformal import flatten
@@ -350,7 +350,9 @@ def test_named_corners_are_honoured_in_any_order() -> None:
     assert_rectangle(flat, vertices, faces)
 
 
-def test_bad_corners_and_meshes_raise_input_error() -> None:
+def test_bad_corners_raise_input_error_and_bad_meshes_internal_error() -> None:
+    # the corners are the user's (--corners); the mesh reaches flatten checked by the target
+    # stage, so a mesh that is not a disk or a wrong mode here is drawstring's own bug
     vertices, faces = saddle(6)
     interior_vertex = 3 * 7 + 3
     with pytest.raises(InputError, match="not on the mesh boundary"):
@@ -359,25 +361,25 @@ def test_bad_corners_and_meshes_raise_input_error() -> None:
         flatten(vertices, faces, corners=[0, 6, 48])
     with pytest.raises(InputError, match="distinct"):
         flatten(vertices, faces, corners=[0, 6, 6, 48])
-    with pytest.raises(InputError, match="rectangle"):
+    with pytest.raises(InternalError, match="rectangle"):
         flatten(vertices, faces, mode="free", corners=[0, 6, 48, 42])
-    with pytest.raises(InputError, match="mode"):
+    with pytest.raises(InternalError, match="mode"):
         flatten(vertices, faces, mode="disk")  # type: ignore[arg-type]
     # An annulus (two boundary loops) and a closed tetrahedron are not disks.
     annulus = faces[~np.isin(faces, [interior_vertex]).any(axis=1)]
     annulus = annulus - (annulus > interior_vertex)
-    with pytest.raises(InputError, match="boundary loop"):
+    with pytest.raises(InternalError, match="boundary loop"):
         flatten(np.delete(vertices, interior_vertex, axis=0), annulus)
     tet = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
-    with pytest.raises(InputError, match="closed"):
+    with pytest.raises(InternalError, match="closed"):
         flatten(tet, np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
     flipped = faces.copy()
     flipped[0] = flipped[0, ::-1]
-    with pytest.raises(InputError, match="orient"):
+    with pytest.raises(InternalError, match="orient"):
         flatten(vertices, flipped)
-    with pytest.raises(InputError, match="unreferenced"):
+    with pytest.raises(InternalError, match="unreferenced"):
         flatten(np.r_[vertices, [[9.0, 9, 9]]], faces)
-    with pytest.raises(InputError, match="zero-area"):
+    with pytest.raises(InternalError, match="zero-area"):
         flatten(np.where(np.arange(len(vertices))[:, None] == 8, vertices[7], vertices), faces)
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.solve.groups import (
     ClosenessToPlanes,
     ClosenessToPoints,
@@ -290,9 +290,9 @@ def test_closeness_to_planes_meets_at_the_planes_intersection() -> None:
 
 
 def test_closeness_to_planes_refuses_bad_planes() -> None:
-    with pytest.raises(InputError, match="one normal and one level per index"):
+    with pytest.raises(InternalError, match="one normal and one level per index"):
         ClosenessToPlanes([0, 1], [[0, 0, 1.0]], [0.0, 1.0])
-    with pytest.raises(InputError, match="unit"):
+    with pytest.raises(InternalError, match="unit"):
         ClosenessToPlanes([0], [[0, 0, 2.0]], [0.0])
 
 
@@ -447,14 +447,15 @@ def test_smallest_eigenvectors_match_eigh() -> None:
 
 
 def test_bad_input_raises() -> None:
-    with pytest.raises(InputError):
+    # the groups and the solver get their data from drawstring's own stages: a bad one is a bug
+    with pytest.raises(InternalError):
         Plane(np.array([[0, 1]]))
-    with pytest.raises(InputError):
+    with pytest.raises(InternalError):
         EdgeLength([[0, 1]], [-1.0])
-    with pytest.raises(InputError):
+    with pytest.raises(InternalError):
         LocalGlobalSolver(3, [Plane([[0, 1, 2]], 0.0)]).solve(np.zeros((3, 3)))
     solver = LocalGlobalSolver(3, [Plane([[0, 1, 2]])])
-    with pytest.raises(InputError):
+    with pytest.raises(InternalError):
         solver.solve(np.zeros((4, 3)))
-    with pytest.raises(InputError):
+    with pytest.raises(InternalError):
         solver.set_weight("planarity", -1.0)

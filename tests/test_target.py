@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InputError, InternalError
 from drawstring.geometry.target.meshfiles import merge_coincident_vertices, read_mesh
 from drawstring.geometry.target.surface import (
     Target,
@@ -650,9 +650,10 @@ def test_all_faces_degenerate():
 
 
 def test_bad_array_shapes():
-    with pytest.raises(InputError):
+    # the mesh readers always hand over (n, 3) and (m, 3) arrays: other shapes are a bug
+    with pytest.raises(InternalError):
         validate_disk_mesh(np.zeros((3, 2)), np.array([[0, 1, 2]]))
-    with pytest.raises(InputError):
+    with pytest.raises(InternalError):
         validate_disk_mesh(np.eye(3), np.array([[0, 1, 2, 0]]))
     with pytest.raises(InputError) as error:
         validate_disk_mesh(np.eye(3), np.zeros((0, 3), dtype=int))

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import igl
 import numpy as np
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.solve.linalg import plane_fit
 from drawstring.geometry.tiling.linkage import TILE_FACES
@@ -57,7 +57,7 @@ def quad_mesh_edges(quads: IntArray) -> QuadMeshEdges:
 
     Raises
     ------
-    InputError
+    InternalError
         An edge used by more than two quads, or twice in the same direction (inconsistent
         orientation).
     """
@@ -69,7 +69,9 @@ def quad_mesh_edges(quads: IntArray) -> QuadMeshEdges:
     _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
     inverse = inverse.reshape(-1)
     if np.any(counts > 2):
-        raise InputError("the quad mesh has an edge shared by more than two quads; pass a manifold")
+        raise InternalError(
+            "the quad mesh has an edge shared by more than two quads; pass a manifold"
+        )
     order = np.argsort(inverse, kind="stable")
     first = np.ones(len(order), dtype=bool)
     first[1:] = inverse[order[1:]] != inverse[order[:-1]]
@@ -85,7 +87,7 @@ def quad_mesh_edges(quads: IntArray) -> QuadMeshEdges:
     quads_out[slot, 1] = owner[seconds]
     sides_out[slot, 1] = side[seconds]
     if np.any(np.all(directed[seconds] == edges[slot], axis=1)):
-        raise InputError(
+        raise InternalError(
             "the quad mesh is not consistently oriented; give every quad the same winding"
         )
     return QuadMeshEdges(edges=edges.astype(np.int64), quads=quads_out, sides=sides_out)

@@ -27,7 +27,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.tolerances import RIGIDITY_SVD_REL
 from drawstring.geometry.core.types import FloatArray, IntArray
 
@@ -89,7 +89,7 @@ def rigidity_matrix(
     """
     pts = np.asarray(tiles, dtype=np.float64)
     if pts.ndim != 3 or pts.shape[1:] != (8, 3):
-        raise InputError(f"tiles must be (T, 8, 3), got {pts.shape}")
+        raise InternalError(f"tiles must be (T, 8, 3), got {pts.shape}")
     n_tiles = len(pts)
     cols = 6 * n_tiles
     centroid = pts.mean(axis=1)
@@ -108,7 +108,7 @@ def rigidity_matrix(
         elif contact == "face":
             extra = [mid, 0.5 * (fa[:, 0] + fa[:, 1]), 0.5 * (fa[:, 0] + fa[:, 3])]
         else:
-            raise InputError(f"contact mode {contact!r}; use 'midpoint' or 'face'")
+            raise InternalError(f"contact mode {contact!r}; use 'midpoint' or 'face'")
         for p in extra:
             tile_a.append(c[:, 0])
             tile_b.append(c[:, 2])

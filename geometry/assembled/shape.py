@@ -60,7 +60,7 @@ from drawstring.geometry.assembled.top import (
     SURFACE_REQUERY_REL,
     optimize_top,
 )
-from drawstring.geometry.core.errors import InputError, ThicknessError
+from drawstring.geometry.core.errors import InputError, InternalError, ThicknessError
 from drawstring.geometry.core.tolerances import (
     ASSEMBLED_PLANARITY_REL,
     ASSEMBLED_SOLVER_REL_TOL,
@@ -151,21 +151,21 @@ def _check_inputs(
     t_verts = np.asarray(target_vertices, dtype=np.float64)
     t_faces = np.asarray(target_faces)
     if verts.ndim != 2 or verts.shape[1] != 3 or not np.all(np.isfinite(verts)):
-        raise InputError("quad_vertices must be a finite (n, 3) array in mm")
+        raise InternalError("quad_vertices must be a finite (n, 3) array in mm")
     if faces.ndim != 2 or faces.shape[1] != 4 or len(faces) == 0:
-        raise InputError("quads must be a non-empty (m, 4) integer array")
+        raise InternalError("quads must be a non-empty (m, 4) integer array")
     if not np.issubdtype(faces.dtype, np.integer):
-        raise InputError("quads must hold integer vertex indices")
+        raise InternalError("quads must hold integer vertex indices")
     if faces.min() < 0 or faces.max() >= len(verts):
-        raise InputError("quads refer to vertices that do not exist; check the vertex indices")
+        raise InternalError("quads refer to vertices that do not exist; check the vertex indices")
     if np.any(np.sort(faces, axis=1)[:, 1:] == np.sort(faces, axis=1)[:, :-1]):
-        raise InputError("a quad repeats a vertex; remove degenerate quads")
+        raise InternalError("a quad repeats a vertex; remove degenerate quads")
     if t_verts.ndim != 2 or t_verts.shape[1] != 3 or not np.all(np.isfinite(t_verts)):
-        raise InputError("target vertices must be a finite (p, 3) array in mm")
+        raise InternalError("target vertices must be a finite (p, 3) array in mm")
     if t_faces.ndim != 2 or t_faces.shape[1] != 3 or len(t_faces) == 0:
-        raise InputError("target faces must be a non-empty (f, 3) triangle array")
+        raise InternalError("target faces must be a non-empty (f, 3) triangle array")
     if t_faces.min() < 0 or t_faces.max() >= len(t_verts):
-        raise InputError("target faces refer to vertices that do not exist")
+        raise InternalError("target faces refer to vertices that do not exist")
     if not np.isfinite(thickness) or thickness <= 0:
         raise InputError(f"thickness is {thickness} mm; give a positive thickness")
     for name, value in weights.items():
@@ -233,7 +233,9 @@ def optimize_assembled(
     Raises
     ------
     InputError
-        Malformed meshes or options.
+        A thickness or weight out of range.
+    InternalError
+        Malformed meshes or solver options.
     DesignError
         The extrusion inverts tiles (thickness too large for the curvature).
     """
@@ -478,7 +480,7 @@ def _prepared(
         quad_vertices, quads, target_vertices, target_faces, thickness, named
     )
     if square_rounds < 1:
-        raise InputError("square_rounds must be at least 1")
+        raise InternalError("square_rounds must be at least 1")
     faces = orient_outward(verts, faces, t_verts, t_faces)
     before = measure_assembled(
         tile_vertices(verts, initial_bottom(verts, faces, thickness), faces),

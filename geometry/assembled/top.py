@@ -21,7 +21,7 @@ from drawstring.geometry.assembled.frustums import (
     quad_vector_areas,
     square_edge_targets,
 )
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.solve.groups import (
     ClosenessToSurface,
@@ -94,12 +94,12 @@ class ConvexCorners(ConstraintGroup):
         super().__init__(name, weight)
         arr = np.asarray(quads, dtype=np.int64)
         if arr.ndim != 2 or arr.shape[1] != 4:
-            raise InputError("ConvexCorners needs quads of shape (m, 4)")
+            raise InternalError("ConvexCorners needs quads of shape (m, 4)")
         ref = np.asarray(reference_normals, dtype=np.float64)
         if ref.shape != (len(arr), 3):
-            raise InputError("reference_normals must have shape (m, 3), one per quad")
+            raise InternalError("reference_normals must have shape (m, 3), one per quad")
         if not 0.0 <= margin < 0.5:
-            raise InputError(f"convexity margin is {margin}; use a value in [0, 0.5)")
+            raise InternalError(f"convexity margin is {margin}; use a value in [0, 0.5)")
         self.quads = arr
         self.reference_normals = ref
         self.margin = float(margin)

@@ -10,7 +10,7 @@ import logging
 import numpy as np
 from numpy.typing import ArrayLike
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.rigid import rigid_fit
 from drawstring.geometry.core.tolerances import FLAT_GAP_ANGLE_TOL_DEG, FLAT_ORIENTATION_MIN_RAD
 from drawstring.geometry.core.types import FloatArray, IntArray
@@ -106,7 +106,7 @@ def flat_constraints(
         if tiles_3d is not None:
             t3 = np.asarray(tiles_3d, dtype=np.float64)
             if t3.shape != (linkage.n_tiles, 8, 3):
-                raise InputError(f"tiles_3d has shape {t3.shape}; pass (T, 8, 3) T3D tiles")
+                raise InternalError(f"tiles_3d has shape {t3.shape}; pass (T, 8, 3) T3D tiles")
             anchor = None if hinges is None else hinge_points(linkage, t3, hinges.bottom)
             off = face_offsets(plane, t3, junctions, anchor)
             if hinges is not None:

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.tolerances import FLAT_SOLVER_ANGLE_TOL_DEG
 from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.flat.bounds import flat_constraints
@@ -475,11 +475,11 @@ def _joint_problem(
     inside the gap-angle bounds, and the mean tile side (mm)."""
     q = np.asarray(quads, dtype=np.int64)
     if q.shape != (linkage.n_tiles, 4) or top0.ndim != 2 or top0.shape[1] != 3:
-        raise InputError("co_optimize_top needs (n, 3) K3D vertices and (T, 4) quads")
+        raise InternalError("co_optimize_top needs (n, 3) K3D vertices and (T, 4) quads")
     shift = None
     if hinges is not None:
         if tiles_3d is None or hinges.bottom.shape != (linkage.n_hinges,):
-            raise InputError("hinges needs one face per hinge and the T3D tiles_3d")
+            raise InternalError("hinges needs one face per hinge and the T3D tiles_3d")
         t3 = np.asarray(tiles_3d, dtype=np.float64)
         shift = hinge_points(linkage, t3, hinges.bottom) - t3[:, :4]
     corners = top0[q] if shift is None else top0[q] + shift

@@ -9,7 +9,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.types import FloatArray
 from drawstring.geometry.tiling.linkage import Linkage
 
@@ -109,7 +109,7 @@ def initial_flat_layout(
     cell_area = np.abs(polygon_signed_area(cell_uv))
     tile_area = polygon_signed_area(plane_tiles)
     if np.any(tile_area <= 0) or np.any(cell_area <= 0):
-        raise InputError("a tile or grid cell has zero or negative area; check the K3D tiles")
+        raise InternalError("a tile or grid cell has zero or negative area; check the K3D tiles")
     tile_scale = tile_area / cell_area
     problems: list[str] = []
     comp = linkage.tile_component

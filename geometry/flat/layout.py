@@ -53,7 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InputError, InternalError
 from drawstring.geometry.core.rigid import rigid_fit
 from drawstring.geometry.core.tolerances import (
     FLAT_EDGE_ERROR_TOL_MM,
@@ -149,7 +149,7 @@ def hinge_face_openings(linkage: Linkage, flat: FlatResult, tiles_3d: ArrayLike)
     """Opening ``(E,)`` in rad at every slit end on its hinge face, of a ``dual`` layout
     (``flat.hinges`` set) made for the T3D ``tiles_3d``: the angles its hard rows bound."""
     if flat.hinges is None or flat.anchor_3d is None:
-        raise InputError("hinge_face_openings needs a layout made with dual hinge faces")
+        raise InternalError("hinge_face_openings needs a layout made with dual hinge faces")
     t3 = np.asarray(tiles_3d, dtype=np.float64)
     off = face_offsets(tile_plane_coordinates(flat.anchor_3d), t3, flat.junctions, flat.anchor_3d)
     face = flat.hinges.bottom[slit_ends(linkage).hinge].astype(np.int64)
@@ -306,7 +306,7 @@ class _LayoutProblem:
         anchor = None
         if hinges is not None:
             if hinges.bottom.shape != (linkage.n_hinges,) or tiles_3d is None:
-                raise InputError("hinges needs one face per hinge and the T3D tiles_3d")
+                raise InternalError("hinges needs one face per hinge and the T3D tiles_3d")
             anchor = hinge_points(linkage, np.asarray(tiles_3d, dtype=np.float64), hinges.bottom)
             top = anchor
         plane = tile_plane_coordinates(top)
@@ -325,7 +325,7 @@ class _LayoutProblem:
         if initial_nodes is not None:
             nodes0 = np.array(initial_nodes, dtype=np.float64)
             if nodes0.shape != (linkage.n_nodes, 2):
-                raise InputError(f"initial_nodes has shape {nodes0.shape}; pass (n_nodes, 2)")
+                raise InternalError(f"initial_nodes has shape {nodes0.shape}; pass (n_nodes, 2)")
         return _LayoutProblem(
             uv_arr, top, anchor, plane, targets, junctions, side, objective, constraints,
             nodes0, tile_scale, layout_scale, predicted,
@@ -404,21 +404,21 @@ def _checked_inputs(
     top = np.asarray(tile_top_3d, dtype=np.float64)
     uv_arr = np.asarray(uv, dtype=np.float64)
     if top.shape != (linkage.n_tiles, 4, 3):
-        raise InputError(f"tile_top_3d has shape {top.shape}; pass (T, 4, 3) K3D corners")
+        raise InternalError(f"tile_top_3d has shape {top.shape}; pass (T, 4, 3) K3D corners")
     per_vertex = (
         uv_arr.ndim == 2
         and uv_arr.shape[1] == 2
         and len(uv_arr) >= int(linkage.tile_corners.max()) + 1
     )
     if not per_vertex and uv_arr.shape != (linkage.n_tiles, 4, 2):
-        raise InputError(
+        raise InternalError(
             "uv must be (n, 2) flat grid-vertex positions or (T, 4, 2) flat tile corners"
         )
     if not 0.0 <= min_gap_angle_deg < 90.0:
         raise InputError(f"--min-gap-angle {min_gap_angle_deg} deg must be in [0, 90)")
     w_edge, w_collision, w_fab = weights
     if min(w_edge, w_collision, w_fab) < 0 or w_edge == 0:
-        raise InputError("flat weights must be >= 0 and w_edge > 0")
+        raise InternalError("flat weights must be >= 0 and w_edge > 0")
     return top, uv_arr
 
 
@@ -487,7 +487,7 @@ def extrude_flat(
     tiles = np.asarray(tiles_3d, dtype=np.float64)
     anchor = flat.anchor_3d if isinstance(flat, FlatResult) else None
     if tiles.ndim != 3 or tiles.shape[1:] != (8, 3) or len(tiles) != len(corners):
-        raise InputError(
+        raise InternalError(
             f"tiles_3d has shape {tiles.shape}; pass (T, 8, 3) matching the flat tiles"
         )
     if thickness is None:

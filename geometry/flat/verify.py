@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.flat.polygons import (
     convex_penetration_depth,
@@ -461,7 +461,7 @@ def assembled_overlap(
     """
     t = np.asarray(tiles, dtype=np.float64)
     if t.ndim != 3 or t.shape[1:] != (8, 3):
-        raise InputError(f"assembled tiles must have shape (T, 8, 3), got {t.shape}")
+        raise InternalError(f"assembled tiles must have shape (T, 8, 3), got {t.shape}")
     nonconvex_top = np.flatnonzero(reflex_corners(t[:, :4], in_plane=True) >= 0)
     nonconvex_bottom = np.flatnonzero(reflex_corners(t[:, 4:], in_plane=True) >= 0)
     _, cand, vols = interpenetration(t, in_plane=True)  # pairs with a positive volume only

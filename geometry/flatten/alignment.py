@@ -14,7 +14,7 @@ import igl
 import numpy as np
 from numpy.typing import ArrayLike
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.flatten.bff import _System
 
@@ -167,7 +167,7 @@ def principal_misalignment(
 
     Raises
     ------
-    InputError
+    InternalError
         If igl cannot compute principal curvatures on this mesh.
     """
     V = np.asarray(vertices, dtype=np.float64)
@@ -175,7 +175,7 @@ def principal_misalignment(
     W = np.asarray(uv, dtype=np.float64)
     curvature = _face_curvature(V, F)
     if curvature is None:
-        raise InputError("principal curvatures could not be computed; check the mesh")
+        raise InternalError("principal curvatures could not be computed; check the mesh")
     direction, valid = _grid_directions(V, F, W)
     tau = _grid_torsion(curvature, direction, valid)
     frob = np.einsum("fij,fij->f", curvature.tensor, curvature.tensor)

@@ -22,7 +22,7 @@ import scipy.sparse.csgraph as csgraph
 import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InputError, InternalError
 from drawstring.geometry.core.tolerances import (
     DEGENERATE_FACE_REL_AREA,
     FLATTEN_MIN_CLOSED_LENGTH_REL,
@@ -73,18 +73,18 @@ def _boundary_loop(V: FloatArray, F: NDArray[np.generic]) -> IntArray:
     automatic rectangle corners) depends on the surface, not on how its vertices are numbered.
     """
     if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0 or not np.all(np.isfinite(V)):
-        raise InputError(f"vertices must be a finite (n, 3) array, got shape {V.shape}")
+        raise InternalError(f"vertices must be a finite (n, 3) array, got shape {V.shape}")
     if F.ndim != 2 or F.shape[1] != 3 or len(F) == 0 or not np.issubdtype(F.dtype, np.integer):
-        raise InputError(f"faces must be an (m, 3) integer array, got shape {F.shape}")
+        raise InternalError(f"faces must be an (m, 3) integer array, got shape {F.shape}")
     n = len(V)
     if F.min() < 0 or F.max() >= n:
-        raise InputError(f"faces index vertices outside 0..{n - 1}; fix the face list")
+        raise InternalError(f"faces index vertices outside 0..{n - 1}; fix the face list")
     Fi = F.astype(np.int64)
     if np.any((Fi[:, 0] == Fi[:, 1]) | (Fi[:, 1] == Fi[:, 2]) | (Fi[:, 2] == Fi[:, 0])):
-        raise InputError("some faces repeat a vertex; remove degenerate faces")
+        raise InternalError("some faces repeat a vertex; remove degenerate faces")
     used = np.bincount(Fi.ravel(), minlength=n) > 0
     if not used.all():
-        raise InputError(
+        raise InternalError(
             f"{int(n - used.sum())} vertices are not used by any face; remove unreferenced vertices"
         )
     tail = Fi.ravel()
@@ -92,7 +92,7 @@ def _boundary_loop(V: FloatArray, F: NDArray[np.generic]) -> IntArray:
     key = tail * n + head
     sorted_keys = np.sort(key)
     if np.any(sorted_keys[1:] == sorted_keys[:-1]):
-        raise InputError(
+        raise InternalError(
             "a directed edge appears in two faces: faces are inconsistently oriented or an edge "
             "is non-manifold; orient and repair the mesh"
         )
@@ -103,9 +103,9 @@ def _boundary_loop(V: FloatArray, F: NDArray[np.generic]) -> IntArray:
     n_edges = (len(key) + len(b_tail)) // 2
     euler = n - n_edges + len(Fi)
     if len(b_tail) == 0:
-        raise InputError("the mesh is closed (no boundary); cut it open into a disk first")
+        raise InternalError("the mesh is closed (no boundary); cut it open into a disk first")
     if np.any(np.bincount(b_tail, minlength=n) > 1):
-        raise InputError("a boundary vertex is non-manifold (pinched); repair the mesh")
+        raise InternalError("a boundary vertex is non-manifold (pinched); repair the mesh")
     successor = np.full(n, -1, dtype=np.int64)
     successor[b_tail] = b_head
     loop = [int(b_tail.min())]
@@ -115,11 +115,11 @@ def _boundary_loop(V: FloatArray, F: NDArray[np.generic]) -> IntArray:
             break
         loop.append(nxt)
     if len(loop) != len(b_tail):
-        raise InputError(
+        raise InternalError(
             "the mesh has more than one boundary loop; flatten needs a disk (fill holes or cut)"
         )
     if euler != 1:
-        raise InputError(
+        raise InternalError(
             f"the mesh has Euler characteristic {euler}, not 1: it is not a disk; cut it open"
         )
     ring = np.asarray(loop, dtype=np.int64)
@@ -145,7 +145,7 @@ def _build_system(V: FloatArray, F: IntArray, boundary: IntArray) -> _System:
     n = len(V)
     double_area = np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
     if np.any(double_area <= DEGENERATE_FACE_REL_AREA * double_area.mean()):
-        raise InputError("the mesh has zero-area faces; remove or repair degenerate triangles")
+        raise InternalError("the mesh has zero-area faces; remove or repair degenerate triangles")
     is_boundary = np.zeros(n, dtype=bool)
     is_boundary[boundary] = True
     interior = np.flatnonzero(~is_boundary)

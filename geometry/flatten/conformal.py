@@ -33,7 +33,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.flatten.alignment import _face_curvature
 from drawstring.geometry.flatten.bff import (
@@ -143,16 +143,19 @@ def flatten(
     Raises
     ------
     InputError
-        If the mesh is not a valid disk, ``mode`` is unknown, or ``corners`` are not four distinct
-        boundary vertices (or are given in free mode).
+        If ``corners`` are not four distinct boundary vertices or give no closed rectangle
+        boundary, or the mesh is too coarse or distorted for automatic corners.
+    InternalError
+        If the mesh is not a valid disk (the target stage refuses those), ``mode`` is unknown, or
+        ``corners`` are given in free mode.
     """
     t0 = time.perf_counter()
     V = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces)
     if mode not in ("free", "rectangle"):
-        raise InputError(f"unknown flattening mode {mode!r}; use 'free' or 'rectangle'")
+        raise InternalError(f"unknown flattening mode {mode!r}; use 'free' or 'rectangle'")
     if mode == "free" and corners is not None:
-        raise InputError("corners only apply to mode='rectangle'; drop corners or change mode")
+        raise InternalError("corners only apply to mode='rectangle'; drop corners or change mode")
     boundary = _boundary_loop(V, F)
     system = _build_system(V, F.astype(np.int64), boundary)
     t1 = time.perf_counter()

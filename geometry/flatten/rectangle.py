@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InputError, InternalError
 from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.flatten.alignment import _Curvature, _grid_torsion_integral
 from drawstring.geometry.flatten.bff import (
@@ -199,7 +199,7 @@ def flatten_rectangle(
     """
     k = len(system.boundary)
     if k < 4:
-        raise InputError(f"the boundary has only {k} vertices; a rectangle needs at least 4")
+        raise InternalError(f"the boundary has only {k} vertices; a rectangle needs at least 4")
     align = (
         named is None
         and curvature is not None

@@ -21,7 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.types import FloatArray
 from drawstring.geometry.solve.groups import ConstraintGroup
 from drawstring.geometry.solve.linalg import centering_matrix, difference_matrix
@@ -86,7 +86,9 @@ class GapAngleBounds(ConstraintGroup):
         super().__init__(name, weight)
         self.elements = np.asarray(elements, dtype=np.int64).reshape(-1, 3)
         if not (-np.pi < lo <= hi <= np.pi):
-            raise InputError(f"gap angle bounds [{lo}, {hi}] rad must satisfy -pi < lo <= hi <= pi")
+            raise InternalError(
+                f"gap angle bounds [{lo}, {hi}] rad must satisfy -pi < lo <= hi <= pi"
+            )
         self.lo = float(lo)
         self.hi = float(hi)
 
@@ -102,7 +104,7 @@ class GapAngleBounds(ConstraintGroup):
 
     def project(self, ax: FloatArray, x: FloatArray) -> FloatArray:
         if ax.shape[1] != 2:
-            raise InputError("GapAngleBounds works on 2D positions only")
+            raise InternalError("GapAngleBounds works on 2D positions only")
         arms = ax.reshape(-1, 2, 2)
         u, v = arms[:, 0], arms[:, 1]
         angle = signed_angles(u, v)

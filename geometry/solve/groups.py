@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.solve.linalg import (
     centering_matrix,
@@ -46,7 +46,7 @@ class ConstraintGroup(ABC):
 
     def __init__(self, name: str, weight: float) -> None:
         if not np.isfinite(weight) or weight < 0:
-            raise InputError(f"weight of group {name!r} is {weight}; use a finite value >= 0")
+            raise InternalError(f"weight of group {name!r} is {weight}; use a finite value >= 0")
         self.name = name
         self.weight = float(weight)
 
@@ -116,7 +116,7 @@ class ClosenessToPoints(ConstraintGroup):
         """
         arr = np.asarray(targets, dtype=np.float64)
         if arr.ndim != 2 or arr.shape[0] != len(self.indices):
-            raise InputError(
+            raise InternalError(
                 f"group {self.name!r}: targets have shape {arr.shape}; "
                 f"give one row per index ({len(self.indices)})"
             )
@@ -157,13 +157,13 @@ class ClosenessToPlanes(ConstraintGroup):
         self.levels = np.asarray(levels, dtype=np.float64).reshape(-1)
         k = len(self.indices)
         if self.normals.ndim != 2 or self.normals.shape[0] != k or self.levels.shape != (k,):
-            raise InputError(
+            raise InternalError(
                 f"group {self.name!r}: give one normal and one level per index ({k}), got "
                 f"normals {self.normals.shape} and levels {self.levels.shape}"
             )
         norms = np.linalg.norm(self.normals, axis=1)
         if not (np.all(np.isfinite(self.levels)) and np.allclose(norms, 1.0, atol=1e-9)):
-            raise InputError(f"group {self.name!r}: normals must be unit and levels finite")
+            raise InternalError(f"group {self.name!r}: normals must be unit and levels finite")
 
     def matrix(self, n_vertices: int) -> sp.csr_matrix:
         return selection_matrix(self.indices, n_vertices)
@@ -213,11 +213,11 @@ class ClosenessToSurface(ConstraintGroup):
         self.surface_vertices = np.ascontiguousarray(surface_vertices, dtype=np.float64)
         self.surface_faces = np.ascontiguousarray(surface_faces, dtype=np.int64)
         if self.surface_vertices.ndim != 2 or self.surface_vertices.shape[1] != 3:
-            raise InputError("surface vertices must have shape (p, 3); pass a 3D triangle mesh")
+            raise InternalError("surface vertices must have shape (p, 3); pass a 3D triangle mesh")
         if self.surface_faces.ndim != 2 or self.surface_faces.shape[1] != 3:
-            raise InputError("surface faces must have shape (f, 3); triangulate the target mesh")
+            raise InternalError("surface faces must have shape (f, 3); triangulate the target mesh")
         if not 0.0 <= requery_rel < 0.5:
-            raise InputError(f"requery_rel is {requery_rel}; use a value in [0, 0.5)")
+            raise InternalError(f"requery_rel is {requery_rel}; use a value in [0, 0.5)")
         self.requery_rel = float(requery_rel)
         self.tree = igl.AABB()
         self.tree.init(self.surface_vertices, self.surface_faces)
@@ -338,7 +338,7 @@ class EdgeLength(ConstraintGroup):
         """
         arr = np.asarray(lengths, dtype=np.float64).reshape(-1)
         if arr.shape[0] != len(self.edges) or np.any(arr < 0) or not np.all(np.isfinite(arr)):
-            raise InputError(
+            raise InternalError(
                 f"group {self.name!r}: need {len(self.edges)} finite non-negative target lengths"
             )
         self.lengths = arr.copy()
@@ -375,7 +375,7 @@ class Plane(ConstraintGroup):
         super().__init__(name, weight)
         arr = np.asarray(faces, dtype=np.int64)
         if arr.ndim != 2 or arr.shape[1] < 3:
-            raise InputError("Plane faces must be (k, s) with one size s >= 3; split by size")
+            raise InternalError("Plane faces must be (k, s) with one size s >= 3; split by size")
         self.faces = arr
 
     def matrix(self, n_vertices: int) -> sp.csr_matrix:

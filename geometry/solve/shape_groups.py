@@ -9,7 +9,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.types import FloatArray
 from drawstring.geometry.solve.groups import ConstraintGroup
 from drawstring.geometry.solve.linalg import centering_matrix, centred_normals, cross3
@@ -139,13 +139,13 @@ class SimilarityToSquare(ConstraintGroup):
         super().__init__(name, weight)
         arr = np.asarray(quads, dtype=np.int64)
         if arr.ndim != 2 or arr.shape[1] != 4:
-            raise InputError("SimilarityToSquare needs quads of shape (k, 4)")
+            raise InternalError("SimilarityToSquare needs quads of shape (k, 4)")
         self.quads = arr
         self.reference_normals: FloatArray | None = None
         if reference_normals is not None:
             ref = np.asarray(reference_normals, dtype=np.float64)
             if ref.shape != (len(arr), 3):
-                raise InputError("reference_normals must have shape (k, 3), one per quad")
+                raise InternalError("reference_normals must have shape (k, 3), one per quad")
             self.reference_normals = ref
 
     def matrix(self, n_vertices: int) -> sp.csr_matrix:
@@ -274,12 +274,12 @@ class Slab(ConstraintGroup):
         top_arr = np.asarray(top, dtype=np.int64)
         bottom_arr = np.asarray(bottom, dtype=np.int64)
         if top_arr.ndim != 2 or top_arr.shape != bottom_arr.shape or top_arr.shape[1] < 3:
-            raise InputError("Slab top and bottom must both be (k, s) index arrays with s >= 3")
+            raise InternalError("Slab top and bottom must both be (k, s) index arrays with s >= 3")
         self.top = top_arr
         self.bottom = bottom_arr
         thick = np.broadcast_to(np.asarray(thickness, dtype=np.float64), (len(top_arr),)).copy()
         if np.any(thick < 0) or not np.all(np.isfinite(thick)):
-            raise InputError("Slab thickness must be finite and >= 0")
+            raise InternalError("Slab thickness must be finite and >= 0")
         self.thickness = thick
 
     def matrix(self, n_vertices: int) -> sp.csr_matrix:

@@ -71,7 +71,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.tolerances import SOLVER_REL_ENERGY_TOL
 from drawstring.geometry.core.types import FloatArray
 from drawstring.geometry.solve.groups import ConstraintGroup
@@ -177,16 +177,16 @@ class LocalGlobalSolver:
         lean: bool = False,
     ) -> None:
         if n_vertices <= 0:
-            raise InputError("the solver needs at least one vertex")
+            raise InternalError("the solver needs at least one vertex")
         if regularization < 0:
-            raise InputError("regularization must be >= 0")
+            raise InternalError("regularization must be >= 0")
         self.n_vertices = int(n_vertices)
         self.regularization = float(regularization)
         self.lean = bool(lean)
         self._groups: list[ConstraintGroup] = []
         fixed_arr = np.unique(np.asarray([] if fixed is None else fixed, dtype=np.int64))
         if fixed_arr.size and (fixed_arr[0] < 0 or fixed_arr[-1] >= n_vertices):
-            raise InputError("fixed vertex indices out of range")
+            raise InternalError("fixed vertex indices out of range")
         is_free = np.ones(self.n_vertices, dtype=bool)
         is_free[fixed_arr] = False
         self.free = np.flatnonzero(is_free)
@@ -212,10 +212,10 @@ class LocalGlobalSolver:
     def add_group(self, group: ConstraintGroup) -> None:
         """Add a group (invalidates the factor)."""
         if any(g.name == group.name for g in self._groups):
-            raise InputError(f"a group named {group.name!r} already exists; pick another name")
+            raise InternalError(f"a group named {group.name!r} already exists; pick another name")
         mat = sp.csr_matrix(group.matrix(self.n_vertices))
         if mat.shape[1] != self.n_vertices:
-            raise InputError(f"group {group.name!r} matrix has {mat.shape[1]} columns")
+            raise InternalError(f"group {group.name!r} matrix has {mat.shape[1]} columns")
         self._groups.append(group)
         self._matrices[group.name] = mat
         self.invalidate()
@@ -236,7 +236,7 @@ class LocalGlobalSolver:
     def set_weight(self, name: str, weight: float) -> None:
         """Change a group's weight (invalidates the factor when it changes)."""
         if not np.isfinite(weight) or weight < 0:
-            raise InputError(f"weight of group {name!r} is {weight}; use a finite value >= 0")
+            raise InternalError(f"weight of group {name!r} is {weight}; use a finite value >= 0")
         group = self.group(name)
         if group.weight != weight:
             group.weight = float(weight)
@@ -257,7 +257,7 @@ class LocalGlobalSolver:
             return 0
         active = self._active()
         if not active:
-            raise InputError("no constraint group has a positive weight")
+            raise InternalError("no constraint group has a positive weight")
         blocks = [self._matrices[g.name] for g in active]
         self._stack = sp.vstack(blocks, format="csr")
         self._row_weights = np.concatenate(
@@ -407,7 +407,7 @@ class LocalGlobalSolver:
         start = time.perf_counter()
         x = self._start_positions(x0)
         if max_iter < 0 or anderson < 0 or max_backoff < 0:
-            raise InputError("max_iter, anderson and max_backoff must be >= 0")
+            raise InternalError("max_iter, anderson and max_backoff must be >= 0")
         factorizations = self._assemble()
         rhs_fixed = self._fixed_rhs(x)
         proj, energies = self._local(x)
@@ -462,7 +462,7 @@ class LocalGlobalSolver:
         """``x0`` as a float copy, checked to be finite and one row per vertex."""
         x = np.array(x0, dtype=np.float64)
         if x.ndim != 2 or x.shape[0] != self.n_vertices or not np.all(np.isfinite(x)):
-            raise InputError(
+            raise InternalError(
                 f"start positions must be a finite ({self.n_vertices}, dim) array, got {x.shape}"
             )
         return x

@@ -31,7 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InputError, InternalError
 from drawstring.geometry.core.tolerances import (
     DEGENERATE_FACE_REL_AREA,
 )
@@ -255,13 +255,13 @@ def _clean_disk_mesh(
     V = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces)
     if V.ndim != 2 or V.shape[1] != 3:
-        raise InputError(f"vertices must be an (n, 3) array of coordinates, got {V.shape}")
+        raise InternalError(f"vertices must be an (n, 3) array of coordinates, got {V.shape}")
     if F.size == 0:
         raise InputError(
             "mesh has no faces; export the surface as a triangle mesh, not as points or lines"
         )
     if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
-        raise InputError(f"faces must be an (m, 3) integer array of triangles, got {F.shape}")
+        raise InternalError(f"faces must be an (m, 3) integer array of triangles, got {F.shape}")
     F = F.astype(np.int64)
     notes: list[str] = []
     where = np.arange(len(V))  # input vertex -> current index, -1 once dropped
