@@ -304,7 +304,7 @@ def test_bad_inputs_raise() -> None:
 
 
 def test_convex_corners_unfold_a_dart_and_leave_convex_quads_alone() -> None:
-    """Regression (three-shell, ~210 tiles): the K3D solve folded quads into darts. The convexity
+    """A plain K3D solve can fold quads into darts (three-shell, ~210 tiles). The convexity
     group pushes a reflex corner back out past the margin and is inert on convex quads."""
     from drawstring.geometry.assembled.frustums import corner_margins
     from drawstring.geometry.assembled.top import CONVEX_MARGIN, ConvexCorners

@@ -21,9 +21,9 @@ def test_an_infeasible_problem_stops_with_finite_numbers_and_reports_its_violati
 ) -> None:
     # A right triangle whose first side must be 2 mm long one way and 2 mm long the other:
     # no point satisfies both rows.  The solver must say so (violation above 1 tolerance) and
-    # stop without numerical overflow: its damping used to grow eightfold with every refused
-    # trial of every multiplier round until it overflowed (RuntimeWarnings on the user's
-    # terminal, eight wasted factorizations per round; 471 in all here).
+    # stop without numerical overflow: an unbounded damping would grow eightfold with every
+    # refused trial of every multiplier round until it overflowed (RuntimeWarnings on the
+    # user's terminal, eight wasted factorizations per round).
     x0 = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
     objective = EdgeLeastSquares(
         np.array([[0, 1], [0, 2], [1, 2]]), np.array([1.0, 1.0, np.sqrt(2.0)]), np.ones(3)

@@ -111,8 +111,9 @@ def test_no_split_when_disabled_reports_ratio() -> None:
 
 def test_every_split_part_keeps_a_tile_on_the_outer_boundary() -> None:
     """The string enters a part only from the outer boundary, never through a cut, so no split
-    may enclose a part.  The 1600-tile three-shell's cuts once enclosed one of its seven parts
-    (its string route then missed it); now another cut serves, with the same largest ratio."""
+    may enclose a part.  On the 1600-tile three-shell a cut that would enclose one of its seven
+    parts (which the string route would then miss) is passed over for another with the same
+    largest ratio."""
     import math
 
     from drawstring.geometry.flatten.conformal import flatten

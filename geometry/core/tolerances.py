@@ -53,7 +53,7 @@ COINCIDENT_VERTEX_REL_DIST = 1e-7
 SIM_GAP_CLOSED_REL = 0.01
 
 #: Simulation: deployed when every tile is within this fraction of the mean tile side of the
-#: assembled tiles after one rigid alignment (issue 6: 1 %).
+#: assembled tiles after one rigid alignment (1 %).
 SIM_DEVIATION_REL = 0.01
 
 #: Simulation: largest allowed (conservative) overlap depth between neighbouring tiles, as a
@@ -83,7 +83,7 @@ CAD_MAX_FACE_DEVIATION_MM = 1e-3
 #: this distance (mm) in the assembled pose count as meeting.
 CAD_OPENING_MATCH_MM = 1e-4
 
-#: Target planarity of every T3D face, relative to the bounding-box diagonal (issue 3).
+#: Target planarity of every T3D face, relative to the bounding-box diagonal.
 ASSEMBLED_PLANARITY_REL = 1e-6
 
 #: Relative energy change at which the assembled-stage local-global solves stop; the exact
@@ -153,21 +153,21 @@ PRINT_GAP_TOL_MM = 0.005
 CAD_PAD_INTERFERENCE_REL = 0.02
 
 #: The flat layout keeps each slit end's opening this far inside the openings at which its two
-#: tiles clear each other (``flatpose.free_openings``), so the rigid hinge layout, which asks
+#: tiles clear each other (``flat.pose.free_openings``), so the rigid hinge layout, which asks
 #: ``HINGE_LAYOUT_CLEARANCE_MM`` along its tilted separating planes, finds them apart already.
 FLAT_FREE_MARGIN_DEG = 0.3
 
 #: Mean distance of K3D to the target, as a fraction of the mean tile side, above which the
-#: design is flagged (issue 3 quality target).
+#: design is flagged (a quality target).
 SURFACE_MEAN_REL = 0.02
 #: Largest distance of a tile corner from the target, as a fraction of the target's
 #: bounding-box diagonal, above which the design is flagged (the report marks both).
 SURFACE_MAX_REL = 0.02
 #: Largest capstan factor of the string's channels in the assembled pose (the pull force over
 #: the force that reaches the far end, ``exp(mu * bend)``) before a warning: a firm hand pull of
-#: about 100 N then leaves about 0.1 N to close the last gaps.  At 100, seven of the ten
-#: CLI-default designs were flagged (dome 185, wave 193, cloud 202, three-shell 603,
-#: hemisphere 735, face scan 1.2e3, peanut 4.0e3; the saddle 14), which deploy in the
-#: simulation (it has no friction): a warning on most designs tells a user nothing.  At 200
-#: tiles and 200 mm the seven-part three-shell is at 2.1e4.
+#: about 100 N then leaves about 0.1 N to close the last gaps.  A bound of 100 would flag seven
+#: of the ten CLI-default designs (dome 185, wave 193, cloud 202, three-shell 603, hemisphere
+#: 735, face scan 1.2e3, peanut 4.0e3; the saddle 14), which deploy in the simulation (it has
+#: no friction): a warning on most designs tells a user nothing.  At 200 tiles and 200 mm the
+#: seven-part three-shell is at 2.1e4.
 CAPSTAN_FACTOR_WARN = 1000.0

@@ -1,7 +1,7 @@
-"""Independent measurements of the flat layout and the hinged tiles (issue 4, part 3).
+"""Independent measurements of the flat layout and the hinged tiles.
 
 Everything here is measured on output geometry (tile corners, tile vertices), never taken from an
-optimizer.  Each measurement names the tolerance it is compared to (``geometry.tolerances``):
+optimizer.  Each measurement names the tolerance it is compared to (``core.tolerances``):
 
 =============================  =====================================  ==========================
 measurement                    what                                   tolerance

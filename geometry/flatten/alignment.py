@@ -1,8 +1,9 @@
 """How well a flat map's grid lines follow the target's principal curvature directions.
 
 A quad grid along the principal directions has planar, near-conical quads (paper 4.1-4.2); the
-automatic rectangle corners of :mod:`.flatten` are scored by the grid's geodesic torsion, which
-is zero there.  Per-face shape operators come from ``igl.principal_curvature``.
+automatic rectangle corners (:mod:`drawstring.geometry.flatten.rectangle`) are scored by the
+grid's geodesic torsion, which is zero there.  Per-face shape operators come from
+``igl.principal_curvature``.
 """
 
 from __future__ import annotations

@@ -4,8 +4,11 @@ The numerics behind :func:`drawstring.geometry.flatten.conformal.flatten` (see t
 docstring for the method): disk checks and precomputation (cotangent Laplacian blocks, angle
 defects, boundary turning angles, the sparse LU of ``A_II``), the Dirichlet-to-Neumann Schur
 complement and Neumann-to-Dirichlet solve on that factorization, length closing of the boundary
-curve and the harmonic extension into the interior. The two flattening modes, the automatic corner
-choice and the principal-direction alignment are in :mod:`.flatten`.
+curve and the harmonic extension into the interior. The free mode is in
+:mod:`~drawstring.geometry.flatten.conformal`, the rectangle mode in
+:mod:`~drawstring.geometry.flatten.rectangle`, the automatic corner choice in
+:mod:`~drawstring.geometry.flatten.corner_scores` and the principal-direction alignment in
+:mod:`~drawstring.geometry.flatten.alignment`.
 """
 
 from __future__ import annotations

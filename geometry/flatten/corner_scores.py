@@ -138,7 +138,8 @@ def corner_responses(
     ----------
     system : the mesh's BFF system.
     samples : (d,) int, loop positions of candidate corner vertices.
-    schur : (k, k) float, the system's :func:`~.bff._schur_complement` (computed once per map).
+    schur : (k, k) float, the system's Schur complement
+        (:func:`~drawstring.geometry.flatten.bff._schur_complement`, computed once per map).
 
     Returns
     -------

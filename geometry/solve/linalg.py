@@ -178,9 +178,10 @@ def _smallest_eigenvectors_3(
 class _NormalMemo:
     """The last batch of centred point sets given to :func:`centred_normals` and its result.
 
-    In one local step of the K3D solve, :class:`Plane` and the oriented
-    :class:`SimilarityToSquare` receive bitwise identical rows (both groups centre the same
-    quads), so the second one reuses the first one's eigenvectors instead of recomputing them.
+    In one local step of the K3D solve, :class:`~drawstring.geometry.solve.groups.Plane` and the
+    oriented :class:`~drawstring.geometry.solve.shape_groups.SimilarityToSquare` receive bitwise
+    identical rows (both groups centre the same quads), so the second one reuses the first one's
+    eigenvectors instead of recomputing them.
     """
 
     points: FloatArray | None = None

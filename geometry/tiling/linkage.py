@@ -1,6 +1,6 @@
 """Quad auxetic linkage topology on a (possibly cropped and split) regular grid.
 
-Conventions (see ARCHITECTURE.md section 3 and ``linkage-topology.png``):
+Conventions (see docs/architecture.md, section 3):
 
 * A tile is a grid cell ``(i, j)``; ``i`` counts columns (x), ``j`` rows (y).
 * Tile corners are numbered counter-clockwise ``0 = BL, 1 = BR, 2 = TR, 3 = TL``; side ``k`` runs
