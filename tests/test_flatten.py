@@ -11,7 +11,7 @@ from scipy.spatial import Delaunay
 
 from drawstring.geometry.core.errors import InputError, InternalError
 from drawstring.geometry.flatten.alignment import principal_misalignment
-from drawstring.geometry.flatten.bff import _build_system, _schur_complement
+from drawstring.geometry.flatten.bff import build_system, schur_complement
 from drawstring.geometry.flatten.conformal import flatten
 from drawstring.geometry.flatten.distortion import flipped_faces, quasi_conformal_distortion
 
@@ -253,8 +253,8 @@ def test_schur_complement_matches_a_direct_solve() -> None:
     """The elimination-tree shortcut gives the same Dirichlet-to-Neumann matrix as dense solves."""
     vertices, faces = bumpy(20)
     boundary = igl.boundary_loop(faces)
-    system = _build_system(vertices, faces, np.asarray(boundary, dtype=np.int64))
-    fast = _schur_complement(system)
+    system = build_system(vertices, faces, np.asarray(boundary, dtype=np.int64))
+    fast = schur_complement(system)
     A_IB = system.A_IB.toarray()
     direct = system.A_BB.toarray() - A_IB.T @ system.lu.solve(A_IB)
     assert np.abs(fast - direct).max() < 1e-10 * np.abs(direct).max()
@@ -501,7 +501,7 @@ def test_corners_beside_an_ear_would_collapse_its_triangle_and_are_never_chosen(
     points, faces = grid(8, 6, 80.0, 60.0)
     vertices = np.c_[points, np.zeros(len(points))]
     idx = np.arange(9 * 7).reshape(7, 9)
-    system = _build_system(vertices, faces, flatten(vertices, faces).boundary)
+    system = build_system(vertices, faces, flatten(vertices, faces).boundary)
     allowed = dict(zip(system.boundary.tolist(), corner_allowed(system).tolist(), strict=True))
     assert allowed[int(idx[0, 8])] and not allowed[int(idx[0, 7])] and not allowed[int(idx[1, 8])]
     beside = flatten(vertices, faces, corners=[idx[0, 0], idx[0, 7], idx[6, 8], idx[6, 0]])

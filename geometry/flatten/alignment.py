@@ -17,13 +17,13 @@ from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
-from drawstring.geometry.flatten.bff import _System
+from drawstring.geometry.flatten.bff import BffSystem
 
 log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
-class _Curvature:
+class Curvature:
     """Per-face second fundamental form, for scoring grid alignment (internal)."""
 
     tensor: FloatArray  # (m, 3, 3) mean of the vertices' shape operators, 1/mm
@@ -37,7 +37,7 @@ class _Curvature:
     length_form: FloatArray
 
 
-def _face_curvature(V: FloatArray, F: IntArray) -> _Curvature | None:
+def face_curvature(V: FloatArray, F: IntArray) -> Curvature | None:
     """Shape operators from ``igl.principal_curvature``, averaged to faces; None if it fails.
 
     Each vertex's operator ``k1 d1 d1^T + k2 d2 d2^T`` is averaged over the face's corners (no
@@ -83,7 +83,7 @@ def _face_curvature(V: FloatArray, F: IntArray) -> _Curvature | None:
             np.einsum("fi,fi->f", e2, e2),
         ]
     )
-    return _Curvature(
+    return Curvature(
         tensor=tensor,
         normal=normal,
         area=area,
@@ -109,7 +109,7 @@ def _grid_directions(V: FloatArray, F: IntArray, uv: FloatArray) -> tuple[FloatA
     return direction / np.where(valid, length, 1.0)[:, None], valid
 
 
-def _grid_torsion(curvature: _Curvature, direction: FloatArray, valid: BoolArray) -> FloatArray:
+def _grid_torsion(curvature: Curvature, direction: FloatArray, valid: BoolArray) -> FloatArray:
     """(m,) 1/mm, geodesic torsion ``II(d, n x d)`` of the grid line along ``direction``.
 
     Zero when the grid follows principal directions; both grid families have the same value
@@ -124,12 +124,12 @@ def _grid_torsion(curvature: _Curvature, direction: FloatArray, valid: BoolArray
     return np.asarray(np.where(valid, tau, 0.0), dtype=np.float64)
 
 
-def _grid_torsion_integral(system: _System, curvature: _Curvature, uv: FloatArray) -> float:
+def grid_torsion_integral(system: BffSystem, curvature: Curvature, uv: FloatArray) -> float:
     """Dimensionless ``int tau^2 dA`` of the uv grid lines (see ``_grid_torsion``).
 
     The grid direction of a face is ``d = a e1 + b e2`` with ``(a, b)`` from the uv edges
     (:func:`_grid_directions`), so ``tau`` is a ratio of two quadratic forms in ``(a, b)``
-    precomputed per face (``_Curvature.torsion_form`` / ``length_form``): a few flops per face
+    precomputed per face (``Curvature.torsion_form`` / ``length_form``): a few flops per face
     for each candidate map.  Faces with a flipped or degenerate flat image count 0.
     """
     F = system.faces
@@ -174,7 +174,7 @@ def principal_misalignment(
     V = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces, dtype=np.int64)
     W = np.asarray(uv, dtype=np.float64)
-    curvature = _face_curvature(V, F)
+    curvature = face_curvature(V, F)
     if curvature is None:
         raise InternalError("principal curvatures could not be computed; check the mesh")
     direction, valid = _grid_directions(V, F, W)

@@ -33,7 +33,7 @@ from drawstring.geometry.core.tolerances import (
 )
 from drawstring.geometry.core.types import FloatArray, IntArray
 
-#: Right-hand sides per SuperLU triangular solve call (see ``_solve_interior``).
+#: Right-hand sides per SuperLU triangular solve call (see ``solve_interior``).
 SOLVE_BLOCK_COLUMNS = 4
 #: Largest dense block ``Z`` (rows x columns) for the elimination-tree Schur complement solve.
 SCHUR_DENSE_MAX_ENTRIES = 10_000_000
@@ -44,7 +44,7 @@ LOOP_START_DIRECTION = np.array([-0.80, -0.53, -0.27]) / np.linalg.norm([0.80, 0
 
 
 @dataclass(frozen=True)
-class _System:
+class BffSystem:
     """Everything BFF needs about one mesh, computed once (internal)."""
 
     n: int
@@ -143,7 +143,7 @@ def _corner_angles(V: FloatArray, F: IntArray) -> FloatArray:
     return angles
 
 
-def _build_system(V: FloatArray, F: IntArray, boundary: IntArray) -> _System:
+def build_system(V: FloatArray, F: IntArray, boundary: IntArray) -> BffSystem:
     """Cotangent Laplacian blocks, curvatures, lengths and the one factorization of ``A_II``."""
     n = len(V)
     double_area = np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
@@ -167,7 +167,7 @@ def _build_system(V: FloatArray, F: IntArray, boundary: IntArray) -> _System:
             options={"SymmetricMode": True},
         )
     edge_length = np.linalg.norm(V[np.roll(boundary, -1)] - V[boundary], axis=1)
-    return _System(
+    return BffSystem(
         n=n,
         faces=F,
         interior=interior,
@@ -185,7 +185,7 @@ def _build_system(V: FloatArray, F: IntArray, boundary: IntArray) -> _System:
     )
 
 
-def _order_corners(boundary: IntArray, corners: Sequence[int]) -> IntArray:
+def order_corners(boundary: IntArray, corners: Sequence[int]) -> IntArray:
     """Positions in the boundary loop of four named corners, ``corners[0]`` first, then CCW."""
     ids = np.asarray(corners).ravel()
     if ids.shape != (4,) or not np.issubdtype(ids.dtype, np.integer):
@@ -207,7 +207,7 @@ def _order_corners(boundary: IntArray, corners: Sequence[int]) -> IntArray:
 # linear algebra on the one factorization
 
 
-def _solve_interior(system: _System, rhs: FloatArray) -> FloatArray:
+def solve_interior(system: BffSystem, rhs: FloatArray) -> FloatArray:
     """Solve ``A_II x = rhs`` for one or more right-hand sides, (nI,) or (nI, c).
 
     Columns go to SuperLU a few at a time (``SOLVE_BLOCK_COLUMNS``): as fast as one wide solve
@@ -225,7 +225,7 @@ def _solve_interior(system: _System, rhs: FloatArray) -> FloatArray:
     return out
 
 
-def _schur_complement(system: _System) -> FloatArray:
+def schur_complement(system: BffSystem) -> FloatArray:
     """(k, k) dense Dirichlet-to-Neumann matrix ``S = A_BB - A_BI A_II^-1 A_IB``.
 
     Uses ``P A_II P^T = L D L^T`` from the symmetric LU: the solve ``Z = L^-1 P A_IB`` is confined
@@ -262,7 +262,7 @@ def _schur_complement(system: _System) -> FloatArray:
         if len(reach) * A_IB.shape[1] > SCHUR_DENSE_MAX_ENTRIES:
             reach = None
     if reach is None:
-        W = _solve_interior(system, A_IB.toarray())
+        W = solve_interior(system, A_IB.toarray())
         S = A_BB - (A_IB.T @ W)
     else:
         local = np.full(n_i, -1, dtype=np.int64)
@@ -277,7 +277,7 @@ def _schur_complement(system: _System) -> FloatArray:
     return np.asarray(0.5 * (S + S.T), dtype=np.float64)
 
 
-def _neumann_solve(S: FloatArray, rhs: FloatArray) -> FloatArray:
+def neumann_solve(S: FloatArray, rhs: FloatArray) -> FloatArray:
     """Solve ``S x = rhs`` on the boundary, with ``S`` singular only along the constants.
 
     Uses a Cholesky factorization of ``S + c 1 1^T`` (``c`` the mean diagonal entry over ``k``),
@@ -308,7 +308,7 @@ def _neumann_solve(S: FloatArray, rhs: FloatArray) -> FloatArray:
 # boundary curve and extension
 
 
-def _close_lengths(lengths: FloatArray, tangents: FloatArray, weights: FloatArray) -> FloatArray:
+def close_lengths(lengths: FloatArray, tangents: FloatArray, weights: FloatArray) -> FloatArray:
     """Closest lengths ``x`` to ``lengths`` with ``sum x_e T_e = 0``.
 
     Minimizes ``sum_e (x_e - l_e)^2 / w_e`` subject to the closing condition (BFF eq. for the
@@ -326,21 +326,21 @@ def _close_lengths(lengths: FloatArray, tangents: FloatArray, weights: FloatArra
     return np.asarray(lengths - weights * (T.T @ lam), dtype=np.float64)
 
 
-def _harmonic_extension(system: _System, boundary_uv: FloatArray) -> FloatArray:
+def harmonic_extension(system: BffSystem, boundary_uv: FloatArray) -> FloatArray:
     """(n, 2) float: boundary positions extended harmonically (cotangent weights) inside."""
     uv = np.empty((system.n, 2), dtype=np.float64)
     uv[system.boundary] = boundary_uv
     if len(system.interior):
-        uv[system.interior] = _solve_interior(system, -(system.A_IB @ boundary_uv))
+        uv[system.interior] = solve_interior(system, -(system.A_IB @ boundary_uv))
     return uv
 
 
-def _scaled_lengths(system: _System, u_boundary: FloatArray) -> FloatArray:
+def scaled_lengths(system: BffSystem, u_boundary: FloatArray) -> FloatArray:
     """(k,) float, mm: boundary edge lengths scaled by ``exp`` of the mean endpoint factor."""
     return np.asarray(
         system.edge_length * np.exp(0.5 * (u_boundary + np.roll(u_boundary, -1))), dtype=np.float64
     )
 
 
-def _check_lengths(closed: FloatArray, target: FloatArray) -> bool:
+def check_lengths(closed: FloatArray, target: FloatArray) -> bool:
     return bool(np.all(closed > FLATTEN_MIN_CLOSED_LENGTH_REL * target))

@@ -35,16 +35,16 @@ from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.types import FloatArray, IntArray
-from drawstring.geometry.flatten.alignment import _face_curvature
+from drawstring.geometry.flatten.alignment import face_curvature
 from drawstring.geometry.flatten.bff import (
+    BffSystem,
     _boundary_loop,
-    _build_system,
-    _check_lengths,
-    _close_lengths,
-    _harmonic_extension,
-    _order_corners,
-    _solve_interior,
-    _System,
+    build_system,
+    check_lengths,
+    close_lengths,
+    harmonic_extension,
+    order_corners,
+    solve_interior,
 )
 from drawstring.geometry.flatten.distortion import flipped_faces
 from drawstring.geometry.flatten.rectangle import flatten_rectangle
@@ -157,13 +157,13 @@ def flatten(
     if mode == "free" and corners is not None:
         raise InternalError("corners only apply to mode='rectangle'; drop corners or change mode")
     boundary = _boundary_loop(V, F)
-    system = _build_system(V, F.astype(np.int64), boundary)
+    system = build_system(V, F.astype(np.int64), boundary)
     t1 = time.perf_counter()
     if mode == "free":
         uv, u, loop, corner_ids = _flatten_free(system)
     else:
-        named = None if corners is None else _order_corners(system.boundary, corners)
-        curvature = _face_curvature(V, system.faces) if named is None and align_principal else None
+        named = None if corners is None else order_corners(system.boundary, corners)
+        curvature = face_curvature(V, system.faces) if named is None and align_principal else None
         uv, u, loop, corner_ids = flatten_rectangle(system, named, curvature)
     t2 = time.perf_counter()
     log.debug(
@@ -180,21 +180,21 @@ def flatten(
 
 
 def _flatten_free(
-    system: _System,
+    system: BffSystem,
 ) -> tuple[FloatArray, FloatArray, IntArray, None]:
     """Free boundary: ``u = 0`` on the boundary, turning angles from Dirichlet-to-Neumann."""
     u = np.zeros(system.n)
-    u_interior = _solve_interior(system, -system.omega)
+    u_interior = solve_interior(system, -system.omega)
     u[system.interior] = u_interior
     target_turning = system.turning + system.A_IB.T @ u_interior
     angle = np.concatenate([[0.0], np.cumsum(target_turning[1:])])
     tangents = np.column_stack([np.cos(angle), np.sin(angle)])
     lengths = system.edge_length
-    closed = _close_lengths(lengths, tangents, system.edge_length)
-    if not _check_lengths(closed, lengths):
+    closed = close_lengths(lengths, tangents, system.edge_length)
+    if not check_lengths(closed, lengths):
         log.warning("free-boundary curve needed a large closing correction")
     steps = closed[:, None] * tangents
     boundary_uv = np.concatenate([np.zeros((1, 2)), np.cumsum(steps[:-1], axis=0)])
-    uv = _harmonic_extension(system, boundary_uv)
+    uv = harmonic_extension(system, boundary_uv)
     uv -= uv.min(axis=0)
     return uv, u, system.boundary.copy(), None

@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
-from drawstring.geometry.flatten.bff import _neumann_solve, _solve_interior, _System
+from drawstring.geometry.flatten.bff import BffSystem, neumann_solve, solve_interior
 
 #: Boundary vertices sampled at equal arc length as corner candidates in automatic corner choice.
 CORNER_EVEN_SAMPLES = 24
@@ -46,7 +46,7 @@ CORNER_ALIGN_MIN_GAIN = 0.05
 CORNER_SHIFT_MIN_GAIN = 0.01
 
 
-def _turning_peaks(system: _System, arc: FloatArray, window: float) -> IntArray:
+def _turning_peaks(system: BffSystem, arc: FloatArray, window: float) -> IntArray:
     """Loop positions of up to ``CORNER_TURNING_PEAKS`` well-separated peaks of boundary turning.
 
     The turning angle is summed over an arc-length window of half-width ``window``; ties go to
@@ -68,7 +68,7 @@ def _turning_peaks(system: _System, arc: FloatArray, window: float) -> IntArray:
     return np.asarray(chosen, dtype=np.int64)
 
 
-def corner_allowed(system: _System) -> BoolArray:
+def corner_allowed(system: BffSystem) -> BoolArray:
     """(k,) bool per loop position: may be a corner.
 
     A boundary vertex in one triangle only (an ear) has its two loop neighbours in that same
@@ -85,7 +85,7 @@ def corner_allowed(system: _System) -> BoolArray:
     return allowed
 
 
-def corner_samples(system: _System) -> IntArray:
+def corner_samples(system: BffSystem) -> IntArray:
     """Sorted loop positions sampled as corner candidates (equal arc length + turning peaks).
 
     Short boundaries use every vertex. Turning is summed over windows of half-width
@@ -125,7 +125,7 @@ def quadruples(samples: IntArray, arc: FloatArray, perimeter: float) -> IntArray
 
 
 def corner_responses(
-    system: _System, samples: IntArray, schur: FloatArray
+    system: BffSystem, samples: IntArray, schur: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
     """Log scale factor as an affine function of which sampled boundary vertices are corners.
 
@@ -139,22 +139,22 @@ def corner_responses(
     system : the mesh's BFF system.
     samples : (d,) int, loop positions of candidate corner vertices.
     schur : (k, k) float, the system's Schur complement
-        (:func:`~drawstring.geometry.flatten.bff._schur_complement`, computed once per map).
+        (:func:`~drawstring.geometry.flatten.bff.schur_complement`, computed once per map).
 
     Returns
     -------
     a : (n,) float, u for target turning 0 everywhere (defined up to a constant).
     Y : (n, d) float, response of u to target turning 1 rad at each sample.
     """
-    w0 = _solve_interior(system, -system.omega)
+    w0 = solve_interior(system, -system.omega)
     unit = np.zeros((len(system.boundary), len(samples)))
     unit[samples, np.arange(len(samples))] = 1.0
-    responses = _neumann_solve(
+    responses = neumann_solve(
         schur,
         np.column_stack([-system.turning - system.A_IB.T @ w0, unit]),
     )
     a_boundary, Y_boundary = responses[:, 0], responses[:, 1:]
-    interior = _solve_interior(system, system.A_IB @ np.column_stack([a_boundary, Y_boundary]))
+    interior = solve_interior(system, system.A_IB @ np.column_stack([a_boundary, Y_boundary]))
     a = np.empty(system.n)
     a[system.boundary] = a_boundary
     a[system.interior] = w0 - interior[:, 0]
@@ -165,7 +165,7 @@ def corner_responses(
 
 
 def corner_scores(
-    system: _System,
+    system: BffSystem,
     a: FloatArray,
     Y: FloatArray,
     corner_sets: IntArray,
@@ -179,7 +179,7 @@ def corner_scores(
 
 
 def variance_terms(
-    system: _System, a: FloatArray, Y: FloatArray
+    system: BffSystem, a: FloatArray, Y: FloatArray
 ) -> tuple[float, FloatArray, FloatArray]:
     """The constant, linear (d,) and quadratic (d, d) terms of :func:`corner_scores`."""
     weight = system.mass / system.mass.sum()

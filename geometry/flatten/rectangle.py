@@ -13,14 +13,14 @@ import numpy as np
 
 from drawstring.geometry.core.errors import InputError, InternalError
 from drawstring.geometry.core.types import FloatArray, IntArray
-from drawstring.geometry.flatten.alignment import _Curvature, _grid_torsion_integral
+from drawstring.geometry.flatten.alignment import Curvature, grid_torsion_integral
 from drawstring.geometry.flatten.bff import (
-    _check_lengths,
-    _close_lengths,
-    _harmonic_extension,
-    _scaled_lengths,
-    _schur_complement,
-    _System,
+    BffSystem,
+    check_lengths,
+    close_lengths,
+    harmonic_extension,
+    scaled_lengths,
+    schur_complement,
 )
 from drawstring.geometry.flatten.corner_scores import (
     CORNER_ALIGN_MIN_ANISOTROPY,
@@ -47,7 +47,7 @@ _SIDE_DIRECTIONS = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
 
 
 def _rectangle_curve(
-    system: _System, u_boundary: FloatArray, corner_pos: IntArray
+    system: BffSystem, u_boundary: FloatArray, corner_pos: IntArray
 ) -> tuple[FloatArray, bool]:
     """Rectangle through the scaled boundary lengths, starting at ``corner_pos[0]``.
 
@@ -58,9 +58,9 @@ def _rectangle_curve(
     side = np.zeros(k, dtype=np.int64)  # side index of edge b[i] -> b[i+1]
     side[corner_pos[1:]] = 1
     side = np.roll(np.cumsum(np.roll(side, -corner_pos[0])), corner_pos[0])
-    target = _scaled_lengths(system, u_boundary)
-    closed = _close_lengths(target, _SIDE_DIRECTIONS[side], system.edge_length)
-    ok = _check_lengths(closed, target)
+    target = scaled_lengths(system, u_boundary)
+    closed = close_lengths(target, _SIDE_DIRECTIONS[side], system.edge_length)
+    ok = check_lengths(closed, target)
     width = float(closed[side == 0].sum())
     height = float(closed[side == 1].sum())
     # Place each side exactly on the rectangle by its cumulative length fraction.
@@ -77,9 +77,9 @@ def _rectangle_curve(
     return points, ok
 
 
-def _landscape_start(system: _System, u_boundary: FloatArray, corner_pos: IntArray) -> IntArray:
+def _landscape_start(system: BffSystem, u_boundary: FloatArray, corner_pos: IntArray) -> IntArray:
     """Rotate increasing corner positions so the side ``corners[0] -> corners[1]`` is the longer."""
-    lengths = _scaled_lengths(system, u_boundary)
+    lengths = scaled_lengths(system, u_boundary)
     cum = np.concatenate([[0.0], np.cumsum(lengths)])
     at = cum[corner_pos]  # corner_pos is increasing here
     side = np.diff(np.append(at, at[0] + cum[-1]))
@@ -88,7 +88,7 @@ def _landscape_start(system: _System, u_boundary: FloatArray, corner_pos: IntArr
     return corner_pos
 
 
-def _log_scale_offset(system: _System, u: FloatArray, uv: FloatArray) -> float:
+def _log_scale_offset(system: BffSystem, u: FloatArray, uv: FloatArray) -> float:
     """Constant ``c`` fitting ``exp(u + c)`` to the flat map's area scale (least squares).
 
     Minimizes ``sum_f A_f (log(A~_f / A_f) / 2 - mean_f(u) - c)^2`` over unflipped faces, with
@@ -106,7 +106,7 @@ def _log_scale_offset(system: _System, u: FloatArray, uv: FloatArray) -> float:
 
 
 def _rectangle_candidate(
-    system: _System,
+    system: BffSystem,
     u: FloatArray,
     corner_pos: IntArray,
     fit: bool = True,
@@ -121,13 +121,13 @@ def _rectangle_candidate(
     if not closed_ok:
         return None
     scale = math.sqrt(system.area / float(np.prod(points[corner_pos[2]])))
-    uv = _harmonic_extension(system, scale * points)
+    uv = harmonic_extension(system, scale * points)
     return uv, (u + _log_scale_offset(system, u, uv) if fit else u)
 
 
 def _shift_corners(
-    system: _System,
-    curvature: _Curvature,
+    system: BffSystem,
+    curvature: Curvature,
     a: FloatArray,
     best: tuple[FloatArray, FloatArray, IntArray],
     best_score: float,
@@ -157,7 +157,7 @@ def _shift_corners(
     positions = np.unique((start[None, :] + shifts[:, None]) % k)
     _, Y = corner_responses(system, positions, schur)
     terms = variance_terms(system, a, Y)
-    unshifted_torsion = _grid_torsion_integral(system, curvature, best[0])
+    unshifted_torsion = grid_torsion_integral(system, curvature, best[0])
     for shift in shifts:
         columns = np.searchsorted(positions, (start + shift) % k)
         variance = float(variances(terms, columns[None, :])[0])
@@ -168,7 +168,7 @@ def _shift_corners(
         candidate = _rectangle_candidate(system, u, corner_pos, fit=False)
         if candidate is None or np.any(flipped_faces(system.faces, candidate[0])):
             continue
-        torsion = _grid_torsion_integral(system, curvature, candidate[0])
+        torsion = grid_torsion_integral(system, curvature, candidate[0])
         score = variance + CORNER_ALIGN_WEIGHT * torsion
         log.debug("corners shifted by %d: variance %.4f, torsion %.4f", shift, variance, torsion)
         if (
@@ -181,9 +181,9 @@ def _shift_corners(
 
 
 def flatten_rectangle(
-    system: _System,
+    system: BffSystem,
     named: IntArray | None,
-    curvature: _Curvature | None = None,
+    curvature: Curvature | None = None,
     schur: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray, IntArray, IntArray]:
     """Rectangle mode: target turning pi/2 at four corners, 0 elsewhere (Neumann-to-Dirichlet).
@@ -206,7 +206,7 @@ def flatten_rectangle(
         and curvature.anisotropy >= CORNER_ALIGN_MIN_ANISOTROPY
     )
     samples, corner_sets = _corner_sets(system, named)
-    schur = _schur_complement(system) if schur is None else schur
+    schur = schur_complement(system) if schur is None else schur
     a, Y = corner_responses(system, samples, schur)
     scores, order = _ranked(system, named, align, curvature, a, Y, samples, corner_sets)
     fallback, best, best_score, reference_torsion = _chosen(
@@ -243,7 +243,7 @@ def flatten_rectangle(
     return uv, u, np.roll(system.boundary, -corner_pos[0]), system.boundary[corner_pos]
 
 
-def _corner_sets(system: _System, named: IntArray | None) -> tuple[IntArray, IntArray]:
+def _corner_sets(system: BffSystem, named: IntArray | None) -> tuple[IntArray, IntArray]:
     """The boundary loop positions whose responses are computed and the quadruples of them
     (indices into those positions) to try: the named corners alone, or the sampled candidates
     and every quadruple of them with long enough arcs."""
@@ -263,10 +263,10 @@ def _corner_sets(system: _System, named: IntArray | None) -> tuple[IntArray, Int
 
 
 def _ranked(
-    system: _System,
+    system: BffSystem,
     named: IntArray | None,
     align: bool,
-    curvature: _Curvature | None,
+    curvature: Curvature | None,
     a: FloatArray,
     Y: FloatArray,
     samples: IntArray,
@@ -303,10 +303,10 @@ _Candidate = tuple[FloatArray, FloatArray, IntArray]
 
 
 def _chosen(
-    system: _System,
+    system: BffSystem,
     named: IntArray | None,
     align: bool,
-    curvature: _Curvature | None,
+    curvature: Curvature | None,
     responses: tuple[FloatArray, FloatArray],
     samples: IntArray,
     corner_sets: IntArray,
@@ -350,7 +350,7 @@ def _chosen(
             best = result
             break
         assert curvature is not None
-        torsion = _grid_torsion_integral(system, curvature, candidate[0])
+        torsion = grid_torsion_integral(system, curvature, candidate[0])
         score = float(scores[index]) + CORNER_ALIGN_WEIGHT * torsion
         log.debug(
             "corner candidate %d %s: variance %.4f, torsion %.4f",

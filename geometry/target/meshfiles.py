@@ -463,13 +463,13 @@ def merge_coincident_vertices(
     merged : int
         ``n - k``.
     """
-    keep, remap = _coincident_remap(vertices, rel_distance)
+    keep, remap = coincident_remap(vertices, rel_distance)
     if remap is None:
         return vertices, faces, 0
     return vertices[keep], remap[faces], len(vertices) - len(keep)
 
 
-def _coincident_remap(
+def coincident_remap(
     vertices: FloatArray, rel_distance: float = COINCIDENT_VERTEX_REL_DIST
 ) -> tuple[IntArray, IntArray | None]:
     """The vertices :func:`merge_coincident_vertices` keeps ``(k,)`` and the new index of

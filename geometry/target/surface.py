@@ -39,7 +39,7 @@ from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.target.builtins import BUILTIN_TARGETS
 from drawstring.geometry.target.meshfiles import (
     SUPPORTED_EXTENSIONS,
-    _coincident_remap,
+    coincident_remap,
     read_mesh,
 )
 
@@ -285,7 +285,7 @@ def _clean_disk_mesh(
             f"{_count(int(non_finite.sum()), 'vertex', 'vertices')}; fix or remove them and "
             "export again"
         )
-    keep, remap = _coincident_remap(V)
+    keep, remap = coincident_remap(V)
     merged = 0
     if remap is not None:
         V, F, merged = V[keep], remap[F], len(V) - len(keep)
