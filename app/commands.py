@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 from drawstring.app.status import EXIT_DESIGN, EXIT_WARNINGS
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.tile import HingeStrategy
 
 if TYPE_CHECKING:  # the pipeline loads numpy and scipy: not for --help
     from drawstring.pipeline.record import Design, DesignOptions
@@ -275,7 +276,7 @@ def closer_fit(result: Design) -> str:
     largest part's area-scale ratio (which cuts the target into parts), or with dual hinges top
     ones (which leave no bottom hinge points to bring together)."""
     misses = result.layout_misses()
-    if result.options.hinges == "dual" and all("in depth" in m for m in misses):
+    if result.options.hinges == HingeStrategy.DUAL and all("in depth" in m for m in misses):
         # seen from above the hinges meet: only the bottom hinges' thickness step is left
         return "try --hinges top, which puts every hinge on the top faces, where it closes"
     tiles = result.tiling.linkage.n_tiles
@@ -286,7 +287,7 @@ def closer_fit(result: Design) -> str:
             f"a --max-scale-factor below {ratio:.3g}, this design's largest area-scale ratio, "
             "to split it into parts"
         )
-    if result.options.hinges == "dual":
+    if result.options.hinges == HingeStrategy.DUAL:
         fixes.append("--hinges top")
     tried = f"{', '.join(fixes[:-1])} or {fixes[-1]}" if len(fixes) > 1 else fixes[0]
     chosen, usual = result.options.min_gap_angle_deg, result.profile.min_gap_angle_deg

@@ -8,6 +8,7 @@ from typing import NoReturn
 
 from drawstring.app.status import EXIT_INPUT
 from drawstring.app.studio.serve import add_studio_options
+from drawstring.geometry.core.tile import HingeStrategy
 
 #: Help of ``-v``, before the subcommand and after it.
 VERBOSE_HELP = "log what each stage does, and every warning a library raises"
@@ -159,7 +160,7 @@ def _add_shape_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--hinges",
-        choices=("dual", "top"),
+        choices=tuple(HingeStrategy),
         default="dual",
         help="hinges on top or bottom faces as the curvature asks (dual, the default), or all "
         "on top with the tiles' overlaps trimmed (top)",

@@ -21,8 +21,9 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from drawstring.cad.design import route_links
-from drawstring.cad.features import MagnetPair, channel_radius
+from drawstring.cad.feature_common import channel_radius
 from drawstring.cad.kernel import tessellate
+from drawstring.cad.magnets_labels import MagnetPair
 from drawstring.cad.paths import face_planes
 from drawstring.cad.tiles import apply_transform
 from drawstring.geometry.core.tolerances import (

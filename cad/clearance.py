@@ -25,6 +25,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from drawstring.cad.paths import face_planes
 from drawstring.geometry.core.errors import InternalError
+from drawstring.geometry.core.tile import HingeSide
 from drawstring.geometry.core.types import FloatArray, IntArray
 
 __all__ = ["HingeReliefs", "hinge_reliefs", "separating_normal"]
@@ -154,7 +155,7 @@ def hinge_reliefs(
     reach, one_sided_reach, share, one_sided = 0.0, 0.0, 0.0, 0
     skipped: list[int] = []
     for index, ((a, ca, b, cb), side) in enumerate(zip(rows, sides, strict=True)):
-        shift = 0 if side == "top" else 4
+        shift = 0 if side == HingeSide.TOP else 4
         hinge = 0.5 * (array[a, shift + ca] + array[b, shift + cb])
         best: tuple[float, float, list[tuple[int, FloatArray]], bool] | None = None
         for option in _relief_options(array, int(a), int(ca), int(b), int(cb), shift, hinge, depth):

@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
 import build123d as bd
 import numpy as np
@@ -29,27 +29,22 @@ from drawstring.cad.design_notes import (
     relief_notes,
     strip_notes,
 )
-from drawstring.cad.features import (
-    MagnetPair,
-    PinPlan,
-    feature_wall_mm,
-    lift_chamfer,
-    magnet_pockets,
-)
-from drawstring.cad.features import channel_radius as _channel_radius
+from drawstring.cad.feature_common import channel_radius as _channel_radius
+from drawstring.cad.feature_common import feature_wall_mm
+from drawstring.cad.features import lift_chamfer
+from drawstring.cad.hinge_pins import PinPlan
 from drawstring.cad.hinge_plans import plan_all_pins, strip_hole_plans, strip_neighbours
+from drawstring.cad.magnets_labels import MagnetPair, magnet_pockets
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path
 from drawstring.cad.tile_build import HingeData, JobResult, TileJob, kernel_failure, run_jobs
 from drawstring.cad.tiles import move_solid, rigid_transforms
 from drawstring.geometry.core.errors import InternalError
+from drawstring.geometry.core.tile import HingeSide, Pose
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile
-    from drawstring.cad.features import HingeSide
 
 log = logging.getLogger(__name__)
-
-Pose = Literal["flat", "assembled"]
 
 
 @dataclass(frozen=True)
@@ -147,7 +142,7 @@ def build_design_solids(
     magnet_pairs: NDArray[np.int64] | Sequence[Sequence[int]],
     trims: dict[int, Sequence[NDArray[np.float64]]] | None,
     profile: Profile,
-    pose: Pose = "flat",
+    pose: Pose = Pose.FLAT,
     *,
     labels: bool = True,
     workers: int | None = None,
@@ -181,7 +176,7 @@ def build_design_solids(
     ``CadResult.failed`` with its tile; a tile whose cut fails altogether is its plain block.
     Arrays that break this contract raise :class:`InternalError`.
     """
-    if pose not in ("flat", "assembled"):
+    if pose not in tuple(Pose):
         raise InternalError(f"pose {pose!r} must be 'flat' or 'assembled'")
     inputs = _checked_inputs(
         tiles_2d, tiles_3d, hinges, hinge_side, route_steps, lift_tiles, magnet_pairs
@@ -199,7 +194,7 @@ def build_design_solids(
         for points in polyhedra:
             jobs[tile].trims.append(np.asarray(points, dtype=np.float64))
     for side in inputs.sides:
-        if side not in ("top", "bottom"):
+        if side not in tuple(HingeSide):
             raise InternalError(f"hinge side {side!r} must be 'top' or 'bottom'")
     hinge_data, fasteners = _plan_hinges(
         jobs, inputs, profile, print_clearance_mm, min_radius, notes
@@ -214,7 +209,7 @@ def build_design_solids(
         )
     pad_hinge = np.array(sorted(pads), dtype=np.int64)
     pad_solids = tuple(pads[h] for h in pad_hinge)
-    if pose == "assembled":
+    if pose == Pose.ASSEMBLED:
         tiles = tuple(move_solid(s, m) for s, m in zip(tiles, transforms, strict=True))
         pad_solids, pad_hinge = (), np.zeros(0, dtype=np.int64)
     for note in notes:  # returned in CadResult.notes, which the design lists

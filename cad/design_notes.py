@@ -10,15 +10,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.cad.clearance import HingeReliefs
-from drawstring.cad.features import (
-    BEND_RADIUS_SLACK_MM,
-    HingeSide,
-    PinPlan,
-    StripHoles,
-    StripNeighbours,
-    hinge_strip_lengths,
-)
-from drawstring.cad.hinge_parts import strip_hole_wall_mm
+from drawstring.cad.features import BEND_RADIUS_SLACK_MM
+from drawstring.cad.hinge_frame import StripNeighbours, hinge_strip_lengths
+from drawstring.cad.hinge_parts import StripHoles, strip_hole_wall_mm
+from drawstring.cad.hinge_pins import PinPlan
+from drawstring.geometry.core.tile import HingeSide
 from drawstring.geometry.tiling.linkage import id_runs
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields

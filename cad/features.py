@@ -35,7 +35,6 @@ from drawstring.cad.feature_common import (
     feature_wall_mm,
 )
 from drawstring.cad.hinge_frame import (
-    HingeSide,
     StripNeighbours,
     hinge_strip_lengths,
     strip_min_reach_mm,
@@ -112,7 +111,6 @@ __all__ = [
     # re-exported from .hinge_frame, .hinge_pins and .hinge_parts
     "GLUE_RECESS_DEPTH_FRACTION",
     "HingePins",
-    "HingeSide",
     "KeepOut",
     "PinPlan",
     "StripHoles",

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
 import build123d as bd
 import numpy as np
@@ -17,12 +17,10 @@ from drawstring.cad.feature_common import _footprint_margin, _plane, _vec, featu
 from drawstring.cad.kernel import clean_solid
 from drawstring.cad.paths import FACE_BOTTOM, FACE_TOP, face_planes, unit_vector
 from drawstring.geometry.core.errors import InternalError
+from drawstring.geometry.core.tile import HingeSide
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile
-
-
-HingeSide = Literal["top", "bottom"]
 
 
 #: Per tile of a hinge (a, b): the other corners of its hinge face that hold hinge strips, or
@@ -129,13 +127,13 @@ def hinge_frame(
     would come within :func:`strip_room` of the centre of the tile's hinge face (the strips of
     neighbouring corners meet there, and recesses overlapping in thin slivers make OCCT's cut
     of a tile fail)."""
-    if side not in ("top", "bottom"):
+    if side not in tuple(HingeSide):
         raise InternalError(f"hinge side {side!r} must be 'top' or 'bottom'")
     for corner, name in ((corner_a, "corner_a"), (corner_b, "corner_b")):
         if corner not in (0, 1, 2, 3):
             raise InternalError(f"{name} = {corner} must be a corner index 0..3")
-    face = FACE_TOP if side == "top" else FACE_BOTTOM
-    shift = 0 if side == "top" else 4
+    face = FACE_TOP if side == HingeSide.TOP else FACE_BOTTOM
+    shift = 0 if side == HingeSide.TOP else 4
     normal = unit_vector(face_planes(tile_a)[1][face] + face_planes(tile_b)[1][face])
     point_a, point_b = tile_a[shift + corner_a], tile_b[shift + corner_b]
     level = 0.5 * (point_a + point_b) @ normal
@@ -223,7 +221,7 @@ def depth_to_opposite(
     """Distance (mm) along ``-normal`` from ``point`` on the hinge face to the opposite face,
     shortest over a pin's rim when the faces are not parallel, and whether they are parallel."""
     centroids, normals = face_planes(tile)
-    face = FACE_BOTTOM if side == "top" else FACE_TOP
+    face = FACE_BOTTOM if side == HingeSide.TOP else FACE_TOP
     cosine = float(-normal @ normals[face])
     distance = float((centroids[face] - point) @ normals[face] / cosine)
     return distance, abs(abs(cosine) - 1.0) < 1e-12

@@ -16,7 +16,6 @@ from numpy.typing import NDArray
 from drawstring.cad.feature_common import TOOL_OVERSHOOT_MM, Footprint, _footprint_margin
 from drawstring.cad.hinge_frame import (
     HingeFrame,
-    HingeSide,
     StripNeighbours,
     cylinder_between,
     hinge_frame,
@@ -26,6 +25,7 @@ from drawstring.cad.hinge_frame import (
 from drawstring.cad.hinge_pins import HingePins, pin_radius, plan_pins
 from drawstring.cad.kernel import clean_solid, fuse
 from drawstring.cad.paths import unit_vector
+from drawstring.geometry.core.tile import HingeSide
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile
@@ -351,14 +351,14 @@ def hinge_face_footprints(
     hinge's pins that run through)."""
     tile_a, tile_b = np.asarray(tile_a, dtype=np.float64), np.asarray(tile_b, dtype=np.float64)
     found: tuple[list[Footprint], list[Footprint]] = ([], [])
-    if side == "bottom":
+    if side == HingeSide.BOTTOM:
         frame = hinge_frame(tile_a, corner_a, tile_b, corner_b, side, profile, neighbours)
         for kept in found:
             kept.append((frame.points, 0.5 * profile.hinge_width_mm))
     for kept, pin in zip(found, pins or (None, None), strict=True):
         if pin is None:
             continue
-        if side == "bottom":
+        if side == HingeSide.BOTTOM:
             kept.append((pin.point[None], pin_radius(profile)))
         elif pin.through:
             kept.append(((pin.point - pin.depth * pin.normal)[None], pin_radius(profile)))

@@ -10,13 +10,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.cad.hinge_frame import (
-    HingeSide,
-    StripNeighbours,
-    depth_to_opposite,
-    hinge_frame,
-    place_holes,
-)
+from drawstring.cad.hinge_frame import StripNeighbours, depth_to_opposite, hinge_frame, place_holes
+from drawstring.geometry.core.tile import HingeSide
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile

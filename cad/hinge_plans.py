@@ -11,19 +11,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.cad.features import (
-    HingeSide,
-    KeepOut,
-    PinPlan,
-    StripHoles,
-    StripNeighbours,
-    channel_keep_out,
-    pin_keep_out,
-    plan_pins,
-    strip_hole_plan,
-    strip_keep_outs,
-)
+from drawstring.cad.features import channel_keep_out
+from drawstring.cad.hinge_frame import StripNeighbours
+from drawstring.cad.hinge_parts import StripHoles, strip_hole_plan
+from drawstring.cad.hinge_pins import KeepOut, PinPlan, pin_keep_out, plan_pins, strip_keep_outs
 from drawstring.cad.paths import SIDE_TOP_FACE
+from drawstring.geometry.core.tile import HingeSide
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile

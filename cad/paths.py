@@ -20,20 +20,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.geometry.core.errors import InternalError
+from drawstring.geometry.core.tile import CAD_FACE_ORDER, TILE_FACES, Face
 
-FACE_TOP = 4
-FACE_BOTTOM = 5
-#: Faces of a tile as vertex indices: sides 0..3, then top (index 4) and bottom (index 5).
-TILE_FACES: tuple[tuple[int, int, int, int], ...] = (
-    (0, 4, 5, 1),
-    (1, 5, 6, 2),
-    (2, 6, 7, 3),
-    (3, 7, 4, 0),
-    (0, 1, 2, 3),
-    (4, 7, 6, 5),
+#: A tile's faces as vertex indices in the CAD layer's order (sides 0..3, then top and bottom:
+#: a side's face index is its side index), taken from the one definition of the faces.
+SOLID_FACES: tuple[tuple[int, int, int, int], ...] = tuple(
+    (int(a), int(b), int(c), int(d)) for a, b, c, d in TILE_FACES[list(CAD_FACE_ORDER)]
 )
-#: :data:`TILE_FACES` as an array.
-FACE_INDICES = np.array(TILE_FACES, dtype=np.int64)
+#: :data:`SOLID_FACES` as an array.
+FACE_INDICES = np.array(SOLID_FACES, dtype=np.int64)
+#: Index of the top face in :data:`SOLID_FACES`.
+FACE_TOP = CAD_FACE_ORDER.index(Face.TOP)
+#: Index of the bottom face in :data:`SOLID_FACES`.
+FACE_BOTTOM = CAD_FACE_ORDER.index(Face.BOTTOM)
 
 
 def face_planes(vertices: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

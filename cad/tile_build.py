@@ -16,23 +16,16 @@ import build123d as bd
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.cad.features import (
-    Footprint,
-    HingePins,
-    HingeSide,
-    StripNeighbours,
-    build_tile,
-    hinge_face_footprints,
-    hinge_pad,
-    label_engraving,
-    lift_bore,
-    string_channel,
-    trim_tool,
-)
-from drawstring.cad.hinge_parts import HingeParts
+from drawstring.cad.feature_common import Footprint
+from drawstring.cad.features import build_tile, lift_bore, string_channel, trim_tool
+from drawstring.cad.hinge_frame import StripNeighbours
+from drawstring.cad.hinge_parts import HingeParts, hinge_face_footprints, hinge_pad
+from drawstring.cad.hinge_pins import HingePins
+from drawstring.cad.magnets_labels import label_engraving
 from drawstring.cad.tiles import relieved_tile_solid, tile_solid
 from drawstring.geometry.core import parallel
 from drawstring.geometry.core.errors import InputError, InternalError
+from drawstring.geometry.core.tile import HingeSide
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile

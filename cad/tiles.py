@@ -20,7 +20,7 @@ from OCP.gp import gp_Trsf
 from scipy.spatial import ConvexHull, HalfspaceIntersection
 
 from drawstring.cad.kernel import polyhedron_solid
-from drawstring.cad.paths import FACE_BOTTOM, FACE_INDICES, FACE_TOP, TILE_FACES, face_planes
+from drawstring.cad.paths import FACE_BOTTOM, FACE_INDICES, FACE_TOP, SOLID_FACES, face_planes
 from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.rigid import apply_rigid, rigid_fit
 from drawstring.geometry.core.tolerances import CAD_MAX_FACE_DEVIATION_MM, CAD_PLANAR_EXACT_MM
@@ -80,7 +80,7 @@ def tile_solid(vertices: NDArray[np.float64]) -> bd.Solid:
     Faces whose vertices deviate from a plane by more than ``CAD_PLANAR_EXACT_MM`` are first
     snapped (:func:`snap_to_planes`); beyond ``CAD_MAX_FACE_DEVIATION_MM`` the tile is rejected.
     """
-    return polyhedron_solid(tile_solid_vertices(vertices), TILE_FACES)
+    return polyhedron_solid(tile_solid_vertices(vertices), SOLID_FACES)
 
 
 def tile_solid_vertices(vertices: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -126,7 +126,7 @@ def relieved_tile_solid(
     """
     points = np.asarray(tile_solid_vertices(vertices), dtype=np.float64)
     if not len(cuts):
-        return polyhedron_solid(points, TILE_FACES)
+        return polyhedron_solid(points, SOLID_FACES)
     centroids, normals = face_planes(points)
     planes = np.array(cuts, dtype=np.float64).reshape(-1, 4)
     # scipy's half-spaces: A x + b <= 0
@@ -138,7 +138,7 @@ def relieved_tile_solid(
     scale = 1.0 + float(np.ptp(points, axis=0).max())
     tol = _RELIEF_TOL * scale  # one tolerance for merging corners and for a corner on a plane
     if np.any(points @ normals.T - offsets[: len(normals)] > tol):
-        return _cut_by_boxes(polyhedron_solid(points, TILE_FACES), planes, scale)
+        return _cut_by_boxes(polyhedron_solid(points, SOLID_FACES), planes, scale)
     corners = HalfspaceIntersection(np.column_stack([outward, -offsets]), centre).intersections
     unique: list[NDArray[np.float64]] = []
     for corner in corners:  # a corner where four planes meet comes out more than once

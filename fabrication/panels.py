@@ -25,10 +25,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.cad.features import channel_radius
+from drawstring.cad.feature_common import channel_radius
 from drawstring.cad.hinge_plans import strip_hole_plans
-from drawstring.cad.paths import SIDE_TOP_FACE, TILE_FACES, channel_path, face_planes, lift_path
+from drawstring.cad.paths import SIDE_TOP_FACE, SOLID_FACES, channel_path, face_planes, lift_path
 from drawstring.fabrication.dxf import Part2D, signed_area, text_strokes, text_width
+from drawstring.geometry.core.tile import HingeSide
 
 if TYPE_CHECKING:
     from drawstring.cad.design import CadResult
@@ -80,11 +81,11 @@ class Panel:
 def _face_edges() -> list[list[tuple[int, int]]]:
     """Per face, its four edges in order as (neighbour face, index of the edge's first vertex)."""
     edge_face: dict[tuple[int, int], int] = {}
-    for face, ring in enumerate(TILE_FACES):
+    for face, ring in enumerate(SOLID_FACES):
         for i in range(4):
             edge_face[(ring[i], ring[(i + 1) % 4])] = face
     result = []
-    for ring in TILE_FACES:
+    for ring in SOLID_FACES:
         result.append([(edge_face[(ring[(i + 1) % 4], ring[i])], i) for i in range(4)])
     return result
 
@@ -248,7 +249,7 @@ class _Box:
         the face's ring."""
         p = self.profile.panel_thickness_mm
         normal, origin = self.normals[face], self.centroids[face]
-        ring = TILE_FACES[face]
+        ring = SOLID_FACES[face]
         start3, end3 = self.vertices[ring[first]], self.vertices[ring[(first + 1) % 4]]
         n_g = self.normals[neighbour]
         c = np.array([n_g @ axis_a, n_g @ axis_b])
@@ -441,7 +442,7 @@ def panel_holes(
         for (a, _, b, _), side, plan in zip(
             rows, sides, strip_hole_plans(tiles_flat, rows, sides, profile), strict=True
         ):
-            face = 4 if side == "top" else 5
+            face = 4 if side == HingeSide.TOP else 5
             for tile, points in zip((a, b), plan.points, strict=True):
                 pilots += [(int(tile), face, point, plan.radius) for point in points]
     return magnets, pilots

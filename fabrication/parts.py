@@ -25,6 +25,7 @@ from drawstring.fabrication.dxf import (
     text_strokes,
     text_width,
 )
+from drawstring.geometry.core.tile import HingeSide
 
 #: Chordal deviation (mm) when round ends of strips become polyline points.
 OUTLINE_DEFLECTION_MM = 0.01
@@ -54,8 +55,8 @@ class HingeStyle:
 #: not imported: that module loads matplotlib): top-face strips blue with a circle,
 #: bottom-face strips orange with a square, the markers filled and black-edged.
 PLACEMENT_HINGES = {
-    "top": HingeStyle("HINGE_TOP", "#0072B2", 5, "circle"),
-    "bottom": HingeStyle("HINGE_BOTTOM", "#E69F00", 30, "square"),
+    HingeSide.TOP: HingeStyle("HINGE_TOP", "#0072B2", 5, "circle"),
+    HingeSide.BOTTOM: HingeStyle("HINGE_BOTTOM", "#E69F00", 30, "square"),
 }
 #: Marker size (mm, radius or half side) as a fraction of the strip width, and its bounds.
 MARKER_FRACTION, MARKER_MIN_MM, MARKER_MAX_MM = 0.3, 0.5, 2.5
@@ -102,7 +103,7 @@ def hinge_halves(
 ) -> list[tuple[int, NDArray[np.float64], NDArray[np.float64]]]:
     """Per tile of a hinge: (tile, corner point (2,), unit direction (2,) into the tile), flat
     pose seen from above."""
-    shift = 0 if side == "top" else 4
+    shift = 0 if side == HingeSide.TOP else 4
     halves = []
     for tile, corner in ((int(hinge[0]), int(hinge[1])), (int(hinge[2]), int(hinge[3]))):
         point = tiles[tile, shift + corner, :2]
@@ -256,9 +257,12 @@ def write_placement(
         for stroke in text_strokes(str(tile), height, vertices[:4, :2].mean(axis=0)):
             add(stroke, "LABEL", False)
     markers = []
-    rings = {"top": tiles[:, 0:4, :2].reshape(-1, 2), "bottom": tiles[:, 4:8, :2].reshape(-1, 2)}
+    rings = {
+        HingeSide.TOP: tiles[:, 0:4, :2].reshape(-1, 2),
+        HingeSide.BOTTOM: tiles[:, 4:8, :2].reshape(-1, 2),
+    }
     for _, side, outline in strips:
-        face = "top" if side == "top" else "bottom"
+        face = HingeSide(side)
         style = PLACEMENT_HINGES[face]
         add(outline, style.layer, True)
         markers.append((style, *_hinge_marker(outline, rings[face])))

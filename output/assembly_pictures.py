@@ -19,6 +19,7 @@ from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 from numpy.typing import NDArray
 
 from drawstring.cad.paths import route_openings
+from drawstring.geometry.core.tile import HingeSide
 from drawstring.output import pictures
 from drawstring.output.assembly_order import Guide, Stop, plan_guide, stop_positions
 
@@ -139,13 +140,13 @@ def _tiles_picture(
         [
             0.5
             * (
-                tiles_flat[a, (0 if s == "top" else 4) + ca, :2]
-                + tiles_flat[b, (0 if s == "top" else 4) + cb, :2]
+                tiles_flat[a, (0 if s == HingeSide.TOP else 4) + ca, :2]
+                + tiles_flat[b, (0 if s == HingeSide.TOP else 4) + cb, :2]
             )
             for (a, ca, b, cb), s in zip(hinges, hinge_side, strict=True)
         ]
     ).reshape(-1, 2)
-    pictures.draw_hinges(ax, points, np.array([s != "top" for s in hinge_side], dtype=bool))
+    pictures.draw_hinges(ax, points, np.array([s != HingeSide.TOP for s in hinge_side], dtype=bool))
     if len(cut_hinges):
         cut = points[np.asarray(cut_hinges, dtype=np.int64)]
         ax.scatter(

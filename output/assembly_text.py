@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from drawstring.cad.paths import SIDE_TOP_FACE
 from drawstring.fabrication.profiles import Process, Profile, print_clearance_mm, string_is_cable
 from drawstring.fabrication.record import ExportRecord
+from drawstring.geometry.core.tile import HingeSide
 from drawstring.geometry.tiling.linkage import id_runs
 from drawstring.output.assembly_order import Stop, plan_guide
 
@@ -216,7 +217,7 @@ def _placement_text(profile: Profile, est: dict[str, Any], sides: Sequence[str])
         "marked with a circle: on the top faces; orange, marked with a square: on the "
         "bottom faces)."
     )
-    if any(side != "top" for side in sides):
+    if any(side != HingeSide.TOP for side in sides):
         # laser tiles carry their numbers in their bottom faces; plywood boxes inside
         by_number = (
             "by the numbers in their bottom faces"

@@ -22,8 +22,9 @@ from mpl_toolkits.mplot3d import Axes3D  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 from numpy.typing import ArrayLike  # noqa: E402
 
+from drawstring.geometry.core.tile import TILE_FACES_SIDES_INWARD  # noqa: E402
 from drawstring.geometry.core.types import FloatArray  # noqa: E402
-from drawstring.geometry.simulate.tiles import TILE_FACES, side_face_midpoints  # noqa: E402
+from drawstring.geometry.simulate.tiles import side_face_midpoints  # noqa: E402
 
 logger = logging.getLogger(__name__)
 
@@ -66,7 +67,7 @@ def _limits(frames: FloatArray) -> tuple[FloatArray, float]:
 
 
 def _draw(ax: Axes3D, tiles: FloatArray, line: FloatArray | None) -> None:
-    faces = tiles[:, TILE_FACES].reshape(-1, 4, 3)
+    faces = tiles[:, TILE_FACES_SIDES_INWARD].reshape(-1, 4, 3)
     colours = np.tile(np.array([_TOP] + [_SIDE] * 5), (len(tiles), 1))
     poly = Poly3DCollection(faces, facecolors=colours, edgecolors=(0.2, 0.2, 0.2), linewidths=0.3)
     ax.add_collection3d(poly)

@@ -18,8 +18,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.tile import TILE_FACES
 from drawstring.geometry.core.types import FloatArray, IntArray
-from drawstring.geometry.tiling.linkage import TILE_FACES
 
 #: At most this many coordinates of deployment frames are inlined (F * T * 24); more frames are
 #: subsampled evenly, keeping the first (flat) and the last (assembled).

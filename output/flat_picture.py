@@ -12,6 +12,7 @@ import numpy as np
 from matplotlib.collections import LineCollection, PolyCollection
 from numpy.typing import NDArray
 
+from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.route.rules import NODE_ENTRANCE
 from drawstring.geometry.tiling.linkage import gap_centroids
 from drawstring.output.pictures import (
@@ -288,9 +289,8 @@ def save_flat(result: Design, path: Path) -> None:
     width = 9.0
     height = float(np.clip(width * extent[1] / max(extent[0], 1e-9), 4.0, 12.0)) + 0.8
     fig, ax = plt.subplots(figsize=(width, height))
-    trimmed = (
-        [tr.hinge for tr in layout.trims if tr.hinge >= 0] if layout.strategy == "dual" else []
-    )
+    dual = layout.strategy == HingeStrategy.DUAL
+    trimmed = [tr.hinge for tr in layout.trims if tr.hinge >= 0] if dual else []
     draw_flat_layout(
         ax,
         linkage,

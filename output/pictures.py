@@ -22,7 +22,7 @@ from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from drawstring.geometry.tiling.linkage import TILE_FACES  # noqa: E402
+from drawstring.geometry.core.tile import TILE_FACES  # noqa: E402
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes

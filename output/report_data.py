@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.tile import HingeSide
 from drawstring.geometry.core.types import FloatArray
 from drawstring.output.design_folder import (
     DESIGN_JSON_TYPES,
@@ -104,7 +105,7 @@ def _neighbours(
     if isinstance(design_hinges, list) and design_hinges:
         hinges = np.asarray(design_hinges, dtype=np.int64).reshape(-1, 4)
         sides_raw = found.design.get("linkage", {}).get("hinge_side") or []
-        side = [1 if s == "bottom" else 0 if s == "top" else 2 for s in sides_raw]
+        side = [1 if s == HingeSide.BOTTOM else 0 if s == HingeSide.TOP else 2 for s in sides_raw]
         side += [2] * (len(hinges) - len(side))
         rule = "sharing a hinge"
     elif found.flat is not None:

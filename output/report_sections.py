@@ -12,12 +12,13 @@ from typing import Any
 import numpy as np
 
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.tile import Side
 from drawstring.output.design_folder import Route, print_job_counts, tile_volumes
 from drawstring.output.metric_rules import MetricRow
 from drawstring.output.report_data import FolderContents
 
 #: Tile sides by number, as the route names them.
-SIDE_NAMES = ("bottom", "right", "top", "left")
+SIDE_NAMES = tuple(side.label for side in Side)
 
 #: Files of the output folder and what each is for (the output contract, docs/output.md).
 FILE_PURPOSES: dict[str, str] = {

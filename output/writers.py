@@ -14,8 +14,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from drawstring.geometry.core.tile import TILE_FACES
 from drawstring.geometry.route.result import route_to_json
-from drawstring.geometry.tiling.linkage import TILE_FACES, gap_centroids
+from drawstring.geometry.tiling.linkage import gap_centroids
 from drawstring.output import pictures
 from drawstring.output.flat_picture import save_flat
 from drawstring.output.lift_picture import save_lift

@@ -16,9 +16,10 @@ from numpy.typing import NDArray
 
 from drawstring.fabrication.profiles import Process, Profile, print_clearance_mm
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.tile import HingeSide, Pose, Side
 from drawstring.geometry.core.tolerances import PRINT_GAP_TOL_MM
 from drawstring.geometry.route.result import Route
-from drawstring.geometry.tiling.linkage import SIDE_BOTTOM, SIDE_LEFT, SIDE_RIGHT, SIDE_TOP, Linkage
+from drawstring.geometry.tiling.linkage import Linkage
 from drawstring.pipeline.layout_stage import fabricated_tiles
 from drawstring.pipeline.record import Design
 
@@ -88,11 +89,11 @@ def split_contacts(linkage: Linkage) -> NDArray[np.int64]:
             if split.axis == "x":
                 a = tile_at.get((split.line - 1, k))
                 b = tile_at.get((split.line, k))
-                sides = (SIDE_RIGHT, SIDE_LEFT)
+                sides = (Side.RIGHT, Side.LEFT)
             else:
                 a = tile_at.get((k, split.line - 1))
                 b = tile_at.get((k, split.line))
-                sides = (SIDE_TOP, SIDE_BOTTOM)
+                sides = (Side.TOP, Side.BOTTOM)
             if a is not None and b is not None:
                 rows.append((a, sides[0], b, sides[1]))
     return np.array(sorted(set(rows)), dtype=np.int64).reshape(-1, 4)
@@ -191,11 +192,8 @@ class _Shortfall:
 
 def _shortfalls(result: Design) -> list[_Shortfall]:
     """The features the profile cannot give up on that do not fit this design's tiles."""
-    from drawstring.cad.features import (
-        channel_min_face_mm,
-        lift_bore_depth_mm,
-        strip_min_reach_mm,
-    )
+    from drawstring.cad.features import channel_min_face_mm, lift_bore_depth_mm
+    from drawstring.cad.hinge_frame import strip_min_reach_mm
     from drawstring.cad.hinge_plans import strip_neighbours
 
     profile = result.profile
@@ -239,7 +237,7 @@ def _shortfalls(result: Design) -> list[_Shortfall]:
         for (a, ca, b, cb), side, crowd in zip(
             hinges.tolist(), sides, strip_neighbours(hinges, sides), strict=True
         ):
-            shift = 0 if side == "top" else 4
+            shift = 0 if side == HingeSide.TOP else 4
             for tile, k, others in ((a, ca, crowd[0]), (b, cb, crowd[1])):
                 ring = tiles[tile, shift : shift + 4]
                 have = float(np.linalg.norm(ring.mean(axis=0) - ring[k]))
@@ -376,7 +374,7 @@ def build_cad(result: Design) -> tuple[CadResult, CadResult]:
         inputs.magnet_pairs,
         inputs.trims,
         result.profile,
-        pose="flat",
+        pose=Pose.FLAT,
         print_clearance_mm=print_clearance_mm(result.profile),
     )
     # The assembled pose is the same solids moved rigidly (hinge parts bend, so they stay out).
@@ -384,7 +382,7 @@ def build_cad(result: Design) -> tuple[CadResult, CadResult]:
         move_solid(solid, motion) for solid, motion in zip(flat.tiles, flat.transforms, strict=True)
     )
     assembled = replace(
-        flat, pose="assembled", tiles=moved, pads=(), pad_hinge=np.zeros(0, dtype=np.int64)
+        flat, pose=Pose.ASSEMBLED, tiles=moved, pads=(), pad_hinge=np.zeros(0, dtype=np.int64)
     )
     return flat, assembled
 

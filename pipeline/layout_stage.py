@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from drawstring.geometry.assembled.reextrude import reextrude
 from drawstring.geometry.assembled.shape import AssembledResult, optimize_assembled
 from drawstring.geometry.core.rigid import rigid_copies
+from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.core.tolerances import (
     FLAT_EDGE_ERROR_TOL_MM,
     HINGE_GAP_TOL_MM,
@@ -456,7 +457,7 @@ def _plain_layout(
     # corners meet on the face that carries each hinge.
     faces = (
         dual_hinge_faces(linkage, assembled.tiles, options.min_gap_angle_deg)
-        if options.hinges == "dual"
+        if options.hinges == HingeStrategy.DUAL
         else None
     )
     if faces is not None and policy.hinge_depths and faces.bottom.any():

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from drawstring.fabrication.profiles import Profile
 from drawstring.geometry.assembled.rigidity import rigidity_report
 from drawstring.geometry.assembled.shape import AssembledResult
+from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.core.tolerances import (
     CAD_PAD_INTERFERENCE_REL,
     CAPSTAN_FACTOR_WARN,
@@ -453,7 +454,7 @@ def _hinge_gap_warnings(flat_pose: _FlatPose, options: ResolvedOptions) -> list[
             "without the co-optimization (--no-co-optimize) the flat layout only "
             "approximates the assembled tiles; drop that option to close it"
         )
-    elif options.hinges == "dual":
+    elif options.hinges == HingeStrategy.DUAL:
         cause = "more tiles shrink it, and --hinges top reaches 1e-3 mm on most built-ins"
     else:
         cause = "more tiles shrink it"

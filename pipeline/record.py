@@ -31,6 +31,7 @@ from drawstring.fabrication.profiles import (
 )
 from drawstring.geometry.assembled.shape import AssembledResult
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.core.tolerances import (
     FLAT_EDGE_ERROR_TOL_MM,
     HINGE_GAP_TOL_MM,
@@ -39,7 +40,6 @@ from drawstring.geometry.core.tolerances import (
 from drawstring.geometry.flat.layout import FlatResult
 from drawstring.geometry.flatten.conformal import Flattening
 from drawstring.geometry.hinges.placement import HingeLayout
-from drawstring.geometry.hinges.rigid_layout import HingeStrategy
 from drawstring.geometry.route.lift import LiftPoints
 from drawstring.geometry.route.result import Route
 from drawstring.geometry.target.surface import Target
@@ -88,7 +88,7 @@ STAGES = (
     "target", "flatten", "tiling", "assembled", "flat", "hinges", "lift", "route", "rigidity",
     "simulate",
 )  # fmt: skip
-HINGE_STRATEGIES: tuple[HingeStrategy, ...] = ("dual", "top")
+HINGE_STRATEGIES: tuple[HingeStrategy, ...] = tuple(HingeStrategy)
 
 
 @dataclass(frozen=True)
@@ -104,7 +104,7 @@ class DesignOptions:
     min_gap_angle_deg: float | None = None
     max_scale_factor: float = MAX_SCALE_FACTOR
     corners: tuple[int, int, int, int] | None = None
-    hinges: HingeStrategy = "dual"
+    hinges: HingeStrategy = HingeStrategy.DUAL
     weights: tuple[float, float, float] = (1e4, 10.0, 0.1)
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
     simulate: bool = True

@@ -21,6 +21,7 @@ from threadpoolctl import threadpool_limits
 
 from drawstring.fabrication.profiles import MAX_TILES, MIN_GRID_SIDE, Profile, load_profile
 from drawstring.geometry.core.errors import InputError, ThicknessError
+from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.flatten.conformal import Flattening, flatten
 from drawstring.geometry.hinges.placement import HingeLayout
 from drawstring.geometry.route.energy import tile_masses_from_volumes
@@ -67,7 +68,7 @@ def resolve_options(options: DesignOptions, profile: Profile) -> ResolvedOptions
         else profile.min_gap_angle_deg,
         max_scale_factor=options.max_scale_factor,
         corners=options.corners,
-        hinges=options.hinges,
+        hinges=HingeStrategy(options.hinges),
         weights=tuple(options.weights),
         up=tuple(float(c) / math.hypot(*options.up) for c in options.up),
         simulate=options.simulate,

@@ -16,7 +16,7 @@ from drawstring.geometry.assembled.frustums import (
 from drawstring.geometry.assembled.shape import optimize_assembled
 from drawstring.geometry.assembled.top import CLOSE_FIT_WEIGHTS, PAPER_WEIGHTS, eq1_energy
 from drawstring.geometry.core.errors import DesignError, InputError, InternalError
-from drawstring.geometry.tiling.linkage import TILE_FACES
+from drawstring.geometry.core.tile import TILE_FACES
 
 
 def grid_mesh(nx: int, ny: int, x0: float, y0: float, step: float) -> tuple[np.ndarray, np.ndarray]:

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from drawstring.geometry.core.tile import TILE_FACES
 from drawstring.geometry.flat.layout import extrude_flat, optimize_flat
 from drawstring.geometry.flat.verify import heightfield_tiles, hinge_gaps, interpenetration
 from drawstring.geometry.hinges.placement import (
@@ -18,7 +19,7 @@ from drawstring.geometry.hinges.placement import (
 )
 from drawstring.geometry.hinges.sides import hinge_sides
 from drawstring.geometry.hinges.trims import hinge_trims
-from drawstring.geometry.tiling.linkage import TILE_FACES, build_linkage
+from drawstring.geometry.tiling.linkage import build_linkage
 
 
 def _grid(n: int, size: float = 100.0):

@@ -164,3 +164,15 @@ def test_importing_all_of_geometry_leaves_the_cad_kernel_unloaded() -> None:
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+def test_every_module_imports() -> None:
+    """Every module imports: a name moved out of a module that an importer still names fails
+    here, in the CAD and export modules a ``--no-cad`` run never loads too."""
+    code = (
+        "import importlib, sys\n"
+        f"for name in {sorted(module_files())!r}:\n"
+        "    importlib.import_module(name)\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr[-2000:]

@@ -15,6 +15,7 @@ from drawstring.fabrication.processes.base import (
     cut_length,
     nesting_record,
 )
+from drawstring.geometry.core.tile import HingeSide
 
 if TYPE_CHECKING:
     from drawstring.fabrication.measures import Measures
@@ -111,7 +112,7 @@ def _placement_from_below(job: FabricationJob, placed: list[tuple[int, str, Floa
     """``placement-bottom.dxf`` / ``.svg`` for the strips on the bottom faces: the layout seen
     from below, the tiles lying on it top faces down (mirrored in x; the numbers still read
     the right way)."""
-    below = [(h, side, outline) for h, side, outline in placed if side != "top"]
+    below = [(h, side, outline) for h, side, outline in placed if side != HingeSide.TOP]
     if not below:
         return
     mirror = np.array([-1.0, 1.0])

@@ -13,12 +13,9 @@ import igl
 import numpy as np
 
 from drawstring.geometry.core.errors import InternalError
+from drawstring.geometry.core.tile import SIDE_FACES, TILE_FACES
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.solve.linalg import plane_fit
-from drawstring.geometry.tiling.linkage import TILE_FACES
-
-#: Side faces in the order of the top edges ``k -> k+1`` (rows 2.. of :data:`TILE_FACES`).
-TILE_SIDE_FACES: IntArray = TILE_FACES[2:]
 
 
 @dataclass(frozen=True)
@@ -289,8 +286,8 @@ def measure_assembled(
     inner = edges.interior
     qa, qb = edges.quads[inner, 0], edges.quads[inner, 1]
     sa, sb = edges.sides[inner, 0], edges.sides[inner, 1]
-    face_a = tiles[qa[:, None], TILE_SIDE_FACES[sa]]
-    face_b = tiles[qb[:, None], TILE_SIDE_FACES[sb]]
+    face_a = tiles[qa[:, None], SIDE_FACES[sa]]
+    face_b = tiles[qb[:, None], SIDE_FACES[sb]]
     if len(face_a):
         ca, na = plane_fit(face_a)
         cb, nb = plane_fit(face_b)

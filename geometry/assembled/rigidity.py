@@ -28,6 +28,7 @@ import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InternalError
+from drawstring.geometry.core.tile import SIDE_FACES_INWARD
 from drawstring.geometry.core.tolerances import RIGIDITY_SVD_REL
 from drawstring.geometry.core.types import FloatArray, IntArray
 
@@ -40,8 +41,6 @@ __all__ = [
     "rigidity_matrix",
     "rigidity_report",
 ]
-
-_SIDE_FACES = np.array([[k, (k + 1) % 4, 4 + (k + 1) % 4, 4 + k] for k in range(4)])
 
 
 def _skew_triplets(
@@ -100,8 +99,8 @@ def rigidity_matrix(
     tile_a, tile_b, where = [ta], [tb], [point]
     c = np.asarray(contacts, dtype=np.int64).reshape(-1, 4)
     if len(c):
-        fa = pts[c[:, 0, None], _SIDE_FACES[c[:, 1]]]  # (P, 4, 3)
-        fb = pts[c[:, 2, None], _SIDE_FACES[c[:, 3]]]
+        fa = pts[c[:, 0, None], SIDE_FACES_INWARD[c[:, 1]]]  # (P, 4, 3)
+        fb = pts[c[:, 2, None], SIDE_FACES_INWARD[c[:, 3]]]
         mid = 0.5 * (fa.mean(axis=1) + fb.mean(axis=1))
         if contact == "midpoint":
             extra = [mid]

@@ -37,6 +37,7 @@ from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.core.errors import InternalError
+from drawstring.geometry.core.tile import TILE_FACES
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.flat.polygons import (
     convex_penetration_depth,
@@ -45,7 +46,7 @@ from drawstring.geometry.flat.polygons import (
     reflex_corners,
 )
 from drawstring.geometry.solve.constraints import quad_overlap_mtv
-from drawstring.geometry.tiling.linkage import TILE_FACES, Linkage, slit_ends
+from drawstring.geometry.tiling.linkage import Linkage, slit_ends
 
 #: The 18 rigidity edges of a tile (3 * 8 - 6, Maxwell): 4 top, 4 bottom, 4 vertical edges and
 #: one diagonal on each of the 6 faces.

@@ -3,13 +3,11 @@ hinge pairs brought together (paper section 4.4).
 """
 
 from drawstring.geometry.hinges.placement import HingeLayout, layout_hinges
-from drawstring.geometry.hinges.rigid_layout import HingeStrategy
 from drawstring.geometry.hinges.sides import dual_hinge_faces, hinge_sides
 from drawstring.geometry.hinges.trims import HingeTrim
 
 __all__ = [
     "HingeLayout",
-    "HingeStrategy",
     "HingeTrim",
     "dual_hinge_faces",
     "hinge_sides",

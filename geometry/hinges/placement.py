@@ -27,12 +27,13 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InternalError
+from drawstring.geometry.core.tile import TILE_FACES, HingeSide, HingeStrategy
 from drawstring.geometry.core.tolerances import (
     HINGE_ANGLE_MARGIN_DEG,
     HINGE_GAP_TOL_MM,
@@ -43,7 +44,7 @@ from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.flat.layout import FlatResult
 from drawstring.geometry.flat.pose import hinge_faces
 from drawstring.geometry.flat.verify import hinge_gaps
-from drawstring.geometry.hinges.rigid_layout import HingeStrategy, RigidLayoutResult, rigid_layout
+from drawstring.geometry.hinges.rigid_layout import RigidLayoutResult, rigid_layout
 from drawstring.geometry.hinges.sides import hinge_sides
 from drawstring.geometry.hinges.trims import (
     HingeTrim,
@@ -52,11 +53,10 @@ from drawstring.geometry.hinges.trims import (
     pair_trims,
     unhinged_close_pairs,
 )
-from drawstring.geometry.tiling.linkage import TILE_FACES, Linkage, slit_ends
+from drawstring.geometry.tiling.linkage import Linkage, slit_ends
 
 logger = logging.getLogger(__name__)
 
-HingeSide = Literal["top", "bottom"]
 
 __all__ = [
     "HingeLayout",
@@ -111,7 +111,7 @@ class HingeLayout:
 
     @property
     def sides(self) -> tuple[HingeSide, ...]:
-        return tuple("bottom" if b else "top" for b in self.bottom)
+        return tuple(HingeSide.BOTTOM if b else HingeSide.TOP for b in self.bottom)
 
 
 def _hinge_vertex_ids(linkage: Linkage, bottom: BoolArray) -> IntArray:
@@ -173,7 +173,7 @@ def layout_hinges(
     t3 = np.asarray(tiles_3d, dtype=np.float64)
     if t2.shape != t3.shape or t2.shape[1:] != (8, 3) or len(t2) != linkage.n_tiles:
         raise InternalError("tiles_2d and tiles_3d must both be (T, 8, 3) for the linkage's tiles")
-    if strategy not in ("dual", "top"):
+    if strategy not in tuple(HingeStrategy):
         raise InternalError(f"hinge strategy {strategy!r} is not dual or top")
     theta = flat.min_gap_angle_deg if min_gap_angle_deg is None else float(min_gap_angle_deg)
     problems: list[str] = []
@@ -208,7 +208,7 @@ def _hinge_bottoms(
     bottom: ArrayLike | None,
 ) -> BoolArray:
     """Which hinges go to the bottom (see :func:`layout_hinges`'s ``bottom``)."""
-    if strategy == "top":
+    if strategy == HingeStrategy.TOP:
         return np.zeros(linkage.n_hinges, dtype=bool)
     if bottom is None:
         return hinge_sides(linkage, tiles_3d) if flat.hinges is None else flat.hinges.bottom
@@ -229,7 +229,7 @@ def _trimmed_pairs(
     """Hinges ``(H,)`` whose pairs are separated on the hinge face only and trimmed (every one
     for ``top``), and those the flat layout released from their clear openings."""
     released = np.zeros(linkage.n_hinges, dtype=bool)
-    if strategy == "top":
+    if strategy == HingeStrategy.TOP:
         return np.ones(linkage.n_hinges, dtype=bool), released
     # pairs that collide on their hinge face at every opening within the gap-angle bounds
     # are laid out like top hinges: separated on the hinge face, their overlap trimmed
@@ -316,7 +316,7 @@ def _flat_pose_trims(
     overlap on the merged tiles, each kind reported in ``problems``."""
     trims = hinge_trims(linkage, result.merged, np.flatnonzero(trim))
     unhinged: tuple[HingeTrim, ...] = ()
-    if strategy == "top":
+    if strategy == HingeStrategy.TOP:
         # the layout kept unhinged pairs apart on their top faces only
         unhinged = pair_trims(result.merged, unhinged_close_pairs(linkage, result.merged))
         if unhinged:
@@ -330,7 +330,7 @@ def _flat_pose_trims(
     hinged_lost = float(sum(tr.contact_area_lost_mm2 for tr in trims))
     if trims:
         which = f"{strategy} hinges: "
-        if never_clear and strategy == "dual":
+        if never_clear and strategy == HingeStrategy.DUAL:
             which += (
                 f"{_pairs(never_clear, verb='collide')} on their hinge face at every opening in "
                 f"[{theta:g}, 90] deg; "
@@ -424,7 +424,7 @@ def hinge_vertex_json(layout: HingeLayout, linkage: Linkage) -> dict[str, Any]:
             {
                 "tiles": [int(ta), int(tb)],
                 "corners": [int(ca), int(cb)],
-                "side": "bottom" if layout.bottom[k] else "top",
+                "side": HingeSide.BOTTOM if layout.bottom[k] else HingeSide.TOP,
                 "vertices": [int(layout.hinge_vertices[k, 0]), int(layout.hinge_vertices[k, 1])],
                 "point_mm": [float(v) for v in layout.hinge_points[k]],
             }

@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InternalError
+from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.core.tolerances import (
     HINGE_ANGLE_MARGIN_DEG,
     HINGE_LAYOUT_CLEARANCE_MM,
@@ -51,7 +51,6 @@ from drawstring.geometry.tiling.linkage import Linkage, SlitEnds, slit_ends
 
 logger = logging.getLogger(__name__)
 
-HingeStrategy = Literal["dual", "top"]
 
 __all__ = ["HingeStrategy", "RigidLayoutResult", "rigid_layout"]
 
@@ -154,7 +153,8 @@ def rigid_layout(
     """
     t2 = np.asarray(shapes, dtype=np.float64)
     ids = np.asarray(hinge_ids, dtype=np.int64).reshape(-1, 2)
-    cut = np.full(len(ids), strategy == "top") if trim is None else np.asarray(trim, dtype=bool)
+    all_top = strategy == HingeStrategy.TOP
+    cut = np.full(len(ids), all_top) if trim is None else np.asarray(trim, dtype=bool)
     if cut.shape != (len(ids),):
         raise InternalError(f"trim has shape {cut.shape}; pass one flag per hinge")
     solver = _LayoutSolver.start(
@@ -231,9 +231,9 @@ class _LayoutSolver:
     ) -> _LayoutSolver:
         """The solver at the start layout ``t2`` (every component pinned by its first tile)."""
         layout = RigidPose(t2)
-        layout.unhinged_top_only = strategy == "top"
+        layout.unhinged_top_only = strategy == HingeStrategy.TOP
         ends = slit_ends(linkage)
-        faces = np.array([0, 4] if strategy == "dual" else [0], dtype=np.int64)
+        faces = np.array([0, 4] if strategy == HingeStrategy.DUAL else [0], dtype=np.int64)
         angle0 = np.stack([ends.angles(t2, int(f)) for f in faces])
         lo_deg = np.full(angle0.shape, float(min_gap_angle_deg) + HINGE_ANGLE_MARGIN_DEG)
         hi_deg = np.full(angle0.shape, 90.0 - HINGE_ANGLE_MARGIN_DEG)

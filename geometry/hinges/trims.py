@@ -16,11 +16,12 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
+from drawstring.geometry.core.tile import TILE_FACES
 from drawstring.geometry.core.tolerances import HINGE_TRIM_GROW_MM
 from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.flat.polygons import convex_pieces, polygon_in_convex_polyhedron_area
 from drawstring.geometry.solve.constraints import convex_overlap_mtv
-from drawstring.geometry.tiling.linkage import TILE_FACES, Linkage
+from drawstring.geometry.tiling.linkage import Linkage
 
 __all__ = [
     "HingeTrim",

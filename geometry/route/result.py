@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from drawstring.geometry.core.tile import Side
 from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.route.milp import segments_cross, turn_angle
 from drawstring.geometry.route.rules import check_positions
@@ -239,7 +240,7 @@ def route_to_json(
         "crossings": route.crossings,
         "boundary_tiles_covered": route.boundary_tiles_covered,
         "length_flat_mm": route.length_flat_mm,
-        "side_names": ["bottom", "right", "top", "left"],
+        "side_names": [side.label for side in Side],
         "steps": steps,
         "lift_points": lifts,
         "notes": list(route.notes),

@@ -12,8 +12,8 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
+from drawstring.geometry.core.tile import SIDE_FACES_INWARD
 from drawstring.geometry.core.types import FloatArray, IntArray
-from drawstring.geometry.simulate.tiles import SIDE_FACES
 from drawstring.geometry.solve.groups import ConstraintGroup
 from drawstring.geometry.solve.linalg import centering_matrix, difference_matrix
 
@@ -136,8 +136,8 @@ class FaceSnap(ConstraintGroup):
 
     def matrix(self, n_vertices: int) -> sp.csr_matrix:
         p = self.pairs
-        va = p[:, 0, None] * 8 + SIDE_FACES[p[:, 1]]  # (P, 4)
-        vb = p[:, 2, None] * 8 + SIDE_FACES[p[:, 3]]
+        va = p[:, 0, None] * 8 + SIDE_FACES_INWARD[p[:, 1]]  # (P, 4)
+        vb = p[:, 2, None] * 8 + SIDE_FACES_INWARD[p[:, 3]]
         blocks = []
         if self.face.any():
             assert self.partner is not None
@@ -314,7 +314,7 @@ class RigidShape(ConstraintGroup):
 
 def _side_normals(tiles: FloatArray, tile: IntArray, side: IntArray) -> FloatArray:
     """Unit normals ``(k, 3)`` of side faces, pointing into their tiles."""
-    face = tiles[tile[:, None], SIDE_FACES[side]]  # (k, 4, 3)
+    face = tiles[tile[:, None], SIDE_FACES_INWARD[side]]  # (k, 4, 3)
     n = np.cross(face[:, 2] - face[:, 0], face[:, 3] - face[:, 1])
     return np.asarray(n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300))
 
@@ -354,8 +354,8 @@ class FaceContact(ConstraintGroup):
     def matrix(self, n_vertices: int) -> sp.csr_matrix:
         p = self.pairs
         k = len(p)
-        fa = p[:, 0, None] * 8 + SIDE_FACES[p[:, 1]]  # (k, 4)
-        fb = p[:, 2, None] * 8 + SIDE_FACES[p[:, 3]]
+        fa = p[:, 0, None] * 8 + SIDE_FACES_INWARD[p[:, 1]]  # (k, 4)
+        fb = p[:, 2, None] * 8 + SIDE_FACES_INWARD[p[:, 3]]
         rows = np.arange(8 * k).reshape(2, k, 4)
         corner = np.stack([fb, fa])  # block 0: corners of b, block 1: corners of a
         other = np.stack([fa, fb])
@@ -378,8 +378,8 @@ class FaceContact(ConstraintGroup):
             # Gated pairs (across a split) engage for good once their faces come close while
             # face b is still (nearly) in front of face a: far apart in the flat layout, a
             # half-space between them would be meaningless.
-            mid_a = tiles[p[:, 0, None], SIDE_FACES[p[:, 1]]].mean(axis=1)
-            mid_b = tiles[p[:, 2, None], SIDE_FACES[p[:, 3]]].mean(axis=1)
+            mid_a = tiles[p[:, 0, None], SIDE_FACES_INWARD[p[:, 1]]].mean(axis=1)
+            mid_b = tiles[p[:, 2, None], SIDE_FACES_INWARD[p[:, 3]]].mean(axis=1)
             gap = mid_b - mid_a
             ahead = np.sum(gap * self.axes, axis=1) > -0.5 * self.engage_distance
             near = np.linalg.norm(gap, axis=1) < self.engage_distance

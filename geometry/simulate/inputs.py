@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InputError, InternalError
+from drawstring.geometry.core.tile import HingeSide
 from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.simulate.tiles import kabsch
 from drawstring.geometry.tiling.linkage import Linkage
@@ -94,10 +95,10 @@ def hinge_vertex_pairs(linkage: Linkage, hinge_side: Sequence[str] | None = None
     (H, 2) int
     """
     h = linkage.hinges
-    sides = ["top"] * len(h) if hinge_side is None else list(hinge_side)
-    if len(sides) != len(h) or any(s not in ("top", "bottom") for s in sides):
+    sides = [HingeSide.TOP] * len(h) if hinge_side is None else list(hinge_side)
+    if len(sides) != len(h) or any(s not in tuple(HingeSide) for s in sides):
         raise InternalError("hinge_side must list 'top' or 'bottom' for every hinge")
-    off = np.array([0 if s == "top" else 4 for s in sides], dtype=np.int64)
+    off = np.array([0 if s == HingeSide.TOP else 4 for s in sides], dtype=np.int64)
     return np.stack([h[:, 0] * 8 + h[:, 1] + off, h[:, 2] * 8 + h[:, 3] + off], axis=1)
 
 

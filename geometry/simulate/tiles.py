@@ -10,13 +10,12 @@ from __future__ import annotations
 import numpy as np
 
 from drawstring.geometry.core.rigid import rigid_fit
+from drawstring.geometry.core.tile import SIDE_FACES_INWARD, TILE_FACES_SIDES_INWARD
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.tiling.linkage import Linkage
 
 __all__ = [
-    "SIDE_FACES",
     "TILE_EDGES",
-    "TILE_FACES",
     "face_on_face",
     "face_partners",
     "hexahedron_overlap",
@@ -45,17 +44,6 @@ TILE_EDGES: IntArray = np.array(
 )  # fmt: skip
 
 
-#: The six faces of a tile: top, bottom, then side faces 0..3 (vertices k, k+1, 4+k+1, 4+k).
-TILE_FACES: IntArray = np.array(
-    [[0, 1, 2, 3], [4, 7, 6, 5]] + [[k, (k + 1) % 4, 4 + (k + 1) % 4, 4 + k] for k in range(4)],
-    dtype=np.int64,
-)
-
-
-#: Side face k of a tile as vertex indices.
-SIDE_FACES: IntArray = TILE_FACES[2:]
-
-
 def side_face_midpoints(tiles: FloatArray) -> FloatArray:
     """Midpoints (vertex means) of the four side faces of every tile.
 
@@ -67,7 +55,7 @@ def side_face_midpoints(tiles: FloatArray) -> FloatArray:
     -------
     (T, 4, 3) float, mm
     """
-    return np.asarray(tiles[:, SIDE_FACES].mean(axis=2))
+    return np.asarray(tiles[:, SIDE_FACES_INWARD].mean(axis=2))
 
 
 def tile_edge_lengths(tiles: FloatArray) -> FloatArray:
@@ -123,8 +111,8 @@ def kabsch_deviation(tiles: FloatArray, reference: FloatArray) -> FloatArray:
 
 def _face_normals(pts: FloatArray) -> FloatArray:
     """Unit normals ``(k, 6, 3)`` of the six faces of hexahedra ``(k, 8, 3)``."""
-    d1 = pts[:, TILE_FACES[:, 2]] - pts[:, TILE_FACES[:, 0]]  # (k, 6, 3)
-    d2 = pts[:, TILE_FACES[:, 3]] - pts[:, TILE_FACES[:, 1]]
+    d1 = pts[:, TILE_FACES_SIDES_INWARD[:, 2]] - pts[:, TILE_FACES_SIDES_INWARD[:, 0]]  # (k, 6, 3)
+    d2 = pts[:, TILE_FACES_SIDES_INWARD[:, 3]] - pts[:, TILE_FACES_SIDES_INWARD[:, 1]]
     n = np.empty_like(d1)
     n[..., 0] = d1[..., 1] * d2[..., 2] - d1[..., 2] * d2[..., 1]
     n[..., 1] = d1[..., 2] * d2[..., 0] - d1[..., 0] * d2[..., 2]
@@ -218,10 +206,10 @@ def face_partners(goal: FloatArray, pairs: IntArray) -> IntArray:
 
     Returns
     -------
-    (P, 4) int, indices into ``SIDE_FACES[side_b]``.
+    (P, 4) int, indices into ``SIDE_FACES_INWARD[side_b]``.
     """
-    fa = goal[pairs[:, 0, None], SIDE_FACES[pairs[:, 1]]]  # (P, 4, 3)
-    fb = goal[pairs[:, 2, None], SIDE_FACES[pairs[:, 3]]]
+    fa = goal[pairs[:, 0, None], SIDE_FACES_INWARD[pairs[:, 1]]]  # (P, 4, 3)
+    fb = goal[pairs[:, 2, None], SIDE_FACES_INWARD[pairs[:, 3]]]
     dist = np.linalg.norm(fa[:, :, None] - fb[:, None, :], axis=3)
     return np.asarray(np.argmin(dist, axis=2), dtype=np.int64)
 
@@ -241,9 +229,9 @@ def face_on_face(tiles: FloatArray, pairs: IntArray, partner: IntArray, limit: f
     -------
     (k,) bool
     """
-    fa = tiles[pairs[:, 0, None], SIDE_FACES[pairs[:, 1]]]  # (k, 4, 3)
+    fa = tiles[pairs[:, 0, None], SIDE_FACES_INWARD[pairs[:, 1]]]  # (k, 4, 3)
     fb = np.take_along_axis(
-        tiles[pairs[:, 2, None], SIDE_FACES[pairs[:, 3]]], partner[..., None], 1
+        tiles[pairs[:, 2, None], SIDE_FACES_INWARD[pairs[:, 3]]], partner[..., None], 1
     )
     return np.asarray(np.linalg.norm(fa - fb, axis=2).max(axis=1) < limit, dtype=bool)
 

@@ -23,21 +23,13 @@ from typing import Any, Literal, TypeVar, cast
 
 import numpy as np
 
+from drawstring.geometry.core.tile import Side
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 
 GapKind = Literal["vertical", "horizontal", "boundary", "split"]
 GAP_KINDS: tuple[GapKind, ...] = ("vertical", "horizontal", "boundary", "split")
 
 BL, BR, TR, TL = 0, 1, 2, 3
-SIDE_BOTTOM, SIDE_RIGHT, SIDE_TOP, SIDE_LEFT = 0, 1, 2, 3
-
-#: The six faces of a tile's eight vertices (top corners 0..3 counter-clockwise seen from
-#: above, bottom corners 4..7 under them), each counter-clockwise seen from outside: top,
-#: bottom, then side ``k`` under the top edge ``k -> k + 1``.
-TILE_FACES: IntArray = np.array(
-    [[0, 1, 2, 3], [4, 7, 6, 5]] + [[k, 4 + k, 4 + (k + 1) % 4, (k + 1) % 4] for k in range(4)],
-    dtype=np.int64,
-)
 
 
 def id_runs(ids: Iterable[int], most: int | None = None) -> str:
@@ -190,8 +182,8 @@ _CORNER_AT_VERTEX = {"LL": TR, "LR": TL, "UL": BR, "UR": BL}
 _HINGE_PAIRS = {"h": (("UL", "UR"), ("LL", "LR")), "v": (("UL", "LL"), ("UR", "LR"))}
 # Sides bounding the void, counter-clockwise, per slit direction.
 _GAP_SIDES = {
-    "h": (("LL", SIDE_TOP), ("LR", SIDE_TOP), ("UR", SIDE_BOTTOM), ("UL", SIDE_BOTTOM)),
-    "v": (("LR", SIDE_LEFT), ("UR", SIDE_LEFT), ("UL", SIDE_RIGHT), ("LL", SIDE_RIGHT)),
+    "h": (("LL", Side.TOP), ("LR", Side.TOP), ("UR", Side.BOTTOM), ("UL", Side.BOTTOM)),
+    "v": (("LR", Side.LEFT), ("UR", Side.LEFT), ("UL", Side.RIGHT), ("LL", Side.RIGHT)),
 }
 
 
