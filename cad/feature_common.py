@@ -30,12 +30,12 @@ Footprint = tuple[NDArray[np.float64], float]
 # small geometry helpers
 
 
-def _vec(point: NDArray[np.float64]) -> bd.Vector:
+def vector3(point: NDArray[np.float64]) -> bd.Vector:
     return bd.Vector(float(point[0]), float(point[1]), float(point[2]))
 
 
-def _plane(origin: NDArray[np.float64], normal: NDArray[np.float64]) -> bd.Plane:
-    return bd.Plane(origin=_vec(origin), z_dir=_vec(unit_vector(normal)))
+def bd_plane(origin: NDArray[np.float64], normal: NDArray[np.float64]) -> bd.Plane:
+    return bd.Plane(origin=vector3(origin), z_dir=vector3(unit_vector(normal)))
 
 
 def channel_radius(profile: Profile) -> float:
@@ -49,17 +49,17 @@ def feature_wall_mm(profile: Profile) -> float:
     return max(profile.nozzle_mm, 2.0 * profile.kerf_mm, 0.3)
 
 
-def _cross2(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+def cross2(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
     """z component of the cross product of 2D vectors (..., 2)."""
     return np.asarray(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0])
 
 
-def _signed_area(outline: NDArray[np.float64]) -> float:
+def signed_area(outline: NDArray[np.float64]) -> float:
     x, y = outline[:, 0], outline[:, 1]
     return float(0.5 * (x @ np.roll(y, -1) - y @ np.roll(x, -1)))
 
 
-def _footprint_margin(
+def footprint_margin(
     tile: NDArray[np.float64],
     point: NDArray[np.float64],
     normal: NDArray[np.float64],
@@ -87,6 +87,6 @@ def _footprint_margin(
         rel = ring - point
         poly = np.stack([rel @ axis_u, rel @ axis_v], axis=1)
         edge = np.roll(poly, -1, axis=0) - poly
-        signed = _cross2(edge, -poly) / np.linalg.norm(edge, axis=1)
-        margins.append(float(np.min(signed * np.sign(_signed_area(poly)))))
+        signed = cross2(edge, -poly) / np.linalg.norm(edge, axis=1)
+        margins.append(float(np.min(signed * np.sign(signed_area(poly)))))
     return min(margins)

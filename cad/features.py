@@ -28,11 +28,11 @@ from numpy.typing import NDArray
 from drawstring.cad.feature_common import (
     TOOL_OVERSHOOT_MM,
     Footprint,
-    _footprint_margin,
-    _plane,
-    _vec,
+    bd_plane,
     channel_radius,
     feature_wall_mm,
+    footprint_margin,
+    vector3,
 )
 from drawstring.cad.hinge_frame import (
     StripNeighbours,
@@ -170,13 +170,13 @@ def _tube(path: ChannelPath, radius: float) -> bd.Solid:
     if np.abs(offsets - np.outer(offsets @ chord, chord)).max() < 1e-9:
         # Straight: a plain cylinder (sweeping along a straight line has no defined frame).
         length = float(np.linalg.norm(outer_end - outer_start))
-        return bd.Solid.make_cylinder(radius, length, _plane(outer_start, chord))
+        return bd.Solid.make_cylinder(radius, length, bd_plane(outer_start, chord))
     edges = [
-        bd.Edge.make_line(_vec(outer_start), _vec(start)),
-        bd.Edge.make_bezier(*[_vec(p) for p in path.control]),
-        bd.Edge.make_line(_vec(end), _vec(outer_end)),
+        bd.Edge.make_line(vector3(outer_start), vector3(start)),
+        bd.Edge.make_bezier(*[vector3(p) for p in path.control]),
+        bd.Edge.make_line(vector3(end), vector3(outer_end)),
     ]
-    section = bd.Wire([bd.Edge.make_circle(radius, _plane(outer_start, path.start_tangent))])
+    section = bd.Wire([bd.Edge.make_circle(radius, bd_plane(outer_start, path.start_tangent))])
     tube = bd.Solid.sweep(section, bd.Wire(edges), transition=bd.Transition.ROUND)
     return clean_solid(tube)
 
@@ -243,7 +243,7 @@ def lift_chamfer(tile: NDArray[np.float64], path: LiftPath, profile: Profile) ->
     radius = channel_radius(profile)
     chamfer = max(radius, 0.5)
     top = np.asarray(tile, dtype=np.float64)[:4]
-    margin = _footprint_margin(np.concatenate([top, top]), path.arc[2], path.end_tangent)
+    margin = footprint_margin(np.concatenate([top, top]), path.arc[2], path.end_tangent)
     return chamfer if margin >= radius + chamfer + feature_wall_mm(profile) else 0.0
 
 
@@ -276,17 +276,19 @@ def lift_bore(
     outer_start = path.entry - overshoot * path.start_tangent
     exit_point = path.arc[2]
     outer_end = exit_point + overshoot * path.end_tangent
-    edges = [bd.Edge.make_line(_vec(outer_start), _vec(path.arc[0]))]
-    edges.append(bd.Edge.make_three_point_arc(*[_vec(p) for p in path.arc]))
-    edges.append(bd.Edge.make_line(_vec(exit_point), _vec(outer_end)))
-    section = bd.Wire([bd.Edge.make_circle(radius, _plane(outer_start, path.start_tangent))])
+    edges = [bd.Edge.make_line(vector3(outer_start), vector3(path.arc[0]))]
+    edges.append(bd.Edge.make_three_point_arc(*[vector3(p) for p in path.arc]))
+    edges.append(bd.Edge.make_line(vector3(exit_point), vector3(outer_end)))
+    section = bd.Wire([bd.Edge.make_circle(radius, bd_plane(outer_start, path.start_tangent))])
     tube = clean_solid(bd.Solid.sweep(section, bd.Wire(edges), transition=bd.Transition.ROUND))
     chamfer = lift_chamfer(tile, path, profile)
     if chamfer <= 0.0:
         return tube
     cone_base = exit_point - chamfer * path.end_tangent
     height = chamfer + TOOL_OVERSHOOT_MM
-    cone = bd.Solid.make_cone(radius, radius + height, height, _plane(cone_base, path.end_tangent))
+    cone = bd.Solid.make_cone(
+        radius, radius + height, height, bd_plane(cone_base, path.end_tangent)
+    )
     return clean_solid(fuse(tube, [cone]))
 
 

@@ -13,7 +13,7 @@ import build123d as bd
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.cad.feature_common import _footprint_margin, _plane, _vec, feature_wall_mm
+from drawstring.cad.feature_common import bd_plane, feature_wall_mm, footprint_margin, vector3
 from drawstring.cad.kernel import clean_solid
 from drawstring.cad.paths import FACE_BOTTOM, FACE_TOP, face_planes, unit_vector
 from drawstring.geometry.core.errors import InternalError
@@ -169,7 +169,7 @@ def _strip_outline(points: NDArray[np.float64], width: float, normal: NDArray) -
     points = _merge_short_segments(points, width)
     if len(points) == 2:
         return _stadium(points[0], points[1], width, normal)
-    wire = bd.Wire.make_polygon([_vec(p) for p in points], close=False)
+    wire = bd.Wire.make_polygon([vector3(p) for p in points], close=False)
     outline = wire.offset_2d(0.5 * width, kind=bd.Kind.ARC, side=bd.Side.BOTH)
     return bd.Face(outline)
 
@@ -199,10 +199,10 @@ def _stadium(
     across = 0.5 * width * unit_vector(np.cross(normal, along))
     cap = 0.5 * width * along
     edges = [
-        bd.Edge.make_line(_vec(a - across), _vec(b - across)),
-        bd.Edge.make_three_point_arc(_vec(b - across), _vec(b + cap), _vec(b + across)),
-        bd.Edge.make_line(_vec(b + across), _vec(a + across)),
-        bd.Edge.make_three_point_arc(_vec(a + across), _vec(a - cap), _vec(a - across)),
+        bd.Edge.make_line(vector3(a - across), vector3(b - across)),
+        bd.Edge.make_three_point_arc(vector3(b - across), vector3(b + cap), vector3(b + across)),
+        bd.Edge.make_line(vector3(b + across), vector3(a + across)),
+        bd.Edge.make_three_point_arc(vector3(a + across), vector3(a - cap), vector3(a - across)),
     ]
     return bd.Face(bd.Wire(edges))
 
@@ -212,7 +212,7 @@ def slab(
 ) -> bd.Solid:
     """The strip outline between depths ``start`` and ``stop`` (mm, positive into the tiles)."""
     face = _strip_outline(points - start * frame.normal, width, frame.normal)
-    return clean_solid(bd.Solid.extrude(face, _vec(-(stop - start) * frame.normal)))
+    return clean_solid(bd.Solid.extrude(face, vector3(-(stop - start) * frame.normal)))
 
 
 def depth_to_opposite(
@@ -241,7 +241,7 @@ def place_holes(
 ) -> tuple[list[NDArray[np.float64]], int]:
     """Hole axes along one half of a strip, each slid inward (up to ``limit`` mm from the
     corner) until it keeps ``wall`` from the tile's side faces (within ``depth`` of the face
-    for a blind hole, see :func:`_footprint_margin`) and from the planes that cut the tile
+    for a blind hole, see :func:`footprint_margin`) and from the planes that cut the tile
     (``cuts``, see :func:`_cut_margin`), and how many stations never fit."""
     placed, missing = [], 0
     for station in stations:
@@ -249,7 +249,7 @@ def place_holes(
         for distance in candidates[candidates <= limit + 1e-9]:
             point = corner + distance * direction
             if (
-                _footprint_margin(tile, point, normal, depth) >= radius + wall
+                footprint_margin(tile, point, normal, depth) >= radius + wall
                 and _cut_margin(tile, point, normal, radius, cuts, depth) >= wall
             ):
                 placed.append(point)
@@ -291,4 +291,4 @@ def cylinder_between(
     stop: float,
 ) -> bd.Solid:
     """Cylinder on the axis through ``point`` along ``-normal`` between two depths (mm)."""
-    return bd.Solid.make_cylinder(radius, stop - start, _plane(point - start * normal, -normal))
+    return bd.Solid.make_cylinder(radius, stop - start, bd_plane(point - start * normal, -normal))

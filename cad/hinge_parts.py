@@ -13,7 +13,7 @@ import build123d as bd
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.cad.feature_common import TOOL_OVERSHOOT_MM, Footprint, _footprint_margin
+from drawstring.cad.feature_common import TOOL_OVERSHOOT_MM, Footprint, footprint_margin
 from drawstring.cad.hinge_frame import (
     HingeFrame,
     StripNeighbours,
@@ -98,7 +98,7 @@ def _tpu_pad(
                 (
                     distance
                     for distance in np.linspace(0.0, half, 41)
-                    if _footprint_margin(tile, corner + distance * direction, frame.normal)
+                    if footprint_margin(tile, corner + distance * direction, frame.normal)
                     >= 0.5 * key_width + wall
                 ),
                 None,

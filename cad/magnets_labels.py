@@ -15,10 +15,10 @@ from numpy.typing import NDArray
 from drawstring.cad.feature_common import (
     TOOL_OVERSHOOT_MM,
     Footprint,
-    _cross2,
-    _plane,
-    _signed_area,
+    bd_plane,
+    cross2,
     feature_wall_mm,
+    signed_area,
 )
 from drawstring.cad.kernel import polyhedron_solid
 from drawstring.cad.paths import FACE_BOTTOM, check_side, face_planes, unit_vector
@@ -116,7 +116,7 @@ def _pocket(
     centre: NDArray[np.float64], outward: NDArray[np.float64], radius: float, depth: float
 ) -> bd.Solid:
     origin = centre + TOOL_OVERSHOOT_MM * outward
-    return bd.Solid.make_cylinder(radius, depth + TOOL_OVERSHOOT_MM, _plane(origin, -outward))
+    return bd.Solid.make_cylinder(radius, depth + TOOL_OVERSHOOT_MM, bd_plane(origin, -outward))
 
 
 def _pocket_fits(quad: NDArray[np.float64], u: float, v: float, radius: float) -> bool:
@@ -286,7 +286,7 @@ def _prism(
     faces = [ring, [k + i for i in reversed(ring)]]
     faces += [[i, k + i, k + (i + 1) % k, (i + 1) % k] for i in ring]
     # Orient: the cap at ``stop`` must be counter-clockwise seen from ``direction``.
-    if np.cross(axis_x, axis_y) @ direction * _signed_area(outline) < 0:
+    if np.cross(axis_x, axis_y) @ direction * signed_area(outline) < 0:
         faces = [list(reversed(f)) for f in faces]
     return polyhedron_solid(points, faces)
 
@@ -387,7 +387,7 @@ def label_engraving(
     corners2d = np.stack([corners @ axis_x, corners @ axis_y], axis=1)
     nxt = np.roll(corners2d, -1, axis=0)
     edge = nxt - corners2d
-    inradius = float(np.min(np.abs(_cross2(edge, -corners2d)) / np.linalg.norm(edge, axis=1)))
+    inradius = float(np.min(np.abs(cross2(edge, -corners2d)) / np.linalg.norm(edge, axis=1)))
     text = str(tile_id)
     rows = _label_rows(text)
     width_over_height = len(text) * _DIGIT_WIDTH + (len(text) - 1) * _DIGIT_SPACING

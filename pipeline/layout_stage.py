@@ -22,10 +22,7 @@ from drawstring.geometry.assembled.reextrude import reextrude
 from drawstring.geometry.assembled.shape import AssembledResult, optimize_assembled
 from drawstring.geometry.core.rigid import rigid_copies
 from drawstring.geometry.core.tile import HingeStrategy
-from drawstring.geometry.core.tolerances import (
-    FLAT_EDGE_ERROR_TOL_MM,
-    HINGE_GAP_TOL_MM,
-)
+from drawstring.geometry.core.tolerances import FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM
 from drawstring.geometry.flat import verify
 from drawstring.geometry.flat.coflat import CoOptimizedTop
 from drawstring.geometry.flat.layout import FlatResult, extrude_flat

@@ -794,7 +794,7 @@ def test_the_bend_note_lists_the_steps_only_when_there_are_several() -> None:
 def test_box_tiles_keep_their_pilot_holes_clear_of_the_side_panels() -> None:
     """Box tiles: the side panels take the outer 6 mm, so a pilot hole keeps 6 + 3 mm from the
     side faces; on the 100 mm frustum each strip half keeps one of its two holes."""
-    from drawstring.cad.feature_common import _footprint_margin
+    from drawstring.cad.feature_common import footprint_margin
     from drawstring.cad.hinge_parts import strip_hole_wall_mm
 
     ply = load_profile("plywood-cnc")
@@ -805,5 +805,5 @@ def test_box_tiles_keep_their_pilot_holes_clear_of_the_side_panels() -> None:
     assert plan.made == 2 and plan.missing == (1, 1)
     for tile, points in zip((tile_a, tile_b), plan.points, strict=True):
         for point in points:
-            margin = _footprint_margin(tile, point, plan.normal, plan.depth)
+            margin = footprint_margin(tile, point, plan.normal, plan.depth)
             assert margin >= plan.radius + strip_hole_wall_mm(ply) - 1e-9

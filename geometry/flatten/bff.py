@@ -67,7 +67,7 @@ class BffSystem:
 # mesh checks and precomputation
 
 
-def _boundary_loop(V: FloatArray, F: NDArray[np.generic]) -> IntArray:
+def boundary_loop(V: FloatArray, F: NDArray[np.generic]) -> IntArray:
     """Check that (V, F) is a disk and return its boundary loop, counter-clockwise.
 
     The loop follows the direction the boundary edges have in their faces, so the surface lies to

@@ -38,7 +38,7 @@ from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.flatten.alignment import face_curvature
 from drawstring.geometry.flatten.bff import (
     BffSystem,
-    _boundary_loop,
+    boundary_loop,
     build_system,
     check_lengths,
     close_lengths,
@@ -156,7 +156,7 @@ def flatten(
         raise InternalError(f"unknown flattening mode {mode!r}; use 'free' or 'rectangle'")
     if mode == "free" and corners is not None:
         raise InternalError("corners only apply to mode='rectangle'; drop corners or change mode")
-    boundary = _boundary_loop(V, F)
+    boundary = boundary_loop(V, F)
     system = build_system(V, F.astype(np.int64), boundary)
     t1 = time.perf_counter()
     if mode == "free":

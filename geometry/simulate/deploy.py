@@ -162,26 +162,10 @@ def simulate_deployment(
     start = time.perf_counter()
     cfg = settings or SimulationSettings()
     tol = tolerances or SimulationTolerances()
-    flat = np.asarray(tiles_flat, dtype=np.float64)
-    goal = np.asarray(tiles_assembled, dtype=np.float64)
-    hinges = np.asarray(hinge_vertices, dtype=np.int64).reshape(-1, 2)
-    _check_inputs(flat, goal, hinges)
-    if flat.shape[0] != linkage.n_tiles:
-        raise InternalError(f"{flat.shape[0]} tiles given for a linkage of {linkage.n_tiles}")
-    counts = (cfg.max_steps, cfg.ramp_steps, cfg.hinge_close_steps, cfg.check_every)
-    if min(frame_every, cfg.stall_checks, *counts) < 1:
-        raise InternalError(
-            "frame_every, max_steps, ramp_steps, hinge_close_steps, check_every and "
-            "stall_checks must be >= 1"
-        )
-    pairs = np.asarray(snap_pairs, dtype=np.int64).reshape(-1, 4)
-    gaps_of_pairs = (
-        np.arange(len(pairs)) if snap_gaps is None else np.asarray(snap_gaps, dtype=np.int64)
-    )
-    lift_v = np.asarray(lift_vertices, dtype=np.int64).reshape(-1)
-    lift_t = np.asarray(lift_targets, dtype=np.float64).reshape(-1, 3)
-    if len(lift_v) != len(lift_t):
-        raise InternalError("give one lift target per lift vertex")
+    flat, goal, hinges, pairs, gaps_of_pairs, lift_v, lift_t = _checked_arrays(
+        linkage, cfg, frame_every, tiles_flat, tiles_assembled, hinge_vertices, snap_pairs,
+        snap_gaps, lift_vertices, lift_targets,
+    )  # fmt: skip
     side = mean_tile_side(goal)
     if thickness is not None:
         _check_thickness(flat, thickness)
@@ -225,6 +209,43 @@ def simulate_deployment(
         "; ".join(reasons),
     )
     return result
+
+
+def _checked_arrays(
+    linkage: Linkage,
+    cfg: SimulationSettings,
+    frame_every: int,
+    tiles_flat: ArrayLike,
+    tiles_assembled: ArrayLike,
+    hinge_vertices: ArrayLike,
+    snap_pairs: ArrayLike,
+    snap_gaps: ArrayLike | None,
+    lift_vertices: ArrayLike,
+    lift_targets: ArrayLike,
+) -> tuple[FloatArray, FloatArray, IntArray, IntArray, IntArray, IntArray, FloatArray]:
+    """:func:`simulate_deployment`'s arguments as arrays, checked: the flat and goal poses, the
+    hinge vertex pairs, the snap pairs and their gaps, the lift vertices and their targets."""
+    flat = np.asarray(tiles_flat, dtype=np.float64)
+    goal = np.asarray(tiles_assembled, dtype=np.float64)
+    hinges = np.asarray(hinge_vertices, dtype=np.int64).reshape(-1, 2)
+    _check_inputs(flat, goal, hinges)
+    if flat.shape[0] != linkage.n_tiles:
+        raise InternalError(f"{flat.shape[0]} tiles given for a linkage of {linkage.n_tiles}")
+    counts = (cfg.max_steps, cfg.ramp_steps, cfg.hinge_close_steps, cfg.check_every)
+    if min(frame_every, cfg.stall_checks, *counts) < 1:
+        raise InternalError(
+            "frame_every, max_steps, ramp_steps, hinge_close_steps, check_every and "
+            "stall_checks must be >= 1"
+        )
+    pairs = np.asarray(snap_pairs, dtype=np.int64).reshape(-1, 4)
+    gaps_of_pairs = (
+        np.arange(len(pairs)) if snap_gaps is None else np.asarray(snap_gaps, dtype=np.int64)
+    )
+    lift_v = np.asarray(lift_vertices, dtype=np.int64).reshape(-1)
+    lift_t = np.asarray(lift_targets, dtype=np.float64).reshape(-1, 3)
+    if len(lift_v) != len(lift_t):
+        raise InternalError("give one lift target per lift vertex")
+    return flat, goal, hinges, pairs, gaps_of_pairs, lift_v, lift_t
 
 
 def _check_thickness(flat: FloatArray, thickness: float) -> None:

@@ -45,6 +45,69 @@ _FREE = 1e30
 
 
 @dataclass
+class _Contacts:
+    """The contact groups of a run: hinged neighbours' faces, the faces across splits and the
+    magnets there (each ``None`` when the run has none)."""
+
+    groups: list[FaceContact]
+    split: FaceContact | None
+    magnet: FaceSnap | None
+    magnet_rows: sp.csr_matrix | None
+    magnet_start: FloatArray
+
+    @classmethod
+    def of(
+        cls,
+        linkage: Linkage,
+        faces: IntArray,
+        goal: FloatArray,
+        x: FloatArray,
+        side: float,
+        cfg: SimulationSettings,
+        w_in: float,
+        groups: list[ConstraintGroup],
+        base: dict[str, float],
+    ) -> _Contacts:
+        """Build the groups and append them to ``groups`` (their weights to ``base``) in the
+        solver's order: contact, split contact, magnet."""
+        n = x.shape[0]
+        contact_groups: list[FaceContact] = []
+        split_contact: FaceContact | None = None
+        magnet: FaceSnap | None = None
+        magnet_rows: sp.csr_matrix | None = None
+        magnet_start = np.zeros(0)
+        if len(faces) and cfg.contact > 0:
+            contact = FaceContact(faces, cfg.contact * w_in)
+            groups.append(contact)
+            contact_groups.append(contact)
+            base["contact"] = cfg.contact
+        split_faces = split_contact_pairs(linkage)
+        if len(split_faces) and cfg.contact > 0 and cfg.split_contact:
+            split_contact = FaceContact(
+                split_faces, cfg.contact * w_in, name="split_contact", engage_distance=0.5 * side
+            )
+            groups.append(split_contact)
+            base["split_contact"] = cfg.contact
+            contact_groups.append(split_contact)
+            if cfg.magnets > 0:
+                # The magnets across the split: once a pair engaged, its faces are pulled
+                # together corner by corner (rows of a snap pair with radius 0; free before).
+                magnet = FaceSnap(
+                    split_faces,
+                    cfg.magnets * w_in,
+                    mode="face",
+                    partner=face_partners(goal, split_faces),
+                    name="magnet",
+                )
+                groups.append(magnet)
+                base["magnet"] = cfg.magnets
+                magnet_rows = magnet.matrix(n)
+                magnet.radius = np.full(len(magnet.row_pair), _FREE)
+                magnet_start = np.linalg.norm(magnet_rows @ x, axis=1)
+        return cls(contact_groups, split_contact, magnet, magnet_rows, magnet_start)
+
+
+@dataclass
 class DeploySystem:
     """The constraint groups of one simulated deployment, their solver and their actuation.
 
@@ -134,40 +197,8 @@ class DeploySystem:
             groups.append(hinge)
             base["hinge"] = cfg.hinge
             hinge_gap0 = np.linalg.norm(x[hinges[:, 1]] - x[hinges[:, 0]], axis=1) / np.sqrt(2.0)
-        contact_groups: list[FaceContact] = []
-        split_contact: FaceContact | None = None
-        magnet: FaceSnap | None = None
-        magnet_rows: sp.csr_matrix | None = None
-        magnet_start = np.zeros(0)
         faces = contact_face_pairs(linkage)
-        if len(faces) and cfg.contact > 0:
-            contact = FaceContact(faces, cfg.contact * w_in)
-            groups.append(contact)
-            contact_groups.append(contact)
-            base["contact"] = cfg.contact
-        split_faces = split_contact_pairs(linkage)
-        if len(split_faces) and cfg.contact > 0 and cfg.split_contact:
-            split_contact = FaceContact(
-                split_faces, cfg.contact * w_in, name="split_contact", engage_distance=0.5 * side
-            )
-            groups.append(split_contact)
-            base["split_contact"] = cfg.contact
-            contact_groups.append(split_contact)
-            if cfg.magnets > 0:
-                # The magnets across the split: once a pair engaged, its faces are pulled
-                # together corner by corner (rows of a snap pair with radius 0; free before).
-                magnet = FaceSnap(
-                    split_faces,
-                    cfg.magnets * w_in,
-                    mode="face",
-                    partner=face_partners(goal, split_faces),
-                    name="magnet",
-                )
-                groups.append(magnet)
-                base["magnet"] = cfg.magnets
-                magnet_rows = magnet.matrix(n)
-                magnet.radius = np.full(len(magnet.row_pair), _FREE)
-                magnet_start = np.linalg.norm(magnet_rows @ x, axis=1)
+        contacts = _Contacts.of(linkage, faces, goal, x, side, cfg, w_in, groups, base)
         # Static friction (the settle only): contact faces pressed together stick.  The
         # ``stick`` group holds the pairs that have stuck (rebuilt, one factorization, when more
         # stick).
@@ -206,10 +237,11 @@ class DeploySystem:
         }
         return cls(
             cfg, n_tiles, side, w_in, inertia, rigid_shape, solver, base, lock_at, rest,
-            rest_centred, table, contact_groups, faces, face_partner, stuck, use_stick,
-            hinge=hinge, hinge_gap0=hinge_gap0, split_contact=split_contact, magnet=magnet,
-            magnet_rows=magnet_rows, magnet_start=magnet_start, snap=snap, snap_d0=d0,
-            snap_d_end=d_end, lift=lift, lift_start=lift_start, lift_goal=lift_goal,
+            rest_centred, table, contacts.groups, faces, face_partner, stuck, use_stick,
+            hinge=hinge, hinge_gap0=hinge_gap0, split_contact=contacts.split,
+            magnet=contacts.magnet, magnet_rows=contacts.magnet_rows,
+            magnet_start=contacts.magnet_start, snap=snap, snap_d0=d0, snap_d_end=d_end,
+            lift=lift, lift_start=lift_start, lift_goal=lift_goal,
         )  # fmt: skip
 
     def actuate(self, step: int, x: FloatArray) -> None:
