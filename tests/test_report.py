@@ -27,8 +27,8 @@ import numpy as np
 import pytest
 
 from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.tile import TILE_FACES
 from drawstring.geometry.tiling.linkage import (
-    TILE_FACES,
     Linkage,
     build_linkage,
     rotating_squares_layout,
