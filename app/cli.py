@@ -80,6 +80,10 @@ def _run_command(parser: argparse.ArgumentParser, args: argparse.Namespace) -> i
             from drawstring.app.studio.serve import run_studio
 
             return run_studio(args, args.subparsers["design"])
+        if args.command == "sweep":
+            from drawstring.app.sweep.command import run as run_sweep
+
+            return run_sweep(args)
     except InputError as exc:
         print(f"drawstring: error: {exc}", file=sys.stderr)
         return EXIT_INPUT

@@ -8,6 +8,7 @@ from typing import NoReturn
 
 from drawstring.app.status import EXIT_INPUT
 from drawstring.app.studio.serve import add_studio_options
+from drawstring.app.sweep.command import add_arguments as add_sweep_arguments
 from drawstring.geometry.core.tile import HingeStrategy
 
 #: Help of ``-v``, before the subcommand and after it.
@@ -67,6 +68,11 @@ def build_parser() -> argparse.ArgumentParser:
         "studio", parents=[verbose], help="design in the browser: serve the local web app"
     )
     add_studio_options(studio)
+    sweep = sub.add_parser(
+        "sweep", parents=[verbose], help="design every combination of a few options' values"
+    )
+    _add_design_options(sweep)
+    add_sweep_arguments(sweep)
     prof = sub.add_parser("profiles", parents=[verbose], help="list the fabrication profiles")
     prof.add_argument("--show", metavar="NAME", help="print a profile as TOML to copy and edit")
     prof.add_argument("--size", type=float, help="estimate for a design this size (mm)")
