@@ -206,6 +206,12 @@ def main() -> None:
         help="also the whole pipeline at 1600 tiles on saddle, dome and wave (about 2 min each)",
     )
     parser.add_argument(
+        "--sweep",
+        action="store_true",
+        help="also a 12-variant sweep without CAD on 1 and 2 local Dask workers "
+        "(bench_sweep.py; a few minutes)",
+    )
+    parser.add_argument(
         "--repeat",
         type=int,
         default=1,
@@ -239,6 +245,10 @@ def main() -> None:
     if close_fit:
         print(f"\npipeline at about 200 tiles, 200 mm, --weights {CLOSE_FIT_WEIGHTS}")
         print_table(close_fit)
+    sweep = importlib.import_module("bench_sweep").sweep_rows() if args.sweep else []
+    if sweep:
+        print("\nsweep of 12 variants on 1 and 2 local workers")
+        print_table(sweep)
     extras = extra_rows() if args.stages else {}
     for name, stage_rows in extras.items():
         print(f"\n{name}")
@@ -260,6 +270,7 @@ def main() -> None:
             **({"pipeline_1600": fine} if fine else {}),
             **({"pipeline_1600_layout": fine_layout} if fine_layout else {}),
             **({"pipeline_200_close_fit": close_fit} if close_fit else {}),
+            **({"sweep": sweep} if sweep else {}),
             **extras,
         }
     )
