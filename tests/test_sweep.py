@@ -342,13 +342,17 @@ def test_a_sweep_loses_nothing_when_a_worker_dies(cluster: Cluster, tmp_path: Pa
             if " started on " in line:
                 variant, killed = line.split("] ", 1)[1].strip().split(" started on ")
                 _end(cluster.workers[killed])
-        stdout, _ = run.communicate(timeout=300)
+        # stderr is the reader's alone (communicate would take lines from it)
+        run.wait(timeout=300)
+        assert run.stdout is not None
+        stdout = run.stdout.read()
     finally:
         _end(run)
     reader.join(timeout=10)
     while not lines.empty():
         seen.append(lines.get())
     assert run.returncode == 0, "".join(seen)
+    assert f"wrote {out}: 4 of 4 variants (4 exit 0)" in stdout
     rows = {row["variant"]: row for row in table(out)}
     assert list(rows) == [
         "tiles-30_hinges-dual", "tiles-30_hinges-top", "tiles-40_hinges-dual",
