@@ -20,6 +20,7 @@ import contextlib
 import logging
 import os
 import queue
+import threading
 import uuid
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -46,11 +47,11 @@ class Task:
 
 @dataclass(frozen=True)
 class TaskEvent:
-    """A task ``started`` on ``worker`` (again, if its first worker died), ``finished`` there
-    with ``result``, or ``failed`` (``error`` says why: the function raised, or the cluster gave
-    the task up)."""
+    """A task ``started`` on ``worker`` (again, if its first worker died), made a ``report``
+    there (``result`` is what it sent), ``finished`` there with ``result``, or ``failed``
+    (``error`` says why: the function raised, or the cluster gave the task up)."""
 
-    kind: Literal["started", "finished", "failed"]
+    kind: Literal["started", "report", "finished", "failed"]
     task: Task
     worker: str = ""
     result: Any = None
@@ -89,6 +90,10 @@ class DaskExecutor:
         self._cluster: Any = None
         self._client: Any = None
         self._log_level: int | None = None
+        self._lock = threading.Lock()
+        self._topic_name: str | None = None
+        #: Dask key -> (task, listener) of each task sent and not ended
+        self._listening: dict[str, tuple[Task, Callable[[TaskEvent], None]]] = {}
 
     def __enter__(self) -> DaskExecutor:
         from distributed import Client, LocalCluster
@@ -136,6 +141,10 @@ class DaskExecutor:
         """Close the client, and the local cluster with its worker processes."""
         client, cluster = self._client, self._cluster
         self._client = self._cluster = None
+        if client is not None and self._topic_name is not None:
+            with contextlib.suppress(Exception):
+                client.unsubscribe_topic(self._topic_name)
+        self._topic_name = None
         with contextlib.suppress(Exception):  # already gone: nothing to close
             if client is not None:
                 client.close()
@@ -164,60 +173,91 @@ class DaskExecutor:
             return f"a local cluster of {count} worker process{'es' if count != 1 else ''}"
         return f"the cluster at {self.scheduler} ({count} worker{'s' if count != 1 else ''} now)"
 
+    def _topic(self) -> str:
+        """This executor's event topic, subscribed once: tasks' starts and reports come on it
+        and go to the listener of their task."""
+        if self._topic_name is None:
+            self._topic_name = f"drawstring-tasks-{uuid.uuid4().hex[:12]}"
+
+            def heard(event: tuple[float, dict[str, Any]]) -> None:
+                message = event[1]
+                with self._lock:
+                    entry = self._listening.get(message["key"])
+                if entry is None:  # ended, cancelled, or another executor's
+                    return
+                task, listener = entry
+                if message["kind"] == "started":
+                    listener(TaskEvent("started", task, message["worker"]))
+                else:
+                    listener(TaskEvent("report", task, message["worker"], message.get("data")))
+
+            self.client.subscribe_topic(self._topic_name, heard)
+        return self._topic_name
+
+    def submit(self, task: Task, listener: Callable[[TaskEvent], None]) -> Any:
+        """Send one task; ``listener`` gets its events (from Dask's threads): ``started`` (again
+        if its worker died), any ``report`` it makes (:func:`report`), then one ``finished`` or
+        ``failed``.  Returns the task's future (for :meth:`cancel`)."""
+        topic = self._topic()
+        key = f"{task.key}-{uuid.uuid4().hex[:12]}"
+        with self._lock:
+            self._listening[key] = (task, listener)
+
+        def done(future: Any) -> None:
+            with self._lock:
+                entry = self._listening.pop(key, None)
+            if entry is not None:
+                listener(_ended(task, future))
+
+        future = self.client.submit(
+            _run_task, topic, key, task.function, task.args, key=key, pure=False
+        )
+        future.add_done_callback(done)
+        return future
+
+    def cancel(self, future: Any) -> None:
+        """Drop a task: no more events for it; a task running on a worker runs to its end there
+        (Dask does not stop a running function), its result unused."""
+        with self._lock:
+            self._listening.pop(future.key, None)
+        with contextlib.suppress(Exception):  # the client may already be closing
+            self.client.cancel([future])
+
     def run(self, tasks: Sequence[Task]) -> Iterator[TaskEvent]:
         """Submit every task and yield their events as they happen, until each has finished or
         failed.  Closing the iterator early (an error, Ctrl-C) cancels the tasks not done."""
-        client = self.client
-        run_id = uuid.uuid4().hex[:12]
-        topic = f"drawstring-started-{run_id}"
-        events: queue.Queue[tuple[str, str, str]] = queue.Queue()
-
-        def started(event: tuple[float, dict[str, str]]) -> None:
-            message = event[1]
-            events.put(("started", message["key"], message["worker"]))
-
-        by_key = {task.key: task for task in tasks}
-        if len(by_key) != len(tasks):
+        if len({task.key for task in tasks}) != len(tasks):
             raise ValueError("task keys must be unique")
-        client.subscribe_topic(topic, started)
-        futures: dict[str, Any] = {}
+        events: queue.Queue[TaskEvent] = queue.Queue()
+        futures = {task.key: self.submit(task, events.put) for task in tasks}
         try:
-            for task in tasks:
-                future = client.submit(
-                    _run_task,
-                    topic,
-                    task.key,
-                    task.function,
-                    task.args,
-                    key=f"{task.key}-{run_id}",
-                    pure=False,
-                )
-                future.add_done_callback(lambda _, key=task.key: events.put(("done", key, "")))
-                futures[task.key] = future
-            pending = set(futures)
-            while pending:
+            while futures:
                 try:  # a timeout keeps the wait interruptible (Ctrl-C)
-                    kind, key, worker = events.get(timeout=0.5)
+                    event = events.get(timeout=0.5)
                 except queue.Empty:
                     continue
-                if key not in pending:
-                    continue
-                if kind == "started":
-                    yield TaskEvent("started", by_key[key], worker)
-                    continue
-                pending.discard(key)
-                yield _ended(by_key[key], futures.pop(key))
+                if event.kind in ("finished", "failed"):
+                    futures.pop(event.task.key, None)
+                yield event
         finally:
-            with contextlib.suppress(Exception):  # the client may already be closing
-                client.unsubscribe_topic(topic)
-            if futures:
-                with contextlib.suppress(Exception):
-                    client.cancel(list(futures.values()))
+            for future in futures.values():
+                self.cancel(future)
 
     def map(self, function: Callable[[T], R], items: Sequence[T], *, name: str = "task") -> list[R]:
         """``[function(item) for item in items]`` on the cluster, in the items' order; raises
         :class:`RuntimeError` naming the first item that failed."""
-        tasks = [Task(f"{name}-{i}", function, (item,)) for i, item in enumerate(items)]
+        return self.starmap(function, [(item,) for item in items], name=name)
+
+    def starmap(
+        self,
+        function: Callable[..., R],
+        arguments: Sequence[tuple[Any, ...]],
+        *,
+        name: str = "task",
+    ) -> list[R]:
+        """``[function(*args) for args in arguments]`` on the cluster, in order; raises
+        :class:`RuntimeError` naming the first call that failed."""
+        tasks = [Task(f"{name}-{i}", function, args) for i, args in enumerate(arguments)]
         results: dict[str, R] = {}
         for event in self.run(tasks):
             if event.kind == "failed":
@@ -225,6 +265,10 @@ class DaskExecutor:
             if event.kind == "finished":
                 results[event.task.key] = event.result
         return [results[task.key] for task in tasks]
+
+    def thread_count(self) -> int:
+        """Tasks the cluster runs at once now (its workers' threads; at least 1)."""
+        return max(1, sum(self.workers().values()))
 
 
 def _ended(task: Task, future: Any) -> TaskEvent:
@@ -246,6 +290,23 @@ def _ended(task: Task, future: Any) -> TaskEvent:
     return TaskEvent("failed", task, error=why)
 
 
+#: The task running in this thread of a worker: (topic, key), for :func:`report`.
+_current = threading.local()
+
+
+def report(data: Any) -> None:
+    """In a task: send ``data`` (small, picklable) to the client, where the task's listener gets
+    it as a ``report`` event.  Outside a task it does nothing."""
+    where = getattr(_current, "task", None)
+    if where is None:
+        return
+    from distributed import get_worker
+
+    worker = get_worker()
+    topic, key = where
+    worker.log_event(topic, {"key": key, "kind": "report", "worker": worker.address, "data": data})
+
+
 def _run_task(
     topic: str, key: str, function: Callable[..., Any], args: tuple[Any, ...]
 ) -> tuple[str, Any]:
@@ -253,5 +314,9 @@ def _run_task(
     from distributed import get_worker
 
     worker = get_worker()
-    worker.log_event(topic, {"key": key, "worker": worker.address})
-    return worker.address, function(*args)
+    worker.log_event(topic, {"key": key, "kind": "started", "worker": worker.address})
+    _current.task = (topic, key)
+    try:
+        return worker.address, function(*args)
+    finally:
+        _current.task = None

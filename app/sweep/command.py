@@ -145,6 +145,8 @@ def run(args: argparse.Namespace) -> int:
             if row.status is not None:
                 progress.refused(row)
         for event in executor.run(tasks):
+            if event.kind == "report":  # a variant sends none
+                continue
             row = by_name[event.task.key]
             _record(out, row, event)
             if event.kind != "started":
