@@ -411,3 +411,56 @@ def test_the_executor_maps_in_order_and_names_a_failed_item() -> None:
         assert executor.map(abs, [-3, 2, -1]) == [3, 2, 1]
         with pytest.raises(RuntimeError, match=r"task-1 failed on the cluster: ValueError"):
             executor.map(math.sqrt, [4.0, -1.0])
+
+
+# -- the studio's jobs on a cluster ---------------------------------------------------------
+
+
+def test_the_studios_jobs_run_on_the_clusters_workers(cluster: Cluster, tmp_path: Path) -> None:
+    """``drawstring studio --scheduler``: a design job is a task on a worker, its stages come
+    back as they begin, and its folder lands in the job folder as ``drawstring design`` writes
+    it."""
+    from fastapi.testclient import TestClient
+
+    from drawstring.app.studio.cluster import DaskJobExecutor
+    from drawstring.app.studio.server import create_app
+    from drawstring.app.studio.service import StudioConfig
+
+    config = StudioConfig(
+        data=tmp_path / "studio",
+        design_parser=build_parser().get_default("subparsers")["design"],
+        executor=lambda listener, jobs: DaskJobExecutor(listener, cluster.address),
+    )
+    options = {"tiles": 40, "resolution": 2000, "cad": False, "simulate": False}
+    with TestClient(create_app(config)) as client:
+        assert client.get("/api/status").json()["max_running"] == 2  # one per worker thread
+        created = client.post(
+            "/api/designs", data={"target": "saddle", "options": json.dumps(options)}
+        )
+        assert created.status_code == 201, created.text
+        design_id = created.json()["id"]
+        stages = []
+        deadline = time.monotonic() + 300
+        while (record := client.get(f"/api/designs/{design_id}").json())["status"] in (
+            "queued",
+            "running",
+        ):
+            assert time.monotonic() < deadline, record
+            stages.append(record["stage"])
+            time.sleep(0.1)
+        assert record["status"] == "done" and record["exit_status"] == 0, record
+        assert record["progress"] == 1.0 and "tiles in 1 part" in record["message"]
+        assert set(stages) - {""}  # stages reported from the worker as they began
+        log = client.get(f"/api/designs/{design_id}/log").text
+    for stage in ("target", "flatten", "flat", "route", "write"):
+        assert f" stage {stage}\n" in log
+    (worker,) = re.findall(r"designed on (\S+)", log)
+    assert worker in cluster.workers
+    alone = tmp_path / "alone"
+    assert main(["design", "saddle", "--tiles", "40", *QUICK, "--quiet", "--out", str(alone)]) == 0
+    same_folder(alone, tmp_path / "studio" / "jobs" / design_id / "design")
+
+
+def test_the_studio_refuses_jobs_with_a_scheduler(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["studio", "--scheduler", "tcp://127.0.0.1:9", "--jobs", "2"]) == 2
+    assert "--jobs does not apply to --scheduler" in capsys.readouterr().err

@@ -24,8 +24,10 @@ from dataclasses import dataclass, field  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any, Literal  # noqa: E402
 
+from drawstring.app.shipping import Shipped  # noqa: E402
 from drawstring.geometry.core.errors import DesignError, InputError  # noqa: E402
 from drawstring.output.folder import write_design  # noqa: E402
+from drawstring.pipeline.policy import DEFAULT_POLICY, LayoutPolicy  # noqa: E402
 from drawstring.pipeline.record import Design, DesignOptions, Progress  # noqa: E402
 from drawstring.pipeline.run import design  # noqa: E402
 
@@ -161,28 +163,44 @@ class StageProgress(Progress):
             yield
 
 
-def run_job(spec: JobSpec, report: Report) -> Outcome:
+def run_job(
+    spec: JobSpec,
+    report: Report,
+    *,
+    inputs: Shipped | None = None,
+    out: Path | None = None,
+    policy: LayoutPolicy = DEFAULT_POLICY,
+) -> Outcome:
     """Design ``spec``'s target, write its folder and judge it as ``drawstring design`` does.
 
-    Never raises for a design's failure: refusals, design problems and internal errors come
-    back as an :class:`Outcome` (an internal error's traceback goes to the log).
+    The folder goes to ``out`` (default: the job folder's ``design/``).  On a Dask worker,
+    ``inputs`` are the job's files as the worker has them
+    (:func:`~drawstring.app.shipping.shipped_inputs`) and ``policy`` the worker's.  Never raises
+    for a design's failure: refusals, design problems and internal errors come back as an
+    :class:`Outcome` (an internal error's traceback goes to the log).
     """
+
+    def shown(text: str) -> str:
+        return spec.shown_text(inputs.shown(text) if inputs is not None else text)
+
     try:
-        options = spec.design_options()
+        options = inputs.options if inputs is not None else spec.design_options()
         options.validate()
         progress = StageProgress(report, simulate=options.simulate, cad=options.cad)
-        result = design(spec.target, options, progress=progress)
+        target = inputs.target if inputs is not None else spec.target
+        result = design(target, options, progress=progress, policy=policy)
         with progress.stage("write"):
-            write_design(result, Path(spec.folder) / DESIGN_DIR)
+            written = inputs.relabelled(result) if inputs is not None else result
+            write_design(written, out if out is not None else Path(spec.folder) / DESIGN_DIR)
         report("write", 1.0)
         return judge(result, strict=spec.strict)
     except InputError as exc:
-        return Outcome("refused", 2, spec.shown_text(str(exc)))
+        return Outcome("refused", 2, shown(str(exc)))
     except DesignError as exc:
-        return Outcome("failed", 3, spec.shown_text(f"design problem: {exc}"))
+        return Outcome("failed", 3, shown(f"design problem: {exc}"))
     except Exception as exc:  # a bug in drawstring: one line here, the traceback in the log
         traceback.print_exc()
-        text = spec.shown_text(f"{type(exc).__name__}: {exc}")
+        text = shown(f"{type(exc).__name__}: {exc}")
         return Outcome("failed", 1, f"internal error: {text} (a bug in drawstring; see the log)")
 
 

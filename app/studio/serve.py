@@ -16,8 +16,13 @@ import threading
 import time
 import webbrowser
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from drawstring.geometry.core.errors import InputError
+
+if TYPE_CHECKING:
+    from drawstring.app.studio.executor import Executor, Listener
+    from drawstring.app.studio.service import ExecutorFactory
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
@@ -48,6 +53,13 @@ def add_studio_options(p: argparse.ArgumentParser) -> None:
         "--jobs",
         type=int,
         help="designs running at once (default: one per two cores); the others wait in turn",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="run the designs on the Dask cluster whose scheduler is at this address (started "
+        "with `dask scheduler`, workers with `dask worker ADDRESS`); as many run at once as the "
+        "cluster has worker threads",
     )
     p.add_argument(
         "--token",
@@ -108,6 +120,17 @@ def run_studio(args: argparse.Namespace, design_parser: argparse.ArgumentParser 
         raise InputError(f"--jobs must be 1 or more (got {args.jobs})")
     if not 0 <= args.port <= 65535:
         raise InputError(f"--port must be 0 to 65535 (got {args.port})")
+    scheduler = getattr(args, "scheduler", None)
+    if scheduler is not None:
+        if args.jobs is not None:
+            raise InputError(
+                "--jobs does not apply to --scheduler: the cluster runs one design per worker "
+                "thread; start more `dask worker` processes to run more at once"
+            )
+        from drawstring.app.executor import DaskExecutor
+
+        with DaskExecutor(scheduler):  # refused now if it cannot be reached, not in the server
+            pass
     data = (args.data or default_data_dir()).expanduser()
     try:
         data.mkdir(parents=True, exist_ok=True)
@@ -122,6 +145,7 @@ def run_studio(args: argparse.Namespace, design_parser: argparse.ArgumentParser 
         token=token,
         design_parser=design_parser,
         allowed_hosts=LOOPBACK_NAMES if loopback else None,
+        executor=_cluster_executor(scheduler) if scheduler is not None else None,
     )
     shown_host = f"[{args.host}]" if ":" in args.host else args.host
     url = f"http://{shown_host}:{port}/" + (f"?token={token}" if token else "")
@@ -138,6 +162,17 @@ def run_studio(args: argparse.Namespace, design_parser: argparse.ArgumentParser 
         threading.Thread(target=_open_when_up, args=(server, url), daemon=True).start()
     server.run(sockets=[sock])
     return 0
+
+
+def _cluster_executor(scheduler: str) -> ExecutorFactory:
+    """The studio's executor on the Dask cluster at ``scheduler``."""
+
+    def make(listener: Listener, jobs: int | None) -> Executor:
+        from drawstring.app.studio.cluster import DaskJobExecutor
+
+        return DaskJobExecutor(listener, scheduler)
+
+    return make
 
 
 def _open_when_up(server: object, url: str) -> None:

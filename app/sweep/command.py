@@ -10,10 +10,7 @@ variant's folder under the sweep's folder as it comes back, and the table after 
 from __future__ import annotations
 
 import argparse
-import os
-import shutil
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -166,6 +163,7 @@ def _spec(variant: Variant, args: argparse.Namespace, files: dict[str, bytes]) -
 
 def _record(out: Path, row: Row, event: TaskEvent) -> None:
     """Take a task's end into its row; a written variant's files go to its folder."""
+    from drawstring.app.shipping import place_folder
     from drawstring.app.sweep.table import measured
 
     if event.kind == "started":
@@ -303,27 +301,3 @@ def shipped_files(target: str, designs: list[Variant]) -> dict[str, bytes]:
         except OSError as exc:
             raise InputError(f"cannot read {path} ({exc.strerror or exc})") from None
     return files
-
-
-def place_folder(folder: Path, files: dict[str, bytes]) -> None:
-    """Write a design folder's files (relative path -> bytes) as ``folder``, replacing an
-    earlier one whole: written into a temporary sibling, renamed into place at the end."""
-    staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
-    try:
-        for relative, data in files.items():
-            path = staging / relative
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_bytes(data)
-        os.chmod(staging, 0o755)
-        if folder.exists():
-            retired = Path(
-                tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".old", dir=folder.parent)
-            )
-            os.rename(folder, retired / folder.name)
-            os.rename(staging, folder)
-            shutil.rmtree(retired, ignore_errors=True)
-        else:
-            os.rename(staging, folder)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
