@@ -7,7 +7,9 @@ The library is imported inside the functions: ``drawstring --help`` loads no num
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -32,11 +34,28 @@ def run_design(args: argparse.Namespace) -> int:
     out = args.out if args.out is not None else default_out_dir(args.target)
     check_out_dir(out)  # refuse before hours of work, not after
     progress = Progress(quiet=args.quiet)
-    result = design(args.target, options, progress=progress)
-    folder = write(result, out)
+    with _cad_tasks(getattr(args, "scheduler", None), options.cad, args.verbose) as where:
+        if where and not args.quiet:
+            print(f"drawstring: the CAD stage's tiles run on {where}", file=sys.stderr)
+        result = design(args.target, options, progress=progress)
+        folder = write(result, out)
     if not args.quiet:
         _print_written(result, folder)
     return _design_status(result, folder, args.strict)
+
+
+@contextlib.contextmanager
+def _cad_tasks(scheduler: str | None, cad: bool, verbose: bool) -> Iterator[str]:
+    """With a scheduler's address (and CAD asked for): the CAD stage's per-tile work goes to
+    that Dask cluster meanwhile; yields where, in a phrase ("" for this machine)."""
+    if scheduler is None or not cad:
+        yield ""
+        return
+    from drawstring.app.executor import DaskExecutor
+    from drawstring.geometry.core import parallel
+
+    with DaskExecutor(scheduler, verbose=verbose) as executor, parallel.tasks_on(executor):
+        yield executor.describe()
 
 
 def design_options(args: argparse.Namespace) -> DesignOptions:

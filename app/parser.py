@@ -52,6 +52,13 @@ def build_parser() -> argparse.ArgumentParser:
         "design", parents=[verbose], help="design a linkage for a target and write its files"
     )
     _add_design_options(design_p)
+    design_p.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="build the CAD stage's tile solids and 3MF meshes as tasks on the Dask cluster "
+        "whose scheduler is at this address (started with `dask scheduler`, workers with `dask "
+        "worker ADDRESS`); the files are the same, byte for byte",
+    )
     sub.add_parser("targets", parents=[verbose], help="list the built-in targets")
     sim = sub.add_parser(
         "simulate", parents=[verbose], help="simulate the deployment of an existing design"

@@ -451,7 +451,7 @@ def _gather(
             f"piece, dropping up to {max(v for _, v in split):.3g} mm^3: "
             f"{id_ranges([t for t, _ in split])}"
         )
-    unlabelled = [r.tile for r in results if not r.labelled] if labels else []
+    unlabelled = sorted(r.tile for r in results if not r.labelled) if labels else []
     if unlabelled:
         notes.append(
             f"tile numbers not engraved on {len(unlabelled)} of {n_tiles} tiles, too small "

@@ -259,7 +259,15 @@ def run_jobs(
     hinge_data: tuple[HingeData, ...],
     workers: int | None,
 ) -> list[JobResult]:
-    """Every tile built, in worker processes from :data:`PARALLEL_MIN_TILES` tiles on."""
+    """Every tile built, in worker processes from :data:`PARALLEL_MIN_TILES` tiles on, or as
+    tasks of the runner :func:`~drawstring.geometry.core.parallel.tasks_on` set."""
+    runner = parallel.task_runner()
+    if runner is not None and len(jobs) > 1:  # on a cluster (drawstring design --scheduler)
+        n_chunks = min(len(jobs), 4 * runner.thread_count())
+        chunks = [jobs[i::n_chunks] for i in range(n_chunks)]
+        arguments = [(chunk, profile, hinge_data) for chunk in chunks]
+        done = runner.starmap(_build_chunk, arguments, name="cad-tiles")
+        return [result for chunk_results in done for result in chunk_results]
     count = workers if workers is not None else (os.cpu_count() or 1)
     if count <= 1 or len(jobs) < PARALLEL_MIN_TILES:
         return _build_chunk(jobs, profile, hinge_data)

@@ -464,3 +464,29 @@ def test_the_studios_jobs_run_on_the_clusters_workers(cluster: Cluster, tmp_path
 def test_the_studio_refuses_jobs_with_a_scheduler(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["studio", "--scheduler", "tcp://127.0.0.1:9", "--jobs", "2"]) == 2
     assert "--jobs does not apply to --scheduler" in capsys.readouterr().err
+
+
+# -- one design's CAD on a cluster ----------------------------------------------------------
+
+
+def test_a_designs_cad_on_the_cluster_writes_the_same_files(
+    cluster: Cluster, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``drawstring design --scheduler``: the tile solids and the 3MF meshes are built by the
+    cluster's workers, and every file is the one the local run writes, byte for byte
+    (design.json's timings aside)."""
+    from distributed import Client, get_task_stream
+
+    args = ["saddle", "--tiles", "30", "--resolution", "2000", "--no-simulate"]
+    assert main(["design", *args, "--quiet", "--out", str(tmp_path / "local")]) == 0
+    with Client(cluster.address, timeout=60) as client, get_task_stream(client) as stream:
+        on_cluster = ["--scheduler", cluster.address, "--out", str(tmp_path / "cluster")]
+        assert main(["design", *args, *on_cluster]) == 0
+    assert "the CAD stage's tiles run on the cluster at" in capsys.readouterr().err
+    # keys: the task's name, its index, a random suffix
+    ran = {(str(task["key"]).rsplit("-", 2)[0], task["worker"]) for task in stream.data}
+    assert {kind for kind, _ in ran} == {"cad-tiles", "3mf-meshes"}
+    assert {worker for _, worker in ran} == set(cluster.workers)  # both workers built parts
+    local, remote = tmp_path / "local", tmp_path / "cluster"
+    assert (local / "fabrication").is_dir()
+    same_folder(local, remote)

@@ -14,14 +14,17 @@ import signal
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from multiprocessing.context import BaseContext
-from typing import TypeVar
+from typing import Any, Protocol, TypeVar
 
 __all__ = [
     "MAX_THREADS",
+    "TaskRunner",
     "exit_quietly_on_interrupt",
     "map_blocks",
     "process_pool",
     "sigint_held",
+    "task_runner",
+    "tasks_on",
     "thread_count",
 ]
 
@@ -109,3 +112,39 @@ def process_pool(workers: int, context: BaseContext) -> Iterator[ProcessPoolExec
         pool.shutdown(wait=True, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
+
+
+class TaskRunner(Protocol):
+    """Somewhere else to run independent tasks: a cluster of worker processes, maybe on other
+    machines (``drawstring design --scheduler``).  Functions and arguments are pickled there,
+    so a function must be a module-level one of the package."""
+
+    def thread_count(self) -> int:
+        """Tasks it runs at once."""
+        ...
+
+    def starmap(
+        self, function: Callable[..., Any], arguments: Sequence[tuple[Any, ...]], *, name: str
+    ) -> list[Any]:
+        """``[function(*args) for args in arguments]`` there, in order."""
+        ...
+
+
+_runner: TaskRunner | None = None
+
+
+def task_runner() -> TaskRunner | None:
+    """The runner :func:`tasks_on` set, or None: the stages that build per-tile work in worker
+    processes (the CAD solids, the 3MF meshes) send it there instead."""
+    return _runner
+
+
+@contextlib.contextmanager
+def tasks_on(runner: TaskRunner) -> Iterator[None]:
+    """Meanwhile the stages' per-tile work runs on ``runner`` (:func:`task_runner`)."""
+    global _runner
+    previous, _runner = _runner, runner
+    try:
+        yield
+    finally:
+        _runner = previous
