@@ -93,6 +93,7 @@ def sweep_rows() -> list[dict[str, Any]]:
                     "variants_s": round(sum(float(r["design_s"]) for r in table), 1),
                     "exit_0": sum(r["status"] == "0" for r in table),
                     "load_before": round(load, 2),
+                    "load_after": round(os.getloadavg()[0], 2),
                     "cores": os.cpu_count(),
                 }
             )
