@@ -3,7 +3,7 @@
 Runs ``drawstring design saddle --tiles N --no-simulate`` three ways, each in a process of its
 own: on this machine (the CAD stage's own process pool), then with ``--scheduler`` pointing at
 a local cluster of 1 and of 2 single-threaded worker processes.  Each row has the wall time of
-the run, the CAD and write stages' times from design.json, the machine's load average before
+the run, the CAD stage's time from design.json, the machine's load average before
 the run, and whether every file is the one the local run wrote, byte for byte (design.json's
 timings aside, and with them its size shown in report.html).
 
@@ -47,7 +47,6 @@ def _design(tiles: int, out: Path, scheduler: str | None) -> dict[str, Any]:
         "tiles": tiles,
         "wall_s": round(seconds, 1),
         "cad_s": round(float(timings.get("cad", 0.0)), 1),
-        "write_s": round(float(timings.get("write", 0.0)), 1),
         "exit": done.returncode,
         "load_before": round(load, 2),
         "load_after": round(os.getloadavg()[0], 2),
