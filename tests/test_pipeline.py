@@ -307,21 +307,54 @@ def test_a_tiling_that_may_still_be_split_tries_no_second_weight_after_a_far_mis
     assert calls[:2] == [(True, first, True), (True, retry, True)]
 
 
+#: The 60-tile saddle's first tiling may still be split; every co-optimization runs here.
+PAUSING = replace(IN_TURN, retile_min_share=0.0, retile_ahead=False)
+
+
+def _two_parts_meet(shaped: layout_stage.ShapedLayout) -> float:
+    return 1.4e-3 if shaped.tiling.linkage.n_components == 1 else 9.5e-4
+
+
+def _every_tiling_misses(_shaped: layout_stage.ShapedLayout) -> float:
+    return 1.0
+
+
+@pytest.fixture(scope="module")
+def _paused_saddles():
+    """The 60-tile saddle under :data:`PAUSING` whose first conical weight misses the flat
+    targets by twice the tolerance, so its first tiling pauses for the split: where the split
+    meets the targets (:func:`_two_parts_meet`) and where it misses too
+    (:func:`_every_tiling_misses`); each with the co-optimizations it ran (``_conical_runs``).
+    They see two cores, as the designs they are compared with that run work ahead."""
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
+    made = {}
+    for accuracy in (_two_parts_meet, _every_tiling_misses):
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(parallel, "thread_count", lambda: 2)
+            patch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(accuracy))
+            calls = _conical_runs(patch, {FIRST}, missed_mm=2.0 * tol)
+            made[accuracy] = design("saddle", options, policy=PAUSING), list(calls)
+    return made
+
+
+@pytest.fixture
+def paused_saddle(_paused_saddles):
+    """A copy of a design of :func:`_paused_saddles`, and its co-optimizations, by accuracy."""
+    return lambda accuracy: copy.deepcopy(_paused_saddles[accuracy])
+
+
 def test_a_split_meeting_the_targets_is_kept_before_the_first_tiling_tries_more(
-    monkeypatch,
+    monkeypatch, paused_saddle
 ) -> None:
     # The 60-tile saddle as a tiling that may still be split: its first conical weight misses
     # the flat targets, so its ladder pauses and the first tighter tiling is laid out; that
     # meets every target, so it is kept and the first tiling tries no further co-optimization
     # (prefer_split_at_first_weight).
     # (calls are counted here: nothing is laid out or co-optimized ahead)
-    policy = replace(IN_TURN, retile_min_share=0.0, retile_ahead=False)
-    monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(_two_parts_meet))
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
     first = FIRST
     tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
-    calls = _conical_runs(monkeypatch, {first}, missed_mm=2.0 * tol)
-    result = design("saddle", options, policy=policy)
+    result, calls = paused_saddle(_two_parts_meet)
     assert result.tiling.linkage.n_components == 2
     assert [c for c in calls if not c[2]] == [(True, first, False)]  # the first tiling's
     assert calls[1] == (True, first, True)  # then the split, laid out in full
@@ -333,28 +366,29 @@ def test_a_split_meeting_the_targets_is_kept_before_the_first_tiling_tries_more(
         "without trying the first tiling with another weight or without the condition"
     )
     # with no tighter tiling to try, nothing pauses: the first tiling runs its whole ladder
-    calls.clear()
-    result = design("saddle", options, policy=replace(policy, retile_attempts=0))
+    monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(_two_parts_meet))
+    calls = _conical_runs(monkeypatch, {first}, missed_mm=2.0 * tol)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    result = design("saddle", options, policy=replace(PAUSING, retile_attempts=0))
     assert result.tiling.linkage.n_components == 1
     assert calls[:2] == [(True, first, False), (True, RETRY, False)]
 
 
-def test_a_paused_first_tiling_goes_on_where_the_split_misses(monkeypatch) -> None:
+def test_a_paused_first_tiling_goes_on_where_the_split_misses(monkeypatch, paused_saddle) -> None:
     # Where the split misses too, the first tiling's ladder goes on from its next weight (the
     # first is not run again) and the design is bitwise the one laid out without the pause.
-    policy = replace(IN_TURN, retile_min_share=0.0, retile_ahead=False)
-    monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(lambda _s: 1.0))
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
     first, retry = FIRST, RETRY
     tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
-    calls = _conical_runs(monkeypatch, {first}, missed_mm=2.0 * tol)
-    paused = design("saddle", options, policy=policy)
+    paused, calls = paused_saddle(_every_tiling_misses)
     ones = [c for c in calls if not c[2]]  # the first tiling's, in this process
     assert ones[:2] == [(True, first, False), (True, retry, False)]
     assert calls.index((True, retry, False)) > calls.index((True, first, True))  # after the split
     assert paused.tiling.linkage.n_components == 1
-    calls.clear()
-    straight = design("saddle", options, policy=replace(policy, prefer_split_at_first_weight=False))
+    monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(_every_tiling_misses))
+    calls = _conical_runs(monkeypatch, {first}, missed_mm=2.0 * tol)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    policy = replace(PAUSING, prefer_split_at_first_weight=False)
+    straight = design("saddle", options, policy=policy)
     assert [c for c in calls if not c[2]] == ones
     assert paused.notes == straight.notes
     for a, b in zip(_design_arrays(paused), _design_arrays(straight), strict=True):
@@ -395,21 +429,22 @@ def test_after_a_pause_each_tighter_tiling_is_laid_out_once(monkeypatch) -> None
     assert note.endswith("kept 4 parts")
 
 
-def test_the_pause_gives_the_design_laid_out_in_turn_where_work_runs_ahead(monkeypatch) -> None:
+def test_the_pause_gives_the_design_laid_out_in_turn_where_work_runs_ahead(
+    monkeypatch, paused_saddle
+) -> None:
     # With the split laid out ahead and the run without the condition run ahead, the paused
-    # first tiling gives the serial design bitwise, where the split is kept and where the
-    # first tiling goes on, and no child is left behind.
+    # first tiling gives the serial design (laid out in turn: PAUSING) bitwise, where the
+    # split is kept and where the first tiling goes on, and no child is left behind.
     monkeypatch.setattr(parallel, "thread_count", lambda: 2)  # ahead even on one core
-    run_ahead = LayoutPolicy(retile_min_share=0.0, retile_ahead=True, co_speculate=True)
-    in_turn = replace(run_ahead, retile_ahead=False, co_speculate=False)
+    run_ahead = replace(PAUSING, retile_ahead=True, co_speculate=True)
     if not can_fork():
         pytest.skip("processes cannot fork here")
     tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
     _conical_runs(monkeypatch, {FIRST}, missed_mm=2.0 * tol)
     options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
-    for accuracy, parts in ((_two_parts_meet, 2), (lambda _s: 1.0, 1)):
+    for accuracy, parts in ((_two_parts_meet, 2), (_every_tiling_misses, 1)):
         monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(accuracy))
-        serial = design("saddle", options, policy=in_turn)
+        serial, _ = paused_saddle(accuracy)
         ahead = design("saddle", options, policy=run_ahead)
         assert ahead.tiling.linkage.n_components == serial.tiling.linkage.n_components == parts
         assert ahead.notes == serial.notes
@@ -635,10 +670,6 @@ def test_a_tighter_tiling_that_meets_the_targets_is_kept_without_halving_the_mis
     assert result.tiling.linkage.n_components > 1
     assert result.metrics()["split_bound"] < split_bound(result.options)
     assert any(n.startswith("tiling:") and "kept 2 parts" in n for n in result.notes)
-
-
-def _two_parts_meet(shaped: layout_stage.ShapedLayout) -> float:
-    return 1.4e-3 if shaped.tiling.linkage.n_components == 1 else 9.5e-4
 
 
 def _design_arrays(result) -> list[np.ndarray]:
