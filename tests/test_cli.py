@@ -494,12 +494,11 @@ def test_simulate_an_existing_design(
     assert "design.json&#x27;s &#x27;options&#x27; is an array, not an object" in page
 
 
-def test_simulate_repeats_the_designs_own_run_exactly(tmp_path: Path) -> None:
+def test_simulate_repeats_the_designs_own_run_exactly(small: Written, tmp_path: Path) -> None:
     # tiles.npz keeps the tiles at full precision, so simulating the folder again reproduces
     # the design's simulation byte for byte (from the OBJ files, rounded, it drifted).
-    out = tmp_path / "d"
-    args = ["design", "saddle", "--grid", "6", "5", "--resolution", "1500", "--no-cad"]
-    assert main([*args, "--quiet", "--out", str(out)]) == 0
+    assert small.returncode == 0
+    out = small.copy(tmp_path / "d")
     frames = (out / "deploy.npz").read_bytes()
     block = json.loads((out / "design.json").read_text())["metrics"]["simulation"]
     assert main(["simulate", str(out), "--quiet"]) == 0
