@@ -947,7 +947,7 @@ def test_a_design_states_one_mass_and_route_length_everywhere(tmp_path: Path) ->
     from drawstring.pipeline.record import DesignOptions
     from drawstring.pipeline.run import design
 
-    options = DesignOptions(grid=(5, 5), resolution=1500, simulate=False)
+    options = DesignOptions(grid=(3, 3), resolution=1500, simulate=False)
     out = write_design(design("saddle", options), tmp_path / "saddle")
     metrics = json.loads((out / "design.json").read_text())["metrics"]
     cad = metrics["cad"]
