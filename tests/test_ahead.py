@@ -5,7 +5,6 @@ from __future__ import annotations
 import multiprocessing
 import os
 import sys
-import time
 
 import pytest
 
@@ -37,17 +36,16 @@ def test_a_child_that_fails_gives_no_result() -> None:
     assert Ahead(fails).result(Progress(quiet=True)) is None
 
 
-def test_a_child_is_ready_once_its_work_is_done(tmp_path) -> None:
-    go = tmp_path / "go"
+def test_a_child_is_ready_once_its_work_is_done() -> None:
+    go = multiprocessing.get_context("fork").Event()  # (inherited by the forked child)
 
     def waits(progress: Progress) -> int:
-        while not go.exists():
-            time.sleep(0.01)
+        assert go.wait(60.0), "the test never let the child go on"
         return 7
 
     ahead: Ahead[int] = Ahead(waits)
     assert not ahead.ready()  # still working
-    go.touch()
+    go.set()
     ahead._receive.poll(30.0)  # (the test's own wait: the child sends when done)
     assert ahead.ready()
     assert ahead.result(Progress(quiet=True)) == 7

@@ -202,23 +202,25 @@ def test_a_paused_ladder_keeps_its_child_until_it_goes_on_or_is_cancelled(tmp_pa
     errors = {(True, FIRST): 2 * TOL, (True, RETRY): 2 * TOL, (False, None): 0.1 * TOL}
     base, ran = _runs(errors)
     finished = tmp_path / "finished"
+    go = multiprocessing.get_context("fork").Event()  # (inherited by the forked children)
 
     def run(step):
-        if not step[0]:  # the step run ahead: slow, and it leaves a mark when it ends
-            time.sleep(float(finished.read_text()) if finished.exists() else 20.0)
-            finished.write_text("done")
+        if not step[0]:  # the step run ahead: it ends once let go, and leaves a mark then
+            if go.wait(60.0):
+                finished.write_text("done")
         return base(step)
 
-    finished.write_text("1.0")  # the child goes on through the pause and is taken after it
     ladder = CoLadder(run, True, True)
     ladder.run(pause_after_miss=True)
-    assert ladder.paused
-    time.sleep(0.1)  # (the pause itself)
-    assembled, *_ = ladder.run()
+    assert ladder.paused and ladder.running_ahead
+    assert not finished.exists()  # the child goes on through the pause ...
+    go.set()
+    assembled, *_ = ladder.run()  # ... and is taken after it
     assert ran == [(True, FIRST), (True, RETRY)]  # the last one ran in the child
     assert assembled == "assembled (False, None)"
     assert finished.read_text() == "done" and multiprocessing.active_children() == []
-    finished.unlink()  # cancelled, the child never ends its 20 s step
+    finished.unlink()
+    go.clear()  # cancelled, the child is never let go to end its step
     base, ran = _runs(errors)
     ladder = CoLadder(run, True, True)
     ladder.run(pause_after_miss=True)

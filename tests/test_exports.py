@@ -160,8 +160,8 @@ def test_files_written(built: Built) -> None:
     assert all((built.folder / f).is_file() for f in built.files)
 
 
-#: Loads this test module from argv[1], then builds and writes profile argv[2]'s sample into
-#: the folder argv[3].
+#: Loads this test module from argv[1], then builds and writes the sample of each profile
+#: argv[2], argv[4], ... into the folder after it.
 _BUILD_AGAIN = """
 import importlib.util, sys
 from pathlib import Path
@@ -169,7 +169,8 @@ sys.path.insert(0, str(Path(sys.argv[1]).parent))  # the test module's helpers b
 spec = importlib.util.spec_from_file_location("exports_tests", sys.argv[1])
 module = sys.modules[spec.name] = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(module)
-module._built(sys.argv[2], Path(sys.argv[3]))
+for name, folder in zip(sys.argv[2::2], sys.argv[3::2], strict=True):
+    module._built(name, Path(folder))
 """
 
 
@@ -181,7 +182,20 @@ def _other_hash_seed() -> dict[str, str]:
     return {**os.environ, "PYTHONHASHSEED": other}
 
 
-def test_repeat_run_in_a_fresh_process_is_byte_identical(built: Built, tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def built_again(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Each profile's sample built and written again by one other process, with another
+    string hash seed: the folder by profile name."""
+    folders = {name: tmp_path_factory.mktemp(f"again-{name}") / "again" for name in PROFILES}
+    pairs = [str(a) for name, folder in folders.items() for a in (name, folder)]
+    command = [sys.executable, "-c", _BUILD_AGAIN, __file__, *pairs]
+    subprocess.run(command, check=True, capture_output=True, timeout=900, env=_other_hash_seed())
+    return folders
+
+
+def test_repeat_run_in_a_fresh_process_is_byte_identical(
+    built: Built, built_again: dict[str, Path]
+) -> None:
     """Every file again, built and written by another process.
 
     Writing again in this process would reuse the very same OCCT shapes (same memory
@@ -189,9 +203,7 @@ def test_repeat_run_in_a_fresh_process_is_byte_identical(built: Built, tmp_path:
     OCCT's STEP writer laid out its colours by address, ezdxf its classes by hash.  A new
     process builds its shapes elsewhere, with another seed.
     """
-    again = tmp_path / "again"
-    command = [sys.executable, "-c", _BUILD_AGAIN, __file__, built.profile.name, str(again)]
-    subprocess.run(command, check=True, capture_output=True, timeout=600, env=_other_hash_seed())
+    again = built_again[built.profile.name]
     names = sorted(str(p.relative_to(again)) for p in again.rglob("*") if p.is_file())
     assert names == built.files
     for name in built.files:
@@ -213,12 +225,16 @@ write_step(Path(sys.argv[1]), parts, "boxes")
 """
 
 
-def test_step_colours_do_not_depend_on_the_process(tmp_path: Path) -> None:
-    """OCCT orders the colour entities by shape address: two processes, same bytes."""
+def test_step_colours_do_not_depend_on_the_process(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """OCCT orders the colour entities by shape address: two processes (a fresh one and this
+    one), same bytes."""
     paths = [tmp_path / "a.step", tmp_path / "b.step"]
-    for path in paths:
-        command = [sys.executable, "-c", _BOXES_STEP, str(path)]
-        subprocess.run(command, check=True, capture_output=True, timeout=300)
+    command = [sys.executable, "-c", _BOXES_STEP, str(paths[0])]
+    subprocess.run(command, check=True, capture_output=True, timeout=300)
+    monkeypatch.setattr(sys, "argv", ["-c", str(paths[1])])
+    exec(compile(_BOXES_STEP, "<boxes>", "exec"), {"__name__": "__main__"})
     first, second = (p.read_bytes() for p in paths)
     assert first == second
     # Colours and names survive the re-laid colour section.
@@ -931,7 +947,7 @@ def test_a_design_states_one_mass_and_route_length_everywhere(tmp_path: Path) ->
     from drawstring.pipeline.record import DesignOptions
     from drawstring.pipeline.run import design
 
-    options = DesignOptions(grid=(5, 5), resolution=1500, simulate=False)
+    options = DesignOptions(grid=(3, 3), resolution=1500, simulate=False)
     out = write_design(design("saddle", options), tmp_path / "saddle")
     metrics = json.loads((out / "design.json").read_text())["metrics"]
     cad = metrics["cad"]

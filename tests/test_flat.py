@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -178,10 +180,23 @@ def _saddle_design(n: int = 8, cell: float = 12.0, radius: float = 60.0):
     return linkage, assembled, flat, target
 
 
-def test_co_optimization_makes_curved_tiles_flat_foldable() -> None:
+@pytest.fixture(scope="module")
+def _saddle8_shared():
+    """The 8 x 8 saddle of :func:`_saddle_design`, made once for this module."""
+    return _saddle_design()
+
+
+@pytest.fixture
+def saddle8(_saddle8_shared):
+    """A copy of the 8 x 8 saddle's linkage, K3D/T3D, K2D and target (:func:`_saddle_design`),
+    copied together so that a test changing what it gets changes nothing for the next."""
+    return copy.deepcopy(_saddle8_shared)
+
+
+def test_co_optimization_makes_curved_tiles_flat_foldable(saddle8) -> None:
     from drawstring.geometry.flat.coflat import co_optimize_top
 
-    linkage, assembled, flat, target = _saddle_design()
+    linkage, assembled, flat, target = saddle8
     # With K3D fixed the flat layout stops at its least-squares optimum.
     assert flat.edge_error_max_mm > 1e-2
     co = co_optimize_top(
@@ -402,7 +417,7 @@ def test_a_seed_layout_stops_once_its_bounds_hold() -> None:
     assert abs(seed.edge_error_max_mm - full.edge_error_max_mm) < 1e-6
 
 
-def test_bottom_hinges_are_pulled_to_equal_depths_under_both_tiles() -> None:
+def test_bottom_hinges_are_pulled_to_equal_depths_under_both_tiles(saddle8) -> None:
     """A bottom hinge's corner meets itself in the flat pose only if it lies as deep under one
     tile's top face as under the other's; the pull moves the bottoms (tops held, every face
     still planar) to halve the worst difference on a saddle, by hundredths of a millimetre."""
@@ -413,7 +428,7 @@ def test_bottom_hinges_are_pulled_to_equal_depths_under_both_tiles() -> None:
     from drawstring.geometry.solve.planarity import quad_planarity
     from drawstring.pipeline.layout_stage import _bottom_hinge_depths
 
-    linkage, assembled, _, target = _saddle_design()
+    linkage, assembled, _, target = saddle8
     bottom = dual_hinge_faces(linkage, assembled.tiles, 12.0).bottom
     assert 0 < bottom.sum() < len(bottom)
     hinges = linkage.hinges[bottom]
@@ -480,7 +495,7 @@ def test_vertex_stars_find_the_conical_vertices_of_a_grid_of_revolution() -> Non
                 assert grads[star, m, c] == pytest.approx(diff, abs=1e-7)
 
 
-def test_a_conical_top_lets_the_bottom_hinges_meet_in_depth() -> None:
+def test_a_conical_top_lets_the_bottom_hinges_meet_in_depth(saddle8) -> None:
     """With bottom hinges the joint solve also makes K3D conical, so that the bottoms can be
     pulled to equal depths under both tiles of every bottom hinge (the 3D hinge gap)."""
     from dataclasses import replace
@@ -493,7 +508,7 @@ def test_a_conical_top_lets_the_bottom_hinges_meet_in_depth() -> None:
     from drawstring.geometry.hinges.sides import dual_hinge_faces
     from drawstring.pipeline.co_rounds import depth_pull
 
-    linkage, assembled, _, target = _saddle_design()
+    linkage, assembled, _, target = saddle8
     bottom = dual_hinge_faces(linkage, assembled.tiles, 12.0).bottom
     faces = hinge_faces(linkage, assembled.tiles, bottom)
     flat = optimize_flat(
