@@ -1,0 +1,229 @@
+"""Fit the print estimate to PrusaSlicer, and compare the two on every built-in.
+
+``--fit`` designs a set of small designs (several targets, tile counts, printers, both
+printed profiles), slices every bed with PrusaSlicer and the shipped settings, reads each
+bed's parts back from its 3MF, and fits the weights of
+:mod:`drawstring.fabrication.print_estimate` to PrusaSlicer's times and filament by
+non-negative least squares; it prints the weights (to copy into that module) and keeps the
+samples in ``benchmarks/data/print_samples.json`` (``--refit`` fits again from them without
+slicing).  ``--builtins`` designs every built-in at 200 tiles with CAD, slices it and writes
+the estimate next to PrusaSlicer's into ``benchmarks/results.json`` (key ``print_estimate``).
+
+Needs ``prusa-slicer`` on PATH; a 200-tile built-in takes a few minutes to slice.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import tempfile
+import time
+import xml.etree.ElementTree as ET
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.optimize import nnls
+
+HERE = Path(__file__).resolve().parent
+SAMPLES = HERE / "data" / "print_samples.json"
+
+from drawstring.fabrication import print_estimate as pe  # noqa: E402
+from drawstring.fabrication.mesh3mf import PartMesh  # noqa: E402
+from drawstring.fabrication.printers import load_printer, with_printer  # noqa: E402
+from drawstring.fabrication.profiles import load_profile  # noqa: E402
+from drawstring.fabrication.slicer import find_prusa_slicer  # noqa: E402
+from drawstring.geometry.target.builtins import BUILTIN_TARGETS  # noqa: E402
+from drawstring.output.folder import write_design  # noqa: E402
+from drawstring.pipeline.record import DesignOptions  # noqa: E402
+from drawstring.pipeline.run import design  # noqa: E402
+
+#: (target, tiles, profile, printer) of the fitting set.
+FIT_CASES: tuple[tuple[str, int, str, str], ...] = (
+    ("saddle", 40, "fdm-dual", "generic-dual"),
+    ("saddle", 90, "fdm-dual", "prusa-xl-2t"),
+    ("dome", 50, "fdm-dual", "bambu-h2d"),
+    ("dome", 100, "fdm-dual", "generic-dual"),
+    ("wave", 60, "fdm-dual", "snapmaker-u1"),
+    ("chair", 60, "fdm-dual", "prusa-xl-2t"),
+    ("peanut", 70, "fdm-dual", "generic-dual"),
+    ("cloud", 50, "fdm-dual", "snapmaker-u1"),
+    ("seashell", 60, "fdm-dual", "bambu-h2d"),
+    ("saddle", 60, "laser-epdm", "generic-single"),
+    ("wave", 80, "laser-epdm", "prusa-xl-2t"),
+)
+_NUMBER = re.compile(rb'[xyz]="([-0-9.e]+)"')
+_INDEX = re.compile(rb'v[123]="(\d+)"')
+
+
+def read_bed(path: Path) -> list[PartMesh]:
+    """The parts of a bed's 3MF (drawstring's own): each volume of the PrusaSlicer config
+    as a mesh, ``tile`` or ``pad`` by its name."""
+    with zipfile.ZipFile(path) as archive:
+        model = archive.read("3D/3dmodel.model")
+        config = ET.fromstring(archive.read("Metadata/Slic3r_PE_model.config"))
+    parts: list[PartMesh] = []
+    objects = model.split(b"<object ")[1:]
+    for chunk, obj in zip(objects, config.findall("object"), strict=True):
+        vertices_xml, _, triangles_xml = chunk.partition(b"<triangles>")
+        vertices = np.array(_NUMBER.findall(vertices_xml), dtype=np.float64).reshape(-1, 3)
+        triangles = np.array(_INDEX.findall(triangles_xml), dtype=np.int64).reshape(-1, 3)
+        for volume in obj.findall("volume"):
+            first, last = int(volume.get("firstid", 0)), int(volume.get("lastid", 0))
+            name = next(m.get("value") for m in volume if m.get("key") == "name") or ""
+            tri = triangles[first : last + 1]
+            used, local = np.unique(tri, return_inverse=True)
+            kind = "pad" if name.startswith("hinge") else "tile"
+            parts.append(PartMesh(name, kind, vertices[used], local.reshape(-1, 3)))
+    return parts
+
+
+def run_case(target: str, tiles: int, profile: str, printer: str, folder: Path) -> list[dict]:
+    """Design, write and slice one case; one sample per bed: its features and what
+    PrusaSlicer reported."""
+    options = DesignOptions(
+        profile=profile, tiles=tiles, simulate=False, printer=printer, slice=True
+    )
+    start = time.perf_counter()
+    result = design(target, options, quiet=True)
+    out = write_design(result, folder / f"{target}-{tiles}-{profile}-{printer}")
+    seconds = time.perf_counter() - start
+    sliced = json.loads((out / "fabrication" / "slicer.json").read_text())
+    used_printer = load_printer(printer)
+    used_profile = with_printer(load_profile(profile), used_printer)
+    samples = []
+    for bed in sliced["beds"]:
+        parts = read_bed(out / "fabrication" / bed["model"])
+        features = pe.bed_features(parts, used_printer, used_profile)
+        grams = bed["filament_g"]
+        samples.append(
+            {
+                "case": f"{target}-{tiles}-{profile}-{printer}",
+                "bed": bed["bed"],
+                "features": features.to_json(),
+                "time_s": bed["time_s"],
+                "tile_mm3": 1000.0
+                * grams.get(used_profile.tile_material, 0.0)
+                / (used_profile.density_kg_m3 / 1000.0),
+                "pad_mm3": 1000.0
+                * grams.get(used_profile.hinge_material, 0.0)
+                / (used_profile.hinge_density_kg_m3 / 1000.0),
+                "slicer": sliced["slicer"],
+                "wall_s": round(seconds, 1),
+            }
+        )
+    return samples
+
+
+def fit(samples: list[dict]) -> dict[str, list[float]]:
+    """Non-negative least squares of each estimate's weights, relative errors weighted alike
+    (each sample's row divided by its target)."""
+    features = [pe.BedFeatures(**s["features"]) for s in samples]
+
+    def solve(rows: list[list[float]], targets: list[float]) -> list[float]:
+        a = np.array(rows, dtype=np.float64)
+        y = np.array(targets, dtype=np.float64)
+        keep = y > 0
+        scale = 1.0 / y[keep]
+        weights, _ = nnls(a[keep] * scale[:, None], np.ones(int(keep.sum())))
+        return [float(f"{w:.4g}") for w in weights]
+
+    return {
+        "TIME_WEIGHTS": solve([f.time_terms() for f in features], [s["time_s"] for s in samples]),
+        "TILE_FILAMENT_WEIGHTS": solve(
+            [f.tile_terms() for f in features], [s["tile_mm3"] for s in samples]
+        ),
+        "PAD_FILAMENT_WEIGHTS": solve(
+            [f.pad_terms() for f in features], [s["pad_mm3"] for s in samples]
+        ),
+    }
+
+
+def report(samples: list[dict], weights: dict[str, list[float]]) -> None:
+    """Each sample's estimate with the weights against PrusaSlicer's numbers."""
+    for s in samples:
+        f = pe.BedFeatures(**s["features"])
+        t = float(np.dot(weights["TIME_WEIGHTS"], f.time_terms()))
+        tile = float(np.dot(weights["TILE_FILAMENT_WEIGHTS"], f.tile_terms()))
+        pad = float(np.dot(weights["PAD_FILAMENT_WEIGHTS"], f.pad_terms()))
+        pad_error = f"{pad / s['pad_mm3'] - 1:+6.1%}" if s["pad_mm3"] > 0 else "   -  "
+        print(
+            f"{s['case']:42s} bed {s['bed']}  time {s['time_s'] / 3600:6.2f} h "
+            f"{t / s['time_s'] - 1:+6.1%}  PLA {tile / s['tile_mm3'] - 1:+6.1%}  TPU {pad_error}"
+        )
+
+
+def builtin_rows(folder: Path) -> list[dict[str, Any]]:
+    """Every built-in at 200 tiles (fdm-dual, its default printer): the estimate and what
+    PrusaSlicer reported, and how far apart they are."""
+    rows = []
+    for name in BUILTIN_TARGETS:
+        options = DesignOptions(tiles=200, simulate=False, slice=True)
+        result = design(name, options, quiet=True)
+        out = write_design(result, folder / name)
+        manifest = json.loads((out / "fabrication" / "manifest.json").read_text())
+        sliced = json.loads((out / "fabrication" / "slicer.json").read_text())
+        estimate = manifest["estimates"]
+        slicer_g = sliced["total"]["filament_g"]
+        row: dict[str, Any] = {
+            "case": name,
+            "tiles": int(result.tiling.linkage.n_tiles),
+            "profile": result.profile.name,
+            "printer": result.options.printer,
+            "beds": len(sliced["beds"]),
+            "slicer": sliced["slicer"],
+            "slicer_time_h": sliced["total"]["time_h"],
+            "estimate_time_h": estimate["print_time_h"],
+            "time_error": round(estimate["print_time_h"] / sliced["total"]["time_h"] - 1, 3),
+            "slicer_filament_g": slicer_g,
+            "estimate_filament_g": estimate["filament_g"],
+            "filament_error": {
+                material: round(estimate["filament_g"][material] / grams - 1, 3)
+                for material, grams in slicer_g.items()
+                if grams > 0
+            },
+        }
+        print(json.dumps(row))
+        rows.append(row)
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--fit", action="store_true", help="slice the fitting set and fit")
+    parser.add_argument("--refit", action="store_true", help="fit again from the saved samples")
+    parser.add_argument(
+        "--builtins", action="store_true", help="compare on every built-in at 200 tiles"
+    )
+    parser.add_argument("--keep", type=Path, help="keep the design folders here")
+    args = parser.parse_args()
+    if (args.fit or args.builtins) and find_prusa_slicer() is None:
+        sys.exit("prusa-slicer is not on PATH")
+    with tempfile.TemporaryDirectory(prefix="drawstring-calibrate-") as scratch:
+        folder = args.keep or Path(scratch)
+        folder.mkdir(parents=True, exist_ok=True)
+        if args.fit:
+            samples: list[dict] = []
+            for case in FIT_CASES:
+                samples += run_case(*case, folder)
+                print(f"sliced {case}", flush=True)
+            SAMPLES.write_text(json.dumps(samples, indent=1) + "\n", encoding="utf-8")
+        if args.fit or args.refit:
+            samples = json.loads(SAMPLES.read_text())
+            weights = fit(samples)
+            for name, values in weights.items():
+                print(f"{name}: tuple[float, ...] = {tuple(values)}")
+            report(samples, weights)
+        if args.builtins:
+            rows = builtin_rows(folder)
+            path = HERE / "results.json"
+            results = json.loads(path.read_text()) if path.exists() else {}
+            results["print_estimate"] = rows
+            path.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
+
+
+if __name__ == "__main__":
+    main()
