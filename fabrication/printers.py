@@ -40,7 +40,9 @@ SHIPPED_PRINTERS: tuple[str, ...] = (
 )
 #: The preset a printed profile without ``machine.printer`` falls back to, by toolheads needed.
 GENERIC_PRINTER = {2: "generic-dual", 1: "generic-single"}
-GCODE_FLAVORS = ("marlin2", "klipper", "reprapfirmware")
+#: G-code flavours PrusaSlicer 2.5 knows (it reads an unknown one as reprap); Klipper
+#: printers run marlin2-style G-code.
+GCODE_FLAVORS = ("marlin2", "marlin", "reprapfirmware")
 
 PRINTER_SCHEMA: dict[str, Field] = {
     "name": Field("", "name", str),

@@ -1464,3 +1464,8 @@ def test_loose_pads_that_fill_a_bed_go_on_to_the_next() -> None:
         assert np.all(every[:, :2] >= BED_MARGIN_MM) and np.all(every[:, :2] <= 60 - BED_MARGIN_MM)
     with pytest.raises(InputError, match="loose hinge pad .* does not fit the 60 x 60 mm bed"):
         arrange_loose([pad(0, w=50.0)], (60.0, 60.0), 3.0)
+
+
+def test_the_guide_points_to_the_test_coupon(built: Built) -> None:
+    guide = (built.folder / "fabrication" / "assembly.md").read_text()
+    assert f"`drawstring coupon --profile {built.profile.name}" in guide
