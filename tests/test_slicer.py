@@ -264,8 +264,12 @@ def test_sliced_numbers_are_the_slicers_in_bom_manifest_and_slicer_json(
         check=True, capture_output=True, timeout=900,
     )  # fmt: skip
     by_hand = read_gcode_summary(gcode)
-    assert by_hand.time_s == bed["time_s"]
-    assert list(by_hand.filament_g) == [bed["filament_g"]["PLA"], bed["filament_g"]["TPU 95A"]]
+    # PrusaSlicer slices on several threads: its own estimate of one file and settings varies
+    # by a second or so from run to run
+    assert by_hand.time_s == pytest.approx(bed["time_s"], rel=1e-3, abs=2.0)
+    assert list(by_hand.filament_g) == pytest.approx(
+        [bed["filament_g"]["PLA"], bed["filament_g"]["TPU 95A"]], rel=2e-3
+    )
 
 
 def test_bambu_and_orca_per_part_extruders_read_back(sample: Sample, tmp_path: Path) -> None:
