@@ -164,3 +164,19 @@ def test_the_chosen_printer_is_recorded_in_design_json(tmp_path: Path) -> None:
     assert main([*args, "--profile", "plywood-cnc", "--out", str(out)]) == 0
     options = json.loads((out / "design.json").read_text())["options"]
     assert options["printer"] is None and options["slice"] is True
+
+
+def test_the_report_checks_the_layout_against_the_printers_bed(tmp_path: Path) -> None:
+    import numpy as np
+
+    from drawstring.output.report_data import FolderContents
+    from drawstring.output.report_sections import bed_note
+
+    flat = np.zeros((2, 8, 3))
+    flat[1, :, 0] = 340.0  # wider than generic-dual's 330 mm bed, within the XL's 360 mm
+    flat[1, :, 1] = 200.0
+    options = {"profile": "fdm-dual", "printer": "prusa-xl-2t"}
+    found = FolderContents(tmp_path, {"options": options}, None, flat, None, None, ())
+    assert "(fits the 360 × 360 mm bed of prusa-xl-2t" in bed_note(found)
+    options["printer"] = "generic-dual"
+    assert "does not fit the 330 × 240 mm bed of generic-dual" in bed_note(found)
