@@ -57,20 +57,43 @@ _INDEX = re.compile(rb'v[123]="(\d+)"')
 
 def read_bed(path: Path) -> list[PartMesh]:
     """The parts of a bed's 3MF (drawstring's own): each volume of the PrusaSlicer config
-    as a mesh, ``tile`` or ``pad`` by its name."""
+    as a mesh, ``tile`` or ``pad`` by its name; a file without that config (tiles alone) has
+    each connected piece of its meshes as a tile."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     with zipfile.ZipFile(path) as archive:
         model = archive.read("3D/3dmodel.model")
-        config = ET.fromstring(archive.read("Metadata/Slic3r_PE_model.config"))
+        names = archive.namelist()
+        config = (
+            ET.fromstring(archive.read("Metadata/Slic3r_PE_model.config"))
+            if "Metadata/Slic3r_PE_model.config" in names
+            else None
+        )
     parts: list[PartMesh] = []
-    objects = model.split(b"<object ")[1:]
-    for chunk, obj in zip(objects, config.findall("object"), strict=True):
+    for index, chunk in enumerate(model.split(b"<object ")[1:]):
         vertices_xml, _, triangles_xml = chunk.partition(b"<triangles>")
         vertices = np.array(_NUMBER.findall(vertices_xml), dtype=np.float64).reshape(-1, 3)
         triangles = np.array(_INDEX.findall(triangles_xml), dtype=np.int64).reshape(-1, 3)
-        for volume in obj.findall("volume"):
-            first, last = int(volume.get("firstid", 0)), int(volume.get("lastid", 0))
-            name = next(m.get("value") for m in volume if m.get("key") == "name") or ""
-            tri = triangles[first : last + 1]
+        if config is not None:
+            volumes = config.findall("object")[index].findall("volume")
+            pieces = [
+                (
+                    next(m.get("value") for m in v if m.get("key") == "name") or "",
+                    triangles[int(v.get("firstid", 0)) : int(v.get("lastid", 0)) + 1],
+                )
+                for v in volumes
+            ]
+        else:
+            edges = np.vstack([triangles[:, [0, 1]], triangles[:, [1, 2]]])
+            graph = coo_matrix(
+                (np.ones(len(edges)), (edges[:, 0], edges[:, 1])),
+                shape=(len(vertices), len(vertices)),
+            )
+            _, label = connected_components(graph, directed=False)
+            of_triangle = label[triangles[:, 0]]
+            pieces = [(f"tile_{k}", triangles[of_triangle == k]) for k in np.unique(of_triangle)]
+        for name, tri in pieces:
             used, local = np.unique(tri, return_inverse=True)
             kind = "pad" if name.startswith("hinge") else "tile"
             parts.append(PartMesh(name, kind, vertices[used], local.reshape(-1, 3)))
