@@ -32,7 +32,7 @@ log = logging.getLogger(__name__)
 #: The PrusaSlicer command looked up on PATH.
 PRUSA_SLICER = "prusa-slicer"
 #: Longest a slice of one bed may take before it is given up (s).
-SLICE_TIMEOUT_S = 900.0
+SLICE_TIMEOUT_S = 1800.0
 #: PrusaSlicer's line width for a 0.4 mm nozzle's infill is 1.125 x the nozzle; the wipe
 #: tower's depth follows from its purge volume per layer (:func:`wipe_tower_footprint`).
 WIPE_TOWER_BRIM_MM = 2.0
@@ -269,11 +269,11 @@ def slicer_version(executable: str) -> str:
 
 
 def slice_bed(
-    executable: str, ini: Path, model: Path, timeout_s: float = SLICE_TIMEOUT_S
+    executable: str, ini: Path, model: Path, timeout_s: float | None = None
 ) -> SliceSummary:
     """Slice ``model`` with the settings ``ini`` (``prusa-slicer --export-gcode --load``) into
     a temporary G-code and read its summary; PrusaSlicer's output is logged (``-v``), not
-    printed.
+    printed.  ``timeout_s`` defaults to :data:`SLICE_TIMEOUT_S`.
 
     Raises
     ------
@@ -285,6 +285,7 @@ def slice_bed(
         gcode = Path(folder) / "out.gcode"
         command = [executable, "--export-gcode", "--load", str(ini), str(model), "-o", str(gcode)]
         log.info("slicing: %s", " ".join(command))
+        timeout_s = SLICE_TIMEOUT_S if timeout_s is None else timeout_s
         try:
             done = subprocess.run(
                 command, capture_output=True, text=True, timeout=timeout_s, check=False

@@ -16,7 +16,7 @@ from drawstring.app.cli import EXIT_INPUT, main  # noqa: E402
 from drawstring.fabrication.coupon import COUPON_CELLS, coupon_side_mm  # noqa: E402
 from drawstring.fabrication.printers import load_printer  # noqa: E402
 from drawstring.fabrication.profiles import SHIPPED_PROFILES, load_profile  # noqa: E402
-from drawstring.output.assembly_guide import coupon_text  # noqa: E402
+from drawstring.output.assembly_text import coupon_text  # noqa: E402
 from drawstring.output.coupon import write_coupon  # noqa: E402
 
 HAS_SLICER = shutil.which("prusa-slicer") is not None
