@@ -25,7 +25,6 @@ from drawstring.fabrication.slicer import IniJob, prusa_ini, wipe_tower_footprin
 from drawstring.geometry.core.errors import InputError
 
 if TYPE_CHECKING:
-    from drawstring.fabrication.measures import Measures
     from drawstring.fabrication.processes.base import FabricationJob
     from drawstring.fabrication.profiles import Profile
 
@@ -33,15 +32,12 @@ if TYPE_CHECKING:
 BED_GAP_MM = 20.0
 
 
-def write_print_jobs(
-    job: FabricationJob, measures: Measures, with_pads: bool, file_name: str
-) -> None:
+def write_print_jobs(job: FabricationJob, with_pads: bool, file_name: str) -> None:
     """Meshes, print jobs and the 3MF (dual material when ``with_pads``): ``file_name`` with
     every job, one object each, the beds side by side, and one file per bed where there are
     several; beside each file that holds one bed, its PrusaSlicer settings (``.ini``).  The
     jobs, beds, the wipe towers and the estimated printing time and filament go into
     ``job.record``."""
-    del measures
     record = job.record
     tile_mesh, pad_mesh = _meshes(job, with_pads)
     job_parts, beds, cut, towers = _plan_beds(job, tile_mesh, pad_mesh, with_pads)
