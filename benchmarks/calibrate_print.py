@@ -20,7 +20,6 @@ import json
 import re
 import sys
 import tempfile
-import time
 import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
@@ -106,13 +105,11 @@ def run_case(target: str, tiles: int, profile: str, printer: str, folder: Path) 
     """Design, write and slice one case (or read the folder of an earlier run of it); one
     sample per bed: its features and what PrusaSlicer reported."""
     out = folder / f"{target}-{tiles}-{profile}-{printer}"
-    start = time.perf_counter()
     if not (out / "fabrication" / "slicer.json").is_file():
         options = DesignOptions(
             profile=profile, tiles=tiles, simulate=False, printer=printer, slice=True
         )
         write_design(design(target, options, quiet=True), out)
-    seconds = time.perf_counter() - start
     sliced = json.loads((out / "fabrication" / "slicer.json").read_text())
     used_printer = load_printer(printer)
     used_profile = with_printer(load_profile(profile), used_printer)
@@ -134,7 +131,6 @@ def run_case(target: str, tiles: int, profile: str, printer: str, folder: Path) 
                 * grams.get(used_profile.hinge_material, 0.0)
                 / (used_profile.hinge_density_kg_m3 / 1000.0),
                 "slicer": sliced["slicer"],
-                "wall_s": round(seconds, 1),
             }
         )
     return samples
