@@ -183,12 +183,12 @@ def _placeholder_step_files(jobs: list[tuple[Path, Any, str]], workers: int | No
     return []
 
 
-def builtin_rows(folder: Path) -> list[dict[str, Any]]:
-    """Every built-in at 200 tiles (fdm-dual, its default printer): the estimate and what
+def builtin_rows(folder: Path, names: list[str]) -> None:
+    """Built-ins at 200 tiles (fdm-dual, its default printer): the estimate and what
     PrusaSlicer reported, and how far apart they are (a folder of an earlier run is read
-    again rather than designed and sliced anew)."""
-    rows = []
-    for name in BUILTIN_TARGETS:
+    again rather than designed and sliced anew).  Each row is written into results.json as
+    soon as it is measured, replacing an earlier row of the same built-in."""
+    for name in names:
         out = folder / name
         if not (out / "fabrication" / "slicer.json").is_file():
             options = DesignOptions(tiles=200, simulate=False, slice=True)
@@ -217,9 +217,18 @@ def builtin_rows(folder: Path) -> list[dict[str, Any]]:
                 if grams > 0
             },
         }
-        print(json.dumps(row))
-        rows.append(row)
-    return rows
+        print(json.dumps(row), flush=True)
+        _record(row)
+
+
+def _record(row: dict[str, Any]) -> None:
+    """Put one built-in's row into results.json's ``print_estimate``, in built-in order."""
+    path = HERE / "results.json"
+    results = json.loads(path.read_text()) if path.exists() else {}
+    rows = {r["case"]: r for r in results.get("print_estimate", [])}
+    rows[row["case"]] = row
+    results["print_estimate"] = [rows[n] for n in BUILTIN_TARGETS if n in rows]
+    path.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
 
 
 def main() -> None:
@@ -228,6 +237,9 @@ def main() -> None:
     parser.add_argument("--refit", action="store_true", help="fit again from the saved samples")
     parser.add_argument(
         "--builtins", action="store_true", help="compare on every built-in at 200 tiles"
+    )
+    parser.add_argument(
+        "--targets", nargs="+", choices=sorted(BUILTIN_TARGETS), help="only these built-ins"
     )
     parser.add_argument("--keep", type=Path, help="keep the design folders here")
     args = parser.parse_args()
@@ -252,11 +264,7 @@ def main() -> None:
                 print(f"{name}: tuple[float, ...] = {tuple(values)}")
             report(samples, weights)
         if args.builtins:
-            rows = builtin_rows(folder)
-            path = HERE / "results.json"
-            results = json.loads(path.read_text()) if path.exists() else {}
-            results["print_estimate"] = rows
-            path.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
+            builtin_rows(folder, args.targets or list(BUILTIN_TARGETS))
 
 
 if __name__ == "__main__":
