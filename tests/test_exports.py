@@ -1469,3 +1469,17 @@ def test_loose_pads_that_fill_a_bed_go_on_to_the_next() -> None:
 def test_the_guide_points_to_the_test_coupon(built: Built) -> None:
     guide = (built.folder / "fabrication" / "assembly.md").read_text()
     assert f"`drawstring coupon --profile {built.profile.name}" in guide
+
+
+def test_the_guide_points_to_the_coupon_of_its_profile_and_printer(built: Built) -> None:
+    """assembly.md names a `drawstring coupon` command whose --profile and --printer load
+    the design's own profile and printer."""
+    guide = (built.folder / "fabrication" / "assembly.md").read_text(encoding="utf-8")
+    match = re.search(r"`drawstring coupon --profile (\S+?)(?: --printer (\S+?))?`", guide)
+    assert match is not None
+    assert load_profile(match[1]).process == built.profile.process
+    manifest = json.loads((built.folder / "fabrication" / "manifest.json").read_text())
+    if manifest["printer"] is None:
+        assert match[2] is None
+    else:
+        assert load_printer(match[2]).name == manifest["printer"]["name"]
