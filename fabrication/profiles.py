@@ -374,10 +374,12 @@ def rough_estimate(profile: Profile, size_mm: float, tiles: int) -> RoughEstimat
     The tiles are taken to cover :data:`ESTIMATE_AREA_FACTOR` size^2, each of the profile's
     thickness, printed tiles filled to its infill fraction, plywood boxes made of their six
     panels; every tile has about two hinges; the string runs about 1.2 times around a square
-    of the size.  Print time is the printed volume over the profile's volumetric rate; cut
-    time is the cut length (every hinge strip's outline, and six panel outlines per tile for
-    box tiles) over the cut speed.  The real numbers in ``fabrication/bom.csv`` differ
-    by the shape (a hemisphere takes a third more tiles' volume than the factor says).
+    of the size.  Print time is the printed volume over the profile's rate (mm³ per second of
+    PrusaSlicer's printing time at its default size and tiles, walls and tool changes
+    included; fewer, larger tiles print faster than that); cut time is the cut length (every
+    hinge strip's outline, and six panel outlines per tile for box tiles) over the cut speed.
+    The real numbers in ``fabrication/bom.csv`` differ by the shape (a hemisphere takes a
+    third more tiles' volume than the factor says).
     """
     if not (math.isfinite(size_mm) and size_mm > 0) or tiles < 1:
         raise InternalError("an estimate needs a positive size in mm and at least one tile")
