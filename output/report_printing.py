@@ -44,7 +44,7 @@ def print_numbers(folder: Path) -> str:
         source = f"{sliced.get('slicer', 'PrusaSlicer')} with the shipped .ini"
     elif "print_time_h" in estimates:
         hours, grams = estimates["print_time_h"], estimates.get("filament_g") or {}
-        source = "drawstring's estimate, within 25 % of PrusaSlicer's"
+        source = "drawstring's estimate, fitted to PrusaSlicer 2.5.0's"
     else:
         return ""
     filament = "".join(f", {float(g):.0f} g {name}" for name, g in grams.items())

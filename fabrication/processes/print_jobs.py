@@ -260,8 +260,8 @@ def _estimate(
     estimates["print_time_h"] = round(total_s / 3600.0, 2)
     estimates["filament_g"] = _by_material(profile, tile_g, pad_g, with_pads)
     estimates["print_time_basis"] = (
-        f"estimate for {printer.name} with the shipped .ini, fitted to PrusaSlicer's "
-        f"(within 25 %); {n_beds} bed{'s' if n_beds > 1 else ''}"
+        f"estimate for {printer.name} with the shipped .ini, fitted to PrusaSlicer "
+        f"2.5.0's; {n_beds} bed{'s' if n_beds > 1 else ''}"
     )
 
 
