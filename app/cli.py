@@ -23,7 +23,7 @@ import logging  # noqa: E402
 import sys  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
 
-from drawstring.app import commands  # noqa: E402
+from drawstring.app import commands, print_commands  # noqa: E402
 from drawstring.app.parser import build_parser  # noqa: E402
 from drawstring.app.status import (  # noqa: E402
     EXIT_DESIGN,
@@ -84,6 +84,8 @@ def _run_command(parser: argparse.ArgumentParser, args: argparse.Namespace) -> i
             from drawstring.app.sweep.command import run as run_sweep
 
             return run_sweep(args)
+        if args.command == "coupon":
+            return print_commands.run_coupon(args)
     except InputError as exc:
         print(f"drawstring: error: {exc}", file=sys.stderr)
         return EXIT_INPUT

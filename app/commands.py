@@ -13,6 +13,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from drawstring.app.print_commands import is_printer, print_printers, show_printer
 from drawstring.app.status import EXIT_DESIGN, EXIT_WARNINGS
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tile import HingeStrategy
@@ -80,6 +81,8 @@ def design_options(args: argparse.Namespace) -> DesignOptions:
         co_optimize=not args.no_co_optimize,
         repair=args.repair,
         seed=args.seed,
+        printer=args.printer,
+        slice=not args.no_slice,
     )
 
 
@@ -153,7 +156,10 @@ def run_profiles(args: argparse.Namespace) -> int:
                 "--size and --tiles estimate every profile and do not apply to --show; run "
                 "drawstring profiles --size MM --tiles N for the estimate"
             )
-        print(load_profile(args.show).to_toml(), end="")
+        if is_printer(args.show):
+            show_printer(args.show)
+        else:
+            print(load_profile(args.show).to_toml(), end="")
         return 0
     if args.size is not None and not (0 < args.size <= MAX_SIZE_MM):
         raise InputError(
@@ -167,9 +173,11 @@ def run_profiles(args: argparse.Namespace) -> int:
         )
     for name in SHIPPED_PROFILES:
         _print_profile(name, args.size, args.tiles)
+    print_printers()
     print(
         "Estimate another design with `drawstring profiles --size MM --tiles N`; copy a "
-        "profile with `drawstring profiles --show NAME > my.toml` and use --profile my.toml."
+        "profile or a printer with `drawstring profiles --show NAME > my.toml` and use "
+        "--profile my.toml or --printer my.toml."
     )
     return 0
 

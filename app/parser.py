@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from drawstring.app.status import EXIT_INPUT
 from drawstring.app.studio.serve import add_studio_options
@@ -80,8 +80,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_design_options(sweep)
     add_sweep_arguments(sweep)
-    prof = sub.add_parser("profiles", parents=[verbose], help="list the fabrication profiles")
-    prof.add_argument("--show", metavar="NAME", help="print a profile as TOML to copy and edit")
+    _add_coupon_parser(sub, verbose)
+    prof = sub.add_parser(
+        "profiles", parents=[verbose], help="list the fabrication profiles and printer presets"
+    )
+    prof.add_argument(
+        "--show",
+        metavar="NAME",
+        help="print a profile or a printer preset as TOML to copy and edit",
+    )
     prof.add_argument("--size", type=float, help="estimate for a design this size (mm)")
     prof.add_argument("--tiles", type=int, help="estimate for this many tiles")
     return parser
@@ -105,6 +112,43 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
         "file; it gives the defaults of --tiles, --size, --thickness and --min-gap-angle",
     )
     p.add_argument("--out", type=Path, help="output folder (default ./TARGET-drawstring)")
+    add_printer_options(p)
+
+
+def add_printer_options(p: argparse.ArgumentParser) -> None:
+    """``--printer`` and ``--no-slice`` (``drawstring design`` and ``drawstring coupon``)."""
+    p.add_argument(
+        "--printer",
+        metavar="NAME|FILE.toml",
+        help="printer preset the tiles print on: generic-dual, prusa-xl-2t, bambu-h2d, "
+        "snapmaker-u1, generic-single or a .toml file (default: the profile's; drawstring "
+        "profiles lists them); the print jobs are planned on its bed",
+    )
+    p.add_argument(
+        "--no-slice",
+        action="store_true",
+        help="do not slice the print beds with PrusaSlicer even where it is installed "
+        "(bom.csv then gives drawstring's estimate of the time and filament)",
+    )
+
+
+def _add_coupon_parser(sub: Any, verbose: argparse.ArgumentParser) -> None:
+    """``drawstring coupon``."""
+    coupon = sub.add_parser(
+        "coupon",
+        parents=[verbose],
+        help="write a small test print (3 x 3 tiles) of a profile's hinges, channel and magnets",
+    )
+    coupon.add_argument(
+        "--profile",
+        default="fdm-dual",
+        help="fabrication profile: fdm-dual (default), laser-epdm, plywood-cnc or a .toml file",
+    )
+    coupon.add_argument("--out", type=Path, help="output folder (default ./coupon-PROFILE)")
+    add_printer_options(coupon)
+    coupon.add_argument(
+        "--quiet", action="store_true", help="print only errors (no line naming the folder)"
+    )
 
 
 def _add_size_options(p: argparse.ArgumentParser) -> None:

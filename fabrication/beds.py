@@ -44,8 +44,8 @@ def nest_footprints(
     except InputError as error:
         raise InputError(
             f"a tile does not fit the {bed[0]:g} x {bed[1]:g} mm bed with "
-            f"{m3f.BED_MARGIN_MM:g} mm free round it, turned any way; use a larger bed "
-            "(machine.bed_x_mm / bed_y_mm) or more tiles"
+            f"{m3f.BED_MARGIN_MM:g} mm free round it, turned any way; use a printer with a "
+            "larger bed (--printer) or more tiles"
         ) from error
     return sheet, angle, shift
 
@@ -205,3 +205,55 @@ def fill_beds(job_parts: list[list[m3f.PartMesh]], bed: tuple[float, float]) -> 
             m3f.PartMesh(p.name, p.kind, p.vertices + move, p.triangles) for p in parts
         ]
     return [int(b) for b in sheet]
+
+
+#: Free space between a wipe tower and the parts, mm.
+TOWER_GAP_MM = 5.0
+#: Step of the search for a wipe tower's place, mm.
+TOWER_STEP_MM = 2.0
+
+
+def place_wipe_towers(
+    job_parts: list[list[m3f.PartMesh]],
+    beds: list[int],
+    bed: tuple[float, float],
+    footprint: tuple[float, float],
+) -> list[tuple[float, float] | None]:
+    """Where each bed's wipe tower goes: the corner (x, y) of a ``footprint`` rectangle inside
+    the bed's margins, :data:`TOWER_GAP_MM` clear of every part's bounding box, nearest the
+    bed's far x edge and then its near y edge; None on a bed that prints one material, or that
+    has no such room.
+
+    Parameters
+    ----------
+    job_parts : each job's parts, on its bed.
+    beds : each job's bed.
+    bed : the bed's size (x, y), mm.
+    footprint : the tower's size (x, y), mm, its brim included.
+    """
+    n_beds = int(max(beds, default=-1)) + 1
+    towers: list[tuple[float, float] | None] = [None] * n_beds
+    margin = m3f.BED_MARGIN_MM
+    xs = np.arange(bed[0] - margin - footprint[0], margin - 1e-9, -TOWER_STEP_MM)
+    ys = np.arange(margin, bed[1] - margin - footprint[1] + 1e-9, TOWER_STEP_MM)
+    if len(xs) == 0 or len(ys) == 0:
+        return towers
+    corner_x, corner_y = (a.ravel() for a in np.meshgrid(xs, ys, indexing="ij"))
+    for index in range(n_beds):
+        parts = [p for parts, b in zip(job_parts, beds, strict=True) if b == index for p in parts]
+        if {p.kind for p in parts} != {"tile", "pad"}:
+            continue
+        low = np.array([p.vertices[:, :2].min(axis=0) for p in parts]) - TOWER_GAP_MM
+        high = np.array([p.vertices[:, :2].max(axis=0) for p in parts]) + TOWER_GAP_MM
+        clear = np.ones(len(corner_x), dtype=bool)
+        for (lx, ly), (hx, hy) in zip(low, high, strict=True):
+            clear &= (
+                (corner_x + footprint[0] <= lx)
+                | (corner_x >= hx)
+                | (corner_y + footprint[1] <= ly)
+                | (corner_y >= hy)
+            )
+        free = np.flatnonzero(clear)
+        if len(free):
+            towers[index] = (float(corner_x[free[0]]), float(corner_y[free[0]]))
+    return towers

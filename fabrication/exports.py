@@ -31,12 +31,14 @@ import numpy as np
 
 from drawstring.cad.design import normalize_route
 from drawstring.fabrication.measures import STRING_MARGIN, STRING_TAIL_MIN_MM, measure_fabrication
+from drawstring.fabrication.printers import resolve_printer
 from drawstring.fabrication.processes.base import FabricationJob, ProcessWriter, bom_row
 from drawstring.fabrication.processes.fdm_dual import FdmDual
 from drawstring.fabrication.processes.laser_epdm import LaserEpdm
 from drawstring.fabrication.processes.plywood_cnc import PlywoodCnc
 from drawstring.fabrication.profiles import Process, string_is_cable
 from drawstring.fabrication.record import AssemblyGuide, ExportRecord, GuideInputs
+from drawstring.fabrication.slicing import finish_slicing, print_rows, start_slicing
 from drawstring.fabrication.step import (
     finish_step_writers,
     start_step_writers,
@@ -47,6 +49,7 @@ if TYPE_CHECKING:
     from drawstring.cad.design import CadResult
     from drawstring.fabrication.measures import Measures
     from drawstring.fabrication.panels import Panel
+    from drawstring.fabrication.printers import Printer
     from drawstring.fabrication.profiles import Profile
     from drawstring.geometry.core.types import FloatArray, IntArray
     from drawstring.geometry.tiling.linkage import Linkage
@@ -78,6 +81,8 @@ def write_fabrication(
     design_name: str,
     workers: int | None = None,
     guide: AssemblyGuide | None = None,
+    printer: Printer | None = None,
+    slice_beds: bool = False,
 ) -> list[str]:
     """Write every fabrication file of the profile's process under ``folder / "fabrication"``.
 
@@ -98,12 +103,18 @@ def write_fabrication(
     workers : processes for tessellation (default: CPU count).
     guide : writes the assembly guide and its pictures into the folder (the output layer's
         :func:`drawstring.output.assembly_guide.write_guide`); the manifest lists its files.
+    printer : the printer the tiles print on (None: the profile's,
+        :func:`~.printers.resolve_printer`).
+    slice_beds : slice each print bed with PrusaSlicer where it is installed
+        (:mod:`.slicer`); its numbers go into ``slicer.json``, bom.csv and manifest.json.
 
     Returns
     -------
     Paths written, relative to ``folder`` (``fabrication/...``), sorted.
     """
     del magnet_pairs
+    if printer is None:
+        printer = resolve_printer(profile)
     out = Path(folder) / "fabrication"
     out.mkdir(parents=True, exist_ok=True)
     job = FabricationJob(
@@ -118,6 +129,7 @@ def write_fabrication(
         lifts=np.asarray(lift_tiles, dtype=np.int64).reshape(-1, 2),
         cad_flat=cad_flat,
         workers=workers,
+        printer=printer,
     )
     job.record.notes += list(cad_flat.notes)
     job.record.trimmed = sorted(int(t) for t in (trims or {}))
@@ -125,6 +137,7 @@ def write_fabrication(
     # OCCT's STEP writer is serial and the slowest export: write both files in forked
     # processes (they inherit the solids, nothing is pickled) while the rest is made here.
     step_processes = start_step_writers(_step_jobs(job, cad_assembled), workers)
+    slicing = None
     try:
         job.written += ["flat.step", "assembled.step"]
         panels = writer.panels()
@@ -132,11 +145,15 @@ def write_fabrication(
             profile, job.tiles_flat, job.tiles_assembled, job.steps, job.lifts, cad_flat, panels
         )
         writer.render(measures)
+        if slice_beds:
+            slicing = start_slicing(job)
         _string_rows(job, measures)
         job.record.unlabelled = list(cad_flat.unlabelled)
         writer.assembly_rows()
         _magnet_rows(job)
         _totals(job, measures)
+        if slicing is not None:
+            finish_slicing(job, slicing)
     except BaseException:
         stop_step_writers(step_processes)  # an error or Ctrl-C: they write into the staging
         raise
@@ -162,6 +179,7 @@ def _guide_inputs(job: FabricationJob, panels: list[Panel]) -> GuideInputs:
         lifts=job.lifts,
         magnets=list(job.cad_flat.magnets),
         panels=panels,
+        printer=job.printer,
     )
 
 
@@ -275,11 +293,14 @@ def _write_manifest(job: FabricationJob) -> None:
         "process": job.profile.process,
         "tiles": len(job.cad_flat.tiles),
         "hinge_parts": len(job.cad_flat.pads),
+        "printer": _printer_json(job.printer),
         "print_jobs": record.jobs,
+        "beds": record.beds,
         "sheets": record.sheets,
         "estimates": record.estimates,
         "magnets": [m.to_json() for m in job.cad_flat.magnets],
         "notes": record.notes,
+        **({"slicer": record.slicer} if record.slicer else {}),
         "files": [
             {
                 "path": f"fabrication/{name}",
@@ -295,6 +316,21 @@ def _write_manifest(job: FabricationJob) -> None:
     job.written.append("manifest.json")
 
 
+def _printer_json(printer: Printer | None) -> dict[str, object] | None:
+    """The manifest's ``printer``: the preset's name, where it was read from, its bed."""
+    if printer is None:
+        return None
+    return {
+        "name": printer.name,
+        "description": printer.description,
+        "preset": printer.origin,
+        "bed_mm": [printer.bed_x_mm, printer.bed_y_mm],
+        "bed_origin_mm": [printer.bed_origin_x_mm, printer.bed_origin_y_mm],
+        "toolheads": printer.toolheads,
+        "nozzle_mm": printer.nozzle_mm,
+    }
+
+
 def _write_bom(path: Path, record: ExportRecord, profile: Profile) -> None:
     buffer = io.StringIO()
     writer = csv.DictWriter(
@@ -306,12 +342,16 @@ def _write_bom(path: Path, record: ExportRecord, profile: Profile) -> None:
     for row in record.bom:
         writer.writerow(row)
     estimates = record.estimates
-    for key in ("print_time_h", "cut_time_h"):
-        if key in estimates:
-            basis = estimates[key.replace("_h", "_basis")]
-            writer.writerow(
-                {"item": key.replace("_h", ""), "description": f"{estimates[key]} h", "note": basis}
-            )
+    for row in print_rows(record, profile):
+        writer.writerow(row)
+    if "cut_time_h" in estimates:
+        writer.writerow(
+            {
+                "item": "cut_time",
+                "description": f"{estimates['cut_time_h']} h",
+                "note": estimates["cut_time_basis"],
+            }
+        )
     writer.writerow(
         {
             "item": "mass",

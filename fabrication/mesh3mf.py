@@ -195,8 +195,8 @@ def tile_bed_refusal(
     need = tile_size.max(axis=0)
     return InputError(
         f"a tile ({need[0]:.0f} x {need[1]:.0f} mm) does not fit the {bed[0]:g} x {bed[1]:g} mm "
-        f"bed with {BED_MARGIN_MM:g} mm free round it; use a larger bed (machine.bed_x_mm / "
-        "bed_y_mm) or more tiles"
+        f"bed with {BED_MARGIN_MM:g} mm free round it; use a printer with a larger bed "
+        "(--printer) or more tiles"
     )
 
 
@@ -327,7 +327,7 @@ def arrange_loose(
             raise InputError(
                 f"a loose hinge pad ({size[0]:.0f} x {size[1]:.0f} mm) does not fit the "
                 f"{bed[0]:g} x {bed[1]:g} mm bed with {BED_MARGIN_MM:g} mm free round it; use a "
-                "larger bed (machine.bed_x_mm / bed_y_mm)"
+                "printer with a larger bed (--printer)"
             )
         if x + size[0] > bed[0] - BED_MARGIN_MM and x > BED_MARGIN_MM:
             x, y, row = BED_MARGIN_MM, y + row + spacing, 0.0

@@ -114,6 +114,8 @@ SCHEMA: dict[str, Field] = {
     "magnet_diameter_mm": Field("magnet", "diameter_mm", float, 0.5, 100.0, "mm"),
     "magnet_height_mm": Field("magnet", "height_mm", float, 0.2, 100.0, "mm"),
     "magnet_clearance_mm": Field("magnet", "clearance_mm", float, 0.0, 5.0, "mm"),
+    # a printer preset (drawstring.fabrication.printers) or its .toml path; "" for none
+    "printer": Field("machine", "printer", str, default=""),
     "bed_x_mm": Field("machine", "bed_x_mm", float, 10.0, 10_000.0, "mm"),
     "bed_y_mm": Field("machine", "bed_y_mm", float, 10.0, 10_000.0, "mm"),
     "nozzle_mm": Field("machine", "nozzle_mm", float, 0.0, 5.0, "mm"),
@@ -169,6 +171,7 @@ class Profile:
     tool_diameter_mm: float
     print_rate_mm3_s: float
     cut_speed_mm_s: float
+    printer: str
     currency: str
     tile_price_per_kg: float
     hinge_price_per_kg: float
@@ -181,23 +184,10 @@ class Profile:
 
     def to_toml(self) -> str:
         """The profile as TOML, in the layout of the shipped files, ready to copy and edit."""
-        lines = [
-            f"# drawstring fabrication profile; lengths in mm (source: {self.source})",
-        ]
-        sections: dict[str, list[str]] = {}
-        for attr, spec in SCHEMA.items():
-            value = getattr(self, attr)
-            text = _toml_value(value)
-            unit = f"  # {spec.unit}" if spec.unit and spec.unit != "mm" else ""
-            if spec.low is not None:
-                unit = f"  # {spec.low:g} .. {spec.high:g} {spec.unit}".rstrip()
-            if spec.choices:
-                unit = "  # one of: " + ", ".join(spec.choices)
-            sections.setdefault(spec.section, []).append(f"{spec.key} = {text}{unit}")
-        lines += sections.pop("")
-        for section, rows in sections.items():
-            lines += ["", f"[{section}]", *rows]
-        return "\n".join(lines) + "\n"
+        values = {attr: getattr(self, attr) for attr in SCHEMA}
+        return table_toml(
+            values, SCHEMA, f"drawstring fabrication profile; lengths in mm (source: {self.source})"
+        )
 
 
 def _toml_value(value: object) -> str:
@@ -217,16 +207,18 @@ def _describe_range(spec: Field) -> str:
     return f"a {spec.kind.__name__}"
 
 
-def parse_profile(data: dict[str, Any], source: str) -> Profile:
-    """Validate a parsed TOML table and build a :class:`Profile`.
+def parse_table(data: dict[str, Any], schema: dict[str, Field], source: str) -> dict[str, Any]:
+    """Check a parsed TOML table against ``schema``: every key known, present (or given a
+    default), of its type and in its range; returns the values by attribute name.
 
     Raises
     ------
     InputError
         One line naming ``source``, the key, the value and what is allowed.
     """
-    known: dict[tuple[str, str], str] = {(s.section, s.key): attr for attr, s in SCHEMA.items()}
-    sections = {s.section for s in SCHEMA.values() if s.section}
+    known: dict[tuple[str, str], str] = {(s.section, s.key): attr for attr, s in schema.items()}
+    sections = {s.section for s in schema.values() if s.section}
+    top_keys = ", ".join(s.key for s in schema.values() if not s.section)
     values: dict[str, Any] = {}
     for key, value in data.items():
         if isinstance(value, dict):
@@ -246,11 +238,9 @@ def parse_profile(data: dict[str, Any], source: str) -> Profile:
         else:
             attr = known.get(("", key))
             if attr is None:
-                raise InputError(
-                    f"{source}: unknown key {key!r}; top-level keys are name, process, description"
-                )
+                raise InputError(f"{source}: unknown key {key!r}; top-level keys are {top_keys}")
             values[attr] = value
-    for attr, spec in SCHEMA.items():
+    for attr, spec in schema.items():
         where = f"{spec.section}.{spec.key}" if spec.section else spec.key
         if attr not in values and spec.default is not None:
             values[attr] = spec.default
@@ -272,6 +262,37 @@ def parse_profile(data: dict[str, Any], source: str) -> Profile:
                     f"{source}: {where} = {value!r} is out of range ({_describe_range(spec)})"
                 )
         values[attr] = value
+    return values
+
+
+def table_toml(values: dict[str, Any], schema: dict[str, Field], header: str) -> str:
+    """``values`` (by attribute name) as TOML in the schema's layout, every key with its range
+    in a comment, under the comment line ``header``."""
+    lines = [f"# {header}"]
+    sections: dict[str, list[str]] = {}
+    for attr, spec in schema.items():
+        text = _toml_value(values[attr])
+        unit = f"  # {spec.unit}" if spec.unit and spec.unit != "mm" else ""
+        if spec.low is not None:
+            unit = f"  # {spec.low:g} .. {spec.high:g} {spec.unit}".rstrip()
+        if spec.choices:
+            unit = "  # one of: " + ", ".join(spec.choices)
+        sections.setdefault(spec.section, []).append(f"{spec.key} = {text}{unit}")
+    lines += sections.pop("")
+    for section, rows in sections.items():
+        lines += ["", f"[{section}]", *rows]
+    return "\n".join(lines) + "\n"
+
+
+def parse_profile(data: dict[str, Any], source: str) -> Profile:
+    """Validate a parsed TOML table and build a :class:`Profile`.
+
+    Raises
+    ------
+    InputError
+        One line naming ``source``, the key, the value and what is allowed.
+    """
+    values = parse_table(data, SCHEMA, source)
     values["process"] = Process(values["process"])
     if values["size_min_mm"] > values["size_max_mm"]:
         raise InputError(
@@ -353,10 +374,12 @@ def rough_estimate(profile: Profile, size_mm: float, tiles: int) -> RoughEstimat
     The tiles are taken to cover :data:`ESTIMATE_AREA_FACTOR` size^2, each of the profile's
     thickness, printed tiles filled to its infill fraction, plywood boxes made of their six
     panels; every tile has about two hinges; the string runs about 1.2 times around a square
-    of the size.  Print time is the printed volume over the profile's volumetric rate; cut
-    time is the cut length (every hinge strip's outline, and six panel outlines per tile for
-    box tiles) over the cut speed.  The real numbers in ``fabrication/bom.csv`` differ
-    by the shape (a hemisphere takes a third more tiles' volume than the factor says).
+    of the size.  Print time is the printed volume over the profile's rate (mm³ per second of
+    PrusaSlicer's printing time at its default size and tiles, walls and tool changes
+    included; fewer, larger tiles print faster than that); cut time is the cut length (every
+    hinge strip's outline, and six panel outlines per tile for box tiles) over the cut speed.
+    The real numbers in ``fabrication/bom.csv`` differ by the shape (a hemisphere takes a
+    third more tiles' volume than the factor says).
     """
     if not (math.isfinite(size_mm) and size_mm > 0) or tiles < 1:
         raise InternalError("an estimate needs a positive size in mm and at least one tile")

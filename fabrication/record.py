@@ -17,6 +17,7 @@ from drawstring.fabrication.profiles import Profile
 
 if TYPE_CHECKING:  # panels load the CAD kernel
     from drawstring.fabrication.panels import Panel
+    from drawstring.fabrication.printers import Printer
 
 
 @dataclass
@@ -28,6 +29,11 @@ class ExportRecord:
     notes: list[str] = field(default_factory=list)
     jobs: list[dict[str, Any]] = field(default_factory=list)
     sheets: dict[str, Any] = field(default_factory=dict)
+    #: per print bed: its 3MF file, PrusaSlicer settings, wipe tower, estimate and (where the
+    #: slicer ran) what PrusaSlicer reported
+    beds: list[dict[str, Any]] = field(default_factory=list)
+    #: what PrusaSlicer reported (empty where it did not run): manifest.json's ``slicer``
+    slicer: dict[str, Any] = field(default_factory=dict)
     #: tiles without an engraved number
     unlabelled: list[int] = field(default_factory=list)
     #: tiles with an overlap cut away (hinges.json trims)
@@ -49,6 +55,8 @@ class GuideInputs:
     lifts: NDArray[np.int64]
     magnets: list[Any]
     panels: list[Panel]
+    #: the printer the tiles print on (None where nothing is printed)
+    printer: Printer | None = None
 
 
 #: Writes the assembly guide into a fabrication folder; returns the file names it wrote.

@@ -34,5 +34,6 @@ def write_guide(out: Path, inputs: GuideInputs) -> list[str]:
         inputs.magnets,
         inputs.panels,
         pictures,
+        printer=inputs.printer,
     )
     return [*pictures, "assembly.md"]

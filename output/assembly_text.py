@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.cad.paths import SIDE_TOP_FACE
+from drawstring.fabrication.printers import Printer, print_bed
 from drawstring.fabrication.profiles import Process, Profile, print_clearance_mm, string_is_cable
 from drawstring.fabrication.record import ExportRecord
 from drawstring.geometry.core.tile import HingeSide
@@ -39,6 +40,8 @@ def write_assembly(
     magnets: Sequence[Any],
     panels: Sequence[Panel],
     pictures: Sequence[str],
+    *,
+    printer: Printer | None = None,
 ) -> None:
     """``assembly.md``: make the parts, place the tiles, magnets, thread the string, pull.
 
@@ -56,11 +59,12 @@ def write_assembly(
         f"Parts: see `bom.csv`. String: **{est['string_length_mm'] / 1000:.2f} m** of "
         f"{profile.string_material} ({est['string_rule']}).",
         "",
+        *([coupon_text(profile, printer), ""] if design_name != COUPON_DESIGN else []),
     ]
     if profile.process == Process.FDM_DUAL:
-        lines += _print_section(next(section), profile, record, hinges, sides)
+        lines += _print_section(next(section), profile, record, hinges, sides, printer)
     else:
-        lines += _make_parts_section(next(section), profile, record, sides)
+        lines += _make_parts_section(next(section), profile, record, sides, printer)
     lines += [
         f"## {next(section)}. Where each tile goes",
         "",
@@ -85,9 +89,10 @@ def _print_section(
     record: ExportRecord,
     hinges: NDArray[np.int64],
     sides: Sequence[str],
+    printer: Printer | None,
 ) -> list[str]:
-    """The fdm-dual guide's first section: the print jobs, and how to join the jobs of a
-    layout larger than the bed."""
+    """The fdm-dual guide's first section: the print jobs, the printer and its slicer
+    settings, and how to join the jobs of a layout larger than the bed."""
     lines = [f"## {number}. Print", ""]
     lines.append(
         f"`print.3mf` holds {len(record.jobs)} object(s), one per print job. Tiles are "
@@ -105,6 +110,9 @@ def _print_section(
         + _beds_text("print", record.jobs)
     )
     lines.append("")
+    slicer = _slicer_text(printer, record, "print")
+    if slicer:
+        lines += [slicer, ""]
     for job in record.jobs:
         kind = (
             "loose hinge pads"
@@ -133,13 +141,17 @@ def _print_section(
 
 
 def _make_parts_section(
-    number: int, profile: Profile, record: ExportRecord, sides: Sequence[str]
+    number: int,
+    profile: Profile,
+    record: ExportRecord,
+    sides: Sequence[str],
+    printer: Printer | None,
 ) -> list[str]:
     """The laser-epdm and plywood-cnc guides' first section: the tiles (printed loose, or
     panels glued into boxes), the hinge strips and the placement templates."""
     lines = [f"## {number}. Make the parts", ""]
     if profile.process == Process.LASER_EPDM:
-        lines += _loose_tiles_text(profile, record)
+        lines += _loose_tiles_text(profile, record, printer)
     else:
         lines.append(_panels_text(profile, record))
     strip_sheets = _count(record.sheets["hinges"]["sheets"], "sheet")
@@ -155,15 +167,16 @@ def _make_parts_section(
     return lines
 
 
-def _loose_tiles_text(profile: Profile, record: ExportRecord) -> list[str]:
-    """The laser-epdm tiles: printed loose, nested on the beds."""
+def _loose_tiles_text(profile: Profile, record: ExportRecord, printer: Printer | None) -> list[str]:
+    """The laser-epdm tiles: printed loose, nested on the printer's beds."""
     lines: list[str] = []
     beds = len(record.jobs)
+    bed = print_bed(profile, printer)
     text = (
         "Print the tiles from `tiles.3mf` (single material). They print loose, top "
         "faces down (tiles differ in thickness by a little, their top faces are "
         "flat), each turned about the vertical to take the least room, nested on "
-        f"{_count(beds, 'bed')} of {profile.bed_x_mm:g} x {profile.bed_y_mm:g} mm"
+        f"{_count(beds, 'bed')} of {bed[0]:g} x {bed[1]:g} mm"
     )
     if beds > 1:
         text += (
@@ -177,8 +190,60 @@ def _loose_tiles_text(profile: Profile, record: ExportRecord) -> list[str]:
     if beds > 1:
         lines.append("")
         lines += [f"- bed {job['bed']}: tiles {id_runs(job['tiles'])}" for job in record.jobs]
+    slicer = _slicer_text(printer, record, "tiles")
+    if slicer:
+        lines += ["", slicer]
     lines.append("")  # the list ends before the next paragraph
     return lines
+
+
+#: The design name of the test coupon (``drawstring coupon``), whose guide does not point to
+#: itself.
+COUPON_DESIGN = "coupon"
+
+
+def coupon_text(profile: Profile, printer: Printer | None) -> str:
+    """The guide's pointer to the test coupon of the design's profile and printer."""
+    name = profile.name if profile.source.endswith("(shipped)") else profile.source
+    command = f"drawstring coupon --profile {name}"
+    if printer is not None:
+        chosen = printer.name if printer.origin.endswith("(shipped)") else printer.origin
+        command += f" --printer {chosen}"
+    made = {
+        Process.FDM_DUAL: "prints in well under an hour: check that the TPU pads bond to the "
+        "tiles, that the hinges bend freely and that the string runs through the channels "
+        "and the lift bore",
+        Process.LASER_EPDM: "prints and cuts in well under an hour: check that the strips fit "
+        "their recesses and hold when glued, and that the string runs through the channels "
+        "and the lift bore",
+        Process.PLYWOOD_CNC: "is a few panels and strips: check the finger joints, the strips' "
+        "screws and the cable through the holes",
+    }[profile.process]
+    return (
+        f"Before the whole part, make the test coupon: `{command}` writes 3 x 3 tiles with "
+        "this profile's hinges, string channel, lift bore and magnet pockets, which "
+        f"{made}."
+    )
+
+
+def _slicer_text(printer: Printer | None, record: ExportRecord, stem: str) -> str:
+    """Which printer the beds are laid out for, and the slicer settings beside each 3MF."""
+    settings = [e["settings"] for e in record.beds if "settings" in e]
+    if printer is None or not settings:
+        return ""
+    files = (
+        f"`{settings[0]}` holds"
+        if len(settings) == 1
+        else f"`{stem}-bed1.ini` to `{settings[-1]}` hold"
+    )
+    command = f"prusa-slicer --export-gcode --load {settings[0]} {record.beds[0]['model']}"
+    return (
+        f"The beds are laid out for the printer preset `{printer.name}` ({printer.description}; "
+        f"another with `--printer`). {files} the PrusaSlicer settings this design assumes "
+        "(nozzles, temperatures, speeds, layers, infill and the wipe tower's place): "
+        f"`{command}` slices as drawstring did, and `bom.csv` gives the printing time and "
+        "filament. In another slicer, use your printer's own profile with those temperatures."
+    )
 
 
 def _panels_text(profile: Profile, record: ExportRecord) -> str:

@@ -16,6 +16,7 @@ from drawstring.geometry.core.tile import Side
 from drawstring.output.design_folder import Route, print_job_counts, tile_volumes
 from drawstring.output.metric_rules import MetricRow
 from drawstring.output.report_data import FolderContents
+from drawstring.output.report_printing import print_bed, print_numbers
 
 #: Tile sides by number, as the route names them.
 SIDE_NAMES = tuple(side.label for side in Side)
@@ -94,6 +95,9 @@ def summary_table(found: FolderContents, view: dict[str, Any]) -> str:
     bed = bed_note(found)
     if bed:
         rows.append(("Flat layout", bed))
+    printing = print_numbers(found.folder)
+    if printing:
+        rows.append(("Printing", printing))
     grams, how = _mass_g(found)
     if grams is not None:
         rows.append(("Mass", f"{grams:.0f} g <span class=note>({escaped(how)})</span>"))
@@ -147,7 +151,7 @@ def _lift_points_text(found: FolderContents, metrics: Any) -> str:
 
 
 def bed_note(found: FolderContents) -> str:
-    """The flat layout's size, and whether it fits the profile's bed (else how the
+    """The flat layout's size, and whether it fits the printer's bed (else how the
     fabrication files split it)."""
     if found.flat is None:
         return ""
@@ -164,14 +168,14 @@ def bed_note(found: FolderContents) -> str:
         return text
     if profile.process == Process.PLYWOOD_CNC:  # cut as panels nested on sheets: no bed to fit
         return f"{text} (its tiles are cut as panels nested on the sheets)"
-    bed = (profile.bed_x_mm, profile.bed_y_mm)
+    bed, bed_name = print_bed(found.design, profile)
     room = (bed[0] - 2 * BED_MARGIN_MM, bed[1] - 2 * BED_MARGIN_MM)  # as the job planner
     fits = (extent[0] <= room[0] and extent[1] <= room[1]) or (
         extent[0] <= room[1] and extent[1] <= room[0]
     )
     verdict = "fits" if fits else "does not fit"
     note = (
-        f"{text} ({verdict} the {bed[0]:g} × {bed[1]:g} mm bed of {profile.name} with "
+        f"{text} ({verdict} the {bed[0]:g} × {bed[1]:g} mm bed of {bed_name} with "
         f"{BED_MARGIN_MM:g} mm free round it)"
     )
     if fits:

@@ -205,6 +205,8 @@ def write_fabrication_files(result: Design, folder: Path) -> list[str]:
         cad_assembled=result.cad_assembled,
         design_name=result.target.name,
         guide=write_guide,
+        printer=result.printer,
+        slice_beds=result.options.slice,
     )
 
 

@@ -324,7 +324,7 @@ def feature_fit_refusal(result: Design) -> InputError | None:
 
 
 def bed_refusal(result: Design) -> InputError | None:
-    """The one-line refusal of a tile too large for the profile's print bed, or None: asked
+    """The one-line refusal of a tile too large for the printer's bed, or None: asked
     before any solid is built (the print jobs are planned only after the solids are meshed).
 
     ``fdm-dual`` prints the tiles as the flat layout places them (the layout may turn a quarter
@@ -334,9 +334,10 @@ def bed_refusal(result: Design) -> InputError | None:
     """
     from drawstring.fabrication.beds import nest_footprints
     from drawstring.fabrication.mesh3mf import tile_bed_refusal
+    from drawstring.fabrication.printers import print_bed
 
     profile = result.profile
-    bed = (profile.bed_x_mm, profile.bed_y_mm)
+    bed = print_bed(profile, result.printer)
     tiles = print_tiles(result)
     if profile.process == Process.FDM_DUAL:
         return tile_bed_refusal(tiles, bed)

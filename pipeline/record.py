@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from drawstring.fabrication.printers import Printer
 from drawstring.fabrication.profiles import (
     MAX_SIZE_MM,
     MAX_TILES,
@@ -112,6 +113,10 @@ class DesignOptions:
     co_optimize: bool = True
     seed: int = 0
     repair: bool = False
+    #: a printer preset name or .toml path (None: the profile's ``machine.printer``)
+    printer: str | None = None
+    #: slice each print job with PrusaSlicer when it is installed
+    slice: bool = True
 
     def validate(self) -> None:
         """Refuse values out of range with a one-line :class:`InputError`."""
@@ -217,6 +222,9 @@ class ResolvedOptions:
     co_optimize: bool
     seed: int
     repair: bool
+    #: the printer preset (a shipped name or the file's path); None where nothing is printed
+    printer: str | None
+    slice: bool
 
 
 @dataclass(frozen=True)
@@ -243,6 +251,8 @@ class Design:
     notes: tuple[str, ...] = ()
     problems: tuple[str, ...] = ()
     warnings: tuple[str, ...] = ()
+    #: the printer the tiles are printed on (None where nothing is printed)
+    printer: Printer | None = None
 
     @property
     def tiles_assembled(self) -> NDArray[np.float64]:

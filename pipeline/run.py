@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
+from drawstring.fabrication.printers import Printer, resolve_printer, with_printer
 from drawstring.fabrication.profiles import MAX_TILES, MIN_GRID_SIDE, Profile, load_profile
 from drawstring.geometry.core.errors import InputError, ThicknessError
 from drawstring.geometry.core.tile import HingeStrategy
@@ -48,8 +49,11 @@ from drawstring.pipeline.route_stage import NamedCheck, plan_lift_route
 log = logging.getLogger(__name__)
 
 
-def resolve_options(options: DesignOptions, profile: Profile) -> ResolvedOptions:
-    """Fill profile defaults into the options."""
+def resolve_options(
+    options: DesignOptions, profile: Profile, printer: Printer | None = None
+) -> ResolvedOptions:
+    """Fill profile defaults into the options; ``printer`` is the one the tiles print on
+    (:func:`~drawstring.fabrication.printers.resolve_printer`)."""
     options.validate()
     tiles = options.tiles
     if options.grid is None and tiles is None:
@@ -76,6 +80,12 @@ def resolve_options(options: DesignOptions, profile: Profile) -> ResolvedOptions
         co_optimize=options.co_optimize,
         seed=options.seed,
         repair=options.repair,
+        printer=None
+        if printer is None
+        else printer.name
+        if printer.origin.endswith("(shipped)")
+        else printer.origin,
+        slice=options.slice,
     )
     if resolved.cad:
         from drawstring.pipeline.cad_stage import thickness_refusal
@@ -216,7 +226,9 @@ def _design(
     options = options or DesignOptions()
     options.validate()
     profile = load_profile(options.profile)
-    resolved = resolve_options(options, profile)
+    printer = resolve_printer(profile, options.printer)
+    profile = with_printer(profile, printer)
+    resolved = resolve_options(options, profile, printer)
     progress = progress or Progress(quiet=quiet)
     loaded, flat_map, notes = _target_and_flattening(target, resolved, progress)
     check_grid(resolved, flat_map, from_profile=options.tiles is None and options.grid is None)
@@ -261,6 +273,7 @@ def _design(
         notes=tuple(notes),
         problems=tuple(problems),
         warnings=tuple(warnings),
+        printer=printer,
     )
     if resolved.cad:
         result = with_cad(result, progress)

@@ -1279,9 +1279,14 @@ def test_a_tile_larger_than_the_bed_is_refused_before_any_solid(
     monkeypatch.setattr(cad_design, "build_design_solids", no_solids)
     assert main(["profiles", "--show", profile]) == 0
     shown = capsys.readouterr().out
+    # no printer preset: the profile's own [machine] bed, made too small
     small = write(
         tmp_path / "small.toml",
-        re.sub(r"bed_([xy])_mm = [0-9.]+", r"bed_\1_mm = 30.0", shown),
+        re.sub(
+            r"bed_([xy])_mm = [0-9.]+",
+            r"bed_\1_mm = 30.0",
+            re.sub(r'printer = "[^"]*"', 'printer = ""', shown),
+        ),
     )
     out = tmp_path / "out"
     args = ["design", "saddle", "--grid", "6", "4", "--resolution", "1500", "--size", "150"]

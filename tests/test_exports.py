@@ -44,6 +44,7 @@ from drawstring.fabrication.dxf import (  # noqa: E402
 )
 from drawstring.fabrication.exports import write_fabrication  # noqa: E402
 from drawstring.fabrication.mesh3mf import BED_MARGIN_MM, plan_print_jobs  # noqa: E402
+from drawstring.fabrication.printers import Printer, load_printer  # noqa: E402
 from drawstring.fabrication.profiles import (  # noqa: E402
     Profile,
     load_profile,
@@ -57,10 +58,11 @@ from drawstring.output.assembly_guide import write_guide  # noqa: E402
 
 PROFILES = ("fdm-dual", "laser-epdm", "plywood-cnc")
 EXPECTED = {
-    "fdm-dual": {"print.3mf"},
+    "fdm-dual": {"print.3mf", "print.ini"},
     # (the samples have bottom-face strips: their template seen from below too)
     "laser-epdm": {
         "tiles.3mf",
+        "tiles.ini",
         "hinges.dxf",
         "placement.dxf",
         "placement.svg",
@@ -109,7 +111,7 @@ def _sample(name: str) -> tuple[Profile, SampleDesign]:
     return profile, cylinder_design((3, 3))
 
 
-def _write(built: Built, folder: Path) -> list[str]:
+def _write(built: Built, folder: Path, printer: Printer | None = None) -> list[str]:
     d = built.design
     return write_fabrication(
         folder,
@@ -127,6 +129,7 @@ def _write(built: Built, folder: Path) -> list[str]:
         design_name="sample",
         guide=write_guide,
         workers=1,
+        printer=printer,
     )
 
 
@@ -842,7 +845,8 @@ def test_loose_tiles_are_nested_on_the_beds_and_the_guide_lists_them(
         pytest.skip("laser-epdm only")
     span = np.ptp(built.design.tiles_2d[:, :, :2].reshape(-1, 2), axis=0)
     bed = (float(0.6 * span[0] + 10), float(span[1] + 20))
-    small = dataclasses.replace(built.profile, bed_x_mm=bed[0], bed_y_mm=bed[1])
+    # no printer preset: the profile's own [machine] bed
+    small = dataclasses.replace(built.profile, bed_x_mm=bed[0], bed_y_mm=bed[1], printer="")
     _write(dataclasses.replace(built, profile=small), tmp_path)
     manifest = json.loads((tmp_path / "fabrication/manifest.json").read_text())
     jobs = manifest["print_jobs"]
@@ -1238,8 +1242,11 @@ def test_print_jobs_share_beds_where_they_fit_and_each_bed_has_a_file(
         pytest.skip("jobs of hinged tiles only (laser-epdm nests loose tiles)")
     span = np.ptp(built.design.tiles_2d[:, :, :2].reshape(-1, 2), axis=0)
     bed = (float(0.6 * span[0] + 10), float((2.4 if stacked else 1.0) * span[1] + 30))
-    small = dataclasses.replace(built.profile, bed_x_mm=bed[0], bed_y_mm=bed[1])
-    files = {Path(f).name for f in _write(dataclasses.replace(built, profile=small), tmp_path)}
+    # a printer with a bed this small, without a wipe tower
+    small = dataclasses.replace(
+        load_printer("generic-dual"), bed_x_mm=bed[0], bed_y_mm=bed[1], wipe_tower_width_mm=0.0
+    )
+    files = {Path(f).name for f in _write(built, tmp_path, printer=small)}
     manifest = json.loads((tmp_path / "fabrication/manifest.json").read_text())
     jobs = manifest["print_jobs"]
     beds = sorted({job["bed"] for job in jobs})
@@ -1250,7 +1257,11 @@ def test_print_jobs_share_beds_where_they_fit_and_each_bed_has_a_file(
     tile_beds = [job["bed"] for job in jobs if not job.get("loose")]
     assert (len(set(tile_beds)) < len(tile_beds)) == stacked
     stem = "print" if built.profile.process == "fdm-dual" else "tiles"
-    per_bed = {f"{stem}-bed{b}.3mf" for b in beds} if len(beds) > 1 else set()
+    per_bed = (
+        {f"{stem}-bed{b}{ext}" for b in beds for ext in (".3mf", ".ini")}
+        if len(beds) > 1
+        else set()
+    )
     assert per_bed <= files and not {f for f in files if "-bed" in f} - per_bed
     combined = _read_3mf(tmp_path / "fabrication" / f"{stem}.3mf")
     assert len(combined) == len(jobs)
@@ -1469,3 +1480,22 @@ def test_loose_pads_that_fill_a_bed_go_on_to_the_next() -> None:
         assert np.all(every[:, :2] >= BED_MARGIN_MM) and np.all(every[:, :2] <= 60 - BED_MARGIN_MM)
     with pytest.raises(InputError, match="loose hinge pad .* does not fit the 60 x 60 mm bed"):
         arrange_loose([pad(0, w=50.0)], (60.0, 60.0), 3.0)
+
+
+def test_the_guide_points_to_the_test_coupon(built: Built) -> None:
+    guide = (built.folder / "fabrication" / "assembly.md").read_text()
+    assert f"`drawstring coupon --profile {built.profile.name}" in guide
+
+
+def test_the_guide_points_to_the_coupon_of_its_profile_and_printer(built: Built) -> None:
+    """assembly.md names a `drawstring coupon` command whose --profile and --printer load
+    the design's own profile and printer."""
+    guide = (built.folder / "fabrication" / "assembly.md").read_text(encoding="utf-8")
+    match = re.search(r"`drawstring coupon --profile (\S+?)(?: --printer (\S+?))?`", guide)
+    assert match is not None
+    assert load_profile(match[1]).process == built.profile.process
+    manifest = json.loads((built.folder / "fabrication" / "manifest.json").read_text())
+    if manifest["printer"] is None:
+        assert match[2] is None
+    else:
+        assert load_printer(match[2]).name == manifest["printer"]["name"]

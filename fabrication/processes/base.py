@@ -17,6 +17,7 @@ if TYPE_CHECKING:
     from drawstring.fabrication.dxf import Nesting
     from drawstring.fabrication.measures import Measures
     from drawstring.fabrication.panels import Panel
+    from drawstring.fabrication.printers import Printer
     from drawstring.fabrication.profiles import Process, Profile
 
 
@@ -35,6 +36,7 @@ class FabricationJob:
     lifts : (L, 2) int ``(tile, side)`` extra lift bores.
     cad_flat : the solids in the print pose.
     workers : processes for tessellation (None: CPU count).
+    printer : the printer the tiles print on (None where nothing is printed).
     """
 
     out: Path
@@ -48,6 +50,7 @@ class FabricationJob:
     lifts: IntArray
     cad_flat: CadResult
     workers: int | None
+    printer: Printer | None = None
     record: ExportRecord = field(default_factory=ExportRecord)
     written: list[str] = field(default_factory=list)
 

@@ -23,7 +23,7 @@ class FdmDual(ProcessWriter):
     def render(self, measures: Measures) -> None:
         job = self.job
         profile = job.profile
-        write_print_jobs(job, measures, True, "print.3mf")
+        write_print_jobs(job, True, "print.3mf")
         job.record.bom.append(
             bom_row(
                 "tile",

@@ -24,7 +24,7 @@ class LaserEpdm(StripProcess):
 
     def render_tiles(self, measures: Measures) -> tuple[float, float]:
         job = self.job
-        write_print_jobs(job, measures, False, "tiles.3mf")
+        write_print_jobs(job, False, "tiles.3mf")
         job.record.bom.append(
             bom_row(
                 "tile",
