@@ -235,7 +235,7 @@ def _design(
     lift, route, chosen = _lift_and_route(shaped, deployment, resolved, masses, progress, notes)
     measured, problems, warnings = measure_design(
         resolved, profile, tiling, assembled, flat, hinge_layout, lift, route, masses,
-        target_diagonal_mm=loaded.bbox_diagonal_mm,
+        target_diagonal_mm=loaded.bbox_diagonal_mm, target=loaded, fit=shaped.fit,
     )  # fmt: skip
     measured["co_optimization"] = shaped.co_block
     if shaped.fit is not None:
