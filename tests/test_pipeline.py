@@ -1123,23 +1123,21 @@ def test_a_value_just_above_its_bound_reads_as_above_it() -> None:
     assert float(above(0.23, 0.001)) == 0.23
 
 
-@pytest.mark.parametrize("weights", [None, (1e4, 1.0, 100.0)])
-def test_surface_distance_warnings_agree_with_the_report(weights) -> None:
+@pytest.mark.parametrize("fit", ["paper", "close"])
+def test_surface_distance_warnings_agree_with_the_report(fit) -> None:
     # The report marks both surface-distance targets; a design that misses one says so in its
     # warnings too (and --strict then exits 4), and one that meets them says nothing.
     from drawstring.output.metric_rules import evaluate_metrics
 
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
-    if weights is not None:
-        options = replace(options, weights=weights)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit=fit)
     result = design("saddle", options)
     failed = {row.name for row in evaluate_metrics(result.to_json()) if row.passed is False}
     warned = " ".join(result.warnings)
     assert ("surface_distance_max_mm" in failed) == ("of the target's diagonal" in warned)
     assert ("surface_distance_mean_mm" in failed) == ("on average" in warned)
     # the coarse saddle with the paper's weights misses both; fitted closely it meets both
-    assert ("surface_distance_max_mm" in failed) == (weights is None)
-    assert ("surface_distance_mean_mm" in failed) == (weights is None)
+    assert ("surface_distance_max_mm" in failed) == (fit == "paper")
+    assert ("surface_distance_mean_mm" in failed) == (fit == "paper")
 
 
 def test_a_tile_size_refusal_names_the_problems_a_new_size_may_not_mend() -> None:
