@@ -15,6 +15,10 @@ misses.  So ``close`` (:func:`fitted_layout`):
    when its flat edge error and hinge gap meet the 1e-3 mm targets;
 3. otherwise lays out the paper's shape, with a note saying why.
 
+``metrics.fit.close`` records the close shape's weights and conical defect and, where it was
+laid out, its accuracy (the larger of flat edge error and hinge gap) and its surface distance
+over the top faces, kept or not: one point of the fit frontier.
+
 ``paper`` is the layout of the paper's weights alone; ``--weights`` overrides both.
 """
 
@@ -35,9 +39,10 @@ from drawstring.geometry.hinges.sides import dual_hinge_faces
 from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import tile_surface
 from drawstring.geometry.tiling.linkage import Linkage
+from drawstring.pipeline.fit_quality import surface_distances
 from drawstring.pipeline.layout_stage import ShapedLayout, shape_and_layout, split_bound
 from drawstring.pipeline.policy import LayoutPolicy
-from drawstring.pipeline.record import Progress, ResolvedOptions
+from drawstring.pipeline.record import Progress, ResolvedOptions, rounded
 from drawstring.pipeline.shapes import ShapeCache, assembled_shape
 
 
@@ -77,6 +82,12 @@ def fitted_layout(
             first_tiling=first_tiling,
         )  # fmt: skip
         accuracy = trial.accuracy_mm
+        distances = surface_distances(trial.assembled.tiles, loaded)
+        tried.update(
+            accuracy_mm=rounded(accuracy, 9),
+            surface_distance_mean_mm=rounded(distances.mean, 9),
+            surface_distance_max_mm=rounded(distances.max, 9),
+        )
         if accuracy <= target and trial.hinge_layout is not None:
             return replace(trial, fit={"used": "close", "eq1": close.to_json(), "close": tried})
         reason = (

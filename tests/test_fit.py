@@ -132,6 +132,12 @@ def test_the_close_fit_is_closer_and_keeps_every_layout_target(
     assert m["hinge_gap_max_mm"] <= 1e-3
     assert m["flat_overlap_area_mm2"] == 0.0
     assert not close.problems
+    # the frontier's point of the close shape is the design as kept
+    tried = m["fit"]["close"]
+    assert tried["surface_distance_mean_mm"] == m["surface_distance_mean_mm"]
+    assert tried["surface_distance_max_mm"] == m["surface_distance_max_mm"]
+    accuracy = max(m["flat_edge_error_max_mm"], m["hinge_gap_max_mm"])
+    assert tried["accuracy_mm"] == pytest.approx(accuracy, rel=1e-3)
 
 
 def test_a_close_shape_refused_gives_the_papers_design_with_a_note(paper: Design) -> None:
