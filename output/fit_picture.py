@@ -8,8 +8,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from drawstring.geometry.core.tile import TILE_FACES
 from drawstring.geometry.core.tolerances import SURFACE_MAX_REL, SURFACE_MEAN_REL
-from drawstring.geometry.tiling.linkage import TILE_FACES
 from drawstring.output.pictures import equal_3d, plt, save, shade
 
 if TYPE_CHECKING:

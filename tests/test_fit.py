@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drawstring.geometry.tiling.linkage import TILE_FACES
+from drawstring.geometry.core.tile import TILE_FACES
 from drawstring.pipeline.policy import DEFAULT_POLICY
 from drawstring.pipeline.record import Design, DesignOptions
 from drawstring.pipeline.run import design
