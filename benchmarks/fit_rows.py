@@ -13,8 +13,8 @@ to the target, close against paper, and the fit frontier.
   design's mean tile side and the target's diagonal).
 
 Run with ``nice -n 10 .venv/bin/python benchmarks/fit_rows.py [NAME ...] [--frontier]``
-(all built-ins by default; about 10 min for the two rows per built-in, 15 more for the
-frontier on two cores); it writes its rows into ``benchmarks/results.json``.
+(all built-ins by default; the two rows of all eight took 10 min on a loaded two-core machine,
+the frontier about 7 min per built-in); it writes its rows into ``benchmarks/results.json``.
 """
 
 from __future__ import annotations
