@@ -1,4 +1,8 @@
-"""Pipeline helpers measured on known geometry."""
+"""Pipeline helpers measured on known geometry.
+
+The tiling ladder, co-optimization and hinge tests lay out the paper's assembled shape
+(``fit="paper"``), on which their cases were found; ``tests/test_fit.py`` covers ``--fit close``.
+"""
 
 from __future__ import annotations
 
@@ -16,7 +20,7 @@ from drawstring.fabrication.profiles import load_profile
 from drawstring.geometry.core import parallel
 from drawstring.geometry.route.plan import plan_route
 from drawstring.geometry.tiling.linkage import build_linkage, gap_centroids, rotating_squares_layout
-from drawstring.pipeline import co_rounds, layout_stage
+from drawstring.pipeline import co_rounds, layout_stage, shapes
 from drawstring.pipeline.ahead import can_fork
 from drawstring.pipeline.layout_stage import split_bound
 from drawstring.pipeline.measure import channel_turn_assembled
@@ -105,7 +109,7 @@ def test_a_part_whose_flat_layout_misses_is_tiled_again_and_a_miss_is_never_sile
     # rule itself is tested on set accuracies below).  Either way the note gives the miss,
     # and what is kept either meets the targets or says in a warning by how much it misses.
     plain = LayoutPolicy(conical_weights=())  # the plain co-optimization, never conical
-    options = DesignOptions(tiles=200, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=200, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("seashell", options, policy=plain)
     default_bound = split_bound(result.options)
     metrics = result.metrics()
@@ -133,7 +137,7 @@ def test_a_part_whose_hinges_miss_only_in_depth_is_split_further() -> None:
     # tiling is judged by the whole hinge gap: split once more, the conical co-optimization
     # succeeds and the hinges meet in 3D.
     policy = LayoutPolicy(prefer_split_at_first_weight=False)
-    options = DesignOptions(tiles=100, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=100, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("chair", options, policy=policy)
     metrics = result.metrics()
     assert result.tiling.linkage.n_components == 2
@@ -154,7 +158,9 @@ def test_a_part_whose_hinges_miss_only_in_depth_is_split_further() -> None:
 def test_the_summary_names_the_gap_angle_bound_where_no_retiling_tightened_it() -> None:
     # The 8 x 8 dome is split at the default bound (1.65575 in design.json, to 6 digits, of
     # 2 / (1 + sin 12 deg) = 1.6557502): the rounding alone once read as a tightened bound.
-    result = design("dome", DesignOptions(grid=(8, 8), resolution=1500, simulate=False, cad=False))
+    result = design(
+        "dome", DesignOptions(grid=(8, 8), resolution=1500, simulate=False, cad=False, fit="paper")
+    )
     assert result.tiling.linkage.n_components == 2
     assert not any(n.startswith("tiling:") for n in result.notes)
     summary = design_summary(result)
@@ -258,7 +264,7 @@ def test_a_conical_co_optimization_that_misses_is_tried_with_the_next_weight(mon
     # without the condition, with a note giving the last reason.  (Laid out in full: a
     # tiling that may still be split pauses for its split after the first weight.)
     policy = replace(IN_TURN, prefer_split_at_first_weight=False)
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     first, retry = FIRST, RETRY
     calls = _conical_runs(monkeypatch, {first})
     result = design("saddle", options, policy=policy)
@@ -290,7 +296,7 @@ def test_a_tiling_that_may_still_be_split_tries_no_second_weight_after_a_far_mis
         retile_ahead=False,
         prefer_split_at_first_weight=False,  # (no pause)
     )
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     first, retry = FIRST, RETRY
     calls = _conical_runs(monkeypatch, {first}, missed_mm=0.5)
     design("saddle", options, policy=policy)
@@ -315,7 +321,7 @@ def test_a_split_meeting_the_targets_is_kept_before_the_first_tiling_tries_more(
     # (calls are counted here: nothing is laid out or co-optimized ahead)
     policy = replace(IN_TURN, retile_min_share=0.0, retile_ahead=False)
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(_two_parts_meet))
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     first = FIRST
     tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
     calls = _conical_runs(monkeypatch, {first}, missed_mm=2.0 * tol)
@@ -342,7 +348,7 @@ def test_a_paused_first_tiling_goes_on_where_the_split_misses(monkeypatch) -> No
     # first is not run again) and the design is bitwise the one laid out without the pause.
     policy = replace(IN_TURN, retile_min_share=0.0, retile_ahead=False)
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(lambda _s: 1.0))
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     first, retry = FIRST, RETRY
     tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
     calls = _conical_runs(monkeypatch, {first}, missed_mm=2.0 * tol)
@@ -382,7 +388,7 @@ def test_after_a_pause_each_tighter_tiling_is_laid_out_once(monkeypatch) -> None
         return out
 
     monkeypatch.setattr(layout_stage, "_shaped", recorded)
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("saddle", options, policy=policy)
     assert laid == [(1, True), (2, False), (1, False), (4, False)]
     assert result.tiling.linkage.n_components == 4
@@ -404,7 +410,7 @@ def test_the_pause_gives_the_design_laid_out_in_turn_where_work_runs_ahead(monke
         pytest.skip("processes cannot fork here")
     tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
     _conical_runs(monkeypatch, {FIRST}, missed_mm=2.0 * tol)
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     for accuracy, parts in ((_two_parts_meet, 2), (lambda _s: 1.0, 1)):
         monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(accuracy))
         serial = design("saddle", options, policy=in_turn)
@@ -421,7 +427,7 @@ def test_no_larger_conical_weight_follows_a_joint_solve_above_the_plain_layout(
 ) -> None:
     # Refused for its first joint solve, the conical co-optimization is run without the
     # condition next: a larger weight would pull the joint solve further off.
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     calls = _conical_runs(monkeypatch, {FIRST}, joint=True)
     result = design("saddle", options, policy=IN_TURN)
     assert [c[:2] for c in calls[:2]] == [(True, FIRST), (False, None)]
@@ -449,7 +455,7 @@ def test_a_string_whose_channels_bend_too_much_is_warned_about(monkeypatch) -> N
     # below it.
     from drawstring.pipeline import measure
 
-    options = DesignOptions(grid=(6, 4), resolution=1500, simulate=False, cad=False)
+    options = DesignOptions(grid=(6, 4), resolution=1500, simulate=False, cad=False, fit="paper")
     plain = design("saddle", options)
     factor = plain.metrics()["route"]["capstan_factor_channels_assembled"]
     assert 1.0 < factor < measure.CAPSTAN_FACTOR_WARN
@@ -461,7 +467,7 @@ def test_a_string_whose_channels_bend_too_much_is_warned_about(monkeypatch) -> N
 
 
 def test_a_layout_that_meets_its_targets_keeps_the_default_split_bound() -> None:
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("saddle", options)
     assert result.metrics()["split_bound"] == round(split_bound(result.options), 6)
     assert not [n for n in result.notes if n.startswith("tiling:")]
@@ -474,7 +480,7 @@ def test_hinged_pairs_that_planes_through_the_hinge_hold_apart_are_laid_out_agai
     # laid out again too).  Separated on the hinge face only, they meet and nothing interpenetrates.
     # (With the bottom hinges' depths matched first the three-shell's pairs all meet without
     # this; the eq.-1 bottoms keep the case.)
-    options = DesignOptions(tiles=200, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=200, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("three-shell", options, policy=LayoutPolicy(hinge_depths=False))
     metrics = result.metrics()
     assert metrics["hinge_gap_in_plane_max_mm"] <= 1e-3
@@ -491,7 +497,9 @@ def test_top_hinges_trim_unhinged_overlaps_instead_of_pulling_hinges_apart() -> 
     # pairs' bottoms overlap in the flat pose by about 0.01 mm^3 each.  Held apart by planes
     # through the whole tiles, they pulled hinges 6.7e-3 mm apart (a missed target); separated
     # on their top faces and trimmed, as top hinged pairs are, the layout keeps its accuracy.
-    result = design("wave", DesignOptions(tiles=300, hinges="top", simulate=False, cad=False))
+    result = design(
+        "wave", DesignOptions(tiles=300, hinges="top", simulate=False, cad=False, fit="paper")
+    )
     metrics = result.metrics()
     assert metrics["hinge_gap_in_plane_max_mm"] <= 1e-3
     assert metrics["flat_edge_error_max_mm"] <= 1e-3
@@ -507,9 +515,9 @@ def test_top_hinges_trim_unhinged_overlaps_instead_of_pulling_hinges_apart() -> 
 
 def _saddle_before_co_optimization():
     """A 60-tile saddle design, its eq.-1 tiles, dual hinge faces and plain flat layout."""
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     shaped = design("saddle", options)  # for its tiling, target and resolved options
-    eq1 = layout_stage.optimize_assembled(
+    eq1 = shapes.optimize_assembled(
         shaped.tiling.vertices,
         shaped.tiling.quads,
         shaped.target.vertices,
@@ -588,7 +596,7 @@ def test_a_part_whose_scale_hardly_varies_is_not_split_further(monkeypatch) -> N
 
     monkeypatch.setattr(layout_stage, "tile_surface", counted)
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(lambda _self: 1.0))
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("wave", options)
     assert result.tiling.scale_factor_max < 1.1
     assert calls == [split_bound(result.options)]
@@ -610,7 +618,7 @@ def test_a_tighter_tiling_that_meets_the_targets_is_kept_without_halving_the_mis
         return 1.4e-3 if shaped.tiling.linkage.n_components == 1 else 9.5e-4
 
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(accuracy))
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("saddle", options)
     assert result.tiling.linkage.n_components > 1
     assert result.metrics()["split_bound"] < split_bound(result.options)
@@ -633,7 +641,7 @@ def test_the_co_optimization_run_ahead_gives_the_design_run_in_turn(monkeypatch)
     in_turn = replace(IN_TURN, retile_min_share=10.0)  # one tiling, no other process
     if not can_fork():
         pytest.skip("processes cannot fork here")
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     first, retry = FIRST, RETRY
     calls = _conical_runs(monkeypatch, {first, retry})
     serial = design("saddle", options, policy=in_turn)
@@ -655,7 +663,7 @@ def test_the_tighter_tiling_laid_out_ahead_gives_the_design_laid_out_in_turn(
     # counted in this process's.
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(_two_parts_meet))
     monkeypatch.setattr(parallel, "thread_count", lambda: 2)  # ahead even on one core
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     serial = design("saddle", options, policy=LayoutPolicy(retile_ahead=False))
     taken: list[bool] = []
     result_of = layout_stage._Ahead.result
@@ -688,7 +696,9 @@ def test_a_failed_layout_ahead_is_laid_out_again_in_this_process(monkeypatch, ca
         return shaped(*args, **kwargs)
 
     monkeypatch.setattr(layout_stage, "_shaped", fails_in_a_child)
-    result = design("saddle", DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False))
+    result = design(
+        "saddle", DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
+    )
     assert "laid out ahead failed (RuntimeError: out of memory)" in caplog.text
     assert result.tiling.linkage.n_components == 2
     assert any(n.startswith("tiling:") and "kept 2 parts" in n for n in result.notes)
@@ -706,20 +716,20 @@ def test_a_tiling_that_may_be_split_again_skips_the_held_openings_run(monkeypatc
 
     monkeypatch.setattr(layout_stage, "co_optimized", refused)
     policy = replace(IN_TURN, retile_ahead=False)  # calls are counted here
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
 
     def split_wins(shaped: layout_stage.ShapedLayout) -> float:
         return 1.0 if shaped.tiling.linkage.n_components == 1 else 1e-4
 
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(split_wins))
     solved: list[int] = []  # quads of each eq.-1 solve
-    solve = layout_stage.optimize_assembled
+    solve = shapes.optimize_assembled
 
     def counted(vertices, quads, *args, **kwargs):
         solved.append(len(quads))
         return solve(vertices, quads, *args, **kwargs)
 
-    monkeypatch.setattr(layout_stage, "optimize_assembled", counted)
+    monkeypatch.setattr(shapes, "optimize_assembled", counted)
     result = design("saddle", options, policy=policy)
     assert result.tiling.linkage.n_components == 2
     assert held == [2]  # the trial tiling ran it, the first one did not
@@ -756,7 +766,7 @@ def test_a_first_tiling_far_off_skips_the_hinge_stage_unless_kept(monkeypatch) -
     # (its ladder goes on after the first weight's miss instead of pausing for the split;
     # calls are counted here)
     policy = replace(IN_TURN, prefer_split_at_first_weight=False, retile_ahead=False)
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("saddle", options, policy=policy)
     assert result.tiling.linkage.n_components == 2
     assert hinged == [2]
@@ -867,7 +877,7 @@ def test_the_design_hands_the_first_joint_solve_to_the_held_openings_run(monkeyp
         return assembled, flat, {"accepted": False, "reason": "refused", "steps": 0}
 
     monkeypatch.setattr(layout_stage, "co_optimized", refused)
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     design("saddle", options, policy=replace(IN_TURN, retile_ahead=False))
     # per laid-out tiling: the tracked run, then (where held openings are tried) the held one
     # with the same dictionary
@@ -1060,7 +1070,7 @@ def test_the_flat_seed_of_a_refused_co_optimization_is_finished(monkeypatch) -> 
 
     monkeypatch.setattr(layout_stage, "flat_layout", recorded)
     monkeypatch.setattr(layout_stage, "co_optimized", refused)
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("saddle", options, policy=LayoutPolicy(flat_seed_steps=5))
     # every layout (the first tiling is laid out twice: see the held-openings test) is a seed
     # and then its finish
@@ -1146,7 +1156,9 @@ def test_a_tile_size_refusal_names_the_problems_a_new_size_may_not_mend() -> Non
     from drawstring.geometry.core.errors import InputError
     from drawstring.pipeline.run import with_cad
 
-    options = DesignOptions(grid=(10, 8), resolution=1500, size_mm=30.0, simulate=False, cad=False)
+    options = DesignOptions(
+        grid=(10, 8), resolution=1500, size_mm=30.0, simulate=False, cad=False, fit="paper"
+    )
     result = design("saddle", options)
     with pytest.raises(
         InputError,
