@@ -227,9 +227,16 @@ def _add_shape_options(p: argparse.ArgumentParser) -> None:
         type=float,
         nargs=3,
         metavar=("PLANAR", "SQUARE", "SURFACE"),
-        default=(1e4, 10.0, 0.1),
-        help="assembled-shape weights, each 0 to 1e8, not all 0 (default and paper: 10000 10 "
-        "0.1; 10000 1 100 hugs the target)",
+        default=None,
+        help="assembled-shape weights, each 0 to 1e8, not all 0; override --fit (the paper's: "
+        "10000 10 0.1)",
+    )
+    p.add_argument(
+        "--fit",
+        choices=("close", "paper"),
+        default="close",
+        help="the assembled shape: as close to the target as every flat-layout and hinge "
+        "target allows (close, the default), or the paper's weights 10000 10 0.1 (paper)",
     )
     p.add_argument(
         "--up",

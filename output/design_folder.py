@@ -137,6 +137,23 @@ def read_deploy_frames(path: Path) -> FloatArray:
     return frames
 
 
+def read_tile_fit(path: Path) -> FloatArray | None:
+    """Per tile, the mean and the largest distance of its top face from the target (mm),
+    ``tiles.npz``'s ``surface_distance_mean_mm`` and ``surface_distance_max_mm`` as (T, 2);
+    None for a ``tiles.npz`` without them."""
+    with np.load(path) as npz:
+        if "surface_distance_mean_mm" not in npz.files:
+            return None
+        mean = np.asarray(npz["surface_distance_mean_mm"], dtype=float).reshape(-1)
+        if "surface_distance_max_mm" in npz.files:
+            largest = np.asarray(npz["surface_distance_max_mm"], dtype=float).reshape(-1)
+        else:
+            largest = mean
+    if len(largest) != len(mean) or not np.all(np.isfinite(mean) & np.isfinite(largest)):
+        raise InputError(f"{path.name} has malformed surface distances; rerun drawstring design")
+    return np.stack([mean, largest], axis=1)
+
+
 @dataclass(frozen=True)
 class Route:
     """The string route of ``route.json``.

@@ -109,15 +109,15 @@ METRIC_RULES: dict[str, MetricRule] = {
         _at_most(0.5),
     ),
     "surface_distance_max_mm": MetricRule(
-        "largest distance of a tile corner from the target surface",
+        "largest distance of the tiles' top faces from the target (target.obj), over each face",
         lambda d: (
             f"≤ {100 * SURFACE_MAX_REL:g} % of the diagonal ({SURFACE_MAX_REL * _diag(d):.2f} mm)"
         ),
         lambda v, d: float(v) <= SURFACE_MAX_REL * _diag(d),
-        advisory=True,  # the paper's weights leave tiles off the target; a warning
+        advisory=True,  # the closest shape the layout allows can still miss it; a warning
     ),
     "surface_distance_mean_mm": MetricRule(
-        "mean distance of the tile corners from the target surface",
+        "mean distance of the tiles' top faces from the target (target.obj), over their area",
         lambda d: (
             f"≤ {100 * SURFACE_MEAN_REL:g} % of the mean tile side "
             f"({SURFACE_MEAN_REL * _tile_side(d):.2f} mm)"

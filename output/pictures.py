@@ -2,7 +2,8 @@
 conventions every picture shares (colours, hinge markers, fixed PNG metadata), the pictures of
 the target and the assembled shape, and the placing of labels that must not overlap.
 
-``flat.png`` is drawn by :mod:`~drawstring.output.flat_picture`, ``lift.png`` by
+``flat.png`` is drawn by :mod:`~drawstring.output.flat_picture`, ``fit.png`` by
+:mod:`~drawstring.output.fit_picture`, ``lift.png`` by
 :mod:`~drawstring.output.lift_picture`, the assembly guide's by
 :mod:`~drawstring.output.assembly_pictures`.
 """
@@ -100,7 +101,7 @@ def save_scale_factor(tiling: Tiling, path: Path) -> None:
     save(fig, path)
 
 
-def _equal_3d(ax: Axes, points: NDArray[np.float64]) -> None:
+def equal_3d(ax: Axes, points: NDArray[np.float64]) -> None:
     lo, hi = points.min(axis=0), points.max(axis=0)
     centre, half = (lo + hi) / 2, (hi - lo).max() / 2
     ax.set_xlim(centre[0] - half, centre[0] + half)
@@ -122,7 +123,7 @@ def save_lifted(target: Target, tiling: Tiling, path: Path) -> None:
     tiles = Poly3DCollection(list(quads), facecolors=colours, edgecolors="none", alpha=0.55)
     ax.add_collection3d(tiles)
     ax.add_collection3d(Line3DCollection(list(edges), colors="k", linewidths=0.4))
-    _equal_3d(ax, target.vertices)
+    equal_3d(ax, target.vertices)
     ax.view_init(elev=32, azim=-60)
     ax.set_title(
         f"{target.name}: {tiling.linkage.n_tiles} tiles lifted onto the target", fontsize=10
@@ -131,7 +132,7 @@ def save_lifted(target: Target, tiling: Tiling, path: Path) -> None:
     save(fig, path)
 
 
-def _shade(normals: NDArray[np.float64], base: NDArray[np.float64]) -> NDArray[np.float64]:
+def shade(normals: NDArray[np.float64], base: NDArray[np.float64]) -> NDArray[np.float64]:
     """Lambert shading of RGB colours ``base`` (k, 3) by unit face normals (k, 3)."""
     light = np.array([0.35, -0.45, 0.82])
     light /= np.linalg.norm(light)
@@ -150,10 +151,10 @@ def draw_tiles_3d(ax: Axes, tiles: NDArray[np.float64], component: NDArray[np.in
         [to_rgb(COMPONENT_COLOURS[c % len(COMPONENT_COLOURS)]) for c in component]
     ).repeat(len(TILE_FACES), axis=0)
     coll = Poly3DCollection(
-        list(polys), facecolors=_shade(normal, base), edgecolors="k", linewidths=0.15
+        list(polys), facecolors=shade(normal, base), edgecolors="k", linewidths=0.15
     )
     ax.add_collection3d(coll)  # type: ignore[attr-defined]
-    _equal_3d(ax, tiles.reshape(-1, 3))
+    equal_3d(ax, tiles.reshape(-1, 3))
 
 
 def save_assembled(result: Design, path: Path) -> None:

@@ -14,6 +14,7 @@ import numpy as np
 
 from drawstring.geometry.core.errors import InputError
 from drawstring.geometry.core.tile import HingeSide
+from drawstring.geometry.core.tolerances import SURFACE_MEAN_REL
 from drawstring.geometry.core.types import FloatArray
 from drawstring.output.design_folder import (
     DESIGN_JSON_TYPES,
@@ -25,6 +26,7 @@ from drawstring.output.design_folder import (
     read_obj_quads,
     read_obj_tiles,
     read_route,
+    read_tile_fit,
     subsample_frames,
     touching_tiles,
 )
@@ -45,6 +47,8 @@ class FolderContents:
     route: Route | None
     problems: tuple[str, ...]
     assembled_source: str = "assembled.obj"
+    #: (T, 2) per tile the mean and largest distance of its top face from the target, mm
+    fit: FloatArray | None = None
 
 
 def read_folder(folder: Path) -> FolderContents:
@@ -83,6 +87,7 @@ def read_folder(folder: Path) -> FolderContents:
     flat = attempt("flat.obj", read_obj_tiles)
     frames = attempt("deploy.npz", read_deploy_frames)
     route = attempt("route.json", read_route)
+    fit = attempt("tiles.npz", read_tile_fit)
     counts = {len(x) for x in (assembled, flat) if x is not None}
     if frames is not None:
         counts.add(frames.shape[1])
@@ -92,8 +97,11 @@ def read_folder(folder: Path) -> FolderContents:
             "the assembled and flat poses only"
         )
         frames = None
+    if fit is not None and counts and len(fit) not in counts:
+        problems.append("tiles.npz's surface distances do not match the tiles; not shown")
+        fit = None
     return FolderContents(
-        folder, design, assembled, flat, frames, route, tuple(problems), assembled_source
+        folder, design, assembled, flat, frames, route, tuple(problems), assembled_source, fit
     )
 
 
@@ -152,6 +160,21 @@ def view_data(found: FolderContents) -> dict[str, Any]:
         "neighbour_rule": rule,
         "route": route,
         "assembled_source": found.assembled_source,
+        "fit": None if found.fit is None else _fit_view(found),
+    }
+
+
+def _fit_view(found: FolderContents) -> dict[str, Any]:
+    """The 3D view's distance colouring: per tile the mean and largest distance of its top
+    face from the target (mm), and the quality level of the mean (mm; 0 where unknown)."""
+    assert found.fit is not None
+    side = found.design.get("metrics", {}).get("tile_side_mean_mm")
+    level = SURFACE_MEAN_REL * float(side) if isinstance(side, int | float) else 0.0
+    return {
+        "mean": np.round(found.fit[:, 0], 3).tolist(),
+        "max": np.round(found.fit[:, 1], 3).tolist(),
+        "level": round(level, 3),
+        "level_pct": round(100 * SURFACE_MEAN_REL, 3),
     }
 
 

@@ -32,8 +32,10 @@ FILE_PURPOSES: dict[str, str] = {
     "hinges.json": "the hinges: the tiles and corners each joins, its face (top or bottom) "
     "and its point in the flat pose",
     "tiles.npz": "the tiles' vertex arrays in both poses (assembled; fabricated: as printed or "
-    "cut), for scripts",
+    "cut) and each tile's distance from the target, for scripts",
     "deploy.npz": "the simulated deployment, flat to assembled (frames of tile corners)",
+    "target.obj": "the target as the design approximates it: scaled, in the frame of assembled.obj",
+    "fit.png": "picture: the assembled tiles coloured by their distance from the target",
     "scale_factor.png": "picture: conformal scale factor and splits",
     "lifted.png": "picture: the lifted grid on the target",
     "assembled.png": "picture: the assembled shape",
@@ -46,6 +48,7 @@ FILE_PURPOSES: dict[str, str] = {
 PICTURES: dict[str, str] = {
     "flat.png": "Flat layout: tiles, gaps, hinges, the string route and the lift points.",
     "assembled.png": "The assembled shape.",
+    "fit.png": "The assembled tiles coloured by how far their top faces sit from the target.",
     "scale_factor.png": "Conformal scale factor of the flattening (and splits, if any).",
     "lifted.png": "The quad grid lifted onto the target surface.",
     "lift.png": "Gap potential energy and the chosen lift points.",
@@ -445,6 +448,7 @@ def viewer_controls(view: dict[str, Any]) -> str:
             "optimization, without thickness (assembled.obj is not in this design yet)."
         )
     hinge_note = "" if view["hinges"] else " (none known)"
+    fit_note = "" if view.get("fit") else " (not in tiles.npz)"
     return f"""
 <div class=controls>
   <span class=group><button data-pose=flat>Flat</button>
@@ -457,6 +461,9 @@ def viewer_controls(view: dict[str, Any]) -> str:
     <span class=legend style="background:#e03131"></span>string route{route_note}</label>
   <label><input type=checkbox id=show-lifts checked{" disabled" if route_note else ""}>
     <span class=legend style="background:#a61e4d"></span>lift points{route_note}</label>
+  <label><input type=checkbox id=colour-fit{" disabled" if fit_note else ""}>
+    colour by distance from the target{fit_note}</label>
+  <span id=fit-scale hidden><span class=fit-bar></span> <span id=fit-scale-label></span></span>
 </div>
 <div class=viewer><div id=view></div></div>
 <div class=deploy><span>Deployment: flat</span>

@@ -18,9 +18,11 @@ from drawstring.geometry.core.tile import TILE_FACES
 from drawstring.geometry.route.result import route_to_json
 from drawstring.geometry.tiling.linkage import gap_centroids
 from drawstring.output import pictures
+from drawstring.output.fit_picture import save_fit
 from drawstring.output.flat_picture import save_flat
 from drawstring.output.lift_picture import save_lift
 from drawstring.pipeline.cad_stage import route_lengths
+from drawstring.pipeline.fit_quality import surface_distances
 from drawstring.pipeline.layout_stage import fabricated_tiles
 from drawstring.pipeline.record import Design, Writer
 
@@ -57,6 +59,24 @@ def write_lifted_mesh(result: Design, folder: Path) -> list[str]:
     return ["lifted.obj"]
 
 
+def write_target_mesh(result: Design, folder: Path) -> list[str]:
+    """``target.obj``: the target exactly as the design approximates it (scaled to ``--size``,
+    repaired, in the design's frame: the frame of ``assembled.obj``), so the fit can be
+    measured in any tool."""
+    target = result.target
+    text = format_obj(
+        target.vertices,
+        target.faces,
+        header=(
+            f"drawstring target {target.name} (mm) as the design approximates it: scaled, in the "
+            "frame of assembled.obj; metrics.surface_distance_* measure the tiles' top faces "
+            "against it"
+        ),
+    )
+    (folder / "target.obj").write_text(text, encoding="utf-8")
+    return ["target.obj"]
+
+
 def write_pictures(result: Design, folder: Path) -> list[str]:
     """``scale_factor.png`` and ``lifted.png``."""
     pictures.save_scale_factor(result.tiling, folder / "scale_factor.png")
@@ -82,14 +102,18 @@ def write_tiles_npz(result: Design, folder: Path) -> list[str]:
     """``tiles.npz``: the tiles at full precision (float64, mm), ``assembled`` (T3D) and
     ``fabricated`` (each T3D tile moved rigidly onto its place in the flat layout, the pose the
     deployment simulation starts from), so ``drawstring simulate`` repeats the design's run
-    exactly (the OBJ files round to 1e-6 mm)."""
+    exactly (the OBJ files round to 1e-6 mm); and per tile how far its top face sits from the
+    target, ``surface_distance_mean_mm`` (over the face) and ``surface_distance_max_mm``."""
     from drawstring.geometry.core.npz import save_npz
 
+    distances = surface_distances(result.tiles_assembled, result.target)
     save_npz(
         folder / "tiles.npz",
         {
             "assembled": np.asarray(result.tiles_assembled, dtype=np.float64),
             "fabricated": fabricated_tiles(result.hinge_layout, result.tiles_assembled),
+            "surface_distance_mean_mm": distances.tile_mean,
+            "surface_distance_max_mm": distances.tile_max,
         },
     )
     return ["tiles.npz"]
@@ -141,11 +165,13 @@ def _rounded(value: Any, digits: int = 6) -> Any:
 
 
 def write_stage_pictures(result: Design, folder: Path) -> list[str]:
-    """``assembled.png``, ``flat.png`` (tiles, hinges, gaps, route, lift points), ``lift.png``."""
+    """``assembled.png``, ``flat.png`` (tiles, hinges, gaps, route, lift points), ``lift.png``
+    and ``fit.png`` (the assembled tiles coloured by their distance from the target)."""
     pictures.save_assembled(result, folder / "assembled.png")
     save_flat(result, folder / "flat.png")
     save_lift(result, folder / "lift.png")
-    return ["assembled.png", "flat.png", "lift.png"]
+    save_fit(result, surface_distances(result.tiles_assembled, result.target), folder / "fit.png")
+    return ["assembled.png", "flat.png", "lift.png", "fit.png"]
 
 
 def write_hinges(result: Design, folder: Path) -> list[str]:
@@ -211,6 +237,7 @@ def write_fabrication_files(result: Design, folder: Path) -> list[str]:
 
 
 DEFAULT_WRITERS: tuple[Writer, ...] = (
+    write_target_mesh,
     write_lifted_mesh,
     write_tiles,
     write_tiles_npz,

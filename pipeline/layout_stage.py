@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.geometry.assembled.reextrude import reextrude
-from drawstring.geometry.assembled.shape import AssembledResult, optimize_assembled
+from drawstring.geometry.assembled.shape import AssembledResult
 from drawstring.geometry.core.rigid import rigid_copies
 from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.core.tolerances import FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM
@@ -39,6 +39,7 @@ from drawstring.pipeline.co_ladder import CoLadder
 from drawstring.pipeline.co_rounds import co_optimized, depth_pull, flat_layout
 from drawstring.pipeline.policy import LayoutPolicy
 from drawstring.pipeline.record import Progress, ResolvedOptions
+from drawstring.pipeline.shapes import ShapeCache, assembled_shape
 
 logger = logging.getLogger(__name__)
 
@@ -85,6 +86,8 @@ class ShapedLayout:
     #: the co-optimization ladder paused after a step that missed the flat targets
     #: (``_shaped``'s ``pause_after_miss``); the hinge stage has not run
     paused: _Paused | None = None
+    #: ``--fit``: the eq.-1 weights used and what the close fit did (``metrics.fit``)
+    fit: dict[str, Any] | None = None
 
     @property
     def unfinished(self) -> bool:
@@ -113,10 +116,6 @@ class ShapedLayout:
         return max(float(edge.max(initial=0.0)), float(gaps.max(initial=0.0)))
 
 
-#: A quad mesh as a dictionary key: vertex array shape and bytes, quad array shape and bytes.
-MeshKey = tuple[tuple[int, ...], bytes, tuple[int, ...], bytes]
-
-
 def shape_and_layout(
     loaded: Target,
     flat_map: Flattening,
@@ -124,13 +123,19 @@ def shape_and_layout(
     progress: Progress,
     *,
     policy: LayoutPolicy,
+    shapes: ShapeCache | None = None,
+    first_tiling: Tiling | None = None,
 ) -> ShapedLayout:
     """Tile, shape and lay out the target (stages tiling to hinges), tiling again with a
     tighter split bound (``policy.retile_attempts``) while the layout misses its accuracy
-    targets; the most accurate result is kept (see ``policy.retile_gain``)."""
-    run = _Retiling(loaded, flat_map, options, progress, policy)
+    targets; the most accurate result is kept (see ``policy.retile_gain``).  ``shapes``: the
+    assembled shapes solved so far and their eq.-1 weights (default: none yet, the paper's
+    eq. 1 with ``options.weights``); ``first_tiling``: the tiling with the first split bound,
+    where it is tiled already."""
+    run = _Retiling(loaded, flat_map, options, progress, policy, shapes or ShapeCache())
     bound = split_bound(options)
-    first_tiling = run.tiled(bound)
+    if first_tiling is None:
+        first_tiling = run.tiled(bound)
     if first_tiling.scale_factor_max - 1.0 < policy.retile_min_share * (bound - 1.0):
         # its area scale hardly varies: more splits are not what it lacks
         return run.shaped(first_tiling, bound, spare_core=True)
@@ -174,13 +179,14 @@ class _Retiling:
         options: ResolvedOptions,
         progress: Progress,
         policy: LayoutPolicy,
+        shapes: ShapeCache,
     ) -> None:
         self.loaded, self.flat_map, self.options = loaded, flat_map, options
         self.progress, self.policy = progress, policy
         #: the accuracy figure (:attr:`ShapedLayout.accuracy_mm`) that meets the targets
         self.target = min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
         #: assembled shapes by quad mesh (tighter split bounds cut the linkage, not the mesh)
-        self.shapes: dict[MeshKey, AssembledResult] = {}
+        self.shapes = shapes
         #: the first tighter tiling laid out in a second process (:meth:`lay_out_ahead`)
         self.ahead: _Ahead[ShapedLayout] | None = None
         #: the first tighter tiling, when tiled ahead of the loop
@@ -219,7 +225,7 @@ class _Retiling:
         self.prepared = next_tiling = self.tiled(next_bound)
         if _same_parts(next_tiling, first_tiling):
             return
-        _assembled_shape(first_tiling, self.loaded, self.options, self.progress, self.shapes)
+        assembled_shape(first_tiling, self.loaded, self.options, self.progress, self.shapes)
 
         def work(child_progress: Progress) -> ShapedLayout:
             return self.shaped(next_tiling, next_bound, child_progress)
@@ -352,7 +358,7 @@ def _shaped(
     loaded: Target,
     options: ResolvedOptions,
     progress: Progress,
-    shapes: dict[MeshKey, AssembledResult],
+    shapes: ShapeCache,
     *,
     policy: LayoutPolicy,
     fallback: bool = True,
@@ -441,14 +447,14 @@ def _plain_layout(
     loaded: Target,
     options: ResolvedOptions,
     progress: Progress,
-    shapes: dict[MeshKey, AssembledResult],
+    shapes: ShapeCache,
     policy: LayoutPolicy,
 ) -> tuple[AssembledResult, HingeFaces | None, FlatResult]:
     """Stages assembled and flat on one tiling: the assembled shape (eq. 1 and extrusion,
     the bottom hinges' corners pulled to equal depths), the hinge faces (dual hinges) and the
     plain flat layout (only a seed when the co-optimization follows)."""
     linkage = tiling.linkage
-    assembled = _assembled_shape(tiling, loaded, options, progress, shapes)
+    assembled = assembled_shape(tiling, loaded, options, progress, shapes)
     # Hinge sides are decided on the eq.-1 tiles (and again once their bottom corners are
     # pulled to equal depths, which can move a side); the flat layout makes the hinged
     # corners meet on the face that carries each hinge.
@@ -565,35 +571,3 @@ def _co_optimized_with_fallback(
             new_assembled, new_flat = held[0], held[1]
             co_block = {**held[2], "openings": "held from the eq.-1 tiles"}
     return new_assembled, new_flat, co_block, skipped
-
-
-def _assembled_shape(
-    tiling: Tiling,
-    loaded: Target,
-    options: ResolvedOptions,
-    progress: Progress,
-    shapes: dict[MeshKey, AssembledResult],
-) -> AssembledResult:
-    """The assembled configuration of ``tiling``'s quad mesh (paper eq. 1 and extrusion),
-    solved once per mesh and kept in ``shapes`` with read-only arrays."""
-    key = (
-        tiling.vertices.shape,
-        tiling.vertices.tobytes(),
-        tiling.quads.shape,
-        tiling.quads.tobytes(),
-    )
-    with progress.stage("assembled"):
-        if key not in shapes:
-            shapes[key] = optimize_assembled(
-                tiling.vertices,
-                tiling.quads,
-                loaded.vertices,
-                loaded.faces,
-                thickness=options.thickness_mm,
-                w_planar=options.weights[0],
-                w_square=options.weights[1],
-                w_surface=options.weights[2],
-            )
-            for array in (shapes[key].top, shapes[key].bottom, shapes[key].tiles):
-                array.flags.writeable = False  # shared between tilings: nothing may edit it
-        return shapes[key]

@@ -27,8 +27,6 @@ from drawstring.geometry.core.tolerances import (
     FLAT_INTERPENETRATION_TOL_MM3,
     FLAT_OVERLAP_TOL_MM2,
     HINGE_GAP_TOL_MM,
-    SURFACE_MAX_REL,
-    SURFACE_MEAN_REL,
 )
 from drawstring.geometry.flat import verify
 from drawstring.geometry.flat.layout import FlatResult
@@ -36,8 +34,14 @@ from drawstring.geometry.hinges.placement import HingeLayout
 from drawstring.geometry.route.lift import LiftPoints
 from drawstring.geometry.route.result import Route, route_metrics
 from drawstring.geometry.simulate.inputs import route_snap_pairs, route_steps, split_contact_pairs
+from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling, parts_in_place
 from drawstring.geometry.tiling.linkage import Linkage, gap_centroids
+from drawstring.pipeline.fit_quality import (
+    fit_warnings,
+    surface_distance_metrics,
+    surface_distances,
+)
 from drawstring.pipeline.layout_stage import absorbable_ratio, fabricated_tiles, split_bound
 from drawstring.pipeline.record import ResolvedOptions, above, jsonable, rounded
 
@@ -193,9 +197,13 @@ def measure_design(
     masses: NDArray[np.float64],
     *,
     target_diagonal_mm: float = 0.0,
+    target: Target | None = None,
+    fit: dict[str, Any] | None = None,
 ) -> tuple[dict[str, Any], list[str], list[str]]:
     """Measure the output geometry (not the optimizers' beliefs) and list unmet targets
-    (``target_diagonal_mm``: the target's bounding-box diagonal, for the surface distance).
+    (``target_diagonal_mm``: the target's bounding-box diagonal, for the surface distance;
+    ``target``: the target as the design approximates it, whose distance from the top faces
+    is measured over each face; ``fit``: what ``--fit`` did, ``metrics.fit``).
 
     Returns the ``metrics`` entries of design.json, the *problems* (targets whose failure makes
     the part unbuildable: overlapping tiles, gaps outside their angle bounds, an invalid route,
@@ -222,10 +230,12 @@ def measure_design(
             channel_turn,
         ),
     }  # fmt: skip
+    if target is not None:  # over every top face, not only the corners (stays in its place)
+        metrics.update(surface_distance_metrics(surface_distances(assembled.tiles, target)))
     problems = _shape_problems(clash, flat_pose, options)
     warnings = [
         *_edge_error_warnings(flat_pose),
-        *_surface_warnings(assembled.metrics, target_diagonal_mm),
+        *fit_warnings(metrics, target_diagonal_mm, fit, options),
         *_hinge_gap_warnings(flat_pose, options),
     ]
     scale_problems, scale_warnings = _scale_findings(
@@ -409,31 +419,6 @@ def _edge_error_warnings(flat_pose: _FlatPose) -> list[str]:
         "curved target's tiles cannot all keep their assembled shape with every hinge "
         "meeting in the plane; the printed tiles are exact copies of the assembled ones, "
         "and more tiles shrink the error"
-    ]
-
-
-def _surface_warnings(measured: dict[str, Any], target_diagonal_mm: float) -> list[str]:
-    """A warning where the assembled tiles sit far from the target surface, on average (by
-    the mean tile side) or anywhere (by the target's diagonal)."""
-    side = float(measured.get("tile_side_mean_mm", 0.0))
-    mean_distance = float(measured.get("surface_distance_mean_mm", 0.0))
-    max_distance = float(measured.get("surface_distance_max_mm", 0.0))
-    far: list[str] = []
-    if side > 0 and mean_distance > SURFACE_MEAN_REL * side:
-        far.append(
-            f"{mean_distance:.2f} mm on average (over {100 * SURFACE_MEAN_REL:g} % of the mean "
-            f"tile side, {SURFACE_MEAN_REL * side:.2f} mm)"
-        )
-    if target_diagonal_mm > 0 and max_distance > SURFACE_MAX_REL * target_diagonal_mm:
-        far.append(
-            f"up to {max_distance:.2f} mm (over {100 * SURFACE_MAX_REL:g} % of the target's "
-            f"diagonal, {SURFACE_MAX_REL * target_diagonal_mm:.2f} mm)"
-        )
-    if not far:
-        return []
-    return [
-        f"tiles sit far from the target: {', '.join(far)}; raise the surface weight "
-        "(--weights 1e4 1 100 fits closely) or use more tiles"
     ]
 
 

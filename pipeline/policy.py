@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from drawstring.geometry.assembled.top import Eq1Weights
 from drawstring.geometry.flat.coflat import CO_CONICAL
 
 
@@ -128,6 +129,20 @@ class LayoutPolicy:
     #: ... and gives up after its first round when that re-solve is this many times worse than
     #: the plain layout: such runs do not come back below it.
     co_give_up_ratio: float = 5.0
+
+    # -- the close fit (pipeline/close_fit.py) --
+
+    #: The eq.-1 weights of ``--fit close``'s assembled shape: the paper's planar and square
+    #: weights, the surface weight raised from 0.1 to 10, and the quads' centres and edge
+    #: midpoints pulled to the target with the same weight (a planar quad with its corners on
+    #: a curved target has its interior off it by its sagitta).  The co-optimization keeps the
+    #: paper's surface weight: raised there, it loses the flat layout on most built-ins.
+    close_fit: Eq1Weights = Eq1Weights(1e4, 10.0, 10.0, 10.0)
+    #: Largest mean conical defect (deg) of the close shape at the vertices next to its
+    #: bottom hinges (``close_fit.conical_defect_deg``) for which its layout is tried; a
+    #: shape further from conical would have its bottom hinges miss in depth, and the paper's
+    #: shape is laid out at once.
+    close_conical_defect_max_deg: float = 6.0
 
     # -- the work run ahead (pipeline/ahead.py) --
 

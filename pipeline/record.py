@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from importlib import metadata
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -90,6 +90,9 @@ STAGES = (
     "simulate",
 )  # fmt: skip
 HINGE_STRATEGIES: tuple[HingeStrategy, ...] = tuple(HingeStrategy)
+#: ``--fit``: the closest assembled shape every layout target allows, or the paper's eq. 1
+FitChoice = Literal["close", "paper"]
+FIT_CHOICES: tuple[FitChoice, ...] = ("close", "paper")
 
 
 @dataclass(frozen=True)
@@ -106,7 +109,9 @@ class DesignOptions:
     max_scale_factor: float = MAX_SCALE_FACTOR
     corners: tuple[int, int, int, int] | None = None
     hinges: HingeStrategy = HingeStrategy.DUAL
-    weights: tuple[float, float, float] = (1e4, 10.0, 0.1)
+    #: eq. 1's weights; None: the paper's, which ``fit`` builds on
+    weights: tuple[float, float, float] | None = None
+    fit: FitChoice = "close"
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
     simulate: bool = True
     cad: bool = True
@@ -172,14 +177,18 @@ class DesignOptions:
             raise InputError(
                 f"--min-gap-angle must be in [0, 60] degrees (got {self.min_gap_angle_deg}); {why}"
             )
-        if len(self.weights) != 3 or not all(0 <= w <= MAX_WEIGHT for w in self.weights):
+        if self.fit not in FIT_CHOICES:
+            raise InputError(f"--fit must be close or paper (got {self.fit!r})")
+        if self.weights is None:
+            pass
+        elif len(self.weights) != 3 or not all(0 <= w <= MAX_WEIGHT for w in self.weights):
             shown = " ".join(f"{w:g}" for w in self.weights)
             most = f"{MAX_WEIGHT:.0e}".replace("e+0", "e")
             raise InputError(
                 f"--weights PLANAR SQUARE SURFACE must be three numbers from 0 to {most} "
                 f"(got {shown}); the paper uses 10000 10 0.1"
             )
-        if not any(w > 0 for w in self.weights):
+        elif not any(w > 0 for w in self.weights):
             raise InputError(
                 "--weights: at least one of PLANAR SQUARE SURFACE must be positive "
                 "(paper: 10000 10 0.1)"
@@ -215,7 +224,11 @@ class ResolvedOptions:
     max_scale_factor: float
     corners: tuple[int, int, int, int] | None
     hinges: HingeStrategy
+    #: the paper's eq.-1 weights, or ``--weights``: the shape of ``--fit paper`` (and of
+    #: ``close`` where the close shape is not kept), and the co-optimization's surface weight
     weights: tuple[float, float, float]
+    #: ``--fit`` as given (``--weights`` overrides it: ``metrics.fit.used``)
+    fit: FitChoice
     up: tuple[float, float, float]
     simulate: bool
     cad: bool

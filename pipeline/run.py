@@ -21,6 +21,7 @@ from threadpoolctl import threadpool_limits
 
 from drawstring.fabrication.printers import Printer, resolve_printer, with_printer
 from drawstring.fabrication.profiles import MAX_TILES, MIN_GRID_SIDE, Profile, load_profile
+from drawstring.geometry.assembled.top import PAPER_WEIGHTS
 from drawstring.geometry.core.errors import InputError, ThicknessError
 from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.flatten.conformal import Flattening, flatten
@@ -33,7 +34,8 @@ from drawstring.geometry.simulate.result import SimulationResult
 from drawstring.geometry.target.surface import Target, load_target
 from drawstring.geometry.tiling.grid import grid_shape_for, parts_in_place
 from drawstring.geometry.tiling.linkage import gap_centroids
-from drawstring.pipeline.layout_stage import ShapedLayout, fabricated_tiles, shape_and_layout
+from drawstring.pipeline.close_fit import fitted_layout
+from drawstring.pipeline.layout_stage import ShapedLayout, fabricated_tiles
 from drawstring.pipeline.measure import cad_problems, cad_warnings, design_rigidity, measure_design
 from drawstring.pipeline.policy import DEFAULT_POLICY, LayoutPolicy
 from drawstring.pipeline.record import (
@@ -73,7 +75,8 @@ def resolve_options(
         max_scale_factor=options.max_scale_factor,
         corners=options.corners,
         hinges=HingeStrategy(options.hinges),
-        weights=tuple(options.weights),
+        weights=PAPER_WEIGHTS if options.weights is None else tuple(options.weights),
+        fit=options.fit,
         up=tuple(float(c) / math.hypot(*options.up) for c in options.up),
         simulate=options.simulate,
         cad=options.cad,
@@ -232,7 +235,7 @@ def _design(
     progress = progress or Progress(quiet=quiet)
     loaded, flat_map, notes = _target_and_flattening(target, resolved, progress)
     check_grid(resolved, flat_map, from_profile=options.tiles is None and options.grid is None)
-    shaped = _laid_out(loaded, flat_map, resolved, progress, policy)
+    shaped = _laid_out(loaded, flat_map, resolved, progress, policy, options.weights is not None)
     notes.extend(shaped.notes)
     tiling, assembled, flat = shaped.tiling, shaped.assembled, shaped.flat
     hinge_layout = shaped.hinge_layout
@@ -244,9 +247,11 @@ def _design(
     lift, route, chosen = _lift_and_route(shaped, deployment, resolved, masses, progress, notes)
     measured, problems, warnings = measure_design(
         resolved, profile, tiling, assembled, flat, hinge_layout, lift, route, masses,
-        target_diagonal_mm=loaded.bbox_diagonal_mm,
+        target_diagonal_mm=loaded.bbox_diagonal_mm, target=loaded, fit=shaped.fit,
     )  # fmt: skip
     measured["co_optimization"] = shaped.co_block
+    if shaped.fit is not None:
+        measured["fit"] = jsonable(shaped.fit)
     measured["split_bound"] = rounded(shaped.split_bound, 6)
     notes.extend(f"flat stage: {p}" for p in flat.problems)
     notes.extend(f"hinge stage: {p}" for p in hinge_layout.problems)
@@ -319,11 +324,14 @@ def _laid_out(
     options: ResolvedOptions,
     progress: Progress,
     policy: LayoutPolicy,
+    weights_given: bool,
 ) -> ShapedLayout:
-    """Stages tiling to hinges (:func:`shape_and_layout`), a size too small for the tiles'
-    thickness refused in one line (:func:`size_refusal`)."""
+    """Stages tiling to hinges on the shape ``--fit`` asks for (:func:`fitted_layout`), a
+    size too small for the tiles' thickness refused in one line (:func:`size_refusal`)."""
     try:
-        return shape_and_layout(loaded, flat_map, options, progress, policy=policy)
+        return fitted_layout(
+            loaded, flat_map, options, progress, policy=policy, weights_given=weights_given
+        )
     except ThicknessError as exc:
         refusal = size_refusal(exc, options)
         if refusal is None:

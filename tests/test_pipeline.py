@@ -1,4 +1,8 @@
-"""Pipeline helpers measured on known geometry."""
+"""Pipeline helpers measured on known geometry.
+
+The tiling ladder, co-optimization and hinge tests lay out the paper's assembled shape
+(``fit="paper"``), on which their cases were found; ``tests/test_fit.py`` covers ``--fit close``.
+"""
 
 from __future__ import annotations
 
@@ -18,7 +22,7 @@ from drawstring.fabrication.profiles import load_profile
 from drawstring.geometry.core import parallel
 from drawstring.geometry.route.plan import plan_route
 from drawstring.geometry.tiling.linkage import build_linkage, gap_centroids, rotating_squares_layout
-from drawstring.pipeline import co_rounds, layout_stage
+from drawstring.pipeline import co_rounds, layout_stage, shapes
 from drawstring.pipeline.ahead import can_fork
 from drawstring.pipeline.layout_stage import split_bound
 from drawstring.pipeline.measure import channel_turn_assembled
@@ -107,7 +111,7 @@ def test_a_part_whose_flat_layout_misses_is_tiled_again_and_a_miss_is_never_sile
     # rule itself is tested on set accuracies below).  Either way the note gives the miss,
     # and what is kept either meets the targets or says in a warning by how much it misses.
     plain = LayoutPolicy(conical_weights=())  # the plain co-optimization, never conical
-    options = DesignOptions(tiles=200, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=200, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("seashell", options, policy=plain)
     default_bound = split_bound(result.options)
     metrics = result.metrics()
@@ -135,7 +139,7 @@ def test_a_part_whose_hinges_miss_only_in_depth_is_split_further() -> None:
     # tiling is judged by the whole hinge gap: split once more, the conical co-optimization
     # succeeds and the hinges meet in 3D.
     policy = LayoutPolicy(prefer_split_at_first_weight=False)
-    options = DesignOptions(tiles=100, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=100, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("chair", options, policy=policy)
     metrics = result.metrics()
     assert result.tiling.linkage.n_components == 2
@@ -156,7 +160,9 @@ def test_a_part_whose_hinges_miss_only_in_depth_is_split_further() -> None:
 def test_the_summary_names_the_gap_angle_bound_where_no_retiling_tightened_it() -> None:
     # The 8 x 8 dome is split at the default bound (1.65575 in design.json, to 6 digits, of
     # 2 / (1 + sin 12 deg) = 1.6557502): the rounding alone once read as a tightened bound.
-    result = design("dome", DesignOptions(grid=(8, 8), resolution=1500, simulate=False, cad=False))
+    result = design(
+        "dome", DesignOptions(grid=(8, 8), resolution=1500, simulate=False, cad=False, fit="paper")
+    )
     assert result.tiling.linkage.n_components == 2
     assert not any(n.startswith("tiling:") for n in result.notes)
     summary = design_summary(result)
@@ -260,7 +266,7 @@ def test_a_conical_co_optimization_that_misses_is_tried_with_the_next_weight(mon
     # without the condition, with a note giving the last reason.  (Laid out in full: a
     # tiling that may still be split pauses for its split after the first weight.)
     policy = replace(IN_TURN, prefer_split_at_first_weight=False)
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     first, retry = FIRST, RETRY
     calls = _conical_runs(monkeypatch, {first})
     result = design("saddle", options, policy=policy)
@@ -292,7 +298,7 @@ def test_a_tiling_that_may_still_be_split_tries_no_second_weight_after_a_far_mis
         retile_ahead=False,
         prefer_split_at_first_weight=False,  # (no pause)
     )
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     first, retry = FIRST, RETRY
     calls = _conical_runs(monkeypatch, {first}, missed_mm=0.5)
     design("saddle", options, policy=policy)
@@ -326,7 +332,7 @@ def _paused_saddles():
     meets the targets (:func:`_two_parts_meet`) and where it misses too
     (:func:`_every_tiling_misses`); each with the co-optimizations it ran (``_conical_runs``).
     They see two cores, as the designs they are compared with that run work ahead."""
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
     made = {}
     for accuracy in (_two_parts_meet, _every_tiling_misses):
@@ -368,7 +374,7 @@ def test_a_split_meeting_the_targets_is_kept_before_the_first_tiling_tries_more(
     # with no tighter tiling to try, nothing pauses: the first tiling runs its whole ladder
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(_two_parts_meet))
     calls = _conical_runs(monkeypatch, {first}, missed_mm=2.0 * tol)
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("saddle", options, policy=replace(PAUSING, retile_attempts=0))
     assert result.tiling.linkage.n_components == 1
     assert calls[:2] == [(True, first, False), (True, RETRY, False)]
@@ -386,7 +392,7 @@ def test_a_paused_first_tiling_goes_on_where_the_split_misses(monkeypatch, pause
     assert paused.tiling.linkage.n_components == 1
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(_every_tiling_misses))
     calls = _conical_runs(monkeypatch, {first}, missed_mm=2.0 * tol)
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     policy = replace(PAUSING, prefer_split_at_first_weight=False)
     straight = design("saddle", options, policy=policy)
     assert [c for c in calls if not c[2]] == ones
@@ -418,7 +424,7 @@ def test_after_a_pause_each_tighter_tiling_is_laid_out_once(monkeypatch) -> None
         return out
 
     monkeypatch.setattr(layout_stage, "_shaped", recorded)
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("saddle", options, policy=policy)
     assert laid == [(1, True), (2, False), (1, False), (4, False)]
     assert result.tiling.linkage.n_components == 4
@@ -441,7 +447,7 @@ def test_the_pause_gives_the_design_laid_out_in_turn_where_work_runs_ahead(
         pytest.skip("processes cannot fork here")
     tol = layout_stage.FLAT_EDGE_ERROR_TOL_MM
     _conical_runs(monkeypatch, {FIRST}, missed_mm=2.0 * tol)
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     for accuracy, parts in ((_two_parts_meet, 2), (_every_tiling_misses, 1)):
         monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(accuracy))
         serial, _ = paused_saddle(accuracy)
@@ -458,7 +464,7 @@ def test_no_larger_conical_weight_follows_a_joint_solve_above_the_plain_layout(
 ) -> None:
     # Refused for its first joint solve, the conical co-optimization is run without the
     # condition next: a larger weight would pull the joint solve further off.
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     calls = _conical_runs(monkeypatch, {FIRST}, joint=True)
     result = design("saddle", options, policy=IN_TURN)
     assert [c[:2] for c in calls[:2]] == [(True, FIRST), (False, None)]
@@ -486,7 +492,7 @@ def test_a_string_whose_channels_bend_too_much_is_warned_about(monkeypatch) -> N
     # below it.
     from drawstring.pipeline import measure
 
-    options = DesignOptions(grid=(6, 4), resolution=1500, simulate=False, cad=False)
+    options = DesignOptions(grid=(6, 4), resolution=1500, simulate=False, cad=False, fit="paper")
     plain = design("saddle", options)
     factor = plain.metrics()["route"]["capstan_factor_channels_assembled"]
     assert 1.0 < factor < measure.CAPSTAN_FACTOR_WARN
@@ -510,7 +516,7 @@ def test_hinged_pairs_that_planes_through_the_hinge_hold_apart_are_laid_out_agai
     # laid out again too).  Separated on the hinge face only, they meet and nothing interpenetrates.
     # (With the bottom hinges' depths matched first the three-shell's pairs all meet without
     # this; the eq.-1 bottoms keep the case.)
-    options = DesignOptions(tiles=200, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=200, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("three-shell", options, policy=LayoutPolicy(hinge_depths=False))
     metrics = result.metrics()
     assert metrics["hinge_gap_in_plane_max_mm"] <= 1e-3
@@ -527,7 +533,9 @@ def test_top_hinges_trim_unhinged_overlaps_instead_of_pulling_hinges_apart() -> 
     # pairs' bottoms overlap in the flat pose by about 0.01 mm^3 each.  Held apart by planes
     # through the whole tiles, they pulled hinges 6.7e-3 mm apart (a missed target); separated
     # on their top faces and trimmed, as top hinged pairs are, the layout keeps its accuracy.
-    result = design("wave", DesignOptions(tiles=300, hinges="top", simulate=False, cad=False))
+    result = design(
+        "wave", DesignOptions(tiles=300, hinges="top", simulate=False, cad=False, fit="paper")
+    )
     metrics = result.metrics()
     assert metrics["hinge_gap_in_plane_max_mm"] <= 1e-3
     assert metrics["flat_edge_error_max_mm"] <= 1e-3
@@ -545,9 +553,9 @@ def test_top_hinges_trim_unhinged_overlaps_instead_of_pulling_hinges_apart() -> 
 def _saddle60_shared():
     """The 60-tile saddle's design, its eq.-1 tiles, dual hinge faces and plain flat layout,
     made once for this module; tests get copies (:func:`saddle60`, :func:`before_co`)."""
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     shaped = design("saddle", options)  # for its tiling, target and resolved options
-    eq1 = layout_stage.optimize_assembled(
+    eq1 = shapes.optimize_assembled(
         shaped.tiling.vertices,
         shaped.tiling.quads,
         shaped.target.vertices,
@@ -643,7 +651,7 @@ def test_a_part_whose_scale_hardly_varies_is_not_split_further(monkeypatch) -> N
 
     monkeypatch.setattr(layout_stage, "tile_surface", counted)
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(lambda _self: 1.0))
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("wave", options)
     assert result.tiling.scale_factor_max < 1.1
     assert calls == [split_bound(result.options)]
@@ -665,7 +673,7 @@ def test_a_tighter_tiling_that_meets_the_targets_is_kept_without_halving_the_mis
         return 1.4e-3 if shaped.tiling.linkage.n_components == 1 else 9.5e-4
 
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(accuracy))
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("saddle", options)
     assert result.tiling.linkage.n_components > 1
     assert result.metrics()["split_bound"] < split_bound(result.options)
@@ -684,7 +692,7 @@ def test_the_co_optimization_run_ahead_gives_the_design_run_in_turn(monkeypatch)
     in_turn = replace(IN_TURN, retile_min_share=10.0)  # one tiling, no other process
     if not can_fork():
         pytest.skip("processes cannot fork here")
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     first, retry = FIRST, RETRY
     calls = _conical_runs(monkeypatch, {first, retry})
     serial = design("saddle", options, policy=in_turn)
@@ -706,7 +714,7 @@ def test_the_tighter_tiling_laid_out_ahead_gives_the_design_laid_out_in_turn(
     # counted in this process's.
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(_two_parts_meet))
     monkeypatch.setattr(parallel, "thread_count", lambda: 2)  # ahead even on one core
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     serial = design("saddle", options, policy=LayoutPolicy(retile_ahead=False))
     taken: list[bool] = []
     result_of = layout_stage._Ahead.result
@@ -739,7 +747,9 @@ def test_a_failed_layout_ahead_is_laid_out_again_in_this_process(monkeypatch, ca
         return shaped(*args, **kwargs)
 
     monkeypatch.setattr(layout_stage, "_shaped", fails_in_a_child)
-    result = design("saddle", DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False))
+    result = design(
+        "saddle", DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
+    )
     assert "laid out ahead failed (RuntimeError: out of memory)" in caplog.text
     assert result.tiling.linkage.n_components == 2
     assert any(n.startswith("tiling:") and "kept 2 parts" in n for n in result.notes)
@@ -757,20 +767,20 @@ def test_a_tiling_that_may_be_split_again_skips_the_held_openings_run(monkeypatc
 
     monkeypatch.setattr(layout_stage, "co_optimized", refused)
     policy = replace(IN_TURN, retile_ahead=False)  # calls are counted here
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
 
     def split_wins(shaped: layout_stage.ShapedLayout) -> float:
         return 1.0 if shaped.tiling.linkage.n_components == 1 else 1e-4
 
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(split_wins))
     solved: list[int] = []  # quads of each eq.-1 solve
-    solve = layout_stage.optimize_assembled
+    solve = shapes.optimize_assembled
 
     def counted(vertices, quads, *args, **kwargs):
         solved.append(len(quads))
         return solve(vertices, quads, *args, **kwargs)
 
-    monkeypatch.setattr(layout_stage, "optimize_assembled", counted)
+    monkeypatch.setattr(shapes, "optimize_assembled", counted)
     result = design("saddle", options, policy=policy)
     assert result.tiling.linkage.n_components == 2
     assert held == [2]  # the trial tiling ran it, the first one did not
@@ -807,7 +817,7 @@ def test_a_first_tiling_far_off_skips_the_hinge_stage_unless_kept(monkeypatch) -
     # (its ladder goes on after the first weight's miss instead of pausing for the split;
     # calls are counted here)
     policy = replace(IN_TURN, prefer_split_at_first_weight=False, retile_ahead=False)
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("saddle", options, policy=policy)
     assert result.tiling.linkage.n_components == 2
     assert hinged == [2]
@@ -921,7 +931,7 @@ def test_the_design_hands_the_first_joint_solve_to_the_held_openings_run(monkeyp
         return assembled, flat, {"accepted": False, "reason": "refused", "steps": 0}
 
     monkeypatch.setattr(layout_stage, "co_optimized", refused)
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     design("saddle", options, policy=replace(IN_TURN, retile_ahead=False))
     # per laid-out tiling: the tracked run, then (where held openings are tried) the held one
     # with the same dictionary
@@ -1120,7 +1130,7 @@ def test_the_flat_seed_of_a_refused_co_optimization_is_finished(monkeypatch) -> 
 
     monkeypatch.setattr(layout_stage, "flat_layout", recorded)
     monkeypatch.setattr(layout_stage, "co_optimized", refused)
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
+    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
     result = design("saddle", options, policy=LayoutPolicy(flat_seed_steps=5))
     # every layout (the first tiling is laid out twice: see the held-openings test) is a seed
     # and then its finish
@@ -1188,24 +1198,24 @@ def test_a_value_just_above_its_bound_reads_as_above_it() -> None:
     assert float(above(0.23, 0.001)) == 0.23
 
 
-@pytest.mark.parametrize("weights", [None, (1e4, 1.0, 100.0)])
-def test_surface_distance_warnings_agree_with_the_report(weights, request) -> None:
+@pytest.mark.parametrize("fit", ["paper", "close"])
+def test_surface_distance_warnings_agree_with_the_report(fit, request) -> None:
     # The report marks both surface-distance targets; a design that misses one says so in its
     # warnings too (and --strict then exits 4), and one that meets them says nothing.
     from drawstring.output.metric_rules import evaluate_metrics
 
-    if weights is None:  # the paper's weights: the module's 60-tile saddle
+    if fit == "paper":  # the module's 60-tile saddle
         result = request.getfixturevalue("saddle60")
     else:
-        options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False)
-        result = design("saddle", replace(options, weights=weights))
+        options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit=fit)
+        result = design("saddle", options)
     failed = {row.name for row in evaluate_metrics(result.to_json()) if row.passed is False}
     warned = " ".join(result.warnings)
     assert ("surface_distance_max_mm" in failed) == ("of the target's diagonal" in warned)
     assert ("surface_distance_mean_mm" in failed) == ("on average" in warned)
     # the coarse saddle with the paper's weights misses both; fitted closely it meets both
-    assert ("surface_distance_max_mm" in failed) == (weights is None)
-    assert ("surface_distance_mean_mm" in failed) == (weights is None)
+    assert ("surface_distance_max_mm" in failed) == (fit == "paper")
+    assert ("surface_distance_mean_mm" in failed) == (fit == "paper")
 
 
 def test_a_tile_size_refusal_names_the_problems_a_new_size_may_not_mend() -> None:
@@ -1214,7 +1224,9 @@ def test_a_tile_size_refusal_names_the_problems_a_new_size_may_not_mend() -> Non
     from drawstring.geometry.core.errors import InputError
     from drawstring.pipeline.run import with_cad
 
-    options = DesignOptions(grid=(10, 8), resolution=1500, size_mm=30.0, simulate=False, cad=False)
+    options = DesignOptions(
+        grid=(10, 8), resolution=1500, size_mm=30.0, simulate=False, cad=False, fit="paper"
+    )
     result = design("saddle", options)
     with pytest.raises(
         InputError,

@@ -594,6 +594,40 @@ def test_page_in_a_real_browser(tmp_path: Path, browser: Browser) -> None:
     assert browser.problems() == []
 
 
+def test_distance_colouring_in_a_real_browser(tmp_path: Path, browser: Browser) -> None:
+    # tiles.npz's per-tile distances colour the 3D view on request, with their scale, and the
+    # picked tile's text gives its own; without them the option is disabled.
+    folder = tmp_path / "fake-dome-drawstring"
+    link = make_design_folder(folder, with_deploy=False)
+    mean = np.linspace(0.0, 2.0, link.n_tiles)
+    np.savez(
+        folder / "tiles.npz",
+        assembled=fake_tiles(link, 0.0, DOME),
+        surface_distance_mean_mm=mean,
+        surface_distance_max_mm=mean + 0.5,
+    )
+    open_page(browser, report.write_report(folder))
+    view = element_box(browser, "#view canvas")
+    assert browser.evaluate("document.getElementById('colour-fit').disabled") is False
+    assert browser.evaluate("document.getElementById('fit-scale').hidden") is True
+    plain = pixels(browser.screenshot(view))
+    renders = browser.evaluate("drawstringView.renders")
+    browser.evaluate("document.getElementById('colour-fit').click()")
+    browser.wait_for(f"drawstringView.renders > {renders}")
+    assert browser.evaluate("drawstringView.colourFit") is True
+    assert browser.evaluate("document.getElementById('fit-scale').hidden") is False
+    assert browser.evaluate("document.getElementById('fit-scale-label').textContent").startswith(
+        "0 to 2.00 mm"
+    )
+    assert np.abs(pixels(browser.screenshot(view)) - plain).mean() > 1.0
+    assert browser.problems() == []
+
+    bare = tmp_path / "bare-drawstring"
+    make_design_folder(bare, with_deploy=False)
+    open_page(browser, report.write_report(bare))
+    assert browser.evaluate("document.getElementById('colour-fit').disabled") is True
+
+
 def test_page_without_geometry_in_a_real_browser(tmp_path: Path, browser: Browser) -> None:
     (tmp_path / "design.json").write_text(json.dumps({"target": {"name": "bare"}}))
     open_page(browser, report.write_report(tmp_path))

@@ -191,6 +191,7 @@ def optimize_assembled(
     max_iter: int = 1000,
     anderson: int = ANDERSON_HISTORY,
     requery_rel: float = SURFACE_REQUERY_REL,
+    w_samples: float = 0.0,
 ) -> AssembledResult:
     """Optimize the lifted quad mesh into K3D and extrude it into frustum tiles T3D.
 
@@ -216,15 +217,16 @@ def optimize_assembled(
         out of folded local minima without changing the energy of convex configurations. A
         plain solve in which a corner stays folded over (negative margin at two checks
         ``FOLD_CHECK_EVERY`` iterations apart) is stopped there and re-solved at once.
-    convex_margin : float
-        See :data:`CONVEX_MARGIN`.
+    convex_margin : float (see :data:`CONVEX_MARGIN`)
     square_rounds : int
         Outer rounds; each recomputes the edge-length targets from the current mesh.
     rel_tol, max_iter, anderson : local-global solver options (each solve).
     requery_rel : float
         Lazy closest-point re-query of the K3D surface term (see
-        :class:`~drawstring.geometry.solve.groups.ClosenessToSurface`; 0 queries every vertex in
-        every iteration).
+        :class:`~drawstring.geometry.solve.groups.ClosenessToSurface`; 0: every vertex, always).
+    w_samples : float
+        Weight of the quads' centres and edge midpoints pulled to the target too
+        (:class:`~drawstring.geometry.solve.groups.FaceSamplesToSurface`; 0: not used).
 
     Returns
     -------
@@ -262,6 +264,7 @@ def optimize_assembled(
         square_rounds=square_rounds,
         solver=solver,
         requery_rel=requery_rel,
+        w_samples=w_samples,
     )
     k3d = rounds.run(0.1 * polish_tol)
     t1 = time.perf_counter()
@@ -301,7 +304,8 @@ class _TopRounds:
     the same again with :class:`~drawstring.geometry.assembled.top.ConvexCorners` when the
     plain rounds leave a corner below the margin.  ``reference``: the lifted quads' vector
     areas (their outward directions); ``weights``: ``(w_planar, w_square, w_surface)``;
-    ``solver``: ``(rel_tol, max_iter, anderson)``."""
+    ``solver``: ``(rel_tol, max_iter, anderson)``; ``w_samples``: the face samples' weight
+    (:func:`optimize_assembled`)."""
 
     verts: FloatArray
     faces: IntArray
@@ -314,6 +318,7 @@ class _TopRounds:
     square_rounds: int
     solver: tuple[float, int, int]
     requery_rel: float
+    w_samples: float = 0.0
 
     def run(self, polish_tol: float) -> _K3D:
         """The rounds, the convexity re-solve when the plain rounds need it, and the exact
@@ -372,6 +377,7 @@ class _TopRounds:
                 convex_margin=self.convex_margin,
                 requery_rel=self.requery_rel,
                 callback=watch,
+                w_samples=self.w_samples,
             )
             done.append(result)
             x = result.X

@@ -11,6 +11,7 @@ convexity re-solve are driven by :func:`~drawstring.geometry.assembled.shape.opt
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -27,6 +28,7 @@ from drawstring.geometry.solve.groups import (
     ClosenessToSurface,
     ConstraintGroup,
     EdgeLength,
+    FaceSamplesToSurface,
     Plane,
 )
 from drawstring.geometry.solve.linalg import centering_matrix, cross3
@@ -44,6 +46,32 @@ CLOSE_FIT_WEIGHTS: tuple[float, float, float] = (1e4, 1.0, 100.0)
 
 #: Default weights: the paper's.
 DEFAULT_WEIGHTS: tuple[float, float, float] = PAPER_WEIGHTS
+
+
+@dataclass(frozen=True)
+class Eq1Weights:
+    """The weights of one eq.-1 solve: planar, square, surface (the paper's three) and the
+    face samples' (:class:`~drawstring.geometry.solve.groups.FaceSamplesToSurface`; 0 leaves
+    them out, as the paper does)."""
+
+    planar: float
+    square: float
+    surface: float
+    samples: float = 0.0
+
+    @classmethod
+    def of(cls, weights: tuple[float, float, float]) -> Eq1Weights:
+        """The paper's three weights (``--weights``), no face samples."""
+        return cls(float(weights[0]), float(weights[1]), float(weights[2]))
+
+    def to_json(self) -> dict[str, float]:
+        return {
+            "planar": self.planar,
+            "square": self.square,
+            "surface": self.surface,
+            "face_samples": self.samples,
+        }
+
 
 #: Convexity margin of every quad corner (:class:`ConvexCorners`): the corner must stand at least
 #: this fraction of the diagonal joining its two neighbours outside that diagonal (0.5 for a
@@ -147,10 +175,12 @@ def _eq1_groups(
     weights: tuple[float, float, float],
     *,
     requery_rel: float = SURFACE_REQUERY_REL,
+    w_samples: float = 0.0,
 ) -> tuple[list[ConstraintGroup], FloatArray]:
     """The constraint groups of paper eq. 1 (planar, square length and shape, surface) for the
     quad mesh ``vertices`` (whose edges and quads set the square targets), and the edge
-    targets."""
+    targets.  With ``w_samples`` > 0 the quads' centres and edge midpoints are pulled to the
+    target too (:class:`FaceSamplesToSurface`, that weight), not only their corners."""
     w_planar, w_square, w_surface = weights
     edges = quad_mesh_edges(quads)
     targets = square_edge_targets(vertices, quads, edges)
@@ -172,6 +202,17 @@ def _eq1_groups(
             requery_rel=requery_rel,
         ),
     ]
+    if w_samples > 0:
+        groups.append(
+            FaceSamplesToSurface(
+                quads,
+                edges.edges,
+                target_vertices,
+                target_faces,
+                w_samples,
+                requery_rel=requery_rel,
+            )  # fmt: skip
+        )
     return groups, targets
 
 
@@ -219,6 +260,7 @@ def optimize_top(
     convex_margin: float = CONVEX_MARGIN,
     requery_rel: float = SURFACE_REQUERY_REL,
     callback: Callable[[int, FloatArray], bool] | None = None,
+    w_samples: float = 0.0,
 ) -> tuple[SolverResult, FloatArray]:
     """One K3D solve of paper eq. 1 with edge targets from ``vertices``.
 
@@ -239,6 +281,9 @@ def optimize_top(
         query every vertex in every iteration).
     callback : callable, optional
         Passed to :meth:`~drawstring.geometry.solve.solver.LocalGlobalSolver.solve` (may stop it).
+    w_samples : float
+        Weight of :class:`~drawstring.geometry.solve.groups.FaceSamplesToSurface` (0: eq. 1 as
+        the paper states it, corners only).
 
     Returns
     -------
@@ -253,6 +298,7 @@ def optimize_top(
         target_faces,
         (w_planar, w_square, w_surface),
         requery_rel=requery_rel,
+        w_samples=w_samples,
     )
     reference_normals = quad_vector_areas(vertices, quads)
     if w_convex > 0:

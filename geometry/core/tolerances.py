@@ -157,12 +157,13 @@ CAD_PAD_INTERFERENCE_REL = 0.02
 #: ``HINGE_LAYOUT_CLEARANCE_MM`` along its tilted separating planes, finds them apart already.
 FLAT_FREE_MARGIN_DEG = 0.3
 
-#: Mean distance of K3D to the target, as a fraction of the mean tile side, above which the
-#: design is flagged (a quality target).
+#: Mean distance of the assembled top faces from the target (over their whole area), as a
+#: fraction of the mean tile side, above which the design is flagged (a quality target).
 SURFACE_MEAN_REL = 0.02
-#: Largest distance of a tile corner from the target, as a fraction of the target's
-#: bounding-box diagonal, above which the design is flagged (the report marks both).
-SURFACE_MAX_REL = 0.02
+#: Largest distance of a point of an assembled top face from the target, as a fraction of the
+#: target's bounding-box diagonal, above which the design is flagged (the report marks both):
+#: 1.6 mm on a 160 mm part.
+SURFACE_MAX_REL = 0.01
 #: Largest capstan factor of the string's channels in the assembled pose (the pull force over
 #: the force that reaches the far end, ``exp(mu * bend)``) before a warning: a firm hand pull of
 #: about 100 N then leaves about 0.1 N to close the last gaps.  A bound of 100 would flag seven

@@ -24,6 +24,7 @@ const state = {
   frameCount: data.frames ? data.frames.length : 0,
   tileCount: data.tiles,
   selected: -1,
+  colourFit: false,
   message: "",
 };
 window.drawstringView = state;
@@ -95,6 +96,16 @@ function tileColour(t) {
 }
 const SELECTED = new THREE.Color(0xf59f00);
 const NEIGHBOUR = new THREE.Color(0x20c997);
+
+// Distance from the target (data.fit, mm per tile): viridis at 0, 1/4, 1/2, 3/4 and 1 of the
+// scale, as fit.png draws it; the scale runs to the largest tile's mean or the quality level.
+const FIT_STOPS = [0x440154, 0x3b528b, 0x21918c, 0x5ec962, 0xfde725].map((c) => new THREE.Color(c));
+const fitScale = data.fit ? Math.max(data.fit.level, ...data.fit.mean, 1e-6) : 1;
+function fitColour(d) {
+  const x = Math.min(Math.max(d / fitScale, 0), 1) * (FIT_STOPS.length - 1);
+  const k = Math.min(Math.floor(x), FIT_STOPS.length - 2);
+  return FIT_STOPS[k].clone().lerp(FIT_STOPS[k + 1], x - k);
+}
 
 function build() {
   const host = $("view");
@@ -230,7 +241,8 @@ function build() {
   function paint() {
     const neighbours = state.selected >= 0 ? new Set(data.neighbours[state.selected]) : new Set();
     for (let t = 0; t < T; t++) {
-      const c = t === state.selected ? SELECTED : neighbours.has(t) ? NEIGHBOUR : tileColour(t);
+      const own = state.colourFit && data.fit ? fitColour(data.fit.mean[t]) : tileColour(t);
+      const c = t === state.selected ? SELECTED : neighbours.has(t) ? NEIGHBOUR : own;
       for (let i = 0; i < 36; i++) c.toArray(tileCol, (t * 36 + i) * 3);
     }
     tileGeom.attributes.color.needsUpdate = true;
@@ -336,6 +348,7 @@ function build() {
         text += " String: " + route.map((s) => `in through its ${SIDE_NAMES[s[2]]} side, out through its ${SIDE_NAMES[s[3]]} side`).join("; ") + ".";
       }
       if (lifts.some((l) => l[1] === t)) text += " Lift point: the string leaves through its top face here.";
+      if (data.fit) text += ` Top face: ${data.fit.mean[t].toFixed(2)} mm from the target on average, ${data.fit.max[t].toFixed(2)} mm at most.`;
       info.textContent = text;
     }
     paint();
@@ -351,6 +364,25 @@ function build() {
     const apply = () => { for (const o of objs) o.visible = box.checked; render(); };
     box.addEventListener("change", apply);
     apply();
+  }
+
+  const fitBox = $("colour-fit");
+  function setColourFit(on) {
+    state.colourFit = Boolean(on && data.fit);
+    if (fitBox) fitBox.checked = state.colourFit;
+    const scale = $("fit-scale");
+    if (scale) scale.hidden = !state.colourFit;
+    if (state.colourFit) {
+      $("fit-scale-label").textContent = `0 to ${fitScale.toFixed(2)} mm` +
+        (data.fit.level > 0 ? `; quality level ${data.fit.level.toFixed(2)} mm (${data.fit.level_pct} % of a tile side)` : "");
+    }
+    paint();
+    render();
+  }
+  state.setColourFit = setColourFit;
+  if (fitBox) {
+    fitBox.disabled = !data.fit;
+    fitBox.addEventListener("change", () => setColourFit(fitBox.checked));
   }
 
   const slider = $("deploy");
