@@ -26,6 +26,7 @@ import build123d as bd
 import numpy as np
 from numpy.typing import NDArray
 from OCP.BRepMesh import BRepMesh_IncrementalMesh
+from OCP.BRepTools import BRepTools
 from OCP.StlAPI import StlAPI_Writer
 
 from drawstring.fabrication.profiles import BED_MARGIN_MM
@@ -41,6 +42,12 @@ MESH_TOLERANCE_FRACTION = 0.007
 MESH_ANGLE_RAD = 0.4
 #: Below this many parts meshing runs in the calling process.
 PARALLEL_MIN_PARTS = 48
+#: Most triangles a part's mesh may have (a slicer's time and the 3MF's size grow with them):
+#: a part over its budget is meshed again with twice the tolerances, up to
+#: ``MESH_COARSEN_STEPS`` times.  A tile's flat faces (engraved digits included) take a few
+#: hundred; its round bores the rest.
+TRIANGLE_BUDGET: dict[str, int] = {"tile": 1600, "pad": 700}
+MESH_COARSEN_STEPS = 2
 
 PartKind = Literal["tile", "pad"]
 
@@ -87,18 +94,36 @@ _STL_RECORD = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attr
 
 
 def mesh_solid(solid: bd.Shape, name: str, kind: PartKind, tolerance: float = 0.05) -> PartMesh:
-    """Tessellate a solid into a closed oriented mesh and check that it is closed.
+    """Tessellate a solid into a closed oriented mesh within its :data:`TRIANGLE_BUDGET` and
+    check that it is closed.
 
-    OCCT meshes the faces (chordal ``tolerance`` mm, angular ``MESH_ANGLE_RAD``); the triangles
-    are read back through OCCT's binary STL writer (fast, and it orients each face's triangles
-    by the face orientation); coincident corners are merged (float32, exact for shared nodes).
+    OCCT meshes the faces afresh (chordal ``tolerance`` mm, angular ``MESH_ANGLE_RAD``; a finer
+    mesh the solid carries from the checks is dropped first, so the 3MF does not depend on
+    them); a mesh over the budget is made again with both tolerances doubled (at most
+    ``MESH_COARSEN_STEPS`` times).  The triangles are read back through OCCT's binary STL
+    writer (fast, and it orients each face's triangles by the face orientation); coincident
+    corners are merged (float32, exact for shared nodes).
 
     Raises
     ------
     RuntimeError
         When an edge is not shared by exactly two triangles with opposite directions.
     """
-    BRepMesh_IncrementalMesh(solid.wrapped, tolerance, False, MESH_ANGLE_RAD, False)
+    budget = TRIANGLE_BUDGET[kind]
+    for step in range(MESH_COARSEN_STEPS + 1):
+        scale = 2.0**step
+        mesh = _mesh_once(solid, name, kind, scale * tolerance, scale * MESH_ANGLE_RAD)
+        if len(mesh.triangles) <= budget:
+            break
+    return mesh
+
+
+def _mesh_once(
+    solid: bd.Shape, name: str, kind: PartKind, tolerance: float, angle: float
+) -> PartMesh:
+    """:func:`mesh_solid` at one pair of tolerances."""
+    BRepTools.Clean_s(solid.wrapped)
+    BRepMesh_IncrementalMesh(solid.wrapped, tolerance, False, angle, False)
     with tempfile.TemporaryDirectory(prefix="drawstring-mesh-") as folder:
         target = str(Path(folder) / "part.stl")
         writer = StlAPI_Writer()

@@ -43,7 +43,7 @@ from drawstring.fabrication.dxf import (  # noqa: E402
     text_strokes,
 )
 from drawstring.fabrication.exports import write_fabrication  # noqa: E402
-from drawstring.fabrication.mesh3mf import BED_MARGIN_MM, plan_print_jobs  # noqa: E402
+from drawstring.fabrication.mesh3mf import BED_MARGIN_MM, TRIANGLE_BUDGET, plan_print_jobs  # noqa: E402
 from drawstring.fabrication.profiles import (  # noqa: E402
     Profile,
     load_profile,
@@ -361,6 +361,8 @@ def test_3mf_meshes_and_extruders(built: Built) -> None:
             next_first = last + 1
             keys = {m.get("key"): m.get("value") for m in volume_el.findall("metadata")}
             extruders.append((keys["name"].split("_")[0], keys["extruder"]))
+            kind = "tile" if keys["name"].startswith("tile") else "pad"
+            assert last + 1 - first <= TRIANGLE_BUDGET[kind]  # a part's triangles, read back
         assert next_first == len(triangles)
     assert {e for k, e in extruders if k == "tile"} == {"1"}
     assert {e for k, e in extruders if k == "hinge"} == {"2"}
