@@ -378,7 +378,7 @@ _MATERIAL_COLOUR: dict[PartKind, str] = {"tile": "#E8A33D", "pad": "#2A5DB0"}
 def _number(values: NDArray[np.float64]) -> list[str]:
     """Fixed-precision text of floats, without negative zero."""
     rounded = np.round(values, 5) + 0.0
-    return [f"{v:.5f}".rstrip("0").rstrip(".") if v != 0 else "0" for v in rounded.ravel()]
+    return [f"{v:.5f}".rstrip("0").rstrip(".") if v else "0" for v in rounded.ravel().tolist()]
 
 
 def _object_xml(object_id: int, obj: Object3mf) -> tuple[str, list[tuple[int, int]]]:
@@ -393,12 +393,12 @@ def _object_xml(object_id: int, obj: Object3mf) -> tuple[str, list[tuple[int, in
         text = _number(part.vertices)
         vertex_blocks.append(
             "".join(
-                f'<vertex x="{text[3 * i]}" y="{text[3 * i + 1]}" z="{text[3 * i + 2]}"/>'
-                for i in range(len(part.vertices))
+                f'<vertex x="{x}" y="{y}" z="{z}"/>'
+                for x, y, z in zip(text[0::3], text[1::3], text[2::3], strict=True)
             )
         )
         material = 0 if part.kind == "tile" else 1
-        tri = part.triangles + base
+        tri = (part.triangles + base).tolist()  # Python ints: formatting numpy's is slow
         triangle_blocks.append(
             "".join(
                 f'<triangle v1="{a}" v2="{b}" v3="{c}" pid="1" p1="{material}"/>' for a, b, c in tri
