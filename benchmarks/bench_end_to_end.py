@@ -6,7 +6,7 @@ file) in a child process; the row holds its wall time, the CPU seconds of its pr
 ``print.3mf`` (all, and the most in one part), and, where ``prusa-slicer`` is on PATH, the wall
 and CPU time of slicing ``print.3mf`` with the CLI (the command line of the issue).
 Targets (2 cores): end to end <= 20 s; each STEP file <= 20 MB; slicing <= 60 s.
-``python benchmarks/bench_end_to_end.py`` prints the row and writes it to
+``python benchmarks/bench_end_to_end.py [--no-slice]`` prints the row and writes it to
 ``benchmarks/results.json`` as ``bench_end_to_end``; ``run.py --stages`` runs it with the other
 stage benchmarks.
 """
@@ -59,7 +59,7 @@ def _triangles(path: Path) -> tuple[int, int]:
     return sum(sizes), max(sizes, default=0)
 
 
-def run() -> list[dict[str, Any]]:
+def run(slice_print: bool = True) -> list[dict[str, Any]]:
     with tempfile.TemporaryDirectory(prefix="drawstring-bench-") as scratch:
         out = Path(scratch) / TARGET
         status, wall, cpu, rss = _timed(
@@ -89,7 +89,7 @@ def run() -> list[dict[str, Any]]:
             "slice_target_s": SLICE_TARGET_S,
         }
         slicer = shutil.which("prusa-slicer")
-        if slicer:
+        if slicer and slice_print:
             gcode = Path(scratch) / "print.gcode"
             command = [slicer, *SLICE_ARGS, str(fabrication / "print.3mf"), "-o", str(gcode)]
             status, wall, cpu, _ = _timed(command)
@@ -99,7 +99,7 @@ def run() -> list[dict[str, Any]]:
 
 
 def main() -> None:
-    rows = run()
+    rows = run(slice_print="--no-slice" not in sys.argv[1:])
     for key, value in rows[0].items():
         print(f"{key:30} {value}")
     path = HERE / "results.json"
