@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 
 from drawstring.cad.design import route_links
 from drawstring.cad.feature_common import channel_radius
-from drawstring.cad.kernel import tessellate
+from drawstring.cad.kernel import solid_checks, tessellate
 from drawstring.cad.magnets_labels import MagnetPair
 from drawstring.cad.paths import face_planes
 from drawstring.cad.tiles import apply_transform
@@ -35,22 +35,10 @@ if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fiel
     from drawstring.cad.dimensions import FeatureDimensions as Profile
 
 
-def _valid(solid: bd.Shape) -> bool:
-    try:
-        return bool(
-            isinstance(solid, bd.Solid)
-            and solid.is_valid
-            and solid.is_manifold
-            and solid.volume > 0.0
-        )
-    except Exception:  # the kernel failing on the shape: not a valid solid
-        return False
-
-
 def check_valid(solids: Sequence[bd.Shape]) -> NDArray[np.bool_]:
     """(n,) bool: each shape is one solid that passes BRepCheck, is closed and has volume > 0
     (False where the kernel raises while checking it)."""
-    return np.array([_valid(s) for s in solids], dtype=bool)
+    return np.array([solid_checks(s)[0] for s in solids], dtype=bool)
 
 
 def to_manifold(

@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import build123d as bd
 import numpy as np
@@ -34,6 +34,7 @@ from drawstring.cad.feature_common import feature_wall_mm
 from drawstring.cad.features import lift_chamfer
 from drawstring.cad.hinge_pins import PinPlan
 from drawstring.cad.hinge_plans import plan_all_pins, strip_hole_plans, strip_neighbours
+from drawstring.cad.kernel import solid_checks
 from drawstring.cad.magnets_labels import MagnetPair, magnet_pockets
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path
 from drawstring.cad.tile_build import HingeData, JobResult, TileJob, kernel_failure, run_jobs
@@ -69,6 +70,10 @@ class CadResult:
         pair of holes made (:func:`~drawstring.cad.hinge_parts.strip_hole_plan`; 0 for other
         interlocks).
     unlabelled : tiles whose number could not be engraved (too small for the digits).
+    tile_checks, pad_checks : ``(valid, volume mm^3)`` of each of ``tiles`` and ``pads``
+        (:func:`~drawstring.cad.kernel.solid_checks`), measured by the workers that built
+        them; empty, or not one per solid, where the solids were made otherwise (then
+        :meth:`checks` measures them).
     """
 
     pose: Pose
@@ -82,6 +87,19 @@ class CadResult:
     failed: tuple[tuple[int, str], ...] = field(default=())
     fasteners: int = 0
     unlabelled: tuple[int, ...] = field(default=())
+    tile_checks: tuple[tuple[bool, float], ...] = field(default=())
+    pad_checks: tuple[tuple[bool, float], ...] = field(default=())
+
+    def checks(self, part: Literal["tiles", "pads"]) -> tuple[NDArray[np.bool_], NDArray]:
+        """(n,) bool validity and (n,) float volumes (mm^3) of the tiles or the pads."""
+        solids, known = (
+            (self.tiles, self.tile_checks) if part == "tiles" else (self.pads, self.pad_checks)
+        )
+        facts = list(known) if len(known) == len(solids) else [solid_checks(s) for s in solids]
+        return (
+            np.array([valid for valid, _ in facts], dtype=bool),
+            np.array([volume for _, volume in facts], dtype=np.float64),
+        )
 
     def records(self) -> dict[str, object]:
         """JSON-ready summary: magnet pairs with polarity, pads per hinge, notes."""
@@ -201,6 +219,7 @@ def build_design_solids(
     )
     results = run_jobs(jobs, profile, hinge_data, workers)
     tiles, pads, unlabelled = _gather(results, inputs, labels, failed, notes, profile)
+    checks = _checks_of(results)
     transforms, residual = rigid_transforms(flat, inputs.assembled)
     if residual.size and residual.max() > 1e-3:
         notes.append(
@@ -209,9 +228,11 @@ def build_design_solids(
         )
     pad_hinge = np.array(sorted(pads), dtype=np.int64)
     pad_solids = tuple(pads[h] for h in pad_hinge)
+    tile_checks = tuple(checks[("tile", t)] for t in range(len(tiles)) if ("tile", t) in checks)
+    pad_checks = tuple(checks[("pad", int(h))] for h in pad_hinge if ("pad", int(h)) in checks)
     if pose == Pose.ASSEMBLED:
         tiles = tuple(move_solid(s, m) for s, m in zip(tiles, transforms, strict=True))
-        pad_solids, pad_hinge = (), np.zeros(0, dtype=np.int64)
+        pad_solids, pad_hinge, pad_checks = (), np.zeros(0, dtype=np.int64), ()
     for note in notes:  # returned in CadResult.notes, which the design lists
         log.info("%s", note)
     return CadResult(
@@ -226,7 +247,22 @@ def build_design_solids(
         tuple(failed),
         fasteners,
         tuple(int(t) for t in unlabelled),
+        tile_checks,
+        pad_checks,
     )
+
+
+def _checks_of(results: list[JobResult]) -> dict[tuple[str, int], tuple[bool, float]]:
+    """The workers' ``(valid, volume)`` of each tile (``("tile", tile)``) and hinge part
+    (``("pad", hinge)``)."""
+    checks: dict[tuple[str, int], tuple[bool, float]] = {}
+    for done in results:
+        if len(done.checks) != 1 + len(done.pads):
+            continue
+        checks[("tile", done.tile)] = done.checks[0]
+        for (hinge, _), fact in zip(done.pads, done.checks[1:], strict=True):
+            checks[("pad", int(hinge))] = fact
+    return checks
 
 
 @dataclass(frozen=True)

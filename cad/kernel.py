@@ -209,6 +209,23 @@ def tessellate(
     return vertices[first], faces[keep]
 
 
+def solid_checks(solid: bd.Shape) -> tuple[bool, float]:
+    """Whether ``solid`` is one solid that passes BRepCheck, is closed and has volume > 0
+    (False where the kernel raises while checking it), and its volume (mm^3; 0 when the
+    kernel fails on it)."""
+    try:
+        volume = float(solid.volume)
+    except Exception:  # the kernel failing on the shape: not a valid solid
+        return False, 0.0
+    try:
+        valid = bool(
+            isinstance(solid, bd.Solid) and solid.is_valid and solid.is_manifold and volume > 0.0
+        )
+    except Exception:
+        valid = False
+    return valid, volume
+
+
 def clean_solid(shape: bd.Shape) -> bd.Solid:
     """A fresh :class:`build123d.Solid` around ``shape.wrapped`` (drops history; pickles)."""
     return bd.Solid(shape.wrapped)

@@ -21,11 +21,16 @@ from drawstring.cad.features import build_tile, lift_bore, string_channel, trim_
 from drawstring.cad.hinge_frame import StripNeighbours
 from drawstring.cad.hinge_parts import HingeParts, hinge_face_footprints, hinge_pad
 from drawstring.cad.hinge_pins import HingePins
+from drawstring.cad.kernel import ensure_mesh, solid_checks
 from drawstring.cad.magnets_labels import label_engraving
 from drawstring.cad.tiles import relieved_tile_solid, tile_solid
 from drawstring.geometry.core import parallel
 from drawstring.geometry.core.errors import InputError, InternalError
 from drawstring.geometry.core.tile import HingeSide
+from drawstring.geometry.core.tolerances import (
+    CAD_INTERFERENCE_ANGLE_RAD,
+    CAD_INTERFERENCE_DEFLECTION_MM,
+)
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile
@@ -71,6 +76,9 @@ class JobResult:
     labelled: bool
     failed: list[str]
     dropped_mm3: float = 0.0  # pieces the features cut off the tile (the largest is kept)
+    #: (valid, volume) of the tile, then of each of ``pads`` (:func:`~drawstring.cad.kernel.
+    #: solid_checks`), measured here, in the worker, rather than serially by the caller.
+    checks: list[tuple[bool, float]] = field(default_factory=list)
 
 
 def kernel_failure(what: str, exc: Exception) -> None:
@@ -137,7 +145,17 @@ def build_job(job: TileJob, profile: Profile, hinge_data: tuple[HingeData, ...])
         )
     solid, dropped = _cut(job, tools)
     pads = _own_pads(job, profile, hinge_data, built_pads, tools.failed)
-    return JobResult(job.tile, solid, pads, notes, labelled, tools.failed, sum(dropped))
+    checks = []
+    for part in [solid, *(pad for _, pad in pads)]:
+        checks.append(solid_checks(part))
+        # the interference checks' mesh, made here in parallel; it travels with the pickle
+        try:
+            ensure_mesh(part, CAD_INTERFERENCE_DEFLECTION_MM, CAD_INTERFERENCE_ANGLE_RAD)
+        except Exception as exc:  # the checks mesh it again and count it as not valid
+            kernel_failure(f"tile {job.tile}: mesh", exc)
+    result = JobResult(job.tile, solid, pads, notes, labelled, tools.failed, sum(dropped))
+    result.checks = checks
+    return result
 
 
 def _hinge_parts(data: HingeData, profile: Profile, build_pad: bool) -> HingeParts:

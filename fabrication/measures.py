@@ -98,8 +98,8 @@ def measure_fabrication(
         lift_tiles,
     )
     tail = max(STRING_TAIL_MIN_MM, 0.1 * flat_route)
-    tile_volume = float(sum(s.volume for s in cad_flat.tiles))
-    pad_volume = float(sum(s.volume for s in cad_flat.pads))
+    tile_volume = float(sum(cad_flat.checks("tiles")[1]))
+    pad_volume = float(sum(cad_flat.checks("pads")[1]))
     if profile.process == Process.PLYWOOD_CNC:
         if panels is None:
             lifts = np.asarray(lift_tiles, dtype=np.int64).reshape(-1, 2)

@@ -26,6 +26,7 @@ import build123d as bd
 import numpy as np
 from numpy.typing import NDArray
 from OCP.BRepMesh import BRepMesh_IncrementalMesh
+from OCP.BRepTools import BRepTools
 from OCP.StlAPI import StlAPI_Writer
 
 from drawstring.fabrication.profiles import BED_MARGIN_MM
@@ -41,6 +42,12 @@ MESH_TOLERANCE_FRACTION = 0.007
 MESH_ANGLE_RAD = 0.4
 #: Below this many parts meshing runs in the calling process.
 PARALLEL_MIN_PARTS = 48
+#: Most triangles a part's mesh may have (a slicer's time and the 3MF's size grow with them):
+#: a part over its budget is meshed again with twice the tolerances, up to
+#: ``MESH_COARSEN_STEPS`` times.  A tile's flat faces (engraved digits included) take a few
+#: hundred; its round bores the rest.
+TRIANGLE_BUDGET: dict[str, int] = {"tile": 1600, "pad": 700}
+MESH_COARSEN_STEPS = 2
 
 PartKind = Literal["tile", "pad"]
 
@@ -87,18 +94,36 @@ _STL_RECORD = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attr
 
 
 def mesh_solid(solid: bd.Shape, name: str, kind: PartKind, tolerance: float = 0.05) -> PartMesh:
-    """Tessellate a solid into a closed oriented mesh and check that it is closed.
+    """Tessellate a solid into a closed oriented mesh within its :data:`TRIANGLE_BUDGET` and
+    check that it is closed.
 
-    OCCT meshes the faces (chordal ``tolerance`` mm, angular ``MESH_ANGLE_RAD``); the triangles
-    are read back through OCCT's binary STL writer (fast, and it orients each face's triangles
-    by the face orientation); coincident corners are merged (float32, exact for shared nodes).
+    OCCT meshes the faces afresh (chordal ``tolerance`` mm, angular ``MESH_ANGLE_RAD``; a finer
+    mesh the solid carries from the checks is dropped first, so the 3MF does not depend on
+    them); a mesh over the budget is made again with both tolerances doubled (at most
+    ``MESH_COARSEN_STEPS`` times).  The triangles are read back through OCCT's binary STL
+    writer (fast, and it orients each face's triangles by the face orientation); coincident
+    corners are merged (float32, exact for shared nodes).
 
     Raises
     ------
     RuntimeError
         When an edge is not shared by exactly two triangles with opposite directions.
     """
-    BRepMesh_IncrementalMesh(solid.wrapped, tolerance, False, MESH_ANGLE_RAD, False)
+    budget = TRIANGLE_BUDGET[kind]
+    for step in range(MESH_COARSEN_STEPS + 1):
+        scale = 2.0**step
+        mesh = _mesh_once(solid, name, kind, scale * tolerance, scale * MESH_ANGLE_RAD)
+        if len(mesh.triangles) <= budget:
+            break
+    return mesh
+
+
+def _mesh_once(
+    solid: bd.Shape, name: str, kind: PartKind, tolerance: float, angle: float
+) -> PartMesh:
+    """:func:`mesh_solid` at one pair of tolerances."""
+    BRepTools.Clean_s(solid.wrapped)
+    BRepMesh_IncrementalMesh(solid.wrapped, tolerance, False, angle, False)
     with tempfile.TemporaryDirectory(prefix="drawstring-mesh-") as folder:
         target = str(Path(folder) / "part.stl")
         writer = StlAPI_Writer()
@@ -361,7 +386,7 @@ _MATERIAL_COLOUR: dict[PartKind, str] = {"tile": "#E8A33D", "pad": "#2A5DB0"}
 def _number(values: NDArray[np.float64]) -> list[str]:
     """Fixed-precision text of floats, without negative zero."""
     rounded = np.round(values, 5) + 0.0
-    return [f"{v:.5f}".rstrip("0").rstrip(".") if v != 0 else "0" for v in rounded.ravel()]
+    return [f"{v:.5f}".rstrip("0").rstrip(".") if v else "0" for v in rounded.ravel().tolist()]
 
 
 def _object_xml(object_id: int, obj: Object3mf) -> tuple[str, list[tuple[int, int]]]:
@@ -376,12 +401,12 @@ def _object_xml(object_id: int, obj: Object3mf) -> tuple[str, list[tuple[int, in
         text = _number(part.vertices)
         vertex_blocks.append(
             "".join(
-                f'<vertex x="{text[3 * i]}" y="{text[3 * i + 1]}" z="{text[3 * i + 2]}"/>'
-                for i in range(len(part.vertices))
+                f'<vertex x="{x}" y="{y}" z="{z}"/>'
+                for x, y, z in zip(text[0::3], text[1::3], text[2::3], strict=True)
             )
         )
         material = 0 if part.kind == "tile" else 1
-        tri = part.triangles + base
+        tri = (part.triangles + base).tolist()  # Python ints: formatting numpy's is slow
         triangle_blocks.append(
             "".join(
                 f'<triangle v1="{a}" v2="{b}" v3="{c}" pid="1" p1="{material}"/>' for a, b, c in tri

@@ -54,7 +54,9 @@ def write_step(path: Path, parts: Sequence[tuple[str, bd.Shape, str]], label: st
     assembly = bd.Compound(children=children, label=label)
     with tempfile.TemporaryDirectory(prefix="drawstring-step-") as folder:
         scratch = Path(folder) / "out.step"
-        bd.export_step(assembly, scratch)
+        # No PCURVEs (each edge's curve again in the parameter space of both its faces):
+        # readers rebuild them, and they were half of the file.
+        bd.export_step(assembly, scratch, write_pcurves=False)
         text = scratch.read_text(encoding="utf-8", errors="replace")
     text = re.sub(
         r"(FILE_NAME\('[^']*',)'[^']*'",

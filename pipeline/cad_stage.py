@@ -383,17 +383,23 @@ def build_cad(result: Design) -> tuple[CadResult, CadResult]:
         move_solid(solid, motion) for solid, motion in zip(flat.tiles, flat.transforms, strict=True)
     )
     assembled = replace(
-        flat, pose=Pose.ASSEMBLED, tiles=moved, pads=(), pad_hinge=np.zeros(0, dtype=np.int64)
+        flat,
+        pose=Pose.ASSEMBLED,
+        tiles=moved,
+        pads=(),
+        pad_hinge=np.zeros(0, dtype=np.int64),
+        pad_checks=(),
     )
     return flat, assembled
 
 
-def _sunk_fraction(found: Any, pads: Sequence[Any]) -> float:
-    """Largest share of a hinge part's volume inside a tile (0 without hinge parts)."""
+def _sunk_fraction(found: Any, pad_volumes: NDArray[np.float64]) -> float:
+    """Largest share of a hinge part's volume (``pad_volumes``, mm^3, one per meshed pad)
+    inside a tile (0 without hinge parts)."""
     if found is None or not np.any(found.volumes > 0):
         return 0.0
     hit = np.flatnonzero(found.volumes > 0)
-    volumes = np.array([pads[int(j)].volume for j in found.pairs[hit, 1]])
+    volumes = pad_volumes[found.pairs[hit, 1]]
     return float(np.max(found.volumes[hit] / np.maximum(volumes, 1e-300)))
 
 
@@ -410,7 +416,6 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
     """
     from drawstring.cad.checks import (
         channel_continuity,
-        check_valid,
         clearances,
         interference,
         pockets_paired,
@@ -419,8 +424,8 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
 
     inputs = cad_inputs(result)
     flat_tiles = print_tiles(result)
-    valid_tiles = check_valid(cad_flat.tiles)
-    valid_pads = check_valid(cad_flat.pads)
+    valid_tiles = cad_flat.checks("tiles")[0]
+    valid_pads, pad_volumes = cad_flat.checks("pads")
     # One tessellation of each tile serves both interference checks.  A tile that meshes with
     # open seams, or that the kernel fails to mesh, counts as not valid (it cannot be exported
     # as a closed mesh either).
@@ -434,7 +439,7 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
     for index, solid in enumerate(cad_flat.pads):
         try:
             pad_meshes.append(to_manifold(solid))
-            meshed_pads.append(solid)
+            meshed_pads.append(index)
         except Exception:
             valid_pads[index] = False
     tiles_vs_tiles = interference(tile_meshes)
@@ -471,7 +476,9 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
         "interference_tiles_pads_max_mm3": round(
             tiles_vs_pads.max_volume if tiles_vs_pads is not None else 0.0, 6
         ),
-        "interference_tiles_pads_max_rel": round(_sunk_fraction(tiles_vs_pads, meshed_pads), 6),
+        "interference_tiles_pads_max_rel": round(
+            _sunk_fraction(tiles_vs_pads, pad_volumes[meshed_pads]), 6
+        ),
         "channel_opening_distance_max_mm": round(_max(channels.distances), 6),
         "channel_openings_missing": int(np.count_nonzero(~np.isfinite(channels.distances))),
         "channel_worst_links": _worst_links(channels.links, channels.distances),

@@ -43,7 +43,11 @@ from drawstring.fabrication.dxf import (  # noqa: E402
     text_strokes,
 )
 from drawstring.fabrication.exports import write_fabrication  # noqa: E402
-from drawstring.fabrication.mesh3mf import BED_MARGIN_MM, plan_print_jobs  # noqa: E402
+from drawstring.fabrication.mesh3mf import (  # noqa: E402
+    BED_MARGIN_MM,
+    TRIANGLE_BUDGET,
+    plan_print_jobs,
+)
 from drawstring.fabrication.printers import Printer, load_printer  # noqa: E402
 from drawstring.fabrication.profiles import (  # noqa: E402
     Profile,
@@ -300,6 +304,8 @@ def test_step_assemblies_read_back(built: Built, pose: str) -> None:
     np.testing.assert_allclose(volumes, expected, rtol=1e-6)
     text = path.read_text(encoding="utf-8")
     assert "'tile_0'" in text and "2000-01-01T00:00:00" in text
+    # edges carry their 3D curves only (readers rebuild the curves on faces)
+    assert "PCURVE" not in text
     if cad.pads:
         assert f"'hinge_{int(cad.pad_hinge[0])}'" in text
 
@@ -378,6 +384,8 @@ def test_3mf_meshes_and_extruders(built: Built) -> None:
             next_first = last + 1
             keys = {m.get("key"): m.get("value") for m in volume_el.findall("metadata")}
             extruders.append((keys["name"].split("_")[0], keys["extruder"]))
+            kind = "tile" if keys["name"].startswith("tile") else "pad"
+            assert last + 1 - first <= TRIANGLE_BUDGET[kind]  # a part's triangles, read back
         assert next_first == len(triangles)
     assert {e for k, e in extruders if k == "tile"} == {"1"}
     assert {e for k, e in extruders if k == "hinge"} == {"2"}
