@@ -298,9 +298,14 @@ def _splice_lift(
         ea = np.array(edges, dtype=np.int64)
         fa = np.array(fixed_path[:-1], dtype=np.int64)
         fb = np.array(fixed_path[1:], dtype=np.int64)
-        hit = segments_cross(
+        cross = segments_cross(
             pos[ea[:, 0]][:, None], pos[ea[:, 1]][:, None], pos[fa][None], pos[fb][None]
-        ).any(axis=1)
+        )
+        if rules.tile_part:  # only segments in one split part can cross (see _Rules)
+            edge_part = np.array([rules.tile_part.get(t, -1) for t in problem.edge_tile])
+            fixed_part = np.array([rules.tile_part.get(t, -1) for _, t in fixed_steps])
+            cross &= edge_part[:, None] == fixed_part[None, :]
+        hit = cross.any(axis=1)
         problem.banned = {int(e) for e in np.nonzero(hit)[0]}
     extra: dict[int, float] = {}
     for e, (u, v) in enumerate(edges):
