@@ -513,6 +513,20 @@ def test_nan_vertex(tmp_path):
     check_message(error, "non-finite", "2 vertices")
 
 
+@pytest.mark.parametrize("exponent", [996, -996, -1040])
+def test_coordinates_near_the_ends_of_the_float_range_give_the_same_target(tmp_path, exponent):
+    # near 1e300 squared distances overflow and near 1e-300 areas underflow; a power of two
+    # scales the mesh exactly before anything is computed (2^-1040 is subnormal)
+    V, F = grid_disk(6, 5)
+    write_obj(tmp_path / "plain.obj", V, F.tolist())
+    write_obj(tmp_path / "far.obj", np.ldexp(V, exponent), F.tolist())
+    plain = load_target(tmp_path / "plain.obj", 100.0)
+    far = load_target(tmp_path / "far.obj", 100.0)
+    np.testing.assert_array_equal(far.vertices, plain.vertices)
+    np.testing.assert_array_equal(far.faces, plain.faces)
+    assert any("scaled by 2^" in note for note in far.notes) and not plain.notes
+
+
 def test_face_indices_out_of_range(tmp_path):
     (tmp_path / "oor.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n")
     with pytest.raises(InputError) as error:
