@@ -21,6 +21,7 @@ from scipy.optimize import Bounds, LinearConstraint, milp
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.core.errors import DesignError
+from drawstring.geometry.core.native import native_output_silenced
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 
 log = logging.getLogger(__name__)
@@ -210,13 +211,19 @@ def _solve_cycle(
     n_e = len(edges)
     optimal = True
     for _round in range(500):
-        res = milp(
-            program.objective,
-            constraints=[program.matrix()],
-            integrality=program.integrality,
-            bounds=Bounds(program.lb, program.ub),
-            options={"node_limit": node_limit, "time_limit": MILP_SAFETY_TIME_S, "disp": False},
-        )
+        # HiGHS prints some of its progress with C printf, whatever disp says
+        with native_output_silenced():
+            res = milp(
+                program.objective,
+                constraints=[program.matrix()],
+                integrality=program.integrality,
+                bounds=Bounds(program.lb, program.ub),
+                options={
+                    "node_limit": node_limit,
+                    "time_limit": MILP_SAFETY_TIME_S,
+                    "disp": False,
+                },
+            )
         # milp's status 1: the time (or an iteration) limit; 4 with HiGHS's "solution limit":
         # the node limit
         timed_out = res.status == 1
