@@ -22,6 +22,7 @@ if TYPE_CHECKING:  # the pipeline loads numpy and scipy: not for --help
 def run_design(args: argparse.Namespace) -> int:
     """``drawstring design``: design, write the folder, say what was written; the exit status
     says whether the design meets its targets."""
+    from drawstring.geometry.core.native import STDOUT_FD, native_output_silenced
     from drawstring.output.folder import check_out_dir, default_out_dir
     from drawstring.output.folder import write_design as write
     from drawstring.pipeline.record import Progress
@@ -32,8 +33,11 @@ def run_design(args: argparse.Namespace) -> int:
     out = args.out if args.out is not None else default_out_dir(args.target)
     check_out_dir(out)  # refuse before hours of work, not after
     progress = Progress(quiet=args.quiet)
-    result = design(args.target, options, progress=progress)
-    folder = write(result, out)
+    # standard output is the "wrote" line's: what native libraries (HiGHS, OpenCASCADE) print
+    # there meanwhile stays off it, unless -v (drawstring's own progress goes to stderr)
+    with native_output_silenced((STDOUT_FD,)):
+        result = design(args.target, options, progress=progress)
+        folder = write(result, out)
     if not args.quiet:
         _print_written(result, folder)
     return _design_status(result, folder, args.strict)

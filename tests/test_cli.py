@@ -342,6 +342,27 @@ def test_an_internal_error_is_one_line_and_exit_status_1(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "internal error: the route handed" in err[0] and "-v" in err[0]
     assert not out.exists()
+    # -v shows the traceback, ending in the line that raised, before the one-line reason
+    assert main(["design", "saddle", *SMALL, "--out", str(out), "-v"]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback (most recent call last)" in err and 'raise InternalError("the route' in err
+    assert err.strip().splitlines()[-1].startswith("drawstring: internal error: the route")
+
+
+def test_any_other_exception_is_one_line_and_exit_status_1(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import drawstring.pipeline.run as pipeline
+
+    def broken(*args: object, **kwargs: object) -> None:
+        raise ValueError("Encountering floating point overflow")
+
+    monkeypatch.setattr(pipeline, "design", broken)
+    out = tmp_path / "out"
+    assert main(["design", "saddle", *SMALL, "--out", str(out)]) == 1
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "internal error: ValueError: Encountering floating point overflow" in line
+    assert "Traceback" not in line and not out.exists()
 
 
 def test_bad_profile_file_is_refused(tmp_path: Path) -> None:
@@ -731,7 +752,8 @@ def test_a_route_failure_found_late_is_one_line_without_solver_internals(
         monkeypatch.setattr(module, "MIN_GRID_SIDE", 1)
     out = tmp_path / "narrow"
     args = ["design", "saddle", "--grid", "2", "2", "--resolution", "1500", "--no-cad"]
-    assert main([*args, "--no-simulate", "--quiet", "--out", str(out)]) == 3
+    # nothing is written, so it is a refusal (exit 3 promises a written design)
+    assert main([*args, "--no-simulate", "--quiet", "--out", str(out)]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and "no closed string route exists" in lines[0]
     assert "use more tiles" in lines[0] and "HiGHS" not in lines[0] and "Status" not in lines[0]
