@@ -519,7 +519,7 @@ def test_layout_misses_name_the_flat_layout_targets_above_their_tolerance() -> N
     from drawstring.pipeline.record import Design
 
     def misses(**measured: object) -> list[str]:
-        return Design.layout_misses(SimpleNamespace(measured=measured))  # type: ignore[arg-type]
+        return Design.layout_misses(SimpleNamespace(measured=measured))
 
     # at the tolerance is a pass; the surface distance never counts
     assert misses(flat_edge_error_max_mm=1e-3, hinge_gap_in_plane_max_mm=1e-3) == []
@@ -563,7 +563,7 @@ def test_the_fix_for_a_missed_layout_target_names_tiles_and_a_split_bound_that_s
             profile=SimpleNamespace(min_gap_angle_deg=12.0),
             layout_misses=lambda: misses,
         )
-        return closer_fit(design)  # type: ignore[arg-type]
+        return closer_fit(design)
 
     assert fix(150, 1.034009) == (
         "try more tiles (e.g. --tiles 300) or a --max-scale-factor below 1.03, this design's "
@@ -594,7 +594,7 @@ def test_strict_exits_0_without_warnings(tmp_path: Path, monkeypatch: pytest.Mon
     real = pipeline.design
 
     def clean(*args: object, **kwargs: object) -> pipeline.Design:
-        return dataclasses.replace(real(*args, **kwargs), warnings=())  # type: ignore[arg-type]
+        return dataclasses.replace(real(*args, **kwargs), warnings=())
 
     monkeypatch.setattr(pipeline, "design", clean)
     out = tmp_path / "clean"
@@ -669,7 +669,7 @@ def test_an_output_folder_that_cannot_be_renamed_is_refused_up_front(
     def refuse(src: object, dst: object) -> None:
         if Path(str(src)) == out:
             raise PermissionError(1, "Operation not permitted", str(src))
-        real_rename(src, dst)  # type: ignore[arg-type]
+        real_rename(src, dst)
 
     monkeypatch.setattr(os, "rename", refuse)
     assert main(["design", "saddle", *SMALL, "--no-simulate", "--out", str(out)]) == 2
@@ -699,7 +699,7 @@ def test_a_failed_rename_into_place_is_one_line_and_leaves_nothing_behind(
     def refuse_staging(src: object, dst: object) -> None:
         if str(src).endswith(".tmp"):
             raise OSError(28, "No space left on device", str(src))
-        real_rename(src, dst)  # type: ignore[arg-type]
+        real_rename(src, dst)
 
     monkeypatch.setattr(os, "rename", refuse_staging)
     capsys.readouterr()
@@ -786,7 +786,7 @@ def test_facts_the_design_lists_are_not_repeated_as_log_lines(
 
     def stuck(*args: object, **kwargs: object) -> object:
         if not first:
-            first.append(real_simulate(*args, **kwargs))  # type: ignore[arg-type]
+            first.append(real_simulate(*args, **kwargs))
         return dataclasses.replace(first[0], deployed=False)  # type: ignore[type-var]
 
     real_select = pipeline.select_lift_points
@@ -794,7 +794,7 @@ def test_facts_the_design_lists_are_not_repeated_as_log_lines(
     def failing(*args: object, **kwargs: object) -> object:
         if kwargs.get("deploy_check") is None:  # the stand-in
             kwargs["deploy_check"] = lambda _gaps: False
-        return real_select(*args, **kwargs)  # type: ignore[arg-type]
+        return real_select(*args, **kwargs)
 
     monkeypatch.setattr(pipeline, "simulate_stage", stuck)
     monkeypatch.setattr(pipeline, "select_lift_points", failing)
@@ -938,7 +938,7 @@ def test_a_design_folder_that_cannot_be_moved_aside_is_refused_up_front(
     def no_move(src: object, dst: object) -> None:
         if Path(str(src)) == out and Path(str(dst)).parent != out.parent:
             raise PermissionError(13, "Permission denied", str(src))
-        real_rename(src, dst)  # type: ignore[arg-type]
+        real_rename(src, dst)
 
     monkeypatch.setattr(os, "rename", no_move)
     ran = []
@@ -1037,23 +1037,35 @@ def test_corners_are_the_files_own_vertex_ids_whatever_loading_repairs(
 def test_a_scale_factor_no_split_can_mend_exits_3_naming_the_fixes(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    # the scanned head: no cut that keeps every piece on the outer boundary brings its
-    # largest part's area-scale ratio (3.30) under the bound
+    # the scanned head at 50 tiles: no sequence of cuts that keeps every piece on the outer
+    # boundary brings its largest part's area-scale ratio (2.80) under the bound
     out = tmp_path / "spot"
     mesh = Path(__file__).parent / "data" / "spothead.obj"
-    args = ["design", str(mesh), "--no-cad", "--no-simulate", "--quiet", "--out", str(out)]
-    assert main(args) == 3
+    args = ["design", str(mesh), "--tiles", "50", "--no-cad", "--no-simulate", "--quiet"]
+    assert main([*args, "--out", str(out)]) == 3
     (line,) = capsys.readouterr().err.strip().splitlines()
-    assert "scale factor 3.301 exceeds" in line and "use more tiles" in line
+    assert "scale factor 2.801 exceeds" in line and "use more tiles" in line
     assert "--corners" in line and str(out) in line
     doc = json.loads((out / "design.json").read_text())
-    assert any(p.startswith("scale factor 3.301 exceeds") for p in doc["problems"])
-    # its one lift point cannot be reached: the warning does not send the user to others
-    lifts = doc["metrics"]["lift_points"]
-    missed = doc["metrics"]["route"]["lift_gaps_missed"]
-    assert missed and len(missed) == lifts["count"] == 1
-    (warning,) = [w for w in doc["warnings"] if "cannot reach lift gap" in w]
+    assert any(p.startswith("scale factor 2.801 exceeds") for p in doc["problems"])
+
+
+def test_a_lift_point_the_route_cannot_reach_is_named_without_sending_to_others() -> None:
+    from types import SimpleNamespace
+
+    from drawstring.fabrication.profiles import load_profile
+    from drawstring.pipeline.measure import _string_warnings
+
+    profile = load_profile("fdm-dual")
+    options = SimpleNamespace(size_mm=profile.default_size_mm)
+    one = SimpleNamespace(lift_gaps=np.array([7]))
+    missed = SimpleNamespace(lifts_missed=np.array([7]))
+    (warning,) = _string_warnings(options, profile, one, missed, 1.0, 1.0)
+    assert "cannot reach lift gap(s) [7]" in warning
     assert "other lift points" not in warning and "no lift point is left" in warning
+    two = SimpleNamespace(lift_gaps=np.array([3, 7]))
+    (warning,) = _string_warnings(options, profile, two, missed, 1.0, 1.0)
+    assert "pull at the other lift points" in warning
 
 
 def test_a_mesh_files_repairs_are_shown_not_only_recorded(
