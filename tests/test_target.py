@@ -483,6 +483,11 @@ def test_file_without_faces(tmp_path):
         ("bad.obj", "v 0 zero 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", ["'zero' is not a number"]),
         ("bad.obj", "# c\nv 0 0 0\nv 1 1 zz\nf 1 2 3\n", ["line 3:", "'zz' is not a number"]),
         ("bad.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n", ["truncated"]),
+        (
+            "bad.off",
+            "OFF\n4 1 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n3 1 3 2\n",
+            ["1 more lines", "counts are wrong"],
+        ),
         ("bad.ply", "ply\nformat ascii 1.0\nelement vertex 3\nend\n", ["not a PLY file"]),
         ("bad.stl", "not an stl\n", ["neither binary STL"]),
         (

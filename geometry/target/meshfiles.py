@@ -169,6 +169,12 @@ def _read_off(data: bytes) -> tuple[FloatArray, IntArray]:
             f"header promises {n_vertices} vertices and {n_faces} faces but the file is "
             "shorter; it is truncated, re-export it"
         )
+    if len(body) > n_vertices + n_faces:
+        # counts too small would leave faces (or vertices read as faces) out unnoticed
+        raise InputError(
+            f"header promises {n_vertices} vertices and {n_faces} faces but the file has "
+            f"{len(body) - n_vertices - n_faces} more lines; its counts are wrong, re-export it"
+        )
     vertices = _to_vertex_array([row[:3] for row in body[:n_vertices]], "vertex")
     polygons = []
     for row in body[n_vertices : n_vertices + n_faces]:
