@@ -27,6 +27,7 @@ from drawstring.fabrication.profiles import (
     MAX_WEIGHT,
     MIN_GRID_SIDE,
     MIN_TILES,
+    SCHEMA,
     Profile,
 )
 from drawstring.geometry.assembled.shape import AssembledResult
@@ -89,6 +90,12 @@ STAGES = (
     "simulate",
 )  # fmt: skip
 HINGE_STRATEGIES: tuple[HingeStrategy, ...] = tuple(HingeStrategy)
+#: ``--thickness`` bounds, mm: those of a profile's ``tile.thickness_mm``.
+MIN_THICKNESS_MM = SCHEMA["thickness_mm"].low or 0.5
+MAX_THICKNESS_MM = SCHEMA["thickness_mm"].high or 500.0
+#: Smallest ``--size``, mm: a part below it cannot be made, and far below it the arithmetic
+#: underflows (at 1e-300 mm a sound mesh's faces have zero area).
+MIN_SIZE_MM = 1.0
 
 
 @dataclass(frozen=True)
@@ -148,11 +155,20 @@ class DesignOptions:
             raise InputError(
                 f"--resolution must be between 100 and 1000000 triangles (got {self.resolution})"
             )
+        if self.size_mm is not None and self.size_mm < MIN_SIZE_MM:
+            raise InputError(f"--size must be at least {MIN_SIZE_MM:g} mm (got {self.size_mm:g})")
         if self.thickness_mm is not None and not (
             math.isfinite(self.thickness_mm) and self.thickness_mm > 0
         ):
             raise InputError(
                 f"--thickness must be a positive number of millimetres (got {self.thickness_mm})"
+            )
+        if self.thickness_mm is not None and not (
+            MIN_THICKNESS_MM <= self.thickness_mm <= MAX_THICKNESS_MM
+        ):
+            raise InputError(
+                f"--thickness must be from {MIN_THICKNESS_MM:g} to {MAX_THICKNESS_MM:g} mm, as a "
+                f"profile's tile.thickness_mm (got {self.thickness_mm:g})"
             )
         if self.min_gap_angle_deg is not None and not 0 <= self.min_gap_angle_deg <= 60:
             # as a profile's tile.min_gap_angle_deg: gaps that open at least theta absorb a tile

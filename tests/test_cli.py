@@ -251,6 +251,9 @@ def test_bad_meshes_exit_2_with_one_line_and_no_folder(case: str, tmp_path: Path
         (["saddle", "--thickness", "-1"], "--thickness"),
         (["saddle", "--thickness", "nan"], "--thickness"),
         (["saddle", "--thickness", "inf"], "--thickness"),
+        # far outside the ranges the arithmetic holds for (the SVD fails, face areas underflow)
+        (["saddle", "--thickness", "1e-300"], "--thickness must be from 0.5 to 500 mm"),
+        (["saddle", "--size", "1e-300"], "--size must be at least 1 mm"),
         # Too thin for the profile's string channel: refused before any stage runs.
         (["saddle", "--thickness", "1"], "too thin for the fdm-dual profile's string channel"),
         (["saddle", "--profile", "laser-epdm", "--thickness", "2"], "use --thickness 3."),
