@@ -82,21 +82,24 @@ def _print_written(result: Design, folder: Path) -> None:
 
 
 def _design_status(result: Design, folder: Path, strict: bool) -> int:
-    """The exit status of a written design, with its one-line reason on standard error."""
+    """The exit status of a written design, with its one-line reason on standard error: 3 for
+    problems (a measure over the profile's fabrication tolerance among them), 4 with
+    ``--strict`` for a missed quality target or any warning, else 0."""
+    misses = result.layout_misses()
+    fix = "drop --no-co-optimize" if not result.options.co_optimize else closer_fit(result)
     if result.problems:
         listed = "; ".join(result.problems)
+        tolerance = any("fabrication tolerance" in p for p in result.problems)
         print(
             f"drawstring: design problem: {listed} (the design was written to {folder}; "
-            "see design.json 'problems')",
+            f"see design.json 'problems'{f'; {fix}' if tolerance and misses else ''})",
             file=sys.stderr,
         )
         return EXIT_DESIGN
-    misses = result.layout_misses()
-    if misses:
-        fix = "drop --no-co-optimize" if not result.options.co_optimize else closer_fit(result)
+    if strict and misses:
         print(
-            f"drawstring: accuracy target missed: {'; '.join(misses)} (the design was written "
-            f"to {folder}; see design.json 'warnings'; {fix})",
+            f"drawstring: accuracy target missed (--strict): {'; '.join(misses)} (the design "
+            f"was written to {folder}; see design.json 'quality'; {fix})",
             file=sys.stderr,
         )
         return EXIT_WARNINGS

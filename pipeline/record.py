@@ -259,6 +259,8 @@ class Design:
     notes: tuple[str, ...] = ()
     problems: tuple[str, ...] = ()
     warnings: tuple[str, ...] = ()
+    #: design.json's ``quality`` (:func:`~drawstring.pipeline.quality.quality_levels`)
+    quality: dict[str, Any] = field(default_factory=dict)
 
     @property
     def tiles_assembled(self) -> NDArray[np.float64]:
@@ -271,15 +273,16 @@ class Design:
         return self.hinge_layout.tiles
 
     def layout_misses(self) -> list[str]:
-        """The flat-layout accuracy targets of issue 4 this design misses, one line each.
+        """The flat-layout accuracy targets this design misses, one line each.
 
         These are the flat edge error and the hinge gap, both at most ``1e-3`` mm: what the
-        flat layout, the co-optimization and the hinge layout control, and what the CLI turns
-        into exit status 4 (:data:`~drawstring.app.cli.EXIT_WARNINGS`) even without
-        ``--strict``.  A hinge gap that meets the target seen from above but not in 3D (the
-        thickness difference of two tiles at a bottom hinge, where the conical
-        co-optimization and tighter tilings could not close it) is named as such: ``--hinges
-        top`` closes it.  The surface distance stays a plain warning.
+        flat layout, the co-optimization and the hinge layout control; quality levels, which
+        the CLI turns into exit status 4 (:data:`~drawstring.app.status.EXIT_WARNINGS`) with
+        ``--strict`` (over the profile's fabrication tolerance they are problems).  A hinge
+        gap that meets the target seen from above but not in 3D (the thickness difference of
+        two tiles at a bottom hinge, where the conical co-optimization and tighter tilings
+        could not close it) is named as such: ``--hinges top`` closes it.  The surface
+        distance stays a plain warning.
         """
         misses = []
         measured = self.measured
@@ -339,6 +342,7 @@ class Design:
                 "tile_cells": self.tiling.linkage.tile_cells.tolist(),
             },
             "metrics": self.metrics(),
+            "quality": self.quality,
             "notes": list(self.notes),
             "problems": list(self.problems),
             "warnings": list(self.warnings),

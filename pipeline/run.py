@@ -35,6 +35,7 @@ from drawstring.geometry.tiling.linkage import gap_centroids
 from drawstring.pipeline.layout_stage import ShapedLayout, fabricated_tiles, shape_and_layout
 from drawstring.pipeline.measure import cad_problems, cad_warnings, design_rigidity, measure_design
 from drawstring.pipeline.policy import DEFAULT_POLICY, LayoutPolicy
+from drawstring.pipeline.quality import quality_levels, tolerance_problems
 from drawstring.pipeline.record import (
     Design,
     DesignOptions,
@@ -243,7 +244,8 @@ def _design(
     if resolved.simulate:
         # the run of this route, already made by the sweep
         simulation = deployment.simulated(chosen)
-        measured["simulation"] = _simulation_block(simulation, deployment, progress, warnings)
+        measured["simulation"] = _simulation_block(simulation, deployment, progress, problems)
+    problems.extend(tolerance_problems(measured, profile.tolerance_mm))
     result = Design(
         options=resolved,
         profile=profile,
@@ -261,6 +263,7 @@ def _design(
         notes=tuple(notes),
         problems=tuple(problems),
         warnings=tuple(warnings),
+        quality=quality_levels(measured, profile.tolerance_mm, loaded.bbox_diagonal_mm),
     )
     if resolved.cad:
         result = with_cad(result, progress)
@@ -444,10 +447,10 @@ def _simulation_block(
     simulation: SimulationResult,
     deployment: _Deployment,
     progress: Progress,
-    warnings: list[str],
+    problems: list[str],
 ) -> dict[str, Any]:
     """design.json's ``metrics.simulation`` for the deployment of the chosen route; one that
-    got stuck adds a warning to ``warnings``."""
+    got stuck (the linkage does not deploy) adds a problem to ``problems``."""
     block = jsonable(simulation.to_json())
     # Wall-clock numbers go to timings_s, so everything else in design.json is reproducible.
     block.pop("time_s", None)
@@ -455,7 +458,7 @@ def _simulation_block(
     runs = len(deployment.runs)
     block["runs"] = runs
     if not simulation.deployed:
-        warnings.append(
+        problems.append(
             "the deployment simulation got stuck ("
             f"{len(simulation.open_gaps)} route gaps open, tiles up to "
             f"{simulation.final_max_deviation_mm:.2f} mm from the assembled shape, worst "
