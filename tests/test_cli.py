@@ -770,24 +770,29 @@ def test_a_size_outside_the_profiles_range_is_a_warning(tmp_path: Path) -> None:
     assert any(w.startswith("--size 600 mm is outside the 80-450 mm") for w in warnings)
 
 
-def test_a_size_too_small_for_the_thickness_is_refused_with_both_fixes(tmp_path: Path) -> None:
+def test_a_size_too_small_for_the_thickness_is_refused_with_a_checked_retry(
+    tmp_path: Path,
+) -> None:
     # Tiles thicker than the target's curvature radius turn inside out; found in the assembled
-    # stage, refused in one line naming --size and --thickness, with no folder written.
+    # stage, refused in one line ending in "retry with:" and a complete set of options that
+    # passed the same check, keeping what the user set (--size 5, --grid 6 4) and changing
+    # what was left at its default (--thickness); nothing is written.  Following it gets past
+    # that check: the design is written (this tiny 5 mm saddle then misses the fabrication
+    # tolerance, which the retry search does not check).
     out = tmp_path / "small"
     done = run_cli("design", "saddle", *SMALL, "--no-simulate", "--size", "5", "--out", str(out))
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "--size 5 mm is too small for 6 mm thick tiles" in lines[0]
-    fixes = re.search(r"use --size (\d+) or more, --thickness ([\d.]+) or less", lines[0])
-    assert fixes, lines[0]
-    assert not out.exists()
-    # Both fixes are real: a larger size than 5 mm, a thinner tile than 6 mm (the numbers move
-    # by a millimetre with the numerical libraries' versions), and the size it suggests works
-    # (the geometry scales with --size).
-    size, thickness = int(fixes.group(1)), float(fixes.group(2))
-    assert 5 < size <= 30 and 0 < thickness < 6
-    args = ["design", "saddle", *SMALL, "--no-simulate", "--size", str(size), "--out", str(out)]
-    assert main(args) == 0
+    retry = re.search(r"; retry with: (.+)$", lines[0])
+    assert retry, lines[0]
+    options = retry.group(1).split()
+    assert options[:4] == ["--size", "5", "--grid", "6"] and options[5] == "--thickness"
+    assert 0.5 <= float(options[6]) < 6 and not out.exists()
+    args = ["design", "saddle", *SMALL, "--no-simulate", *options, "--out", str(out)]
+    assert main(args) in (0, 3)
+    doc = json.loads((out / "design.json").read_text())
+    assert doc["options"]["size_mm"] == 5 and not any("folded" in p for p in doc["problems"])
 
 
 def test_a_route_failure_found_late_is_one_line_without_solver_internals(

@@ -40,6 +40,7 @@ from drawstring.geometry.target.builtins import BUILTIN_TARGETS
 from drawstring.geometry.target.meshfiles import (
     SUPPORTED_EXTENSIONS,
     coincident_remap,
+    exact_rescale,
     read_mesh,
 )
 
@@ -285,7 +286,7 @@ def _clean_disk_mesh(
             f"{_count(int(non_finite.sum()), 'vertex', 'vertices')}; fix or remove them and "
             "export again"
         )
-    V, rescaled = _exact_rescale(V)
+    V, rescaled = exact_rescale(V)
     if rescaled:
         notes.append(rescaled)
     keep, remap = coincident_remap(V)
@@ -342,31 +343,6 @@ def _clean_disk_mesh(
             ) from None
         raise
     return np.ascontiguousarray(V), np.ascontiguousarray(F), tuple(notes), where
-
-
-#: Largest coordinate magnitudes used as read; outside them the mesh is scaled first.
-SAFE_COORDINATE_RANGE = (1e-100, 1e100)
-
-
-def _exact_rescale(vertices: FloatArray) -> tuple[FloatArray, str | None]:
-    """Vertices scaled by a power of two when their magnitude lies near the ends of the float
-    range, and a note saying so (None when left as read).
-
-    Products and squared distances of coordinates near 1e300 overflow (scipy's k-d tree in
-    :func:`~drawstring.geometry.target.meshfiles.coincident_remap` raises on it) and those of
-    coordinates near 1e-300 underflow to zero (every face would seem to have zero area).  A
-    power of two scales every float exactly, and the mesh is scaled to ``--size`` afterwards
-    anyway, so the design is the one of the same mesh at a sensible scale.
-    """
-    largest = float(np.abs(vertices).max()) if vertices.size else 0.0
-    low, high = SAFE_COORDINATE_RANGE
-    if largest == 0.0 or low <= largest <= high:
-        return vertices, None
-    exponent = -math.frexp(largest)[1]  # largest * 2**exponent lies in [0.5, 1)
-    return np.ldexp(vertices, exponent), (
-        f"coordinates as large as {largest:.3g} scaled by 2^{exponent} before any computation "
-        "(exact; the mesh is scaled to --size anyway)"
-    )
 
 
 def canonical_order(
