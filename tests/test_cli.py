@@ -6,6 +6,7 @@ import json
 import re
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -286,6 +287,102 @@ def test_bad_options_exit_2(args: list[str], words: str, tmp_path: Path) -> None
     assert len(lines) == 1, done.stderr
     assert words in lines[0]
     assert not out.exists()
+
+
+def _grid_obj(n: int = 4) -> str:
+    """A flat n x n grid of vertices in OBJ, two triangles a cell."""
+    rows = [f"v {i} {j} 0" for j in range(n) for i in range(n)]
+    for j in range(n - 1):
+        for i in range(n - 1):
+            a = j * n + i + 1
+            rows += [f"f {a} {a + 1} {a + n + 1}", f"f {a} {a + n + 1} {a + n}"]
+    return "\n".join(rows) + "\n"
+
+
+def _truncated_stl(path: Path) -> Path:
+    import struct
+
+    header = b"binary stl".ljust(80, b" ") + struct.pack("<I", 4)  # 4 triangles promised
+    path.write_bytes(header + bytes(50))  # one given
+    return path
+
+
+def _profile_with(path: Path, extra: str) -> Path:
+    text = (PROFILES_DIR / "fdm-dual.toml").read_text()
+    return write(path, text.replace("[tile]\n", f"[tile]\n{extra}\n"))
+
+
+#: Malformed input a user may bring, each refused in one line with no traceback: (file to
+#: write and its maker, extra options, words of the refusal).
+MALFORMED: dict[str, tuple[str, Callable[[Path], Path], list[str], str]] = {
+    "junk obj": ("j.obj", lambda p: (p.write_bytes(bytes(range(256)) * 8), p)[1], [], "j.obj"),
+    "junk stl": ("j.stl", lambda p: (p.write_bytes(b"\x00\xff" * 700), p)[1], [], "j.stl"),
+    "junk ply": ("j.ply", lambda p: (p.write_bytes(b"\x89PNG" + bytes(300)), p)[1], [], "j.ply"),
+    "junk off": ("j.off", lambda p: (p.write_bytes(bytes(range(200))), p)[1], [], "j.off"),
+    "inf": ("i.obj", lambda p: write(p, "v 0 0 0\nv 1 0 inf\nv 0 1 0\nf 1 2 3\n"), [], "finite"),
+    "non-manifold edge": (
+        "fin.obj",
+        # a fin: a third triangle on the grid's inner edge 6-11
+        lambda p: write(p, _grid_obj() + "v 1.5 1.5 3\nf 6 11 17\n"),
+        [],
+        "fin.obj",
+    ),
+    "bad ply header": (
+        "h.ply",
+        lambda p: write(p, "ply\nformat ascii 1.0\nelement vertex abc\nend_header\n"),
+        [],
+        "h.ply",
+    ),
+    "off counts more": (
+        "m.off",
+        lambda p: write(p, "OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n"),
+        [],
+        "m.off",
+    ),
+    "off counts fewer": (
+        "f.off",
+        lambda p: write(p, "OFF\n4 1 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n3 1 3 2\n"),
+        [],
+        "f.off",
+    ),
+    "truncated stl": ("t.stl", _truncated_stl, [], "t.stl"),
+    "unknown profile key": (
+        "g.obj",
+        lambda p: write(p, _grid_obj()),
+        ["--profile", "@mine.toml"],
+        "unknown key tile.colour",
+    ),
+    "bad profile value": (
+        "g.obj",
+        lambda p: write(p, _grid_obj()),
+        ["--profile", "@tol.toml"],
+        "tolerance_mm",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(MALFORMED))
+def test_malformed_input_exits_2_in_one_line_without_a_traceback(case: str, tmp_path: Path) -> None:
+    name, make, extra, words = MALFORMED[case]
+    mesh = make(tmp_path / name)
+    _profile_with(tmp_path / "mine.toml", 'colour = "red"')
+    text = (PROFILES_DIR / "fdm-dual.toml").read_text()
+    write(tmp_path / "tol.toml", text.replace("tolerance_mm = 0.05", "tolerance_mm = -1.0"))
+    extra = [str(tmp_path / a[1:]) if a.startswith("@") else a for a in extra]
+    out = tmp_path / "out"
+    done = run_cli("design", str(mesh), *SMALL, *extra, "--out", str(out))
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in done.stderr, done.stderr
+    assert words in lines[0]
+    assert not out.exists()
+
+
+def test_an_output_path_under_a_file_is_refused_before_any_work(tmp_path: Path) -> None:
+    blocker = write(tmp_path / "file", "x")
+    done = run_cli("design", "saddle", *SMALL, "--out", str(blocker / "design"))
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert "Traceback" not in done.stderr and blocker.read_text() == "x"
 
 
 def test_the_working_folder_is_not_an_output_folder(
