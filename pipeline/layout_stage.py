@@ -124,13 +124,18 @@ def shape_and_layout(
     progress: Progress,
     *,
     policy: LayoutPolicy,
+    check_first: Callable[[Tiling, AssembledResult], None] | None = None,
 ) -> ShapedLayout:
     """Tile, shape and lay out the target (stages tiling to hinges), tiling again with a
     tighter split bound (``policy.retile_attempts``) while the layout misses its accuracy
-    targets; the most accurate result is kept (see ``policy.retile_gain``)."""
+    targets; the most accurate result is kept (see ``policy.retile_gain``).  ``check_first``
+    may refuse the first tiling's eq.-1 shape (raising) before any layout."""
     run = _Retiling(loaded, flat_map, options, progress, policy)
     bound = split_bound(options)
     first_tiling = run.tiled(bound)
+    if check_first is not None:  # (the eq.-1 shape is kept for the stages)
+        shape = _assembled_shape(first_tiling, loaded, options, progress, run.shapes)
+        check_first(first_tiling, shape)
     if first_tiling.scale_factor_max - 1.0 < policy.retile_min_share * (bound - 1.0):
         # its area scale hardly varies: more splits are not what it lacks
         return run.shaped(first_tiling, bound, spare_core=True)
@@ -192,13 +197,9 @@ class _Retiling:
         """Stage tiling: the flattened target tiled with split bound ``bound``."""
         with self.progress.stage("tiling"):
             return tile_surface(
-                self.loaded.vertices,
-                self.loaded.faces,
-                self.flat_map.uv,
-                tiles=self.options.tiles,
-                grid=self.options.grid,
-                max_scale_factor=bound,
-            )
+                self.loaded.vertices, self.loaded.faces, self.flat_map.uv,
+                tiles=self.options.tiles, grid=self.options.grid, max_scale_factor=bound,
+            )  # fmt: skip
 
     def shaped(
         self, tiling: Tiling, bound: float, progress: Progress | None = None, **kwargs: Any

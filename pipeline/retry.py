@@ -21,14 +21,15 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from drawstring.fabrication.profiles import MAX_SIZE_MM, MIN_TILES, Profile
-from drawstring.geometry.assembled.shape import optimize_assembled
+from drawstring.geometry.assembled.shape import AssembledResult, optimize_assembled
 from drawstring.geometry.core.errors import InputError, ThicknessError
 from drawstring.geometry.flatten.conformal import flatten
 from drawstring.geometry.target.surface import load_target
-from drawstring.geometry.tiling.grid import tile_surface
+from drawstring.geometry.tiling.grid import Tiling, tile_surface
+from drawstring.pipeline.cad_stage import ChannelShortfall, boundary_channel_shortfall
 
 if TYPE_CHECKING:
     from drawstring.pipeline.record import DesignOptions, ResolvedOptions
@@ -289,3 +290,88 @@ def checked_retry(
         kept.append(f"--grid {asked.grid[0]} {asked.grid[1]}")
     text = " ".join([*kept, text])
     return Retry(option, value, text, checker.runs, seconds), tried
+
+
+def channel_fits(profile: Profile) -> Callable[[Any, Any], bool]:
+    """The boundary channel check as a retry search's predicate on (tiling, eq.-1 shape)."""
+
+    def fits(tiling: Any, shape: Any) -> bool:
+        boundary = tiling.linkage.boundary_tile
+        return boundary_channel_shortfall(profile, shape.tiles, boundary) is None
+
+    return fits
+
+
+def channel_check(profile: Profile) -> Callable[[Tiling, AssembledResult], None]:
+    """The boundary channel check on the first tiling's eq.-1 tiles, raising
+    :class:`~drawstring.pipeline.cad_stage.ChannelShortfall` (for ``shape_and_layout``'s
+    ``check_first``)."""
+
+    def check(tiling: Tiling, shape: AssembledResult) -> None:
+        short = boundary_channel_shortfall(profile, shape.tiles, tiling.linkage.boundary_tile)
+        if short is not None:
+            have, need = short
+            raise ChannelShortfall(
+                f"boundary tiles' side faces as narrow as {have:.2f} mm where the string must "
+                f"run, and the string channel needs {need:.2f} mm with its walls",
+                have,
+                need,
+            )
+
+    return check
+
+
+def checked_size_refusal(
+    exc: ThicknessError,
+    target: str,
+    asked: DesignOptions,
+    options: ResolvedOptions,
+    profile: Profile,
+) -> InputError:
+    """The one-line refusal of tiles that turn inside out or fold, ending in a ``retry with:``
+    whose options passed this same check (and with CAD the boundary channel check, which
+    comes next), or saying in plain words that no size, thickness or tile count tried keeps
+    the tiles whole."""
+    extra = channel_fits(profile) if options.cad else None
+    retry, tried = checked_retry(target, asked, options, profile, extra=extra)
+    what = (
+        f"--size {options.size_mm:g} mm is too small for {exc.thickness:g} mm thick tiles: "
+        f"{exc.inverted} tile(s) turn inside out or fold where this target curves tightly"
+    )
+    if retry is None:
+        return InputError(
+            f"{what}, and no {', '.join(tried)} keeps every tile whole: the shape has parts "
+            "that curve tighter than tiles this thick can follow (thin fingers, horns or a "
+            "nearly closed opening); design a flatter or cut-down part of it"
+        )
+    log.info("retry search: %s passed after %d checks", retry.text, retry.checks)
+    return InputError(f"{what}; retry with: {retry.text}")
+
+
+def checked_channel_refusal(
+    exc: ChannelShortfall,
+    target: str,
+    asked: DesignOptions,
+    options: ResolvedOptions,
+    profile: Profile,
+) -> InputError:
+    """The one-line refusal of boundary tiles too small for the string channel (found on the
+    eq.-1 tiles), ending in a ``retry with:`` whose --size or --tiles passed the same
+    check."""
+    retry, tried = checked_retry(
+        target, asked, options, profile, extra=channel_fits(profile),
+        options_searched=("size", "tiles"),
+    )  # fmt: skip
+    count = (
+        f"--grid {options.grid[0]} {options.grid[1]}" if options.grid else f"{options.tiles} tiles"
+    )
+    what = (
+        f"--size {options.size_mm:g} mm with {count} gives tiles too small for the "
+        f"{profile.name} profile: {exc}"
+    )
+    if retry is None:
+        return InputError(
+            f"{what}, and no {', '.join(tried)} gives every boundary tile room for it: parts "
+            "of this shape are too narrow for the profile's string channel"
+        )
+    return InputError(f"{what}; retry with: {retry.text}")

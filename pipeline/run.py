@@ -31,6 +31,7 @@ from drawstring.geometry.simulate.result import SimulationResult
 from drawstring.geometry.target.surface import Target, load_target
 from drawstring.geometry.tiling.grid import parts_in_place
 from drawstring.geometry.tiling.linkage import gap_centroids
+from drawstring.pipeline.cad_stage import ChannelShortfall
 from drawstring.pipeline.checks import check_grid, mesh_corners
 from drawstring.pipeline.layout_stage import ShapedLayout, fabricated_tiles, shape_and_layout
 from drawstring.pipeline.measure import cad_problems, cad_warnings, design_rigidity, measure_design
@@ -44,6 +45,7 @@ from drawstring.pipeline.record import (
     jsonable,
     rounded,
 )
+from drawstring.pipeline.retry import channel_check, checked_channel_refusal, checked_size_refusal
 from drawstring.pipeline.route_stage import NamedCheck, plan_lift_route
 
 log = logging.getLogger(__name__)
@@ -85,37 +87,6 @@ def resolve_options(options: DesignOptions, profile: Profile) -> ResolvedOptions
         if too_thin is not None:
             raise too_thin
     return resolved
-
-
-def checked_size_refusal(
-    exc: ThicknessError,
-    target: str,
-    asked: DesignOptions,
-    options: ResolvedOptions,
-    profile: Profile,
-) -> InputError:
-    """The one-line refusal of tiles that turn inside out or fold, ending in a ``retry with:``
-    whose options passed this same check (:func:`~drawstring.pipeline.retry.checked_retry`),
-    or saying in plain words that no size, thickness or tile count tried keeps the tiles
-    whole."""
-    from drawstring.pipeline.retry import checked_retry
-
-    retry, tried = checked_retry(target, asked, options, profile)
-    what = (
-        f"--size {options.size_mm:g} mm is too small for {exc.thickness:g} mm thick tiles: "
-        f"{exc.inverted} tile(s) turn inside out or fold where this target curves tightly"
-    )
-    if retry is None:
-        return InputError(
-            f"{what}, and no {', '.join(tried)} keeps every tile whole: the shape has parts "
-            "that curve tighter than tiles this thick can follow (thin fingers, horns or a "
-            "nearly closed opening); design a flatter or cut-down part of it"
-        )
-    log.info(
-        "retry search: %s passed after %d checks in %.1f s", retry.text, retry.checks,
-        retry.seconds,
-    )  # fmt: skip
-    return InputError(f"{what}; retry with: {retry.text}")
 
 
 #: BLAS threads while designing.  A multi-threaded BLAS sums in an order that depends on its
@@ -252,14 +223,20 @@ def _laid_out(
     policy: LayoutPolicy,
     asked: tuple[str, DesignOptions],
 ) -> ShapedLayout:
-    """Stages tiling to hinges (:func:`shape_and_layout`), a size too small for the tiles'
-    thickness refused in one line (:func:`checked_size_refusal`)."""
+    """Stages tiling to hinges (:func:`shape_and_layout`); tiles that turn inside out, or
+    (with CAD) boundary tiles too small for the string channel, refused seconds in with a
+    checked ``retry with:`` (:mod:`~drawstring.pipeline.retry`)."""
+    source, given = asked
+    profile = load_profile(options.profile)
+    check = channel_check(profile) if options.cad else None
     try:
-        return shape_and_layout(loaded, flat_map, options, progress, policy=policy)
+        return shape_and_layout(
+            loaded, flat_map, options, progress, policy=policy, check_first=check
+        )
     except ThicknessError as exc:
-        source, given = asked
-        profile = load_profile(options.profile)
         raise checked_size_refusal(exc, source, given, options, profile) from exc
+    except ChannelShortfall as exc:
+        raise checked_channel_refusal(exc, source, given, options, profile) from exc
 
 
 class _Deployment:

@@ -892,6 +892,26 @@ def test_a_size_too_small_for_the_thickness_is_refused_with_a_checked_retry(
     assert doc["options"]["size_mm"] == 5 and not any("folded" in p for p in doc["problems"])
 
 
+def test_boundary_tiles_too_small_for_the_string_channel_are_refused_before_the_layout(
+    tmp_path: Path,
+) -> None:
+    # With CAD, every boundary tile needs two side faces wide enough for the string channel;
+    # asked on the first eq.-1 tiles, before the layout, the route and the simulation.  The
+    # refusal's retry keeps the user's --grid and gives a --size that passes the same check.
+    out = tmp_path / "tiny"
+    args = ["design", "saddle", "--grid", "10", "8", "--resolution", "1500", "--no-simulate"]
+    done = run_cli(*args, "--size", "20", "--quiet", "--out", str(out))
+    assert done.returncode == 2, done.stderr
+    (line,) = done.stderr.strip().splitlines()
+    assert "boundary tiles' side faces as narrow as" in line and not out.exists()
+    retry = re.search(r"; retry with: --grid 10 8 --size (\d+)$", line)
+    assert retry, line
+    size = int(retry.group(1))
+    assert 20 < size <= 30
+    done = run_cli(*args, "--size", str(size), "--quiet", "--out", str(out))
+    assert "boundary tiles' side faces" not in done.stderr and "Traceback" not in done.stderr
+
+
 def test_a_route_failure_found_late_is_one_line_without_solver_internals(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
