@@ -4,7 +4,7 @@
 (plain JSON values, so that it can cross to another process or machine) and a ``report``
 callback for its stages, and returns a :class:`Outcome` whose exit status is the one
 ``drawstring design`` would exit with: 0 written, within the fabrication tolerance and
-deploying, 2 refused, 3 written with problems or no design at all, 4 (strict only) a quality
+deploying, 2 refused or no design at all, 3 written with problems, 4 (strict only) a quality
 target missed (written), 1 an internal error.
 """
 
@@ -35,7 +35,8 @@ log = logging.getLogger(__name__)
 DESIGN_DIR = "design"
 
 #: Job statuses.  ``done``: a design folder was written (exit status 0, 3 or 4); ``refused``:
-#: the input was refused (2), nothing written; ``failed``: no design (3 without a folder, or 1).
+#: the input was refused (2) or no design came of it, nothing written; ``failed``: no design
+#: for another reason (a bug, exit 1, or the job's process ended).
 Status = Literal["queued", "running", "done", "failed", "refused", "cancelled", "interrupted"]
 FINISHED: tuple[Status, ...] = ("done", "failed", "refused", "cancelled", "interrupted")
 
@@ -179,7 +180,8 @@ def run_job(spec: JobSpec, report: Report) -> Outcome:
     except InputError as exc:
         return Outcome("refused", 2, spec.shown_text(str(exc)))
     except DesignError as exc:
-        return Outcome("failed", 3, spec.shown_text(f"design problem: {exc}"))
+        # nothing was written: a refusal, as on the command line (3 promises a written design)
+        return Outcome("refused", 2, spec.shown_text(str(exc)))
     except Exception as exc:  # a bug in drawstring: one line here, the traceback in the log
         traceback.print_exc()
         text = spec.shown_text(f"{type(exc).__name__}: {exc}")
