@@ -198,7 +198,8 @@ def _print_profile(name: str, size_mm: float | None, tiles_wanted: int | None) -
 
 def run_simulate(args: argparse.Namespace) -> int:
     """``drawstring simulate``: the deployment simulation added to a written design folder,
-    and its verdict in one line."""
+    and its verdict in one line; exit status 3 (a problem in design.json) when it does not
+    deploy."""
     import json
 
     from drawstring.output.folder_simulation import simulate_folder
@@ -215,6 +216,13 @@ def run_simulate(args: argparse.Namespace) -> int:
             f"{mm_text(block['final_max_deviation_mm'])} of the assembled shape; wrote "
             f"{folder / 'deploy.gif'}"
         )
+    if not block["deployed"]:
+        print(
+            "drawstring: design problem: the linkage does not deploy in the simulation "
+            f"({verdict}; see {folder / 'design.json'} 'problems')",
+            file=sys.stderr,
+        )
+        return EXIT_DESIGN
     return 0
 
 

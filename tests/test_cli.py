@@ -545,6 +545,34 @@ def test_simulate_an_existing_design(
     assert "design.json&#x27;s &#x27;options&#x27; is an array, not an object" in page
 
 
+def test_simulate_lists_a_linkage_that_does_not_deploy_as_a_problem_and_exits_3(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import dataclasses
+
+    from drawstring.output import folder_simulation
+
+    out = tmp_path / "d"
+    args = ["design", "saddle", "--grid", "5", "4", "--resolution", "1500", "--no-cad"]
+    assert main([*args, "--no-simulate", "--quiet", "--out", str(out)]) == 0
+    real = folder_simulation.simulate_stage
+
+    def stuck(*a: object, **k: object) -> object:
+        return dataclasses.replace(real(*a, **k), deployed=False)  # type: ignore[type-var]
+
+    monkeypatch.setattr(folder_simulation, "simulate_stage", stuck)
+    capsys.readouterr()
+    assert main(["simulate", str(out), "--quiet"]) == 3
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("drawstring: design problem: the linkage does not deploy")
+    problems = json.loads((out / "design.json").read_text())["problems"]
+    assert [p for p in problems if p.startswith("the deployment simulation got stuck")]
+    # simulated again and deployed: the problem goes
+    monkeypatch.setattr(folder_simulation, "simulate_stage", real)
+    assert main(["simulate", str(out), "--quiet"]) == 0
+    assert json.loads((out / "design.json").read_text())["problems"] == []
+
+
 def test_simulate_repeats_the_designs_own_run_exactly(tmp_path: Path) -> None:
     # tiles.npz keeps the tiles at full precision, so simulating the folder again reproduces
     # the design's simulation byte for byte (from the OBJ files, rounded, it drifted).
