@@ -945,9 +945,9 @@ def test_a_route_failure_found_late_is_one_line_without_solver_internals(
 ) -> None:
     # A grid two cells wide has no closed string route.  --grid refuses it up front; with that
     # check lifted, the route stage's own refusal is one plain line too.
-    from drawstring.pipeline import record, run
+    from drawstring.pipeline import checks, record
 
-    for module in (record, run):  # the options' check and the check on the flattened target
+    for module in (record, checks):  # the options' check and the check on the flattened target
         monkeypatch.setattr(module, "MIN_GRID_SIDE", 1)
     out = tmp_path / "narrow"
     args = ["design", "saddle", "--grid", "2", "2", "--resolution", "1500", "--no-cad"]
