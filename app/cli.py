@@ -21,12 +21,12 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import logging  # noqa: E402
 import sys  # noqa: E402
+import traceback  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
 
 from drawstring.app import commands, print_commands  # noqa: E402
 from drawstring.app.parser import build_parser  # noqa: E402
 from drawstring.app.status import (  # noqa: E402
-    EXIT_DESIGN,
     EXIT_INPUT,
     EXIT_INTERNAL,
     EXIT_INTERRUPTED,
@@ -90,13 +90,18 @@ def _run_command(parser: argparse.ArgumentParser, args: argparse.Namespace) -> i
         print(f"drawstring: error: {exc}", file=sys.stderr)
         return EXIT_INPUT
     except DesignError as exc:
-        print(f"drawstring: design problem: {exc}", file=sys.stderr)
-        return EXIT_DESIGN
-    except InternalError as exc:
-        logging.getLogger(__name__).debug("internal error", exc_info=True)
+        # raised before anything was written (no closed string route, for one): exit 3
+        # promises a written design, so this is a refusal
+        print(f"drawstring: error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    except Exception as exc:  # a bug: one line, the traceback with -v
+        if args.verbose:
+            traceback.print_exc(file=sys.stderr)
+        what = str(exc) if isinstance(exc, InternalError) else f"{type(exc).__name__}: {exc}"
         print(
-            f"drawstring: internal error: {exc} (a bug in drawstring; run with -v for the "
-            "traceback and report it)",
+            f"drawstring: internal error: {what} (a bug in drawstring; "
+            f"{'the traceback is above' if args.verbose else 'run with -v for the traceback'}"
+            " and report it)",
             file=sys.stderr,
         )
         return EXIT_INTERNAL

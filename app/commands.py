@@ -25,6 +25,7 @@ if TYPE_CHECKING:  # the pipeline loads numpy and scipy: not for --help
 def run_design(args: argparse.Namespace) -> int:
     """``drawstring design``: design, write the folder, say what was written; the exit status
     says whether the design meets its targets."""
+    from drawstring.geometry.core.native import STDOUT_FD, native_output_silenced
     from drawstring.output.folder import check_out_dir, default_out_dir
     from drawstring.output.folder import write_design as write
     from drawstring.pipeline.record import Progress
@@ -35,7 +36,12 @@ def run_design(args: argparse.Namespace) -> int:
     out = args.out if args.out is not None else default_out_dir(args.target)
     check_out_dir(out)  # refuse before hours of work, not after
     progress = Progress(quiet=args.quiet)
-    with _cad_tasks(getattr(args, "scheduler", None), options.cad, args.verbose) as where:
+    # standard output is the "wrote" line's: what native libraries (HiGHS, OpenCASCADE) print
+    # there meanwhile stays off it, unless -v (drawstring's own progress goes to stderr)
+    with (
+        _cad_tasks(getattr(args, "scheduler", None), options.cad, args.verbose) as where,
+        native_output_silenced((STDOUT_FD,)),
+    ):
         if where and not args.quiet:
             print(f"drawstring: the CAD stage's tiles run on {where}", file=sys.stderr)
         result = design(args.target, options, progress=progress)
@@ -101,21 +107,24 @@ def _print_written(result: Design, folder: Path) -> None:
 
 
 def _design_status(result: Design, folder: Path, strict: bool) -> int:
-    """The exit status of a written design, with its one-line reason on standard error."""
+    """The exit status of a written design, with its one-line reason on standard error: 3 for
+    problems (a measure over the profile's fabrication tolerance among them), 4 with
+    ``--strict`` for a missed quality target or any warning, else 0."""
+    misses = result.layout_misses()
+    fix = "drop --no-co-optimize" if not result.options.co_optimize else closer_fit(result)
     if result.problems:
         listed = "; ".join(result.problems)
+        tolerance = any("fabrication tolerance" in p for p in result.problems)
         print(
             f"drawstring: design problem: {listed} (the design was written to {folder}; "
-            "see design.json 'problems')",
+            f"see design.json 'problems'{f'; {fix}' if tolerance and misses else ''})",
             file=sys.stderr,
         )
         return EXIT_DESIGN
-    misses = result.layout_misses()
-    if misses:
-        fix = "drop --no-co-optimize" if not result.options.co_optimize else closer_fit(result)
+    if strict and misses:
         print(
-            f"drawstring: accuracy target missed: {'; '.join(misses)} (the design was written "
-            f"to {folder}; see design.json 'warnings'; {fix})",
+            f"drawstring: accuracy target missed (--strict): {'; '.join(misses)} (the design "
+            f"was written to {folder}; see design.json 'quality'; {fix})",
             file=sys.stderr,
         )
         return EXIT_WARNINGS
@@ -219,7 +228,8 @@ def _print_profile(name: str, size_mm: float | None, tiles_wanted: int | None) -
 
 def run_simulate(args: argparse.Namespace) -> int:
     """``drawstring simulate``: the deployment simulation added to a written design folder,
-    and its verdict in one line."""
+    and its verdict in one line; exit status 3 (a problem in design.json) when it does not
+    deploy."""
     import json
 
     from drawstring.output.folder_simulation import simulate_folder
@@ -236,6 +246,13 @@ def run_simulate(args: argparse.Namespace) -> int:
             f"{mm_text(block['final_max_deviation_mm'])} of the assembled shape; wrote "
             f"{folder / 'deploy.gif'}"
         )
+    if not block["deployed"]:
+        print(
+            "drawstring: design problem: the linkage does not deploy in the simulation "
+            f"({verdict}; see {folder / 'design.json'} 'problems')",
+            file=sys.stderr,
+        )
+        return EXIT_DESIGN
     return 0
 
 

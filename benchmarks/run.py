@@ -4,7 +4,8 @@ Run with ``.venv/bin/python benchmarks/run.py`` (``--quick`` for a smaller sweep
 and writes ``benchmarks/results.json`` with the machine's core count (``--fine`` adds the whole
 pipeline at 1600 tiles on three built-ins: the 1600-tile deployment target of issue 6;
 ``--fine-layout`` the same without the simulation, for issue 4's 1600-tile layout target, in a
-few minutes).
+few minutes; ``--corpus`` runs only the real-mesh corpus of ``../shared/meshes/corpus/``, see
+``bench_corpus.py``).
 Targets (2 cores): flattening the 34k-triangle face under 1 s; tiling under 0.5 s at 1600 tiles;
 the per-stage targets of the other issues are listed next to their rows.
 """
@@ -36,6 +37,8 @@ from drawstring.geometry.target.surface import load_target  # noqa: E402
 from drawstring.geometry.tiling.grid import tile_surface  # noqa: E402
 
 FACE = HERE / "data" / "face.obj"
+#: The real-mesh corpus, beside the repository (``--corpus``).
+CORPUS = HERE.parent.parent / "shared" / "meshes" / "corpus"
 TARGETS_S = {"flatten_face": 1.0, "tiling_1600": 0.5}
 #: Flat layout, co-optimization and hinge layout together, by tile count (issue 4), seconds.
 LAYOUT_TARGET_S = {200: 2.0, 1600: 10.0}
@@ -218,7 +221,25 @@ def main() -> None:
         help="run every pipeline row this many times and keep the fastest layout "
         "(the machine's speed varies by 10-20 percent from run to run)",
     )
+    parser.add_argument(
+        "--corpus",
+        action="store_true",
+        help="run only the real-mesh corpus (../shared/meshes/corpus/, skipped when absent): "
+        "every mesh at the defaults, its 'retry with:' followed once (minutes per mesh)",
+    )
+    parser.add_argument(
+        "--corpus-dir", type=Path, default=CORPUS, help=f"the corpus folder (default {CORPUS})"
+    )
+    parser.add_argument(
+        "--corpus-args",
+        default="",
+        help="options added to every corpus design, e.g. '--no-cad'",
+    )
+    parser.add_argument("--corpus-only", nargs="*", default=[], help="these corpus meshes only")
     args = parser.parse_args()
+    if args.corpus:
+        run_corpus(args.corpus_dir, args.corpus_args.split(), args.corpus_only)
+        return
     names = list(BUILTIN_TARGETS)[:2] if args.quick else list(BUILTIN_TARGETS)
     counts = (100, 400) if args.quick else (100, 400, 1600)
     rows = foundation_rows(counts, names)
@@ -274,6 +295,31 @@ def main() -> None:
             **extras,
         }
     )
+    path.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
+
+
+def run_corpus(folder: Path, extra: list[str], only: list[str]) -> None:
+    """The corpus rows, merged by mesh into ``results.json``'s ``corpus``, with the success
+    count (exit 0 and deploying, directly or through the retry)."""
+    if not folder.is_dir():
+        print(f"no corpus at {folder}: skipped (give --corpus-dir)")
+        return
+    from bench_corpus import corpus_rows
+
+    rows = corpus_rows(folder, extra, only)
+    path = HERE / "results.json"
+    results: dict[str, Any] = json.loads(path.read_text()) if path.exists() else {}
+    kept = {row["mesh"]: row for row in results.get("corpus", {}).get("rows", [])}
+    kept.update({row["mesh"]: row for row in rows})
+    merged = [kept[name] for name in sorted(kept)]
+    succeeded = sum(1 for row in merged if row.get("success"))
+    results["corpus"] = {
+        "meshes": len(sorted(folder.glob("*.obj"))),
+        "run": len(merged),
+        "succeeded": succeeded,
+        "rows": merged,
+    }
+    print(f"corpus: {succeeded} of {len(merged)} meshes run end in exit 0 and deploy")
     path.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
 
 

@@ -90,6 +90,7 @@ SCHEMA: dict[str, Field] = {
     "default_tiles": Field("design", "default_tiles", int, MIN_TILES, MAX_TILES, "tiles"),
     "size_min_mm": Field("design", "size_min_mm", float, 10.0, MAX_SIZE_MM, "mm"),
     "size_max_mm": Field("design", "size_max_mm", float, 10.0, MAX_SIZE_MM, "mm"),
+    "tolerance_mm": Field("design", "tolerance_mm", float, 0.001, 10.0, "mm", default=0.05),
     "thickness_mm": Field("tile", "thickness_mm", float, 0.5, 500.0, "mm"),
     "min_gap_angle_deg": Field("tile", "min_gap_angle_deg", float, 0.0, 60.0, "deg"),
     "tile_material": Field("tile", "material", str),
@@ -142,6 +143,8 @@ class Profile:
     default_tiles: int
     size_min_mm: float
     size_max_mm: float
+    #: the fabrication tolerance: a flat, hinge or contact measure above it is a problem
+    tolerance_mm: float
     thickness_mm: float
     min_gap_angle_deg: float
     tile_material: str

@@ -41,6 +41,7 @@ DESIGN_JSON_TYPES: dict[str, type] = {
     "profile": str,
     "linkage": dict,
     "metrics": dict,
+    "quality": dict,
     "notes": list,
     "problems": list,
     "warnings": list,

@@ -206,8 +206,21 @@ def _record(doc: dict[str, Any], simulation: SimulationResult, progress: Progres
             "the simulation ran afterwards (drawstring simulate) with these lift points: "
             "see metrics.simulation"
         )
+    # a linkage that does not deploy is a problem, as when the design itself simulates
+    problems = [p for p in doc.get("problems", []) if not str(p).startswith(STUCK)]
+    if not simulation.deployed:
+        problems.append(
+            f"{STUCK} ({len(simulation.open_gaps)} route gaps open, tiles up to "
+            f"{simulation.final_max_deviation_mm:.2f} mm from the assembled shape; see "
+            "design.json metrics.simulation)"
+        )
+    doc["problems"] = problems
     doc.setdefault("timings_s", {})["simulate"] = round(progress.timings["simulate"], 3)
     doc["timings_s"]["simulate_per_step"] = round(per_step, 3)
+
+
+#: How a stuck simulation's problem line starts (the design's own, and this command's).
+STUCK = "the deployment simulation got stuck"
 
 
 def _write(root: Path, doc: dict[str, Any], simulation: SimulationResult, steps: IntArray) -> None:

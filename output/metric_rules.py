@@ -295,6 +295,15 @@ def _format_value(value: Any) -> str:
     return str(value)
 
 
+def within_tolerance(design: dict[str, Any], name: str) -> bool:
+    """Whether design.json's ``quality`` puts metric ``name`` off its accuracy target but
+    within the profile's fabrication tolerance: a quality miss (amber), not a failure."""
+    quality = design.get("quality")
+    measures = quality.get("measures") if isinstance(quality, dict) else None
+    entry = measures.get(name) if isinstance(measures, dict) else None
+    return isinstance(entry, dict) and entry.get("level") == "tolerance"
+
+
 def evaluate_metrics(design: dict[str, Any]) -> list[MetricRow]:
     """Every metric of design.json with its target and mark (known names) or no mark."""
     rows = []
@@ -315,6 +324,6 @@ def evaluate_metrics(design: dict[str, Any]) -> list[MetricRow]:
                     passed = False
         # a value that is not finite is a broken measurement: failed, whatever the target
         finite = not isinstance(value, int | float) or math.isfinite(float(value))
-        advisory = rule is not None and rule.advisory and finite
+        advisory = rule is not None and (rule.advisory or within_tolerance(design, name)) and finite
         rows.append(MetricRow(name, _format_value(value), meaning, target, passed, advisory))
     return rows

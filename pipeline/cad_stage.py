@@ -279,6 +279,43 @@ def thickness_refusal(profile: Profile, thickness: float) -> InputError | None:
     )
 
 
+class ChannelShortfall(InputError):
+    """Boundary tiles too small for the string channel, found on the first tiling's eq.-1
+    tiles before the layout (:func:`boundary_channel_shortfall`): ``have`` and ``need`` in
+    mm."""
+
+    def __init__(self, message: str, have: float, need: float) -> None:
+        super().__init__(message)
+        self.have = have
+        self.need = need
+
+
+def boundary_channel_shortfall(
+    profile: Profile, tiles: NDArray[np.float64], boundary: NDArray[np.bool_]
+) -> tuple[float, float] | None:
+    """(have, need) mm when some boundary tile has fewer than two side faces wide enough for
+    the profile's string channel, else None.
+
+    The route passes every boundary tile, in through one side face and out through another,
+    so each needs two faces at least :func:`~drawstring.cad.features.channel_min_face_mm` wide
+    at mid-thickness.  Asked on the eq.-1 tiles right after the assembled stage, seconds in,
+    it refuses what :func:`feature_fit_refusal` would refuse only after the layout, the route
+    and the simulation.  Necessary, not sufficient: that later check still runs on the faces
+    the route uses."""
+    from drawstring.cad.features import channel_min_face_mm
+
+    need = channel_min_face_mm(profile)
+    corners = tiles[:, _SIDE_EDGES]  # (T, 4 sides, 4 corners, 3)
+    widths = 0.5 * (
+        np.linalg.norm(corners[:, :, 1] - corners[:, :, 0], axis=2)
+        + np.linalg.norm(corners[:, :, 3] - corners[:, :, 2], axis=2)
+    )
+    second = np.sort(widths, axis=1)[:, 2][np.asarray(boundary, dtype=bool)]
+    if not len(second) or float(second.min()) >= need - 1e-9:
+        return None
+    return float(second.min()), need
+
+
 def feature_fit_refusal(result: Design) -> InputError | None:
     """The one-line refusal of tiles too small or too thin for the profile's string channel,
     lift bores or hinge strips, or too large for its print bed (:func:`bed_refusal`), or None

@@ -24,6 +24,7 @@ over the top faces, kept or not: one point of the fit frontier.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
@@ -37,7 +38,7 @@ from drawstring.geometry.flat.conical import vertex_stars
 from drawstring.geometry.flatten.conformal import Flattening
 from drawstring.geometry.hinges.sides import dual_hinge_faces
 from drawstring.geometry.target.surface import Target
-from drawstring.geometry.tiling.grid import tile_surface
+from drawstring.geometry.tiling.grid import Tiling, tile_surface
 from drawstring.geometry.tiling.linkage import Linkage
 from drawstring.pipeline.fit_quality import surface_distances
 from drawstring.pipeline.layout_stage import ShapedLayout, shape_and_layout, split_bound
@@ -54,13 +55,18 @@ def fitted_layout(
     *,
     policy: LayoutPolicy,
     weights_given: bool,
+    check_first: Callable[[Tiling, AssembledResult], None] | None = None,
 ) -> ShapedLayout:
     """Stages tiling to hinges (:func:`~.layout_stage.shape_and_layout`) on the assembled
     shape ``--fit`` asks for; ``weights_given``: ``--weights`` was given, and its eq. 1 is
-    laid out whatever ``--fit`` says.  The result's ``fit`` is ``metrics.fit``."""
+    laid out whatever ``--fit`` says; ``check_first`` may refuse the first tiling's shape
+    before any layout (:func:`~.layout_stage.shape_and_layout`).  The result's ``fit`` is
+    ``metrics.fit``."""
     paper = Eq1Weights.of(options.weights)
     if options.fit == "paper" or weights_given:
-        laid_out = shape_and_layout(loaded, flat_map, options, progress, policy=policy)
+        laid_out = shape_and_layout(
+            loaded, flat_map, options, progress, policy=policy, check_first=check_first
+        )
         used = "weights" if weights_given else "paper"
         return replace(laid_out, fit={"used": used, "eq1": paper.to_json()})
     close = policy.close_fit
@@ -79,7 +85,7 @@ def fitted_layout(
     if defect <= policy.close_conical_defect_max_deg:
         trial = shape_and_layout(
             loaded, flat_map, options, progress, policy=policy, shapes=shapes,
-            first_tiling=first_tiling,
+            first_tiling=first_tiling, check_first=check_first,
         )  # fmt: skip
         accuracy = trial.accuracy_mm
         distances = surface_distances(trial.assembled.tiles, loaded)
@@ -99,8 +105,9 @@ def fitted_layout(
             f"than {policy.close_conical_defect_max_deg:g}), where they would not meet in depth"
         )
     laid_out = shape_and_layout(
-        loaded, flat_map, options, progress, policy=policy, first_tiling=first_tiling
-    )
+        loaded, flat_map, options, progress, policy=policy, first_tiling=first_tiling,
+        check_first=check_first,
+    )  # fmt: skip
     note = (
         f"fit: the close assembled shape (eq. 1 surface weight {close.surface:g}, face samples "
         f"{close.samples:g}) was not kept: {reason}; the paper's weights were used"

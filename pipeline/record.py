@@ -28,6 +28,7 @@ from drawstring.fabrication.profiles import (
     MAX_WEIGHT,
     MIN_GRID_SIDE,
     MIN_TILES,
+    SCHEMA,
     Profile,
 )
 from drawstring.geometry.assembled.shape import AssembledResult
@@ -93,6 +94,12 @@ HINGE_STRATEGIES: tuple[HingeStrategy, ...] = tuple(HingeStrategy)
 #: ``--fit``: the closest assembled shape every layout target allows, or the paper's eq. 1
 FitChoice = Literal["close", "paper"]
 FIT_CHOICES: tuple[FitChoice, ...] = ("close", "paper")
+#: ``--thickness`` bounds, mm: those of a profile's ``tile.thickness_mm``.
+MIN_THICKNESS_MM = SCHEMA["thickness_mm"].low or 0.5
+MAX_THICKNESS_MM = SCHEMA["thickness_mm"].high or 500.0
+#: Smallest ``--size``, mm: a part below it cannot be made, and far below it the arithmetic
+#: underflows (at 1e-300 mm a sound mesh's faces have zero area).
+MIN_SIZE_MM = 1.0
 
 
 @dataclass(frozen=True)
@@ -158,11 +165,20 @@ class DesignOptions:
             raise InputError(
                 f"--resolution must be between 100 and 1000000 triangles (got {self.resolution})"
             )
+        if self.size_mm is not None and self.size_mm < MIN_SIZE_MM:
+            raise InputError(f"--size must be at least {MIN_SIZE_MM:g} mm (got {self.size_mm:g})")
         if self.thickness_mm is not None and not (
             math.isfinite(self.thickness_mm) and self.thickness_mm > 0
         ):
             raise InputError(
                 f"--thickness must be a positive number of millimetres (got {self.thickness_mm})"
+            )
+        if self.thickness_mm is not None and not (
+            MIN_THICKNESS_MM <= self.thickness_mm <= MAX_THICKNESS_MM
+        ):
+            raise InputError(
+                f"--thickness must be from {MIN_THICKNESS_MM:g} to {MAX_THICKNESS_MM:g} mm, as a "
+                f"profile's tile.thickness_mm (got {self.thickness_mm:g})"
             )
         if self.min_gap_angle_deg is not None and not 0 <= self.min_gap_angle_deg <= 60:
             # as a profile's tile.min_gap_angle_deg: gaps that open at least theta absorb a tile
@@ -266,6 +282,8 @@ class Design:
     warnings: tuple[str, ...] = ()
     #: the printer the tiles are printed on (None where nothing is printed)
     printer: Printer | None = None
+    #: design.json's ``quality`` (:func:`~drawstring.pipeline.quality.quality_levels`)
+    quality: dict[str, Any] = field(default_factory=dict)
 
     @property
     def tiles_assembled(self) -> NDArray[np.float64]:
@@ -278,15 +296,16 @@ class Design:
         return self.hinge_layout.tiles
 
     def layout_misses(self) -> list[str]:
-        """The flat-layout accuracy targets of issue 4 this design misses, one line each.
+        """The flat-layout accuracy targets this design misses, one line each.
 
         These are the flat edge error and the hinge gap, both at most ``1e-3`` mm: what the
-        flat layout, the co-optimization and the hinge layout control, and what the CLI turns
-        into exit status 4 (:data:`~drawstring.app.cli.EXIT_WARNINGS`) even without
-        ``--strict``.  A hinge gap that meets the target seen from above but not in 3D (the
-        thickness difference of two tiles at a bottom hinge, where the conical
-        co-optimization and tighter tilings could not close it) is named as such: ``--hinges
-        top`` closes it.  The surface distance stays a plain warning.
+        flat layout, the co-optimization and the hinge layout control; quality levels, which
+        the CLI turns into exit status 4 (:data:`~drawstring.app.status.EXIT_WARNINGS`) with
+        ``--strict`` (over the profile's fabrication tolerance they are problems).  A hinge
+        gap that meets the target seen from above but not in 3D (the thickness difference of
+        two tiles at a bottom hinge, where the conical co-optimization and tighter tilings
+        could not close it) is named as such: ``--hinges top`` closes it.  The surface
+        distance stays a plain warning.
         """
         misses = []
         measured = self.measured
@@ -346,6 +365,7 @@ class Design:
                 "tile_cells": self.tiling.linkage.tile_cells.tolist(),
             },
             "metrics": self.metrics(),
+            "quality": self.quality,
             "notes": list(self.notes),
             "problems": list(self.problems),
             "warnings": list(self.warnings),

@@ -14,13 +14,12 @@ import os
 from dataclasses import replace
 from typing import Any
 
-import igl
 import numpy as np
 from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
 from drawstring.fabrication.printers import Printer, resolve_printer, with_printer
-from drawstring.fabrication.profiles import MAX_TILES, MIN_GRID_SIDE, Profile, load_profile
+from drawstring.fabrication.profiles import Profile, load_profile
 from drawstring.geometry.assembled.top import PAPER_WEIGHTS
 from drawstring.geometry.core.errors import InputError, ThicknessError
 from drawstring.geometry.core.tile import HingeStrategy
@@ -32,12 +31,15 @@ from drawstring.geometry.route.result import Route
 from drawstring.geometry.simulate.deploy import simulate_stage
 from drawstring.geometry.simulate.result import SimulationResult
 from drawstring.geometry.target.surface import Target, load_target
-from drawstring.geometry.tiling.grid import grid_shape_for, parts_in_place
+from drawstring.geometry.tiling.grid import parts_in_place
 from drawstring.geometry.tiling.linkage import gap_centroids
+from drawstring.pipeline.cad_stage import ChannelShortfall
+from drawstring.pipeline.checks import check_grid, mesh_corners
 from drawstring.pipeline.close_fit import fitted_layout
 from drawstring.pipeline.layout_stage import ShapedLayout, fabricated_tiles
 from drawstring.pipeline.measure import cad_problems, cad_warnings, design_rigidity, measure_design
 from drawstring.pipeline.policy import DEFAULT_POLICY, LayoutPolicy
+from drawstring.pipeline.quality import quality_levels, tolerance_problems
 from drawstring.pipeline.record import (
     Design,
     DesignOptions,
@@ -46,6 +48,7 @@ from drawstring.pipeline.record import (
     jsonable,
     rounded,
 )
+from drawstring.pipeline.retry import channel_check, checked_channel_refusal, checked_size_refusal
 from drawstring.pipeline.route_stage import NamedCheck, plan_lift_route
 
 log = logging.getLogger(__name__)
@@ -99,100 +102,10 @@ def resolve_options(
     return resolved
 
 
-def check_grid(options: ResolvedOptions, flat_map: Flattening, *, from_profile: bool) -> None:
-    """Refuse a tile count that gives this target's flattening a grid too narrow for a string
-    route (fewer than :data:`MIN_GRID_SIDE` cells one way), before the costly stages."""
-    if options.tiles is None:
-        return
-    width, height = np.ptp(flat_map.uv, axis=0).tolist()
-    n_i, n_j = grid_shape_for(width, height, options.tiles)
-    if min(n_i, n_j) >= MIN_GRID_SIDE:
-        return
-    need = options.tiles
-    while need < MAX_TILES and min(grid_shape_for(width, height, need)) < MIN_GRID_SIDE:
-        need += 1
-    asked = f"the profile's {options.tiles} tiles" if from_profile else f"--tiles {options.tiles}"
-    grid = f"--grid {MIN_GRID_SIDE} {MIN_GRID_SIDE}"
-    fix = (
-        f"use --tiles {need} or more, or {grid}"
-        if min(grid_shape_for(width, height, need)) >= MIN_GRID_SIDE
-        else f"use {grid} or more (no tile count up to {MAX_TILES} gives such a grid)"
-    )
-    raise InputError(
-        f"with {asked} this target gets a {n_i} x {n_j} grid, but the string route needs at least "
-        f"{MIN_GRID_SIDE} tiles each way: {fix}"
-    )
-
-
-def size_refusal(exc: ThicknessError, options: ResolvedOptions) -> InputError | None:
-    """The one-line refusal of a size too small for the tile thickness, or None when the
-    assembled stage found no thickness that works.
-
-    Tiles turn inside out where the thickness exceeds about the target's radius of curvature,
-    which scales with ``--size``: the design at ``size * thickness / advice`` is the one at
-    ``--thickness advice`` scaled up, so that size is the one to suggest.
-    """
-    thickness, advice = exc.thickness, exc.advice
-    if not 0 < advice < thickness:
-        return None
-    wanted = options.size_mm * thickness / advice
-    step = 10.0 ** (math.floor(math.log10(wanted)) - 1)  # two significant digits, rounded up
-    size = math.ceil(wanted / step - 1e-9) * step
-    fewer = "a smaller --grid" if options.grid is not None else "fewer --tiles"
-    return InputError(
-        f"--size {options.size_mm:g} mm is too small for {thickness:g} mm thick tiles: "
-        f"{exc.inverted} tile(s) turn inside out where this target curves tightly; use "
-        f"--size {size:g} or more, --thickness {advice:g} or less, or {fewer}"
-    )
-
-
 #: BLAS threads while designing.  A multi-threaded BLAS sums in an order that depends on its
 #: thread count, and the eq.-1 solve and the layouts amplify that rounding into a different
 #: design; the BLAS calls here are small enough that one thread costs nothing measurable.
 BLAS_THREADS = 1
-
-
-def mesh_corners(target: Target, options: ResolvedOptions) -> tuple[int, ...] | None:
-    """``--corners`` (vertex ids of the mesh as read, counting from 0) as ids of the loaded
-    target, whose repairs may have dropped or merged vertices."""
-    if options.corners is None:
-        return None
-    ids = [int(v) for v in options.corners]
-    where = target.vertex_of_input
-    if where is None:
-        return tuple(ids)
-    outside = [v for v in ids if not 0 <= v < len(where)]
-    if outside:
-        raise InputError(
-            f"--corners {outside[0]} is not a vertex of the mesh, which has {len(where)} "
-            f"(ids 0 to {len(where) - 1}, in the file's order)"
-        )
-    if len(set(ids)) != len(ids):
-        raise InputError(
-            f"--corners {' '.join(map(str, ids))} repeat a vertex; name four distinct boundary "
-            "vertices"
-        )
-    dropped = [v for v in ids if where[v] < 0]
-    if dropped:
-        raise InputError(
-            f"--corners {dropped[0]} names a vertex that no face of the mesh uses (or only "
-            "faces that loading removed, zero-area or duplicated); pick four boundary vertices "
-            "of the surface"
-        )
-    mapped = [int(where[v]) for v in ids]
-    boundary = set(igl.boundary_loop(np.asarray(target.faces)).tolist())
-    inside = [v for v, m in zip(ids, mapped, strict=True) if m not in boundary]
-    if inside:
-        raise InputError(
-            f"--corners vertices {inside} are not on the mesh boundary; pick four boundary "
-            "vertex ids (counting from 0, in the file's order)"
-        )
-    if len(set(mapped)) < len(set(ids)):
-        raise InputError(
-            f"--corners {' '.join(map(str, ids))} name coincident vertices, which loading "
-            "merged into one; pick four distinct corners"
-        )
-    return tuple(mapped)
 
 
 def design(
@@ -235,7 +148,7 @@ def _design(
     progress = progress or Progress(quiet=quiet)
     loaded, flat_map, notes = _target_and_flattening(target, resolved, progress)
     check_grid(resolved, flat_map, from_profile=options.tiles is None and options.grid is None)
-    shaped = _laid_out(loaded, flat_map, resolved, progress, policy, options.weights is not None)
+    shaped = _laid_out(loaded, flat_map, resolved, progress, policy, (os.fspath(target), options))
     notes.extend(shaped.notes)
     tiling, assembled, flat = shaped.tiling, shaped.assembled, shaped.flat
     hinge_layout = shaped.hinge_layout
@@ -260,7 +173,8 @@ def _design(
     if resolved.simulate:
         # the run of this route, already made by the sweep
         simulation = deployment.simulated(chosen)
-        measured["simulation"] = _simulation_block(simulation, deployment, progress, warnings)
+        measured["simulation"] = _simulation_block(simulation, deployment, progress, problems)
+    problems.extend(tolerance_problems(measured, profile.tolerance_mm))
     result = Design(
         options=resolved,
         profile=profile,
@@ -279,6 +193,7 @@ def _design(
         problems=tuple(problems),
         warnings=tuple(warnings),
         printer=printer,
+        quality=quality_levels(measured, profile.tolerance_mm, loaded.bbox_diagonal_mm),
     )
     if resolved.cad:
         result = with_cad(result, progress)
@@ -324,19 +239,29 @@ def _laid_out(
     options: ResolvedOptions,
     progress: Progress,
     policy: LayoutPolicy,
-    weights_given: bool,
+    asked: tuple[str, DesignOptions],
 ) -> ShapedLayout:
-    """Stages tiling to hinges on the shape ``--fit`` asks for (:func:`fitted_layout`), a
-    size too small for the tiles' thickness refused in one line (:func:`size_refusal`)."""
+    """Stages tiling to hinges on the shape ``--fit`` asks for (:func:`fitted_layout`); tiles
+    that turn inside out, or (with CAD) boundary tiles too small for the string channel,
+    refused seconds in with a checked ``retry with:`` (:mod:`~drawstring.pipeline.retry`).
+    ``asked``: the target and the options as the user gave them."""
+    source, given = asked
+    profile = load_profile(options.profile)
+    check = channel_check(profile) if options.cad else None
     try:
         return fitted_layout(
-            loaded, flat_map, options, progress, policy=policy, weights_given=weights_given
+            loaded,
+            flat_map,
+            options,
+            progress,
+            policy=policy,
+            weights_given=given.weights is not None,
+            check_first=check,
         )
     except ThicknessError as exc:
-        refusal = size_refusal(exc, options)
-        if refusal is None:
-            raise
-        raise refusal from exc
+        raise checked_size_refusal(exc, source, given, options, profile) from exc
+    except ChannelShortfall as exc:
+        raise checked_channel_refusal(exc, source, given, options, profile) from exc
 
 
 class _Deployment:
@@ -465,10 +390,10 @@ def _simulation_block(
     simulation: SimulationResult,
     deployment: _Deployment,
     progress: Progress,
-    warnings: list[str],
+    problems: list[str],
 ) -> dict[str, Any]:
     """design.json's ``metrics.simulation`` for the deployment of the chosen route; one that
-    got stuck adds a warning to ``warnings``."""
+    got stuck (the linkage does not deploy) adds a problem to ``problems``."""
     block = jsonable(simulation.to_json())
     # Wall-clock numbers go to timings_s, so everything else in design.json is reproducible.
     block.pop("time_s", None)
@@ -476,7 +401,7 @@ def _simulation_block(
     runs = len(deployment.runs)
     block["runs"] = runs
     if not simulation.deployed:
-        warnings.append(
+        problems.append(
             "the deployment simulation got stuck ("
             f"{len(simulation.open_gaps)} route gaps open, tiles up to "
             f"{simulation.final_max_deviation_mm:.2f} mm from the assembled shape, worst "

@@ -9,6 +9,7 @@ import pytest
 
 from drawstring.geometry.assembled.extrusion import extrude_tiles, thickness_advice
 from drawstring.geometry.assembled.frustums import (
+    folded_faces,
     measure_assembled,
     quad_mesh_edges,
     square_edge_targets,
@@ -413,3 +414,15 @@ def test_too_thick_tiles_are_refused_with_a_thickness_that_works() -> None:
         optimize_assembled(vertices, quads, target, tris, thickness=6.0)
     result = optimize_assembled(vertices, quads, target, tris, thickness=2.9)
     assert result.metrics["thickness_min_mm"] == pytest.approx(2.9, abs=1e-6)
+
+
+def test_a_bottom_face_folded_into_a_dart_or_turned_over_counts_as_folded() -> None:
+    quads = np.array([[0, 1, 2, 3]] * 3) + np.arange(3)[:, None] * 4
+    square = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [2.0, 2.0, 0.0], [0.0, 2.0, 0.0]])
+    top = np.vstack([square, square, square])
+    whole = square * 0.8 + [0.2, 0.2, -1.0]
+    dart = whole.copy()
+    dart[2] = [0.5, 0.5, -1.0]  # the corner folded in past the diagonal: one reflex corner
+    turned = whole[[0, 3, 2, 1]]  # wound the other way: inside out
+    bottom = np.vstack([whole, dart, turned])
+    np.testing.assert_array_equal(folded_faces(top, bottom, quads), [False, True, True])

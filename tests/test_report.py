@@ -270,6 +270,20 @@ def test_quality_targets_missed_are_not_failures(tmp_path: Path) -> None:
     assert "✗ 1 of 5 checks fail: surface_distance_max_mm" in page and "⚠" not in page
 
 
+def test_an_accuracy_miss_within_the_fabrication_tolerance_is_amber_over_it_fails() -> None:
+    def row(level: str) -> metric_rules.MetricRow:
+        design = {
+            "metrics": {"flat_edge_error_max_mm": 0.02},
+            "quality": {"measures": {"flat_edge_error_max_mm": {"level": level}}},
+        }
+        (found,) = metric_rules.evaluate_metrics(design)
+        return found
+
+    assert row("tolerance").passed is False and row("tolerance").advisory  # off target, amber
+    assert not row("out of tolerance").advisory  # a failure
+    assert not row("target").advisory
+
+
 def test_report_of_a_full_folder(tmp_path: Path) -> None:
     make_design_folder(tmp_path)
     (tmp_path / "flat.png").write_bytes(_tiny_png())

@@ -15,6 +15,7 @@ from drawstring.geometry.route.plan import MILP_NODE_LIMIT, SPLICE_NODE_LIMITS, 
 from drawstring.geometry.route.result import (
     Route,
     channel_partner_faults,
+    count_crossings,
     route_metrics,
     route_to_json,
 )
@@ -403,6 +404,7 @@ def test_parts_laid_apart_for_cutting_are_routed_as_they_meet() -> None:
     spread[~right] += [60.0, 0.0]
     apart = plan_route(linkage, gap_centroids(linkage, spread), [])
     assert apart.crossings > 0
+    assert any("crosses itself and the band has none" in n for n in apart.notes)
     placed = parts_in_place(linkage, spread, grid_uv)
     route = plan_route(linkage, gap_centroids(linkage, placed), [])
     expected = plan_route(linkage, gap_centroids(linkage, in_place), [])
@@ -627,3 +629,15 @@ def test_a_solve_stopped_by_the_safety_time_limit_says_so_once(monkeypatch: Any)
     with pytest.raises(DesignError, match="Time limit reached") as caught:
         plan_route(small, _centroids(small), exact_limit=200)
     assert not isinstance(caught.value, NodeBudgetError)
+
+
+def test_segments_of_different_split_parts_never_count_as_crossing() -> None:
+    # a square's two diagonals: they cross within one part; in two parts (each segment runs
+    # through a tile of its own part, laid apart when cut) they do not
+    pos = np.array([[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.0, 1.0]])
+    gaps = np.array([0, 1, 2, 3])
+    assert count_crossings(gaps, pos) == 1
+    assert count_crossings(gaps, pos, np.array([0, 0, 0, 0])) == 1
+    assert count_crossings(gaps, pos, np.array([0, 1, 1, 1])) == 0
+    # a gap passed twice is a crossing whatever the parts
+    assert count_crossings(np.array([0, 1, 2, 0, 3]), pos, np.array([0, 1, 0, 1, 0])) >= 1

@@ -483,6 +483,11 @@ def test_file_without_faces(tmp_path):
         ("bad.obj", "v 0 zero 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", ["'zero' is not a number"]),
         ("bad.obj", "# c\nv 0 0 0\nv 1 1 zz\nf 1 2 3\n", ["line 3:", "'zz' is not a number"]),
         ("bad.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n", ["truncated"]),
+        (
+            "bad.off",
+            "OFF\n4 1 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n3 1 3 2\n",
+            ["1 more lines", "counts are wrong"],
+        ),
         ("bad.ply", "ply\nformat ascii 1.0\nelement vertex 3\nend\n", ["not a PLY file"]),
         ("bad.stl", "not an stl\n", ["neither binary STL"]),
         (
@@ -511,6 +516,20 @@ def test_nan_vertex(tmp_path):
     with pytest.raises(InputError) as error:
         validate_disk_mesh(V, F)
     check_message(error, "non-finite", "2 vertices")
+
+
+@pytest.mark.parametrize("exponent", [996, -996, -1040])
+def test_coordinates_near_the_ends_of_the_float_range_give_the_same_target(tmp_path, exponent):
+    # near 1e300 squared distances overflow and near 1e-300 areas underflow; a power of two
+    # scales the mesh exactly before anything is computed (2^-1040 is subnormal)
+    V, F = grid_disk(6, 5)
+    write_obj(tmp_path / "plain.obj", V, F.tolist())
+    write_obj(tmp_path / "far.obj", np.ldexp(V, exponent), F.tolist())
+    plain = load_target(tmp_path / "plain.obj", 100.0)
+    far = load_target(tmp_path / "far.obj", 100.0)
+    np.testing.assert_array_equal(far.vertices, plain.vertices)
+    np.testing.assert_array_equal(far.faces, plain.faces)
+    assert any("scaled by 2^" in note for note in far.notes) and not plain.notes
 
 
 def test_face_indices_out_of_range(tmp_path):

@@ -3,9 +3,9 @@
 :func:`run_job` is what every executor runs (:mod:`.executor`): it takes a :class:`JobSpec`
 (plain JSON values, so that it can cross to another process or machine) and a ``report``
 callback for its stages, and returns a :class:`Outcome` whose exit status is the one
-``drawstring design`` would exit with: 0 written and within every target, 2 refused, 3 a hard
-target missed (written) or no design at all, 4 the flat layout's accuracy target missed
-(written), 1 an internal error.
+``drawstring design`` would exit with: 0 written, within the fabrication tolerance and
+deploying, 2 refused or no design at all, 3 written with problems, 4 (strict only) a quality
+target missed (written), 1 an internal error.
 """
 
 from __future__ import annotations
@@ -37,7 +37,8 @@ log = logging.getLogger(__name__)
 DESIGN_DIR = "design"
 
 #: Job statuses.  ``done``: a design folder was written (exit status 0, 3 or 4); ``refused``:
-#: the input was refused (2), nothing written; ``failed``: no design (3 without a folder, or 1).
+#: the input was refused (2) or no design came of it, nothing written; ``failed``: no design
+#: for another reason (a bug, exit 1, or the job's process ended).
 Status = Literal["queued", "running", "done", "failed", "refused", "cancelled", "interrupted"]
 FINISHED: tuple[Status, ...] = ("done", "failed", "refused", "cancelled", "interrupted")
 
@@ -197,7 +198,8 @@ def run_job(
     except InputError as exc:
         return Outcome("refused", 2, shown(str(exc)))
     except DesignError as exc:
-        return Outcome("failed", 3, shown(f"design problem: {exc}"))
+        # nothing was written: a refusal, as on the command line (3 promises a written design)
+        return Outcome("refused", 2, shown(str(exc)))
     except Exception as exc:  # a bug in drawstring: one line here, the traceback in the log
         traceback.print_exc()
         text = shown(f"{type(exc).__name__}: {exc}")
@@ -210,7 +212,7 @@ def judge(result: Design, *, strict: bool) -> Outcome:
         listed = "; ".join(result.problems)
         return Outcome("done", 3, f"design problem: {listed} (see the report's checks)")
     misses = result.layout_misses()
-    if misses:
+    if strict and misses:
         listed = "; ".join(misses)
         return Outcome("done", 4, f"accuracy target missed: {listed} (see the report's checks)")
     if strict and result.warnings:

@@ -3,7 +3,8 @@
 
 :func:`initial_bottom` offsets the top inwards along vertex normals; :func:`extrude_tiles`
 optimizes top and bottom vertices together (or only the bottoms under a fixed top);
-:func:`thickness_advice` is the largest thickness that keeps every tile right side out.
+:func:`thickness_advice` is the largest thickness that keeps every tile right side out and
+unfolded.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from drawstring.geometry.assembled.frustums import (
+    folded_faces,
     quad_mesh_edges,
     quad_vector_areas,
     side_quads,
@@ -32,7 +34,8 @@ THICKNESS_ADVICE_AREA = 0.25
 
 def thickness_advice(top: FloatArray, quads: IntArray) -> float:
     """The largest thickness (mm) whose starting extrusion keeps every bottom face facing the
-    same way as its top with at least ``THICKNESS_ADVICE_AREA`` of its area.
+    same way as its top with at least ``THICKNESS_ADVICE_AREA`` of its area, and no top or
+    bottom face folded (:func:`~.frustums.folded_faces`).
 
     The start bottom (:func:`initial_bottom`) is linear in the thickness, so each face's area
     is a quadratic in it; bisection finds the bound.  The optimized extrusion stays close to the
@@ -42,7 +45,10 @@ def thickness_advice(top: FloatArray, quads: IntArray) -> float:
     direction = top - initial_bottom(top, quads, 1.0)  # bottom = top - t * direction
 
     def worst(t: float) -> float:
-        area = quad_vector_areas(top - t * direction, quads)
+        bottom = top - t * direction
+        if folded_faces(top, bottom, quads).any():
+            return -1.0
+        area = quad_vector_areas(bottom, quads)
         ratio = np.einsum("ki,ki->k", top_area, area) / np.einsum("ki,ki->k", top_area, top_area)
         return float(ratio.min(initial=1.0))
 

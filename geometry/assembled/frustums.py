@@ -108,6 +108,37 @@ def quad_vector_areas(vertices: FloatArray, quads: IntArray) -> FloatArray:
     return np.asarray(0.5 * np.cross(d1, d2))
 
 
+def folded_faces(top: FloatArray, bottom: FloatArray, quads: IntArray) -> BoolArray:
+    """(m,) bool: the extrusion folded the tile: its bottom faces the other way from its top
+    (inside out), or is not convex in its own plane (a dart: one corner folded in) under a
+    convex top.
+
+    Where a tile is hardly wider than the tiles are thick, its bottom face, offset inwards
+    under a strongly curved top, closes up: two of its corners meet and then cross.  The
+    convexity test is the one ``metrics.assembled_nonconvex_*_faces`` measures: each corner's
+    turn about the face's own normal (the cross product of its diagonals).  A bottom under a
+    top that is not convex itself follows its top, and is not the extrusion's doing.
+
+    Parameters
+    ----------
+    top, bottom : (n, 3) float, mm
+    quads : (m, 4) int
+    """
+    inside_out = (
+        np.einsum("ki,ki->k", quad_vector_areas(top, quads), quad_vector_areas(bottom, quads)) <= 0
+    )
+    return np.asarray(inside_out | (_reflex(bottom[quads]) & ~_reflex(top[quads])))
+
+
+def _reflex(faces: FloatArray) -> BoolArray:
+    """(m,) bool: the quads ``faces`` (m, 4, 3) have a reflex corner in their own plane."""
+    normal = np.cross(faces[:, 2] - faces[:, 0], faces[:, 3] - faces[:, 1])
+    incoming = faces - np.roll(faces, 1, axis=1)
+    outgoing = np.roll(faces, -1, axis=1) - faces
+    turn = np.einsum("kci,ki->kc", np.cross(incoming, outgoing), normal)
+    return np.asarray(turn.min(axis=1) < 0)
+
+
 def vertex_normals(vertices: FloatArray, quads: IntArray) -> FloatArray:
     """Area-weighted vertex normals of a quad mesh.
 

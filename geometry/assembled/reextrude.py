@@ -12,6 +12,7 @@ from numpy.typing import ArrayLike
 from drawstring.geometry.assembled.extrusion import extrude_tiles
 from drawstring.geometry.assembled.frustums import (
     corner_margins,
+    folded_faces,
     measure_assembled,
     quad_mesh_edges,
     quad_vector_areas,
@@ -58,7 +59,7 @@ def reextrude(
 
     Returns
     -------
-    AssembledResult, or None when the new top would turn a tile inside out.
+    AssembledResult, or None when the new top would turn a tile inside out or fold a face.
     """
     new_top = np.array(top, dtype=np.float64)
     faces = result.quads
@@ -81,8 +82,7 @@ def reextrude(
         pull=pull, max_iter=8 if pull is None else 20,
     )  # fmt: skip
     bottom = polish.X[n:]
-    top_area = quad_vector_areas(new_top, faces)
-    if np.any(np.einsum("ki,ki->k", top_area, quad_vector_areas(bottom, faces)) <= 0):
+    if folded_faces(new_top, bottom, faces).any():  # inside out or folded into a dart
         return None
     tiles = tile_vertices(new_top, bottom, faces)
     metrics = dict(result.metrics)

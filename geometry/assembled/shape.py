@@ -46,6 +46,7 @@ from drawstring.geometry.assembled.extrusion import extrude_tiles, initial_botto
 from drawstring.geometry.assembled.frustums import (
     QuadMeshEdges,
     corner_margins,
+    folded_faces,
     measure_assembled,
     orient_outward,
     quad_mesh_edges,
@@ -522,11 +523,10 @@ def _extruded(
 def _refuse_inverted(
     top: FloatArray, bottom: FloatArray, faces: IntArray, thickness: float
 ) -> None:
-    """Raise :class:`ThicknessError` when a tile's bottom faces against its top, with the
-    thickness to use instead (:func:`thickness_advice`, two significant digits)."""
-    top_area = quad_vector_areas(top, faces)
-    bottom_area = quad_vector_areas(bottom, faces)
-    inverted = int(np.count_nonzero(np.einsum("ki,ki->k", top_area, bottom_area) <= 0))
+    """Raise :class:`ThicknessError` when a tile's bottom faces against its top or a face
+    folds into a dart (:func:`~.frustums.folded_faces`), with the thickness to use instead
+    (:func:`thickness_advice`, two significant digits)."""
+    inverted = int(np.count_nonzero(folded_faces(top, bottom, faces)))
     if not inverted:
         return
     advice = thickness_advice(top, faces)
@@ -535,8 +535,8 @@ def _refuse_inverted(
     quoted = math.floor(advice / step) * step
     thinner = f"{quoted:g} or less" if 0 < quoted < thickness else "a smaller value"
     raise ThicknessError(
-        f"thickness {thickness:g} mm turns {inverted} tile(s) inside out where the target "
-        f"curves tighter than that; use --thickness {thinner}, or fewer tiles (larger "
+        f"thickness {thickness:g} mm turns {inverted} tile(s) inside out or folds them where "
+        f"the target curves tighter than that; use --thickness {thinner}, or fewer tiles (larger "
         "tiles smooth tight spots over)",
         thickness=float(thickness),
         inverted=inverted,

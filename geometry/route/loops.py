@@ -228,6 +228,29 @@ def _band_loop(
     return _cycle_steps(problem, cyc), cost, optimal
 
 
+def _crossing_fixed(
+    rules: _Rules,
+    pos: FloatArray,
+    edges: list[tuple[int, int]],
+    edge_tile: list[int],
+    fixed_path: list[int],
+    fixed_steps: list[Step],
+) -> BoolArray:
+    """Which window ``edges`` (through ``edge_tile``) cross the fixed rest of the loop; only
+    segments in one split part can cross (see :class:`_Rules`)."""
+    ea = np.array(edges, dtype=np.int64)
+    fa = np.array(fixed_path[:-1], dtype=np.int64)
+    fb = np.array(fixed_path[1:], dtype=np.int64)
+    cross = segments_cross(
+        pos[ea[:, 0]][:, None], pos[ea[:, 1]][:, None], pos[fa][None], pos[fb][None]
+    )
+    if rules.tile_part:
+        edge_part = np.array([rules.tile_part.get(t, -1) for t in edge_tile])
+        fixed_part = np.array([rules.tile_part.get(t, -1) for _, t in fixed_steps])
+        cross &= edge_part[:, None] == fixed_part[None, :]
+    return np.asarray(cross.any(axis=1))
+
+
 def _splice_lift(
     rules: _Rules,
     pos: FloatArray,
@@ -295,12 +318,7 @@ def _splice_lift(
     ]
     fixed_path = [g for g, _ in fixed_steps] + [p0]
     if edges:
-        ea = np.array(edges, dtype=np.int64)
-        fa = np.array(fixed_path[:-1], dtype=np.int64)
-        fb = np.array(fixed_path[1:], dtype=np.int64)
-        hit = segments_cross(
-            pos[ea[:, 0]][:, None], pos[ea[:, 1]][:, None], pos[fa][None], pos[fb][None]
-        ).any(axis=1)
+        hit = _crossing_fixed(rules, pos, edges, problem.edge_tile, fixed_path, fixed_steps)
         problem.banned = {int(e) for e in np.nonzero(hit)[0]}
     extra: dict[int, float] = {}
     for e, (u, v) in enumerate(edges):

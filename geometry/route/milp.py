@@ -21,6 +21,7 @@ from scipy.optimize import Bounds, LinearConstraint, milp
 from scipy.spatial import cKDTree
 
 from drawstring.geometry.core.errors import DesignError
+from drawstring.geometry.core.native import native_output_silenced
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 
 log = logging.getLogger(__name__)
@@ -48,6 +49,9 @@ class _Rules:
     allowed: frozenset[tuple[int, int, int]]  # (gap, a, b): the string may pass a -> b at gap
     tile_gaps: dict[int, tuple[int, ...]]  # tile -> gaps where it has an allowed partner
     gap_tiles: dict[int, tuple[int, ...]]  # gap -> tiles with an allowed partner there
+    #: tile -> its split part: route segments in different parts never cross (the parts lie
+    #: apart flat and in different places assembled), so only same-part pairs are excluded
+    tile_part: dict[int, int] = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------------------------
@@ -161,12 +165,17 @@ def _build_problem(
         cover=set(cover),
         groups=[set(s) for s in groups],
     )
-    problem.forbid_pairs = _crossing_pairs(edges, pos)
+    problem.forbid_pairs = _crossing_pairs(
+        edges, pos, [rules.tile_part.get(t, -1) for t in edge_tile]
+    )
     return problem
 
 
-def _crossing_pairs(edges: list[tuple[int, int]], pos: FloatArray) -> list[tuple[int, int]]:
-    """Pairs of edge indices whose segments cross (parallel edges share their geometry)."""
+def _crossing_pairs(
+    edges: list[tuple[int, int]], pos: FloatArray, parts: Sequence[int] | None = None
+) -> list[tuple[int, int]]:
+    """Pairs of edge indices whose segments cross (parallel edges share their geometry); with
+    ``parts`` (each edge's split part) only pairs in one part."""
     if len(edges) < 2:
         return []
     geo, inverse = np.unique(np.array(edges, dtype=np.int64), axis=0, return_inverse=True)
@@ -176,7 +185,9 @@ def _crossing_pairs(edges: list[tuple[int, int]], pos: FloatArray) -> list[tuple
         members.setdefault(k, []).append(e)
     out: list[tuple[int, int]] = []
     for a, b in crossing_edge_pairs(geo, pos).tolist():
-        out.extend((x, y) for x in members[a] for y in members[b])
+        out.extend(
+            (x, y) for x in members[a] for y in members[b] if parts is None or parts[x] == parts[y]
+        )
     return out
 
 
@@ -200,13 +211,19 @@ def _solve_cycle(
     n_e = len(edges)
     optimal = True
     for _round in range(500):
-        res = milp(
-            program.objective,
-            constraints=[program.matrix()],
-            integrality=program.integrality,
-            bounds=Bounds(program.lb, program.ub),
-            options={"node_limit": node_limit, "time_limit": MILP_SAFETY_TIME_S, "disp": False},
-        )
+        # HiGHS prints some of its progress with C printf, whatever disp says
+        with native_output_silenced():
+            res = milp(
+                program.objective,
+                constraints=[program.matrix()],
+                integrality=program.integrality,
+                bounds=Bounds(program.lb, program.ub),
+                options={
+                    "node_limit": node_limit,
+                    "time_limit": MILP_SAFETY_TIME_S,
+                    "disp": False,
+                },
+            )
         # milp's status 1: the time (or an iteration) limit; 4 with HiGHS's "solution limit":
         # the node limit
         timed_out = res.status == 1

@@ -201,6 +201,18 @@ def _boundary_loop(
         notes.append(f"boundary DP failed ({err}); solved the boundary band exactly")
         band = _band_loop_any(rules, pos, cover, groups, node_limit, notes)
         return band, "heuristic: band-MILP + window-MILP"
+    parts = linkage.tile_component[np.array(tiles, dtype=np.int64)]
+    if count_crossings(np.array(gaps, dtype=np.int64), pos, parts):
+        # the DP joins its layers by turn cost alone: a loop that crosses itself goes to the
+        # band program, which excludes crossing pairs (the DP's loop is kept, and its
+        # crossing listed as a problem, only where the band has no loop)
+        try:
+            band = _band_loop_any(rules, pos, cover, groups, node_limit, notes)
+        except DesignError as err:
+            notes.append(f"the boundary DP's loop crosses itself and the band has none ({err})")
+        else:
+            notes.append("the boundary DP's loop crossed itself; solved the boundary band exactly")
+            return band, "heuristic: band-MILP + window-MILP"
     return steps, "heuristic: boundary-DP + window-MILP"
 
 
@@ -274,7 +286,7 @@ def _finish(
         turn_angle_total_rad=total,
         method=method,
         lower_bound_rad=lower_bound,
-        crossings=count_crossings(gaps, pos),
+        crossings=count_crossings(gaps, pos, linkage.tile_component[tiles]),
         boundary_tiles_covered=bool(covered),
         length_flat_mm=float(np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1).sum()),
         tiles_passed_once=bool(len(np.unique(tiles)) == r),

@@ -108,8 +108,15 @@ def channel_partners_ok(route: Route, linkage: Linkage) -> bool:
     return not channel_partner_faults(route, linkage).size
 
 
-def count_crossings(gaps: IntArray, pos: FloatArray) -> int:
-    """Gaps visited more than once plus pairs of non-adjacent route segments that cross."""
+def count_crossings(gaps: IntArray, pos: FloatArray, parts: IntArray | None = None) -> int:
+    """Gaps visited more than once plus pairs of non-adjacent route segments that cross.
+
+    ``parts`` (r,): the split part of each segment (segment ``k`` runs from gap ``k`` to gap
+    ``k + 1`` through the route's tile ``k``).  Segments in different parts are not compared:
+    the parts are cut apart in the flat layout and lie in different places assembled, while
+    the positions here are the parts moved rigidly together (``parts_in_place``), where two
+    parts whose own flat layouts bend different ways overlap at their ends, and segments of
+    the two would seem to cross there."""
     r = len(gaps)
     repeats = int(r - len(np.unique(gaps)))
     if r < 4:
@@ -118,6 +125,9 @@ def count_crossings(gaps: IntArray, pos: FloatArray) -> int:
     b = pos[np.roll(gaps, -1)]
     i, j = np.triu_indices(r, k=2)
     keep = ~((i == 0) & (j == r - 1))
+    if parts is not None:
+        part = np.asarray(parts)
+        keep &= part[i] == part[j]
     i, j = i[keep], j[keep]
     return repeats + int(segments_cross(a[i], b[i], a[j], b[j]).sum())
 
@@ -166,7 +176,7 @@ def route_metrics(
         "gaps": int(len(route.gaps)),
         "boundary_tiles_covered": bool(boundary <= tiles),
         "turn_angle_total_rad": total,
-        "crossings": count_crossings(route.gaps, pos),
+        "crossings": count_crossings(route.gaps, pos, linkage.tile_component[route.tiles]),
         "capstan_factor": float(math.exp(mu * total)),
         "length_mm": lengths,
         "components_visited": len(comps),

@@ -153,6 +153,7 @@ def route_rules(
         allowed=frozenset(allowed),
         tile_gaps={t: tuple(sorted(gs)) for t, gs in tile_gaps.items()},
         gap_tiles={g: tuple(sorted(ts)) for g, ts in gap_tiles.items()},
+        tile_part={t: int(comp[t]) for t in tile_gaps},
     )
 
 

@@ -5,6 +5,7 @@ and triangle arrays, and merge coincident vertices.  No topology checks are made
 from __future__ import annotations
 
 import logging
+import math
 import os
 import re
 from dataclasses import dataclass
@@ -168,6 +169,12 @@ def _read_off(data: bytes) -> tuple[FloatArray, IntArray]:
         raise InputError(
             f"header promises {n_vertices} vertices and {n_faces} faces but the file is "
             "shorter; it is truncated, re-export it"
+        )
+    if len(body) > n_vertices + n_faces:
+        # counts too small would leave faces (or vertices read as faces) out unnoticed
+        raise InputError(
+            f"header promises {n_vertices} vertices and {n_faces} faces but the file has "
+            f"{len(body) - n_vertices - n_faces} more lines; its counts are wrong, re-export it"
         )
     vertices = _to_vertex_array([row[:3] for row in body[:n_vertices]], "vertex")
     polygons = []
@@ -489,3 +496,28 @@ def coincident_remap(
     new_index_of_label = np.empty(labels.max() + 1, dtype=np.int64)
     new_index_of_label[labels[keep]] = np.arange(len(keep))
     return keep, new_index_of_label[labels]
+
+
+#: Largest coordinate magnitudes used as read; outside them the mesh is scaled first.
+SAFE_COORDINATE_RANGE = (1e-100, 1e100)
+
+
+def exact_rescale(vertices: FloatArray) -> tuple[FloatArray, str | None]:
+    """Vertices scaled by a power of two when their magnitude lies near the ends of the float
+    range, and a note saying so (None when left as read).
+
+    Products and squared distances of coordinates near 1e300 overflow (scipy's k-d tree in
+    :func:`coincident_remap` raises on it) and those of
+    coordinates near 1e-300 underflow to zero (every face would seem to have zero area).  A
+    power of two scales every float exactly, and the mesh is scaled to ``--size`` afterwards
+    anyway, so the design is the one of the same mesh at a sensible scale.
+    """
+    largest = float(np.abs(vertices).max()) if vertices.size else 0.0
+    low, high = SAFE_COORDINATE_RANGE
+    if largest == 0.0 or low <= largest <= high:
+        return vertices, None
+    exponent = -math.frexp(largest)[1]  # largest * 2**exponent lies in [0.5, 1)
+    return np.ldexp(vertices, exponent), (
+        f"coordinates as large as {largest:.3g} scaled by 2^{exponent} before any computation "
+        "(exact; the mesh is scaled to --size anyway)"
+    )

@@ -40,6 +40,7 @@ from drawstring.geometry.target.builtins import BUILTIN_TARGETS
 from drawstring.geometry.target.meshfiles import (
     SUPPORTED_EXTENSIONS,
     coincident_remap,
+    exact_rescale,
     read_mesh,
 )
 
@@ -285,6 +286,9 @@ def _clean_disk_mesh(
             f"{_count(int(non_finite.sum()), 'vertex', 'vertices')}; fix or remove them and "
             "export again"
         )
+    V, rescaled = exact_rescale(V)
+    if rescaled:
+        notes.append(rescaled)
     keep, remap = coincident_remap(V)
     merged = 0
     if remap is not None:

@@ -2,7 +2,8 @@
 
 Each part that exceeds the bound is cut along a grid line; the cut is chosen through the part's
 interior grid vertex of highest absolute Gaussian curvature when that helps, else among every
-grid line across the part (:func:`choose_splits`).
+grid line across the part (:func:`choose_splits`).  Where those greedy cuts leave a part that
+no line may divide, the cut sequences are searched depth first (:func:`_searched_splits`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,12 @@ log = logging.getLogger(__name__)
 #: no interior gaps to pull shut and would hang off its neighbours by magnets alone).
 MIN_PART_CELLS = 3
 
+#: Cut lines tried per part, best-scored first, when the greedy cuts leave a part over the
+#: bound (:func:`_searched_splits`), and the cuts that search may try in all (each costs the
+#: scale ratios of its pieces, a few ms each at 200 tiles).
+SPLIT_SEARCH_LINES = 6
+SPLIT_SEARCH_BUDGET = 400
+
 
 def choose_splits(
     cells: BoolArray,
@@ -40,6 +47,11 @@ def choose_splits(
     enclosed by other parts could not be pulled into shape.  ``part_ratio`` gives the scale ratio
     of a part from its tiles' corner vertex ids ``(t, 4)``.  Returns the splits and how many
     parts still exceed the bound.
+
+    Where the greedy cuts leave a part over the bound (they can fence a region in so that no
+    line may divide it: a line must leave every piece on the outer boundary and
+    :data:`MIN_PART_CELLS` wide), the cut sequences are searched depth first
+    (:func:`_searched_splits`), and the search's cuts are kept when they leave no part over it.
     """
     splitter = _PartSplitter(cells, base, vertex_gauss, part_ratio)
     splits: list[Split] = []
@@ -66,7 +78,57 @@ def choose_splits(
         splits.append(Split("x" if axis == "x" else "y", line, lo, hi))
         log.info("split along %s = %d (cells %d..%d)", axis, line, lo, hi)
         queue.extend(splitter.halves(mask, axis, line))
+    if unmet:
+        searched = _searched_splits(splitter, cells, bound)
+        if searched is not None:
+            log.info("split search: every part within the bound (greedy cuts left %d over)", unmet)
+            return searched, 0
     return tuple(splits), unmet
+
+
+def _searched_splits(
+    splitter: _PartSplitter, cells: BoolArray, bound: float
+) -> tuple[Split, ...] | None:
+    """Cuts that leave every part within ``bound``, found depth first, or None.
+
+    Each part over the bound tries its :data:`SPLIT_SEARCH_LINES` best-scored lines in turn,
+    its pieces searched the same way (memoized by their cells), until one line leaves no piece
+    over the bound; at most :data:`SPLIT_SEARCH_BUDGET` cuts in all.
+    """
+    budget = [SPLIT_SEARCH_BUDGET]
+    memo: dict[bytes, tuple[int, float, list[Split]]] = {}
+
+    def search(mask: BoolArray) -> tuple[int, float, list[Split]]:
+        """(parts left over the bound, their worst ratio, the cuts) for the part ``mask``."""
+        key = np.packbits(mask).tobytes()
+        if key in memo:
+            return memo[key]
+        current = splitter.ratio_of(mask)
+        result: tuple[int, float, list[Split]] = (0, current, [])
+        if current > bound:
+            result = (1, current, [])
+            lines = splitter.candidate_lines(mask) if budget[0] > 0 else []
+            ranked = sorted((splitter.score(mask, a, ln), a, ln) for a, ln in lines)
+            for _, axis, line in ranked[:SPLIT_SEARCH_LINES]:
+                if budget[0] <= 0:
+                    break
+                budget[0] -= 1
+                lo, hi = splitter.cut_range(mask, axis, line)
+                found = [Split("x" if axis == "x" else "y", line, lo, hi)]
+                over, worst = 0, 0.0
+                for piece in splitter.halves(mask, axis, line):
+                    n, ratio, more = search(piece)
+                    over, worst = over + n, max(worst, ratio)
+                    found += more
+                if (over, worst) < result[:2]:
+                    result = (over, worst, found)
+                if over == 0:
+                    break
+        memo[key] = result
+        return result
+
+    over, _, found = search(cells.copy())
+    return tuple(found) if over == 0 else None
 
 
 class _PartSplitter:
