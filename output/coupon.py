@@ -21,7 +21,7 @@ from pathlib import Path
 from drawstring.fabrication.profiles import Process, Profile, load_profile, print_clearance_mm
 from drawstring.geometry.core.errors import InputError
 from drawstring.output.assembly_text import COUPON_DESIGN
-from drawstring.output.folder import _place, _placement_error, write_refused
+from drawstring.output.folder import place_staged, placement_error, write_refused
 
 #: The name a coupon's manifest.json gives as its design.
 COUPON_NAME = COUPON_DESIGN
@@ -115,7 +115,7 @@ def write_coupon(
         out.parent.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
     except OSError as exc:
-        raise _placement_error(out, exc) from None
+        raise placement_error(out, exc) from None
     try:
         write_fabrication(
             staging,
@@ -139,9 +139,9 @@ def write_coupon(
         folder = staging / "fabrication"
         _write_checks(folder / "coupon.md", profile)
         os.chmod(folder, 0o755)
-        _place(folder, out)
+        place_staged(folder, out)
     except OSError as exc:
-        raise _placement_error(out, exc) from None
+        raise placement_error(out, exc) from None
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return out, profile

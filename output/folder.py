@@ -108,14 +108,14 @@ def _probe_rename(out: Path) -> None:
     try:
         retired = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".probe", dir=out.parent))
     except OSError as exc:
-        raise _placement_error(out, exc) from None
+        raise placement_error(out, exc) from None
     aside = retired / out.name
     with parallel.sigint_held():
         try:
             os.rename(out, aside)
         except OSError as exc:
             os.rmdir(retired)
-            raise _placement_error(out, exc) from None
+            raise placement_error(out, exc) from None
         try:
             os.rename(aside, out)
         except OSError as exc:
@@ -125,7 +125,7 @@ def _probe_rename(out: Path) -> None:
         os.rmdir(retired)
 
 
-def _placement_error(out: Path, exc: OSError) -> InputError:
+def placement_error(out: Path, exc: OSError) -> InputError:
     """The one-line refusal for an OSError while writing or placing the output folder."""
     reason = exc.strerror or type(exc).__name__
     if exc.filename is not None and Path(exc.filename) != out:
@@ -155,7 +155,7 @@ def write_design(
         out.parent.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
     except OSError as exc:
-        raise _placement_error(out, exc) from None
+        raise placement_error(out, exc) from None
     try:
         files: list[str] = []
         for writer in writers or DEFAULT_WRITERS:
@@ -167,17 +167,17 @@ def write_design(
         )
         write_report(staging)  # last: it reads every other file of the folder
         os.chmod(staging, 0o755)
-        _place(staging, out)
+        place_staged(staging, out)
     except OSError as exc:
         shutil.rmtree(staging, ignore_errors=True)
-        raise _placement_error(out, exc) from None
+        raise placement_error(out, exc) from None
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
     return out
 
 
-def _place(staging: Path, out: Path) -> None:
+def place_staged(staging: Path, out: Path) -> None:
     """Rename the finished ``staging`` folder to ``out``, replacing an earlier folder there.
 
     The earlier folder is first renamed into a temporary sibling, removed only once the new

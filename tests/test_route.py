@@ -518,7 +518,7 @@ def test_a_window_out_of_nodes_is_tried_with_more_before_it_grows(monkeypatch: A
     from drawstring.geometry.route import loops as route_heuristics
     from drawstring.geometry.route.milp import NodeBudgetError
 
-    real = route_heuristics._solve_cycle
+    real = route_heuristics.solve_cycle
     cells = np.ones((16, 12), dtype=bool)
     linkage = build_linkage(cells)
     pos = _centroids(linkage)
@@ -533,7 +533,7 @@ def test_a_window_out_of_nodes_is_tried_with_more_before_it_grows(monkeypatch: A
                 raise error("the first window's root: no route")
             return real(problem, rules, pos, node_limit, notes)
 
-        monkeypatch.setattr(route_heuristics, "_solve_cycle", solve)
+        monkeypatch.setattr(route_heuristics, "solve_cycle", solve)
         route = plan_route(linkage, pos, [lift], exact_limit=0)
         assert lift in route.gaps.tolist()
         _check_valid(linkage, pos, route)

@@ -1,11 +1,11 @@
 """Loop builders for the string route, on top of the integer program in :mod:`.milp`.
 
 The heuristic for large instances: a dynamic program over the boundary tiles in their order along
-the outer boundary builds the minimum-turn boundary loop (:func:`_boundary_loop_dp`, with short
+the outer boundary builds the minimum-turn boundary loop (:func:`boundary_loop_dp`, with short
 bridges through interior tiles, :func:`_bridges`); when that fails the integer program is solved
-on the band of tiles next to the boundary (:func:`_band_loop_any`); each lift gap not on the loop
-is spliced in by solving the integer program on a window around it (:func:`_splice_lift`).
-Small instances are solved whole by :func:`_exact`.
+on the band of tiles next to the boundary (:func:`band_loop_any`); each lift gap not on the loop
+is spliced in by solving the integer program on a window around it (:func:`splice_lift`).
+Small instances are solved whole by :func:`exact_loop`.
 """
 
 from __future__ import annotations
@@ -19,13 +19,13 @@ from drawstring.geometry.core.errors import DesignError
 from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.route.milp import (
     NodeBudgetError,
+    RouteRules,
     Step,
-    _build_problem,
-    _cycle_steps,
-    _reverse_steps,
-    _Rules,
-    _solve_cycle,
+    build_problem,
+    cycle_steps,
+    reverse_steps,
     segments_cross,
+    solve_cycle,
 )
 from drawstring.geometry.tiling.linkage import Linkage
 
@@ -99,7 +99,7 @@ def _turn(pos: FloatArray, a: int, b: int, c: int) -> float:
 
 
 def _bridges(
-    rules: _Rules,
+    rules: RouteRules,
     pos: FloatArray,
     boundary: BoolArray,
     tile: int,
@@ -131,8 +131,8 @@ def _bridges(
     return out
 
 
-def _boundary_loop_dp(
-    rules: _Rules, pos: FloatArray, order: list[int], boundary: BoolArray
+def boundary_loop_dp(
+    rules: RouteRules, pos: FloatArray, order: list[int], boundary: BoolArray
 ) -> list[Step]:
     """Minimum-turn closed loop passing the boundary tiles once each, in ``order``.
 
@@ -209,7 +209,7 @@ def _boundary_loop_dp(
 
 
 def _band_loop(
-    rules: _Rules,
+    rules: RouteRules,
     pos: FloatArray,
     cover: set[int],
     groups: Sequence[set[int]],
@@ -223,13 +223,13 @@ def _band_loop(
         band |= {u for t in band for g in rules.tile_gaps.get(t, ()) for u in rules.gap_tiles[g]}
     nodes = {g for t in band for g in rules.tile_gaps.get(t, ())}
     touched = [grp for grp in groups if grp & band]
-    problem = _build_problem(rules, pos, nodes, set(), cover, tiles=band, groups=touched)
-    cyc, cost, optimal = _solve_cycle(problem, rules, pos, node_limit, notes)
-    return _cycle_steps(problem, cyc), cost, optimal
+    problem = build_problem(rules, pos, nodes, set(), cover, tiles=band, groups=touched)
+    cyc, cost, optimal = solve_cycle(problem, rules, pos, node_limit, notes)
+    return cycle_steps(problem, cyc), cost, optimal
 
 
 def _crossing_fixed(
-    rules: _Rules,
+    rules: RouteRules,
     pos: FloatArray,
     edges: list[tuple[int, int]],
     edge_tile: list[int],
@@ -237,7 +237,7 @@ def _crossing_fixed(
     fixed_steps: list[Step],
 ) -> BoolArray:
     """Which window ``edges`` (through ``edge_tile``) cross the fixed rest of the loop; only
-    segments in one split part can cross (see :class:`_Rules`)."""
+    segments in one split part can cross (see :class:`RouteRules`)."""
     ea = np.array(edges, dtype=np.int64)
     fa = np.array(fixed_path[:-1], dtype=np.int64)
     fb = np.array(fixed_path[1:], dtype=np.int64)
@@ -251,8 +251,8 @@ def _crossing_fixed(
     return np.asarray(cross.any(axis=1))
 
 
-def _splice_lift(
-    rules: _Rules,
+def splice_lift(
+    rules: RouteRules,
     pos: FloatArray,
     steps: list[Step],
     lift: int,
@@ -308,7 +308,7 @@ def _splice_lift(
     allowed_tiles = set(rules.tile_gaps) - fixed_tiles
     need = cover - fixed_tiles
     required = {lift, p0, q1} | (lifts & set(inner))
-    problem = _build_problem(rules, pos, nodes, required, need, tiles=allowed_tiles)
+    problem = build_problem(rules, pos, nodes, required, need, tiles=allowed_tiles)
     keep = [e for e, (u, v) in enumerate(problem.edges) if {u, v} != {p0, q1}]
     edges = [problem.edges[e] for e in keep]
     problem.edge_tile = [problem.edge_tile[e] for e in keep]
@@ -333,11 +333,11 @@ def _splice_lift(
     problem.virtual_tile = {p0: t_pre, q1: t_post}
     problem.edge_cost = extra
     problem.flow = True
-    cyc, _cost, _optimal = _solve_cycle(problem, rules, pos, node_limit, notes)
-    loop = _cycle_steps(problem, cyc)
+    cyc, _cost, _optimal = solve_cycle(problem, rules, pos, node_limit, notes)
+    loop = cycle_steps(problem, cyc)
     k = next(i for i, (_g, t) in enumerate(loop) if t < 0)
     if loop[k][0] == p0:  # runs q1 ... p0 -> q1: turn it round
-        loop = _reverse_steps(loop)
+        loop = reverse_steps(loop)
         k = next(i for i, (_g, t) in enumerate(loop) if t < 0)
     path = loop[k + 1 :] + loop[:k]
     if not path or path[0][0] != p0 or loop[k][0] != q1:
@@ -349,8 +349,8 @@ def _splice_lift(
 # band fallback and the whole-instance program
 
 
-def _band_loop_any(
-    rules: _Rules,
+def band_loop_any(
+    rules: RouteRules,
     pos: FloatArray,
     cover: set[int],
     groups: Sequence[set[int]],
@@ -370,8 +370,8 @@ def _band_loop_any(
     )
 
 
-def _exact(
-    rules: _Rules,
+def exact_loop(
+    rules: RouteRules,
     pos: FloatArray,
     n_gaps: int,
     lifts: set[int],
@@ -385,9 +385,9 @@ def _exact(
     within its node budget passes) are dropped one by one."""
 
     def solve(required: set[int]) -> tuple[list[Step], float, bool]:
-        problem = _build_problem(rules, pos, range(n_gaps), required, cover, groups=groups)
-        cyc, cost, optimal = _solve_cycle(problem, rules, pos, node_limit, notes)
-        return _cycle_steps(problem, cyc), cost, optimal
+        problem = build_problem(rules, pos, range(n_gaps), required, cover, groups=groups)
+        cyc, cost, optimal = solve_cycle(problem, rules, pos, node_limit, notes)
+        return cycle_steps(problem, cyc), cost, optimal
 
     try:
         return solve(lifts)

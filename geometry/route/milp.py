@@ -1,11 +1,11 @@
 """The integer program behind the string route: one minimum-turn closed cycle on the gap graph.
 
 A problem instance (:class:`_Problem`) has one node per gap and one edge per step between two
-gaps through a tile; :func:`_solve_cycle` solves it with ``scipy.optimize.milp`` (HiGHS), with
+gaps through a tile; :func:`solve_cycle` solves it with ``scipy.optimize.milp`` (HiGHS), with
 binary edge, node and turn variables, one pass per tile, crossing-pair exclusions and
 connectivity cuts added until one cycle remains.  The geometric helpers the program needs (turn
 angles and segment crossings in the flat layout) live here too.  Which steps are allowed comes
-from :class:`_Rules`, built by :func:`drawstring.geometry.route.rules.route_rules`.
+from :class:`RouteRules`, built by :func:`drawstring.geometry.route.rules.route_rules`.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ class NodeBudgetError(DesignError):
 
 
 @dataclass(frozen=True)
-class _Rules:
+class RouteRules:
     """Contact partners and the split rule, indexed for the solvers."""
 
     sides: dict[tuple[int, int, int], tuple[int, int]]  # (gap, a, b) -> (side of a, side of b)
@@ -133,8 +133,8 @@ class _Problem:
     flow: bool = False  # add a single-commodity flow keeping the visited gaps connected
 
 
-def _build_problem(
-    rules: _Rules,
+def build_problem(
+    rules: RouteRules,
     pos: FloatArray,
     nodes: Iterable[int],
     required: set[int],
@@ -191,9 +191,9 @@ def _crossing_pairs(
     return out
 
 
-def _solve_cycle(
+def solve_cycle(
     problem: _Problem,
-    rules: _Rules,
+    rules: RouteRules,
     pos: FloatArray,
     node_limit: int,
     notes: list[str] | None = None,
@@ -283,7 +283,7 @@ class _Program:
 
 
 def _turns(
-    problem: _Problem, rules: _Rules, pos: FloatArray, incident: list[list[int]]
+    problem: _Problem, rules: RouteRules, pos: FloatArray, incident: list[list[int]]
 ) -> tuple[list[tuple[int, int, int]], list[float]]:
     """Every turn ``(node index, edge, edge)`` at a gap whose two tiles are contact partners
     there, and its cost: the turn angle (0 next to the virtual edge)."""
@@ -309,7 +309,7 @@ def _turns(
     return turns, cost
 
 
-def _cycle_program(problem: _Problem, rules: _Rules, pos: FloatArray) -> _Program:
+def _cycle_program(problem: _Problem, rules: RouteRules, pos: FloatArray) -> _Program:
     """The program's rows before any connectivity cut: degree and turn rows per node, one
     pass per tile, the tile groups, the crossing pairs and (``problem.flow``) the flow."""
     edges, edge_tile = problem.edges, problem.edge_tile
@@ -475,7 +475,7 @@ def _cycles_of(edges: list[tuple[int, int]], chosen: IntArray) -> list[list[int]
     return cycles
 
 
-def _cycle_steps(problem: _Problem, cyc: list[int]) -> list[Step]:
+def cycle_steps(problem: _Problem, cyc: list[int]) -> list[Step]:
     """Steps ``(gap, tile)`` of a cycle given as ordered edges (virtual edge tile -1)."""
     edges = problem.edges
     u0, v0 = edges[cyc[0]]
@@ -491,7 +491,7 @@ def _cycle_steps(problem: _Problem, cyc: list[int]) -> list[Step]:
     return steps
 
 
-def _reverse_steps(steps: list[Step]) -> list[Step]:
+def reverse_steps(steps: list[Step]) -> list[Step]:
     """The same cycle run backwards, starting at the same gap."""
     gaps = [g for g, _ in steps]
     tiles = [t for _, t in steps]

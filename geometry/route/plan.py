@@ -44,13 +44,13 @@ from scipy.spatial import cKDTree
 from drawstring.geometry.core.errors import DesignError, InternalError
 from drawstring.geometry.core.types import FloatArray
 from drawstring.geometry.route.loops import (
-    _band_loop_any,
-    _boundary_loop_dp,
-    _exact,
-    _splice_lift,
+    band_loop_any,
+    boundary_loop_dp,
     boundary_tile_order,
+    exact_loop,
+    splice_lift,
 )
-from drawstring.geometry.route.milp import NodeBudgetError, Step, _Rules, turn_angle
+from drawstring.geometry.route.milp import NodeBudgetError, RouteRules, Step, turn_angle
 from drawstring.geometry.route.result import Route, channel_partner_faults, count_crossings
 from drawstring.geometry.route.rules import SplitRule, check_positions, node_labels, route_rules
 from drawstring.geometry.tiling.linkage import Linkage
@@ -148,7 +148,7 @@ def plan_route(
             notes.append(f"lift gap {g} has no pair of contact partners the string may pass")
     reachable = lift_set - set(missed)
     if linkage.n_gaps <= exact_limit:
-        steps, cost, optimal = _exact(
+        steps, cost, optimal = exact_loop(
             rules, pos, linkage.n_gaps, reachable, cover, groups, node_limit, missed, notes
         )
         method = "exact" if optimal else "heuristic: MILP stopped at its node or time limit"
@@ -179,7 +179,7 @@ def plan_route(
 
 def _boundary_loop(
     linkage: Linkage,
-    rules: _Rules,
+    rules: RouteRules,
     pos: FloatArray,
     cover: set[int],
     groups: list[set[int]],
@@ -190,7 +190,7 @@ def _boundary_loop(
     dynamic program's loop, or where that passes a gap or tile twice or misses a boundary tile
     (or finds none), the band program's (the reason goes to ``notes``)."""
     try:
-        steps = _boundary_loop_dp(rules, pos, boundary_tile_order(linkage), linkage.boundary_tile)
+        steps = boundary_loop_dp(rules, pos, boundary_tile_order(linkage), linkage.boundary_tile)
         gaps = [g for g, _ in steps]
         tiles = [t for _, t in steps]
         if len(set(gaps)) < len(gaps) or len(set(tiles)) < len(tiles):
@@ -199,7 +199,7 @@ def _boundary_loop(
             raise DesignError("its loop misses boundary tiles")
     except DesignError as err:
         notes.append(f"boundary DP failed ({err}); solved the boundary band exactly")
-        band = _band_loop_any(rules, pos, cover, groups, node_limit, notes)
+        band = band_loop_any(rules, pos, cover, groups, node_limit, notes)
         return band, "heuristic: band-MILP + window-MILP"
     parts = linkage.tile_component[np.array(tiles, dtype=np.int64)]
     if count_crossings(np.array(gaps, dtype=np.int64), pos, parts):
@@ -207,7 +207,7 @@ def _boundary_loop(
         # band program, which excludes crossing pairs (the DP's loop is kept, and its
         # crossing listed as a problem, only where the band has no loop)
         try:
-            band = _band_loop_any(rules, pos, cover, groups, node_limit, notes)
+            band = band_loop_any(rules, pos, cover, groups, node_limit, notes)
         except DesignError as err:
             notes.append(f"the boundary DP's loop crosses itself and the band has none ({err})")
         else:
@@ -218,7 +218,7 @@ def _boundary_loop(
 
 def _splice_in_windows(
     linkage: Linkage,
-    rules: _Rules,
+    rules: RouteRules,
     pos: FloatArray,
     steps: list[Step],
     lift: int,
@@ -234,7 +234,7 @@ def _splice_in_windows(
     for half_window, corridor in SPLICE_WINDOWS:
         for nodes in SPLICE_NODE_LIMITS:
             try:
-                return _splice_lift(
+                return splice_lift(
                     rules, pos, steps, lift, cover, lift_set, spacing, nodes,
                     half_window, corridor, linkage.tile_component, notes,
                 ), reason  # fmt: skip
@@ -254,7 +254,7 @@ def _side_facing(linkage: Linkage, tile: int, gap: int) -> int:
 
 def _finish(
     linkage: Linkage,
-    rules: _Rules,
+    rules: RouteRules,
     pos: FloatArray,
     steps: list[Step],
     method: str,

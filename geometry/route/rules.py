@@ -44,7 +44,7 @@ from numpy.typing import ArrayLike
 
 from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.types import FloatArray, IntArray
-from drawstring.geometry.route.milp import _Rules
+from drawstring.geometry.route.milp import RouteRules
 from drawstring.geometry.tiling.linkage import Linkage
 
 __all__ = [
@@ -124,7 +124,7 @@ SplitRule = Literal["boundary", "same-component"]
 
 def route_rules(
     linkage: Linkage, lifts: Iterable[int], split_rule: SplitRule = "boundary"
-) -> _Rules:
+) -> RouteRules:
     """The contact partners the string may pass between, indexed for the solvers, with the
     split rule applied (lift gaps in ``lifts`` are exempt from it)."""
     rows = contact_partners(linkage)
@@ -148,7 +148,7 @@ def route_rules(
     for t, gs in tile_gaps.items():
         for g in gs:
             gap_tiles.setdefault(g, set()).add(t)
-    return _Rules(
+    return RouteRules(
         sides=sides,
         allowed=frozenset(allowed),
         tile_gaps={t: tuple(sorted(gs)) for t, gs in tile_gaps.items()},
