@@ -89,7 +89,7 @@ def design_options(args: argparse.Namespace) -> DesignOptions:
         repair=args.repair,
         seed=args.seed,
         printer=args.printer,
-        slice=not args.no_slice,
+        slice=args.slice,
     )
 
 

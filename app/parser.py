@@ -116,7 +116,7 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
 
 
 def add_printer_options(p: argparse.ArgumentParser) -> None:
-    """``--printer`` and ``--no-slice`` (``drawstring design`` and ``drawstring coupon``)."""
+    """``--printer`` and ``--slice`` (``drawstring design`` and ``drawstring coupon``)."""
     p.add_argument(
         "--printer",
         metavar="NAME|FILE.toml",
@@ -125,10 +125,11 @@ def add_printer_options(p: argparse.ArgumentParser) -> None:
         "profiles lists them); the print jobs are planned on its bed",
     )
     p.add_argument(
-        "--no-slice",
+        "--slice",
         action="store_true",
-        help="do not slice the print beds with PrusaSlicer even where it is installed "
-        "(bom.csv then gives drawstring's estimate of the time and filament)",
+        help="slice each print bed with PrusaSlicer (when installed) and report its printing "
+        "time and filament in bom.csv (default: drawstring's estimate, fitted to PrusaSlicer's; "
+        "PrusaSlicer's own numbers vary by seconds from run to run)",
     )
 
 

@@ -16,7 +16,7 @@ def run_coupon(args: argparse.Namespace) -> int:
 
     name = Path(args.profile).stem if args.profile.lower().endswith(".toml") else args.profile
     out = args.out if args.out is not None else Path.cwd() / f"coupon-{name}"
-    folder, profile = write_coupon(args.profile, args.printer, out, slice_beds=not args.no_slice)
+    folder, profile = write_coupon(args.profile, args.printer, out, slice_beds=args.slice)
     if not args.quiet:
         print(
             f"wrote {folder}: the {profile.name} test coupon of 3 x 3 tiles (coupon.md says "

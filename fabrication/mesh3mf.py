@@ -100,20 +100,26 @@ def mesh_solid(solid: bd.Shape, name: str, kind: PartKind, tolerance: float = 0.
     OCCT meshes the faces afresh (chordal ``tolerance`` mm, angular ``MESH_ANGLE_RAD``; a finer
     mesh the solid carries from the checks is dropped first, so the 3MF does not depend on
     them); a mesh over the budget is made again with both tolerances doubled (at most
-    ``MESH_COARSEN_STEPS`` times).  The triangles are read back through OCCT's binary STL
+    ``MESH_COARSEN_STEPS`` times), and where the coarser mesh would not be closed the finer one
+    is kept over the budget.  The triangles are read back through OCCT's binary STL
     writer (fast, and it orients each face's triangles by the face orientation); coincident
     corners are merged (float32, exact for shared nodes).
 
     Raises
     ------
     RuntimeError
-        When an edge is not shared by exactly two triangles with opposite directions.
+        When, at ``tolerance``, an edge is not shared by exactly two triangles with opposite
+        directions.
     """
     budget = TRIANGLE_BUDGET[kind]
-    for step in range(MESH_COARSEN_STEPS + 1):
-        scale = 2.0**step
-        mesh = _mesh_once(solid, name, kind, scale * tolerance, scale * MESH_ANGLE_RAD)
+    mesh = _mesh_once(solid, name, kind, tolerance, MESH_ANGLE_RAD)
+    for step in range(1, MESH_COARSEN_STEPS + 1):
         if len(mesh.triangles) <= budget:
+            break
+        scale = 2.0**step
+        try:
+            mesh = _mesh_once(solid, name, kind, scale * tolerance, scale * MESH_ANGLE_RAD)
+        except RuntimeError:  # too coarse to stay closed: the finer mesh, over the budget
             break
     return mesh
 

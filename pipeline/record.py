@@ -127,8 +127,9 @@ class DesignOptions:
     repair: bool = False
     #: a printer preset name or .toml path (None: the profile's ``machine.printer``)
     printer: str | None = None
-    #: slice each print job with PrusaSlicer when it is installed
-    slice: bool = True
+    #: slice each print job with PrusaSlicer (when it is installed) for the printing time and
+    #: filament, instead of drawstring's estimate
+    slice: bool = False
 
     def validate(self) -> None:
         """Refuse values out of range with a one-line :class:`InputError`."""

@@ -83,7 +83,7 @@ def test_a_coupon_folder_is_replaced_and_a_foreign_one_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "c"
-    args = ["coupon", "--out", str(out), "--no-slice", "--quiet"]
+    args = ["coupon", "--out", str(out), "--quiet"]
     assert main(args) == 0
     first = (out / "print.3mf").read_bytes()
     assert main(args) == 0  # an earlier coupon is replaced, to the byte

@@ -158,12 +158,12 @@ def test_profiles_lists_the_printers_and_shows_one_as_toml(
 def test_the_chosen_printer_is_recorded_in_design_json(tmp_path: Path) -> None:
     out = tmp_path / "d"
     args = ["design", "saddle", "--grid", "3", "3", "--no-cad", "--no-simulate", "--quiet"]
-    assert main([*args, "--printer", "bambu-h2d", "--no-slice", "--out", str(out)]) == 0
+    assert main([*args, "--printer", "bambu-h2d", "--slice", "--out", str(out)]) == 0
     options = json.loads((out / "design.json").read_text())["options"]
-    assert options["printer"] == "bambu-h2d" and options["slice"] is False
+    assert options["printer"] == "bambu-h2d" and options["slice"] is True
     assert main([*args, "--profile", "plywood-cnc", "--out", str(out)]) == 0
     options = json.loads((out / "design.json").read_text())["options"]
-    assert options["printer"] is None and options["slice"] is True
+    assert options["printer"] is None and options["slice"] is False
 
 
 def test_the_report_checks_the_layout_against_the_printers_bed(tmp_path: Path) -> None:
