@@ -55,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     design_p.add_argument(
         "--scheduler",
         metavar="tcp://HOST:PORT",
-        help="build the CAD stage's tile solids and 3MF meshes as tasks on the Dask cluster "
+        help="build the CAD stage's tile solids as tasks on the Dask cluster "
         "whose scheduler is at this address (started with `dask scheduler`, workers with `dask "
         "worker ADDRESS`); the files are the same, byte for byte",
     )

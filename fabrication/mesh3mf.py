@@ -161,24 +161,20 @@ def _mesh_chunk(items: list[tuple[bd.Shape, str, PartKind]], tolerance: float) -
 def mesh_solids(
     items: Sequence[tuple[bd.Shape, str, PartKind]], tolerance: float, workers: int | None = None
 ) -> list[PartMesh]:
-    """:func:`mesh_solid` for many parts, in worker processes from ``PARALLEL_MIN_PARTS`` on, or
-    as tasks of the runner :func:`~drawstring.geometry.core.parallel.tasks_on` set."""
-    runner = parallel.task_runner()
+    """:func:`mesh_solid` for many parts, in worker processes from ``PARALLEL_MIN_PARTS`` on.
+
+    They are meshed on this machine even where the CAD stage's tiles are built on a Dask
+    cluster: meshed in a Dask worker, a solid's triangles can differ from this machine's, and
+    the 3MF is the same file wherever its design was made."""
     count = workers if workers is not None else (os.cpu_count() or 1)
-    if runner is not None and len(items) > 1:  # on a cluster (drawstring design --scheduler)
-        count = runner.thread_count()
-    elif count <= 1 or len(items) < PARALLEL_MIN_PARTS:
+    if count <= 1 or len(items) < PARALLEL_MIN_PARTS:
         return _mesh_chunk(list(items), tolerance)
     n_chunks = min(len(items), 4 * count)
     chunks = [list(items[i::n_chunks]) for i in range(n_chunks)]
-    if runner is not None:
-        arguments = [(chunk, tolerance) for chunk in chunks]
-        done = runner.starmap(_mesh_chunk, arguments, name="3mf-meshes")
-    else:
-        methods = multiprocessing.get_all_start_methods()
-        context = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
-        with parallel.process_pool(count, context) as pool:
-            done = list(pool.map(_mesh_chunk, chunks, [tolerance] * n_chunks))
+    methods = multiprocessing.get_all_start_methods()
+    context = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
+    with parallel.process_pool(count, context) as pool:
+        done = list(pool.map(_mesh_chunk, chunks, [tolerance] * n_chunks))
     meshes: list[PartMesh | None] = [None] * len(items)
     for chunk_index, chunk in enumerate(done):
         for position, mesh in enumerate(chunk):

@@ -472,8 +472,8 @@ def test_the_studio_refuses_jobs_with_a_scheduler(capsys: pytest.CaptureFixture[
 def test_a_designs_cad_on_the_cluster_writes_the_same_files(
     cluster: Cluster, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """``drawstring design --scheduler``: the tile solids and the 3MF meshes are built by the
-    cluster's workers, and every file is the one the local run writes, byte for byte
+    """``drawstring design --scheduler``: the tile solids are built by the cluster's workers,
+    and every file is the one the local run writes, byte for byte
     (design.json's timings aside)."""
     from distributed import Client, get_task_stream
 
@@ -485,7 +485,7 @@ def test_a_designs_cad_on_the_cluster_writes_the_same_files(
     assert "the CAD stage's tiles run on the cluster at" in capsys.readouterr().err
     # keys: the task's name, its index, a random suffix
     ran = {(str(task["key"]).rsplit("-", 2)[0], task["worker"]) for task in stream.data}
-    assert {kind for kind, _ in ran} == {"cad-tiles", "3mf-meshes"}
+    assert {kind for kind, _ in ran} == {"cad-tiles"}
     assert {worker for _, worker in ran} == set(cluster.workers)  # both workers built parts
     local, remote = tmp_path / "local", tmp_path / "cluster"
     assert (local / "fabrication").is_dir()

@@ -135,7 +135,7 @@ _runner: TaskRunner | None = None
 
 def task_runner() -> TaskRunner | None:
     """The runner :func:`tasks_on` set, or None: the stages that build per-tile work in worker
-    processes (the CAD solids, the 3MF meshes) send it there instead."""
+    processes (the CAD stage's tile solids) send it there instead."""
     return _runner
 
 
