@@ -530,13 +530,25 @@ def write_zip(path: Path, members: Sequence[tuple[str, str | bytes]]) -> None:
 def _prusa_config(
     objects: Sequence[Object3mf], ranges: list[list[tuple[int, int]]], extruders: dict
 ) -> str:
+    """PrusaSlicer's volumes: one per run of consecutive parts of one kind (all the tiles, all
+    the hinge pads), named by its first and last part.  PrusaSlicer clips every volume against
+    the others layer by layer, so hundreds of volumes take it minutes where two take seconds;
+    the per-part ranges are in the Bambu/Orca config."""
     lines = ['<?xml version="1.0" encoding="UTF-8"?>', "<config>"]
     for index, (obj, obj_ranges) in enumerate(zip(objects, ranges, strict=True)):
         lines.append(f' <object id="{index + 2}" instances_count="1">')
         lines.append(f'  <metadata type="object" key="name" value="{_escape(obj.name)}"/>')
-        for part, (first, last) in zip(obj.parts, obj_ranges, strict=True):
+        runs: list[list[tuple[PartMesh, tuple[int, int]]]] = []
+        for part, span in zip(obj.parts, obj_ranges, strict=True):
+            if runs and runs[-1][0][0].kind == part.kind:
+                runs[-1].append((part, span))
+            else:
+                runs.append([(part, span)])
+        for run in runs:
+            (part, (first, _)), (last_part, (_, last)) = run[0], run[-1]
+            name = part.name if len(run) == 1 else f"{part.name} to {last_part.name}"
             lines.append(f'  <volume firstid="{first}" lastid="{last}">')
-            lines.append(f'   <metadata type="volume" key="name" value="{part.name}"/>')
+            lines.append(f'   <metadata type="volume" key="name" value="{name}"/>')
             lines.append('   <metadata type="volume" key="volume_type" value="ModelPart"/>')
             lines.append(
                 f'   <metadata type="volume" key="extruder" value="{extruders[part.kind]}"/>'

@@ -124,6 +124,10 @@ def prusa_ini(printer: Printer, profile: Profile, job: IniJob) -> str:
         ("layer_height", _number(printer.layer_height_mm)),
         ("first_layer_height", _number(printer.first_layer_height_mm)),
         ("perimeters", str(printer.perimeters)),
+        # PrusaSlicer's extra-perimeter and overhang detection compare every island of a layer
+        # with the whole next layer: minutes for hundreds of tiles, for a few mm of filament
+        ("extra_perimeters", "0"),
+        ("overhangs", "0"),
         ("top_solid_layers", str(printer.top_layers)),
         ("bottom_solid_layers", str(printer.bottom_layers)),
         ("fill_density", f"{fill_density_percent(profile)}%"),

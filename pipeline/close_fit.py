@@ -32,6 +32,7 @@ import numpy as np
 
 from drawstring.geometry.assembled.shape import AssembledResult
 from drawstring.geometry.assembled.top import Eq1Weights
+from drawstring.geometry.core.errors import ThicknessError
 from drawstring.geometry.core.tolerances import FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM
 from drawstring.geometry.core.types import BoolArray, IntArray
 from drawstring.geometry.flat.conical import vertex_stars
@@ -76,34 +77,12 @@ def fitted_layout(
             loaded.vertices, loaded.faces, flat_map.uv, tiles=options.tiles, grid=options.grid,
             max_scale_factor=split_bound(options),
         )  # fmt: skip
-    start = assembled_shape(first_tiling, loaded, options, progress, shapes)
-    defect = conical_defect_deg(
-        start, first_tiling.linkage, options.min_gap_angle_deg, options.hinges
+    tried: dict[str, Any] = {"eq1": close.to_json()}
+    trial, reason = _close_trial(
+        loaded, flat_map, options, progress, policy, shapes, first_tiling, check_first, tried
     )
-    tried: dict[str, Any] = {"eq1": close.to_json(), "conical_defect_deg": round(defect, 3)}
-    target = min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
-    if defect <= policy.close_conical_defect_max_deg:
-        trial = shape_and_layout(
-            loaded, flat_map, options, progress, policy=policy, shapes=shapes,
-            first_tiling=first_tiling, check_first=check_first,
-        )  # fmt: skip
-        accuracy = trial.accuracy_mm
-        distances = surface_distances(trial.assembled.tiles, loaded)
-        tried.update(
-            accuracy_mm=rounded(accuracy, 9),
-            surface_distance_mean_mm=rounded(distances.mean, 9),
-            surface_distance_max_mm=rounded(distances.max, 9),
-        )
-        if accuracy <= target and trial.hinge_layout is not None:
-            return replace(trial, fit={"used": "close", "eq1": close.to_json(), "close": tried})
-        reason = (
-            f"its flat tiles met their hinges with their assembled shapes only to {accuracy:.2g} mm"
-        )
-    else:
-        reason = (
-            f"it is {defect:.1f} deg from conical next to the bottom hinges on average (more "
-            f"than {policy.close_conical_defect_max_deg:g}), where they would not meet in depth"
-        )
+    if trial is not None:
+        return replace(trial, fit={"used": "close", "eq1": close.to_json(), "close": tried})
     laid_out = shape_and_layout(
         loaded, flat_map, options, progress, policy=policy, first_tiling=first_tiling,
         check_first=check_first,
@@ -116,6 +95,53 @@ def fitted_layout(
         laid_out,
         notes=(*laid_out.notes, note),
         fit={"used": "paper", "eq1": paper.to_json(), "close": {**tried, "refused": reason}},
+    )
+
+
+def _close_trial(
+    loaded: Target,
+    flat_map: Flattening,
+    options: ResolvedOptions,
+    progress: Progress,
+    policy: LayoutPolicy,
+    shapes: ShapeCache,
+    first_tiling: Tiling,
+    check_first: Callable[[Tiling, AssembledResult], None] | None,
+    tried: dict[str, Any],
+) -> tuple[ShapedLayout | None, str]:
+    """The close shape laid out, where it is kept, or None and why not; what was measured on
+    the way goes into ``tried``."""
+    try:
+        start = assembled_shape(first_tiling, loaded, options, progress, shapes)
+    except ThicknessError:
+        return None, "some of its tiles turn inside out at this thickness"
+    defect = conical_defect_deg(
+        start, first_tiling.linkage, options.min_gap_angle_deg, options.hinges
+    )
+    tried["conical_defect_deg"] = round(defect, 3)
+    if defect > policy.close_conical_defect_max_deg:
+        return None, (
+            f"it is {defect:.1f} deg from conical next to the bottom hinges on average (more "
+            f"than {policy.close_conical_defect_max_deg:g}), where they would not meet in depth"
+        )
+    try:
+        trial = shape_and_layout(
+            loaded, flat_map, options, progress, policy=policy, shapes=shapes,
+            first_tiling=first_tiling, check_first=check_first,
+        )  # fmt: skip
+    except ThicknessError:
+        return None, "some of its tiles turn inside out at this thickness"
+    accuracy = trial.accuracy_mm
+    distances = surface_distances(trial.assembled.tiles, loaded)
+    tried.update(
+        accuracy_mm=rounded(accuracy, 9),
+        surface_distance_mean_mm=rounded(distances.mean, 9),
+        surface_distance_max_mm=rounded(distances.max, 9),
+    )
+    if accuracy <= min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM) and trial.hinge_layout is not None:
+        return trial, ""
+    return None, (
+        f"its flat tiles met their hinges with their assembled shapes only to {accuracy:.2g} mm"
     )
 
 

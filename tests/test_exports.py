@@ -376,40 +376,57 @@ def test_3mf_meshes_and_extruders(built: Built) -> None:
         config = ET.fromstring(archive.read("Metadata/Slic3r_PE_model.config"))
         bambu = ET.fromstring(archive.read("Metadata/model_settings.config"))
     extruders = []
-    for obj, (_, _, triangles) in zip(config.findall("object"), meshes, strict=True):
-        next_first = 0
-        for volume_el in obj.findall("volume"):
-            first, last = int(volume_el.get("firstid")), int(volume_el.get("lastid"))
+    for obj, prusa_obj, (_, _, triangles) in zip(
+        bambu.findall("object"), config.findall("object"), meshes, strict=True
+    ):
+        parts, next_first = [], 0
+        for part_el in obj.findall("part"):  # one per part
+            first, last = int(part_el.get("firstid")), int(part_el.get("lastid"))
             assert first == next_first and last >= first
             next_first = last + 1
-            keys = {m.get("key"): m.get("value") for m in volume_el.findall("metadata")}
-            extruders.append((keys["name"].split("_")[0], keys["extruder"]))
+            keys = {m.get("key"): m.get("value") for m in part_el.findall("metadata")}
+            parts.append((keys["name"].split("_")[0], keys["extruder"], first, last))
             kind = "tile" if keys["name"].startswith("tile") else "pad"
             assert last + 1 - first <= TRIANGLE_BUDGET[kind]  # a part's triangles, read back
         assert next_first == len(triangles)
-    assert {e for k, e in extruders if k == "tile"} == {"1"}
-    assert {e for k, e in extruders if k == "hinge"} == {"2"}
-    assert sum(k == "tile" for k, _ in extruders) == len(built.flat.tiles)
-    assert sum(k == "hinge" for k, _ in extruders) == len(built.flat.pads)
-    parts = bambu.findall("object/part")
-    assert len(parts) == len(extruders)
+        # PrusaSlicer's volumes: one per run of parts on one extruder, over the same ranges
+        runs: list[list] = []
+        for _, extruder, first, last in parts:
+            if runs and runs[-1][0] == extruder:
+                runs[-1][2] = last
+            else:
+                runs.append([extruder, first, last])
+        volumes = [
+            [
+                {m.get("key"): m.get("value") for m in v.findall("metadata")}["extruder"],
+                int(v.get("firstid")),
+                int(v.get("lastid")),
+            ]
+            for v in prusa_obj.findall("volume")
+        ]
+        assert volumes == runs
+        extruders += parts
+    assert {e for k, e, *_ in extruders if k == "tile"} == {"1"}
+    assert {e for k, e, *_ in extruders if k == "hinge"} == {"2"}
+    assert sum(k == "tile" for k, *_ in extruders) == len(built.flat.tiles)
+    assert sum(k == "hinge" for k, *_ in extruders) == len(built.flat.pads)
 
 
 def test_every_printed_tile_rests_on_the_bed(built: Built) -> None:
     """fdm-dual jobs print top faces down: the tops lie in one plane, the bottoms do not (a
     tile is as thick as its frustum), so every tile volume of print.3mf (read back with lib3mf,
-    split by the slicer's volume ranges) reaches down to z = 0 and nothing goes below."""
+    split by the Bambu/Orca config's part ranges) reaches down to z = 0 and nothing goes below."""
     if built.profile.process != "fdm-dual":
         pytest.skip("dual extrusion only")
     path = built.folder / "fabrication" / "print.3mf"
     with zipfile.ZipFile(path) as archive:
-        config = ET.fromstring(archive.read("Metadata/Slic3r_PE_model.config"))
+        config = ET.fromstring(archive.read("Metadata/model_settings.config"))
     lowest = []
     for obj, (_, vertices, triangles) in zip(
         config.findall("object"), _read_3mf(path), strict=True
     ):
         assert vertices[:, 2].min() >= -1e-6
-        for volume_el in obj.findall("volume"):
+        for volume_el in obj.findall("part"):
             keys = {m.get("key"): m.get("value") for m in volume_el.findall("metadata")}
             if keys["name"].startswith("tile"):
                 first, last = int(volume_el.get("firstid")), int(volume_el.get("lastid"))
@@ -420,14 +437,14 @@ def test_every_printed_tile_rests_on_the_bed(built: Built) -> None:
 
 def _printed_tiles(path: Path) -> dict[int, np.ndarray]:
     """Each PLA tile of a print.3mf by its number, as (triangles, 3, 3) float, read back with
-    lib3mf and split by the slicer's volume ranges."""
+    lib3mf and split by the Bambu/Orca config's part ranges."""
     with zipfile.ZipFile(path) as archive:
-        config = ET.fromstring(archive.read("Metadata/Slic3r_PE_model.config"))
+        config = ET.fromstring(archive.read("Metadata/model_settings.config"))
     tiles = {}
     for obj, (_, vertices, triangles) in zip(
         config.findall("object"), _read_3mf(path), strict=True
     ):
-        for volume_el in obj.findall("volume"):
+        for volume_el in obj.findall("part"):
             keys = {m.get("key"): m.get("value") for m in volume_el.findall("metadata")}
             if keys["extruder"] == "1":
                 first, last = int(volume_el.get("firstid")), int(volume_el.get("lastid"))

@@ -155,6 +155,8 @@ def test_prusaslicer_loads_the_ini_and_keeps_its_values(name: str, tmp_path: Pat
         "filament_density",
         "layer_height",
         "perimeters",
+        "extra_perimeters",
+        "overhangs",
         "fill_density",
         "perimeter_speed",
         "travel_speed",
@@ -274,8 +276,9 @@ def test_sliced_numbers_are_the_slicers_in_bom_manifest_and_slicer_json(
 
 def test_bambu_and_orca_per_part_extruders_read_back(sample: Sample, tmp_path: Path) -> None:
     """Metadata/model_settings.config: one ``<object>`` per 3MF object, its parts in the
-    order of its triangles, each part's range covering exactly its part's triangles, named as
-    in PrusaSlicer's config, on extruder 1 (tiles) or 2 (hinge pads)."""
+    order of its triangles, each part's range covering exactly its part's triangles, named
+    ``tile_<id>`` or ``hinge_<id>``, on extruder 1 (tiles) or 2 (hinge pads); PrusaSlicer's
+    config has the same objects, its volumes the runs of parts on one extruder."""
     _write(sample, tmp_path, "generic-dual", slice_beds=False)
     path = tmp_path / "fabrication" / "print.3mf"
     with zipfile.ZipFile(path) as archive:
@@ -293,17 +296,25 @@ def test_bambu_and_orca_per_part_extruders_read_back(sample: Sample, tmp_path: P
         parts = obj.findall("part")
         assert [p.get("id") for p in parts] == [str(i + 1) for i in range(len(parts))]
         expected_first = 0
-        for part, volume in zip(parts, prusa_obj.findall("volume"), strict=True):
+        runs: list[tuple[str, int, int]] = []
+        for part in parts:
             assert part.get("subtype") == "normal_part"
             first, last = int(part.get("firstid", -1)), int(part.get("lastid", -1))
             assert first == expected_first and last >= first
-            assert (part.get("firstid"), part.get("lastid")) == (
-                volume.get("firstid"),
-                volume.get("lastid"),
-            )
             expected_first = last + 1
             name = {m.get("key"): m.get("value") for m in part.findall("metadata")}
-            volume_meta = {m.get("key"): m.get("value") for m in volume.findall("metadata")}
-            assert name["name"] == volume_meta["name"]
-            assert name["extruder"] == volume_meta["extruder"] == kinds[name["name"].split("_")[0]]
+            assert name["extruder"] == kinds[name["name"].split("_")[0]]
+            if runs and runs[-1][0] == name["extruder"]:
+                runs[-1] = (runs[-1][0], runs[-1][1], last)
+            else:
+                runs.append((name["extruder"], first, last))
         assert expected_first == triangles
+        volumes = prusa_obj.findall("volume")
+        assert [
+            (
+                {m.get("key"): m.get("value") for m in v.findall("metadata")}["extruder"],
+                int(v.get("firstid", -1)),
+                int(v.get("lastid", -1)),
+            )
+            for v in volumes
+        ] == runs
