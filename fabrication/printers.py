@@ -15,9 +15,7 @@ process with the bed and nozzle of its own ``[machine]`` table.
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +24,7 @@ from drawstring.fabrication.profiles import (
     Process,
     Profile,
     parse_table,
+    read_toml,
     table_toml,
 )
 from drawstring.geometry.core.errors import InputError
@@ -182,26 +181,9 @@ def parse_printer(data: dict[str, Any], source: str) -> Printer:
 
 def load_printer(name_or_path: str | Path) -> Printer:
     """Load a shipped printer preset by name or a user's TOML file by path."""
-    text_name = str(name_or_path)
-    if text_name in SHIPPED_PRINTERS:
-        resource = resources.files("drawstring.profiles").joinpath(f"printers/{text_name}.toml")
-        text = resource.read_text(encoding="utf-8")
-        source = f"printers/{text_name}.toml (shipped)"
-    else:
-        path = Path(name_or_path)
-        if path.suffix.lower() != ".toml":
-            raise InputError(
-                f"unknown printer {text_name!r}; use one of {', '.join(SHIPPED_PRINTERS)} "
-                "or a path to a .toml file (drawstring profiles lists them)"
-            )
-        if not path.is_file():
-            raise InputError(f"printer file {path} does not exist; check the path")
-        text = path.read_text(encoding="utf-8")
-        source = str(path)
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{source}: not valid TOML ({exc})") from None
+    data, source = read_toml(
+        name_or_path, SHIPPED_PRINTERS, "printers/", "printer", " (drawstring profiles lists them)"
+    )
     return parse_printer(data, source)
 
 

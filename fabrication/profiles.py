@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from enum import StrEnum
 from importlib import resources
@@ -313,27 +314,35 @@ def parse_profile(data: dict[str, Any], source: str) -> Profile:
 
 def load_profile(name_or_path: str | Path) -> Profile:
     """Load a shipped profile by name or a user's TOML file by path."""
+    data, source = read_toml(name_or_path, SHIPPED_PROFILES, "", "profile")
+    return parse_profile(data, source)
+
+
+def read_toml(
+    name_or_path: str | Path, shipped: Sequence[str], folder: str, kind: str, hint: str = ""
+) -> tuple[dict[str, Any], str]:
+    """The table of a shipped TOML file of ``drawstring.profiles`` (``folder`` + name) or of a
+    user's ``.toml`` path, and where it came from; ``kind`` and ``hint`` word the refusals."""
     text_name = str(name_or_path)
-    if text_name in SHIPPED_PROFILES:
-        resource = resources.files("drawstring.profiles").joinpath(f"{text_name}.toml")
+    if text_name in shipped:
+        resource = resources.files("drawstring.profiles").joinpath(f"{folder}{text_name}.toml")
         text = resource.read_text(encoding="utf-8")
-        source = f"{text_name}.toml (shipped)"
+        source = f"{folder}{text_name}.toml (shipped)"
     else:
         path = Path(name_or_path)
         if path.suffix.lower() != ".toml":
             raise InputError(
-                f"unknown profile {text_name!r}; use one of {', '.join(SHIPPED_PROFILES)} "
-                "or a path to a .toml file"
+                f"unknown {kind} {text_name!r}; use one of {', '.join(shipped)} "
+                f"or a path to a .toml file{hint}"
             )
         if not path.is_file():
-            raise InputError(f"profile file {path} does not exist; check the path")
+            raise InputError(f"{kind} file {path} does not exist; check the path")
         text = path.read_text(encoding="utf-8")
         source = str(path)
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text), source
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{source}: not valid TOML ({exc})") from None
-    return parse_profile(data, source)
 
 
 #: What each process needs and makes, for ``drawstring profiles``.
