@@ -15,13 +15,12 @@ import dataclasses
 import json
 import os
 import shutil
-import tempfile
 from pathlib import Path
 
 from drawstring.fabrication.profiles import Process, Profile, load_profile, print_clearance_mm
 from drawstring.geometry.core.errors import InputError
 from drawstring.output.assembly_text import COUPON_DESIGN
-from drawstring.output.folder import place_staged, placement_error, write_refused
+from drawstring.output.folder import place_staged, placement_error, staging_dir, write_refused
 
 #: The name a coupon's manifest.json gives as its design.
 COUPON_NAME = COUPON_DESIGN
@@ -111,11 +110,7 @@ def write_coupon(
         tiles=tuple(move_solid(s, m) for s, m in zip(flat.tiles, flat.transforms, strict=True)),
         pads=(),
     )
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
-    except OSError as exc:
-        raise placement_error(out, exc) from None
+    staging = staging_dir(out)
     try:
         write_fabrication(
             staging,

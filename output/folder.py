@@ -151,11 +151,7 @@ def write_design(
     from drawstring.output.writers import DEFAULT_WRITERS
 
     out = check_out_dir(out_dir)
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
-    except OSError as exc:
-        raise placement_error(out, exc) from None
+    staging = staging_dir(out)
     try:
         files: list[str] = []
         for writer in writers or DEFAULT_WRITERS:
@@ -175,6 +171,16 @@ def write_design(
         shutil.rmtree(staging, ignore_errors=True)
         raise
     return out
+
+
+def staging_dir(out: Path) -> Path:
+    """A new hidden folder beside ``out`` to write into before :func:`place_staged` moves it
+    there (``out``'s parent made where missing); a refusal in one line where it cannot be."""
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        return Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    except OSError as exc:
+        raise placement_error(out, exc) from None
 
 
 def place_staged(staging: Path, out: Path) -> None:
