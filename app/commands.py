@@ -321,7 +321,8 @@ def closer_fit(result: Design) -> str:
     largest part's area-scale ratio (which cuts the target into parts), or with dual hinges top
     ones (which leave no bottom hinge points to bring together)."""
     misses = result.layout_misses()
-    if result.options.hinges == HingeStrategy.DUAL and all("in depth" in m for m in misses):
+    dual = result.options.hinges == HingeStrategy.DUAL and "hinge_choice" not in result.measured
+    if dual and all("in depth" in m for m in misses):
         # seen from above the hinges meet: only the bottom hinges' thickness step is left
         return "try --hinges top, which puts every hinge on the top faces, where it closes"
     tiles = result.tiling.linkage.n_tiles
@@ -332,7 +333,7 @@ def closer_fit(result: Design) -> str:
             f"a --max-scale-factor below {ratio:.3g}, this design's largest area-scale ratio, "
             "to split it into parts"
         )
-    if result.options.hinges == HingeStrategy.DUAL:
+    if dual:
         fixes.append("--hinges top")
     tried = f"{', '.join(fixes[:-1])} or {fixes[-1]}" if len(fixes) > 1 else fixes[0]
     chosen, usual = result.options.min_gap_angle_deg, result.profile.min_gap_angle_deg

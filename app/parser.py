@@ -219,9 +219,10 @@ def _add_shape_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--hinges",
         choices=tuple(HingeStrategy),
-        default="dual",
-        help="hinges on top or bottom faces as the curvature asks (dual, the default), or all "
-        "on top with the tiles' overlaps trimmed (top)",
+        default=None,
+        help="hinges on top or bottom faces as the curvature asks (dual), or all on top with "
+        "the tiles' overlaps trimmed (top); default: dual, or top where dual's layout misses "
+        "the profile's tolerance and top's meets it",
     )
     p.add_argument(
         "--weights",

@@ -1,8 +1,9 @@
 """One design's CAD on a local Dask cluster against the same design on this machine's processes.
 
-Runs ``drawstring design saddle --tiles N --no-simulate`` three ways, each in a process of its
-own: on this machine (the CAD stage's own process pool), then with ``--scheduler`` pointing at
-a local cluster of 1 and of 2 single-threaded worker processes.  Each row has the wall time of
+Runs ``drawstring design saddle --tiles N --size S --no-simulate`` (S keeps the default tile
+side) three ways, each in a process of its own: on this machine (the CAD stage's own process
+pool), then with ``--scheduler`` pointing at a local cluster of 1 and of 2 single-threaded
+worker processes.  Each row has the wall time of
 the run, the CAD stage's time from design.json, the machine's load average before
 the run, and whether every file is the one the local run wrote, byte for byte (design.json's
 timings aside, and with them its size shown in report.html).
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import re
 import subprocess
@@ -30,10 +32,17 @@ HERE = Path(__file__).resolve().parent
 DESIGN_JSON_SIZE = re.compile(rb"(<a href='design.json'>design.json</a></td><td class=num>)[^<]*")
 
 
+def size_for(tiles: int) -> float:
+    """The saddle's size for ``tiles``: fdm-dual's 160 mm at its 200 tiles, scaled to keep
+    the tile side (so the string channel fits), to 10 mm."""
+    return float(max(160, round(160 * math.sqrt(tiles / 200) / 10) * 10))
+
+
 def _design(tiles: int, out: Path, scheduler: str | None) -> dict[str, Any]:
     """One run: its wall time, stage times and load average before it."""
     command = [sys.executable, "-m", "drawstring.app.cli", "design", "saddle"]
-    command += ["--tiles", str(tiles), "--no-simulate", "--quiet", "--out", str(out)]
+    command += ["--tiles", str(tiles), "--size", f"{size_for(tiles):g}"]
+    command += ["--no-simulate", "--quiet", "--out", str(out)]
     if scheduler is not None:
         command += ["--scheduler", scheduler]
     load = os.getloadavg()[0]
@@ -45,6 +54,7 @@ def _design(tiles: int, out: Path, scheduler: str | None) -> dict[str, Any]:
     timings = json.loads((out / "design.json").read_text())["timings_s"]
     return {
         "tiles": tiles,
+        "size_mm": size_for(tiles),
         "wall_s": round(seconds, 1),
         "cad_s": round(float(timings.get("cad", 0.0)), 1),
         "exit": done.returncode,

@@ -58,10 +58,13 @@ def fit_warnings(
     target_diagonal_mm: float,
     fit: dict[str, Any] | None,
     options: ResolvedOptions,
+    *,
+    top_tried: bool = False,
 ) -> list[str]:
     """The warning "tiles sit far from the target" where the measured surface distance misses
     its quality level (:func:`fit_misses`), with what ``--fit`` did (``fit``,
-    ``metrics.fit``) and what would bring the tiles closer."""
+    ``metrics.fit``) and what would bring the tiles closer (not top hinges where
+    ``top_tried``: they were laid out too)."""
     far = fit_misses(metrics, target_diagonal_mm)
     if not far:
         return []
@@ -78,7 +81,7 @@ def fit_warnings(
         )
     elif used == "paper":
         how = f"the close fit was not kept ({close.get('refused', '')})"
-        if options.hinges != "top":
+        if options.hinges != "top" and not top_tried:
             how += "; --hinges top lays out the close shape without that depth condition"
     else:
         how = (

@@ -199,11 +199,13 @@ def measure_design(
     target_diagonal_mm: float = 0.0,
     target: Target | None = None,
     fit: dict[str, Any] | None = None,
+    top_tried: bool = False,
 ) -> tuple[dict[str, Any], list[str], list[str]]:
     """Measure the output geometry (not the optimizers' beliefs) and list unmet targets
     (``target_diagonal_mm``: the target's bounding-box diagonal, for the surface distance;
     ``target``: the target as the design approximates it, whose distance from the top faces
-    is measured over each face; ``fit``: what ``--fit`` did, ``metrics.fit``).
+    is measured over each face; ``fit``: what ``--fit`` did, ``metrics.fit``; ``top_tried``:
+    a layout with every hinge on top was made too, so the warnings do not suggest it).
 
     Returns the ``metrics`` entries of design.json, the *problems* (targets whose failure makes
     the part unbuildable: overlapping tiles, gaps outside their angle bounds, an invalid route,
@@ -235,8 +237,8 @@ def measure_design(
     problems = _shape_problems(clash, flat_pose, options)
     warnings = [
         *_edge_error_warnings(flat_pose),
-        *fit_warnings(metrics, target_diagonal_mm, fit, options),
-        *_hinge_gap_warnings(flat_pose, options),
+        *fit_warnings(metrics, target_diagonal_mm, fit, options, top_tried=top_tried),
+        *_hinge_gap_warnings(flat_pose, options, top_tried=top_tried),
     ]
     scale_problems, scale_warnings = _scale_findings(
         tiling, options, flat_pose, shape_ok=not problems
@@ -422,24 +424,27 @@ def _edge_error_warnings(flat_pose: _FlatPose) -> list[str]:
     ]
 
 
-def _hinge_gap_warnings(flat_pose: _FlatPose, options: ResolvedOptions) -> list[str]:
+def _hinge_gap_warnings(
+    flat_pose: _FlatPose, options: ResolvedOptions, *, top_tried: bool
+) -> list[str]:
     """A warning where the hinged corners of the fabricated tiles do not meet, with its cause
-    and what closes it."""
+    and what closes it (not top hinges where ``top_tried``)."""
     hinge_gap, in_plane_gap = flat_pose.hinge_gap_mm, flat_pose.hinge_gap_in_plane_mm
     if hinge_gap <= HINGE_GAP_TOL_MM:
         return []
     if in_plane_gap <= HINGE_GAP_TOL_MM:
         cause = (
             f"seen from above the hinges meet to {in_plane_gap:.2g} mm; the rest is the "
-            "tiles' thickness difference at bottom hinges (the quad mesh is not conical); "
-            "--hinges top puts every hinge on the top faces, where it closes"
+            "tiles' thickness difference at bottom hinges (the quad mesh is not conical)"
         )
+        if not top_tried:
+            cause += "; --hinges top puts every hinge on the top faces, where it closes"
     elif not options.co_optimize:
         cause = (
             "without the co-optimization (--no-co-optimize) the flat layout only "
             "approximates the assembled tiles; drop that option to close it"
         )
-    elif options.hinges == HingeStrategy.DUAL:
+    elif options.hinges == HingeStrategy.DUAL and not top_tried:
         cause = "more tiles shrink it, and --hinges top reaches 1e-3 mm on most built-ins"
     else:
         cause = "more tiles shrink it"

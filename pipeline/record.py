@@ -115,7 +115,9 @@ class DesignOptions:
     min_gap_angle_deg: float | None = None
     max_scale_factor: float = MAX_SCALE_FACTOR
     corners: tuple[int, int, int, int] | None = None
-    hinges: HingeStrategy = HingeStrategy.DUAL
+    #: None: dual, and all on top instead where the dual layout misses the profile's
+    #: fabrication tolerance and the top one meets it (:func:`~.run.hinges_chosen`)
+    hinges: HingeStrategy | None = None
     #: eq. 1's weights; None: the paper's, which ``fit`` builds on
     weights: tuple[float, float, float] | None = None
     fit: FitChoice = "close"
@@ -210,7 +212,7 @@ class DesignOptions:
                 "--weights: at least one of PLANAR SQUARE SURFACE must be positive "
                 "(paper: 10000 10 0.1)"
             )
-        if self.hinges not in HINGE_STRATEGIES:
+        if self.hinges is not None and self.hinges not in HINGE_STRATEGIES:
             raise InputError(f"--hinges must be dual or top (got {self.hinges!r})")
         if (
             len(self.up) != 3

@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
@@ -77,7 +78,7 @@ def resolve_options(
         else profile.min_gap_angle_deg,
         max_scale_factor=options.max_scale_factor,
         corners=options.corners,
-        hinges=HingeStrategy(options.hinges),
+        hinges=HingeStrategy(options.hinges or HingeStrategy.DUAL),
         weights=PAPER_WEIGHTS if options.weights is None else tuple(options.weights),
         fit=options.fit,
         up=tuple(float(c) / math.hypot(*options.up) for c in options.up),
@@ -148,7 +149,13 @@ def _design(
     progress = progress or Progress(quiet=quiet)
     loaded, flat_map, notes = _target_and_flattening(target, resolved, progress)
     check_grid(resolved, flat_map, from_profile=options.tiles is None and options.grid is None)
-    shaped = _laid_out(loaded, flat_map, resolved, progress, policy, (os.fspath(target), options))
+    asked = (os.fspath(target), options)
+    shaped = _laid_out(loaded, flat_map, resolved, progress, policy, asked)
+    shaped, resolved, hinge_choice = hinges_chosen(
+        shaped, resolved, profile.tolerance_mm, lambda top: _laid_out(
+            loaded, flat_map, top, progress, policy, asked
+        ), asked_hinges=options.hinges,
+    )  # fmt: skip
     notes.extend(shaped.notes)
     tiling, assembled, flat = shaped.tiling, shaped.assembled, shaped.flat
     hinge_layout = shaped.hinge_layout
@@ -161,8 +168,11 @@ def _design(
     measured, problems, warnings = measure_design(
         resolved, profile, tiling, assembled, flat, hinge_layout, lift, route, masses,
         target_diagonal_mm=loaded.bbox_diagonal_mm, target=loaded, fit=shaped.fit,
+        top_tried=hinge_choice is not None,
     )  # fmt: skip
     measured["co_optimization"] = shaped.co_block
+    if hinge_choice is not None:
+        measured["hinge_choice"] = hinge_choice
     if shaped.fit is not None:
         measured["fit"] = jsonable(shaped.fit)
     measured["split_bound"] = rounded(shaped.split_bound, 6)
@@ -262,6 +272,49 @@ def _laid_out(
         raise checked_size_refusal(exc, source, given, options, profile) from exc
     except ChannelShortfall as exc:
         raise checked_channel_refusal(exc, source, given, options, profile) from exc
+
+
+def hinges_chosen(
+    shaped: ShapedLayout,
+    options: ResolvedOptions,
+    tolerance_mm: float,
+    lay_out: Callable[[ResolvedOptions], ShapedLayout],
+    *,
+    asked_hinges: HingeStrategy | None,
+) -> tuple[ShapedLayout, ResolvedOptions, dict[str, Any] | None]:
+    """With ``--hinges`` left unset, the dual layout ``shaped``, or where it misses the
+    profile's fabrication tolerance (flat edge error or hinge gap over ``tolerance_mm``; in
+    depth only bottom hinges can miss) the layout with every hinge on top, ``lay_out(options
+    with top hinges)``, when that one meets it.  Returns the layout kept, its options, and
+    ``metrics.hinge_choice`` (None where only one layout was made)."""
+    if asked_hinges is not None or options.hinges != HingeStrategy.DUAL:
+        return shaped, options, None
+    dual = shaped.accuracy_mm
+    if dual <= tolerance_mm:
+        return shaped, options, None
+    top_options = replace(options, hinges=HingeStrategy.TOP)
+    choice: dict[str, Any] = {"dual_accuracy_mm": rounded(dual, 9)}
+    try:
+        top = lay_out(top_options)
+    except InputError as refused:
+        choice.update(used="dual", top_refused=str(refused))
+        return shaped, options, choice
+    choice["top_accuracy_mm"] = rounded(top.accuracy_mm, 9)
+    missed = f"with dual hinges the flat layout is {dual:.2g} mm off, over {tolerance_mm:g} mm"
+    if top.accuracy_mm <= tolerance_mm:
+        choice["used"] = "top"
+        note = (
+            f"hinges: {missed}; with every hinge on the top faces (the tiles' overlaps "
+            f"trimmed) it is {top.accuracy_mm:.2g} mm off, so the design has top hinges "
+            "(--hinges dual keeps the bottom ones)"
+        )
+        return replace(top, notes=(*top.notes, note)), top_options, choice
+    choice["used"] = "dual"
+    note = (
+        f"hinges: {missed}; with every hinge on the top faces it is {top.accuracy_mm:.2g} mm "
+        "off, so the dual design is kept"
+    )
+    return replace(shaped, notes=(*shaped.notes, note)), options, choice
 
 
 class _Deployment:

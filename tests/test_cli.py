@@ -808,7 +808,9 @@ def test_the_fix_for_a_missed_layout_target_names_tiles_and_a_split_bound_that_s
         hinges: str = "top",
         misses: list[str] = edge,
         angle: float = 12.0,
+        measured: dict[str, object] | None = None,
     ) -> str:
+        measured = {} if measured is None else measured
         tiling = SimpleNamespace(linkage=SimpleNamespace(n_tiles=tiles), scale_factor_max=ratio)
         options = SimpleNamespace(hinges=hinges, min_gap_angle_deg=angle)
         design = SimpleNamespace(
@@ -816,6 +818,7 @@ def test_the_fix_for_a_missed_layout_target_names_tiles_and_a_split_bound_that_s
             options=options,
             profile=SimpleNamespace(min_gap_angle_deg=12.0),
             layout_misses=lambda: misses,
+            measured=measured,
         )
         return closer_fit(design)
 
@@ -838,6 +841,10 @@ def test_the_fix_for_a_missed_layout_target_names_tiles_and_a_split_bound_that_s
         "try --hinges top, which puts every hinge on the top faces, where it closes"
     )
     assert "--hinges top" in fix(200, 1.9, "dual", [*edge, *depth]).split("split it")[1]
+    # where --hinges was left unset the top layout was made too and missed: not suggested
+    tried = {"hinge_choice": {"used": "dual", "dual_accuracy_mm": 0.12, "top_accuracy_mm": 2.0}}
+    assert "--hinges top" not in fix(200, 1.9, "dual", depth, measured=tried)
+    assert fix(196, 1.002, "dual", measured=tried) == "try more tiles (e.g. --tiles 392)"
 
 
 def test_strict_exits_0_without_warnings(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -1341,10 +1348,12 @@ def test_a_scale_factor_no_split_can_mend_exits_3_naming_the_fixes(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     # the scanned head at 50 tiles: no sequence of cuts that keeps every piece on the outer
-    # boundary brings its largest part's area-scale ratio (2.80) under the bound
+    # boundary brings its largest part's area-scale ratio (2.80) under the bound.  With dual
+    # hinges asked for (left unset, the top-hinge layout is taken: it keeps its gaps in bounds)
     out = tmp_path / "spot"
     mesh = Path(__file__).parent / "data" / "spothead.obj"
     args = ["design", str(mesh), "--tiles", "50", "--no-cad", "--no-simulate", "--quiet"]
+    args += ["--hinges", "dual"]
     assert main([*args, "--out", str(out)]) == 3
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert "scale factor 2.801 exceeds" in line and "use more tiles" in line
@@ -1473,7 +1482,7 @@ def test_design_help_states_every_default_and_range(capsys) -> None:
         "--max-scale-factor": "(1, 2] (default 2)",
         "--seed": "(default 0)",
         "--weights": "0 to 1e8",
-        "--hinges": "the default",
+        "--hinges": "default: dual, or top where",
     }.items():
         # the option's own entry: its name and metavar, then its help
         found = re.search(rf"{re.escape(option)} (?:[A-Z_]+|I J|\{{[a-z,]+\}}) (.{{0,200}})", text)

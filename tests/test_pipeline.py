@@ -516,7 +516,9 @@ def test_hinged_pairs_that_planes_through_the_hinge_hold_apart_are_laid_out_agai
     # laid out again too).  Separated on the hinge face only, they meet and nothing interpenetrates.
     # (With the bottom hinges' depths matched first the three-shell's pairs all meet without
     # this; the eq.-1 bottoms keep the case.)
-    options = DesignOptions(tiles=200, size_mm=200.0, simulate=False, cad=False, fit="paper")
+    options = DesignOptions(
+        tiles=200, size_mm=200.0, simulate=False, cad=False, fit="paper", hinges="dual"
+    )
     result = design("three-shell", options, policy=LayoutPolicy(hinge_depths=False))
     metrics = result.metrics()
     assert metrics["hinge_gap_in_plane_max_mm"] <= 1e-3
@@ -653,7 +655,9 @@ def test_a_part_whose_scale_hardly_varies_is_not_split_further(monkeypatch) -> N
 
     monkeypatch.setattr(layout_stage, "tile_surface", counted)
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(lambda _self: 1.0))
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
+    options = DesignOptions(
+        tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper", hinges="dual"
+    )
     result = design("wave", options)
     assert result.tiling.scale_factor_max < 1.1
     assert calls == [split_bound(result.options)]
@@ -819,7 +823,9 @@ def test_a_first_tiling_far_off_skips_the_hinge_stage_unless_kept(monkeypatch) -
     # (its ladder goes on after the first weight's miss instead of pausing for the split;
     # calls are counted here)
     policy = replace(IN_TURN, prefer_split_at_first_weight=False, retile_ahead=False)
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
+    options = DesignOptions(
+        tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper", hinges="dual"
+    )
     result = design("saddle", options, policy=policy)
     assert result.tiling.linkage.n_components == 2
     assert hinged == [2]
@@ -1132,7 +1138,9 @@ def test_the_flat_seed_of_a_refused_co_optimization_is_finished(monkeypatch) -> 
 
     monkeypatch.setattr(layout_stage, "flat_layout", recorded)
     monkeypatch.setattr(layout_stage, "co_optimized", refused)
-    options = DesignOptions(tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper")
+    options = DesignOptions(
+        tiles=60, size_mm=200.0, simulate=False, cad=False, fit="paper", hinges="dual"
+    )
     result = design("saddle", options, policy=LayoutPolicy(flat_seed_steps=5))
     # every layout (the first tiling is laid out twice: see the held-openings test) is a seed
     # and then its finish
