@@ -37,6 +37,13 @@ def _run(mesh: Path, args: list[str], out: Path) -> tuple[int, str, float]:
     return done.returncode, lines[-1] if lines else "", seconds
 
 
+def _percent(metrics: dict[str, Any], key: str, of: float | None) -> float | None:
+    value = metrics.get(key)
+    if value is None or not of:
+        return None
+    return round(100.0 * float(value) / float(of), 2)
+
+
 def _design_facts(folder: Path) -> dict[str, Any]:
     """What a written design's design.json says, for the row."""
     path = folder / "design.json"
@@ -45,7 +52,11 @@ def _design_facts(folder: Path) -> dict[str, Any]:
     doc = json.loads(path.read_text(encoding="utf-8"))
     metrics = doc.get("metrics", {})
     simulation = metrics.get("simulation") or {}
+    levels = doc.get("quality", {}).get("measures", {})
+    fit_levels = [levels.get(f"surface_distance_{k}_mm", {}).get("level") for k in ("mean", "max")]
     return {
+        "hinges": doc.get("options", {}).get("hinges"),
+        "fit_used": (metrics.get("fit") or {}).get("used"),
         "tiles": doc.get("linkage", {}).get("tiles"),
         "parts": doc.get("linkage", {}).get("components"),
         "deployed": simulation.get("deployed"),
@@ -54,6 +65,15 @@ def _design_facts(folder: Path) -> dict[str, Any]:
         "hinge_gap_in_plane_max_mm": metrics.get("hinge_gap_in_plane_max_mm"),
         "fit_mean_mm": metrics.get("surface_distance_mean_mm"),
         "fit_max_mm": metrics.get("surface_distance_max_mm"),
+        "fit_mean_pct_side": _percent(
+            metrics, "surface_distance_mean_mm", metrics.get("tile_side_mean_mm")
+        ),
+        "fit_max_pct_diagonal": _percent(
+            metrics, "surface_distance_max_mm", doc.get("target", {}).get("bbox_diagonal_mm")
+        ),
+        # #46's fit levels: mean within 2 % of the mean tile side, largest within 1 % of the
+        # target's diagonal
+        "fit_met": fit_levels == ["target", "target"],
         "problems": doc.get("problems", []),
     }
 
