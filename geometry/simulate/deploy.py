@@ -27,7 +27,10 @@ system is :class:`~drawstring.geometry.simulate.system.DeploySystem`, its time s
   string crosses a gap between faces that do not meet, the midpoints are reeled in to their
   assembled distance;
 * ``lift`` -- the string's exits: the top corners around every lift gap are pulled up to their
-  assembled height (the assembled tiles placed on the table under the flat layout);
+  assembled height (the assembled tiles placed on the table under the flat layout), until a
+  check in the settle finds the structure locked by the string (every route pair closed, every
+  hinged pair stuck) but off its shape: then they are let go
+  (:meth:`~.system.DeploySystem.release_lift`);
 * ``stick`` -- static friction in the settle: once the string is reeled in, a hinged neighbour
   pair whose contact faces lie face on face (every corner within ``stick_rel``, 3 % of a tile
   side, of its assembled partner corner; :func:`~.tiles.face_on_face`) sticks: its corners are held
@@ -197,6 +200,7 @@ def simulate_deployment(
         factorizations=run.factorizations,
         tile_deviation_mm=dev,
         reasons=tuple(reasons),
+        lift_released_step=system.lift_released,
     )
     logger.info(
         "simulation: deployed=%s steps=%d dev=%.3g mm pen=%.3g mm edge=%.3g mm %.2f s %s",

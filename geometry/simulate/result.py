@@ -100,6 +100,11 @@ class SimulationSettings:
         (0: no sticking).
     stick_rel : how close (tile sides, largest corner distance) two contact faces must come
         before they stick.
+    release_lift : at a check in the settle that finds the structure locked (every route pair
+        closed, every hinged neighbour pair stuck) but not yet at its assembled shape, the lift
+        targets are let go: the string holds the locked structure, and heights fixed for the
+        assembled shape standing upright on the table only bend a structure that hangs turned
+        from its exits.
     """
 
     time_step_s: float = 0.002
@@ -128,6 +133,7 @@ class SimulationSettings:
     rigid_projection: bool = True
     stick: float = 3e4
     stick_rel: float = 0.03
+    release_lift: bool = True
 
 
 #: Slower, better converged settings: twice the local-global iterations per step, one more
@@ -158,6 +164,8 @@ class SimulationResult:
     factorizations : sparse factorizations over the whole run.
     tile_deviation_mm : (T,) final per-tile deviation.
     reasons : why ``deployed`` is False (empty when it is True).
+    lift_released_step : the step at which the lift targets were let go
+        (:attr:`SimulationSettings.release_lift`), None when they held to the end.
     """
 
     deployed: bool
@@ -174,6 +182,7 @@ class SimulationResult:
     factorizations: int = 0
     tile_deviation_mm: FloatArray = field(default_factory=lambda: np.zeros(0))
     reasons: tuple[str, ...] = ()
+    lift_released_step: int | None = None
 
     def to_json(self) -> dict[str, object]:
         """The ``design.json`` ``simulation`` block."""
@@ -188,6 +197,7 @@ class SimulationResult:
             "per_step_ms": self.per_step_ms,
             "reasons": list(self.reasons),
             "worst_tiles": self.worst_tiles(),
+            "lift_released_step": self.lift_released_step,
         }
 
     def worst_tiles(self, count: int = 5) -> list[dict[str, float | int]]:

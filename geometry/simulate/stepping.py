@@ -86,6 +86,12 @@ class SuccessCheck:
             reasons.append(f"penetration {pen:.3g} mm > {tol.penetration_rel * side:.3g} mm{note}")
         return reasons, dist, dev, pen
 
+    def locked_off_shape(self, verdict: Verdict, system: DeploySystem) -> bool:
+        """Whether a failed check's ``verdict`` finds the structure locked by the string
+        (every route pair closed, every hinged neighbour pair stuck) but off its shape."""
+        closed = not np.any(verdict[1] > self.tol.gap_closed_rel * self.side)
+        return bool(verdict[0]) and closed and system.locked()
+
     def stops(self, verdict: Verdict, progress: list[float], cfg: SimulationSettings) -> bool:
         """Whether a check's ``verdict`` ends the run: deployed, at an assembled shape that
         overlaps itself, or stuck (the deviation, appended to ``progress``, stopped
@@ -148,6 +154,8 @@ def run_steps(
             logger.debug("step %d: %s", step, "; ".join(run.verdict[0]) or "deployed")
             if check.stops(run.verdict, run.progress, cfg):
                 break
+            if cfg.release_lift and check.locked_off_shape(run.verdict, system):
+                system.release_lift(step)
         run.verdict = None
         if step >= check_from and run.quiet >= 5:
             break

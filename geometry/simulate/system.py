@@ -126,6 +126,8 @@ class DeploySystem:
     faces, face_partner, stuck : the hinged neighbours' contact faces, each corner's partner
         corner and which pairs stick.
     level : the lock level reached.
+    lift_released : the step at which the lift targets were let go (:meth:`release_lift`),
+        None while they hold.
     """
 
     cfg: SimulationSettings
@@ -158,6 +160,7 @@ class DeploySystem:
     lift_start: FloatArray = field(default_factory=lambda: np.zeros(0))
     lift_goal: FloatArray = field(default_factory=lambda: np.zeros(0))
     level: float = 1.0
+    lift_released: int | None = None
 
     @classmethod
     def build(
@@ -268,6 +271,28 @@ class DeploySystem:
             self._reel_magnets(x, smooth)
         if self.use_stick and step > cfg.ramp_steps:
             self._stick(x)
+
+    def locked(self) -> bool:
+        """Whether every hinged neighbour pair has stuck (static friction holds each pair's
+        faces as assembled)."""
+        return self.use_stick and bool(self.stuck.all())
+
+    def release_lift(self, step: int) -> None:
+        """Let go of the lift targets from ``step`` on (one refactorization).
+
+        The lift's targets are heights of the assembled shape standing upright on the table.
+        A structure pulled up by its exits can hang turned from that pose (the clam shell's
+        up axis ends 56 degrees from it); once the string has locked it, those heights no
+        longer raise anything but bend the locked structure along its softest flex, which
+        costs so little that the settle creeps back only over thousands of steps.  The
+        settle has neither table nor gravity, so the locked structure needs nothing holding
+        it in place.
+        """
+        if self.lift is None or self.lift_released is not None:
+            return
+        self.base["lift"] = 0.0
+        self.solver.set_weight("lift", 0.0)
+        self.lift_released = step
 
     def _reel_magnets(self, x: FloatArray, smooth: float) -> None:
         """An engaged magnet reels its pair in no faster than the string (the same ramp from
