@@ -74,6 +74,10 @@ class CadResult:
         (:func:`~drawstring.cad.kernel.solid_checks`), measured by the workers that built
         them; empty, or not one per solid, where the solids were made otherwise (then
         :meth:`checks` measures them).
+    unengraved : the tiles in the flat pose without their engraved numbers, the solids of the
+        STEP files (:func:`~drawstring.cad.magnets_labels.fill_engraving`; the assembled pose
+        moves them by ``transforms``): one per tile, the engraved solid where a tile has no
+        number or its pockets could not be filled; empty where no number is engraved.
     """
 
     pose: Pose
@@ -89,6 +93,7 @@ class CadResult:
     unlabelled: tuple[int, ...] = field(default=())
     tile_checks: tuple[tuple[bool, float], ...] = field(default=())
     pad_checks: tuple[tuple[bool, float], ...] = field(default=())
+    unengraved: tuple[bd.Solid, ...] = field(default=())
 
     def checks(self, part: Literal["tiles", "pads"]) -> tuple[NDArray[np.bool_], NDArray]:
         """(n,) bool validity and (n,) float volumes (mm^3) of the tiles or the pads."""
@@ -219,6 +224,8 @@ def build_design_solids(
     )
     results = run_jobs(jobs, profile, hinge_data, workers)
     tiles, pads, unlabelled = _gather(results, inputs, labels, failed, notes, profile)
+    filled = {r.tile: r.unengraved for r in results if r.unengraved is not None}
+    unengraved = tuple(filled.get(t, tile) for t, tile in enumerate(tiles)) if filled else ()
     checks = _checks_of(results)
     transforms, residual = rigid_transforms(flat, inputs.assembled)
     if residual.size and residual.max() > 1e-3:
@@ -249,6 +256,7 @@ def build_design_solids(
         tuple(int(t) for t in unlabelled),
         tile_checks,
         pad_checks,
+        unengraved,
     )
 
 

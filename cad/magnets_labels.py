@@ -11,6 +11,11 @@ from typing import TYPE_CHECKING, Literal
 import build123d as bd
 import numpy as np
 from numpy.typing import NDArray
+from OCP.BRep import BRep_Builder, BRep_Tool
+from OCP.BRepTools import BRepTools_ReShape
+from OCP.TopAbs import TopAbs_EDGE, TopAbs_FORWARD
+from OCP.TopExp import TopExp_Explorer
+from OCP.TopoDS import TopoDS_Face, TopoDS_Iterator
 
 from drawstring.cad.feature_common import (
     TOOL_OVERSHOOT_MM,
@@ -412,3 +417,86 @@ def label_engraving(
         for rect in _segment_rectangles(text, height)
     ]
     return bd.Compound(solids)
+
+
+def fill_engraving(solid: bd.Solid, engraving: bd.Shape, depth: float) -> bd.Solid | None:
+    """``solid`` with the pockets that ``engraving`` (:func:`label_engraving`) cut into its
+    bottom face filled again: the pockets' faces taken out and the holes they left in the
+    bottom face closed, the rest of the B-rep kept as it is (no boolean; milliseconds).
+
+    A face is a pocket's when all its vertices lie in one of the engraving's convex prisms.
+    Returns None where the result is not one valid solid whose volume is ``solid``'s plus the
+    pockets' (the prisms' volume below the face, ``depth`` of their ``depth +
+    TOOL_OVERSHOOT_MM``), for example where a pocket met another feature.
+    """
+    prisms = engraving.solids()
+    halfspaces = [_halfspaces(prism) for prism in prisms]
+    removed: list[bd.Face] = []
+    pocket_edges: set[bd.Edge] = set()
+    for face in solid.faces():
+        points = np.array([(v.X, v.Y, v.Z) for v in face.vertices()]).reshape(-1, 3)
+        if len(points) and any(
+            np.all(points @ normals.T - offsets <= 1e-5) for normals, offsets in halfspaces
+        ):
+            removed.append(face)
+            pocket_edges.update(face.edges())
+    if not removed:
+        return None
+    reshape = BRepTools_ReShape()
+    builder = BRep_Builder()
+    gone = set(removed)
+    for face in solid.faces():
+        if face in gone:
+            reshape.Remove(face.wrapped)
+            continue
+        kept, dropped = [], False
+        wires = TopoDS_Iterator(face.wrapped.Oriented(TopAbs_FORWARD))
+        while wires.More():
+            wire = wires.Value()
+            wires.Next()
+            edges = TopExp_Explorer(wire, TopAbs_EDGE)
+            inside = True
+            while edges.More() and inside:
+                inside = bd.Edge(edges.Current()) in pocket_edges
+                edges.Next()
+            if inside:
+                dropped = True
+            else:
+                kept.append(wire)
+        if dropped:  # the same surface and edges, without the pockets' rims
+            wrapped = face.wrapped
+            closed = TopoDS_Face()
+            surface = BRep_Tool.Surface_s(wrapped)
+            builder.MakeFace(closed, surface, wrapped.Location(), BRep_Tool.Tolerance_s(wrapped))
+            for wire in kept:
+                builder.Add(closed, wire)
+            closed.Orientation(wrapped.Orientation())
+            reshape.Replace(wrapped, closed)
+    try:
+        filled = bd.Solid(reshape.Apply(solid.wrapped))
+        pockets = sum(p.volume for p in prisms) * depth / (depth + TOOL_OVERSHOOT_MM)
+        if not filled.is_valid or len(filled.solids()) != 1:
+            return None
+        expected = solid.volume + pockets
+    except Exception as exc:  # the kernel's own errors: keep the engraved solid
+        log.debug("filling an engraving failed: %s: %s", type(exc).__name__, exc)
+        return None
+    if abs(filled.volume - expected) > 1e-6 * max(expected, 1.0):
+        return None
+    return filled
+
+
+def _halfspaces(prism: bd.Solid) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(normals, offsets)`` of a convex planar-faced solid: inside is ``normals @ x <=
+    offsets`` (outward normals)."""
+    middle = prism.center()
+    normals, offsets = [], []
+    for face in prism.faces():
+        normal, point = face.normal_at(), face.center()
+        n = np.array([normal.X, normal.Y, normal.Z])
+        p = np.array([point.X, point.Y, point.Z])
+        if n @ (np.array([middle.X, middle.Y, middle.Z]) - p) > 0:
+            n = -n
+        normals.append(n)
+        offsets.append(n @ p)
+    return np.array(normals), np.array(offsets)

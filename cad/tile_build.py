@@ -22,7 +22,7 @@ from drawstring.cad.hinge_frame import StripNeighbours
 from drawstring.cad.hinge_parts import HingeParts, hinge_face_footprints, hinge_pad
 from drawstring.cad.hinge_pins import HingePins
 from drawstring.cad.kernel import ensure_mesh, solid_checks
-from drawstring.cad.magnets_labels import label_engraving
+from drawstring.cad.magnets_labels import fill_engraving, label_depth, label_engraving
 from drawstring.cad.tiles import relieved_tile_solid, tile_solid
 from drawstring.geometry.core import parallel
 from drawstring.geometry.core.errors import InputError, InternalError
@@ -79,6 +79,9 @@ class JobResult:
     #: (valid, volume) of the tile, then of each of ``pads`` (:func:`~drawstring.cad.kernel.
     #: solid_checks`), measured here, in the worker, rather than serially by the caller.
     checks: list[tuple[bool, float]] = field(default_factory=list)
+    #: The tile without its engraved number (:func:`~drawstring.cad.magnets_labels.
+    #: fill_engraving`), for the STEP files; None where it has none or it could not be filled.
+    unengraved: bd.Solid | None = None
 
 
 def kernel_failure(what: str, exc: Exception) -> None:
@@ -144,6 +147,7 @@ def build_job(job: TileJob, profile: Profile, hinge_data: tuple[HingeData, ...])
             "number engraving", partial(label_engraving, job.vertices, job.tile, profile, bottom)
         )
     solid, dropped = _cut(job, tools)
+    unengraved = _unengraved(job, solid, tools, profile) if labelled else None
     pads = _own_pads(job, profile, hinge_data, built_pads, tools.failed)
     checks = []
     for part in [solid, *(pad for _, pad in pads)]:
@@ -155,7 +159,24 @@ def build_job(job: TileJob, profile: Profile, hinge_data: tuple[HingeData, ...])
             kernel_failure(f"tile {job.tile}: mesh", exc)
     result = JobResult(job.tile, solid, pads, notes, labelled, tools.failed, sum(dropped))
     result.checks = checks
+    result.unengraved = unengraved
     return result
+
+
+def _unengraved(job: TileJob, solid: bd.Solid, tools: _Tools, profile: Profile) -> bd.Solid | None:
+    """The tile without the number engraved into it, or None (no engraving was cut, or its
+    pockets could not be filled: the STEP files then show the number)."""
+    if "number engraving" in tools.failed or "number engraving" not in tools.names:
+        return None
+    engraving = tools.solids[tools.names.index("number engraving")]
+    try:
+        filled = fill_engraving(solid, engraving, label_depth(profile))
+    except Exception as exc:
+        kernel_failure(f"tile {job.tile}: filling its number", exc)
+        return None
+    if filled is None:
+        log.debug("tile %d: its number's pockets could not be filled", job.tile)
+    return filled
 
 
 def _hinge_parts(data: HingeData, profile: Profile, build_pad: bool) -> HingeParts:

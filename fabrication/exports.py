@@ -40,6 +40,7 @@ from drawstring.fabrication.profiles import Process, string_is_cable
 from drawstring.fabrication.record import AssemblyGuide, ExportRecord, GuideInputs
 from drawstring.fabrication.slicing import finish_slicing, print_rows, start_slicing
 from drawstring.fabrication.step import (
+    StepJob,
     finish_step_writers,
     start_step_writers,
     stop_step_writers,
@@ -183,21 +184,31 @@ def _guide_inputs(job: FabricationJob, panels: list[Panel]) -> GuideInputs:
     )
 
 
-def _step_jobs(job: FabricationJob, cad_assembled: CadResult) -> list[tuple[Path, list, str]]:
+def _step_jobs(job: FabricationJob, cad_assembled: CadResult) -> list[StepJob]:
     """``flat.step`` (tiles and hinge parts) and ``assembled.step`` (tiles): each file's
-    path, named parts with their materials, and label."""
+    path, named parts with their materials, label and the motions that place the parts.
+
+    The tiles are the solids without their engraved numbers (``CadResult.unengraved``, the
+    assembled ones moved there in the writing process) where the CAD stage made them.
+    """
     profile, cad_flat, name = job.profile, job.cad_flat, job.design_name
-    tile_parts = [(f"tile_{i}", s, profile.tile_material) for i, s in enumerate(cad_flat.tiles)]
+    plain = cad_flat.unengraved if len(cad_flat.unengraved) == len(cad_flat.tiles) else ()
+    tiles = plain or cad_flat.tiles
+    tile_parts = [(f"tile_{i}", s, profile.tile_material) for i, s in enumerate(tiles)]
     pad_parts = [
         (f"hinge_{h}", s, profile.hinge_material)
         for h, s in zip(cad_flat.pad_hinge, cad_flat.pads, strict=True)
     ]
-    assembled_parts = [
-        (f"tile_{i}", s, profile.tile_material) for i, s in enumerate(cad_assembled.tiles)
-    ]
+    if plain:
+        assembled = (tile_parts, cad_flat.transforms)
+    else:
+        assembled = (
+            [(f"tile_{i}", s, profile.tile_material) for i, s in enumerate(cad_assembled.tiles)],
+            None,
+        )
     return [
-        (job.out / "flat.step", tile_parts + pad_parts, f"{name} flat"),
-        (job.out / "assembled.step", assembled_parts, f"{name} assembled"),
+        (job.out / "flat.step", tile_parts + pad_parts, f"{name} flat", None),
+        (job.out / "assembled.step", assembled[0], f"{name} assembled", assembled[1]),
     ]
 
 

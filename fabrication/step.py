@@ -15,7 +15,10 @@ from pathlib import Path
 from typing import Any
 
 import build123d as bd
+import numpy as np
+from numpy.typing import NDArray
 
+from drawstring.cad.tiles import move_solid
 from drawstring.geometry.core import parallel
 
 #: Fixed timestamp written into STEP headers.
@@ -37,17 +40,25 @@ def _colour(material: str) -> bd.Color:
     return bd.Color(0.7, 0.7, 0.7)
 
 
-def write_step(path: Path, parts: Sequence[tuple[str, bd.Shape, str]], label: str) -> None:
+def write_step(
+    path: Path,
+    parts: Sequence[tuple[str, bd.Shape, str]],
+    label: str,
+    motions: NDArray[np.float64] | None = None,
+) -> None:
     """An assembly of named, coloured parts; the same bytes for the same parts in any process.
 
-    The header timestamp is fixed, assembly usages are numbered in file order and the colour
-    section is laid out by :func:`canonical_style_tail`.
+    The header timestamp is fixed, assembly usages are numbered in file order, the colour
+    section is laid out by :func:`canonical_style_tail` and equal geometry is written once
+    (:func:`share_geometry`).
 
     parts : (name, solid, material) per part.
+    motions : (len(parts), 4, 4) rigid motions to move the parts by first, or None.
     """
     children = []
-    for name, solid, material in parts:
-        child = type(solid)(solid.wrapped)
+    for index, (name, solid, material) in enumerate(parts):
+        shape = solid if motions is None else move_solid(solid, motions[index])
+        child = type(shape)(shape.wrapped)
         child.label = name
         child.color = _colour(material)
         children.append(child)
@@ -77,7 +88,7 @@ def write_step(path: Path, parts: Sequence[tuple[str, bd.Shape, str]], label: st
         text,
         flags=re.S,
     )
-    text = canonical_style_tail(text)
+    text = share_geometry(canonical_style_tail(text))
     path.write_bytes(text.encode("utf-8"))
 
 
@@ -191,6 +202,99 @@ def canonical_style_tail(text: str) -> str:
     return text[: start.start()] + "\n".join(lines) + "\n" + text[end:]
 
 
+#: Geometry entities written once per distinct content (:func:`share_geometry`).
+_SHARED_GEOMETRY = frozenset(
+    {
+        "CARTESIAN_POINT",
+        "DIRECTION",
+        "VECTOR",
+        "LINE",
+        "CIRCLE",
+        "ELLIPSE",
+        "AXIS2_PLACEMENT_3D",
+        "PLANE",
+        "CYLINDRICAL_SURFACE",
+        "CONICAL_SURFACE",
+        "TOROIDAL_SURFACE",
+        "SPHERICAL_SURFACE",
+    }
+)
+#: Of those, the ones shared only where geometry refers to them: an axis placement may also
+#: place a representation or an assembly component, which keeps its own.
+_PLACEMENTS = frozenset({"AXIS2_PLACEMENT_3D"})
+_STEP_TYPE = re.compile(r"\s*([A-Z_0-9]+)\s*\(")
+
+
+def share_geometry(text: str) -> str:
+    """STEP text with equal geometry written once.
+
+    OCCT writes a point, direction, line, axis placement or surface afresh for every edge,
+    vertex and face that uses it: the corners two faces of a tile share, the hundreds of
+    faces in one plane of a flat layout, the unit directions.  Entities of the types in
+    ``_SHARED_GEOMETRY`` whose content is the same (after their own references are shared)
+    become one entity that all users refer to; topology (vertices, edges, faces, shells),
+    representations and styles are left as they are, so every solid keeps its own B-rep.
+    The entities are then numbered from 1 in file order and written one per line.
+    """
+    data = text.find("DATA;")
+    if data < 0:
+        return text
+    data += len("DATA;")
+    end = text.index("ENDSEC;", data)
+    bodies: dict[int, str] = {}
+    order: list[int] = []
+    for match in _STEP_ENTITY.finditer(text, data, end):
+        number = int(match.group(1))
+        bodies[number] = match.group(2)
+        order.append(number)
+    kinds: dict[int, str] = {}
+    for number, body in bodies.items():
+        found = _STEP_TYPE.match(body)
+        kinds[number] = found.group(1) if found else ""
+    fixed: set[int] = set()  # placements something other than geometry refers to
+    for number, body in bodies.items():
+        if kinds[number] not in _SHARED_GEOMETRY:
+            fixed.update(int(r) for r in _STEP_TOKEN.findall(body) if r)
+    same: dict[int, int] = {}  # entity -> the first entity of its content
+    first: dict[str, int] = {}
+
+    def canonical(number: int) -> int:
+        known = same.get(number)
+        if known is not None:
+            return known
+        kind = kinds.get(number, "")
+        if kind not in _SHARED_GEOMETRY or (kind in _PLACEMENTS and number in fixed):
+            same[number] = number
+            return number
+        key = _STEP_TOKEN.sub(
+            lambda m: f"#{canonical(int(m[1]))}" if m[1] else ("" if m[0].isspace() else m[0]),
+            bodies[number],
+        )
+        same[number] = first.setdefault(key, number)
+        return same[number]
+
+    for number in reversed(order):  # OCCT writes an entity before what it refers to
+        canonical(number)
+    kept = [n for n in order if same[n] == n]
+    renumber = {old: k + 1 for k, old in enumerate(kept)}
+
+    def token(match: re.Match[str]) -> str:
+        if match[1]:
+            return f"#{renumber[same[int(match[1])]]}"
+        if not match[0].isspace():
+            return match[0]  # a string
+        lo, hi = match.span()
+        before, after = match.string[lo - 1 : lo], match.string[hi : hi + 1]
+        return "" if before in ",(" or after in ",)" else " "
+
+    def rewrite(body: str) -> str:
+        """The body on one line, references renumbered."""
+        return _STEP_TOKEN.sub(token, body).strip()
+
+    lines = [_wrap_step(f"#{renumber[n]} = {rewrite(bodies[n])};") for n in kept]
+    return text[:data] + "\n" + "\n".join(lines) + "\n" + text[end:]
+
+
 def _at_least(number: int) -> str:
     """Regular expression for a reference ``#n`` with ``n >= number`` (no leading zeros)."""
     digits = str(number)
@@ -223,14 +327,16 @@ def _wrap_step(entity: str) -> str:
 # writing in forked processes
 
 
-def start_step_writers(
-    jobs: Sequence[tuple[Path, Sequence[tuple[str, bd.Shape, str]], str]], workers: int | None
-) -> list[Any]:
+#: A STEP file to write: path, parts, label and motions (:func:`write_step`).
+StepJob = tuple[Path, Sequence[tuple[str, bd.Shape, str]], str, NDArray[np.float64] | None]
+
+
+def start_step_writers(jobs: Sequence[StepJob], workers: int | None) -> list[Any]:
     """Write the STEP files in forked processes, or here when fork is unavailable or
     ``workers == 1``."""
     if workers == 1 or "fork" not in multiprocessing.get_all_start_methods():
-        for path, parts, label in jobs:
-            write_step(path, parts, label)
+        for job in jobs:
+            write_step(*job)
         return []
     context = multiprocessing.get_context("fork")
     processes = [context.Process(target=_step_writer, args=job) for job in jobs]
@@ -240,10 +346,10 @@ def start_step_writers(
     return processes
 
 
-def _step_writer(path: Path, parts: Sequence[tuple[str, bd.Shape, str]], label: str) -> None:
+def _step_writer(*job: Any) -> None:
     """Body of a STEP-writing process."""
     parallel.exit_quietly_on_interrupt()
-    write_step(path, parts, label)
+    write_step(*job)
 
 
 def stop_step_writers(processes: Sequence[Any]) -> None:
