@@ -78,6 +78,9 @@ class CadResult:
         STEP files (:func:`~drawstring.cad.magnets_labels.fill_engraving`; the assembled pose
         moves them by ``transforms``): one per tile, the engraved solid where a tile has no
         number or its pockets could not be filled; empty where no number is engraved.
+    number_outlines : the outlines of the engraved numbers on the bottom faces (closed
+        wires), flat pose, one per tile of ``unengraved`` (None where it is the engraved
+        solid).
     """
 
     pose: Pose
@@ -94,6 +97,7 @@ class CadResult:
     tile_checks: tuple[tuple[bool, float], ...] = field(default=())
     pad_checks: tuple[tuple[bool, float], ...] = field(default=())
     unengraved: tuple[bd.Solid, ...] = field(default=())
+    number_outlines: tuple[bd.Compound | None, ...] = field(default=())
 
     def checks(self, part: Literal["tiles", "pads"]) -> tuple[NDArray[np.bool_], NDArray]:
         """(n,) bool validity and (n,) float volumes (mm^3) of the tiles or the pads."""
@@ -225,7 +229,10 @@ def build_design_solids(
     results = run_jobs(jobs, profile, hinge_data, workers)
     tiles, pads, unlabelled = _gather(results, inputs, labels, failed, notes, profile)
     filled = {r.tile: r.unengraved for r in results if r.unengraved is not None}
-    unengraved = tuple(filled.get(t, tile) for t, tile in enumerate(tiles)) if filled else ()
+    unengraved = tuple(filled[t][0] if t in filled else s for t, s in enumerate(tiles))
+    outlines = tuple(filled[t][1] if t in filled else None for t in range(len(tiles)))
+    if not filled:
+        unengraved, outlines = (), ()
     checks = _checks_of(results)
     transforms, residual = rigid_transforms(flat, inputs.assembled)
     if residual.size and residual.max() > 1e-3:
@@ -257,6 +264,7 @@ def build_design_solids(
         tile_checks,
         pad_checks,
         unengraved,
+        outlines,
     )
 
 

@@ -15,7 +15,7 @@ from OCP.BRep import BRep_Builder, BRep_Tool
 from OCP.BRepTools import BRepTools_ReShape
 from OCP.TopAbs import TopAbs_EDGE, TopAbs_FORWARD
 from OCP.TopExp import TopExp_Explorer
-from OCP.TopoDS import TopoDS_Face, TopoDS_Iterator
+from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Iterator
 
 from drawstring.cad.feature_common import (
     TOOL_OVERSHOOT_MM,
@@ -419,15 +419,18 @@ def label_engraving(
     return bd.Compound(solids)
 
 
-def fill_engraving(solid: bd.Solid, engraving: bd.Shape, depth: float) -> bd.Solid | None:
+def fill_engraving(
+    solid: bd.Solid, engraving: bd.Shape, depth: float
+) -> tuple[bd.Solid, bd.Compound] | None:
     """``solid`` with the pockets that ``engraving`` (:func:`label_engraving`) cut into its
     bottom face filled again: the pockets' faces taken out and the holes they left in the
     bottom face closed, the rest of the B-rep kept as it is (no boolean; milliseconds).
 
     A face is a pocket's when all its vertices lie in one of the engraving's convex prisms.
-    Returns None where the result is not one valid solid whose volume is ``solid``'s plus the
-    pockets' (the prisms' volume below the face, ``depth`` of their ``depth +
-    TOOL_OVERSHOOT_MM``), for example where a pocket met another feature.
+    Returns the filled solid and the pockets' rims (closed wires on the bottom face, the
+    outlines of the engraved digits), or None where the result is not one valid solid whose
+    volume is ``solid``'s plus the pockets' (the prisms' volume below the face, ``depth`` of
+    their ``depth + TOOL_OVERSHOOT_MM``), for example where a pocket met another feature.
     """
     prisms = engraving.solids()
     halfspaces = [_halfspaces(prism) for prism in prisms]
@@ -445,6 +448,7 @@ def fill_engraving(solid: bd.Solid, engraving: bd.Shape, depth: float) -> bd.Sol
     reshape = BRepTools_ReShape()
     builder = BRep_Builder()
     gone = set(removed)
+    rims: list[bd.Wire] = []
     for face in solid.faces():
         if face in gone:
             reshape.Remove(face.wrapped)
@@ -461,6 +465,7 @@ def fill_engraving(solid: bd.Solid, engraving: bd.Shape, depth: float) -> bd.Sol
                 edges.Next()
             if inside:
                 dropped = True
+                rims.append(bd.Wire(TopoDS.Wire(wire)))
             else:
                 kept.append(wire)
         if dropped:  # the same surface and edges, without the pockets' rims
@@ -483,7 +488,7 @@ def fill_engraving(solid: bd.Solid, engraving: bd.Shape, depth: float) -> bd.Sol
         return None
     if abs(filled.volume - expected) > 1e-6 * max(expected, 1.0):
         return None
-    return filled
+    return filled, bd.Compound(rims)
 
 
 def _halfspaces(prism: bd.Solid) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

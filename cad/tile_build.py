@@ -79,9 +79,10 @@ class JobResult:
     #: (valid, volume) of the tile, then of each of ``pads`` (:func:`~drawstring.cad.kernel.
     #: solid_checks`), measured here, in the worker, rather than serially by the caller.
     checks: list[tuple[bool, float]] = field(default_factory=list)
-    #: The tile without its engraved number (:func:`~drawstring.cad.magnets_labels.
-    #: fill_engraving`), for the STEP files; None where it has none or it could not be filled.
-    unengraved: bd.Solid | None = None
+    #: The tile without its engraved number and the number's outline (:func:`~drawstring.
+    #: cad.magnets_labels.fill_engraving`), for the STEP files; None where it has none or its
+    #: pockets could not be filled.
+    unengraved: tuple[bd.Solid, bd.Compound] | None = None
 
 
 def kernel_failure(what: str, exc: Exception) -> None:
@@ -163,9 +164,12 @@ def build_job(job: TileJob, profile: Profile, hinge_data: tuple[HingeData, ...])
     return result
 
 
-def _unengraved(job: TileJob, solid: bd.Solid, tools: _Tools, profile: Profile) -> bd.Solid | None:
-    """The tile without the number engraved into it, or None (no engraving was cut, or its
-    pockets could not be filled: the STEP files then show the number)."""
+def _unengraved(
+    job: TileJob, solid: bd.Solid, tools: _Tools, profile: Profile
+) -> tuple[bd.Solid, bd.Compound] | None:
+    """The tile without the number engraved into it and the number's outline, or None (no
+    engraving was cut, or its pockets could not be filled: the STEP files then show the
+    number cut)."""
     if "number engraving" in tools.failed or "number engraving" not in tools.names:
         return None
     engraving = tools.solids[tools.names.index("number engraving")]

@@ -41,6 +41,7 @@ from drawstring.fabrication.record import AssemblyGuide, ExportRecord, GuideInpu
 from drawstring.fabrication.slicing import finish_slicing, print_rows, start_slicing
 from drawstring.fabrication.step import (
     StepJob,
+    StepPart,
     finish_step_writers,
     start_step_writers,
     stop_step_writers,
@@ -185,30 +186,45 @@ def _guide_inputs(job: FabricationJob, panels: list[Panel]) -> GuideInputs:
 
 
 def _step_jobs(job: FabricationJob, cad_assembled: CadResult) -> list[StepJob]:
-    """``flat.step`` (tiles and hinge parts) and ``assembled.step`` (tiles): each file's
-    path, named parts with their materials, label and the motions that place the parts.
+    """``flat.step`` (tiles, hinge parts, numbers) and ``assembled.step`` (tiles, numbers):
+    each file's path, named parts with their materials, label and the motions that place the
+    parts.
 
-    The tiles are the solids without their engraved numbers (``CadResult.unengraved``, the
-    assembled ones moved there in the writing process) where the CAD stage made them.
+    Where the CAD stage filled the engraved numbers (``CadResult.unengraved``), the tiles
+    are those solids and each engraved number follows as its outline (``number_N``, closed
+    wires on the bottom face, no material); the assembled ones are moved there in the writing
+    process.
     """
     profile, cad_flat, name = job.profile, job.cad_flat, job.design_name
-    plain = cad_flat.unengraved if len(cad_flat.unengraved) == len(cad_flat.tiles) else ()
-    tiles = plain or cad_flat.tiles
-    tile_parts = [(f"tile_{i}", s, profile.tile_material) for i, s in enumerate(tiles)]
-    pad_parts = [
+    flat_path, assembled_path = job.out / "flat.step", job.out / "assembled.step"
+    pads: list[StepPart] = [
         (f"hinge_{h}", s, profile.hinge_material)
         for h, s in zip(cad_flat.pad_hinge, cad_flat.pads, strict=True)
     ]
-    if plain:
-        assembled = (tile_parts, cad_flat.transforms)
-    else:
-        assembled = (
-            [(f"tile_{i}", s, profile.tile_material) for i, s in enumerate(cad_assembled.tiles)],
-            None,
-        )
+    if not cad_flat.unengraved:
+        flat_tiles: list[StepPart] = [
+            (f"tile_{i}", s, profile.tile_material) for i, s in enumerate(cad_flat.tiles)
+        ]
+        assembled: list[StepPart] = [
+            (f"tile_{i}", s, profile.tile_material) for i, s in enumerate(cad_assembled.tiles)
+        ]
+        return [
+            (flat_path, flat_tiles + pads, f"{name} flat", None),
+            (assembled_path, assembled, f"{name} assembled", None),
+        ]
+    tiles: list[StepPart] = [
+        (f"tile_{i}", s, profile.tile_material) for i, s in enumerate(cad_flat.unengraved)
+    ]
+    numbered = [t for t, outline in enumerate(cad_flat.number_outlines) if outline is not None]
+    numbers: list[StepPart] = [
+        (f"number_{t}", outline, None)
+        for t in numbered
+        if (outline := cad_flat.number_outlines[t]) is not None
+    ]
+    motions = np.concatenate([cad_flat.transforms, cad_flat.transforms[numbered]])
     return [
-        (job.out / "flat.step", tile_parts + pad_parts, f"{name} flat", None),
-        (job.out / "assembled.step", assembled[0], f"{name} assembled", assembled[1]),
+        (flat_path, tiles + pads + numbers, f"{name} flat", None),
+        (assembled_path, tiles + numbers, f"{name} assembled", motions),
     ]
 
 

@@ -33,6 +33,10 @@ _COLOURS = {
 }
 
 
+#: A part of a STEP assembly: name, shape and material (None: no colour).
+StepPart = tuple[str, bd.Shape, str | None]
+
+
 def _colour(material: str) -> bd.Color:
     for key, rgb in _COLOURS.items():
         if key.lower() in material.lower():
@@ -42,7 +46,7 @@ def _colour(material: str) -> bd.Color:
 
 def write_step(
     path: Path,
-    parts: Sequence[tuple[str, bd.Shape, str]],
+    parts: Sequence[StepPart],
     label: str,
     motions: NDArray[np.float64] | None = None,
 ) -> None:
@@ -52,7 +56,7 @@ def write_step(
     section is laid out by :func:`canonical_style_tail` and equal geometry is written once
     (:func:`share_geometry`).
 
-    parts : (name, solid, material) per part.
+    parts : (name, shape, material) per part; a part without material has no colour.
     motions : (len(parts), 4, 4) rigid motions to move the parts by first, or None.
     """
     children = []
@@ -60,7 +64,8 @@ def write_step(
         shape = solid if motions is None else move_solid(solid, motions[index])
         child = type(shape)(shape.wrapped)
         child.label = name
-        child.color = _colour(material)
+        if material is not None:
+            child.color = _colour(material)
         children.append(child)
     assembly = bd.Compound(children=children, label=label)
     with tempfile.TemporaryDirectory(prefix="drawstring-step-") as folder:
@@ -328,7 +333,7 @@ def _wrap_step(entity: str) -> str:
 
 
 #: A STEP file to write: path, parts, label and motions (:func:`write_step`).
-StepJob = tuple[Path, Sequence[tuple[str, bd.Shape, str]], str, NDArray[np.float64] | None]
+StepJob = tuple[Path, Sequence[tuple[str, bd.Shape, str | None]], str, NDArray[np.float64] | None]
 
 
 def start_step_writers(jobs: Sequence[StepJob], workers: int | None) -> list[Any]:

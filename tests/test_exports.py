@@ -27,6 +27,7 @@ from cad_sample import SampleDesign, cylinder_design  # noqa: E402
 
 from drawstring.cad.checks import clearances  # noqa: E402
 from drawstring.cad.design import CadResult, build_design_solids, normalize_route  # noqa: E402
+from drawstring.cad.magnets_labels import _segment_rectangles, label_depth  # noqa: E402
 from drawstring.cad.tiles import move_solid, tile_solid  # noqa: E402
 from drawstring.fabrication.beds import TILE_SPACING_MM  # noqa: E402
 from drawstring.fabrication.dxf import (  # noqa: E402
@@ -296,9 +297,13 @@ def _step_solids(path: Path) -> list:
 
 @pytest.mark.parametrize("pose", ["flat", "assembled"])
 def test_step_assemblies_read_back(built: Built, pose: str) -> None:
+    """One valid solid per tile (and hinge part, flat): the tiles without their engraved
+    numbers, each number as its outline beside it."""
     path = built.folder / "fabrication" / f"{pose}.step"
     cad = built.flat if pose == "flat" else built.assembled
-    expected = sorted([s.volume for s in cad.tiles] + [s.volume for s in cad.pads])
+    tiles = built.flat.unengraved
+    assert len(tiles) == len(cad.tiles)  # every sample engraves numbers
+    expected = sorted([s.volume for s in tiles] + [s.volume for s in cad.pads])
     volumes = sorted(_step_solids(path))
     assert len(volumes) == len(expected)
     np.testing.assert_allclose(volumes, expected, rtol=1e-6)
@@ -308,6 +313,48 @@ def test_step_assemblies_read_back(built: Built, pose: str) -> None:
     assert "PCURVE" not in text
     if cad.pads:
         assert f"'hinge_{int(cad.pad_hinge[0])}'" in text
+    # each engraved number as closed outlines, one per seven-segment stroke, where it is on
+    # the tile: on the bottom face of the tile as it lies in this file
+    parts = {p.label: p for p in bd.import_step(path).children}
+    numbered = [t for t, o in enumerate(built.flat.number_outlines) if o is not None]
+    assert numbered and sorted(n for n in parts if n.startswith("number_")) == sorted(
+        f"number_{t}" for t in numbered
+    )
+    for t in numbered:
+        # a STEP curve set keeps the four sides of each stroke's outline, not the wire
+        edges = parts[f"number_{t}"].edges()
+        assert len(edges) == 4 * len(_segment_rectangles(str(t), 1.0))
+        solid = parts[f"tile_{t}"]
+        bottom = min(solid.faces(), key=lambda f: f.center().Z)
+        for edge in edges:
+            for point in (edge.position_at(0), edge.position_at(1)):
+                if pose == "flat":  # the bottom face lies on the bed
+                    assert point.Z == pytest.approx(bottom.center().Z, abs=1e-6)
+                assert solid.distance_to(point) < 1e-6
+
+
+def test_step_tiles_are_the_tiles_without_numbers(built: Built) -> None:
+    """The STEP files' tiles weigh what the same tiles built without numbers weigh, and each
+    differs from the printed (engraved) tile by its digits' outline area times the depth."""
+    profile, d = built.profile, built.design
+    plain = build_design_solids(
+        *d.solid_inputs(),
+        profile,
+        labels=False,
+        workers=1,
+        print_clearance_mm=print_clearance_mm(profile),
+    )
+    np.testing.assert_allclose(
+        [s.volume for s in built.flat.unengraved], [s.volume for s in plain.tiles], rtol=1e-9
+    )
+    depth = label_depth(profile)
+    for engraved, filled, outline in zip(
+        built.flat.tiles, built.flat.unengraved, built.flat.number_outlines, strict=True
+    ):
+        assert outline is not None
+        pockets = sum(bd.Face(w).area for w in outline.wires()) * depth
+        assert filled.volume - engraved.volume == pytest.approx(pockets, rel=1e-4)
+        assert filled.is_valid and len(filled.faces()) < len(engraved.faces())
 
 
 def _read_3mf(path: Path):
