@@ -78,9 +78,9 @@ class CadResult:
         STEP files (:func:`~drawstring.cad.magnets_labels.fill_engraving`; the assembled pose
         moves them by ``transforms``): one per tile, the engraved solid where a tile has no
         number or its pockets could not be filled; empty where no number is engraved.
-    number_outlines : the outlines of the engraved numbers on the bottom faces (closed
-        wires), flat pose, one per tile of ``unengraved`` (None where it is the engraved
-        solid).
+    number_outlines : the outlines of the engraved numbers on the bottom faces, flat pose,
+        one per tile of ``unengraved`` (None where it is the engraved solid): per stroke the
+        (k, 3) corners of a closed polygon, mm.
     """
 
     pose: Pose
@@ -97,7 +97,7 @@ class CadResult:
     tile_checks: tuple[tuple[bool, float], ...] = field(default=())
     pad_checks: tuple[tuple[bool, float], ...] = field(default=())
     unengraved: tuple[bd.Solid, ...] = field(default=())
-    number_outlines: tuple[bd.Compound | None, ...] = field(default=())
+    number_outlines: tuple[list[NDArray[np.float64]] | None, ...] = field(default=())
 
     def checks(self, part: Literal["tiles", "pads"]) -> tuple[NDArray[np.bool_], NDArray]:
         """(n,) bool validity and (n,) float volumes (mm^3) of the tiles or the pads."""
@@ -220,19 +220,12 @@ def build_design_solids(
             raise InternalError(f"trims refer to tile {tile} outside 0..{len(flat) - 1}")
         for points in polyhedra:
             jobs[tile].trims.append(np.asarray(points, dtype=np.float64))
-    for side in inputs.sides:
-        if side not in tuple(HingeSide):
-            raise InternalError(f"hinge side {side!r} must be 'top' or 'bottom'")
     hinge_data, fasteners = _plan_hinges(
         jobs, inputs, profile, print_clearance_mm, min_radius, notes
     )
     results = run_jobs(jobs, profile, hinge_data, workers)
     tiles, pads, unlabelled = _gather(results, inputs, labels, failed, notes, profile)
-    filled = {r.tile: r.unengraved for r in results if r.unengraved is not None}
-    unengraved = tuple(filled[t][0] if t in filled else s for t, s in enumerate(tiles))
-    outlines = tuple(filled[t][1] if t in filled else None for t in range(len(tiles)))
-    if not filled:
-        unengraved, outlines = (), ()
+    plain = _unengraved(results, tiles)  # before the assembled pose moves the tiles
     checks = _checks_of(results)
     transforms, residual = rigid_transforms(flat, inputs.assembled)
     if residual.size and residual.max() > 1e-3:
@@ -263,8 +256,20 @@ def build_design_solids(
         tuple(int(t) for t in unlabelled),
         tile_checks,
         pad_checks,
-        unengraved,
-        outlines,
+        *plain,
+    )
+
+
+def _unengraved(
+    results: list[JobResult], tiles: tuple[bd.Solid, ...]
+) -> tuple[tuple[bd.Solid, ...], tuple[list[NDArray[np.float64]] | None, ...]]:
+    """``CadResult.unengraved`` and ``number_outlines`` from the workers' results."""
+    filled = {r.tile: r.unengraved for r in results if r.unengraved is not None}
+    if not filled:
+        return (), ()
+    return (
+        tuple(filled[t][0] if t in filled else s for t, s in enumerate(tiles)),
+        tuple(filled[t][1] if t in filled else None for t in range(len(tiles))),
     )
 
 
@@ -321,6 +326,9 @@ def _checked_inputs(
     sides = list(hinge_side)
     if len(sides) != len(hinge_rows):
         raise InternalError(f"hinge_side has {len(sides)} entries for {len(hinge_rows)} hinges")
+    for side in sides:
+        if side not in tuple(HingeSide):
+            raise InternalError(f"hinge side {side!r} must be 'top' or 'bottom'")
     steps = normalize_route(route_steps)
     lifts = np.asarray(lift_tiles, dtype=np.int64).reshape(-1, 2)
     pairs = np.asarray(magnet_pairs, dtype=np.int64).reshape(-1, 4)

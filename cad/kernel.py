@@ -23,7 +23,8 @@ from OCP.BRepBuilderAPI import (
 )
 from OCP.BRepMesh import BRepMesh_IncrementalMesh
 from OCP.BRepTools import BRepTools
-from OCP.collections import List_TopoDS_Shape
+from OCP.collections import Array1_double, Array1_gp_Pnt, Array1_int, List_TopoDS_Shape
+from OCP.Geom import Geom_BSplineCurve
 from OCP.gp import gp_Dir, gp_Pln, gp_Pnt
 from OCP.TopAbs import TopAbs_FACE, TopAbs_REVERSED, TopAbs_SOLID
 from OCP.TopExp import TopExp_Explorer
@@ -83,6 +84,21 @@ def polyhedron_solid(vertices: NDArray[np.float64], faces: Sequence[Sequence[int
     builder.MakeSolid(solid)
     builder.Add(solid, shell)
     return bd.Solid(solid)
+
+
+def closed_polyline(points: NDArray[np.float64]) -> bd.Edge:
+    """One edge around a closed polygon ((k, 3) corners, mm, not repeating the first): a
+    B-spline of degree 1, which a STEP file holds as one curve and its corners."""
+    corners = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    count = len(corners) + 1
+    poles = Array1_gp_Pnt(1, count)
+    knots, multiplicities = Array1_double(1, count), Array1_int(1, count)
+    for index in range(count):
+        poles.SetValue(index + 1, gp_Pnt(*map(float, corners[index % len(corners)])))
+        knots.SetValue(index + 1, float(index))
+        multiplicities.SetValue(index + 1, 2 if index in (0, count - 1) else 1)
+    curve = Geom_BSplineCurve(poles, knots, multiplicities, 1)
+    return bd.Edge(BRepBuilderAPI_MakeEdge(curve).Edge())
 
 
 def _solids_in(shape: TopoDS_Shape) -> list[bd.Solid]:

@@ -12,10 +12,10 @@ import build123d as bd
 import numpy as np
 from numpy.typing import NDArray
 from OCP.BRep import BRep_Builder, BRep_Tool
-from OCP.BRepTools import BRepTools_ReShape
+from OCP.BRepTools import BRepTools_ReShape, BRepTools_WireExplorer
 from OCP.TopAbs import TopAbs_EDGE, TopAbs_FORWARD
 from OCP.TopExp import TopExp_Explorer
-from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Iterator
+from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Iterator, TopoDS_Wire
 
 from drawstring.cad.feature_common import (
     TOOL_OVERSHOOT_MM,
@@ -421,16 +421,17 @@ def label_engraving(
 
 def fill_engraving(
     solid: bd.Solid, engraving: bd.Shape, depth: float
-) -> tuple[bd.Solid, bd.Compound] | None:
+) -> tuple[bd.Solid, list[NDArray[np.float64]]] | None:
     """``solid`` with the pockets that ``engraving`` (:func:`label_engraving`) cut into its
     bottom face filled again: the pockets' faces taken out and the holes they left in the
     bottom face closed, the rest of the B-rep kept as it is (no boolean; milliseconds).
 
     A face is a pocket's when all its vertices lie in one of the engraving's convex prisms.
-    Returns the filled solid and the pockets' rims (closed wires on the bottom face, the
-    outlines of the engraved digits), or None where the result is not one valid solid whose
-    volume is ``solid``'s plus the pockets' (the prisms' volume below the face, ``depth`` of
-    their ``depth + TOOL_OVERSHOOT_MM``), for example where a pocket met another feature.
+    Returns the filled solid and the pockets' rims (each the (k, 3) corners of a closed
+    polygon on the bottom face, in order: the outlines of the engraved digits), or None where
+    the result is not one valid solid whose volume is ``solid``'s plus the pockets' (the
+    prisms' volume below the face, ``depth`` of their ``depth + TOOL_OVERSHOOT_MM``), for
+    example where a pocket met another feature.
     """
     prisms = engraving.solids()
     halfspaces = [_halfspaces(prism) for prism in prisms]
@@ -448,7 +449,7 @@ def fill_engraving(
     reshape = BRepTools_ReShape()
     builder = BRep_Builder()
     gone = set(removed)
-    rims: list[bd.Wire] = []
+    rims: list[NDArray[np.float64]] = []
     for face in solid.faces():
         if face in gone:
             reshape.Remove(face.wrapped)
@@ -465,7 +466,7 @@ def fill_engraving(
                 edges.Next()
             if inside:
                 dropped = True
-                rims.append(bd.Wire(TopoDS.Wire(wire)))
+                rims.append(_corners(TopoDS.Wire(wire)))
             else:
                 kept.append(wire)
         if dropped:  # the same surface and edges, without the pockets' rims
@@ -488,7 +489,18 @@ def fill_engraving(
         return None
     if abs(filled.volume - expected) > 1e-6 * max(expected, 1.0):
         return None
-    return filled, bd.Compound(rims)
+    return filled, rims
+
+
+def _corners(wire: TopoDS_Wire) -> NDArray[np.float64]:
+    """(k, 3) the vertices of a closed wire in the order its edges run."""
+    explorer = BRepTools_WireExplorer(wire)
+    points = []
+    while explorer.More():
+        point = BRep_Tool.Pnt_s(explorer.CurrentVertex())
+        points.append((point.X(), point.Y(), point.Z()))
+        explorer.Next()
+    return np.array(points, dtype=np.float64).reshape(-1, 3)
 
 
 def _halfspaces(prism: bd.Solid) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

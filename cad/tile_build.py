@@ -82,7 +82,7 @@ class JobResult:
     #: The tile without its engraved number and the number's outline (:func:`~drawstring.
     #: cad.magnets_labels.fill_engraving`), for the STEP files; None where it has none or its
     #: pockets could not be filled.
-    unengraved: tuple[bd.Solid, bd.Compound] | None = None
+    unengraved: tuple[bd.Solid, list[NDArray[np.float64]]] | None = None
 
 
 def kernel_failure(what: str, exc: Exception) -> None:
@@ -166,7 +166,7 @@ def build_job(job: TileJob, profile: Profile, hinge_data: tuple[HingeData, ...])
 
 def _unengraved(
     job: TileJob, solid: bd.Solid, tools: _Tools, profile: Profile
-) -> tuple[bd.Solid, bd.Compound] | None:
+) -> tuple[bd.Solid, list[NDArray[np.float64]]] | None:
     """The tile without the number engraved into it and the number's outline, or None (no
     engraving was cut, or its pockets could not be filled: the STEP files then show the
     number cut)."""

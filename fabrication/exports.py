@@ -27,9 +27,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import build123d as bd
 import numpy as np
 
 from drawstring.cad.design import normalize_route
+from drawstring.cad.kernel import closed_polyline
 from drawstring.fabrication.measures import STRING_MARGIN, STRING_TAIL_MIN_MM, measure_fabrication
 from drawstring.fabrication.printers import resolve_printer
 from drawstring.fabrication.processes.base import FabricationJob, ProcessWriter, bom_row
@@ -191,9 +193,9 @@ def _step_jobs(job: FabricationJob, cad_assembled: CadResult) -> list[StepJob]:
     parts.
 
     Where the CAD stage filled the engraved numbers (``CadResult.unengraved``), the tiles
-    are those solids and each engraved number follows as its outline (``number_N``, closed
-    wires on the bottom face, no material); the assembled ones are moved there in the writing
-    process.
+    are those solids and each engraved number follows as its outline (``number_N``, a closed
+    polyline per stroke on the bottom face, no material); the assembled ones are moved there
+    in the writing process.
     """
     profile, cad_flat, name = job.profile, job.cad_flat, job.design_name
     flat_path, assembled_path = job.out / "flat.step", job.out / "assembled.step"
@@ -217,7 +219,7 @@ def _step_jobs(job: FabricationJob, cad_assembled: CadResult) -> list[StepJob]:
     ]
     numbered = [t for t, outline in enumerate(cad_flat.number_outlines) if outline is not None]
     numbers: list[StepPart] = [
-        (f"number_{t}", outline, None)
+        (f"number_{t}", bd.Compound([closed_polyline(p) for p in outline]), None)
         for t in numbered
         if (outline := cad_flat.number_outlines[t]) is not None
     ]
