@@ -186,6 +186,34 @@ def test_label_is_sized_to_the_bottom_face(profile: Profile) -> None:
         label_engraving(tile, -1, profile)
 
 
+def test_filling_an_engraving_gives_back_the_block_and_the_digits_outlines(
+    profile: Profile,
+) -> None:
+    """A box with 187 engraved, filled again: the box (six faces, its volume) and twelve
+    rectangles on its bottom face whose areas times the depth are the pockets' volume."""
+    from drawstring.cad.magnets_labels import fill_engraving, label_depth
+
+    box = tile_solid(_box(12.0))
+    engraving = label_engraving(_box(12.0), 187, profile)
+    assert engraving is not None
+    engraved = build_tile(box, [engraving])
+    filled = fill_engraving(engraved, engraving, label_depth(profile))
+    assert filled is not None
+    solid, rims = filled
+    assert solid.is_valid and len(solid.faces()) == 6 and len(solid.solids()) == 1
+    assert solid.volume == pytest.approx(box.volume, rel=1e-12)
+    assert len(rims) == 12 and all(r.shape == (4, 3) for r in rims)
+    assert all(np.allclose(r[:, 2], 0.0) for r in rims)  # on the bottom face (z = 0)
+    nxt = [np.roll(r, -1, axis=0) for r in rims]
+    area = sum(
+        0.5 * abs(float(np.sum(r[:, 0] * n[:, 1] - n[:, 0] * r[:, 1])))
+        for r, n in zip(rims, nxt, strict=True)
+    )
+    assert area * label_depth(profile) == pytest.approx(box.volume - engraved.volume, rel=1e-9)
+    # an engraving that was not cut into this solid: nothing to fill
+    assert fill_engraving(box, engraving, label_depth(profile)) is None
+
+
 def test_labels_that_turned_read_as_another_number_are_underlined(profile: Profile) -> None:
     # Loose tiles lie every way on the bed, and a seven-segment 6 turned half a turn is a 9
     # (a user-acceptance review): those labels get an underline, as on dice; the rest do not.
