@@ -227,7 +227,12 @@ _SHARED_GEOMETRY = frozenset(
 #: Of those, the ones shared only where geometry refers to them: an axis placement may also
 #: place a representation or an assembly component, which keeps its own.
 _PLACEMENTS = frozenset({"AXIS2_PLACEMENT_3D"})
-_STEP_TYPE = re.compile(r"\s*([A-Z_0-9]+)\s*\(")
+#: One DATA entity ``#n = TYPE(...);`` (TYPE empty for a complex entity ``( ... )``): number,
+#: type and the rest; runs of plain characters are taken whole (the files are tens of MB).
+_STEP_RECORD = re.compile(r"#(\d+)\s*=\s*([A-Z_0-9]*)((?:[^';]+|'[^']*(?:''[^']*)*')*);")
+_STEP_REF = re.compile(r"#(\d+)")
+_STEP_REF_ONLY = re.compile(r"#(\d+)|''")
+_STEP_STRING_OR_REF = re.compile(r"'[^']*(?:''[^']*)*'|#(\d+)")
 
 
 def share_geometry(text: str) -> str:
@@ -239,7 +244,7 @@ def share_geometry(text: str) -> str:
     ``_SHARED_GEOMETRY`` whose content is the same (after their own references are shared)
     become one entity that all users refer to; topology (vertices, edges, faces, shells),
     representations and styles are left as they are, so every solid keeps its own B-rep.
-    The entities are then numbered from 1 in file order and written one per line.
+    The entities left are numbered from 1 in file order.
     """
     data = text.find("DATA;")
     if data < 0:
@@ -247,21 +252,18 @@ def share_geometry(text: str) -> str:
     data += len("DATA;")
     end = text.index("ENDSEC;", data)
     bodies: dict[int, str] = {}
-    order: list[int] = []
-    for match in _STEP_ENTITY.finditer(text, data, end):
-        number = int(match.group(1))
-        bodies[number] = match.group(2)
-        order.append(number)
     kinds: dict[int, str] = {}
-    for number, body in bodies.items():
-        found = _STEP_TYPE.match(body)
-        kinds[number] = found.group(1) if found else ""
     fixed: set[int] = set()  # placements something other than geometry refers to
-    for number, body in bodies.items():
-        if kinds[number] not in _SHARED_GEOMETRY:
-            fixed.update(int(r) for r in _STEP_TOKEN.findall(body) if r)
+    for match in _STEP_RECORD.finditer(text, data, end):
+        number, kind, body = int(match[1]), match[2], match[3]
+        bodies[number], kinds[number] = body, kind
+        if kind not in _SHARED_GEOMETRY:
+            fixed.update(map(int, _STEP_REF.findall(body)))
     same: dict[int, int] = {}  # entity -> the first entity of its content
     first: dict[str, int] = {}
+
+    def shared_ref(match: re.Match[str]) -> str:
+        return f"#{canonical(int(match[1]))}" if match[1] else match[0]
 
     def canonical(number: int) -> int:
         known = same.get(number)
@@ -271,32 +273,34 @@ def share_geometry(text: str) -> str:
         if kind not in _SHARED_GEOMETRY or (kind in _PLACEMENTS and number in fixed):
             same[number] = number
             return number
-        key = _STEP_TOKEN.sub(
-            lambda m: f"#{canonical(int(m[1]))}" if m[1] else ("" if m[0].isspace() else m[0]),
-            bodies[number],
-        )
+        body = bodies[number]
+        if body.count("'") == 2:  # only the empty name: white space means nothing
+            key = kind + _STEP_REF_ONLY.sub(shared_ref, "".join(body.split()))
+        else:
+            key = kind + _STEP_TOKEN.sub(
+                lambda m: shared_ref(m) if m[1] or not m[0].isspace() else "", body
+            )
         same[number] = first.setdefault(key, number)
         return same[number]
 
+    order = list(bodies)
     for number in reversed(order):  # OCCT writes an entity before what it refers to
         canonical(number)
-    kept = [n for n in order if same[n] == n]
-    renumber = {old: k + 1 for k, old in enumerate(kept)}
+    renumber: dict[int, int] = {}
+    for number in order:
+        if same[number] == number:
+            renumber[number] = len(renumber) + 1
+    for number, first_number in same.items():
+        renumber[number] = renumber[first_number]
 
-    def token(match: re.Match[str]) -> str:
-        if match[1]:
-            return f"#{renumber[same[int(match[1])]]}"
-        if not match[0].isspace():
-            return match[0]  # a string
-        lo, hi = match.span()
-        before, after = match.string[lo - 1 : lo], match.string[hi : hi + 1]
-        return "" if before in ",(" or after in ",)" else " "
+    def renumbered(match: re.Match[str]) -> str:
+        return f"#{renumber[int(match[1])]}" if match[1] else match[0]
 
-    def rewrite(body: str) -> str:
-        """The body on one line, references renumbered."""
-        return _STEP_TOKEN.sub(token, body).strip()
-
-    lines = [_wrap_step(f"#{renumber[n]} = {rewrite(bodies[n])};") for n in kept]
+    lines = [
+        f"#{renumber[n]} = {kinds[n]}{_STEP_STRING_OR_REF.sub(renumbered, bodies[n])};"
+        for n in order
+        if same[n] == n
+    ]
     return text[:data] + "\n" + "\n".join(lines) + "\n" + text[end:]
 
 
