@@ -270,6 +270,29 @@ def test_step_colour_section_is_canonical_in_one_process(tmp_path: Path) -> None
     assert texts[0] == texts[1] == texts[2]
 
 
+def test_step_writes_equal_geometry_once(tmp_path: Path) -> None:
+    """Boxes side by side share corners, directions and planes: each is written once, while
+    every box keeps its own vertices, edges and faces (a valid solid of its volume)."""
+    from drawstring.fabrication.step import write_step
+
+    parts = [
+        (f"part_{k}", bd.Solid.make_box(1.0, 2.0, 3.0).moved(bd.Location((k, 0, 0))), "PLA")
+        for k in range(6)
+    ]
+    path = tmp_path / "boxes.step"
+    write_step(path, parts, "boxes")
+    text = path.read_text(encoding="utf-8")
+    entities = re.findall(r"#\d+ = ([A-Z_0-9]+)\(((?:[^;'])*(?:'[^']*')?(?:[^;'])*)\);", text, re.S)
+    for kind in ("CARTESIAN_POINT", "DIRECTION", "VECTOR", "LINE", "PLANE"):
+        contents = ["".join(body.split()) for k, body in entities if k == kind]
+        assert contents and len(contents) == len(set(contents)), kind
+    points = {"".join(body.split()) for k, body in entities if k == "CARTESIAN_POINT"}
+    assert len(points) <= 7 * 2 * 2 + 1  # box corners on a 7 x 2 x 2 grid, and the origin
+    assert sum(k == "VERTEX_POINT" for k, _ in entities) == 8 * len(parts)
+    assert sum(k == "ADVANCED_FACE" for k, _ in entities) == 6 * len(parts)
+    assert sorted(_step_solids(path)) == pytest.approx([6.0] * len(parts), rel=1e-12)
+
+
 def _step_solids(path: Path) -> list:
     from OCP.BRepCheck import BRepCheck_Analyzer
     from OCP.BRepGProp import BRepGProp
