@@ -255,6 +255,55 @@ def thinnest_tile_mm(profile: Profile) -> float:
     return max(MIN_THICKNESS_MM, 2.0 * (bore + wall + max(sink, label)))
 
 
+def _search_option(
+    name: str,
+    checker: _Checker,
+    options: ResolvedOptions,
+    profile: Profile,
+    thinnest: float,
+    within: float,
+) -> tuple[float, str, float, str] | str:
+    """The nearest value of option ``name`` (``size``, ``thickness`` or ``tiles``) that
+    passes, changing it by a log ratio of at most ``within``: (change, option, value, text),
+    or the words for what was tried where none does."""
+    bound = math.exp(within)
+    if name == "size":
+        # within the profile's stated range (fdm-dual: 80-450 mm): a hand at 1400 mm is not
+        # what an fdm-dual user asked for
+        largest = min(MAX_SIZE_MM, max(profile.size_max_mm, options.size_mm))
+        limit = min(largest, _two_digits_down(options.size_mm * min(bound, 1e6)))
+        size = None
+        if options.size_mm < limit:
+            size = _search_up(lambda s: checker.passes(size_mm=s), options.size_mm, limit)
+        if size is None:
+            return f"--size up to {largest:g} (the {profile.name} profile's largest)"
+        return math.log(size / options.size_mm), "size", size, f"--size {size:g}"
+    if name == "thickness":
+        if options.thickness_mm <= thinnest:
+            return f"--thickness (the string channel needs {thinnest:.2f} mm)"
+        floor = max(thinnest, options.thickness_mm / bound)
+        value = None
+        if options.thickness_mm > floor:
+            value = _search_down(
+                lambda t: checker.passes(thickness_mm=t), options.thickness_mm, floor
+            )
+        if value is None:
+            least = " (the string channel's least)" if floor == thinnest else ""
+            return f"--thickness down to {_two_digits_up(floor):g}{least}"
+        return math.log(options.thickness_mm / value), "thickness", value, f"--thickness {value:g}"
+    assert options.tiles is not None
+    # not a trivially easy design: at most RETRY_FEWEST_TILES fewer tiles
+    fewest = max(MIN_TILES, math.ceil(options.tiles * RETRY_FEWEST_TILES))
+    tiles = _search_tiles(
+        lambda n: checker.passes(tiles=n),
+        options.tiles,
+        max(fewest, math.ceil(options.tiles / bound)),
+    )
+    if tiles is None:
+        return f"--tiles down to {fewest}"
+    return math.log(options.tiles / tiles), "tiles", tiles, f"--tiles {tiles}"
+
+
 def checked_retry(
     target: str,
     asked: DesignOptions,
@@ -276,61 +325,28 @@ def checked_retry(
     found: list[tuple[bool, float, str, float, str]] = []  # (explicit, change, option, value)
     tried: list[str] = []
     order = [
-        (name, explicit)
-        for name, explicit in (
-            ("size", asked.size_mm is not None),
-            ("thickness", asked.thickness_mm is not None),
-            ("tiles", asked.tiles is not None or asked.grid is not None),
+        (explicit, rank, name)
+        for rank, (name, explicit) in enumerate(
+            (
+                ("tiles", asked.tiles is not None or asked.grid is not None),
+                ("thickness", asked.thickness_mm is not None),
+                ("size", asked.size_mm is not None),
+            )
         )
-        if name in options_searched
+        if name in options_searched and (name != "tiles" or options.grid is None)
     ]
-    # options left at their defaults first
-    for name, explicit in sorted(order, key=lambda o: o[1]):
-        if name == "size":
-            # within the profile's stated range (fdm-dual: 80-450 mm): a hand at 1400 mm is
-            # not what an fdm-dual user asked for
-            limit = min(MAX_SIZE_MM, max(profile.size_max_mm, options.size_mm))
-            value = None
-            if options.size_mm < limit:
-                value = _search_up(lambda s: checker.passes(size_mm=s), options.size_mm, limit)
-            if value is None:
-                tried.append(f"--size up to {limit:g} (the {profile.name} profile's largest)")
-                continue
-            found.append(
-                (explicit, math.log(value / options.size_mm), "size", value, f"--size {value:g}")
-            )
-        elif name == "thickness":
-            if options.thickness_mm <= thinnest:
-                tried.append(f"--thickness (the string channel needs {thinnest:.2f} mm)")
-                continue
-            value = _search_down(
-                lambda t: checker.passes(thickness_mm=t), options.thickness_mm, thinnest
-            )
-            if value is None:
-                tried.append(
-                    f"--thickness down to {_two_digits_up(thinnest):g} (the string channel's least)"
-                )
-                continue
-            found.append(
-                (
-                    explicit,
-                    math.log(options.thickness_mm / value),
-                    "thickness",
-                    value,
-                    f"--thickness {value:g}",
-                )
-            )
-        elif options.grid is None and options.tiles is not None:
-            # not a trivially easy design: at most RETRY_FEWEST_TILES fewer tiles
-            fewest = max(MIN_TILES, math.ceil(options.tiles * RETRY_FEWEST_TILES))
-            tiles = _search_tiles(lambda n: checker.passes(tiles=n), options.tiles, fewest)
-            if tiles is None:
-                tried.append(f"--tiles down to {fewest}")
-                continue
-            found.append(
-                (explicit, math.log(options.tiles / tiles), "tiles", tiles, f"--tiles {tiles}")
-            )
-        if found and not found[-1][0] and found[-1][1] < math.log(1.3):
+    # options left at their defaults first, the cheaper checks first (a size needs its own
+    # flattening); each search only within the change of the best value found so far
+    for explicit, _, name in sorted(order):
+        within = min((f[1] for f in found if f[0] == explicit), default=math.inf)
+        if any(not f[0] for f in found) and explicit:
+            break  # an option left at its default changes: the user's own stay as given
+        result = _search_option(name, checker, options, profile, thinnest, within)
+        if isinstance(result, str):
+            tried.append(result)
+            continue
+        found.append((explicit, *result))
+        if not explicit and result[0] < math.log(1.3):
             break  # a default changed by under 30 %: near enough, spare the other searches
     seconds = time.perf_counter() - start
     log.info(
