@@ -354,6 +354,8 @@ def checked_retry(
         [f[4] for f in found], tried, checker.runs, seconds,
     )  # fmt: skip
     if not found:
+        # in the order the options are listed everywhere: --size, --thickness, --tiles
+        tried.sort(key=lambda words: ("--size", "--thickness", "--tiles").index(words.split()[0]))
         return None, tried, checker.outcomes()
     explicit, _, option, value, text = min(found, key=lambda f: (f[0], f[1]))
     # a complete set: the user's own --size, --thickness and --tiles kept beside the change
