@@ -102,9 +102,9 @@ PASSED, REFUSED, NEARLY_FOLDED = "passed", "refused", "nearly folded"
 
 
 class _Checker:
-    """The refusing check (:func:`~.shapes.refusing_shape`, after the grid check), for
-    changed options, and the flat layout's area-ratio prediction; flattenings are kept per
-    size."""
+    """The refusing check (:func:`~.shapes.refusing_shape`, after the grid check) for
+    changed options, and on the shapes that pass it :func:`bottom_share`; flattenings are kept
+    per size."""
 
     def __init__(
         self,
