@@ -5,7 +5,8 @@ planar but let the assembled shape drift off the target.  A closer eq.-1 shape l
 within the 1e-3 mm targets where the co-optimization can keep it *conical* next to the bottom
 hinges (there the side face under a hinged edge must bisect its two tiles' dihedral angle, or
 the hinge misses in depth); where the close shape is far from conical there, its layout
-misses.  So ``close`` (:func:`fitted_layout`):
+misses.  So ``close`` (:func:`fitted_layout`), once the paper's shape on the first tiling
+has passed the check that refuses a design (:func:`~.shapes.refusing_shape`):
 
 1. solves eq. 1 on the first tiling with ``policy.close_fit``: the surface weight raised and
    the quads' centres and edge midpoints pulled to the target too;
@@ -13,7 +14,9 @@ misses.  So ``close`` (:func:`fitted_layout`):
    within ``policy.close_conical_defect_max_deg``, lays the design out on it (co-optimization
    with the paper's surface weight, its conical ladder, tighter tilings, hinges) and keeps it
    when its flat edge error and hinge gap meet the 1e-3 mm targets;
-3. otherwise lays out the paper's shape, with a note saying why.
+3. otherwise (and where the close shape turns a tile inside out, or with CAD leaves a
+   boundary tile too narrow for the string channel) lays out the paper's shape, with a note
+   saying why.
 
 ``metrics.fit.close`` records the close shape's weights and conical defect and, where it was
 laid out, its accuracy (the larger of flat edge error and hinge gap) and its surface distance
@@ -24,7 +27,6 @@ over the top faces, kept or not: one point of the fit frontier.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
@@ -41,11 +43,12 @@ from drawstring.geometry.hinges.sides import dual_hinge_faces
 from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling, tile_surface
 from drawstring.geometry.tiling.linkage import Linkage
+from drawstring.pipeline.cad_stage import ChannelShortfall
 from drawstring.pipeline.fit_quality import surface_distances
 from drawstring.pipeline.layout_stage import ShapedLayout, shape_and_layout, split_bound
 from drawstring.pipeline.policy import LayoutPolicy
 from drawstring.pipeline.record import Progress, ResolvedOptions, rounded
-from drawstring.pipeline.shapes import ShapeCache, assembled_shape
+from drawstring.pipeline.shapes import FirstCheck, ShapeCache, refusing_shape
 
 
 def fitted_layout(
@@ -56,36 +59,43 @@ def fitted_layout(
     *,
     policy: LayoutPolicy,
     weights_given: bool,
-    check_first: Callable[[Tiling, AssembledResult], None] | None = None,
+    check_first: FirstCheck | None = None,
 ) -> ShapedLayout:
     """Stages tiling to hinges (:func:`~.layout_stage.shape_and_layout`) on the assembled
     shape ``--fit`` asks for; ``weights_given``: ``--weights`` was given, and its eq. 1 is
-    laid out whatever ``--fit`` says; ``check_first`` may refuse the first tiling's shape
-    before any layout (:func:`~.layout_stage.shape_and_layout`).  The result's ``fit`` is
-    ``metrics.fit``."""
+    laid out whatever ``--fit`` says.  The result's ``fit`` is ``metrics.fit``.
+
+    The design is refused (raising) by :func:`~.shapes.refusing_shape` alone, asked first:
+    the first tiling's shape with the paper's weights (or ``--weights``) turning a tile inside
+    out, or failing ``check_first`` (with CAD, the boundary channel check).  The retry search
+    asks the same, so its ``retry with:`` is not refused again.  The close shape is only
+    tried: where it folds or fails ``check_first``, the paper's shape is laid out."""
     paper = Eq1Weights.of(options.weights)
-    if options.fit == "paper" or weights_given:
-        laid_out = shape_and_layout(
-            loaded, flat_map, options, progress, policy=policy, check_first=check_first
-        )
-        used = "weights" if weights_given else "paper"
-        return replace(laid_out, fit={"used": used, "eq1": paper.to_json()})
-    close = policy.close_fit
-    shapes = ShapeCache(close)
+    paper_shapes = ShapeCache()
     with progress.stage("tiling"):
         first_tiling = tile_surface(
             loaded.vertices, loaded.faces, flat_map.uv, tiles=options.tiles, grid=options.grid,
             max_scale_factor=split_bound(options),
         )  # fmt: skip
+    refusing_shape(first_tiling, loaded, options, progress, paper_shapes, check_first)
+    if options.fit == "paper" or weights_given:
+        laid_out = shape_and_layout(
+            loaded, flat_map, options, progress, policy=policy, shapes=paper_shapes,
+            first_tiling=first_tiling,
+        )  # fmt: skip
+        used = "weights" if weights_given else "paper"
+        return replace(laid_out, fit={"used": used, "eq1": paper.to_json()})
+    close = policy.close_fit
     tried: dict[str, Any] = {"eq1": close.to_json()}
     trial, reason = _close_trial(
-        loaded, flat_map, options, progress, policy, shapes, first_tiling, check_first, tried
-    )
+        loaded, flat_map, options, progress, policy, ShapeCache(close), first_tiling,
+        check_first, tried,
+    )  # fmt: skip
     if trial is not None:
         return replace(trial, fit={"used": "close", "eq1": close.to_json(), "close": tried})
     laid_out = shape_and_layout(
-        loaded, flat_map, options, progress, policy=policy, first_tiling=first_tiling,
-        check_first=check_first,
+        loaded, flat_map, options, progress, policy=policy, shapes=paper_shapes,
+        first_tiling=first_tiling,
     )  # fmt: skip
     note = (
         f"fit: the close assembled shape (eq. 1 surface weight {close.surface:g}, face samples "
@@ -106,15 +116,17 @@ def _close_trial(
     policy: LayoutPolicy,
     shapes: ShapeCache,
     first_tiling: Tiling,
-    check_first: Callable[[Tiling, AssembledResult], None] | None,
+    check_first: FirstCheck | None,
     tried: dict[str, Any],
 ) -> tuple[ShapedLayout | None, str]:
     """The close shape laid out, where it is kept, or None and why not; what was measured on
-    the way goes into ``tried``."""
+    the way goes into ``tried``.  What would refuse the paper's shape only sets it aside."""
     try:
-        start = assembled_shape(first_tiling, loaded, options, progress, shapes)
+        start = refusing_shape(first_tiling, loaded, options, progress, shapes, check_first)
     except ThicknessError:
         return None, "some of its tiles turn inside out at this thickness"
+    except ChannelShortfall as short:
+        return None, f"its {short}"
     defect = conical_defect_deg(
         start, first_tiling.linkage, options.min_gap_angle_deg, options.hinges
     )
@@ -124,13 +136,10 @@ def _close_trial(
             f"it is {defect:.1f} deg from conical next to the bottom hinges on average (more "
             f"than {policy.close_conical_defect_max_deg:g}), where they would not meet in depth"
         )
-    try:
-        trial = shape_and_layout(
-            loaded, flat_map, options, progress, policy=policy, shapes=shapes,
-            first_tiling=first_tiling, check_first=check_first,
-        )  # fmt: skip
-    except ThicknessError:
-        return None, "some of its tiles turn inside out at this thickness"
+    trial = shape_and_layout(
+        loaded, flat_map, options, progress, policy=policy, shapes=shapes,
+        first_tiling=first_tiling,
+    )  # fmt: skip
     accuracy = trial.accuracy_mm
     distances = surface_distances(trial.assembled.tiles, loaded)
     tried.update(

@@ -125,23 +125,18 @@ def shape_and_layout(
     policy: LayoutPolicy,
     shapes: ShapeCache | None = None,
     first_tiling: Tiling | None = None,
-    check_first: Callable[[Tiling, AssembledResult], None] | None = None,
 ) -> ShapedLayout:
     """Tile, shape and lay out the target (stages tiling to hinges), tiling again with a
     tighter split bound (``policy.retile_attempts``) while the layout misses its accuracy
     targets; the most accurate result is kept (see ``policy.retile_gain``).  ``shapes``: the
     assembled shapes solved so far and their eq.-1 weights (default: none yet, the paper's
     eq. 1 with ``options.weights``); ``first_tiling``: the tiling with the first split bound,
-    where it is tiled already; ``check_first`` may refuse the first tiling's shape (raising)
-    before any layout."""
+    where it is tiled already (the design's refusing check,
+    :func:`~.shapes.refusing_shape`, has run on it: :func:`~.close_fit.fitted_layout`)."""
     run = _Retiling(loaded, flat_map, options, progress, policy, shapes or ShapeCache())
     bound = split_bound(options)
     if first_tiling is None:
         first_tiling = run.tiled(bound)
-    if check_first is not None:  # (the shape is kept for the stages)
-        check_first(
-            first_tiling, assembled_shape(first_tiling, loaded, options, progress, run.shapes)
-        )
     if first_tiling.scale_factor_max - 1.0 < policy.retile_min_share * (bound - 1.0):
         # its area scale hardly varies: more splits are not what it lacks
         return run.shaped(first_tiling, bound, spare_core=True)

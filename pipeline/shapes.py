@@ -8,6 +8,8 @@ they are solved with (``--fit``).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from drawstring.geometry.assembled.shape import AssembledResult, optimize_assembled
 from drawstring.geometry.assembled.top import Eq1Weights
 from drawstring.geometry.target.surface import Target
@@ -60,3 +62,28 @@ def assembled_shape(
             for array in (shapes[key].top, shapes[key].bottom, shapes[key].tiles):
                 array.flags.writeable = False  # shared between tilings: nothing may edit it
         return shapes[key]
+
+
+#: A check on the first tiling and its assembled shape that raises to refuse the design.
+FirstCheck = Callable[[Tiling, AssembledResult], None]
+
+
+def refusing_shape(
+    tiling: Tiling,
+    loaded: Target,
+    options: ResolvedOptions,
+    progress: Progress,
+    shapes: ShapeCache,
+    check: FirstCheck | None = None,
+) -> AssembledResult:
+    """The one check that refuses a design: eq. 1 and its extrusion on the first tiling with
+    ``shapes``' weights (the paper's, or ``--weights``) raising
+    :class:`~drawstring.geometry.core.errors.ThicknessError` when a tile turns inside out, and
+    ``check`` on that shape (with CAD, the boundary channel check).  The pipeline asks it
+    before any layout and the retry search asks it of every value it tries, so a ``retry
+    with:`` that passed it is not refused again; every later stage keeps going on what
+    passed (another shape that folds falls back to this one, which tighter tilings share)."""
+    shape = assembled_shape(tiling, loaded, options, progress, shapes)
+    if check is not None:
+        check(tiling, shape)
+    return shape

@@ -984,10 +984,10 @@ def test_a_size_too_small_for_the_thickness_is_refused_with_a_checked_retry(
 ) -> None:
     # Tiles thicker than the target's curvature radius turn inside out; found in the assembled
     # stage, refused in one line ending in "retry with:" and a complete set of options that
-    # passed the same check, keeping what the user set (--size 5, --grid 6 4) and changing
-    # what was left at its default (--thickness); nothing is written.  Following it gets past
-    # that check: the design is written (this tiny 5 mm saddle then misses the fabrication
-    # tolerance, which the retry search does not check).
+    # passed the same check with no tile nearly inside out, keeping the user's --grid 6 4: no
+    # --thickness the string channel leaves room for (3.6 mm or more) serves a 5 mm saddle, so
+    # the --size the user set is the one changed; nothing is written.  Following it gets past
+    # that check: the design is written.
     out = tmp_path / "small"
     done = cli.run("design", "saddle", *SMALL, "--no-simulate", "--size", "5", "--out", str(out))
     assert done.returncode == 2, done.stderr
@@ -996,12 +996,13 @@ def test_a_size_too_small_for_the_thickness_is_refused_with_a_checked_retry(
     retry = re.search(r"; retry with: (.+)$", lines[0])
     assert retry, lines[0]
     options = retry.group(1).split()
-    assert options[:4] == ["--size", "5", "--grid", "6"] and options[5] == "--thickness"
-    assert 0.5 <= float(options[6]) < 6 and not out.exists()
+    assert options[:3] == ["--grid", "6", "4"] and options[3] == "--size", options
+    assert 5 < float(options[4]) <= 450 and len(options) == 5 and not out.exists()
     args = ["design", "saddle", *SMALL, "--no-simulate", *options, "--out", str(out)]
     assert main(args) in (0, 3)
     doc = json.loads((out / "design.json").read_text())
-    assert doc["options"]["size_mm"] == 5 and not any("folded" in p for p in doc["problems"])
+    assert doc["options"]["size_mm"] == float(options[4])
+    assert not any("folded" in p for p in doc["problems"])
 
 
 def test_boundary_tiles_too_small_for_the_string_channel_are_refused_before_the_layout(

@@ -10,6 +10,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 DATA = Path(__file__).resolve().parent / "data"
 PROFILES_DIR = Path(__file__).resolve().parents[1] / "profiles"
 
@@ -45,16 +47,21 @@ def test_the_crumpled_sheet_deploys_within_the_fabrication_tolerance(tmp_path: P
     )
 
 
-def test_the_hand_is_refused_in_plain_words_with_nothing_written(tmp_path: Path) -> None:
+@pytest.mark.parametrize("cad", [[], ["--no-cad"]])
+def test_the_hand_is_refused_in_plain_words_with_nothing_written(
+    tmp_path: Path, cad: list[str]
+) -> None:
     # Thin fingers: 6 mm tiles at 160 mm turn inside out, and no size within fdm-dual's range,
-    # no thickness the string channel allows and no tile count down to a quarter keeps them
-    # whole: one line saying why, no retry that would not work, nothing written.
+    # no thickness the string channel allows (with or without CAD: a --no-cad design is the
+    # same product) and no tile count down to a quarter keeps them whole: one line saying why,
+    # no retry that would not work, nothing written.
     out = tmp_path / "hand"
-    done = design("hand.obj", out, "--no-simulate")
+    done = design("hand.obj", out, "--no-simulate", *cad)
     assert done.returncode == 2, done.stderr
     (line,) = done.stderr.strip().splitlines()
     assert "turn inside out or fold" in line and "retry with" not in line
     assert "no --size up to 450 (the fdm-dual profile's largest)" in line
+    assert "--thickness down to 3.6 (the string channel's least)" in line
     assert "curve tighter than tiles this thick can follow" in line
     assert not out.exists()
 

@@ -22,7 +22,7 @@ from drawstring.fabrication.profiles import load_profile
 from drawstring.geometry.core import parallel
 from drawstring.geometry.route.plan import plan_route
 from drawstring.geometry.tiling.linkage import build_linkage, gap_centroids, rotating_squares_layout
-from drawstring.pipeline import co_rounds, layout_stage, shapes
+from drawstring.pipeline import close_fit, co_rounds, layout_stage, shapes
 from drawstring.pipeline.ahead import can_fork
 from drawstring.pipeline.layout_stage import split_bound
 from drawstring.pipeline.measure import channel_turn_assembled
@@ -653,6 +653,9 @@ def test_a_part_whose_scale_hardly_varies_is_not_split_further(monkeypatch) -> N
         calls.append(max_scale_factor)
         return tile_surface(*args, max_scale_factor=max_scale_factor, **kwargs)
 
+    # (the first tiling is made where the design's refusing check runs, the tighter ones by
+    # the tiling ladder)
+    monkeypatch.setattr(close_fit, "tile_surface", counted)
     monkeypatch.setattr(layout_stage, "tile_surface", counted)
     monkeypatch.setattr(layout_stage.ShapedLayout, "accuracy_mm", property(lambda _self: 1.0))
     options = DesignOptions(
