@@ -128,7 +128,9 @@ def test_a_design_runs_with_progress_by_stage_and_downloads_as_a_zip(studio: Tes
     assert progress == sorted(progress) and any(0 < p < 1 for p in progress)
     stages = [r["stage"] for r in records if r["status"] == "running" and r["stage"]]
     order = [*STAGES, "co-optimize", "write"]
-    assert {"target", "flat", "route", "write"} <= set(stages)
+    # the stream sends the record as it is when it is read: stages that begin between two
+    # reads show as the later one (the log below names every stage)
+    assert len(set(stages)) >= 2 and set(stages) <= set(order)
     firsts = [order.index(s) for s in dict.fromkeys(stages) if s in STAGES]
     assert firsts == sorted(firsts)
 
@@ -147,7 +149,8 @@ def test_a_design_runs_with_progress_by_stage_and_downloads_as_a_zip(studio: Tes
     assert document["options"]["tiles"] == 40 and document["options"]["cad"] is False
     assert sorted(n.removeprefix("saddle-drawstring/") for n in names) == document["files"]
     assert studio.get(f"/api/designs/{design_id}/fabrication.zip").status_code == 404
-    assert "stage flat took" in studio.get(f"/api/designs/{design_id}/log").text
+    log = studio.get(f"/api/designs/{design_id}/log").text
+    assert all(f"stage {name} took" in log for name in ("target", "flat", "route", "write"))
     assert studio.post(f"/api/designs/{design_id}/cancel").status_code == 409
 
 
