@@ -174,11 +174,12 @@ def report(samples: list[dict], weights: dict[str, list[float]]) -> None:
         )
 
 
-def _placeholder_step_files(jobs: list[tuple[Path, Any, str]], workers: int | None) -> list:
-    """Stands in for the STEP writers here: the printing time does not depend on the STEP
-    files, which take most of a 200-tile design's writing time."""
+def _placeholder_step_files(jobs: list[tuple[Any, ...]], workers: int | None) -> list:
+    """Stands in for the STEP writers here (each job's first item is its file's path): the
+    printing time does not depend on the STEP files, which take most of a 200-tile design's
+    writing time."""
     del workers
-    for path, _, _ in jobs:
+    for path, *_ in jobs:
         path.write_text("left out by benchmarks/calibrate_print.py\n", encoding="utf-8")
     return []
 
