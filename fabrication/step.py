@@ -75,7 +75,7 @@ def write_step(
         bd.export_step(assembly, scratch, write_pcurves=False)
         text = scratch.read_text(encoding="utf-8", errors="replace")
     text = re.sub(
-        r"(FILE_NAME\('[^']*',)'[^']*'",
+        r"(FILE_NAME\('(?:[^']|'')*',)'[^']*'",
         lambda m: f"{m.group(1)}'{STEP_TIMESTAMP}'",
         text,
         count=1,
@@ -246,11 +246,16 @@ def share_geometry(text: str) -> str:
     representations and styles are left as they are, so every solid keeps its own B-rep.
     The entities left are numbered from 1 in file order.
     """
-    data = text.find("DATA;")
-    if data < 0:
+    # the section keywords on lines of their own (a name in the header or in DATA may hold
+    # the same words)
+    opened = re.search(r"^DATA;[ \t]*$", text, re.M)
+    if opened is None:
         return text
-    data += len("DATA;")
-    end = text.index("ENDSEC;", data)
+    data = opened.end()
+    closed = re.search(r"^ENDSEC;[ \t]*$", text[data:], re.M)
+    if closed is None:
+        return text
+    end = data + closed.start()
     bodies: dict[int, str] = {}
     kinds: dict[int, str] = {}
     fixed: set[int] = set()  # placements something other than geometry refers to
@@ -274,7 +279,7 @@ def share_geometry(text: str) -> str:
             same[number] = number
             return number
         body = bodies[number]
-        if body.count("'") == 2:  # only the empty name: white space means nothing
+        if body.count("'") == 2 and "''" in body:  # only the empty name: white space is no content
             key = kind + _STEP_REF_ONLY.sub(shared_ref, "".join(body.split()))
         else:
             key = kind + _STEP_TOKEN.sub(

@@ -153,7 +153,7 @@ def _design(
     shaped = _laid_out(loaded, flat_map, resolved, progress, policy, asked)
     shaped, resolved, hinge_choice = hinges_chosen(
         shaped, resolved, profile.tolerance_mm, lambda top: _laid_out(
-            loaded, flat_map, top, progress, policy, asked
+            loaded, flat_map, top, progress, policy, asked, checked=False
         ), asked_hinges=options.hinges,
     )  # fmt: skip
     notes.extend(shaped.notes)
@@ -250,11 +250,14 @@ def _laid_out(
     progress: Progress,
     policy: LayoutPolicy,
     asked: tuple[str, DesignOptions],
+    *,
+    checked: bool = True,
 ) -> ShapedLayout:
     """Stages tiling to hinges on the shape ``--fit`` asks for (:func:`fitted_layout`); tiles
     that turn inside out, or (with CAD) boundary tiles too small for the string channel,
-    refused seconds in with a checked ``retry with:`` (:mod:`~drawstring.pipeline.retry`).
-    ``asked``: the target and the options as the user gave them."""
+    refused seconds in with a checked ``retry with:`` (:mod:`~drawstring.pipeline.retry`), or
+    raised as they are when not ``checked``.  ``asked``: the target and the options as the
+    user gave them."""
     source, given = asked
     profile = load_profile(options.profile)
     check = channel_check(profile) if options.cad else None
@@ -269,8 +272,12 @@ def _laid_out(
             check_first=check,
         )
     except ThicknessError as exc:
+        if not checked:
+            raise
         raise checked_size_refusal(exc, source, given, options, profile) from exc
     except ChannelShortfall as exc:
+        if not checked:
+            raise
         raise checked_channel_refusal(exc, source, given, options, profile) from exc
 
 
@@ -296,7 +303,8 @@ def hinges_chosen(
     choice: dict[str, Any] = {"dual_accuracy_mm": rounded(dual, 9)}
     try:
         top = lay_out(top_options)
-    except InputError as refused:
+    except (InputError, ThicknessError, ChannelShortfall) as refused:
+        # the check that refuses does not depend on the hinges: not expected once dual passed
         choice.update(used="dual", top_refused=str(refused))
         return shaped, options, choice
     choice["top_accuracy_mm"] = rounded(top.accuracy_mm, 9)

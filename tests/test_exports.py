@@ -293,6 +293,23 @@ def test_step_writes_equal_geometry_once(tmp_path: Path) -> None:
     assert sorted(_step_solids(path)) == pytest.approx([6.0] * len(parts), rel=1e-12)
 
 
+@pytest.mark.parametrize("name", ["o'neil's DATA; chair", "a ENDSEC; b", "#12 ''x''"])
+def test_step_names_with_step_syntax_read_back_and_repeat(tmp_path: Path, name: str) -> None:
+    """A design named after a mesh file may hold quotes, section keywords and references: the
+    file still reads back with its solids, and two writes are the same bytes."""
+    from drawstring.fabrication.step import write_step
+
+    parts = [
+        (f"part_{k}", bd.Solid.make_box(1.0, 2.0, 3.0).moved(bd.Location((k, 0, 0))), "PLA")
+        for k in range(2)
+    ]
+    first, second = tmp_path / "a.step", tmp_path / "b.step"
+    write_step(first, parts, name)
+    write_step(second, parts, name)
+    assert first.read_bytes() == second.read_bytes()
+    assert sorted(_step_solids(first)) == pytest.approx([6.0, 6.0], rel=1e-12)
+
+
 def _step_solids(path: Path) -> list:
     from OCP.BRepCheck import BRepCheck_Analyzer
     from OCP.BRepGProp import BRepGProp

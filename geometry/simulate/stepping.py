@@ -152,10 +152,19 @@ def run_steps(
         if step >= check_from and (step - check_from) % cfg.check_every == 0:
             run.verdict = check.failures(run.x)
             logger.debug("step %d: %s", step, "; ".join(run.verdict[0]) or "deployed")
-            if check.stops(run.verdict, run.progress, cfg):
-                break
-            if cfg.release_lift and check.locked_off_shape(run.verdict, system):
+            if (
+                cfg.release_lift
+                and system.lift is not None
+                and system.lift_released is None
+                and check.locked_off_shape(run.verdict, system)
+            ):
+                # the settle goes on without the lift: stillness and the deviation's progress
+                # are counted afresh from here
                 system.release_lift(step)
+                run.quiet = 0
+                run.progress.clear()
+            elif check.stops(run.verdict, run.progress, cfg):
+                break
         run.verdict = None
         if step >= check_from and run.quiet >= 5:
             break
