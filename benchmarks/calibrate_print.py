@@ -1,8 +1,9 @@
 """Fit the print estimate to PrusaSlicer, and compare the two on every built-in.
 
 ``--fit`` designs a set of small designs (several targets, tile counts, printers, both
-printed profiles), slices every bed with PrusaSlicer and the shipped settings, reads each
-bed's parts back from its 3MF, and fits the weights of
+printed profiles) and every built-in as ``--builtins`` does, slices every bed with
+PrusaSlicer and the shipped settings, reads each bed's parts back from its 3MF, and fits the
+weights of
 :mod:`drawstring.fabrication.print_estimate` to PrusaSlicer's times and filament by
 non-negative least squares; it prints the weights (to copy into that module) and keeps the
 samples in ``benchmarks/data/print_samples.json`` (``--refit`` fits again from them without
@@ -52,6 +53,14 @@ FIT_CASES: tuple[tuple[str, int, str, str], ...] = (
     ("saddle", 40, "laser-epdm", "generic-single"),
     ("cloud", 40, "laser-epdm", "prusa-xl-2t"),
 )
+#: (tiles, profile, printer) of ``--builtins``; ``--fit`` takes every built-in so too.
+BUILTIN_CASE = (200, "fdm-dual", "generic-dual")
+
+
+def _case_name(target: str, tiles: int, profile: str, printer: str) -> str:
+    return f"{target}-{tiles}-{profile}-{printer}"
+
+
 _NUMBER = re.compile(rb'[xyz]="([-0-9.e]+)"')
 _INDEX = re.compile(rb'v[123]="(\d+)"')
 
@@ -104,7 +113,7 @@ def read_bed(path: Path) -> list[PartMesh]:
 def run_case(target: str, tiles: int, profile: str, printer: str, folder: Path) -> list[dict]:
     """Design, write and slice one case (or read the folder of an earlier run of it); one
     sample per bed: its features and what PrusaSlicer reported."""
-    out = folder / f"{target}-{tiles}-{profile}-{printer}"
+    out = folder / _case_name(target, tiles, profile, printer)
     if not (out / "fabrication" / "slicer.json").is_file():
         options = DesignOptions(
             profile=profile, tiles=tiles, simulate=False, printer=printer, slice=True
@@ -120,7 +129,7 @@ def run_case(target: str, tiles: int, profile: str, printer: str, folder: Path) 
         grams = bed["filament_g"]
         samples.append(
             {
-                "case": f"{target}-{tiles}-{profile}-{printer}",
+                "case": _case_name(target, tiles, profile, printer),
                 "bed": bed["bed"],
                 "features": features.to_json(),
                 "time_s": bed["time_s"],
@@ -190,9 +199,12 @@ def builtin_rows(folder: Path, names: list[str]) -> None:
     again rather than designed and sliced anew).  Each row is written into results.json as
     soon as it is measured, replacing an earlier row of the same built-in."""
     for name in names:
-        out = folder / name
+        out = folder / _case_name(name, *BUILTIN_CASE)
         if not (out / "fabrication" / "slicer.json").is_file():
-            options = DesignOptions(tiles=200, simulate=False, slice=True)
+            tiles, profile, printer = BUILTIN_CASE
+            options = DesignOptions(
+                profile=profile, tiles=tiles, simulate=False, printer=printer, slice=True
+            )
             write_design(design(name, options, quiet=True), out)
         document = json.loads((out / "design.json").read_text())
         manifest = json.loads((out / "fabrication" / "manifest.json").read_text())
@@ -256,7 +268,7 @@ def main() -> None:
         folder.mkdir(parents=True, exist_ok=True)
         if args.fit:
             samples: list[dict] = []
-            for case in FIT_CASES:
+            for case in (*FIT_CASES, *((name, *BUILTIN_CASE) for name in BUILTIN_TARGETS)):
                 samples += run_case(*case, folder)
                 print(f"sliced {case}", flush=True)
             SAMPLES.write_text(json.dumps(samples, indent=1) + "\n", encoding="utf-8")
