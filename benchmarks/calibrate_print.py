@@ -1,9 +1,9 @@
 """Fit the print estimate to PrusaSlicer, and compare the two on every built-in.
 
 ``--fit`` designs a set of small designs (several targets, tile counts, printers, both
-printed profiles) and every built-in as ``--builtins`` does, slices every bed with
-PrusaSlicer and the shipped settings, reads each bed's parts back from its 3MF, and fits the
-weights of
+printed profiles), two test coupons and every built-in as ``--builtins`` does, slices every
+bed with PrusaSlicer and the shipped settings, reads each bed's parts back from its 3MF, and
+fits the weights of
 :mod:`drawstring.fabrication.print_estimate` to PrusaSlicer's times and filament by
 non-negative least squares; it prints the weights (to copy into that module) and keeps the
 samples in ``benchmarks/data/print_samples.json`` (``--refit`` fits again from them without
@@ -53,6 +53,8 @@ FIT_CASES: tuple[tuple[str, int, str, str], ...] = (
     ("saddle", 40, "laser-epdm", "generic-single"),
     ("cloud", 40, "laser-epdm", "prusa-xl-2t"),
 )
+#: (profile, printer) of the test coupons in the fitting set.
+FIT_COUPONS: tuple[tuple[str, str], ...] = (("fdm-dual", "bambu-h2d"), ("fdm-dual", "prusa-xl-2t"))
 #: (tiles, profile, printer) of ``--builtins``; ``--fit`` takes every built-in so too.
 BUILTIN_CASE = (200, "fdm-dual", "generic-dual")
 
@@ -119,17 +121,36 @@ def run_case(target: str, tiles: int, profile: str, printer: str, folder: Path) 
             profile=profile, tiles=tiles, simulate=False, printer=printer, slice=True
         )
         write_design(design(target, options, quiet=True), out)
-    sliced = json.loads((out / "fabrication" / "slicer.json").read_text())
+    return _samples(
+        _case_name(target, tiles, profile, printer), out / "fabrication", profile, printer
+    )
+
+
+def coupon_case(profile: str, printer: str, folder: Path) -> list[dict]:
+    """The test coupon of ``profile`` on ``printer`` (``drawstring coupon --slice``), as
+    :func:`run_case`: a small job whose time is mostly per-layer overhead."""
+    from drawstring.output.coupon import write_coupon
+
+    out = folder / f"coupon-{profile}-{printer}"
+    if not (out / "slicer.json").is_file():
+        write_coupon(profile, printer, out, slice_beds=True)
+    return _samples(f"coupon-{profile}-{printer}", out, profile, printer)
+
+
+def _samples(case: str, fabrication: Path, profile: str, printer: str) -> list[dict]:
+    """One sample per sliced bed of a fabrication folder: its features and what PrusaSlicer
+    reported."""
+    sliced = json.loads((fabrication / "slicer.json").read_text())
     used_printer = load_printer(printer)
     used_profile = with_printer(load_profile(profile), used_printer)
     samples = []
     for bed in sliced["beds"]:
-        parts = read_bed(out / "fabrication" / bed["model"])
+        parts = read_bed(fabrication / bed["model"])
         features = pe.bed_features(parts, used_printer, used_profile)
         grams = bed["filament_g"]
         samples.append(
             {
-                "case": _case_name(target, tiles, profile, printer),
+                "case": case,
                 "bed": bed["bed"],
                 "features": features.to_json(),
                 "time_s": bed["time_s"],
@@ -207,9 +228,8 @@ def builtin_rows(folder: Path, names: list[str]) -> None:
             )
             write_design(design(name, options, quiet=True), out)
         document = json.loads((out / "design.json").read_text())
-        manifest = json.loads((out / "fabrication" / "manifest.json").read_text())
         sliced = json.loads((out / "fabrication" / "slicer.json").read_text())
-        estimate = manifest["estimates"]
+        estimate = json.loads((out / "fabrication" / "manifest.json").read_text())["estimates"]
         slicer_g = sliced["total"]["filament_g"]
         row: dict[str, Any] = {
             "case": name,
@@ -271,6 +291,8 @@ def main() -> None:
             for case in (*FIT_CASES, *((name, *BUILTIN_CASE) for name in BUILTIN_TARGETS)):
                 samples += run_case(*case, folder)
                 print(f"sliced {case}", flush=True)
+            for coupon in FIT_COUPONS:
+                samples += coupon_case(*coupon, folder)
             SAMPLES.write_text(json.dumps(samples, indent=1) + "\n", encoding="utf-8")
         if args.fit or args.refit:
             samples = json.loads(SAMPLES.read_text())
