@@ -68,12 +68,10 @@ _INDEX = re.compile(rb'v[123]="(\d+)"')
 
 
 def read_bed(path: Path) -> list[PartMesh]:
-    """The parts of a bed's 3MF (drawstring's own): each volume of the PrusaSlicer config
-    as a mesh, ``tile`` or ``pad`` by its name; a file without that config (tiles alone) has
-    each connected piece of its meshes as a tile."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
+    """The parts of a bed's 3MF (drawstring's own), as the design estimates them: each
+    connected piece of a volume of the PrusaSlicer config (a volume holds a run of tiles or
+    of hinge pads printed by one extruder), ``tile`` or ``pad`` by the volume's name; a file
+    without that config (tiles alone) has each connected piece of its meshes as a tile."""
     with zipfile.ZipFile(path) as archive:
         model = archive.read("3D/3dmodel.model")
         names = archive.namelist()
@@ -87,29 +85,40 @@ def read_bed(path: Path) -> list[PartMesh]:
         vertices_xml, _, triangles_xml = chunk.partition(b"<triangles>")
         vertices = np.array(_NUMBER.findall(vertices_xml), dtype=np.float64).reshape(-1, 3)
         triangles = np.array(_INDEX.findall(triangles_xml), dtype=np.int64).reshape(-1, 3)
+        volumes = [("tile", triangles)]
         if config is not None:
-            volumes = config.findall("object")[index].findall("volume")
-            pieces = [
+            volumes = [
                 (
                     next(m.get("value") for m in v if m.get("key") == "name") or "",
                     triangles[int(v.get("firstid", 0)) : int(v.get("lastid", 0)) + 1],
                 )
-                for v in volumes
+                for v in config.findall("object")[index].findall("volume")
             ]
-        else:
-            edges = np.vstack([triangles[:, [0, 1]], triangles[:, [1, 2]]])
-            graph = coo_matrix(
-                (np.ones(len(edges)), (edges[:, 0], edges[:, 1])),
-                shape=(len(vertices), len(vertices)),
-            )
-            _, label = connected_components(graph, directed=False)
-            of_triangle = label[triangles[:, 0]]
-            pieces = [(f"tile_{k}", triangles[of_triangle == k]) for k in np.unique(of_triangle)]
-        for name, tri in pieces:
-            used, local = np.unique(tri, return_inverse=True)
+        for name, tri in volumes:
             kind = "pad" if name.startswith("hinge") else "tile"
-            parts.append(PartMesh(name, kind, vertices[used], local.reshape(-1, 3)))
+            for k, piece in enumerate(_connected_pieces(tri)):
+                used, local = np.unique(piece, return_inverse=True)
+                parts.append(
+                    PartMesh(f"{kind}_{len(parts)}_{k}", kind, vertices[used], local.reshape(-1, 3))
+                )
     return parts
+
+
+def _connected_pieces(triangles: np.ndarray) -> list[np.ndarray]:
+    """``triangles`` split into the pieces that share no vertex, in the order they start."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    used, local = np.unique(triangles, return_inverse=True)
+    local = local.reshape(-1, 3)
+    edges = np.vstack([local[:, [0, 1]], local[:, [1, 2]]])
+    graph = coo_matrix(
+        (np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(len(used), len(used))
+    )
+    _, label = connected_components(graph, directed=False)
+    of_triangle = label[local[:, 0]]
+    order = list(dict.fromkeys(of_triangle.tolist()))
+    return [triangles[of_triangle == k] for k in order]
 
 
 def run_case(target: str, tiles: int, profile: str, printer: str, folder: Path) -> list[dict]:

@@ -99,16 +99,17 @@ class BedFeatures:
 
 
 # The weights below are fitted by ``benchmarks/calibrate_print.py --fit`` to PrusaSlicer
-# 2.5.0's estimates of the beds of its fitting set (benchmarks/data/print_samples.json); the
-# terms that fitted to 0 (travel per tile layer, tool changes, wipe tower layers, layer
-# changes) are what PrusaSlicer's estimate already carries in the others.
+# 2.5.0's estimates of the beds of its fitting set (benchmarks/data/print_samples.json: 23
+# beds of small designs, two test coupons and every built-in at 200 tiles); the terms that
+# fitted to 0 (corners, tile layers, wipe tower layers, layer changes) are what PrusaSlicer's
+# estimate already carries in the others.
 #: Weights of :meth:`BedFeatures.time_terms` (s per s of each line kind, s per corner, ...).
-TIME_WEIGHTS: tuple[float, ...] = (1.941, 0.5245, 1.707, 2.519, 4.805, 0.005119, 0.0, 0.0, 0.0, 0.0)
+TIME_WEIGHTS: tuple[float, ...] = (1.979, 0.7402, 1.755, 2.811, 6.624, 0.0, 0.0, 22.36, 0.0, 0.0)
 #: Weights of :meth:`BedFeatures.tile_terms` (mm^3 per mm^3 of lines, per tower layer, per
 #: mm^3 primed).
-TILE_FILAMENT_WEIGHTS: tuple[float, ...] = (1.109, 0.0, 1.151)
+TILE_FILAMENT_WEIGHTS: tuple[float, ...] = (1.092, 26.69, 0.4649)
 #: Weights of :meth:`BedFeatures.pad_terms`, alike.
-PAD_FILAMENT_WEIGHTS: tuple[float, ...] = (0.9288, 0.8992, 0.2529)
+PAD_FILAMENT_WEIGHTS: tuple[float, ...] = (0.8611, 2.685, 0.2455)
 
 
 def effective_speed(speed: float, acceleration: float, run_mm: float) -> float:
