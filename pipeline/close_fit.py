@@ -32,9 +32,11 @@ from typing import Any
 
 import numpy as np
 
+from drawstring.geometry.assembled.fit import TopFaceDistances
 from drawstring.geometry.assembled.shape import AssembledResult
 from drawstring.geometry.assembled.top import Eq1Weights
 from drawstring.geometry.core.errors import ThicknessError
+from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.core.tolerances import FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM
 from drawstring.geometry.core.types import BoolArray, IntArray
 from drawstring.geometry.flat.conical import vertex_stars
@@ -60,10 +62,17 @@ def fitted_layout(
     policy: LayoutPolicy,
     weights_given: bool,
     check_first: FirstCheck | None = None,
-) -> ShapedLayout:
+    top_allowed: bool = False,
+    refused: dict[str, Any] | None = None,
+) -> tuple[ShapedLayout, ResolvedOptions]:
     """Stages tiling to hinges (:func:`~.layout_stage.shape_and_layout`) on the assembled
     shape ``--fit`` asks for; ``weights_given``: ``--weights`` was given, and its eq. 1 is
-    laid out whatever ``--fit`` says.  The result's ``fit`` is ``metrics.fit``.
+    laid out whatever ``--fit`` says; ``top_allowed``: ``--hinges`` was left unset, so a close
+    shape refused with dual hinges is laid out with top hinges before the paper's shape;
+    ``refused``: the ``metrics.fit`` of an earlier call on this design whose close shapes were
+    all refused (none is laid out again).  Returns the layout and the options it was made
+    with (top hinges where the close shape was kept with them); the layout's ``fit`` is
+    ``metrics.fit``.
 
     The design is refused (raising) by :func:`~.shapes.refusing_shape` alone, asked first:
     the first tiling's shape with the paper's weights (or ``--weights``) turning a tile inside
@@ -77,81 +86,141 @@ def fitted_layout(
             loaded.vertices, loaded.faces, flat_map.uv, tiles=options.tiles, grid=options.grid,
             max_scale_factor=split_bound(options),
         )  # fmt: skip
-    refusing_shape(first_tiling, loaded, options, progress, paper_shapes, check_first)
-    if options.fit == "paper" or weights_given:
+    paper_start = refusing_shape(first_tiling, loaded, options, progress, paper_shapes, check_first)
+    if options.fit == "paper" or weights_given or refused is not None:
         laid_out = shape_and_layout(
             loaded, flat_map, options, progress, policy=policy, shapes=paper_shapes,
             first_tiling=first_tiling,
         )  # fmt: skip
+        if refused is not None:
+            return replace(laid_out, fit=refused), options
         used = "weights" if weights_given else "paper"
-        return replace(laid_out, fit={"used": used, "eq1": paper.to_json()})
-    close = policy.close_fit
+        return replace(laid_out, fit={"used": used, "eq1": paper.to_json()}), options
+    with progress.stage("assembled"):
+        paper_distances = surface_distances(paper_start.tiles, loaded)
+    trial = _CloseTrial(loaded, flat_map, progress, policy, first_tiling, check_first)
+    close = close_weights(options.hinges, policy)
     tried: dict[str, Any] = {"eq1": close.to_json()}
-    trial, reason = _close_trial(
-        loaded, flat_map, options, progress, policy, ShapeCache(close), first_tiling,
-        check_first, tried,
-    )  # fmt: skip
-    if trial is not None:
-        return replace(trial, fit={"used": "close", "eq1": close.to_json(), "close": tried})
+    kept, reason = trial.laid_out(options, close, paper_distances, tried)
+    if kept is not None:
+        return replace(kept, fit={"used": "close", "eq1": close.to_json(), "close": tried}), options
+    fit: dict[str, Any] = {
+        "used": "paper",
+        "eq1": paper.to_json(),
+        "close": {**tried, "refused": reason},
+    }
+    notes = [
+        f"fit: the close assembled shape (eq. 1 surface weight {close.surface:g}, face samples "
+        f"{close.samples:g}) was not kept: {reason}"
+    ]
+    if top_allowed and options.hinges == HingeStrategy.DUAL:
+        top_options = replace(options, hinges=HingeStrategy.TOP)
+        top = close_weights(HingeStrategy.TOP, policy)
+        top_tried: dict[str, Any] = {"eq1": top.to_json()}
+        kept, top_reason = trial.laid_out(top_options, top, paper_distances, top_tried)
+        if kept is not None:
+            note = (
+                f"{notes[0]}; with every hinge on the top faces (no depth condition) the close "
+                f"shape of eq. 1 weights square {top.square:g}, surface {top.surface:g}, face "
+                f"samples {top.samples:g} keeps every layout target, so the design has top "
+                "hinges (--hinges dual keeps the bottom ones, --fit paper the paper's shape)"
+            )
+            return replace(
+                kept,
+                notes=(*kept.notes, note),
+                fit={**fit, "used": "close", "eq1": top.to_json(), "close_top": top_tried},
+            ), top_options
+        fit["close_top"] = {**top_tried, "refused": top_reason}
+        notes.append(f"with top hinges the close shape was not kept either: {top_reason}")
     laid_out = shape_and_layout(
         loaded, flat_map, options, progress, policy=policy, shapes=paper_shapes,
         first_tiling=first_tiling,
     )  # fmt: skip
-    note = (
-        f"fit: the close assembled shape (eq. 1 surface weight {close.surface:g}, face samples "
-        f"{close.samples:g}) was not kept: {reason}; the paper's weights were used"
-    )
-    return replace(
-        laid_out,
-        notes=(*laid_out.notes, note),
-        fit={"used": "paper", "eq1": paper.to_json(), "close": {**tried, "refused": reason}},
-    )
+    note = "; ".join(notes) + "; the paper's weights were used"
+    return replace(laid_out, notes=(*laid_out.notes, note), fit=fit), options
 
 
-def _close_trial(
-    loaded: Target,
-    flat_map: Flattening,
-    options: ResolvedOptions,
-    progress: Progress,
-    policy: LayoutPolicy,
-    shapes: ShapeCache,
-    first_tiling: Tiling,
-    check_first: FirstCheck | None,
-    tried: dict[str, Any],
-) -> tuple[ShapedLayout | None, str]:
-    """The close shape laid out, where it is kept, or None and why not; what was measured on
-    the way goes into ``tried``.  What would refuse the paper's shape only sets it aside."""
-    try:
-        start = refusing_shape(first_tiling, loaded, options, progress, shapes, check_first)
-    except ThicknessError:
-        return None, "some of its tiles turn inside out at this thickness"
-    except ChannelShortfall as short:
-        return None, f"its {short}"
-    defect = conical_defect_deg(
-        start, first_tiling.linkage, options.min_gap_angle_deg, options.hinges
-    )
-    tried["conical_defect_deg"] = round(defect, 3)
-    if defect > policy.close_conical_defect_max_deg:
-        return None, (
-            f"it is {defect:.1f} deg from conical next to the bottom hinges on average (more "
-            f"than {policy.close_conical_defect_max_deg:g}), where they would not meet in depth"
+def close_weights(hinges: str, policy: LayoutPolicy) -> Eq1Weights:
+    """The eq.-1 weights of the close shape laid out with ``hinges``: ``policy.close_fit``
+    with dual hinges, whose bottom hinges ask the shape to stay near conical, and the closer
+    ``policy.close_fit_top`` with every hinge on top."""
+    return policy.close_fit_top if hinges == HingeStrategy.TOP else policy.close_fit
+
+
+class _CloseTrial:
+    """The close shapes of one design laid out on its first tiling, kept or not."""
+
+    def __init__(
+        self,
+        loaded: Target,
+        flat_map: Flattening,
+        progress: Progress,
+        policy: LayoutPolicy,
+        first_tiling: Tiling,
+        check_first: FirstCheck | None,
+    ) -> None:
+        self.loaded, self.flat_map, self.progress = loaded, flat_map, progress
+        self.policy, self.first_tiling, self.check_first = policy, first_tiling, check_first
+
+    def laid_out(
+        self,
+        options: ResolvedOptions,
+        weights: Eq1Weights,
+        paper: TopFaceDistances,
+        tried: dict[str, Any],
+    ) -> tuple[ShapedLayout | None, str]:
+        """The close shape of eq.-1 ``weights`` laid out with ``options``, where it is kept,
+        or None and why not; what was measured on the way goes into ``tried``.  What would
+        refuse the paper's shape only sets it aside.  It is kept where its flat edge error and
+        hinge gap meet the 1e-3 mm targets and its top faces sit no further from the target,
+        on average and at most, than those of the paper's shape (``paper``: their distances
+        on the first tiling, before its layout)."""
+        loaded, progress, policy = self.loaded, self.progress, self.policy
+        shapes = ShapeCache(weights)
+        try:
+            start = refusing_shape(
+                self.first_tiling, loaded, options, progress, shapes, self.check_first
+            )
+        except ThicknessError:
+            return None, "some of its tiles turn inside out at this thickness"
+        except ChannelShortfall as short:
+            return None, f"its {short}"
+        # only bottom hinges ask the shape to be conical
+        dual = options.hinges == HingeStrategy.DUAL
+        defect = conical_defect_deg(
+            start, self.first_tiling.linkage, options.min_gap_angle_deg, options.hinges
         )
-    trial = shape_and_layout(
-        loaded, flat_map, options, progress, policy=policy, shapes=shapes,
-        first_tiling=first_tiling,
-    )  # fmt: skip
-    accuracy = trial.accuracy_mm
-    distances = surface_distances(trial.assembled.tiles, loaded)
-    tried.update(
-        accuracy_mm=rounded(accuracy, 9),
-        surface_distance_mean_mm=rounded(distances.mean, 9),
-        surface_distance_max_mm=rounded(distances.max, 9),
-    )
-    if accuracy <= min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM) and trial.hinge_layout is not None:
+        if dual:
+            tried["conical_defect_deg"] = round(defect, 3)
+        if dual and defect > policy.close_conical_defect_max_deg:
+            return None, (
+                f"it is {defect:.1f} deg from conical next to the bottom hinges on average "
+                f"(more than {policy.close_conical_defect_max_deg:g}), where they would not "
+                "meet in depth"
+            )
+        trial = shape_and_layout(
+            loaded, self.flat_map, options, progress, policy=policy, shapes=shapes,
+            first_tiling=self.first_tiling,
+        )  # fmt: skip
+        accuracy = trial.accuracy_mm
+        distances = surface_distances(trial.assembled.tiles, loaded)
+        tried.update(
+            accuracy_mm=rounded(accuracy, 9),
+            surface_distance_mean_mm=rounded(distances.mean, 9),
+            surface_distance_max_mm=rounded(distances.max, 9),
+        )
+        if accuracy > min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM) or trial.hinge_layout is None:
+            return None, (
+                f"its flat tiles met their hinges with their assembled shapes only to "
+                f"{accuracy:.2g} mm"
+            )
+        if distances.mean > paper.mean or distances.max > paper.max:
+            return None, (
+                f"its tiles sit {distances.mean:.2f} mm from the target on average and up to "
+                f"{distances.max:.2f} mm, no closer than the paper's shape ({paper.mean:.2f} "
+                f"and {paper.max:.2f} mm)"
+            )
         return trial, ""
-    return None, (
-        f"its flat tiles met their hinges with their assembled shapes only to {accuracy:.2g} mm"
-    )
 
 
 def bottom_side_edges(linkage: Linkage, quads: IntArray, bottom: BoolArray) -> IntArray:

@@ -143,6 +143,14 @@ class LayoutPolicy:
     #: shape further from conical would have its bottom hinges miss in depth, and the paper's
     #: shape is laid out at once.
     close_conical_defect_max_deg: float = 6.0
+    #: The eq.-1 weights of the close shape laid out with every hinge on the top faces, which
+    #: ask nothing of the shape in depth: the square weight lowered to 1 and the surface and
+    #: face-sample weights raised to 100.  ``--hinges top`` lays it out; with ``--hinges``
+    #: unset it is laid out where the close shape with dual hinges was not kept, before the
+    #: paper's shape.  At 200 tiles its layout keeps every 1e-3 mm target on all eight
+    #: built-ins (a square weight of 3 or 10 loses the cloud or the three-shell; a surface
+    #: weight of 1000 turns seashell tiles inside out and loses the cloud).
+    close_fit_top: Eq1Weights = Eq1Weights(1e4, 1.0, 100.0, 100.0)
 
     # -- the work run ahead (pipeline/ahead.py) --
 

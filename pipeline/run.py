@@ -150,11 +150,13 @@ def _design(
     loaded, flat_map, notes = _target_and_flattening(target, resolved, progress)
     check_grid(resolved, flat_map, from_profile=options.tiles is None and options.grid is None)
     asked = (os.fspath(target), options)
-    shaped = _laid_out(loaded, flat_map, resolved, progress, policy, asked)
+    shaped, resolved = _laid_out(loaded, flat_map, resolved, progress, policy, asked)
+    # close shapes laid out with top hinges and refused are not laid out again
+    refused = shaped.fit if shaped.fit is not None and "close_top" in shaped.fit else None
     shaped, resolved, hinge_choice = hinges_chosen(
         shaped, resolved, profile.tolerance_mm, lambda top: _laid_out(
-            loaded, flat_map, top, progress, policy, asked, checked=False
-        ), asked_hinges=options.hinges,
+            loaded, flat_map, top, progress, policy, asked, checked=False, refused=refused
+        )[0], asked_hinges=options.hinges,
     )  # fmt: skip
     notes.extend(shaped.notes)
     tiling, assembled, flat = shaped.tiling, shaped.assembled, shaped.flat
@@ -168,7 +170,7 @@ def _design(
     measured, problems, warnings = measure_design(
         resolved, profile, tiling, assembled, flat, hinge_layout, lift, route, masses,
         target_diagonal_mm=loaded.bbox_diagonal_mm, target=loaded, fit=shaped.fit,
-        top_tried=hinge_choice is not None,
+        top_tried=hinge_choice is not None or refused is not None,
     )  # fmt: skip
     measured["co_optimization"] = shaped.co_block
     if hinge_choice is not None:
@@ -252,12 +254,13 @@ def _laid_out(
     asked: tuple[str, DesignOptions],
     *,
     checked: bool = True,
-) -> ShapedLayout:
-    """Stages tiling to hinges on the shape ``--fit`` asks for (:func:`fitted_layout`); tiles
-    that turn inside out, or (with CAD) boundary tiles too small for the string channel,
-    refused seconds in with a checked ``retry with:`` (:mod:`~drawstring.pipeline.retry`), or
-    raised as they are when not ``checked``.  ``asked``: the target and the options as the
-    user gave them."""
+    refused: dict[str, Any] | None = None,
+) -> tuple[ShapedLayout, ResolvedOptions]:
+    """Stages tiling to hinges on the shape ``--fit`` asks for (:func:`fitted_layout`, whose
+    ``refused`` this is), and the options it was laid out with; tiles that turn inside out,
+    or (with CAD) boundary tiles too small for the string channel, refused seconds in with a
+    checked ``retry with:`` (:mod:`~drawstring.pipeline.retry`), or raised as they are when
+    not ``checked``.  ``asked``: the target and the options as the user gave them."""
     source, given = asked
     profile = load_profile(options.profile)
     check = channel_check(profile) if options.cad else None
@@ -270,6 +273,8 @@ def _laid_out(
             policy=policy,
             weights_given=given.weights is not None,
             check_first=check,
+            top_allowed=given.hinges is None,
+            refused=refused,
         )
     except ThicknessError as exc:
         if not checked:
