@@ -141,11 +141,13 @@ def test_the_close_fit_is_closer_and_keeps_every_layout_target(
 
 
 def test_a_close_shape_refused_gives_the_papers_design_with_a_note(paper: Design) -> None:
-    # a gate no shape passes: the close shape is refused before its layout
+    # a gate no shape passes: the close shape is refused before its layout; --hinges dual
+    # asked for, so no close shape is laid out with top hinges either
     policy = replace(DEFAULT_POLICY, close_conical_defect_max_deg=-1.0)
-    refused = design("saddle", OPTIONS, policy=policy)
+    refused = design("saddle", replace(OPTIONS, hinges="dual"), policy=policy)
     fit = refused.metrics()["fit"]
     assert fit["used"] == "paper" and "from conical" in fit["close"]["refused"]
+    assert "close_top" not in fit
     assert any(n.startswith("fit: the close assembled shape") for n in refused.notes)
     np.testing.assert_array_equal(refused.tiles_assembled, paper.tiles_assembled)
     np.testing.assert_array_equal(refused.tiles_flat, paper.tiles_flat)
@@ -154,6 +156,48 @@ def test_a_close_shape_refused_gives_the_papers_design_with_a_note(paper: Design
     assert len(far) == 1 and "the close fit was not kept" in far[0] and "--hinges top" in far[0]
     mean = paper.metrics()["surface_distance_mean_mm"]
     assert f"{mean:.2f} mm on average" in far[0]
+
+
+def test_a_close_shape_refused_with_dual_hinges_is_laid_out_with_top_hinges(
+    paper: Design,
+) -> None:
+    # --hinges unset and the dual close shape refused by the gate: the closer shape of
+    # policy.close_fit_top is laid out with every hinge on top, and kept
+    policy = replace(DEFAULT_POLICY, close_conical_defect_max_deg=-1.0)
+    top = design("saddle", OPTIONS, policy=policy)
+    m, p = top.metrics(), paper.metrics()
+    assert top.options.hinges == "top" and m["hinges_bottom"] == 0
+    fit = m["fit"]
+    assert fit["used"] == "close" and "from conical" in fit["close"]["refused"]
+    assert fit["eq1"] == fit["close_top"]["eq1"]
+    assert fit["eq1"]["surface"] == DEFAULT_POLICY.close_fit_top.surface
+    assert fit["close_top"]["surface_distance_mean_mm"] == m["surface_distance_mean_mm"]
+    assert any("the design has top hinges" in n for n in top.notes)
+    # closer than the paper's design, within the fit levels, and every layout target kept
+    assert m["surface_distance_mean_mm"] < 0.5 * p["surface_distance_mean_mm"]
+    assert m["surface_distance_max_mm"] < p["surface_distance_max_mm"]
+    assert m["surface_distance_mean_mm"] <= 0.02 * m["tile_side_mean_mm"]
+    assert m["surface_distance_max_mm"] <= 0.01 * top.target.bbox_diagonal_mm
+    assert max(m["flat_edge_error_max_mm"], m["hinge_gap_max_mm"]) <= 1e-3
+    assert m["flat_overlap_area_mm2"] == 0.0 and not top.problems
+    assert not [w for w in top.warnings if "far from the target" in w]
+
+
+def test_a_close_shape_no_closer_than_the_papers_is_not_kept(paper: Design) -> None:
+    # eq. 1 that hardly pulls to the surface (0.01, the paper's 0.1) gives a shape no closer
+    # than the paper's: refused for that, with dual hinges and then with top hinges
+    from drawstring.geometry.assembled.top import Eq1Weights
+
+    far = Eq1Weights(1e4, 10.0, 0.01)
+    policy = replace(DEFAULT_POLICY, close_fit=far, close_fit_top=far)
+    refused = design("saddle", OPTIONS, policy=policy)
+    fit = refused.metrics()["fit"]
+    assert fit["used"] == "paper" and refused.options.hinges == "dual"
+    for tried in (fit["close"], fit["close_top"]):
+        assert "no closer than the paper's shape" in tried["refused"]
+        assert tried["accuracy_mm"] <= 1e-3
+    np.testing.assert_array_equal(refused.tiles_assembled, paper.tiles_assembled)
+    np.testing.assert_array_equal(refused.tiles_flat, paper.tiles_flat)
 
 
 def test_far_from_the_target_is_warned_only_where_the_fit_misses(
