@@ -101,3 +101,60 @@ def top_face_distances(
     total = float(area.sum())
     mean = float((weights * dist).sum() / total) if total > 0 else float(dist.mean())
     return TopFaceDistances(tile_mean, dist.max(axis=1), mean, float(dist.max()))
+
+
+#: Iterations of :func:`rigid_fit` at most, and the move (mm) of its sample points below which
+#: it stops.
+RIGID_FIT_ITERATIONS: int = 50
+RIGID_FIT_STOP_MM: float = 1e-6
+#: Points per side of the grid each top face is sampled on for :func:`rigid_fit`.
+RIGID_FIT_SAMPLES_PER_SIDE: int = 5
+
+
+def rigid_fit(
+    tiles: ArrayLike,
+    target_vertices: ArrayLike,
+    target_faces: ArrayLike,
+    iterations: int = RIGID_FIT_ITERATIONS,
+) -> tuple[FloatArray, FloatArray]:
+    """The rigid motion ``x -> rotation @ x + shift`` that brings the tiles' top faces closest
+    to a triangle mesh in the least-squares sense: iterated closest points, each step the
+    best rotation and shift (Kabsch) of points spread over every top face (a
+    ``RIGID_FIT_SAMPLES_PER_SIDE`` grid) onto their closest target points.  A rigid motion
+    keeps every tile's shape and every distance between tiles.
+
+    Parameters
+    ----------
+    tiles : (T, 8, 3) or (T, 4, 3) float, mm
+    target_vertices : (p, 3) float, mm
+    target_faces : (f, 3) int
+
+    Returns
+    -------
+    rotation : (3, 3) float
+    shift : (3,) float, mm
+    """
+    quads = np.asarray(tiles, dtype=np.float64)[:, :4]
+    t = np.linspace(0.0, 1.0, RIGID_FIT_SAMPLES_PER_SIDE)
+    u, v = (a.ravel() for a in np.meshgrid(t, t, indexing="ij"))
+    basis = np.stack([(1 - u) * (1 - v), u * (1 - v), u * v, (1 - u) * v], axis=1)
+    start = np.einsum("sk,tki->tsi", basis, quads).reshape(-1, 3)
+    target = np.ascontiguousarray(target_vertices, dtype=np.float64)
+    faces = np.ascontiguousarray(target_faces, dtype=np.int64)
+    rotation, shift = np.eye(3), np.zeros(3)
+    points = start
+    for _ in range(iterations):
+        _, _, closest = igl.point_mesh_squared_distance(points, target, faces)
+        closest = np.asarray(closest, dtype=np.float64)
+        # the best rigid motion of the start points onto the closest points (Kabsch)
+        p_mean, q_mean = start.mean(axis=0), closest.mean(axis=0)
+        u_, _, vt = np.linalg.svd((start - p_mean).T @ (closest - q_mean))
+        flip = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(vt.T @ u_.T)))])
+        rotation = vt.T @ flip @ u_.T
+        shift = q_mean - rotation @ p_mean
+        moved = start @ rotation.T + shift
+        step = float(np.linalg.norm(moved - points, axis=1).max())
+        points = moved
+        if step < RIGID_FIT_STOP_MM:
+            break
+    return rotation, shift
