@@ -426,3 +426,31 @@ def test_a_bottom_face_folded_into_a_dart_or_turned_over_counts_as_folded() -> N
     turned = whole[[0, 3, 2, 1]]  # wound the other way: inside out
     bottom = np.vstack([whole, dart, turned])
     np.testing.assert_array_equal(folded_faces(top, bottom, quads), [False, True, True])
+
+
+def test_rigid_fit_undoes_a_known_rigid_motion() -> None:
+    # Planar quads of a translational surface z = f(x) + g(y) (no continuous symmetry), the
+    # target their own triangles; the quads moved by a known rotation (4 deg about a skew
+    # axis) and shift: the fit brings them back onto the target, its motion the inverse one.
+    from drawstring.geometry.assembled.fit import rigid_fit, top_face_distances
+
+    xs, ys = np.linspace(-40, 40, 9), np.linspace(-30, 30, 7)
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    vertices = np.stack([gx, gy, 0.02 * gx**2 + 0.04 * gy**2 + 0.01 * gx**3 / 40], axis=-1)
+    vertices = vertices.reshape(-1, 3)
+    ids = np.arange(len(vertices)).reshape(len(xs), len(ys))
+    quads = np.stack([ids[:-1, :-1], ids[1:, :-1], ids[1:, 1:], ids[:-1, 1:]], axis=-1).reshape(
+        -1, 4
+    )
+    faces = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    axis = np.array([1.0, 2.0, 3.0]) / np.sqrt(14.0)
+    angle = np.radians(4.0)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    turn = np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+    tiles = vertices[quads]
+    moved = tiles @ turn.T + np.array([1.5, -2.0, 0.8])
+    assert top_face_distances(moved, vertices, faces).mean > 0.5
+    rotation, shift = rigid_fit(moved, vertices, faces)
+    np.testing.assert_allclose(rotation @ turn, np.eye(3), atol=1e-6)
+    np.testing.assert_allclose(moved @ rotation.T + shift, tiles, atol=1e-4)
+    assert top_face_distances(moved @ rotation.T + shift, vertices, faces).max < 1e-4

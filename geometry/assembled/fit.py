@@ -105,7 +105,7 @@ def top_face_distances(
 
 #: Iterations of :func:`rigid_fit` at most, and the move (mm) of its sample points below which
 #: it stops.
-RIGID_FIT_ITERATIONS: int = 50
+RIGID_FIT_ITERATIONS: int = 30
 RIGID_FIT_STOP_MM: float = 1e-6
 #: Points per side of the grid each top face is sampled on for :func:`rigid_fit`.
 RIGID_FIT_SAMPLES_PER_SIDE: int = 5
@@ -118,10 +118,11 @@ def rigid_fit(
     iterations: int = RIGID_FIT_ITERATIONS,
 ) -> tuple[FloatArray, FloatArray]:
     """The rigid motion ``x -> rotation @ x + shift`` that brings the tiles' top faces closest
-    to a triangle mesh in the least-squares sense: iterated closest points, each step the
-    best rotation and shift (Kabsch) of points spread over every top face (a
-    ``RIGID_FIT_SAMPLES_PER_SIDE`` grid) onto their closest target points.  A rigid motion
-    keeps every tile's shape and every distance between tiles.
+    to a triangle mesh: iterated closest points, point to plane (each step the small rotation
+    and shift, by Gauss-Newton, that bring points spread over every top face, a
+    ``RIGID_FIT_SAMPLES_PER_SIDE`` grid, onto the planes of their closest target triangles),
+    until a step moves no point more than ``RIGID_FIT_STOP_MM``.  A rigid motion keeps every
+    tile's shape and every distance between tiles.
 
     Parameters
     ----------
@@ -138,23 +139,38 @@ def rigid_fit(
     t = np.linspace(0.0, 1.0, RIGID_FIT_SAMPLES_PER_SIDE)
     u, v = (a.ravel() for a in np.meshgrid(t, t, indexing="ij"))
     basis = np.stack([(1 - u) * (1 - v), u * (1 - v), u * v, (1 - u) * v], axis=1)
-    start = np.einsum("sk,tki->tsi", basis, quads).reshape(-1, 3)
+    points = np.einsum("sk,tki->tsi", basis, quads).reshape(-1, 3)
     target = np.ascontiguousarray(target_vertices, dtype=np.float64)
     faces = np.ascontiguousarray(target_faces, dtype=np.int64)
+    corners = target[faces]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
     rotation, shift = np.eye(3), np.zeros(3)
-    points = start
     for _ in range(iterations):
-        _, _, closest = igl.point_mesh_squared_distance(points, target, faces)
-        closest = np.asarray(closest, dtype=np.float64)
-        # the best rigid motion of the start points onto the closest points (Kabsch)
-        p_mean, q_mean = start.mean(axis=0), closest.mean(axis=0)
-        u_, _, vt = np.linalg.svd((start - p_mean).T @ (closest - q_mean))
-        flip = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(vt.T @ u_.T)))])
-        rotation = vt.T @ flip @ u_.T
-        shift = q_mean - rotation @ p_mean
-        moved = start @ rotation.T + shift
-        step = float(np.linalg.norm(moved - points, axis=1).max())
+        _, face, closest = igl.point_mesh_squared_distance(points, target, faces)
+        n = normals[np.asarray(face, dtype=np.int64)]
+        offset = np.einsum("pi,pi->p", points - np.asarray(closest, dtype=np.float64), n)
+        # rows d/d(omega, delta) of (omega x p + delta) . n, omega a small rotation vector
+        rows = np.concatenate([np.cross(points, n), n], axis=1)
+        normal_matrix = rows.T @ rows
+        # damped: a target that lets the points slide (a plane, a cylinder) keeps them still
+        damping = 1e-9 * float(np.trace(normal_matrix)) + 1e-300
+        step = np.linalg.solve(normal_matrix + damping * np.eye(6), -rows.T @ offset)
+        omega, delta = step[:3], step[3:]
+        angle = float(np.linalg.norm(omega))
+        turn = np.eye(3)
+        if angle > 0:
+            k = (
+                np.array(
+                    [[0, -omega[2], omega[1]], [omega[2], 0, -omega[0]], [-omega[1], omega[0], 0]]
+                )
+                / angle
+            )
+            turn += np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+        moved = points @ turn.T + delta
+        rotation, shift = turn @ rotation, turn @ shift + delta
+        moved_by = float(np.linalg.norm(moved - points, axis=1).max())
         points = moved
-        if step < RIGID_FIT_STOP_MM:
+        if moved_by < RIGID_FIT_STOP_MM:
             break
     return rotation, shift
