@@ -14,13 +14,22 @@ has passed the check that refuses a design (:func:`~.shapes.refusing_shape`):
    within ``policy.close_conical_defect_max_deg``, lays the design out on it (co-optimization
    with the paper's surface weight, its conical ladder, tighter tilings, hinges) and keeps it
    when its flat edge error and hinge gap meet the 1e-3 mm targets;
-3. otherwise (and where the close shape turns a tile inside out, or with CAD leaves a
+3. otherwise, with ``--hinges`` left unset, lays out the closer shape of
+   ``policy.close_fit_top`` (square weight lowered, surface and face samples raised) with
+   every hinge on the top faces, which ask nothing of the shape in depth, and keeps it when it
+   meets the 1e-3 mm targets (``--hinges top`` lays out that shape as the close one);
+4. otherwise (and where the close shape turns a tile inside out, or with CAD leaves a
    boundary tile too narrow for the string channel) lays out the paper's shape, with a note
    saying why.
 
-``metrics.fit.close`` records the close shape's weights and conical defect and, where it was
-laid out, its accuracy (the larger of flat edge error and hinge gap) and its surface distance
-over the top faces, kept or not: one point of the fit frontier.
+A close design's assembled shape is moved rigidly onto the target (:func:`rigidly_fitted`)
+where that lowers its mean distance and not its largest, and it is kept only where its top
+faces then sit no farther from the target, on average and at most, than the paper's shape's.
+
+``metrics.fit.close`` (and ``close_top``) records the close shape's weights and conical defect
+and, where it was laid out, its accuracy (the larger of flat edge error and hinge gap), its
+rigid fit's move and its surface distance over the top faces, kept or not: one point of the
+fit frontier.
 
 ``paper`` is the layout of the paper's weights alone; ``--weights`` overrides both.
 """
