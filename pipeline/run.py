@@ -34,6 +34,7 @@ from drawstring.geometry.simulate.result import SimulationResult
 from drawstring.geometry.target.surface import Target, load_target
 from drawstring.geometry.tiling.grid import parts_in_place
 from drawstring.geometry.tiling.linkage import gap_centroids
+from drawstring.pipeline.auto import LaidOut, chooses_values, chosen_layout
 from drawstring.pipeline.cad_stage import ChannelShortfall
 from drawstring.pipeline.checks import check_grid, mesh_corners
 from drawstring.pipeline.close_fit import fitted_layout
@@ -49,7 +50,12 @@ from drawstring.pipeline.record import (
     jsonable,
     rounded,
 )
-from drawstring.pipeline.retry import channel_check, checked_channel_refusal, checked_size_refusal
+from drawstring.pipeline.retry import (
+    Searched,
+    channel_check,
+    checked_channel_refusal,
+    checked_size_refusal,
+)
 from drawstring.pipeline.route_stage import NamedCheck, plan_lift_route
 
 log = logging.getLogger(__name__)
@@ -147,16 +153,10 @@ def _design(
     profile = with_printer(profile, printer)
     resolved = resolve_options(options, profile, printer)
     progress = progress or Progress(quiet=quiet)
-    loaded, flat_map, notes = _target_and_flattening(target, resolved, progress)
-    check_grid(resolved, flat_map, from_profile=options.tiles is None and options.grid is None)
-    asked = (os.fspath(target), options)
-    shaped = _laid_out(loaded, flat_map, resolved, progress, policy, asked)
-    shaped, resolved, hinge_choice = hinges_chosen(
-        shaped, resolved, profile.tolerance_mm, lambda top: _laid_out(
-            loaded, flat_map, top, progress, policy, asked, checked=False
-        ), asked_hinges=options.hinges,
-    )  # fmt: skip
-    notes.extend(shaped.notes)
+    laid, chosen_values = _layout(os.fspath(target), options, resolved, profile, progress, policy)
+    loaded, flat_map, shaped = laid.loaded, laid.flat_map, laid.shaped
+    resolved, hinge_choice = laid.options, laid.hinge_choice
+    notes = [*laid.notes, *shaped.notes]
     tiling, assembled, flat = shaped.tiling, shaped.assembled, shaped.flat
     hinge_layout = shaped.hinge_layout
     assert hinge_layout is not None  # only a tiling that was tiled again goes without
@@ -171,6 +171,8 @@ def _design(
         top_tried=hinge_choice is not None,
     )  # fmt: skip
     measured["co_optimization"] = shaped.co_block
+    if chosen_values is not None:
+        measured["chosen_values"] = chosen_values
     if hinge_choice is not None:
         measured["hinge_choice"] = hinge_choice
     if shaped.fit is not None:
@@ -208,6 +210,65 @@ def _design(
     if resolved.cad:
         result = with_cad(result, progress)
     return result
+
+
+def _layout(
+    source: str,
+    options: DesignOptions,
+    resolved: ResolvedOptions,
+    profile: Profile,
+    progress: Progress,
+    policy: LayoutPolicy,
+) -> tuple[LaidOut, dict[str, Any] | None]:
+    """Stages target to hinges at the options given, and ``metrics.chosen_values``: where the
+    user gave none of --size, --thickness, --tiles and the defaults are refused or miss the
+    fabrication tolerance, at values the tool chose (:func:`~.auto.chosen_layout`), else
+    refused with a checked ``retry with:`` as :func:`_laid_out` refuses."""
+    asked = (source, options)
+    prepared = _target_and_flattening(source, resolved, progress)
+    from_profile = options.tiles is None and options.grid is None
+    check_grid(resolved, prepared[1], from_profile=from_profile)
+    if not chooses_values(options):
+        return _laid_out_at(resolved, profile, progress, policy, asked, prepared), None
+    first: LaidOut | ThicknessError | ChannelShortfall
+    try:
+        first = _laid_out_at(resolved, profile, progress, policy, asked, prepared, checked=False)
+    except (ThicknessError, ChannelShortfall) as refused:
+        first = refused
+
+    def lay_out(changed: ResolvedOptions) -> LaidOut:
+        again = _target_and_flattening(source, changed, progress)
+        check_grid(changed, again[1], from_profile=False)
+        return _laid_out_at(changed, profile, progress, policy, asked, again, checked=False)
+
+    def refuse(exc: ThicknessError | ChannelShortfall, searched: Searched) -> InputError:
+        if isinstance(exc, ChannelShortfall):
+            return checked_channel_refusal(exc, source, options, resolved, profile, searched)
+        return checked_size_refusal(exc, source, options, resolved, profile, searched)
+
+    return chosen_layout(first, source, options, resolved, profile, lay_out, refuse)
+
+
+def _laid_out_at(
+    options: ResolvedOptions,
+    profile: Profile,
+    progress: Progress,
+    policy: LayoutPolicy,
+    asked: tuple[str, DesignOptions],
+    prepared: tuple[Target, Flattening, list[str]],
+    *,
+    checked: bool = True,
+) -> LaidOut:
+    """Stages tiling to hinges on the target and flattening ``prepared`` (:func:`_laid_out`),
+    with the hinges :func:`hinges_chosen` picks."""
+    loaded, flat_map, notes = prepared
+    shaped = _laid_out(loaded, flat_map, options, progress, policy, asked, checked=checked)
+    shaped, options, hinge_choice = hinges_chosen(
+        shaped, options, profile.tolerance_mm, lambda top: _laid_out(
+            loaded, flat_map, top, progress, policy, asked, checked=False
+        ), asked_hinges=asked[1].hinges,
+    )  # fmt: skip
+    return LaidOut(loaded, flat_map, tuple(notes), shaped, options, hinge_choice)
 
 
 def _target_and_flattening(
