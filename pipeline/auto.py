@@ -35,7 +35,7 @@ from drawstring.fabrication.profiles import Profile
 from drawstring.geometry.core.errors import InputError, ThicknessError
 from drawstring.geometry.flatten.conformal import Flattening
 from drawstring.geometry.target.surface import Target
-from drawstring.pipeline.cad_stage import ChannelShortfall
+from drawstring.pipeline.cad_stage import FeatureShortfall
 from drawstring.pipeline.layout_stage import ShapedLayout
 from drawstring.pipeline.record import DesignOptions, ResolvedOptions, rounded
 from drawstring.pipeline.retry import Searched, refusal_checker, refusal_search, stepped_value
@@ -63,7 +63,7 @@ class LaidOut:
 
 
 #: What the refusing check raises.
-Refused: TypeAlias = ThicknessError | ChannelShortfall
+Refused: TypeAlias = ThicknessError | FeatureShortfall
 #: Lays the design out at the options given; raises what the refusing check raises.
 LayOut = Callable[[ResolvedOptions], LaidOut]
 #: The one-line refusal of what the refusing check raised, with the retry search made.

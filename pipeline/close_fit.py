@@ -43,7 +43,7 @@ from drawstring.geometry.hinges.sides import dual_hinge_faces
 from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling, tile_surface
 from drawstring.geometry.tiling.linkage import Linkage
-from drawstring.pipeline.cad_stage import ChannelShortfall
+from drawstring.pipeline.cad_stage import FeatureShortfall
 from drawstring.pipeline.fit_quality import surface_distances
 from drawstring.pipeline.layout_stage import ShapedLayout, shape_and_layout, split_bound
 from drawstring.pipeline.policy import LayoutPolicy
@@ -125,7 +125,7 @@ def _close_trial(
         start = refusing_shape(first_tiling, loaded, options, progress, shapes, check_first)
     except ThicknessError:
         return None, "some of its tiles turn inside out at this thickness"
-    except ChannelShortfall as short:
+    except FeatureShortfall as short:
         return None, f"its {short}"
     defect = conical_defect_deg(
         start, first_tiling.linkage, options.min_gap_angle_deg, options.hinges

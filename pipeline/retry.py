@@ -4,7 +4,8 @@ The pipeline refuses a design by one check, asked before any layout
 (:func:`~drawstring.pipeline.shapes.refusing_shape`): eq. 1 and its extrusion on the first
 tiling turning tiles inside out or folding a face into a dart
 (:class:`~drawstring.geometry.core.errors.ThicknessError`), and with CAD boundary tiles too
-narrow for the string channel.  A suggestion read off the first extrusion would be unchecked:
+narrow for the string channel or hinged corners without room for their hinge strips
+(:func:`feature_check`).  A suggestion read off the first extrusion would be unchecked:
 the eq.-1 weights are absolute, so a larger size is not the same design scaled, and a thinner
 tile may be too thin for the profile's string channel.
 
@@ -39,7 +40,12 @@ from drawstring.geometry.core.errors import InputError, ThicknessError
 from drawstring.geometry.flatten.conformal import Flattening, flatten
 from drawstring.geometry.target.surface import Target, load_target
 from drawstring.geometry.tiling.grid import Tiling, tile_surface
-from drawstring.pipeline.cad_stage import ChannelShortfall, boundary_channel_shortfall
+from drawstring.pipeline.cad_stage import (
+    FeatureShortfall,
+    boundary_channel_shortfall,
+    hinge_strip_shortfall,
+    strip_words,
+)
 from drawstring.pipeline.record import Progress
 from drawstring.pipeline.shapes import FirstCheck, ShapeCache, refusing_shape
 
@@ -418,21 +424,29 @@ def checked_retry(
     return Retry(option, value, text, checker.runs, seconds), tried, checker.outcomes()
 
 
-def channel_check(profile: Profile) -> FirstCheck:
-    """The boundary channel check on the first tiling's eq.-1 tiles, raising
-    :class:`~drawstring.pipeline.cad_stage.ChannelShortfall` (the ``check`` of
-    :func:`~.shapes.refusing_shape` with CAD)."""
+def feature_check(profile: Profile, options: ResolvedOptions) -> FirstCheck:
+    """The CAD feature checks on the first tiling's eq.-1 tiles, raising
+    :class:`~drawstring.pipeline.cad_stage.FeatureShortfall`: boundary tiles with room for
+    the string channel (:func:`~.cad_stage.boundary_channel_shortfall`) and hinged corners
+    with room for their strips on any face ``options.hinges`` can put them on
+    (:func:`~.cad_stage.hinge_strip_shortfall`).  The ``check`` of
+    :func:`~.shapes.refusing_shape` with CAD."""
 
     def check(tiling: Tiling, shape: AssembledResult) -> None:
         short = boundary_channel_shortfall(profile, shape.tiles, tiling.linkage.boundary_tile)
         if short is not None:
             have, need = short
-            raise ChannelShortfall(
+            raise FeatureShortfall(
                 f"boundary tiles' side faces as narrow as {have:.2f} mm where the string must "
                 f"run, and the string channel needs {need:.2f} mm with its walls",
                 have,
                 need,
             )
+        strips = hinge_strip_shortfall(
+            profile, tiling.linkage, shape.tiles, options.min_gap_angle_deg, options.hinges
+        )
+        if strips is not None:
+            raise FeatureShortfall(strip_words(profile, *strips), *strips)
 
     return check
 
@@ -459,14 +473,14 @@ Searched = tuple[Retry | None, list[str], set[str]]
 
 def refusal_checker(options: ResolvedOptions, target: str, profile: Profile) -> _Checker:
     """The checker a refusal's retry search asks: the refusing check with CAD's feature
-    check where the design has CAD (:func:`channel_check`), with room for
+    check where the design has CAD (:func:`feature_check`), with room for
     :data:`RETRY_CHECKS` runs."""
-    check = channel_check(profile) if options.cad else None
+    check = feature_check(profile, options) if options.cad else None
     return _Checker(target, options, RETRY_CHECKS, check)
 
 
 def refusal_search(
-    exc: ThicknessError | ChannelShortfall,
+    exc: ThicknessError | FeatureShortfall,
     target: str,
     asked: DesignOptions,
     options: ResolvedOptions,
@@ -477,7 +491,7 @@ def refusal_search(
     out, ``--size`` and ``--tiles`` for tiles too small for the profile's features (a thinner
     tile does not widen them)."""
     checker = checker or refusal_checker(options, target, profile)
-    searched = ("size", "tiles") if isinstance(exc, ChannelShortfall) else None
+    searched = ("size", "tiles") if isinstance(exc, FeatureShortfall) else None
     return checked_retry(
         target, asked, options, profile, checker.check, checker=checker,
         **({} if searched is None else {"options_searched": searched}),
@@ -511,16 +525,17 @@ def checked_size_refusal(
 
 
 def checked_channel_refusal(
-    exc: ChannelShortfall,
+    exc: FeatureShortfall,
     target: str,
     asked: DesignOptions,
     options: ResolvedOptions,
     profile: Profile,
     searched: Searched | None = None,
 ) -> InputError:
-    """The one-line refusal of boundary tiles too small for the string channel (found on the
-    eq.-1 tiles), ending in a ``retry with:`` whose --size or --tiles passed the same
-    check.  ``searched``: the search already made (:func:`refusal_search`)."""
+    """The one-line refusal of tiles too small for the string channel or the hinge strips
+    (found on the eq.-1 tiles, :func:`feature_check`), ending in a ``retry with:`` whose
+    --size or --tiles passed the same check.  ``searched``: the search already made
+    (:func:`refusal_search`)."""
     retry, tried, outcomes = searched or refusal_search(exc, target, asked, options, profile)
     count = (
         f"--grid {options.grid[0]} {options.grid[1]}" if options.grid else f"{options.tiles} tiles"
@@ -533,7 +548,7 @@ def checked_channel_refusal(
         if NEARLY_FOLDED in outcomes:
             return InputError(f"{what}, and {_plain_words(tried, outcomes)}")
         return InputError(
-            f"{what}, and no {', '.join(tried)} gives every boundary tile room for it: parts "
-            "of this shape are too narrow for the profile's string channel"
+            f"{what}, and no {', '.join(tried)} gives the tiles room for it: parts of this "
+            "shape are too narrow for the profile's string channel and hinge strips"
         )
     return InputError(f"{what}; retry with: {retry.text}")

@@ -35,7 +35,7 @@ from drawstring.geometry.target.surface import Target, load_target
 from drawstring.geometry.tiling.grid import parts_in_place
 from drawstring.geometry.tiling.linkage import gap_centroids
 from drawstring.pipeline.auto import LaidOut, chooses_values, chosen_layout
-from drawstring.pipeline.cad_stage import ChannelShortfall
+from drawstring.pipeline.cad_stage import FeatureShortfall
 from drawstring.pipeline.checks import check_grid, mesh_corners
 from drawstring.pipeline.close_fit import fitted_layout
 from drawstring.pipeline.layout_stage import ShapedLayout, fabricated_tiles
@@ -52,9 +52,9 @@ from drawstring.pipeline.record import (
 )
 from drawstring.pipeline.retry import (
     Searched,
-    channel_check,
     checked_channel_refusal,
     checked_size_refusal,
+    feature_check,
 )
 from drawstring.pipeline.route_stage import NamedCheck, plan_lift_route
 
@@ -230,10 +230,10 @@ def _layout(
     check_grid(resolved, prepared[1], from_profile=from_profile)
     if not chooses_values(options):
         return _laid_out_at(resolved, profile, progress, policy, asked, prepared), None
-    first: LaidOut | ThicknessError | ChannelShortfall
+    first: LaidOut | ThicknessError | FeatureShortfall
     try:
         first = _laid_out_at(resolved, profile, progress, policy, asked, prepared, checked=False)
-    except (ThicknessError, ChannelShortfall) as refused:
+    except (ThicknessError, FeatureShortfall) as refused:
         first = refused
 
     def lay_out(changed: ResolvedOptions) -> LaidOut:
@@ -241,8 +241,8 @@ def _layout(
         check_grid(changed, again[1], from_profile=False)
         return _laid_out_at(changed, profile, progress, policy, asked, again, checked=False)
 
-    def refuse(exc: ThicknessError | ChannelShortfall, searched: Searched) -> InputError:
-        if isinstance(exc, ChannelShortfall):
+    def refuse(exc: ThicknessError | FeatureShortfall, searched: Searched) -> InputError:
+        if isinstance(exc, FeatureShortfall):
             return checked_channel_refusal(exc, source, options, resolved, profile, searched)
         return checked_size_refusal(exc, source, options, resolved, profile, searched)
 
@@ -315,13 +315,13 @@ def _laid_out(
     checked: bool = True,
 ) -> ShapedLayout:
     """Stages tiling to hinges on the shape ``--fit`` asks for (:func:`fitted_layout`); tiles
-    that turn inside out, or (with CAD) boundary tiles too small for the string channel,
-    refused seconds in with a checked ``retry with:`` (:mod:`~drawstring.pipeline.retry`), or
-    raised as they are when not ``checked``.  ``asked``: the target and the options as the
-    user gave them."""
+    that turn inside out, or (with CAD) tiles too small for the string channel or the hinge
+    strips, refused seconds in with a checked ``retry with:``
+    (:mod:`~drawstring.pipeline.retry`), or raised as they are when not ``checked``.
+    ``asked``: the target and the options as the user gave them."""
     source, given = asked
     profile = load_profile(options.profile)
-    check = channel_check(profile) if options.cad else None
+    check = feature_check(profile, options) if options.cad else None
     try:
         return fitted_layout(
             loaded,
@@ -336,7 +336,7 @@ def _laid_out(
         if not checked:
             raise
         raise checked_size_refusal(exc, source, given, options, profile) from exc
-    except ChannelShortfall as exc:
+    except FeatureShortfall as exc:
         if not checked:
             raise
         raise checked_channel_refusal(exc, source, given, options, profile) from exc
@@ -364,7 +364,7 @@ def hinges_chosen(
     choice: dict[str, Any] = {"dual_accuracy_mm": rounded(dual, 9)}
     try:
         top = lay_out(top_options)
-    except (InputError, ThicknessError, ChannelShortfall) as refused:
+    except (InputError, ThicknessError, FeatureShortfall) as refused:
         # the check that refuses does not depend on the hinges: not expected once dual passed
         choice.update(used="dual", top_refused=str(refused))
         return shaped, options, choice
