@@ -141,7 +141,7 @@ def chosen_layout(
             accuracy = laid.shaped.accuracy_mm
             entry.update(accuracy_mm=rounded(accuracy, 9), hinges=str(laid.options.hinges))
             if accuracy <= tolerance:
-                return _chosen(laid, record, tried, why)
+                return _chosen(laid, record, tried, why, tolerance)
             if best is None or accuracy < best.shaped.accuracy_mm:
                 best = laid
         candidate = stepped_value(checker, option, value, profile)
@@ -169,13 +169,14 @@ def _chosen(
     record: dict[str, Any],
     tried: list[dict[str, Any]],
     why: str,
+    tolerance: float,
 ) -> tuple[LaidOut, dict[str, Any]]:
     """``laid``, which meets the tolerance, with its note, and ``metrics.chosen_values``."""
     last = tried[-1]
     used = {_FIELDS[last["option"]]: last["value"]}
     record.update(tried=tried, used=used)
     misses = tried[:-1]
-    before = f"; {_tried_words(misses)} missed too" if misses else ""
+    before = f"; {_tried_words(misses)} missed the {tolerance:g} mm" if misses else ""
     note = (
         f"chosen values: you gave none of --size, --thickness, --tiles, and at the defaults "
         f"{why}{before}; the design uses {_flag(last['option'], last['value'])}, whose flat "

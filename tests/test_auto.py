@@ -129,7 +129,8 @@ def test_a_layout_missing_the_tolerance_steps_the_tiles_down_until_one_meets_it(
     assert chosen["reason"] == "tolerance" and chosen["accuracy_mm"] == 0.4
     assert chosen["used"] == {"tiles": 22}
     assert [(t["value"], t["accuracy_mm"]) for t in chosen["tried"]] == [(30, 0.3), (22, 0.01)]
-    assert "--tiles 30 (0.3 mm, dual hinges) missed too" in kept.notes[-1]
+    note = kept.notes[-1]
+    assert "--tiles 30 (0.3 mm, dual hinges) missed the 0.05 mm; the design uses --tiles 22" in note
     # where none meets it, at most CHOSEN_LAYOUTS are tried and the defaults are kept
     laid_out.clear()
     kept, chosen = chosen_layout(
