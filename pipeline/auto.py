@@ -6,7 +6,8 @@ At the profile's defaults a design can be refused by the one refusing check
 profile's features) or be laid out with its flat tiles missing the profile's fabrication
 tolerance (flat edge error or hinge gap over ``tolerance_mm``, with the hinges
 :func:`~.run.hinges_chosen` picks), which ends in exit status 3.  Where the user left all three
-at their defaults, :func:`chosen_layout` instead designs with values it finds itself:
+at their defaults, :func:`chosen_layout` instead designs with values it finds itself (for a
+missed tolerance only with the co-optimization on: without it the fix is to turn it on):
 
 1. refused: the value the refusal's retry search finds (:func:`~.retry.refusal_search`, the
    ``retry with:`` the refusal would quote); a layout that missed: the tile count one
@@ -95,7 +96,8 @@ def chosen_layout(
     refuse: Refuse,
 ) -> tuple[LaidOut, dict[str, Any] | None]:
     """The layout to design with, and ``metrics.chosen_values`` (None where the defaults'
-    layout ``first`` meets the tolerance).  ``first``: the layout at the defaults
+    layout ``first`` meets the tolerance, or misses it with ``--no-co-optimize``).  ``first``:
+    the layout at the defaults
     ``options``, or what refused it; ``lay_out``: a layout at other options; ``refuse``: the
     refusal raised where no value passes the refusing check."""
     tolerance = profile.tolerance_mm
@@ -107,7 +109,9 @@ def chosen_layout(
     searched: Searched | None = None
     if isinstance(first, LaidOut):
         accuracy = first.shaped.accuracy_mm
-        if accuracy <= tolerance:
+        if accuracy <= tolerance or not options.co_optimize:
+            # without the co-optimization no tile count meets it: the fix is to drop
+            # --no-co-optimize, which the design's problem line says
             return first, None
         why = (
             f"the flat tiles missed their hinges by {accuracy:.2g} mm, over the profile's "

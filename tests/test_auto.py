@@ -140,11 +140,17 @@ def test_a_layout_missing_the_tolerance_steps_the_tiles_down_until_one_meets_it(
     assert len(laid_out) == CHOSEN_LAYOUTS and laid_out[:2] == [30, 22]
     assert kept is not first and kept.shaped is first.shaped and chosen is not None
     assert chosen["used"] == {} and "so the defaults are kept" in kept.notes[-1]
-    # a layout within the tolerance at the defaults is kept as it is
+    # a layout within the tolerance at the defaults is kept as it is, and so is one that
+    # misses it without the co-optimization (no tile count mends that)
     fine = _laid(options, 0.04)
     assert chosen_layout(
         fine, str(HEMISPHERE), asked, options, profile, lay_out, _never_refused
     ) == (fine, None)
+    plain = replace(options, co_optimize=False)
+    missed = _laid(plain, 0.4)
+    assert chosen_layout(
+        missed, str(HEMISPHERE), asked, plain, profile, lay_out, _never_refused
+    ) == (missed, None)
 
 
 def test_only_defaults_left_unset_let_the_tool_choose() -> None:
