@@ -3,7 +3,8 @@ as a new user would (``drawstring design FILE``), following a refusal's ``retry 
 
 Run through ``benchmarks/run.py --corpus`` (rows in ``benchmarks/results.json`` under
 ``corpus``, merged by mesh so that a run over some meshes keeps the others' rows).  Each row:
-the exit status, the retried options and the exit status after the retry, tiles, parts,
+the exit status, the retried options and the exit status after the retry, the values the tool
+chose itself (``metrics.chosen_values``), tiles, parts,
 whether the simulation deploys it, the flat edge error and hinge gap, the fit to the target
 (mean and largest surface distance) and the design time.
 """
@@ -54,7 +55,16 @@ def _design_facts(folder: Path) -> dict[str, Any]:
     simulation = metrics.get("simulation") or {}
     levels = doc.get("quality", {}).get("measures", {})
     fit_levels = [levels.get(f"surface_distance_{k}_mm", {}).get("level") for k in ("mean", "max")]
+    chosen = metrics.get("chosen_values") or {}
     return {
+        # the values the tool chose itself where the defaults were refused or missed the
+        # fabrication tolerance (none given), as options
+        "chosen_options": [
+            word
+            for key, value in (chosen.get("used") or {}).items()
+            for word in (f"--{key.removesuffix('_mm')}", f"{value:g}")
+        ],
+        "chosen_reason": chosen.get("reason"),
         "hinges": doc.get("options", {}).get("hinges"),
         "fit_used": (metrics.get("fit") or {}).get("used"),
         "tiles": doc.get("linkage", {}).get("tiles"),

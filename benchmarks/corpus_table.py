@@ -13,8 +13,9 @@ from typing import Any
 HERE = Path(__file__).resolve().parent
 
 HEADER = (
-    "| mesh | exit | retry with | exit after | hinges | tiles / parts | deploys | flat edge mm "
-    "| hinge gap mm (from above) | fit mean / max mm | fit % of side / % of diagonal | s |"
+    "| mesh | exit | tool chose | retry with | exit after | hinges | tiles / parts | deploys "
+    "| flat edge mm | hinge gap mm (from above) | fit mean / max mm "
+    "| fit % of side / % of diagonal | s |"
 )
 
 
@@ -27,12 +28,14 @@ def _g(value: Any, digits: int = 2) -> str:
 def row_text(row: dict[str, Any]) -> str:
     """One table row."""
     retried = row.get("retried_options")
+    chosen = row.get("chosen_options")
     written = row.get("tiles") is not None
     deployed = row.get("deployed")
     seconds = row.get("design_time_s", 0.0) + row.get("retry_time_s", 0.0)
     cells = [
         row["mesh"].removesuffix(".obj"),
         str(row["exit"]),
+        f"`{' '.join(chosen)}`" if chosen else "–",
         f"`{' '.join(retried)}`" if retried else "–",
         str(row["exit_after_retry"]) if "exit_after_retry" in row else "–",
         row.get("hinges") or "–",

@@ -54,7 +54,7 @@ from drawstring.geometry.hinges.sides import dual_hinge_faces
 from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling, tile_surface
 from drawstring.geometry.tiling.linkage import Linkage
-from drawstring.pipeline.cad_stage import ChannelShortfall
+from drawstring.pipeline.cad_stage import FeatureShortfall
 from drawstring.pipeline.fit_quality import surface_distances
 from drawstring.pipeline.layout_stage import ShapedLayout, shape_and_layout, split_bound
 from drawstring.pipeline.policy import LayoutPolicy
@@ -192,7 +192,7 @@ class _CloseTrial:
             )
         except ThicknessError:
             return None, "some of its tiles turn inside out at this thickness"
-        except ChannelShortfall as short:
+        except FeatureShortfall as short:
             return None, f"its {short}"
         # only bottom hinges ask the shape to be conical
         dual = options.hinges == HingeStrategy.DUAL

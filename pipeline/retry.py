@@ -4,7 +4,8 @@ The pipeline refuses a design by one check, asked before any layout
 (:func:`~drawstring.pipeline.shapes.refusing_shape`): eq. 1 and its extrusion on the first
 tiling turning tiles inside out or folding a face into a dart
 (:class:`~drawstring.geometry.core.errors.ThicknessError`), and with CAD boundary tiles too
-narrow for the string channel.  A suggestion read off the first extrusion would be unchecked:
+narrow for the string channel or hinged corners without room for their hinge strips
+(:func:`feature_check`).  A suggestion read off the first extrusion would be unchecked:
 the eq.-1 weights are absolute, so a larger size is not the same design scaled, and a thinner
 tile may be too thin for the profile's string channel.
 
@@ -39,7 +40,12 @@ from drawstring.geometry.core.errors import InputError, ThicknessError
 from drawstring.geometry.flatten.conformal import Flattening, flatten
 from drawstring.geometry.target.surface import Target, load_target
 from drawstring.geometry.tiling.grid import Tiling, tile_surface
-from drawstring.pipeline.cad_stage import ChannelShortfall, boundary_channel_shortfall
+from drawstring.pipeline.cad_stage import (
+    FeatureShortfall,
+    boundary_channel_shortfall,
+    hinge_strip_shortfall,
+    strip_words,
+)
 from drawstring.pipeline.record import Progress
 from drawstring.pipeline.shapes import FirstCheck, ShapeCache, refusing_shape
 
@@ -304,6 +310,48 @@ def _search_option(
     return math.log(options.tiles / tiles), "tiles", tiles, f"--tiles {tiles}"
 
 
+#: A value the tool chooses itself after one whose design missed the fabrication tolerance
+#: (:mod:`~.auto`) lies this far beyond it: tiles and thickness times it, the size over it.
+#: A quarter fewer tiles a step: four steps from the profile's count reach the fewest a retry
+#: may ask for (:data:`RETRY_FEWEST_TILES`).  Only the layout is checked, not the
+#: deployment: julius_face (corpus) at 160 tiles meets the tolerance with top hinges but does
+#: not deploy, at 150 it meets it and deploys.
+STEP_RATIO = 0.75
+#: Check runs one such step may make.
+STEP_CHECKS = 4
+
+
+def stepped_value(checker: _Checker, option: str, value: float, profile: Profile) -> float | None:
+    """The next value of ``option`` (``size``, ``thickness`` or ``tiles``) beyond ``value``,
+    which gave a design that misses the fabrication tolerance: a :data:`STEP_RATIO` step on,
+    and on by such steps until one passes ``checker`` (at most :data:`STEP_CHECKS` runs),
+    within the retry search's bounds (the profile's largest size, the string channel's
+    thinnest tile, a quarter of the tiles); None where none does."""
+    base = checker.options
+    checker.budget = checker.runs + STEP_CHECKS
+    while True:
+        if option == "tiles":
+            assert base.tiles is not None
+            value = math.floor(value * STEP_RATIO)
+            if value < max(MIN_TILES, math.ceil(base.tiles * RETRY_FEWEST_TILES)):
+                return None
+            ok = checker.passes(tiles=int(value))
+        elif option == "size":
+            value = _two_digits_up(value / STEP_RATIO)
+            if value > min(MAX_SIZE_MM, max(profile.size_max_mm, base.size_mm)):
+                return None
+            ok = checker.passes(size_mm=value)
+        else:
+            value = _two_digits_down(value * STEP_RATIO)
+            if value < thinnest_tile_mm(profile):
+                return None
+            ok = checker.passes(thickness_mm=value)
+        if ok is None:
+            return None
+        if ok:
+            return value
+
+
 def checked_retry(
     target: str,
     asked: DesignOptions,
@@ -311,6 +359,7 @@ def checked_retry(
     profile: Profile,
     check: FirstCheck | None = None,
     options_searched: tuple[str, ...] = ("size", "thickness", "tiles"),
+    checker: _Checker | None = None,
 ) -> tuple[Retry | None, list[str], set[str]]:
     """The nearest ``--size``, ``--thickness`` or ``--tiles`` that passes the check the design
     failed with no tile nearly inside out (:class:`_Checker`), what was tried (for
@@ -318,9 +367,10 @@ def checked_retry(
     (:data:`REFUSED`, :data:`NEARLY_FOLDED`).
 
     The check is :func:`~.shapes.refusing_shape` with ``check`` (with CAD, the boundary
-    channel check): the one the pipeline refuses by, so the retry is not refused again."""
+    channel check): the one the pipeline refuses by, so the retry is not refused again.
+    ``checker``: the one to ask (it keeps what it found for a later :func:`stepped_value`)."""
     start = time.perf_counter()
-    checker = _Checker(target, options, RETRY_CHECKS, check)
+    checker = checker or _Checker(target, options, RETRY_CHECKS, check)
     thinnest = thinnest_tile_mm(profile)
     found: list[tuple[bool, float, str, float, str]] = []  # (explicit, change, option, value)
     tried: list[str] = []
@@ -374,21 +424,29 @@ def checked_retry(
     return Retry(option, value, text, checker.runs, seconds), tried, checker.outcomes()
 
 
-def channel_check(profile: Profile) -> FirstCheck:
-    """The boundary channel check on the first tiling's eq.-1 tiles, raising
-    :class:`~drawstring.pipeline.cad_stage.ChannelShortfall` (the ``check`` of
-    :func:`~.shapes.refusing_shape` with CAD)."""
+def feature_check(profile: Profile, options: ResolvedOptions) -> FirstCheck:
+    """The CAD feature checks on the first tiling's eq.-1 tiles, raising
+    :class:`~drawstring.pipeline.cad_stage.FeatureShortfall`: boundary tiles with room for
+    the string channel (:func:`~.cad_stage.boundary_channel_shortfall`) and hinged corners
+    with room for their strips on any face ``options.hinges`` can put them on
+    (:func:`~.cad_stage.hinge_strip_shortfall`).  The ``check`` of
+    :func:`~.shapes.refusing_shape` with CAD."""
 
     def check(tiling: Tiling, shape: AssembledResult) -> None:
         short = boundary_channel_shortfall(profile, shape.tiles, tiling.linkage.boundary_tile)
         if short is not None:
             have, need = short
-            raise ChannelShortfall(
+            raise FeatureShortfall(
                 f"boundary tiles' side faces as narrow as {have:.2f} mm where the string must "
                 f"run, and the string channel needs {need:.2f} mm with its walls",
                 have,
                 need,
             )
+        strips = hinge_strip_shortfall(
+            profile, tiling.linkage, shape.tiles, options.min_gap_angle_deg, options.hinges
+        )
+        if strips is not None:
+            raise FeatureShortfall(strip_words(profile, *strips), *strips)
 
     return check
 
@@ -408,19 +466,52 @@ def _plain_words(tried: list[str], outcomes: set[str]) -> str:
     return f"no {', '.join(tried)} gives a design this method can make: {why}"
 
 
+#: What a retry search found: the retry (None where nothing passed), the words for what was
+#: tried, and what the values tried gave (:func:`checked_retry`).
+Searched = tuple[Retry | None, list[str], set[str]]
+
+
+def refusal_checker(options: ResolvedOptions, target: str, profile: Profile) -> _Checker:
+    """The checker a refusal's retry search asks: the refusing check with CAD's feature
+    check where the design has CAD (:func:`feature_check`), with room for
+    :data:`RETRY_CHECKS` runs."""
+    check = feature_check(profile, options) if options.cad else None
+    return _Checker(target, options, RETRY_CHECKS, check)
+
+
+def refusal_search(
+    exc: ThicknessError | FeatureShortfall,
+    target: str,
+    asked: DesignOptions,
+    options: ResolvedOptions,
+    profile: Profile,
+    checker: _Checker | None = None,
+) -> Searched:
+    """The retry search for the refusal of ``exc``: every option for tiles that turn inside
+    out, ``--size`` and ``--tiles`` for tiles too small for the profile's features (a thinner
+    tile does not widen them)."""
+    checker = checker or refusal_checker(options, target, profile)
+    searched = ("size", "tiles") if isinstance(exc, FeatureShortfall) else None
+    return checked_retry(
+        target, asked, options, profile, checker.check, checker=checker,
+        **({} if searched is None else {"options_searched": searched}),
+    )  # fmt: skip
+
+
 def checked_size_refusal(
     exc: ThicknessError,
     target: str,
     asked: DesignOptions,
     options: ResolvedOptions,
     profile: Profile,
+    searched: Searched | None = None,
 ) -> InputError:
     """The one-line refusal of tiles that turn inside out or fold, ending in a ``retry with:``
     whose options passed this same check (and with CAD the boundary channel check, which
     comes next) with no tile nearly inside out, or saying in plain words why no size,
-    thickness or tile count tried gives a design."""
-    check = channel_check(profile) if options.cad else None
-    retry, tried, outcomes = checked_retry(target, asked, options, profile, check=check)
+    thickness or tile count tried gives a design.  ``searched``: the search already made
+    (:func:`refusal_search`)."""
+    retry, tried, outcomes = searched or refusal_search(exc, target, asked, options, profile)
     what = (
         f"--size {options.size_mm:g} mm is too small for {exc.thickness:g} mm thick tiles: "
         f"{exc.inverted} tile(s) turn inside out or fold where this target curves tightly"
@@ -434,19 +525,18 @@ def checked_size_refusal(
 
 
 def checked_channel_refusal(
-    exc: ChannelShortfall,
+    exc: FeatureShortfall,
     target: str,
     asked: DesignOptions,
     options: ResolvedOptions,
     profile: Profile,
+    searched: Searched | None = None,
 ) -> InputError:
-    """The one-line refusal of boundary tiles too small for the string channel (found on the
-    eq.-1 tiles), ending in a ``retry with:`` whose --size or --tiles passed the same
-    check."""
-    retry, tried, outcomes = checked_retry(
-        target, asked, options, profile, check=channel_check(profile),
-        options_searched=("size", "tiles"),
-    )  # fmt: skip
+    """The one-line refusal of tiles too small for the string channel or the hinge strips
+    (found on the eq.-1 tiles, :func:`feature_check`), ending in a ``retry with:`` whose
+    --size or --tiles passed the same check.  ``searched``: the search already made
+    (:func:`refusal_search`)."""
+    retry, tried, outcomes = searched or refusal_search(exc, target, asked, options, profile)
     count = (
         f"--grid {options.grid[0]} {options.grid[1]}" if options.grid else f"{options.tiles} tiles"
     )
@@ -458,7 +548,7 @@ def checked_channel_refusal(
         if NEARLY_FOLDED in outcomes:
             return InputError(f"{what}, and {_plain_words(tried, outcomes)}")
         return InputError(
-            f"{what}, and no {', '.join(tried)} gives every boundary tile room for it: parts "
-            "of this shape are too narrow for the profile's string channel"
+            f"{what}, and no {', '.join(tried)} gives the tiles room for it: parts of this "
+            "shape are too narrow for the profile's string channel and hinge strips"
         )
     return InputError(f"{what}; retry with: {retry.text}")

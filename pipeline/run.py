@@ -34,7 +34,8 @@ from drawstring.geometry.simulate.result import SimulationResult
 from drawstring.geometry.target.surface import Target, load_target
 from drawstring.geometry.tiling.grid import parts_in_place
 from drawstring.geometry.tiling.linkage import gap_centroids
-from drawstring.pipeline.cad_stage import ChannelShortfall
+from drawstring.pipeline.auto import LaidOut, chooses_values, chosen_layout
+from drawstring.pipeline.cad_stage import FeatureShortfall
 from drawstring.pipeline.checks import check_grid, mesh_corners
 from drawstring.pipeline.close_fit import fitted_layout
 from drawstring.pipeline.layout_stage import ShapedLayout, fabricated_tiles
@@ -49,7 +50,12 @@ from drawstring.pipeline.record import (
     jsonable,
     rounded,
 )
-from drawstring.pipeline.retry import channel_check, checked_channel_refusal, checked_size_refusal
+from drawstring.pipeline.retry import (
+    Searched,
+    checked_channel_refusal,
+    checked_size_refusal,
+    feature_check,
+)
 from drawstring.pipeline.route_stage import NamedCheck, plan_lift_route
 
 log = logging.getLogger(__name__)
@@ -147,18 +153,10 @@ def _design(
     profile = with_printer(profile, printer)
     resolved = resolve_options(options, profile, printer)
     progress = progress or Progress(quiet=quiet)
-    loaded, flat_map, notes = _target_and_flattening(target, resolved, progress)
-    check_grid(resolved, flat_map, from_profile=options.tiles is None and options.grid is None)
-    asked = (os.fspath(target), options)
-    shaped, resolved = _laid_out(loaded, flat_map, resolved, progress, policy, asked)
-    # close shapes laid out with top hinges and refused are not laid out again
-    refused = shaped.fit if shaped.fit is not None and "close_top" in shaped.fit else None
-    shaped, resolved, hinge_choice = hinges_chosen(
-        shaped, resolved, profile.tolerance_mm, lambda top: _laid_out(
-            loaded, flat_map, top, progress, policy, asked, checked=False, refused=refused
-        )[0], asked_hinges=options.hinges,
-    )  # fmt: skip
-    notes.extend(shaped.notes)
+    laid, chosen_values = _layout(os.fspath(target), options, resolved, profile, progress, policy)
+    loaded, flat_map, shaped = laid.loaded, laid.flat_map, laid.shaped
+    resolved, hinge_choice = laid.options, laid.hinge_choice
+    notes = [*laid.notes, *shaped.notes]
     tiling, assembled, flat = shaped.tiling, shaped.assembled, shaped.flat
     hinge_layout = shaped.hinge_layout
     assert hinge_layout is not None  # only a tiling that was tiled again goes without
@@ -167,12 +165,16 @@ def _design(
     )
     deployment = _Deployment(shaped, hinge_layout, resolved.thickness_mm, progress)
     lift, route, chosen = _lift_and_route(shaped, deployment, resolved, masses, progress, notes)
+    # a close shape laid out with top hinges counts as top hinges tried
+    top_tried = hinge_choice is not None or "close_top" in (shaped.fit or {})
     measured, problems, warnings = measure_design(
         resolved, profile, tiling, assembled, flat, hinge_layout, lift, route, masses,
         target_diagonal_mm=loaded.bbox_diagonal_mm, target=loaded, fit=shaped.fit,
-        top_tried=hinge_choice is not None or refused is not None,
+        top_tried=top_tried,
     )  # fmt: skip
     measured["co_optimization"] = shaped.co_block
+    if chosen_values is not None:
+        measured["chosen_values"] = chosen_values
     if hinge_choice is not None:
         measured["hinge_choice"] = hinge_choice
     if shaped.fit is not None:
@@ -210,6 +212,67 @@ def _design(
     if resolved.cad:
         result = with_cad(result, progress)
     return result
+
+
+def _layout(
+    source: str,
+    options: DesignOptions,
+    resolved: ResolvedOptions,
+    profile: Profile,
+    progress: Progress,
+    policy: LayoutPolicy,
+) -> tuple[LaidOut, dict[str, Any] | None]:
+    """Stages target to hinges at the options given, and ``metrics.chosen_values``: where the
+    user gave none of --size, --thickness, --tiles and the defaults are refused or miss the
+    fabrication tolerance, at values the tool chose (:func:`~.auto.chosen_layout`), else
+    refused with a checked ``retry with:`` as :func:`_laid_out` refuses."""
+    asked = (source, options)
+    prepared = _target_and_flattening(source, resolved, progress)
+    from_profile = options.tiles is None and options.grid is None
+    check_grid(resolved, prepared[1], from_profile=from_profile)
+    if not chooses_values(options):
+        return _laid_out_at(resolved, profile, progress, policy, asked, prepared), None
+    first: LaidOut | ThicknessError | FeatureShortfall
+    try:
+        first = _laid_out_at(resolved, profile, progress, policy, asked, prepared, checked=False)
+    except (ThicknessError, FeatureShortfall) as refused:
+        first = refused
+
+    def lay_out(changed: ResolvedOptions) -> LaidOut:
+        again = _target_and_flattening(source, changed, progress)
+        check_grid(changed, again[1], from_profile=False)
+        return _laid_out_at(changed, profile, progress, policy, asked, again, checked=False)
+
+    def refuse(exc: ThicknessError | FeatureShortfall, searched: Searched) -> InputError:
+        if isinstance(exc, FeatureShortfall):
+            return checked_channel_refusal(exc, source, options, resolved, profile, searched)
+        return checked_size_refusal(exc, source, options, resolved, profile, searched)
+
+    return chosen_layout(first, source, options, resolved, profile, lay_out, refuse)
+
+
+def _laid_out_at(
+    options: ResolvedOptions,
+    profile: Profile,
+    progress: Progress,
+    policy: LayoutPolicy,
+    asked: tuple[str, DesignOptions],
+    prepared: tuple[Target, Flattening, list[str]],
+    *,
+    checked: bool = True,
+) -> LaidOut:
+    """Stages tiling to hinges on the target and flattening ``prepared`` (:func:`_laid_out`),
+    with the hinges :func:`hinges_chosen` picks."""
+    loaded, flat_map, notes = prepared
+    shaped, options = _laid_out(loaded, flat_map, options, progress, policy, asked, checked=checked)
+    # close shapes laid out with top hinges and refused are not laid out again
+    refused = shaped.fit if shaped.fit is not None and "close_top" in shaped.fit else None
+    shaped, options, hinge_choice = hinges_chosen(
+        shaped, options, profile.tolerance_mm, lambda top: _laid_out(
+            loaded, flat_map, top, progress, policy, asked, checked=False, refused=refused
+        )[0], asked_hinges=asked[1].hinges,
+    )  # fmt: skip
+    return LaidOut(loaded, flat_map, tuple(notes), shaped, options, hinge_choice)
 
 
 def _target_and_flattening(
@@ -258,12 +321,12 @@ def _laid_out(
 ) -> tuple[ShapedLayout, ResolvedOptions]:
     """Stages tiling to hinges on the shape ``--fit`` asks for (:func:`fitted_layout`, whose
     ``refused`` this is), and the options it was laid out with; tiles that turn inside out,
-    or (with CAD) boundary tiles too small for the string channel, refused seconds in with a
-    checked ``retry with:`` (:mod:`~drawstring.pipeline.retry`), or raised as they are when
-    not ``checked``.  ``asked``: the target and the options as the user gave them."""
+    or (with CAD) tiles too small for the string channel or the hinge strips, refused seconds
+    in with a checked ``retry with:`` (:mod:`~drawstring.pipeline.retry`), or raised as they
+    are when not ``checked``.  ``asked``: the target and the options as the user gave them."""
     source, given = asked
     profile = load_profile(options.profile)
-    check = channel_check(profile) if options.cad else None
+    check = feature_check(profile, options) if options.cad else None
     try:
         return fitted_layout(
             loaded,
@@ -280,7 +343,7 @@ def _laid_out(
         if not checked:
             raise
         raise checked_size_refusal(exc, source, given, options, profile) from exc
-    except ChannelShortfall as exc:
+    except FeatureShortfall as exc:
         if not checked:
             raise
         raise checked_channel_refusal(exc, source, given, options, profile) from exc
@@ -308,7 +371,7 @@ def hinges_chosen(
     choice: dict[str, Any] = {"dual_accuracy_mm": rounded(dual, 9)}
     try:
         top = lay_out(top_options)
-    except (InputError, ThicknessError, ChannelShortfall) as refused:
+    except (InputError, ThicknessError, FeatureShortfall) as refused:
         # the check that refuses does not depend on the hinges: not expected once dual passed
         choice.update(used="dual", top_refused=str(refused))
         return shaped, options, choice

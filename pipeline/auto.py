@@ -1,0 +1,216 @@
+"""Values the tool chooses itself where the user gave none of ``--size``, ``--thickness`` and
+``--tiles`` (nor ``--grid``).
+
+At the profile's defaults a design can be refused by the one refusing check
+(:func:`~.shapes.refusing_shape`: tiles that turn inside out, with CAD tiles too small for the
+profile's features) or be laid out with its flat tiles missing the profile's fabrication
+tolerance (flat edge error or hinge gap over ``tolerance_mm``, with the hinges
+:func:`~.run.hinges_chosen` picks), which ends in exit status 3.  Where the user left all three
+at their defaults, :func:`chosen_layout` instead designs with values it finds itself (for a
+missed tolerance only with the co-optimization on: without it the fix is to turn it on):
+
+1. refused: the value the refusal's retry search finds (:func:`~.retry.refusal_search`, the
+   ``retry with:`` the refusal would quote); a layout that missed: the tile count one
+   :data:`~.retry.STEP_RATIO` step below the profile's;
+2. lays the design out with it, and keeps it where its layout meets the tolerance;
+3. otherwise steps the same option on by :data:`~.retry.STEP_RATIO` (each step checked by
+   the refusing check, :func:`~.retry.stepped_value`) and tries again, at most
+   :data:`CHOSEN_LAYOUTS` layouts in all.
+
+Where none meets the tolerance, the defaults' own layout is kept where there was one, else
+the most accurate layout tried (exit status 3 either way, its problems listed); where no
+value passed the refusing check, the refusal stands as it is.  Everything is in the order
+above, so the choice is deterministic.  ``metrics.chosen_values`` records why, what was tried
+and what was used, ``options`` the values used, and a note says so.  A user who gives any of
+the three gets today's refusal with its ``retry with:`` instead: their values are never
+changed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Any, TypeAlias
+
+from drawstring.fabrication.profiles import Profile
+from drawstring.geometry.core.errors import InputError, ThicknessError
+from drawstring.geometry.flatten.conformal import Flattening
+from drawstring.geometry.target.surface import Target
+from drawstring.pipeline.cad_stage import FeatureShortfall
+from drawstring.pipeline.layout_stage import ShapedLayout
+from drawstring.pipeline.record import DesignOptions, ResolvedOptions, rounded
+from drawstring.pipeline.retry import Searched, refusal_checker, refusal_search, stepped_value
+
+#: Layouts the tool makes with values of its own, at most (each takes as long as the
+#: defaults' layout).
+CHOSEN_LAYOUTS = 3
+
+#: option -> the ResolvedOptions field it sets
+_FIELDS = {"size": "size_mm", "thickness": "thickness_mm", "tiles": "tiles"}
+
+
+@dataclass(frozen=True)
+class LaidOut:
+    """A design laid out at some options: its target and flattening (at that size), the notes
+    on them, the layout with the hinges chosen, the options (hinges as chosen) and
+    ``metrics.hinge_choice``."""
+
+    loaded: Target
+    flat_map: Flattening
+    notes: tuple[str, ...]
+    shaped: ShapedLayout
+    options: ResolvedOptions
+    hinge_choice: dict[str, Any] | None
+
+
+#: What the refusing check raises.
+Refused: TypeAlias = ThicknessError | FeatureShortfall
+#: Lays the design out at the options given; raises what the refusing check raises.
+LayOut = Callable[[ResolvedOptions], LaidOut]
+#: The one-line refusal of what the refusing check raised, with the retry search made.
+Refuse = Callable[[Refused, Searched], InputError]
+
+
+def chooses_values(asked: DesignOptions) -> bool:
+    """Whether the tool may choose the size, thickness and tile count itself: the user gave
+    none of them (nor a grid)."""
+    return (
+        asked.size_mm is None
+        and asked.thickness_mm is None
+        and asked.tiles is None
+        and asked.grid is None
+    )
+
+
+def _flag(option: str, value: float) -> str:
+    return f"--{option} {value:g}"
+
+
+def chosen_layout(
+    first: LaidOut | Refused,
+    source: str,
+    asked: DesignOptions,
+    options: ResolvedOptions,
+    profile: Profile,
+    lay_out: LayOut,
+    refuse: Refuse,
+) -> tuple[LaidOut, dict[str, Any] | None]:
+    """The layout to design with, and ``metrics.chosen_values`` (None where the defaults'
+    layout ``first`` meets the tolerance, or misses it with ``--no-co-optimize``).  ``first``:
+    the layout at the defaults
+    ``options``, or what refused it; ``lay_out``: a layout at other options; ``refuse``: the
+    refusal raised where no value passes the refusing check."""
+    tolerance = profile.tolerance_mm
+    defaults = {field: getattr(options, field) for field in _FIELDS.values()}
+    checker = refusal_checker(options, source, profile)
+    option = "tiles"
+    record: dict[str, Any] = {"defaults": defaults}
+    candidate: float | None
+    searched: Searched | None = None
+    if isinstance(first, LaidOut):
+        accuracy = first.shaped.accuracy_mm
+        if accuracy <= tolerance or not options.co_optimize:
+            # without the co-optimization no tile count meets it: the fix is to drop
+            # --no-co-optimize, which the design's problem line says
+            return first, None
+        why = (
+            f"the flat tiles missed their hinges by {accuracy:.2g} mm, over the profile's "
+            f"fabrication tolerance {tolerance:g} mm"
+        )
+        record.update(reason="tolerance", accuracy_mm=rounded(accuracy, 9))
+        assert options.tiles is not None  # no --grid: chooses_values
+        candidate = stepped_value(checker, option, options.tiles, profile)
+    else:
+        searched = refusal_search(first, source, asked, options, profile, checker)
+        refusal = refuse(first, searched)
+        retry = searched[0]
+        if retry is None:
+            raise refusal
+        why = f"the design was refused ({refusal})"
+        record.update(reason="refused", refusal=str(refusal))
+        option, candidate = retry.option, retry.value
+    tried: list[dict[str, Any]] = []
+    best: LaidOut | None = None
+    for _ in range(CHOSEN_LAYOUTS):
+        if candidate is None:
+            break
+        value = int(candidate) if option == "tiles" else candidate
+        entry: dict[str, Any] = {"option": option, "value": value}
+        tried.append(entry)
+        try:
+            laid = lay_out(replace(options, **{_FIELDS[option]: value}))
+        except InputError as exc:  # refused (not expected: the value passed that check)
+            entry["refused"] = str(exc)
+        else:
+            accuracy = laid.shaped.accuracy_mm
+            entry.update(accuracy_mm=rounded(accuracy, 9), hinges=str(laid.options.hinges))
+            if accuracy <= tolerance:
+                return _chosen(laid, record, tried, why, tolerance)
+            if best is None or accuracy < best.shaped.accuracy_mm:
+                best = laid
+        candidate = stepped_value(checker, option, value, profile)
+    record["tried"] = tried
+    kept = first if isinstance(first, LaidOut) else best
+    if kept is None:
+        assert not isinstance(first, LaidOut) and searched is not None
+        raise refuse(first, searched)
+    return _kept(kept, record, tried, why, tolerance, defaults_kept=kept is first)
+
+
+def _tried_words(tried: list[dict[str, Any]]) -> str:
+    words = []
+    for entry in tried:
+        flag = _flag(entry["option"], entry["value"])
+        if "refused" in entry:
+            words.append(f"{flag} (refused)")
+        else:
+            words.append(f"{flag} ({entry['accuracy_mm']:.2g} mm, {entry['hinges']} hinges)")
+    return ", ".join(words)
+
+
+def _chosen(
+    laid: LaidOut,
+    record: dict[str, Any],
+    tried: list[dict[str, Any]],
+    why: str,
+    tolerance: float,
+) -> tuple[LaidOut, dict[str, Any]]:
+    """``laid``, which meets the tolerance, with its note, and ``metrics.chosen_values``."""
+    last = tried[-1]
+    used = {_FIELDS[last["option"]]: last["value"]}
+    record.update(tried=tried, used=used)
+    misses = tried[:-1]
+    before = f"; {_tried_words(misses)} missed the {tolerance:g} mm" if misses else ""
+    note = (
+        f"chosen values: you gave none of --size, --thickness, --tiles, and at the defaults "
+        f"{why}{before}; the design uses {_flag(last['option'], last['value'])}, whose flat "
+        f"tiles meet their hinges within {last['accuracy_mm']:.2g} mm (give any of the three "
+        "to have your own values, and a refusal with its retry where they do not work)"
+    )
+    return replace(laid, notes=(*laid.notes, note)), record
+
+
+def _kept(
+    laid: LaidOut,
+    record: dict[str, Any],
+    tried: list[dict[str, Any]],
+    why: str,
+    tolerance: float,
+    *,
+    defaults_kept: bool,
+) -> tuple[LaidOut, dict[str, Any]]:
+    """``laid``, the defaults' layout or the most accurate one tried, none meeting the
+    tolerance, with its note, and ``metrics.chosen_values``."""
+    tried_words = _tried_words(tried) or "no other value passed the refusing check"
+    if defaults_kept:
+        record["used"] = {}
+        kept = "the defaults are kept"
+    else:
+        entry = min((e for e in tried if "accuracy_mm" in e), key=lambda e: float(e["accuracy_mm"]))
+        record["used"] = {_FIELDS[entry["option"]]: entry["value"]}
+        kept = f"the design uses the most accurate, {_flag(entry['option'], entry['value'])}"
+    note = (
+        f"chosen values: you gave none of --size, --thickness, --tiles, and at the defaults "
+        f"{why}; tried {tried_words}, none within {tolerance:g} mm, so {kept}"
+    )
+    return replace(laid, notes=(*laid.notes, note)), record
