@@ -12,6 +12,7 @@ import pytest
 
 from drawstring.fabrication.profiles import Interlock, load_profile
 from drawstring.geometry.core.errors import InputError, ThicknessError
+from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.flatten.conformal import flatten
 from drawstring.geometry.target.surface import load_target
 from drawstring.geometry.tiling.grid import tile_surface
@@ -111,9 +112,10 @@ def test_a_design_is_refused_only_by_the_check_the_retry_search_asks(
     # The hand with 0.73 mm tiles: the paper's eq.-1 shape keeps every tile whole, the close
     # fit's folds one.  The retry search asks the paper's shape (refusing_shape), and so does
     # the pipeline before any layout; the close shape folding only sets it aside, so a retry
-    # that passed is not refused again: the design goes on to lay out the paper's shape.
+    # that passed is not refused again: the design goes on to lay out the paper's shape (dual
+    # hinges asked for: left unset, the close shape with top hinges would come first).
     mesh = DATA / "hand.obj"
-    options = DesignOptions(thickness_mm=0.73, cad=False, simulate=False)
+    options = DesignOptions(thickness_mm=0.73, cad=False, simulate=False, hinges=HingeStrategy.DUAL)
     resolved = resolve_options(options, load_profile("fdm-dual"))
     checker = _Checker(str(mesh), resolved, 2)
     # it passes the refusing check, only just: a tile is nearly inside out, so it is not a
