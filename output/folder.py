@@ -16,7 +16,8 @@ from pathlib import Path
 
 from drawstring.geometry.core import parallel
 from drawstring.geometry.core.errors import InputError
-from drawstring.pipeline.record import Design, Writer
+from drawstring.pipeline.ahead import Ahead, can_fork
+from drawstring.pipeline.record import Design, Progress, Writer
 
 
 def default_out_dir(target: str | os.PathLike[str]) -> Path:
@@ -152,10 +153,22 @@ def write_design(
 
     out = check_out_dir(out_dir)
     staging = staging_dir(out)
+    beside: Ahead[list[str]] | None = None
     try:
+        chosen = writers or DEFAULT_WRITERS
+        apart = [w for w in chosen if w in _beside_writers()] if can_fork() else []
+        if apart:
+            beside = Ahead(
+                lambda _: _written(apart, result, staging), "writing the pictures", niceness=0
+            )
         files: list[str] = []
-        for writer in writers or DEFAULT_WRITERS:
-            files.extend(writer(result, staging))
+        for writer in chosen:
+            if writer not in apart:
+                files.extend(writer(result, staging))
+        if beside is not None:
+            done = beside.result(Progress(quiet=True))
+            beside = None
+            files.extend(done if done is not None else _written(apart, result, staging))
         document = result.to_json()
         document["files"] = sorted([*files, "design.json", "report.html"])
         (staging / "design.json").write_text(
@@ -164,13 +177,27 @@ def write_design(
         write_report(staging)  # last: it reads every other file of the folder
         os.chmod(staging, 0o755)
         place_staged(staging, out)
-    except OSError as exc:
+    except BaseException as exc:
+        if beside is not None:  # it writes into the staging folder, about to be removed
+            beside.cancel()
         shutil.rmtree(staging, ignore_errors=True)
-        raise placement_error(out, exc) from None
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
+        if isinstance(exc, OSError):
+            raise placement_error(out, exc) from None
         raise
     return out
+
+
+def _beside_writers() -> frozenset[Writer]:
+    """Writers that only draw pictures from the design's arrays (matplotlib, one core): with
+    two cores :func:`write_design` runs them in a forked process beside the others."""
+    from drawstring.output.writers import write_deployment, write_pictures, write_stage_pictures
+
+    return frozenset((write_pictures, write_stage_pictures, write_deployment))
+
+
+def _written(writers: list[Writer], result: Design, folder: Path) -> list[str]:
+    """Run ``writers`` in order; the paths they wrote."""
+    return [path for writer in writers for path in writer(result, folder)]
 
 
 def staging_dir(out: Path) -> Path:
