@@ -22,14 +22,12 @@ from scipy.spatial import cKDTree
 
 from drawstring.cad.design import route_links
 from drawstring.cad.feature_common import channel_radius
-from drawstring.cad.kernel import solid_checks, tessellate
+from drawstring.cad.kernel import CheckMesh, check_mesh, solid_checks
 from drawstring.cad.magnets_labels import MagnetPair
 from drawstring.cad.paths import face_planes
 from drawstring.cad.tiles import apply_transform
-from drawstring.geometry.core.tolerances import (
-    CAD_INTERFERENCE_ANGLE_RAD,
-    CAD_INTERFERENCE_DEFLECTION_MM,
-)
+from drawstring.geometry.core import parallel
+from drawstring.geometry.core.tolerances import CAD_INTERFERENCE_DEFLECTION_MM
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile
@@ -50,11 +48,14 @@ def to_manifold(
     the angle between neighbouring triangles stays below ``CAD_INTERFERENCE_ANGLE_RAD``.  A mesh
     the solid already carries is reused when it is at least that fine.
     """
-    vertices, faces = tessellate(solid, tolerance, CAD_INTERFERENCE_ANGLE_RAD, relative=False)
-    mesh = manifold3d.Mesh(
-        vert_properties=np.ascontiguousarray(vertices, dtype=np.float32),
-        tri_verts=np.ascontiguousarray(faces, dtype=np.uint32),
-    )
+    return manifold_of(check_mesh(solid, tolerance))
+
+
+def manifold_of(arrays: CheckMesh) -> manifold3d.Manifold:
+    """manifold3d solid of a :func:`~drawstring.cad.kernel.check_mesh` (made where the solid
+    was built, :attr:`~drawstring.cad.design.CadResult.tile_meshes`)."""
+    vertices, faces = arrays
+    mesh = manifold3d.Mesh(vert_properties=vertices, tri_verts=faces)
     manifold = manifold3d.Manifold(mesh)
     if manifold.status() != manifold3d.Error.NoError:
         mesh.merge()
@@ -146,7 +147,15 @@ def interference(
     meshes_a = [_as_manifold(s, tolerance) for s in solids_a]
     meshes_b = meshes_a if solids_b is None else [_as_manifold(s, tolerance) for s in solids_b]
     pairs = _near_pairs(meshes_a, meshes_b, solids_b is None, 0.0)
-    volumes = np.array([(meshes_a[i] ^ meshes_b[j]).volume() for i, j in pairs], dtype=np.float64)
+
+    def block_volumes(block: NDArray[np.int64]) -> list[float]:
+        return [(meshes_a[i] ^ meshes_b[j]).volume() for i, j in block]
+
+    # manifold3d's booleans release the GIL: blocks of pairs on threads, gathered in order
+    blocks = np.array_split(pairs, max(1, min(len(pairs) // 32, 4 * parallel.thread_count())))
+    volumes = np.array(
+        [v for done in parallel.map_blocks(block_volumes, blocks) for v in done], dtype=np.float64
+    )
     return Interference(pairs, volumes)
 
 

@@ -34,7 +34,7 @@ from drawstring.cad.feature_common import feature_wall_mm
 from drawstring.cad.features import lift_chamfer
 from drawstring.cad.hinge_pins import PinPlan
 from drawstring.cad.hinge_plans import plan_all_pins, strip_hole_plans, strip_neighbours
-from drawstring.cad.kernel import solid_checks
+from drawstring.cad.kernel import CheckMesh, solid_checks
 from drawstring.cad.magnets_labels import MagnetPair, magnet_pockets
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path
 from drawstring.cad.tile_build import HingeData, JobResult, TileJob, kernel_failure, run_jobs
@@ -81,6 +81,10 @@ class CadResult:
     number_outlines : the outlines of the engraved numbers on the bottom faces, flat pose,
         one per tile of ``unengraved`` (None where it is the engraved solid): per stroke the
         (k, 3) corners of a closed polygon, mm.
+    tile_meshes, pad_meshes : the interference checks' mesh of each of ``tiles`` and ``pads``
+        in the flat pose (:func:`~drawstring.cad.kernel.check_mesh`, None where the kernel
+        failed to mesh it), made by the workers that built them; empty, or not one per solid,
+        where the solids were made otherwise or moved (then the checks mesh them).
     """
 
     pose: Pose
@@ -98,6 +102,8 @@ class CadResult:
     pad_checks: tuple[tuple[bool, float], ...] = field(default=())
     unengraved: tuple[bd.Solid, ...] = field(default=())
     number_outlines: tuple[list[NDArray[np.float64]] | None, ...] = field(default=())
+    tile_meshes: tuple[CheckMesh | None, ...] = field(default=())
+    pad_meshes: tuple[CheckMesh | None, ...] = field(default=())
 
     def checks(self, part: Literal["tiles", "pads"]) -> tuple[NDArray[np.bool_], NDArray]:
         """(n,) bool validity and (n,) float volumes (mm^3) of the tiles or the pads."""
@@ -227,6 +233,7 @@ def build_design_solids(
     tiles, pads, unlabelled = _gather(results, inputs, labels, failed, notes, profile)
     plain = _unengraved(results, tiles)  # before the assembled pose moves the tiles
     checks = _checks_of(results)
+    meshes = _meshes_of(results)
     transforms, residual = rigid_transforms(flat, inputs.assembled)
     if residual.size and residual.max() > 1e-3:
         notes.append(
@@ -237,9 +244,12 @@ def build_design_solids(
     pad_solids = tuple(pads[h] for h in pad_hinge)
     tile_checks = tuple(checks[("tile", t)] for t in range(len(tiles)) if ("tile", t) in checks)
     pad_checks = tuple(checks[("pad", int(h))] for h in pad_hinge if ("pad", int(h)) in checks)
+    tile_meshes = tuple(meshes[("tile", t)] for t in range(len(tiles)) if ("tile", t) in meshes)
+    pad_meshes = tuple(meshes[("pad", int(h))] for h in pad_hinge if ("pad", int(h)) in meshes)
     if pose == Pose.ASSEMBLED:
         tiles = tuple(move_solid(s, m) for s, m in zip(tiles, transforms, strict=True))
         pad_solids, pad_hinge, pad_checks = (), np.zeros(0, dtype=np.int64), ()
+        tile_meshes, pad_meshes = (), ()
     for note in notes:  # returned in CadResult.notes, which the design lists
         log.info("%s", note)
     return CadResult(
@@ -257,6 +267,8 @@ def build_design_solids(
         tile_checks,
         pad_checks,
         *plain,
+        tile_meshes=tile_meshes,
+        pad_meshes=pad_meshes,
     )
 
 
@@ -284,6 +296,18 @@ def _checks_of(results: list[JobResult]) -> dict[tuple[str, int], tuple[bool, fl
         for (hinge, _), fact in zip(done.pads, done.checks[1:], strict=True):
             checks[("pad", int(hinge))] = fact
     return checks
+
+
+def _meshes_of(results: list[JobResult]) -> dict[tuple[str, int], CheckMesh | None]:
+    """The workers' check meshes of each tile and hinge part, keyed as :func:`_checks_of`."""
+    meshes: dict[tuple[str, int], CheckMesh | None] = {}
+    for done in results:
+        if len(done.meshes) != 1 + len(done.pads):
+            continue
+        meshes[("tile", done.tile)] = done.meshes[0]
+        for (hinge, _), mesh in zip(done.pads, done.meshes[1:], strict=True):
+            meshes[("pad", int(hinge))] = mesh
+    return meshes
 
 
 @dataclass(frozen=True)

@@ -330,22 +330,22 @@ def trim_tool(points: NDArray[np.float64]) -> bd.Solid:
 _NUDGES_MM = ((0.0, 0.0, 0.0), (0.002, 0.0, 0.0), (0.0, 0.002, 0.0), (0.0, 0.0, 0.002))
 
 
-def _plausible(pieces: list[bd.Solid] | None, base: bd.Solid) -> bool:
-    """A cut result is plausible when its largest piece is a valid, manifold solid keeping at
-    least half the volume: the features are small next to a tile, so anything less (or a
-    non-manifold seam where two tools touch, or a kernel error while measuring it) is a failed
-    boolean."""
+def _plausible(pieces: list[bd.Solid] | None, base: bd.Solid) -> float | None:
+    """The volume (mm^3) of a cut result's largest piece where the result is plausible, else
+    None.  It is plausible when that piece is a valid, manifold solid keeping at least half
+    the volume: the features are small next to a tile, so anything less (or a non-manifold
+    seam where two tools touch, or a kernel error while measuring it) is a failed boolean."""
     if not pieces:
-        return False
+        return None
     try:
         volumes = [p.volume for p in pieces]  # each volume integral once
         largest = pieces[int(np.argmax(volumes))]
         if max(volumes) < 0.5 * base.volume:
-            return False
-        return bool(largest.is_manifold and largest.is_valid)
+            return None
+        return float(max(volumes)) if largest.is_manifold and largest.is_valid else None
     except Exception:  # OCCT's own failures (Standard_Failure) are not RuntimeErrors
         log.debug("checking a cut result failed", exc_info=True)
-        return False
+        return None
 
 
 def _try_cut(base: bd.Solid, tools: Sequence[bd.Shape]) -> list[bd.Solid] | None:
@@ -363,6 +363,7 @@ def build_tile(
     *,
     failed: list[int] | None = None,
     dropped: list[float] | None = None,
+    checked: list[tuple[bool, float]] | None = None,
 ) -> bd.Solid:
     """The tile minus the tools that touch it, in one boolean operation.
 
@@ -371,7 +372,9 @@ def build_tile(
     (logged when no list is given).  Where the batched cut fails (or raises),
     the tools are cut one at a time; a tool whose cut fails even on its own and slightly
     shifted raises ``RuntimeError``, or, given a ``failed`` list, is left uncut and its index
-    in ``tools`` appended there.
+    in ``tools`` appended there.  ``checked`` receives the result's
+    :func:`~drawstring.cad.kernel.solid_checks` ``(True, volume)`` where the cut measured them
+    on its way (a valid, manifold largest piece), so that they are not measured again.
     """
     base = tile if isinstance(tile, bd.Solid) else tile_solid(np.asarray(tile))
     box = bounding_box(base)
@@ -381,7 +384,8 @@ def build_tile(
         if np.all(tool_box[0] <= box[1] + 1e-6) and np.all(tool_box[1] >= box[0] - 1e-6):
             touching.append((index, tool))
     batched = _try_cut(base, [tool for _, tool in touching])
-    if batched is not None and _plausible(batched, base):
+    known = _plausible(batched, base)  # the volume of the largest piece, checked valid
+    if batched is not None and known is not None:
         pieces = batched
     else:
         # OCCT's batched cut can fail where two tools share a face (a channel and a lift bore
@@ -394,7 +398,9 @@ def build_tile(
                 # what is printed.
                 moved = tool if not any(nudge) else tool.moved(bd.Location(nudge))
                 attempt = _try_cut(current, [moved])
-                if attempt is not None and _plausible(attempt, current):
+                volume = _plausible(attempt, current)
+                if attempt is not None and volume is not None:
+                    known = volume
                     if dropped is not None:  # an earlier tool's cut split the tile
                         dropped.extend(float(p.volume) for p in pieces if p is not current)
                     pieces = attempt
@@ -412,4 +418,6 @@ def build_tile(
             log.warning("features split a tile into %d pieces; keeping the largest", len(pieces))
         else:
             dropped.extend(rest)
+    if checked is not None and known is not None:
+        checked.append((True, known))
     return clean_solid(kept)

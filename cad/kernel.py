@@ -32,6 +32,14 @@ from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS, TopoDS_Shape, TopoDS_Shell, TopoDS_Solid
 
 from drawstring.geometry.core.errors import InternalError
+from drawstring.geometry.core.tolerances import (
+    CAD_INTERFERENCE_ANGLE_RAD,
+    CAD_INTERFERENCE_DEFLECTION_MM,
+)
+
+#: A closed triangle mesh as manifold3d takes it: (n, 3) float32 vertices (mm) and (m, 3)
+#: uint32 outward triangles.
+CheckMesh = tuple[NDArray[np.float32], NDArray[np.uint32]]
 
 
 def polyhedron_solid(vertices: NDArray[np.float64], faces: Sequence[Sequence[int]]) -> bd.Solid:
@@ -223,6 +231,17 @@ def tessellate(
         (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])
     )
     return vertices[first], faces[keep]
+
+
+def check_mesh(shape: bd.Shape, tolerance: float = CAD_INTERFERENCE_DEFLECTION_MM) -> CheckMesh:
+    """The mesh of ``shape`` the interference and clearance checks measure
+    (:func:`tessellate` with an absolute chordal ``tolerance``, mm, and
+    ``CAD_INTERFERENCE_ANGLE_RAD``), as manifold3d takes it."""
+    vertices, faces = tessellate(shape, tolerance, CAD_INTERFERENCE_ANGLE_RAD, relative=False)
+    return (
+        np.ascontiguousarray(vertices, dtype=np.float32),
+        np.ascontiguousarray(faces, dtype=np.uint32),
+    )
 
 
 def solid_checks(solid: bd.Shape) -> tuple[bool, float]:

@@ -21,16 +21,12 @@ from drawstring.cad.features import build_tile, lift_bore, string_channel, trim_
 from drawstring.cad.hinge_frame import StripNeighbours
 from drawstring.cad.hinge_parts import HingeParts, hinge_face_footprints, hinge_pad
 from drawstring.cad.hinge_pins import HingePins
-from drawstring.cad.kernel import ensure_mesh, solid_checks
+from drawstring.cad.kernel import CheckMesh, check_mesh, solid_checks
 from drawstring.cad.magnets_labels import fill_engraving, label_depth, label_engraving
 from drawstring.cad.tiles import relieved_tile_solid, tile_solid
 from drawstring.geometry.core import parallel
 from drawstring.geometry.core.errors import InputError, InternalError
 from drawstring.geometry.core.tile import HingeSide
-from drawstring.geometry.core.tolerances import (
-    CAD_INTERFERENCE_ANGLE_RAD,
-    CAD_INTERFERENCE_DEFLECTION_MM,
-)
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile
@@ -83,6 +79,10 @@ class JobResult:
     #: cad.magnets_labels.fill_engraving`), for the STEP files; None where it has none or its
     #: pockets could not be filled.
     unengraved: tuple[bd.Solid, list[NDArray[np.float64]]] | None = None
+    #: The interference checks' mesh of the tile, then of each of ``pads``
+    #: (:func:`~drawstring.cad.kernel.check_mesh`, made here in parallel), None where the
+    #: kernel failed to mesh it.
+    meshes: list[CheckMesh | None] = field(default_factory=list)
 
 
 def kernel_failure(what: str, exc: Exception) -> None:
@@ -147,19 +147,23 @@ def build_job(job: TileJob, profile: Profile, hinge_data: tuple[HingeData, ...])
         labelled = tools.add(
             "number engraving", partial(label_engraving, job.vertices, job.tile, profile, bottom)
         )
-    solid, dropped = _cut(job, tools)
+    solid, dropped, known = _cut(job, tools)
     unengraved = _unengraved(job, solid, tools, profile) if labelled else None
     pads = _own_pads(job, profile, hinge_data, built_pads, tools.failed)
     checks = []
-    for part in [solid, *(pad for _, pad in pads)]:
-        checks.append(solid_checks(part))
-        # the interference checks' mesh, made here in parallel; it travels with the pickle
+    meshes: list[CheckMesh | None] = []
+    for index, part in enumerate([solid, *(pad for _, pad in pads)]):
+        # the tile's checks come from its cut where it measured them on its way
+        checks.append(known if index == 0 and known is not None else solid_checks(part))
+        # the interference checks' mesh, made here in parallel; it travels as arrays
         try:
-            ensure_mesh(part, CAD_INTERFERENCE_DEFLECTION_MM, CAD_INTERFERENCE_ANGLE_RAD)
+            meshes.append(check_mesh(part))
         except Exception as exc:  # the checks mesh it again and count it as not valid
             kernel_failure(f"tile {job.tile}: mesh", exc)
+            meshes.append(None)
     result = JobResult(job.tile, solid, pads, notes, labelled, tools.failed, sum(dropped))
     result.checks = checks
+    result.meshes = meshes
     result.unengraved = unengraved
     return result
 
@@ -234,10 +238,11 @@ def _hinge_tools(
     return built_pads, bottom
 
 
-def _cut(job: TileJob, tools: _Tools) -> tuple[bd.Solid, list[float]]:
-    """The tile's block (relieved at its hinges where it has reliefs) minus the tools, and the
-    volumes of the pieces the cut dropped; the features whose cut failed go to
-    ``tools.failed``."""
+def _cut(job: TileJob, tools: _Tools) -> tuple[bd.Solid, list[float], tuple[bool, float] | None]:
+    """The tile's block (relieved at its hinges where it has reliefs) minus the tools, the
+    volumes of the pieces the cut dropped, and the solid's :func:`~drawstring.cad.kernel.
+    solid_checks` where the cut measured them (else None); the features whose cut failed go
+    to ``tools.failed``."""
     block: bd.Solid | None = None
     if job.reliefs:
         try:
@@ -255,14 +260,18 @@ def _cut(job: TileJob, tools: _Tools) -> tuple[bd.Solid, list[float]]:
         ) from exc
     failed_tools: list[int] = []
     dropped: list[float] = []
+    checked: list[tuple[bool, float]] = []
     try:
-        solid = build_tile(block, tools.solids, failed=failed_tools, dropped=dropped)
+        solid = build_tile(
+            block, tools.solids, failed=failed_tools, dropped=dropped, checked=checked
+        )
     except Exception as exc:
         kernel_failure(f"tile {job.tile}: cut", exc)
         solid, failed_tools = block, list(range(len(tools.solids)))
         dropped.clear()  # the uncut block is kept
+        checked.clear()
     tools.failed += [tools.names[i] for i in failed_tools]
-    return solid, dropped
+    return solid, dropped, checked[0] if checked else None
 
 
 def _own_pads(

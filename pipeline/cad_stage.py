@@ -475,6 +475,8 @@ def build_cad(result: Design) -> tuple[CadResult, CadResult]:
         pads=(),
         pad_hinge=np.zeros(0, dtype=np.int64),
         pad_checks=(),
+        tile_meshes=(),
+        pad_meshes=(),
     )
     return flat, assembled
 
@@ -504,6 +506,7 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
         channel_continuity,
         clearances,
         interference,
+        manifold_of,
         pockets_paired,
         to_manifold,
     )
@@ -512,19 +515,28 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
     flat_tiles = print_tiles(result)
     valid_tiles = cad_flat.checks("tiles")[0]
     valid_pads, pad_volumes = cad_flat.checks("pads")
-    # One tessellation of each tile serves both interference checks.  A tile that meshes with
-    # open seams, or that the kernel fails to mesh, counts as not valid (it cannot be exported
-    # as a closed mesh either).
+
+    # One tessellation of each tile serves both interference checks (made by the workers that
+    # built the solids, where they did).  A tile that meshes with open seams, or that the
+    # kernel fails to mesh, counts as not valid (it cannot be exported as a closed mesh either).
+    def meshed(solid: Any, made: Any) -> Any:
+        return manifold_of(made) if made is not None else to_manifold(solid)
+
+    def made(known: tuple[Any, ...], count: int) -> tuple[Any, ...]:
+        return known if len(known) == count else (None,) * count
+
     tile_meshes = []
-    for index, solid in enumerate(cad_flat.tiles):
+    tiles_made = made(cad_flat.tile_meshes, len(cad_flat.tiles))
+    for index, (solid, mesh) in enumerate(zip(cad_flat.tiles, tiles_made, strict=True)):
         try:
-            tile_meshes.append(to_manifold(solid))
+            tile_meshes.append(meshed(solid, mesh))
         except Exception:
             valid_tiles[index] = False
     pad_meshes, meshed_pads = [], []
-    for index, solid in enumerate(cad_flat.pads):
+    pads_made = made(cad_flat.pad_meshes, len(cad_flat.pads))
+    for index, (solid, mesh) in enumerate(zip(cad_flat.pads, pads_made, strict=True)):
         try:
-            pad_meshes.append(to_manifold(solid))
+            pad_meshes.append(meshed(solid, mesh))
             meshed_pads.append(index)
         except Exception:
             valid_pads[index] = False
