@@ -13,9 +13,15 @@ import numpy as np
 from numpy.typing import NDArray
 from OCP.BRep import BRep_Builder, BRep_Tool
 from OCP.BRepTools import BRepTools_ReShape, BRepTools_WireExplorer
-from OCP.TopAbs import TopAbs_EDGE, TopAbs_FORWARD
+from OCP.TopAbs import (
+    TopAbs_EDGE,
+    TopAbs_FACE,
+    TopAbs_FORWARD,
+    TopAbs_ShapeEnum,
+    TopAbs_VERTEX,
+)
 from OCP.TopExp import TopExp_Explorer
-from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Iterator, TopoDS_Wire
+from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Iterator, TopoDS_Shape, TopoDS_Wire
 
 from drawstring.cad.feature_common import (
     TOOL_OVERSHOOT_MM,
@@ -420,7 +426,7 @@ def label_engraving(
 
 
 def fill_engraving(
-    solid: bd.Solid, engraving: bd.Shape, depth: float
+    solid: bd.Solid, engraving: bd.Shape, depth: float, volume: float | None = None
 ) -> tuple[bd.Solid, list[NDArray[np.float64]]] | None:
     """``solid`` with the pockets that ``engraving`` (:func:`label_engraving`) cut into its
     bottom face filled again: the pockets' faces taken out and the holes they left in the
@@ -429,40 +435,42 @@ def fill_engraving(
     A face is a pocket's when all its vertices lie in one of the engraving's convex prisms.
     Returns the filled solid and the pockets' rims (each the (k, 3) corners of a closed
     polygon on the bottom face, in order: the outlines of the engraved digits), or None where
-    the result is not one valid solid whose volume is ``solid``'s plus the pockets' (the
-    prisms' volume below the face, ``depth`` of their ``depth + TOOL_OVERSHOOT_MM``), for
-    example where a pocket met another feature.
+    the result is not one valid solid whose volume is ``solid``'s (``volume`` where the caller
+    measured it) plus the pockets' (the prisms' volume below the face, ``depth`` of their
+    ``depth + TOOL_OVERSHOOT_MM``), for example where a pocket met another feature.
     """
     prisms = engraving.solids()
     halfspaces = [_halfspaces(prism) for prism in prisms]
-    removed: list[bd.Face] = []
-    pocket_edges: set[bd.Edge] = set()
-    for face in solid.faces():
-        points = np.array([(v.X, v.Y, v.Z) for v in face.vertices()]).reshape(-1, 3)
+    faces = _unique(solid.wrapped, TopAbs_FACE)
+    removed, pocket_edges = _ShapeSet(), _ShapeSet()
+    for face in faces:
+        points = np.array(
+            [BRep_Tool.Pnt_s(TopoDS.Vertex(v)).Coord() for v in _unique(face, TopAbs_VERTEX)]
+        ).reshape(-1, 3)
         if len(points) and any(
             np.all(points @ normals.T - offsets <= 1e-5) for normals, offsets in halfspaces
         ):
-            removed.append(face)
-            pocket_edges.update(face.edges())
+            removed.Add(face)
+            for edge in _unique(face, TopAbs_EDGE):
+                pocket_edges.Add(edge)
     if not removed:
         return None
     reshape = BRepTools_ReShape()
     builder = BRep_Builder()
-    gone = set(removed)
     rims: list[NDArray[np.float64]] = []
-    for face in solid.faces():
-        if face in gone:
-            reshape.Remove(face.wrapped)
+    for face in faces:
+        if removed.Contains(face):
+            reshape.Remove(face)
             continue
         kept, dropped = [], False
-        wires = TopoDS_Iterator(face.wrapped.Oriented(TopAbs_FORWARD))
+        wires = TopoDS_Iterator(face.Oriented(TopAbs_FORWARD))
         while wires.More():
             wire = wires.Value()
             wires.Next()
             edges = TopExp_Explorer(wire, TopAbs_EDGE)
             inside = True
             while edges.More() and inside:
-                inside = bd.Edge(edges.Current()) in pocket_edges
+                inside = pocket_edges.Contains(edges.Current())
                 edges.Next()
             if inside:
                 dropped = True
@@ -470,7 +478,7 @@ def fill_engraving(
             else:
                 kept.append(wire)
         if dropped:  # the same surface and edges, without the pockets' rims
-            wrapped = face.wrapped
+            wrapped = TopoDS.Face(face)
             closed = TopoDS_Face()
             surface = BRep_Tool.Surface_s(wrapped)
             builder.MakeFace(closed, surface, wrapped.Location(), BRep_Tool.Tolerance_s(wrapped))
@@ -483,13 +491,43 @@ def fill_engraving(
         pockets = sum(p.volume for p in prisms) * depth / (depth + TOOL_OVERSHOOT_MM)
         if not filled.is_valid or len(filled.solids()) != 1:
             return None
-        expected = solid.volume + pockets
+        expected = (solid.volume if volume is None else volume) + pockets
     except Exception as exc:  # the kernel's own errors: keep the engraved solid
         log.debug("filling an engraving failed: %s: %s", type(exc).__name__, exc)
         return None
     if abs(filled.volume - expected) > 1e-6 * max(expected, 1.0):
         return None
     return filled, rims
+
+
+class _ShapeSet:
+    """Shapes kept once each as build123d's sets keep them: by hash, then ``IsSame`` (the
+    same TShape and location, whatever the orientation)."""
+
+    def __init__(self) -> None:
+        self._by_hash: dict[int, list[TopoDS_Shape]] = {}
+
+    def Add(self, shape: TopoDS_Shape) -> None:  # noqa: N802 (OCCT's map names)
+        if not self.Contains(shape):
+            self._by_hash.setdefault(hash(shape), []).append(shape)
+
+    def Contains(self, shape: TopoDS_Shape) -> bool:  # noqa: N802
+        return any(shape.IsSame(known) for known in self._by_hash.get(hash(shape), ()))
+
+    def __bool__(self) -> bool:
+        return bool(self._by_hash)
+
+
+def _unique(shape: TopoDS_Shape, kind: TopAbs_ShapeEnum) -> list[TopoDS_Shape]:
+    """The sub-shapes of one kind in ``shape``, each once, in the order build123d lists them
+    (``Shape.faces()`` and the like: first found, the last occurrence kept)."""
+    found: dict[int, TopoDS_Shape] = {}
+    explorer = TopExp_Explorer(shape, kind)
+    while explorer.More():
+        item = explorer.Current()
+        found[hash(item)] = item
+        explorer.Next()
+    return list(found.values())
 
 
 def _corners(wire: TopoDS_Wire) -> NDArray[np.float64]:
@@ -506,13 +544,15 @@ def _corners(wire: TopoDS_Wire) -> NDArray[np.float64]:
 def _halfspaces(prism: bd.Solid) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """``(normals, offsets)`` of a convex planar-faced solid: inside is ``normals @ x <=
     offsets`` (outward normals)."""
-    middle = prism.center()
+    # any point inside tells the faces' outward side: the mean of the corners of the convex
+    # prism (no volume integral)
+    middle = np.mean([(v.X, v.Y, v.Z) for v in prism.vertices()], axis=0)
     normals, offsets = [], []
     for face in prism.faces():
         normal, point = face.normal_at(), face.center()
         n = np.array([normal.X, normal.Y, normal.Z])
         p = np.array([point.X, point.Y, point.Z])
-        if n @ (np.array([middle.X, middle.Y, middle.Z]) - p) > 0:
+        if n @ (middle - p) > 0:
             n = -n
         normals.append(n)
         offsets.append(n @ p)

@@ -148,13 +148,15 @@ def build_job(job: TileJob, profile: Profile, hinge_data: tuple[HingeData, ...])
             "number engraving", partial(label_engraving, job.vertices, job.tile, profile, bottom)
         )
     solid, dropped, known = _cut(job, tools)
-    unengraved = _unengraved(job, solid, tools, profile) if labelled else None
+    # the tile's checks come from its cut where it measured them on its way
+    tile_check = known if known is not None else solid_checks(solid)
+    unengraved = _unengraved(job, solid, tools, profile, tile_check) if labelled else None
     pads = _own_pads(job, profile, hinge_data, built_pads, tools.failed)
-    checks = []
+    checks = [tile_check]
     meshes: list[CheckMesh | None] = []
     for index, part in enumerate([solid, *(pad for _, pad in pads)]):
-        # the tile's checks come from its cut where it measured them on its way
-        checks.append(known if index == 0 and known is not None else solid_checks(part))
+        if index:
+            checks.append(solid_checks(part))
         # the interference checks' mesh, made here in parallel; it travels as arrays
         try:
             meshes.append(check_mesh(part))
@@ -169,7 +171,7 @@ def build_job(job: TileJob, profile: Profile, hinge_data: tuple[HingeData, ...])
 
 
 def _unengraved(
-    job: TileJob, solid: bd.Solid, tools: _Tools, profile: Profile
+    job: TileJob, solid: bd.Solid, tools: _Tools, profile: Profile, check: tuple[bool, float]
 ) -> tuple[bd.Solid, list[NDArray[np.float64]]] | None:
     """The tile without the number engraved into it and the number's outline, or None (no
     engraving was cut, or its pockets could not be filled: the STEP files then show the
@@ -178,7 +180,8 @@ def _unengraved(
         return None
     engraving = tools.solids[tools.names.index("number engraving")]
     try:
-        filled = fill_engraving(solid, engraving, label_depth(profile))
+        volume = check[1] if check[0] else None  # measured (a kernel failure measures 0)
+        filled = fill_engraving(solid, engraving, label_depth(profile), volume)
     except Exception as exc:
         kernel_failure(f"tile {job.tile}: filling its number", exc)
         return None
