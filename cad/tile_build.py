@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import build123d as bd
 import numpy as np
 from numpy.typing import NDArray
+from OCP.BRepTools import BRepTools
 
 from drawstring.cad.feature_common import Footprint
 from drawstring.cad.features import build_tile, lift_bore, string_channel, trim_tool
@@ -157,12 +158,14 @@ def build_job(job: TileJob, profile: Profile, hinge_data: tuple[HingeData, ...])
     for index, part in enumerate([solid, *(pad for _, pad in pads)]):
         if index:
             checks.append(solid_checks(part))
-        # the interference checks' mesh, made here in parallel; it travels as arrays
+        # the interference checks' mesh, made here in parallel; it travels as arrays, so the
+        # solid goes without it (the pickle is a third of the size)
         try:
             meshes.append(check_mesh(part))
         except Exception as exc:  # the checks mesh it again and count it as not valid
             kernel_failure(f"tile {job.tile}: mesh", exc)
             meshes.append(None)
+        BRepTools.Clean_s(part.wrapped)
     result = JobResult(job.tile, solid, pads, notes, labelled, tools.failed, sum(dropped))
     result.checks = checks
     result.meshes = meshes

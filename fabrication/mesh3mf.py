@@ -158,6 +158,14 @@ def _mesh_chunk(items: list[tuple[bd.Shape, str, PartKind]], tolerance: float) -
     return [mesh_solid(solid, name, kind, tolerance) for solid, name, kind in items]
 
 
+#: The parts a forked meshing process reads (set before the fork, so nothing is pickled).
+_FORKED_ITEMS: Sequence[tuple[bd.Shape, str, PartKind]] = ()
+
+
+def _mesh_forked(indices: list[int], tolerance: float) -> list[PartMesh]:
+    return _mesh_chunk([_FORKED_ITEMS[i] for i in indices], tolerance)
+
+
 def mesh_solids(
     items: Sequence[tuple[bd.Shape, str, PartKind]], tolerance: float, workers: int | None = None
 ) -> list[PartMesh]:
@@ -165,16 +173,26 @@ def mesh_solids(
 
     They are meshed on this machine even where the CAD stage's tiles are built on a Dask
     cluster: meshed in a Dask worker, a solid's triangles can differ from this machine's, and
-    the 3MF is the same file wherever its design was made."""
+    the 3MF is the same file wherever its design was made.  Forked workers read the solids
+    from this process's memory (only their indices and the meshes cross a pipe)."""
+    global _FORKED_ITEMS
     count = workers if workers is not None else (os.cpu_count() or 1)
     if count <= 1 or len(items) < PARALLEL_MIN_PARTS:
         return _mesh_chunk(list(items), tolerance)
     n_chunks = min(len(items), 4 * count)
-    chunks = [list(items[i::n_chunks]) for i in range(n_chunks)]
+    chunks = [list(range(len(items)))[i::n_chunks] for i in range(n_chunks)]
     methods = multiprocessing.get_all_start_methods()
+    if "fork" in methods:
+        _FORKED_ITEMS = items
+        work, arguments = _mesh_forked, chunks
+    else:
+        work, arguments = _mesh_chunk, [[items[i] for i in chunk] for chunk in chunks]
     context = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
-    with parallel.process_pool(count, context) as pool:
-        done = list(pool.map(_mesh_chunk, chunks, [tolerance] * n_chunks))
+    try:
+        with parallel.process_pool(count, context) as pool:
+            done = list(pool.map(work, arguments, [tolerance] * n_chunks))
+    finally:
+        _FORKED_ITEMS = ()
     meshes: list[PartMesh | None] = [None] * len(items)
     for chunk_index, chunk in enumerate(done):
         for position, mesh in enumerate(chunk):
