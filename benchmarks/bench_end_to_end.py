@@ -6,6 +6,8 @@ file) in a child process; the row holds its wall time, the CPU seconds of its pr
 ``print.3mf`` (all, and the most in one part), and, where ``prusa-slicer`` is on PATH, the wall
 and CPU time of slicing ``print.3mf`` with the CLI (the command line of the issue).
 Targets (2 cores): end to end <= 20 s; each STEP file <= 20 MB; slicing <= 60 s.
+The machine's load averages (1, 5 and 15 minutes) when the design is written go into the row
+as ``load_avg``: on a shared machine they tell how many cores the run had.
 ``python benchmarks/bench_end_to_end.py [--no-slice]`` prints the row and writes it to
 ``benchmarks/results.json`` as ``bench_end_to_end``; ``run.py --stages`` runs it with the other
 stage benchmarks.
@@ -87,6 +89,7 @@ def run(slice_print: bool = True) -> list[dict[str, Any]]:
             "slice_wall_s": None,
             "slice_cpu_s": None,
             "slice_target_s": SLICE_TARGET_S,
+            "load_avg": [round(v, 2) for v in os.getloadavg()],
         }
         slicer = shutil.which("prusa-slicer")
         if slicer and slice_print:

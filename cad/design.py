@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Literal, TypeVar
 
 import build123d as bd
 import numpy as np
@@ -46,6 +46,8 @@ if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fiel
     from drawstring.cad.dimensions import FeatureDimensions as Profile
 
 log = logging.getLogger(__name__)
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -221,19 +223,13 @@ def build_design_solids(
     magnets, failed = _magnet_tools(jobs, inputs, channel_sides, profile, notes)
     if not (np.isfinite(print_clearance_mm) and print_clearance_mm >= 0):
         raise InternalError(f"print_clearance_mm must be 0 or more, got {print_clearance_mm}")
-    for tile, polyhedra in (trims or {}).items():
-        if not 0 <= tile < len(flat):
-            raise InternalError(f"trims refer to tile {tile} outside 0..{len(flat) - 1}")
-        for points in polyhedra:
-            jobs[tile].trims.append(np.asarray(points, dtype=np.float64))
+    _trim_tools(jobs, trims)
     hinge_data, fasteners = _plan_hinges(
         jobs, inputs, profile, print_clearance_mm, min_radius, notes
     )
     results = run_jobs(jobs, profile, hinge_data, workers)
     tiles, pads, unlabelled = _gather(results, inputs, labels, failed, notes, profile)
     plain = _unengraved(results, tiles)  # before the assembled pose moves the tiles
-    checks = _checks_of(results)
-    meshes = _meshes_of(results)
     transforms, residual = rigid_transforms(flat, inputs.assembled)
     if residual.size and residual.max() > 1e-3:
         notes.append(
@@ -242,10 +238,8 @@ def build_design_solids(
         )
     pad_hinge = np.array(sorted(pads), dtype=np.int64)
     pad_solids = tuple(pads[h] for h in pad_hinge)
-    tile_checks = tuple(checks[("tile", t)] for t in range(len(tiles)) if ("tile", t) in checks)
-    pad_checks = tuple(checks[("pad", int(h))] for h in pad_hinge if ("pad", int(h)) in checks)
-    tile_meshes = tuple(meshes[("tile", t)] for t in range(len(tiles)) if ("tile", t) in meshes)
-    pad_meshes = tuple(meshes[("pad", int(h))] for h in pad_hinge if ("pad", int(h)) in meshes)
+    tile_checks, pad_checks = _in_order(_checks_of(results), len(tiles), pad_hinge)
+    tile_meshes, pad_meshes = _in_order(_meshes_of(results), len(tiles), pad_hinge)
     if pose == Pose.ASSEMBLED:
         tiles = tuple(move_solid(s, m) for s, m in zip(tiles, transforms, strict=True))
         pad_solids, pad_hinge, pad_checks = (), np.zeros(0, dtype=np.int64), ()
@@ -296,6 +290,28 @@ def _checks_of(results: list[JobResult]) -> dict[tuple[str, int], tuple[bool, fl
         for (hinge, _), fact in zip(done.pads, done.checks[1:], strict=True):
             checks[("pad", int(hinge))] = fact
     return checks
+
+
+def _trim_tools(
+    jobs: list[TileJob], trims: dict[int, Sequence[NDArray[np.float64]]] | None
+) -> None:
+    """The trims' convex polyhedra into their tiles' jobs."""
+    for tile, polyhedra in (trims or {}).items():
+        if not 0 <= tile < len(jobs):
+            raise InternalError(f"trims refer to tile {tile} outside 0..{len(jobs) - 1}")
+        for points in polyhedra:
+            jobs[tile].trims.append(np.asarray(points, dtype=np.float64))
+
+
+def _in_order(
+    known: dict[tuple[str, int], T], n_tiles: int, pad_hinge: NDArray[np.int64]
+) -> tuple[tuple[T, ...], tuple[T, ...]]:
+    """What the workers measured of each tile (in tile order) and each hinge part (in
+    ``pad_hinge`` order), keyed as :func:`_checks_of` keys it; parts without it are left out
+    (the tuple is then not one per part, and the caller measures them)."""
+    tiles = tuple(known[("tile", t)] for t in range(n_tiles) if ("tile", t) in known)
+    pads = tuple(known[("pad", int(h))] for h in pad_hinge if ("pad", int(h)) in known)
+    return tiles, pads
 
 
 def _meshes_of(results: list[JobResult]) -> dict[tuple[str, int], CheckMesh | None]:

@@ -17,10 +17,10 @@ import multiprocessing
 import os
 import tempfile
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import build123d as bd
 import numpy as np
@@ -182,11 +182,11 @@ def mesh_solids(
     n_chunks = min(len(items), 4 * count)
     chunks = [list(range(len(items)))[i::n_chunks] for i in range(n_chunks)]
     methods = multiprocessing.get_all_start_methods()
+    work: Callable[[Any, float], list[PartMesh]] = _mesh_chunk
+    arguments: list[Any] = [[items[i] for i in chunk] for chunk in chunks]
     if "fork" in methods:
         _FORKED_ITEMS = items
         work, arguments = _mesh_forked, chunks
-    else:
-        work, arguments = _mesh_chunk, [[items[i] for i in chunk] for chunk in chunks]
     context = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
     try:
         with parallel.process_pool(count, context) as pool:
