@@ -44,9 +44,9 @@ from drawstring.fabrication.slicing import finish_slicing, print_rows, start_sli
 from drawstring.fabrication.step import (
     StepJob,
     StepPart,
-    finish_step_writers,
+    finish_writers,
     start_step_writers,
-    stop_step_writers,
+    stop_writers,
 )
 
 if TYPE_CHECKING:
@@ -150,24 +150,31 @@ def write_fabrication(
         )
         writer.render(measures)
         if slice_beds:
+            finish_writers(job.writing)  # the slicer reads the 3MF files
             slicing = start_slicing(job)
-        _string_rows(job, measures)
-        job.record.unlabelled = list(cad_flat.unlabelled)
-        writer.assembly_rows()
-        _magnet_rows(job)
-        _totals(job, measures)
+        _rows(job, writer, measures)
         if slicing is not None:
             finish_slicing(job, slicing)
+        _write_bom(out / "bom.csv", job.record, profile)
+        job.written.append("bom.csv")
+        if guide is not None:
+            job.written += guide(out, _guide_inputs(job, panels))
     except BaseException:
-        stop_step_writers(step_processes)  # an error or Ctrl-C: they write into the staging
+        # an error or Ctrl-C: they write into the staging folder, about to be removed
+        stop_writers([*step_processes, *job.writing])
         raise
-    finish_step_writers(step_processes)
-    _write_bom(out / "bom.csv", job.record, profile)
-    job.written.append("bom.csv")
-    if guide is not None:
-        job.written += guide(out, _guide_inputs(job, panels))
+    finish_writers([*step_processes, *job.writing])  # the manifest reads their files
     _write_manifest(job)
     return sorted(f"fabrication/{name}" for name in job.written)
+
+
+def _rows(job: FabricationJob, writer: ProcessWriter, measures: Measures) -> None:
+    """bom.csv's rows beside the process's parts (string, assembly, magnets) and its totals."""
+    _string_rows(job, measures)
+    job.record.unlabelled = list(job.cad_flat.unlabelled)
+    writer.assembly_rows()
+    _magnet_rows(job)
+    _totals(job, measures)
 
 
 def _guide_inputs(job: FabricationJob, panels: list[Panel]) -> GuideInputs:

@@ -10,7 +10,7 @@ import itertools
 import multiprocessing
 import re
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -348,26 +348,37 @@ StepJob = tuple[Path, Sequence[tuple[str, bd.Shape, str | None]], str, NDArray[n
 def start_step_writers(jobs: Sequence[StepJob], workers: int | None) -> list[Any]:
     """Write the STEP files in forked processes, or here when fork is unavailable or
     ``workers == 1``."""
+    return start_writers([(write_step, tuple(job), {}) for job in jobs], workers)
+
+
+#: A file to write in a forked process: the function and its arguments.
+Writing = tuple[Callable[..., object], tuple[Any, ...], dict[str, Any]]
+
+
+def start_writers(writings: Sequence[Writing], workers: int | None) -> list[Any]:
+    """Each ``write(*args, **kwargs)`` in a forked process (they inherit what they write,
+    nothing is pickled), or here when fork is unavailable or ``workers == 1``; the processes
+    started, for :func:`finish_writers`."""
     if workers == 1 or "fork" not in multiprocessing.get_all_start_methods():
-        for job in jobs:
-            write_step(*job)
+        for write, args, kwargs in writings:
+            write(*args, **kwargs)
         return []
     context = multiprocessing.get_context("fork")
-    processes = [context.Process(target=_step_writer, args=job) for job in jobs]
+    processes = [context.Process(target=_writer, args=writing) for writing in writings]
     with parallel.sigint_held():  # each takes Ctrl-C once its quiet exit is set
         for process in processes:
             process.start()
     return processes
 
 
-def _step_writer(*job: Any) -> None:
-    """Body of a STEP-writing process."""
+def _writer(write: Callable[..., object], args: tuple[Any, ...], kwargs: dict[str, Any]) -> None:
+    """Body of a writing process."""
     parallel.exit_quietly_on_interrupt()
-    write_step(*job)
+    write(*args, **kwargs)
 
 
-def stop_step_writers(processes: Sequence[Any]) -> None:
-    """End STEP-writing processes still running (their folder is about to be removed)."""
+def stop_writers(processes: Sequence[Any]) -> None:
+    """End writing processes still running (their folder is about to be removed)."""
     for process in processes:
         if process.is_alive():
             process.terminate()
@@ -375,8 +386,9 @@ def stop_step_writers(processes: Sequence[Any]) -> None:
         process.join()
 
 
-def finish_step_writers(processes: Sequence[Any]) -> None:
+def finish_writers(processes: Sequence[Any]) -> None:
+    """Wait for the writing processes; a failed one raises."""
     for process in processes:
         process.join()
         if process.exitcode != 0:
-            raise RuntimeError(f"writing a STEP file failed (exit code {process.exitcode})")
+            raise RuntimeError(f"writing a fabrication file failed (exit code {process.exitcode})")

@@ -3,6 +3,7 @@ interface (:class:`ProcessWriter`) and the helpers for bom.csv rows and nested s
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -53,6 +54,17 @@ class FabricationJob:
     printer: Printer | None = None
     record: ExportRecord = field(default_factory=ExportRecord)
     written: list[str] = field(default_factory=list)
+    #: files still being written in forked processes (:meth:`write_beside`), which
+    #: :func:`~drawstring.fabrication.exports.write_fabrication` waits for
+    writing: list[Any] = field(default_factory=list)
+
+    def write_beside(self, write: Callable[..., object], *args: Any, **kwargs: Any) -> None:
+        """``write(*args, **kwargs)`` in a forked process while the caller goes on (here where
+        fork is unavailable or ``workers == 1``): a file nothing else in the folder reads
+        before the manifest, such as a 3MF, whose text and compression take seconds."""
+        from drawstring.fabrication.step import start_writers
+
+        self.writing += start_writers([(write, args, kwargs)], self.workers)
 
 
 class ProcessWriter:

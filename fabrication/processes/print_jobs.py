@@ -201,8 +201,14 @@ def _write_files(
     materials: dict[m3f.PartKind, str] = {"tile": profile.tile_material}
     if with_pads:
         materials["pad"] = profile.hinge_material
-    m3f.write_3mf(
-        job.out / file_name, objects, title=title, extruders=extruders, materials=materials
+    # written in a forked process while the estimates and the guide are made here
+    job.write_beside(
+        m3f.write_3mf,
+        job.out / file_name,
+        objects,
+        title=title,
+        extruders=extruders,
+        materials=materials,
     )
     job.written.append(file_name)
     stem = Path(file_name).stem
@@ -212,8 +218,8 @@ def _write_files(
         bed_title = title if n_beds == 1 else f"{title}, bed {bed_index + 1} of {n_beds}"
         if n_beds > 1:
             on_bed = [job_object(i, 0.0) for i in range(len(job_parts)) if beds[i] == bed_index]
-            m3f.write_3mf(
-                job.out / name, on_bed, title=bed_title, extruders=extruders,
+            job.write_beside(
+                m3f.write_3mf, job.out / name, on_bed, title=bed_title, extruders=extruders,
                 materials=materials,
             )  # fmt: skip
             job.written.append(name)
