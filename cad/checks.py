@@ -65,6 +65,24 @@ def manifold_of(arrays: CheckMesh) -> manifold3d.Manifold:
     return manifold
 
 
+def part_manifolds(
+    solids: Sequence[bd.Shape], made: Sequence[CheckMesh | None] = ()
+) -> tuple[list[manifold3d.Manifold], NDArray[np.bool_]]:
+    """manifold3d solids of those ``solids`` that mesh into a closed manifold, in order, and
+    which do ((n,) bool).  ``made``: their check meshes where the workers that built them made
+    them (:attr:`~drawstring.cad.design.CadResult.tile_meshes`; one per solid, None where the
+    kernel failed), else each is meshed here (:func:`to_manifold`)."""
+    known = list(made) if len(made) == len(solids) else [None] * len(solids)
+    manifolds, meshed = [], np.zeros(len(solids), dtype=bool)
+    for index, (solid, mesh) in enumerate(zip(solids, known, strict=True)):
+        try:
+            manifolds.append(manifold_of(mesh) if mesh is not None else to_manifold(solid))
+        except Exception:  # open seams, or the kernel failing to mesh it
+            continue
+        meshed[index] = True
+    return manifolds, meshed
+
+
 @dataclass(frozen=True)
 class Interference:
     """Intersection volumes of the candidate pairs (bounding boxes overlap).

@@ -506,9 +506,8 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
         channel_continuity,
         clearances,
         interference,
-        manifold_of,
+        part_manifolds,
         pockets_paired,
-        to_manifold,
     )
 
     inputs = cad_inputs(result)
@@ -516,30 +515,14 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
     valid_tiles = cad_flat.checks("tiles")[0]
     valid_pads, pad_volumes = cad_flat.checks("pads")
 
-    # One tessellation of each tile serves both interference checks (made by the workers that
-    # built the solids, where they did).  A tile that meshes with open seams, or that the
-    # kernel fails to mesh, counts as not valid (it cannot be exported as a closed mesh either).
-    def meshed(solid: Any, made: Any) -> Any:
-        return manifold_of(made) if made is not None else to_manifold(solid)
-
-    def made(known: tuple[Any, ...], count: int) -> tuple[Any, ...]:
-        return known if len(known) == count else (None,) * count
-
-    tile_meshes = []
-    tiles_made = made(cad_flat.tile_meshes, len(cad_flat.tiles))
-    for index, (solid, mesh) in enumerate(zip(cad_flat.tiles, tiles_made, strict=True)):
-        try:
-            tile_meshes.append(meshed(solid, mesh))
-        except Exception:
-            valid_tiles[index] = False
-    pad_meshes, meshed_pads = [], []
-    pads_made = made(cad_flat.pad_meshes, len(cad_flat.pads))
-    for index, (solid, mesh) in enumerate(zip(cad_flat.pads, pads_made, strict=True)):
-        try:
-            pad_meshes.append(meshed(solid, mesh))
-            meshed_pads.append(index)
-        except Exception:
-            valid_pads[index] = False
+    # One tessellation of each tile serves both interference checks.  A tile that meshes with
+    # open seams, or that the kernel fails to mesh, counts as not valid (it cannot be exported
+    # as a closed mesh either).
+    tile_meshes, tiles_meshed = part_manifolds(cad_flat.tiles, cad_flat.tile_meshes)
+    pad_meshes, pads_meshed = part_manifolds(cad_flat.pads, cad_flat.pad_meshes)
+    valid_tiles &= tiles_meshed
+    valid_pads &= pads_meshed
+    meshed_pads = np.flatnonzero(pads_meshed)
     tiles_vs_tiles = interference(tile_meshes)
     tiles_vs_pads = interference(tile_meshes, pad_meshes) if pad_meshes else None
     # A tile missing a feature the kernel failed on is a fault too (CadResult.failed).
