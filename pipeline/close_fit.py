@@ -17,7 +17,9 @@ has passed the check that refuses a design (:func:`~.shapes.refusing_shape`):
 3. otherwise, with ``--hinges`` left unset, lays out the closer shape of
    ``policy.close_fit_top`` (square weight lowered, surface and face samples raised) with
    every hinge on the top faces, which ask nothing of the shape in depth, and keeps it when it
-   meets the 1e-3 mm targets (``--hinges top`` lays out that shape as the close one);
+   meets the 1e-3 mm targets; where it is not kept (a tile of it turns inside out, or its
+   layout misses), the shape of step 1 with top hinges (``--hinges top`` lays out these two
+   as the close ones);
 4. otherwise (and where the close shape turns a tile inside out, or with CAD leaves a
    boundary tile too narrow for the string channel) lays out the paper's shape, with a note
    saying why.
@@ -108,9 +110,7 @@ def fitted_layout(
     with progress.stage("assembled"):
         paper_distances = surface_distances(paper_start.tiles, loaded)
     trial = _CloseTrial(loaded, flat_map, progress, policy, first_tiling, check_first)
-    close = close_weights(options.hinges, policy)
-    tried: dict[str, Any] = {"eq1": close.to_json()}
-    kept, reason = trial.laid_out(options, close, paper_distances, tried)
+    kept, close, tried, reason = _first_kept(trial, options, paper_distances)
     if kept is not None:
         return replace(kept, fit={"used": "close", "eq1": close.to_json(), "close": tried}), options
     fit: dict[str, Any] = {
@@ -124,9 +124,7 @@ def fitted_layout(
     ]
     if top_allowed and options.hinges == HingeStrategy.DUAL:
         top_options = replace(options, hinges=HingeStrategy.TOP)
-        top = close_weights(HingeStrategy.TOP, policy)
-        top_tried: dict[str, Any] = {"eq1": top.to_json()}
-        kept, top_reason = trial.laid_out(top_options, top, paper_distances, top_tried)
+        kept, top, top_tried, top_reason = _first_kept(trial, top_options, paper_distances)
         if kept is not None:
             note = (
                 f"{notes[0]}; with every hinge on the top faces (no depth condition) the close "
@@ -149,11 +147,37 @@ def fitted_layout(
     return replace(laid_out, notes=(*laid_out.notes, note), fit=fit), options
 
 
-def close_weights(hinges: str, policy: LayoutPolicy) -> Eq1Weights:
-    """The eq.-1 weights of the close shape laid out with ``hinges``: ``policy.close_fit``
-    with dual hinges, whose bottom hinges ask the shape to stay near conical, and the closer
-    ``policy.close_fit_top`` with every hinge on top."""
-    return policy.close_fit_top if hinges == HingeStrategy.TOP else policy.close_fit
+def close_weights(hinges: str, policy: LayoutPolicy) -> tuple[Eq1Weights, ...]:
+    """The eq.-1 weights of the close shapes tried with ``hinges``, closest first:
+    ``policy.close_fit`` with dual hinges, whose bottom hinges ask the shape to stay near
+    conical; with every hinge on top the closer ``policy.close_fit_top``, then
+    ``policy.close_fit`` where that one is not kept."""
+    if hinges == HingeStrategy.TOP and policy.close_fit_top != policy.close_fit:
+        return (policy.close_fit_top, policy.close_fit)
+    if hinges == HingeStrategy.TOP:
+        return (policy.close_fit_top,)
+    return (policy.close_fit,)
+
+
+def _first_kept(
+    trial: _CloseTrial,
+    options: ResolvedOptions,
+    paper: TopFaceDistances,
+) -> tuple[ShapedLayout | None, Eq1Weights, dict[str, Any], str]:
+    """The first close shape of :func:`close_weights` for ``options``' hinges that is kept:
+    the layout (None where none is), its weights, what was measured on it and why it was not
+    kept (empty where it was).  Shapes set aside before it are listed in the measures'
+    ``earlier`` (their ``eq1`` and why)."""
+    earlier: list[dict[str, Any]] = []
+    for weights in close_weights(options.hinges, trial.policy):
+        tried: dict[str, Any] = {"eq1": weights.to_json()}
+        if earlier:
+            tried["earlier"] = list(earlier)
+        kept, reason = trial.laid_out(options, weights, paper, tried)
+        if kept is not None:
+            return kept, weights, tried, ""
+        earlier.append({"eq1": weights.to_json(), "refused": reason})
+    return None, weights, tried, reason
 
 
 class _CloseTrial:

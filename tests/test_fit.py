@@ -183,6 +183,26 @@ def test_a_close_shape_refused_with_dual_hinges_is_laid_out_with_top_hinges(
     assert not [w for w in top.warnings if "far from the target" in w]
 
 
+def test_the_close_shape_with_top_hinges_steps_back_to_the_dual_weights(paper: Design) -> None:
+    # the dual close shape refused by the gate, the closer top shape no closer than the
+    # paper's (surface weight 0.01): the dual close shape's weights are laid out with every
+    # hinge on top, and kept
+    from drawstring.geometry.assembled.top import Eq1Weights
+
+    far = Eq1Weights(1e4, 10.0, 0.01)
+    policy = replace(DEFAULT_POLICY, close_conical_defect_max_deg=-1.0, close_fit_top=far)
+    stepped = design("saddle", OPTIONS, policy=policy)
+    m, fit = stepped.metrics(), stepped.metrics()["fit"]
+    assert stepped.options.hinges == "top" and fit["used"] == "close"
+    assert fit["eq1"] == fit["close_top"]["eq1"] == DEFAULT_POLICY.close_fit.to_json()
+    (earlier,) = fit["close_top"]["earlier"]
+    assert earlier["eq1"] == far.to_json()
+    assert "no closer than the paper's shape" in earlier["refused"]
+    assert m["surface_distance_mean_mm"] < paper.metrics()["surface_distance_mean_mm"]
+    assert max(m["flat_edge_error_max_mm"], m["hinge_gap_max_mm"]) <= 1e-3
+    assert not stepped.problems
+
+
 def test_a_close_shape_no_closer_than_the_papers_is_not_kept(paper: Design) -> None:
     # eq. 1 that hardly pulls to the surface (0.01, the paper's 0.1) gives a shape no closer
     # than the paper's: refused for that, with dual hinges and then with top hinges
