@@ -312,3 +312,26 @@ def test_the_rigid_fit_brings_a_moved_design_back_and_keeps_its_layout(close: De
     accuracy = max(m["flat_edge_error_max_mm"], m["hinge_gap_max_mm"])
     assert fitted.accuracy_mm == pytest.approx(accuracy, rel=1e-3)
     assert fitted.flat is close.flat and fitted.hinge_layout is close.hinge_layout
+
+
+def test_a_shape_set_aside_is_kept_only_where_no_farther_than_the_laid_out_papers() -> None:
+    # the first tiling's distances set a close shape aside; against the paper's laid-out
+    # design the nearest on average of those no farther on average and at most is kept
+    from drawstring.geometry.assembled.fit import TopFaceDistances
+    from drawstring.geometry.assembled.top import Eq1Weights
+    from drawstring.pipeline.close_fit import _CloseTrial
+
+    def far(mean: float, largest: float) -> TopFaceDistances:
+        return TopFaceDistances(np.zeros(0), np.zeros(0), mean, largest)
+
+    trial = _CloseTrial(*(None,) * 6)  # type: ignore[arg-type]
+    weights = [Eq1Weights(1e4, 1.0, 100.0, 100.0), Eq1Weights(1e4, 10.0, 10.0, 10.0)]
+    trial.set_aside = [
+        ("closer, larger max", weights[0], OPTIONS, far(2.0, 9.0)),  # type: ignore[list-item]
+        ("close", weights[1], OPTIONS, far(3.0, 7.0)),  # type: ignore[list-item]
+    ]
+    assert trial.closer_than(far(5.0, 8.0))[0] == "close"  # type: ignore[index]
+    assert trial.closer_than(far(5.0, 9.0))[0] == "closer, larger max"  # type: ignore[index]
+    assert trial.closer_than(far(2.5, 9.0))[0] == "closer, larger max"  # type: ignore[index]
+    assert trial.closer_than(far(1.0, 9.0)) is None
+    assert trial.closer_than(far(5.0, 6.0)) is None
