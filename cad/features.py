@@ -97,6 +97,7 @@ __all__ = [
     "lift_bore_depth_mm",
     "lift_chamfer",
     "string_channel",
+    "tight_channel",
     "trim_tool",
     # re-exported from .feature_common
     "TOOL_OVERSHOOT_MM",
@@ -159,6 +160,60 @@ def channel_min_thickness_mm(profile: Profile) -> float:
     return 2.0 * (channel_radius(profile) + feature_wall_mm(profile) + sunk)
 
 
+#: A channel whose centre line bends tighter than this many times its own radius is cut as
+#: straight bores along the Bezier's control polygon (:func:`_polygon_tube`): a tube swept
+#: round a bend tighter than its radius folds onto itself, and OCCT's boolean fails on it
+#: (minimal_surface, corpus, at 280 mm: a 0.54 mm bend in a 0.8 mm channel).
+TIGHT_BEND_RADII = 1.25
+
+
+def tight_channel(path: ChannelPath, radius: float) -> bool:
+    """Whether the channel along ``path`` is cut as straight bores (:data:`TIGHT_BEND_RADII`)."""
+    return bool(path.min_radius < TIGHT_BEND_RADII * radius)
+
+
+def channel_centre_line(path: ChannelPath, radius: float) -> NDArray[np.float64]:
+    """(k, 3) points along the centre line the channel of ``radius`` is cut along: the Bezier,
+    or its control polygon where the bend is tight (:func:`tight_channel`)."""
+    if tight_channel(path, radius):
+        return _polygon(path)
+    return path.points(129)
+
+
+def _polygon(path: ChannelPath) -> NDArray[np.float64]:
+    """The control polygon of ``path`` without its zero-length legs."""
+    points = [path.control[0]]
+    for point in path.control[1:]:
+        if np.linalg.norm(point - points[-1]) > 1e-6:
+            points.append(point)
+    return np.array(points)
+
+
+def _polygon_tube(path: ChannelPath, radius: float) -> bd.Solid:
+    """The union of cylinders of ``radius`` along the control polygon of ``path``, the first
+    and last extended straight past the openings, each inner end extended by
+    ``radius * tan(turn / 2)`` so that the cylinders cover the outside of every corner."""
+    points = _polygon(path)
+    overshoot = radius + TOOL_OVERSHOOT_MM
+    legs = [unit_vector(b - a) for a, b in zip(points[:-1], points[1:], strict=True)]
+    cylinders = []
+    for k, leg in enumerate(legs):
+        start, end = points[k].copy(), points[k + 1].copy()
+        if k == 0:
+            start -= overshoot * path.start_tangent
+        else:
+            turn = float(np.arccos(np.clip(legs[k - 1] @ leg, -1.0, 1.0)))
+            start -= radius * min(np.tan(0.5 * turn), 1.0) * leg
+        if k == len(legs) - 1:
+            end += overshoot * path.end_tangent
+        else:
+            turn = float(np.arccos(np.clip(leg @ legs[k + 1], -1.0, 1.0)))
+            end += radius * min(np.tan(0.5 * turn), 1.0) * leg
+        length = float(np.linalg.norm(end - start))
+        cylinders.append(bd.Solid.make_cylinder(radius, length, bd_plane(start, end - start)))
+    return clean_solid(fuse(cylinders[0], cylinders[1:]))
+
+
 def _tube(path: ChannelPath, radius: float) -> bd.Solid:
     """Circular tube of ``radius`` around ``path``, extended straight past both openings."""
     overshoot = radius + TOOL_OVERSHOOT_MM
@@ -194,8 +249,10 @@ def string_channel(
 
     Returns
     -------
-    Solid tube of diameter ``string + clearance`` swept along :func:`channel_path`; a bend
-    tighter than ``profile.min_bend_radius_mm`` is logged (the tile is too small for it).
+    Solid tube of diameter ``string + clearance`` swept along :func:`channel_path`, or where
+    that bends tighter than the tube can follow (:func:`tight_channel`) straight bores along its
+    control polygon; a bend tighter than ``profile.min_bend_radius_mm`` is logged (the tile is
+    too small for it).
     """
     check_side(enter_side, "enter_side")
     check_side(leave_side, "leave_side")
@@ -206,7 +263,10 @@ def string_channel(
             path.min_radius,
             profile.min_bend_radius_mm,
         )
-    return _tube(path, channel_radius(profile))
+    radius = channel_radius(profile)
+    if tight_channel(path, radius):
+        return _polygon_tube(path, radius)
+    return _tube(path, radius)
 
 
 def lift_bore_depth_mm(
@@ -301,7 +361,8 @@ def channel_keep_out(
     tile = np.asarray(tile, dtype=np.float64)
     radius = channel_radius(profile)
     if SIDE_TOP_FACE not in (enter_side, leave_side):
-        return tube_keep_out(channel_path(tile, enter_side, leave_side).points(129), radius)
+        path = channel_path(tile, enter_side, leave_side)
+        return tube_keep_out(channel_centre_line(path, radius), radius)
     side = enter_side if leave_side == SIDE_TOP_FACE else leave_side
     path = lift_path(tile, side)
     chamfer = lift_chamfer(tile, path, profile)

@@ -24,6 +24,7 @@ from drawstring.cad.design import (  # noqa: E402
     route_links,
 )
 from drawstring.cad.design_notes import hole_notes  # noqa: E402
+from drawstring.cad.feature_common import channel_radius  # noqa: E402
 from drawstring.cad.features import (  # noqa: E402
     KeepOut,
     build_tile,
@@ -40,6 +41,7 @@ from drawstring.cad.features import (  # noqa: E402
     string_channel,
     strip_hole_plan,
     strip_holes,
+    tight_channel,
     trim_tool,
 )
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path  # noqa: E402
@@ -47,6 +49,7 @@ from drawstring.cad.tiles import (  # noqa: E402
     convex_solid,
     face_deviation,
     mesh_volume,
+    relieved_tile_solid,
     rigid_transforms,
     snap_to_planes,
     tile_solid,
@@ -163,6 +166,41 @@ def test_channel_meets_side_faces_along_their_normals(profile: Profile) -> None:
     assert tube.is_valid
     with pytest.raises(InternalError, match="same side"):
         channel_path(tile, 2, 2)
+
+
+def test_a_channel_bending_tighter_than_its_radius_is_cut_with_both_openings(
+    profile: Profile,
+) -> None:
+    # A corner tile of minimal_surface (corpus) at 280 mm, relieved at its hinge: the channel
+    # turns from side 1 to side 0 with a 0.54 mm bend, tighter than its 0.8 mm radius.  A tube
+    # swept round that bend folds onto itself and the CAD kernel's cut fails on it.
+    # (The kernel's failure depends on the exact numbers: the same tile moved to the origin
+    # cuts even as a swept tube.)
+    tile = np.array(
+        [
+            [45.967, 162.31, 6.0], [48.617, 161.014, 6.0], [48.28, 164.498, 6.0],
+            [45.993, 164.876, 6.0], [44.668, 160.373, 0.573], [46.837, 159.313, 0.575],
+            [46.398, 163.862, 0.577], [44.706, 164.141, 0.574],
+        ]
+    )  # fmt: skip
+    relief = np.array([-0.9393, -0.2562, 0.2283, -85.9173])
+    radius = channel_radius(profile)
+    path = channel_path(tile, 1, 0)
+    assert path.min_radius < radius
+    assert tight_channel(path, radius)
+    failed: list[int] = []
+    block = relieved_tile_solid(tile, [relief])
+    volume = block.volume
+    solid = build_tile(block, [string_channel(tile, 1, 0, profile)], failed=failed)
+    assert failed == []
+    assert solid.is_valid
+    assert solid.volume < volume - 0.5 * np.pi * radius**2  # a bore at least half a mm long
+    for side in (0, 1):
+        assert checks._opening(solid, tile, side, radius, True) is not None
+    # the keep-out other features avoid follows the same centre line
+    keep = channel_keep_out(tile, 1, 0, profile)
+    assert np.allclose(keep.centres[0], path.control[0])
+    assert np.allclose(keep.centres[-1], path.control[3])
 
 
 def test_lift_path_turns_up_through_the_top() -> None:
