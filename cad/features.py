@@ -189,10 +189,11 @@ def _polygon(path: ChannelPath) -> NDArray[np.float64]:
     return np.array(points)
 
 
-def _polygon_tube(path: ChannelPath, radius: float) -> bd.Solid:
-    """The union of cylinders of ``radius`` along the control polygon of ``path``, the first
-    and last extended straight past the openings, each inner end extended by
-    ``radius * tan(turn / 2)`` so that the cylinders cover the outside of every corner."""
+def _polygon_tube(path: ChannelPath, radius: float) -> tuple[bd.Solid, ...]:
+    """Cylinders of ``radius`` along the control polygon of ``path``, the first and last
+    extended straight past the openings, each inner end extended by ``radius * tan(turn / 2)``
+    so that together they cover the outside of every corner.  Kept apart, each a tool of the
+    tile's one cut: fused, their seams can leave a tile that OCCT meshes open."""
     points = _polygon(path)
     overshoot = radius + TOOL_OVERSHOOT_MM
     legs = [unit_vector(b - a) for a, b in zip(points[:-1], points[1:], strict=True)]
@@ -211,7 +212,7 @@ def _polygon_tube(path: ChannelPath, radius: float) -> bd.Solid:
             end += radius * min(np.tan(0.5 * turn), 1.0) * leg
         length = float(np.linalg.norm(end - start))
         cylinders.append(bd.Solid.make_cylinder(radius, length, bd_plane(start, end - start)))
-    return clean_solid(fuse(cylinders[0], cylinders[1:]))
+    return tuple(cylinders)
 
 
 def _tube(path: ChannelPath, radius: float) -> bd.Solid:
@@ -238,8 +239,8 @@ def _tube(path: ChannelPath, radius: float) -> bd.Solid:
 
 def string_channel(
     tile: NDArray[np.float64], enter_side: int, leave_side: int, profile: Profile
-) -> bd.Solid:
-    """Tool: the string channel through one tile.
+) -> tuple[bd.Solid, ...]:
+    """Tools: the string channel through one tile.
 
     Parameters
     ----------
@@ -249,10 +250,10 @@ def string_channel(
 
     Returns
     -------
-    Solid tube of diameter ``string + clearance`` swept along :func:`channel_path`, or where
-    that bends tighter than the tube can follow (:func:`tight_channel`) straight bores along its
-    control polygon; a bend tighter than ``profile.min_bend_radius_mm`` is logged (the tile is
-    too small for it).
+    The solid tube of diameter ``string + clearance`` swept along :func:`channel_path`, or
+    where that bends tighter than the tube can follow (:func:`tight_channel`) straight bores
+    along its control polygon, one solid each; a bend tighter than
+    ``profile.min_bend_radius_mm`` is logged (the tile is too small for it).
     """
     check_side(enter_side, "enter_side")
     check_side(leave_side, "leave_side")
@@ -266,7 +267,7 @@ def string_channel(
     radius = channel_radius(profile)
     if tight_channel(path, radius):
         return _polygon_tube(path, radius)
-    return _tube(path, radius)
+    return (_tube(path, radius),)
 
 
 def lift_bore_depth_mm(

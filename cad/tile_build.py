@@ -105,8 +105,9 @@ class _Tools:
         self.names = ["magnet pocket"] * len(self.solids)
         self.failed: list[str] = []
 
-    def add(self, name: str, make: Callable[[], bd.Shape | None]) -> bool:
-        """Add a tool; False only where ``make`` finds no room for it (returns None)."""
+    def add(self, name: str, make: Callable[[], bd.Shape | tuple[bd.Shape, ...] | None]) -> bool:
+        """Add a tool (or the several solids of one feature); False only where ``make`` finds
+        no room for it (returns None)."""
         try:
             tool = make()
         except Exception as exc:  # the kernel's own errors, whatever their class
@@ -115,8 +116,9 @@ class _Tools:
             return True
         if tool is None:
             return False
-        self.solids.append(tool)
-        self.names.append(name)
+        solids = tool if isinstance(tool, tuple) else (tool,)
+        self.solids.extend(solids)
+        self.names += [name] * len(solids)
         return True
 
     def extend(self, name: str, solids: tuple[bd.Solid, ...]) -> None:

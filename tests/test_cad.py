@@ -55,6 +55,7 @@ from drawstring.cad.tiles import (  # noqa: E402
     tile_solid,
     tile_solids,
 )
+from drawstring.fabrication.mesh3mf import mesh_solid  # noqa: E402
 from drawstring.fabrication.profiles import Profile, load_profile  # noqa: E402
 from drawstring.geometry.core.errors import InternalError  # noqa: E402
 from drawstring.geometry.core.tolerances import CAD_OPENING_MATCH_MM  # noqa: E402
@@ -162,7 +163,7 @@ def test_channel_meets_side_faces_along_their_normals(profile: Profile) -> None:
     assert 4.0 < path.min_radius < 6.0  # the quarter circle would have radius 6
     straight = channel_path(tile, 3, 1)
     assert straight.min_radius == np.inf
-    tube = string_channel(tile, 3, 0, profile)
+    (tube,) = string_channel(tile, 3, 0, profile)
     assert tube.is_valid
     with pytest.raises(InternalError, match="same side"):
         channel_path(tile, 2, 2)
@@ -191,12 +192,15 @@ def test_a_channel_bending_tighter_than_its_radius_is_cut_with_both_openings(
     failed: list[int] = []
     block = relieved_tile_solid(tile, [relief])
     volume = block.volume
-    solid = build_tile(block, [string_channel(tile, 1, 0, profile)], failed=failed)
+    tools = string_channel(tile, 1, 0, profile)
+    assert len(tools) > 1  # straight bores
+    solid = build_tile(block, list(tools), failed=failed)
     assert failed == []
     assert solid.is_valid
     assert solid.volume < volume - 0.5 * np.pi * radius**2  # a bore at least half a mm long
     for side in (0, 1):
         assert checks._opening(solid, tile, side, radius, True) is not None
+    mesh_solid(solid, "tile_192", "tile")  # the print file's mesh is closed (raises if not)
     # the keep-out other features avoid follows the same centre line
     keep = channel_keep_out(tile, 1, 0, profile)
     assert np.allclose(keep.centres[0], path.control[0])
@@ -461,7 +465,7 @@ def test_pins_stop_short_of_the_string_channel(profile: Profile) -> None:
     pin = kept.pins[0]
     assert pin is not None and not pin.through and kept.short == (True, False)
     assert profile.hinge_thickness_mm + pin_radius(profile) <= pin.depth < 3.0 - 0.8
-    tube = string_channel(tile_a, 3, 1, profile)
+    (tube,) = string_channel(tile_a, 3, 1, profile)
     for plan, blocked in ((free, True), (kept, False)):
         pad = hinge_pad(tile_a, 2, tile_b, 0, "top", profile, pins=plan.pins).pad
         assert pad is not None
@@ -669,7 +673,7 @@ def test_a_feature_the_kernel_fails_on_is_left_out_and_listed(
     victim = channelled[0]
     real_channel = tile_build.string_channel
 
-    def channel(tile: np.ndarray, *args: object) -> bd.Solid:
+    def channel(tile: np.ndarray, *args: object) -> tuple[bd.Solid, ...]:
         if np.array_equal(tile, design.tiles_2d[victim]):
             raise Standard_Failure("BRepOffsetAPI_MakePipeShell: made up")
         return real_channel(tile, *args)  # type: ignore[arg-type]
@@ -806,9 +810,9 @@ def test_a_channel_opening_cut_away_by_a_trim_still_lines_up(profile: Profile) -
     # and the trim, b's opening is missing.
     tile_a, tile_b = _box(12.0), _box(12.0) + [12.0, 0.0, 0.0]
     steps = np.array([[0, 0, SIDE_TOP_FACE, 1], [1, 1, 3, SIDE_TOP_FACE]])
-    solid_a = build_tile(tile_a, [string_channel(tile_a, 3, 1, profile)])
+    solid_a = build_tile(tile_a, [*string_channel(tile_a, 3, 1, profile)])
     pocket = np.array([[x, y, z] for x in (11.7, 14.0) for y in (-1.0, 9.0) for z in (3.0, 13.0)])
-    trimmed = build_tile(tile_b, [string_channel(tile_b, 3, 1, profile), trim_tool(pocket)])
+    trimmed = build_tile(tile_b, [*string_channel(tile_b, 3, 1, profile), trim_tool(pocket)])
     plain = build_tile(tile_b, [])
     identity = np.tile(np.eye(4), (2, 1, 1))
     tiles = np.stack([tile_a, tile_b])
