@@ -191,28 +191,20 @@ def _polygon(path: ChannelPath) -> NDArray[np.float64]:
 
 def _polygon_tube(path: ChannelPath, radius: float) -> tuple[bd.Solid, ...]:
     """Cylinders of ``radius`` along the control polygon of ``path``, the first and last
-    extended straight past the openings, each inner end extended by ``radius * tan(turn / 2)``
-    so that together they cover the outside of every corner.  Kept apart, each a tool of the
-    tile's one cut: fused, their seams can leave a tile that OCCT meshes open."""
+    extended straight past the openings, meeting end to end at its corners (the string runs
+    on the inside of each corner, which the cylinders cover; carried past the corners, their
+    end faces leave slivers that OCCT meshes open).  Kept apart, each a tool of the tile's one
+    cut: fused, their seams can leave such slivers too."""
     points = _polygon(path)
     overshoot = radius + TOOL_OVERSHOOT_MM
-    legs = [unit_vector(b - a) for a, b in zip(points[:-1], points[1:], strict=True)]
-    cylinders = []
-    for k, leg in enumerate(legs):
-        start, end = points[k].copy(), points[k + 1].copy()
-        if k == 0:
-            start -= overshoot * path.start_tangent
-        else:
-            turn = float(np.arccos(np.clip(legs[k - 1] @ leg, -1.0, 1.0)))
-            start -= radius * min(np.tan(0.5 * turn), 1.0) * leg
-        if k == len(legs) - 1:
-            end += overshoot * path.end_tangent
-        else:
-            turn = float(np.arccos(np.clip(leg @ legs[k + 1], -1.0, 1.0)))
-            end += radius * min(np.tan(0.5 * turn), 1.0) * leg
-        length = float(np.linalg.norm(end - start))
-        cylinders.append(bd.Solid.make_cylinder(radius, length, bd_plane(start, end - start)))
-    return tuple(cylinders)
+    ends = [points[0] - overshoot * path.start_tangent, *points[1:-1]]
+    ends.append(points[-1] + overshoot * path.end_tangent)
+    return tuple(
+        bd.Solid.make_cylinder(
+            radius, float(np.linalg.norm(end - start)), bd_plane(start, end - start)
+        )
+        for start, end in zip(ends[:-1], ends[1:], strict=True)
+    )
 
 
 def _tube(path: ChannelPath, radius: float) -> bd.Solid:
