@@ -176,14 +176,25 @@ def channel_centre_line(path: ChannelPath, radius: float) -> NDArray[np.float64]
     """(k, 3) points along the centre line the channel of ``radius`` is cut along: the Bezier,
     or its control polygon where the bend is tight (:func:`tight_channel`)."""
     if tight_channel(path, radius):
-        return _polygon(path)
+        return _polygon(path, radius)
     return path.points(129)
 
 
-def _polygon(path: ChannelPath) -> NDArray[np.float64]:
-    """The control polygon of ``path`` without its zero-length legs."""
-    points = [path.control[0]]
-    for point in path.control[1:]:
+def _polygon(path: ChannelPath, radius: float) -> NDArray[np.float64]:
+    """The control polygon of ``path``, its first and last legs (straight in along the
+    openings' normals) at least :data:`TIGHT_BEND_RADII` channel radii long so that the next
+    leg's bore stays behind the face and the opening stays round and centred, without its
+    zero-length legs."""
+    control = path.control.copy()
+    lead = TIGHT_BEND_RADII * radius
+    control[1] = control[0] + max(float(np.linalg.norm(control[1] - control[0])), lead) * (
+        path.start_tangent
+    )
+    control[2] = control[3] - max(float(np.linalg.norm(control[3] - control[2])), lead) * (
+        path.end_tangent
+    )
+    points = [control[0]]
+    for point in control[1:]:
         if np.linalg.norm(point - points[-1]) > 1e-6:
             points.append(point)
     return np.array(points)
@@ -195,7 +206,7 @@ def _polygon_tube(path: ChannelPath, radius: float) -> tuple[bd.Solid, ...]:
     on the inside of each corner, which the cylinders cover; carried past the corners, their
     end faces leave slivers that OCCT meshes open).  Kept apart, each a tool of the tile's one
     cut: fused, their seams can leave such slivers too."""
-    points = _polygon(path)
+    points = _polygon(path, radius)
     overshoot = radius + TOOL_OVERSHOOT_MM
     ends = [points[0] - overshoot * path.start_tangent, *points[1:-1]]
     ends.append(points[-1] + overshoot * path.end_tangent)
