@@ -105,17 +105,14 @@ def mesh_solid(solid: bd.Shape, name: str, kind: PartKind, tolerance: float = 0.
     writer (fast, and it orients each face's triangles by the face orientation); coincident
     corners are merged (float32, exact for shared nodes).
 
-    Where the mesh at ``tolerance`` is not closed, finer ones are tried
-    (:data:`MESH_REFINE_STEPS`).
-
     Raises
     ------
     RuntimeError
-        When, at ``tolerance`` and every finer one tried, an edge is not shared by exactly two
-        triangles with opposite directions.
+        When, at ``tolerance``, an edge is not shared by exactly two triangles with opposite
+        directions.
     """
     budget = TRIANGLE_BUDGET[kind]
-    mesh = _closed_mesh(solid, name, kind, tolerance)
+    mesh = _mesh_once(solid, name, kind, tolerance, MESH_ANGLE_RAD)
     for step in range(1, MESH_COARSEN_STEPS + 1):
         if len(mesh.triangles) <= budget:
             break
@@ -125,25 +122,6 @@ def mesh_solid(solid: bd.Shape, name: str, kind: PartKind, tolerance: float = 0.
         except RuntimeError:  # too coarse to stay closed: the finer mesh, over the budget
             break
     return mesh
-
-
-#: Where the mesh at the asked tolerance is not closed, it is made again this many times, each
-#: time at half the tolerance before.
-MESH_REFINE_STEPS = 3
-
-
-def _closed_mesh(solid: bd.Shape, name: str, kind: PartKind, tolerance: float) -> PartMesh:
-    """:func:`_mesh_once` at ``tolerance``, or where that mesh is not closed at the first of
-    :data:`MESH_REFINE_STEPS` halvings of it whose mesh is.  OCCT can leave a seam open at one
-    tolerance and close it at a finer one (a tile whose string channel is cut as straight
-    bores, :func:`~drawstring.cad.features.string_channel`)."""
-    for step in range(MESH_REFINE_STEPS + 1):
-        try:
-            return _mesh_once(solid, name, kind, tolerance / 2.0**step, MESH_ANGLE_RAD)
-        except RuntimeError:
-            if step == MESH_REFINE_STEPS:
-                raise
-    raise AssertionError("unreachable")
 
 
 def _mesh_once(

@@ -200,7 +200,7 @@ def test_a_channel_bending_tighter_than_its_radius_is_cut_with_both_openings(
     assert solid.volume < volume - 0.5 * np.pi * radius**2  # a bore at least half a mm long
     for side in (0, 1):
         assert checks._opening(solid, tile, side, radius, True) is not None
-    mesh_solid(solid, "tile_192", "tile")  # the print file's mesh is closed (raises if not)
+    mesh_solid(solid, "tile_192", "tile", 0.042)  # closed at the print files' tolerance
     # the keep-out other features avoid follows the same centre line
     keep = channel_keep_out(tile, 1, 0, profile)
     assert np.allclose(keep.centres[0], path.control[0])

@@ -1614,36 +1614,3 @@ def test_the_guide_points_to_the_coupon_of_its_profile_and_printer(built: Built)
         assert match[2] is None
     else:
         assert load_printer(match[2]).name == manifest["printer"]["name"]
-
-
-def test_a_print_mesh_that_is_not_closed_is_made_again_finer(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    # OCCT can leave a seam open at one chordal tolerance and close it at a finer one: the
-    # mesh is made again at half the tolerance, up to MESH_REFINE_STEPS times, and only then
-    # is the failure raised.
-    from drawstring.fabrication import mesh3mf
-
-    corners = [[0, 0], [10, 0], [10, 10], [0, 10]]
-    solid = tile_solid(np.array([[x, y, z] for z in (6, 0) for x, y in corners], dtype=float))
-    real = mesh3mf._mesh_once
-    tried: list[float] = []
-
-    def open_until(finest: float) -> Any:
-        def mesh_once(part: Any, name: str, kind: Any, tolerance: float, angle: float) -> Any:
-            tried.append(tolerance)
-            if tolerance > finest:
-                raise RuntimeError(f"the tessellation of {name} is not closed and oriented")
-            return real(part, name, kind, tolerance, angle)
-
-        return mesh_once
-
-    monkeypatch.setattr(mesh3mf, "_mesh_once", open_until(0.0125))
-    mesh = mesh3mf.mesh_solid(solid, "tile_0", "tile", 0.05)
-    assert tried == [0.05, 0.025, 0.0125]
-    assert mesh.volume == pytest.approx(600.0, rel=1e-6)
-    tried.clear()
-    monkeypatch.setattr(mesh3mf, "_mesh_once", open_until(0.001))
-    with pytest.raises(RuntimeError, match="not closed"):
-        mesh3mf.mesh_solid(solid, "tile_0", "tile", 0.05)
-    assert tried == [0.05 / 2**k for k in range(mesh3mf.MESH_REFINE_STEPS + 1)]
