@@ -149,9 +149,7 @@ class LayoutPolicy:
     #: unset it is laid out where the close shape with dual hinges was not kept, then (where
     #: this one is not kept either) ``close_fit`` with top hinges, before the paper's shape.
     #: At 200 tiles its layout keeps every 1e-3 mm target on the five built-ins that come to
-    #: it (peanut, wave, seashell, cloud, three-shell); square weight
-    #: 10 loses the three-shell's (0.014 mm), 3 lays all five out farther from their
-    #: targets, and surface weight 1000 turns seashell tiles inside out and loses the cloud's.
+    #: it (peanut, wave, seashell, cloud, three-shell).
     close_fit_top: Eq1Weights = Eq1Weights(1e4, 1.0, 100.0, 100.0)
 
     # -- the work run ahead (pipeline/ahead.py) --
