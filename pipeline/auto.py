@@ -36,14 +36,25 @@ from drawstring.fabrication.profiles import Profile
 from drawstring.geometry.core.errors import InputError, ThicknessError
 from drawstring.geometry.flatten.conformal import Flattening
 from drawstring.geometry.target.surface import Target
-from drawstring.pipeline.cad_stage import FeatureShortfall
+from drawstring.pipeline.cad_stage import MORE_ROOM, FeatureShortfall, tiles_too_small
 from drawstring.pipeline.layout_stage import ShapedLayout
-from drawstring.pipeline.record import DesignOptions, ResolvedOptions, rounded
-from drawstring.pipeline.retry import Searched, refusal_checker, refusal_search, stepped_value
+from drawstring.pipeline.record import DesignOptions, Progress, ResolvedOptions, rounded
+from drawstring.pipeline.retry import (
+    Searched,
+    complete_retry,
+    feature_ratio,
+    refusal_checker,
+    refusal_search,
+    stepped_value,
+)
+from drawstring.pipeline.routed import Routed, routed_layout, routed_shortfall
 
 #: Layouts the tool makes with values of its own, at most (each takes as long as the
 #: defaults' layout).
 CHOSEN_LAYOUTS = 3
+#: Layouts a refusal of laid-out tiles too small for the profile's features makes to check
+#: the value its ``retry with:`` quotes (each takes as long as the layout refused).
+RETRY_LAYOUTS = 1
 
 #: option -> the ResolvedOptions field it sets
 _FIELDS = {"size": "size_mm", "thickness": "thickness_mm", "tiles": "tiles"}
@@ -53,7 +64,9 @@ _FIELDS = {"size": "size_mm", "thickness": "thickness_mm", "tiles": "tiles"}
 class LaidOut:
     """A design laid out at some options: its target and flattening (at that size), the notes
     on them, the layout with the hinges chosen, the options (hinges as chosen) and
-    ``metrics.hinge_choice``."""
+    ``metrics.hinge_choice``; with CAD its lift points and route and, where the laid-out
+    tiles are too small for the profile's features, the worst shortfall
+    (:func:`routed_and_checked`)."""
 
     loaded: Target
     flat_map: Flattening
@@ -61,6 +74,18 @@ class LaidOut:
     shaped: ShapedLayout
     options: ResolvedOptions
     hinge_choice: dict[str, Any] | None
+    routed: Routed | None = None
+    shortfall: FeatureShortfall | None = None
+
+
+def routed_and_checked(laid: LaidOut, profile: Profile, progress: Progress) -> LaidOut:
+    """With CAD, ``laid`` with its lift points and string route
+    (:func:`~.routed.routed_layout`) and the CAD stage's feature checks on them
+    (:func:`~.routed.routed_shortfall`), before any solid; without CAD ``laid`` as it is."""
+    if not laid.options.cad:
+        return laid
+    routed = routed_layout(laid.shaped, laid.options, profile, progress)
+    return replace(laid, routed=routed, shortfall=routed_shortfall(profile, laid.shaped, routed))
 
 
 #: What the refusing check raises.
@@ -86,6 +111,21 @@ def _flag(option: str, value: float) -> str:
     return f"--{option} {value:g}"
 
 
+def _next_value(
+    checker: Any, option: str, value: float, profile: Profile, missed: LaidOut | None
+) -> float | None:
+    """The value of ``option`` to lay out after ``value``, whose layout ``missed`` (None: it
+    was refused): a :data:`~.retry.STEP_RATIO` step on, or past tiles too small for the
+    profile's features the step :func:`~.retry.feature_ratio` gives (a thinner tile gives
+    them no room: no value), checked by the refusing check (:func:`~.retry.stepped_value`)."""
+    short = None if missed is None else missed.shortfall
+    if short is None:
+        return stepped_value(checker, option, value, profile)
+    if option == "thickness":
+        return None
+    return stepped_value(checker, option, value, profile, feature_ratio(option, short))
+
+
 def chosen_layout(
     first: LaidOut | Refused,
     source: str,
@@ -96,10 +136,12 @@ def chosen_layout(
     refuse: Refuse,
 ) -> tuple[LaidOut, dict[str, Any] | None]:
     """The layout to design with, and ``metrics.chosen_values`` (None where the defaults'
-    layout ``first`` meets the tolerance, or misses it with ``--no-co-optimize``).  ``first``:
-    the layout at the defaults
-    ``options``, or what refused it; ``lay_out``: a layout at other options; ``refuse``: the
-    refusal raised where no value passes the refusing check."""
+    layout ``first`` meets the tolerance, or misses it with ``--no-co-optimize``, and with CAD
+    has room for the profile's features).  ``first``: the layout at the defaults
+    ``options``, or what refused it; ``lay_out``: a layout at other options (with CAD routed
+    and checked, :func:`routed_and_checked`); ``refuse``: the refusal raised where no value
+    passes the refusing check.  A layout whose tiles are too small for the profile's features
+    is a miss, never kept; where every layout made is one, the design is refused in words."""
     tolerance = profile.tolerance_mm
     defaults = {field: getattr(options, field) for field in _FIELDS.values()}
     checker = refusal_checker(options, source, profile)
@@ -109,17 +151,21 @@ def chosen_layout(
     searched: Searched | None = None
     if isinstance(first, LaidOut):
         accuracy = first.shaped.accuracy_mm
-        if accuracy <= tolerance or not options.co_optimize:
+        if first.shortfall is not None:
+            why = f"the laid-out tiles were too small for the profile's features: {first.shortfall}"
+            record.update(reason="features", shortfall=str(first.shortfall))
+        elif accuracy <= tolerance or not options.co_optimize:
             # without the co-optimization no tile count meets it: the fix is to drop
             # --no-co-optimize, which the design's problem line says
             return first, None
-        why = (
-            f"the flat tiles missed their hinges by {accuracy:.2g} mm, over the profile's "
-            f"fabrication tolerance {tolerance:g} mm"
-        )
-        record.update(reason="tolerance", accuracy_mm=rounded(accuracy, 9))
+        else:
+            why = (
+                f"the flat tiles missed their hinges by {accuracy:.2g} mm, over the profile's "
+                f"fabrication tolerance {tolerance:g} mm"
+            )
+            record.update(reason="tolerance", accuracy_mm=rounded(accuracy, 9))
         assert options.tiles is not None  # no --grid: chooses_values
-        candidate = stepped_value(checker, option, options.tiles, profile)
+        candidate = _next_value(checker, option, options.tiles, profile, first)
     else:
         searched = refusal_search(first, source, asked, options, profile, checker)
         refusal = refuse(first, searched)
@@ -137,6 +183,7 @@ def chosen_layout(
         value = int(candidate) if option == "tiles" else candidate
         entry: dict[str, Any] = {"option": option, "value": value}
         tried.append(entry)
+        laid: LaidOut | None = None
         try:
             laid = lay_out(replace(options, **{_FIELDS[option]: value}))
         except InputError as exc:  # refused (not expected: the value passed that check)
@@ -144,17 +191,88 @@ def chosen_layout(
         else:
             accuracy = laid.shaped.accuracy_mm
             entry.update(accuracy_mm=rounded(accuracy, 9), hinges=str(laid.options.hinges))
-            if accuracy <= tolerance:
+            if laid.shortfall is not None:
+                entry["shortfall"] = str(laid.shortfall)
+            elif accuracy <= tolerance:
                 return _chosen(laid, record, tried, why, tolerance)
-            if best is None or accuracy < best.shaped.accuracy_mm:
+            elif best is None or accuracy < best.shaped.accuracy_mm:
                 best = laid
-        candidate = stepped_value(checker, option, value, profile)
+        candidate = _next_value(checker, option, value, profile, laid)
     record["tried"] = tried
-    kept = first if isinstance(first, LaidOut) else best
+    kept = first if isinstance(first, LaidOut) and first.shortfall is None else best
     if kept is None:
-        assert not isinstance(first, LaidOut) and searched is not None
+        if isinstance(first, LaidOut) or any("shortfall" in entry for entry in tried):
+            raise InputError(_short_words(first, options, profile, tried))
+        assert searched is not None
         raise refuse(first, searched)
     return _kept(kept, record, tried, why, tolerance, defaults_kept=kept is first)
+
+
+def _short_words(
+    first: LaidOut | Refused,
+    options: ResolvedOptions,
+    profile: Profile,
+    tried: list[dict[str, Any]],
+) -> str:
+    """The one-line refusal where the defaults (``first``, laid out at ``options`` or
+    refused) and every value ``tried`` gave no layout with room for the profile's
+    features."""
+    if isinstance(first, LaidOut):
+        assert first.shortfall is not None
+        start = tiles_too_small(options, profile, first.shortfall)
+    else:
+        start = f"at the {profile.name} profile's defaults the design is refused ({first})"
+    tried_words = _tried_words(tried) or "no other value passed the first tiling's checks"
+    return (
+        f"{start}; the values chosen in its place were laid out too: {tried_words}, none with "
+        f"tiles that have room for the profile's features; {MORE_ROOM}"
+    )
+
+
+def checked_feature_refusal(
+    laid: LaidOut,
+    source: str,
+    asked: DesignOptions,
+    profile: Profile,
+    lay_out: LayOut,
+) -> InputError:
+    """The one-line refusal of laid-out tiles too small for the profile's features
+    (``laid.shortfall``) at the options the user gave, right after the layout and the route:
+    ending in a ``retry with:`` whose value was laid out, routed and passed the same checks
+    (at most :data:`RETRY_LAYOUTS` layouts, stepped as :func:`chosen_layout` steps), or saying
+    in words what to change.  The option changed is one the user left at its default where
+    there is one (the tile count first, then the size), else their tile count."""
+    options = laid.options
+    short = laid.shortfall
+    assert short is not None
+    tiles_given = asked.tiles is not None or asked.grid is not None
+    size_first = options.grid is not None or (tiles_given and asked.size_mm is None)
+    option = "size" if size_first else "tiles"
+    value: float = options.size_mm if option == "size" else int(options.tiles or 0)
+    checker = refusal_checker(options, source, profile)
+    what = tiles_too_small(options, profile, short)
+    tried: list[dict[str, Any]] = []
+    candidate = _next_value(checker, option, value, profile, laid)
+    for _ in range(RETRY_LAYOUTS):
+        if candidate is None:
+            break
+        value = int(candidate) if option == "tiles" else candidate
+        entry: dict[str, Any] = {"option": option, "value": value}
+        tried.append(entry)
+        again: LaidOut | None = None
+        try:
+            again = lay_out(replace(options, **{_FIELDS[option]: value}))
+        except (InputError, ThicknessError) as exc:  # not expected: it passed that check
+            entry["refused"] = str(exc)
+        else:
+            entry.update(accuracy_mm=again.shaped.accuracy_mm, hinges=str(again.options.hinges))
+            if again.shortfall is None:
+                retry = complete_retry(asked, option, _flag(option, value))
+                return InputError(f"{what}; retry with: {retry}")
+            entry["shortfall"] = str(again.shortfall)
+        candidate = _next_value(checker, option, value, profile, again)
+    checked = f" ({_tried_words(tried)} was laid out and falls short too)" if tried else ""
+    return InputError(f"{what}; {MORE_ROOM}{checked}")
 
 
 def _tried_words(tried: list[dict[str, Any]]) -> str:
@@ -163,6 +281,8 @@ def _tried_words(tried: list[dict[str, Any]]) -> str:
         flag = _flag(entry["option"], entry["value"])
         if "refused" in entry:
             words.append(f"{flag} (refused)")
+        elif "shortfall" in entry:
+            words.append(f"{flag} ({entry['shortfall']})")
         else:
             words.append(f"{flag} ({entry['accuracy_mm']:.2g} mm, {entry['hinges']} hinges)")
     return ", ".join(words)
@@ -180,7 +300,9 @@ def _chosen(
     used = {_FIELDS[last["option"]]: last["value"]}
     record.update(tried=tried, used=used)
     misses = tried[:-1]
-    before = f"; {_tried_words(misses)} missed the {tolerance:g} mm" if misses else ""
+    short = any("shortfall" in entry for entry in misses)
+    missed = "missed" if short else f"missed the {tolerance:g} mm"
+    before = f"; {_tried_words(misses)} {missed}" if misses else ""
     note = (
         f"chosen values: you gave none of --size, --thickness, --tiles, and at the defaults "
         f"{why}{before}; the design uses {_flag(last['option'], last['value'])}, whose flat "
@@ -202,15 +324,20 @@ def _kept(
     """``laid``, the defaults' layout or the most accurate one tried, none meeting the
     tolerance, with its note, and ``metrics.chosen_values``."""
     tried_words = _tried_words(tried) or "no other value passed the refusing check"
+    short = any("shortfall" in entry for entry in tried)
+    room = " with room for the profile's features" if short else ""
     if defaults_kept:
         record["used"] = {}
         kept = "the defaults are kept"
     else:
-        entry = min((e for e in tried if "accuracy_mm" in e), key=lambda e: float(e["accuracy_mm"]))
+        entry = min(
+            (e for e in tried if "accuracy_mm" in e and "shortfall" not in e),
+            key=lambda e: float(e["accuracy_mm"]),
+        )
         record["used"] = {_FIELDS[entry["option"]]: entry["value"]}
         kept = f"the design uses the most accurate, {_flag(entry['option'], entry['value'])}"
     note = (
         f"chosen values: you gave none of --size, --thickness, --tiles, and at the defaults "
-        f"{why}; tried {tried_words}, none within {tolerance:g} mm, so {kept}"
+        f"{why}; tried {tried_words}, none within {tolerance:g} mm{room}, so {kept}"
     )
     return replace(laid, notes=(*laid.notes, note)), record

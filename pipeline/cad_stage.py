@@ -21,11 +21,12 @@ from drawstring.geometry.core.tolerances import PRINT_GAP_TOL_MM
 from drawstring.geometry.route.result import Route
 from drawstring.geometry.tiling.linkage import Linkage
 from drawstring.pipeline.layout_stage import fabricated_tiles
-from drawstring.pipeline.record import Design
+from drawstring.pipeline.record import Design, ResolvedOptions
 
 if TYPE_CHECKING:  # the CAD kernel loads only where solids are built
     from drawstring.cad.design import CadResult
     from drawstring.fabrication.measures import Measures
+    from drawstring.fabrication.printers import Printer
 
 
 @dataclass(frozen=True)
@@ -155,16 +156,19 @@ def fabrication_measures(result: Design, cad_flat: CadResult) -> Measures:
 _SIDE_EDGES = np.array([[k, (k + 1) % 4, 4 + k, 4 + (k + 1) % 4] for k in range(4)])
 
 
-def channel_faces_mm(tiles: NDArray[np.float64], inputs: CadInputs) -> NDArray[np.float64]:
+def channel_faces_mm(
+    tiles: NDArray[np.float64], steps: NDArray[np.int64], lift_tiles: NDArray[np.int64]
+) -> NDArray[np.float64]:
     """Width (mm, edge length at mid-thickness) of every side face a string channel or lift
-    bore opens through, one per opening."""
+    bore opens through, one per opening, for the route ``steps`` (:func:`route_steps`) and
+    its lift bores ``lift_tiles`` (:func:`lift_exits`)."""
     openings = [
         (tile, side)
-        for _, tile, enter, leave in inputs.route_steps.tolist()
+        for _, tile, enter, leave in steps.tolist()
         for side in (enter, leave)
         if side < 4  # 4: a lift bore's exit through the top face
     ]
-    openings += [(tile, side) for tile, side in inputs.lift_tiles.tolist()]
+    openings += [(tile, side) for tile, side in lift_tiles.tolist()]
     if not openings:
         return np.zeros(0)
     tile_ids, sides = np.array(openings, dtype=np.int64).T
@@ -180,55 +184,50 @@ def _round_up(value: float) -> float:
     return math.ceil(value / step - 1e-9) * step
 
 
-@dataclass(frozen=True)
-class _Shortfall:
-    """A feature that does not fit the smallest tile it goes in: what it is, how much room
-    (mm) that tile gives it and how much it needs."""
-
-    what: str
-    have: float
-    need: float
-
-
-def _shortfalls(result: Design) -> list[_Shortfall]:
-    """The features the profile cannot give up on that do not fit this design's tiles."""
+def feature_shortfall(
+    profile: Profile,
+    tiles: NDArray[np.float64],
+    steps: NDArray[np.int64],
+    lift_tiles: NDArray[np.int64],
+    hinges: NDArray[np.int64],
+    sides: Sequence[HingeSide],
+) -> FeatureShortfall | None:
+    """The worst feature the profile cannot give up on that does not fit the flat ``tiles`` as
+    fabricated, (T, 8, 3): the side faces the route ``steps`` and the lift bores
+    ``lift_tiles`` open through (:func:`channel_faces_mm`), the lift-point tiles' depth, the
+    hinged corners' room for their strips on the faces ``sides`` (:func:`strip_room_mm`);
+    None where all fit."""
     from drawstring.cad.features import channel_min_face_mm, lift_bore_depth_mm
 
-    profile = result.profile
-    tiles = print_tiles(result)
-    inputs = cad_inputs(result)
     bore = f"{profile.string_diameter_mm + profile.channel_clearance_mm:g} mm string channel"
     found = []
-    faces = channel_faces_mm(tiles, inputs)
-    if len(faces) and faces.min() < channel_min_face_mm(profile) - 1e-9:
-        found.append(
-            _Shortfall(
-                f"side faces as narrow as {faces.min():.2f} mm where the string runs, and the "
-                f"{bore} needs {channel_min_face_mm(profile):.2f} mm with its walls",
-                float(faces.min()),
-                channel_min_face_mm(profile),
-            )
+    faces = channel_faces_mm(tiles, steps, lift_tiles)
+    need_face = channel_min_face_mm(profile)
+    if len(faces) and faces.min() < need_face - 1e-9:
+        what = (
+            f"side faces as narrow as {faces.min():.2f} mm where the string runs, and the "
+            f"{bore} needs {need_face:.2f} mm with its walls"
         )
-    bores = {(int(t), int(s)) for t, s in inputs.lift_tiles.tolist()}
-    for _, tile, enter, leave in inputs.route_steps.tolist():
+        found.append((what, float(faces.min()), need_face))
+    bores = {(int(t), int(s)) for t, s in lift_tiles.tolist()}
+    for _, tile, enter, leave in steps.tolist():
         if 4 in (enter, leave):  # through the top face: a lift bore from the other side
             bores.add((int(tile), int(min(enter, leave))))
     if bores:
         depths = [lift_bore_depth_mm(tiles[t], s, profile) for t, s in sorted(bores)]
         have, need = min(depths, key=lambda d: d[0] / d[1])
         if have < need - 1e-9:
-            found.append(
-                _Shortfall(
-                    f"lift-point tiles {have:.2f} mm deep, and the lift bore, which bends up "
-                    f"from mid-thickness to the top face, needs {need:.2f} mm",
-                    have,
-                    need,
-                )
+            what = (
+                f"lift-point tiles {have:.2f} mm deep, and the lift bore, which bends up "
+                f"from mid-thickness to the top face, needs {need:.2f} mm"
             )
-    strips = strip_room_mm(profile, tiles, result.tiling.linkage.hinges, result.hinge_layout.sides)
+            found.append((what, have, need))
+    strips = strip_room_mm(profile, tiles, hinges, sides)
     if strips is not None and strips[0] < strips[1] - 1e-9:
-        found.append(_Shortfall(strip_words(profile, *strips), *strips))
-    return found
+        found.append((strip_words(profile, *strips), *strips))
+    if not found:
+        return None
+    return FeatureShortfall(*max(found, key=lambda f: f[2] / f[1]))
 
 
 def strip_room_mm(
@@ -268,13 +267,6 @@ def strip_words(profile: Profile, have: float, need: float) -> str:
     )
 
 
-#: The size a refusal suggests is this much more than the size that scales the worst shortfall
-#: away: tiles do not scale exactly with --size (their thickness stays, and the tiling and the
-#: co-optimization change), so the room a feature has per mm of size varies by a few percent,
-#: and not monotonically; without a margin the size suggested can be refused in turn.
-SIZE_MARGIN = 1.04
-
-
 def thickness_refusal(profile: Profile, thickness: float) -> InputError | None:
     """The one-line refusal of tiles too thin for the profile's string channel (the hinge
     recesses and labels sunk above and below it), or None.  It depends on the profile and the
@@ -293,10 +285,11 @@ def thickness_refusal(profile: Profile, thickness: float) -> InputError | None:
 
 
 class FeatureShortfall(InputError):
-    """Tiles too small for the profile's features, found on the first tiling's eq.-1 tiles
-    before the layout: boundary tiles for the string channel
-    (:func:`boundary_channel_shortfall`), hinged corners for their hinge strips
-    (:func:`hinge_strip_shortfall`); ``have`` and ``need`` in mm."""
+    """Tiles too small for the profile's features: found on the first tiling's eq.-1 tiles
+    before the layout (boundary tiles for the string channel,
+    :func:`boundary_channel_shortfall`; hinged corners for their hinge strips,
+    :func:`hinge_strip_shortfall`), or on the laid-out tiles and their route
+    (:func:`feature_shortfall`); ``have`` and ``need`` in mm."""
 
     def __init__(self, message: str, have: float, need: float) -> None:
         super().__init__(message)
@@ -368,7 +361,9 @@ def hinge_strip_shortfall(
 def feature_fit_refusal(result: Design) -> InputError | None:
     """The one-line refusal of tiles too small or too thin for the profile's string channel,
     lift bores or hinge strips, or too large for its print bed (:func:`bed_refusal`), or None
-    when they fit.
+    when they fit: the checks :func:`~.routed.routed_shortfall` asks right after the route
+    (where a refusal comes with a checked ``retry with:``), asked again on the design the CAD
+    stage is given.
 
     Checked before any solid is built: the tile thickness against
     :func:`~drawstring.cad.features.channel_min_thickness_mm`; the side faces the string passes
@@ -377,41 +372,51 @@ def feature_fit_refusal(result: Design) -> InputError | None:
     distance from its face's centre against
     :func:`~drawstring.cad.hinge_frame.strip_min_reach_mm`.  Every other feature gives way on a
     small tile (pins cut short or left out, strips shortened, chamfers and numbers dropped, each
-    with a note).  The size suggested scales the tiles up to the worst shortfall, plus
-    :data:`SIZE_MARGIN`.
+    with a note).
 
     The bounds keep a :func:`~drawstring.cad.feature_common.feature_wall_mm` (one nozzle) of
     material around each feature: below them a lift bore cuts a notch out of the far side
     face, or the channel checks find openings missing, and in between the wall left is
     thinner than a nozzle.  On small fdm-dual tiles the lift bores usually decide (their bend
-    rises half the tile thickness).  Where the lift points go at another size is not known
-    before that design is made (they can move to tiles whose bore bends the other way), so
-    the refusal says the check may name a next size.
+    rises half the tile thickness).
     """
     profile, options = result.profile, result.options
     too_thin = thickness_refusal(profile, options.thickness_mm)
     if too_thin is not None:
         return too_thin
-    found = _shortfalls(result)
-    if not found:
-        return bed_refusal(result)
-    worst = max(found, key=lambda f: f.need / f.have)
+    inputs = cad_inputs(result)
+    tiles = print_tiles(result)
+    short = feature_shortfall(
+        profile, tiles, inputs.route_steps, inputs.lift_tiles,
+        result.tiling.linkage.hinges, result.hinge_layout.sides,
+    )  # fmt: skip
+    if short is None:
+        return bed_refusal(profile, result.printer, tiles)
+    return InputError(f"{tiles_too_small(options, profile, short)}; {MORE_ROOM}")
+
+
+#: What gives the tiles more room for their features, in words.
+MORE_ROOM = "give the tiles more room with a larger --size or fewer tiles"
+
+
+def tiles_too_small(options: ResolvedOptions, profile: Profile, short: FeatureShortfall) -> str:
+    """The start of a refusal of tiles too small for the profile's features: the size, the
+    tile count or grid, the profile and what does not fit."""
     count = (
         f"--grid {options.grid[0]} {options.grid[1]}" if options.grid else f"{options.tiles} tiles"
     )
-    fewer = "a smaller --grid" if options.grid else "fewer --tiles"
-    size = _round_up(options.size_mm * worst.need / worst.have * SIZE_MARGIN)
-    return InputError(
+    return (
         f"--size {options.size_mm:g} mm with {count} gives tiles too small for the "
-        f"{profile.name} profile: {worst.what}; use --size {size:g} or more, or {fewer} "
-        "(the tiling, the lift points and the route change with the size: where the larger "
-        "tiles still fall short, this check names the next size)"
+        f"{profile.name} profile: {short}"
     )
 
 
-def bed_refusal(result: Design) -> InputError | None:
-    """The one-line refusal of a tile too large for the printer's bed, or None: asked
-    before any solid is built (the print jobs are planned only after the solids are meshed).
+def bed_refusal(
+    profile: Profile, printer: Printer | None, tiles: NDArray[np.float64]
+) -> InputError | None:
+    """The one-line refusal of a tile of the flat ``tiles`` as fabricated, (T, 8, 3), too
+    large for the bed of ``printer`` (None: the profile's), or None: asked before any solid is
+    built (the print jobs are planned only after the solids are meshed).
 
     ``fdm-dual`` prints the tiles as the flat layout places them (the layout may turn a quarter
     as a whole, :func:`~.exports_3mf.tile_bed_refusal`); ``laser-epdm`` nests them loose, each
@@ -422,9 +427,7 @@ def bed_refusal(result: Design) -> InputError | None:
     from drawstring.fabrication.mesh3mf import tile_bed_refusal
     from drawstring.fabrication.printers import print_bed
 
-    profile = result.profile
-    bed = print_bed(profile, result.printer)
-    tiles = print_tiles(result)
+    bed = print_bed(profile, printer)
     if profile.process == Process.FDM_DUAL:
         return tile_bed_refusal(tiles, bed)
     if profile.process == Process.LASER_EPDM:

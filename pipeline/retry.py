@@ -321,10 +321,32 @@ STEP_RATIO = 0.75
 STEP_CHECKS = 4
 
 
-def stepped_value(checker: _Checker, option: str, value: float, profile: Profile) -> float | None:
+#: A value stepped past tiles too small for the profile's features scales the room they have
+#: by the worst shortfall and this much more (:func:`feature_ratio`): tiles do not scale
+#: exactly with --size or --tiles (their thickness stays, and the tiling and the
+#: co-optimization change), so the room a feature has varies by a few percent, and not
+#: monotonically.
+FEATURE_MARGIN = 1.04
+
+
+def feature_ratio(option: str, short: FeatureShortfall) -> float:
+    """The first step's ratio (as :data:`STEP_RATIO`: tiles times it, the size over it) past
+    laid-out tiles too small for a feature by ``short``: the one that scales the room
+    ``short.have`` up to ``short.need`` with :data:`FEATURE_MARGIN` (a tile's side goes with
+    the size, and with one over the square root of the tile count), but never a larger step
+    than :data:`STEP_RATIO`: a hinged corner crowded by a second strip is a matter of the
+    tiles' shape, which the tiling changes, more than of their size."""
+    scale = short.have / (short.need * FEATURE_MARGIN)
+    return max(STEP_RATIO, scale**2 if option == "tiles" else scale)
+
+
+def stepped_value(
+    checker: _Checker, option: str, value: float, profile: Profile, ratio: float = STEP_RATIO
+) -> float | None:
     """The next value of ``option`` (``size``, ``thickness`` or ``tiles``) beyond ``value``,
-    which gave a design that misses the fabrication tolerance: a :data:`STEP_RATIO` step on,
-    and on by such steps until one passes ``checker`` (at most :data:`STEP_CHECKS` runs),
+    which gave a design that misses the fabrication tolerance or the profile's features: a
+    ``ratio`` step on (:data:`STEP_RATIO`, or :func:`feature_ratio`), and on by
+    :data:`STEP_RATIO` steps until one passes ``checker`` (at most :data:`STEP_CHECKS` runs),
     within the retry search's bounds (the profile's largest size, the string channel's
     thinnest tile, a quarter of the tiles); None where none does."""
     base = checker.options
@@ -332,17 +354,17 @@ def stepped_value(checker: _Checker, option: str, value: float, profile: Profile
     while True:
         if option == "tiles":
             assert base.tiles is not None
-            value = math.floor(value * STEP_RATIO)
+            value = math.floor(value * ratio)
             if value < max(MIN_TILES, math.ceil(base.tiles * RETRY_FEWEST_TILES)):
                 return None
             ok = checker.passes(tiles=int(value))
         elif option == "size":
-            value = _two_digits_up(value / STEP_RATIO)
+            value = _two_digits_up(value / ratio)
             if value > min(MAX_SIZE_MM, max(profile.size_max_mm, base.size_mm)):
                 return None
             ok = checker.passes(size_mm=value)
         else:
-            value = _two_digits_down(value * STEP_RATIO)
+            value = _two_digits_down(value * ratio)
             if value < thinnest_tile_mm(profile):
                 return None
             ok = checker.passes(thickness_mm=value)
@@ -350,6 +372,7 @@ def stepped_value(checker: _Checker, option: str, value: float, profile: Profile
             return None
         if ok:
             return value
+        ratio = STEP_RATIO
 
 
 def checked_retry(
@@ -408,20 +431,26 @@ def checked_retry(
         tried.sort(key=lambda words: ("--size", "--thickness", "--tiles").index(words.split()[0]))
         return None, tried, checker.outcomes()
     explicit, _, option, value, text = min(found, key=lambda f: (f[0], f[1]))
-    # a complete set: the user's own --size, --thickness and --tiles kept beside the change
+    text = complete_retry(asked, option, text)
+    return Retry(option, value, text, checker.runs, seconds), tried, checker.outcomes()
+
+
+def complete_retry(asked: DesignOptions, option: str, change: str) -> str:
+    """A complete set of options for ``retry with:``: the user's own ``--size``,
+    ``--thickness``, ``--tiles`` and ``--grid`` kept beside ``change``, the flag and value
+    of ``option`` (``size``, ``thickness`` or ``tiles``)."""
     kept = [
-        f"--{flag} {given:g}"
-        for name, flag, given in (
-            ("size", "size", asked.size_mm),
-            ("thickness", "thickness", asked.thickness_mm),
-            ("tiles", "tiles", asked.tiles),
+        f"--{name} {given:g}"
+        for name, given in (
+            ("size", asked.size_mm),
+            ("thickness", asked.thickness_mm),
+            ("tiles", asked.tiles),
         )
         if given is not None and name != option
     ]
     if asked.grid is not None and option != "tiles":
         kept.append(f"--grid {asked.grid[0]} {asked.grid[1]}")
-    text = " ".join([*kept, text])
-    return Retry(option, value, text, checker.runs, seconds), tried, checker.outcomes()
+    return " ".join([*kept, change])
 
 
 def feature_check(profile: Profile, options: ResolvedOptions) -> FirstCheck:

@@ -15,8 +15,6 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
-import numpy as np
-from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
 from drawstring.fabrication.printers import Printer, resolve_printer, with_printer
@@ -26,19 +24,20 @@ from drawstring.geometry.core.errors import InputError, ThicknessError
 from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.flatten.conformal import Flattening, flatten
 from drawstring.geometry.hinges.placement import HingeLayout
-from drawstring.geometry.route.energy import tile_masses_from_volumes
-from drawstring.geometry.route.lift import LiftPoints, select_lift_points
 from drawstring.geometry.route.result import Route
-from drawstring.geometry.simulate.deploy import simulate_stage
 from drawstring.geometry.simulate.result import SimulationResult
 from drawstring.geometry.target.surface import Target, load_target
-from drawstring.geometry.tiling.grid import parts_in_place
-from drawstring.geometry.tiling.linkage import gap_centroids
-from drawstring.pipeline.auto import LaidOut, chooses_values, chosen_layout
-from drawstring.pipeline.cad_stage import FeatureShortfall
+from drawstring.pipeline.auto import (
+    LaidOut,
+    checked_feature_refusal,
+    chooses_values,
+    chosen_layout,
+    routed_and_checked,
+)
+from drawstring.pipeline.cad_stage import FeatureShortfall, bed_refusal
 from drawstring.pipeline.checks import check_grid, mesh_corners
 from drawstring.pipeline.close_fit import fitted_layout
-from drawstring.pipeline.layout_stage import ShapedLayout, fabricated_tiles
+from drawstring.pipeline.layout_stage import ShapedLayout
 from drawstring.pipeline.measure import cad_problems, cad_warnings, design_rigidity, measure_design
 from drawstring.pipeline.policy import DEFAULT_POLICY, LayoutPolicy
 from drawstring.pipeline.quality import quality_levels, tolerance_problems
@@ -56,7 +55,7 @@ from drawstring.pipeline.retry import (
     checked_size_refusal,
     feature_check,
 )
-from drawstring.pipeline.route_stage import NamedCheck, plan_lift_route
+from drawstring.pipeline.routed import Deployment, routed_layout
 
 log = logging.getLogger(__name__)
 
@@ -160,11 +159,15 @@ def _design(
     tiling, assembled, flat = shaped.tiling, shaped.assembled, shaped.flat
     hinge_layout = shaped.hinge_layout
     assert hinge_layout is not None  # only a tiling that was tiled again goes without
-    masses = tile_masses_from_volumes(
-        assembled.tiles, profile.density_kg_m3 * profile.infill_fraction
-    )
-    deployment = _Deployment(shaped, hinge_layout, resolved.thickness_mm, progress)
-    lift, route, chosen = _lift_and_route(shaped, deployment, resolved, masses, progress, notes)
+    # with CAD routed and checked with the layout (routed_and_checked)
+    routed = laid.routed or routed_layout(shaped, resolved, profile, progress)
+    deployment, lift, route, chosen = routed.deployment, routed.lift, routed.route, routed.chosen
+    masses = routed.masses
+    notes.extend(routed.notes)
+    if resolved.cad:
+        too_large = bed_refusal(profile, printer, deployment.fabricated)
+        if too_large is not None:
+            raise too_large
     # a close shape laid out with top hinges counts as top hinges tried
     top_tried = hinge_choice is not None or "close_top" in (shaped.fit or {})
     measured, problems, warnings = measure_design(
@@ -230,18 +233,26 @@ def _layout(
     prepared = _target_and_flattening(source, resolved, progress)
     from_profile = options.tiles is None and options.grid is None
     check_grid(resolved, prepared[1], from_profile=from_profile)
+
+    def lay_out(changed: ResolvedOptions) -> LaidOut:
+        again = _target_and_flattening(source, changed, progress)
+        check_grid(changed, again[1], from_profile=False)
+        laid = _laid_out_at(changed, profile, progress, policy, asked, again, checked=False)
+        return routed_and_checked(laid, profile, progress)
+
     if not chooses_values(options):
-        return _laid_out_at(resolved, profile, progress, policy, asked, prepared), None
+        laid = _laid_out_at(resolved, profile, progress, policy, asked, prepared)
+        laid = routed_and_checked(laid, profile, progress)
+        if laid.shortfall is not None:
+            raise checked_feature_refusal(laid, source, options, profile, lay_out)
+        return laid, None
     first: LaidOut | ThicknessError | FeatureShortfall
     try:
         first = _laid_out_at(resolved, profile, progress, policy, asked, prepared, checked=False)
     except (ThicknessError, FeatureShortfall) as refused:
         first = refused
-
-    def lay_out(changed: ResolvedOptions) -> LaidOut:
-        again = _target_and_flattening(source, changed, progress)
-        check_grid(changed, again[1], from_profile=False)
-        return _laid_out_at(changed, profile, progress, policy, asked, again, checked=False)
+    else:
+        first = routed_and_checked(first, profile, progress)
 
     def refuse(exc: ThicknessError | FeatureShortfall, searched: Searched) -> InputError:
         if isinstance(exc, FeatureShortfall):
@@ -393,106 +404,6 @@ def hinges_chosen(
     return replace(shaped, notes=(*shaped.notes, note)), options, choice
 
 
-class _Deployment:
-    """The string routes and deployment simulations of a laid-out design, by lift set: the
-    lift-point sweep and the design share them, so each lift set is routed and simulated
-    once."""
-
-    def __init__(
-        self,
-        shaped: ShapedLayout,
-        hinge_layout: HingeLayout,
-        thickness_mm: float,
-        progress: Progress,
-    ) -> None:
-        linkage = shaped.tiling.linkage
-        self._linkage = linkage
-        self._tiles_3d = shaped.assembled.tiles
-        self._hinge_vertices = hinge_layout.hinge_vertices
-        self._thickness_mm = thickness_mm
-        self._progress = progress
-        # the route is planned with the parts side by side as they meet in the assembled shape
-        self._flat_gap_xy = gap_centroids(
-            linkage, parts_in_place(linkage, hinge_layout.tiles[:, :4, :2], shaped.tiling.uv)
-        )
-        self._fabricated = fabricated_tiles(hinge_layout, shaped.assembled.tiles)
-        self._routes: dict[tuple[int, ...], tuple[Route, str | None, NDArray[np.int64]]] = {}
-        #: the simulated deployments, by lift set
-        self.runs: dict[tuple[int, ...], SimulationResult] = {}
-
-    def route(self, lift_gaps: NDArray[np.int64]) -> tuple[Route, str | None, NDArray[np.int64]]:
-        """The string route through ``lift_gaps``, a note on it, and the lift gaps it serves
-        (:func:`~.route_stage.plan_lift_route`)."""
-        key = tuple(int(g) for g in lift_gaps)
-        if key not in self._routes:
-            with self._progress.stage("route"):
-                self._routes[key] = plan_lift_route(self._linkage, self._flat_gap_xy, lift_gaps)
-        return self._routes[key]
-
-    def simulated(self, lift_gaps: NDArray[np.int64]) -> SimulationResult:
-        """The deployment pulled by the string routed through ``lift_gaps``."""
-        key = tuple(int(g) for g in lift_gaps)
-        if key not in self.runs:
-            route_steps, _, served = self.route(lift_gaps)
-            with self._progress.stage("simulate"):
-                self.runs[key] = simulate_stage(
-                    self._linkage,
-                    self._fabricated,
-                    self._tiles_3d,
-                    self._hinge_vertices,
-                    route_steps,
-                    served,
-                    self._thickness_mm,
-                )
-        return self.runs[key]
-
-
-def _lift_and_route(
-    shaped: ShapedLayout,
-    deployment: _Deployment,
-    options: ResolvedOptions,
-    masses: NDArray[np.float64],
-    progress: Progress,
-    notes: list[str],
-) -> tuple[LiftPoints, Route, NDArray[np.int64]]:
-    """Stages lift and route: the lift points (each lift set the sweep tries checked by a
-    simulated deployment, with ``--simulate``), the string route through them, and the lift
-    set the sweep chose (the route may serve a lift gap it cannot reach next to it).  Notes
-    on them are added to ``notes``."""
-    linkage, assembled = shaped.tiling.linkage, shaped.assembled
-    deploy_check = None
-    if options.simulate:
-        # The lift-point sweep raises its threshold while the simulated deployment fails
-        # (paper sec. 5.2); every lift set is routed and simulated once.
-        deploy_check = NamedCheck(
-            "projective-dynamics deployment simulation",
-            lambda gaps: deployment.simulated(gaps).deployed,
-        )
-    assembled_gap_xyz = gap_centroids(linkage, assembled.tiles[:, :4])
-    with progress.stage("lift"):
-        lift = select_lift_points(
-            linkage,
-            assembled.tiles.mean(axis=1),
-            masses,
-            up=options.up,
-            gap_positions=assembled_gap_xyz,
-            deploy_check=deploy_check,
-        )
-    if not options.simulate and lift.sweep and not any(ok for _, _, ok in lift.sweep):
-        notes.append(
-            f"lift points: the check '{lift.check_name}' failed for every threshold, so every "
-            "energy peak is a lift point (run with the deployment simulation to check the pull)"
-        )
-    # the lift set the sweep chose; a lift gap the string cannot reach is served next to it
-    chosen = lift.lift_gaps
-    route, route_note, served = deployment.route(chosen)
-    if route_note:
-        notes.append(route_note)
-    if not np.array_equal(served, chosen):
-        lift = replace(lift, lift_gaps=served, positions=assembled_gap_xyz[served])
-    return lift, route, chosen
-
-
 def _rigidity(
     shaped: ShapedLayout,
     hinge_layout: HingeLayout,
@@ -517,7 +428,7 @@ def _rigidity(
 
 def _simulation_block(
     simulation: SimulationResult,
-    deployment: _Deployment,
+    deployment: Deployment,
     progress: Progress,
     problems: list[str],
 ) -> dict[str, Any]:
