@@ -166,6 +166,9 @@ def chosen_layout(
             record.update(reason="tolerance", accuracy_mm=rounded(accuracy, 9))
         assert options.tiles is not None  # no --grid: chooses_values
         candidate = _next_value(checker, option, options.tiles, profile, first)
+        if candidate is None and first.shortfall is not None:
+            option = "size"  # no fewer tiles within the bound: the size grows
+            candidate = _next_value(checker, option, options.size_mm, profile, first)
     else:
         searched = refusal_search(first, source, asked, options, profile, checker)
         refusal = refuse(first, searched)
@@ -177,15 +180,18 @@ def chosen_layout(
         option, candidate = retry.option, retry.value
     tried: list[dict[str, Any]] = []
     best: LaidOut | None = None
+    carried: dict[str, Any] = {}  # a value kept from an earlier step, by option
     for _ in range(CHOSEN_LAYOUTS):
         if candidate is None:
             break
         value = int(candidate) if option == "tiles" else candidate
         entry: dict[str, Any] = {"option": option, "value": value}
+        if carried:
+            entry["with"] = dict(carried)
         tried.append(entry)
         laid: LaidOut | None = None
         try:
-            laid = lay_out(replace(options, **{_FIELDS[option]: value}))
+            laid = lay_out(replace(options, **_used(entry)))
         except InputError as exc:  # refused (not expected: the value passed that check)
             entry["refused"] = str(exc)
         else:
@@ -198,6 +204,11 @@ def chosen_layout(
             elif best is None or accuracy < best.shaped.accuracy_mm:
                 best = laid
         candidate = _next_value(checker, option, value, profile, laid)
+        if candidate is None and option == "tiles" and laid is not None and laid.shortfall:
+            # no fewer tiles within the bound: the size grows, at this tile count
+            option, carried = "size", {"tiles": value}
+            checker = refusal_checker(replace(options, tiles=value), source, profile)
+            candidate = _next_value(checker, option, options.size_mm, profile, laid)
     record["tried"] = tried
     kept = first if isinstance(first, LaidOut) and first.shortfall is None else best
     if kept is None:
@@ -275,10 +286,22 @@ def checked_feature_refusal(
     return InputError(f"{what}; {MORE_ROOM}{checked}")
 
 
+def _used(entry: dict[str, Any]) -> dict[str, Any]:
+    """The ResolvedOptions fields a ``tried`` entry changes, with their values."""
+    changes = {**entry.get("with", {}), entry["option"]: entry["value"]}
+    return {_FIELDS[option]: value for option, value in changes.items()}
+
+
+def _flags(entry: dict[str, Any]) -> str:
+    """The options a ``tried`` entry changes, as the user types them."""
+    changes = {**entry.get("with", {}), entry["option"]: entry["value"]}
+    return " ".join(_flag(option, value) for option, value in changes.items())
+
+
 def _tried_words(tried: list[dict[str, Any]]) -> str:
     words = []
     for entry in tried:
-        flag = _flag(entry["option"], entry["value"])
+        flag = _flags(entry)
         if "refused" in entry:
             words.append(f"{flag} (refused)")
         elif "shortfall" in entry:
@@ -297,17 +320,18 @@ def _chosen(
 ) -> tuple[LaidOut, dict[str, Any]]:
     """``laid``, which meets the tolerance, with its note, and ``metrics.chosen_values``."""
     last = tried[-1]
-    used = {_FIELDS[last["option"]]: last["value"]}
-    record.update(tried=tried, used=used)
+    record.update(tried=tried, used=_used(last))
     misses = tried[:-1]
     short = any("shortfall" in entry for entry in misses)
     missed = "missed" if short else f"missed the {tolerance:g} mm"
     before = f"; {_tried_words(misses)} {missed}" if misses else ""
+    room = "tiles have room for the profile's features and whose " if laid.routed else ""
     note = (
         f"chosen values: you gave none of --size, --thickness, --tiles, and at the defaults "
-        f"{why}{before}; the design uses {_flag(last['option'], last['value'])}, whose flat "
-        f"tiles meet their hinges within {last['accuracy_mm']:.2g} mm (give any of the three "
-        "to have your own values, and a refusal with its retry where they do not work)"
+        f"{why}{before}; the design uses {_flags(last)}, whose "
+        f"{room}flat tiles meet their hinges within {last['accuracy_mm']:.2g} mm (give any of "
+        "the three to have your own values, and a refusal with its retry where they do not "
+        "work)"
     )
     return replace(laid, notes=(*laid.notes, note)), record
 
@@ -334,8 +358,8 @@ def _kept(
             (e for e in tried if "accuracy_mm" in e and "shortfall" not in e),
             key=lambda e: float(e["accuracy_mm"]),
         )
-        record["used"] = {_FIELDS[entry["option"]]: entry["value"]}
-        kept = f"the design uses the most accurate, {_flag(entry['option'], entry['value'])}"
+        record["used"] = _used(entry)
+        kept = f"the design uses the most accurate, {_flags(entry)}"
     note = (
         f"chosen values: you gave none of --size, --thickness, --tiles, and at the defaults "
         f"{why}; tried {tried_words}, none within {tolerance:g} mm{room}, so {kept}"
