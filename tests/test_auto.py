@@ -18,13 +18,20 @@ import numpy as np
 import pytest
 
 from drawstring.fabrication.profiles import load_profile
-from drawstring.geometry.core.errors import InputError
+from drawstring.geometry.core.errors import InputError, ThicknessError
 from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.tiling.linkage import build_linkage
+from drawstring.pipeline import auto
 from drawstring.pipeline.auto import CHOSEN_LAYOUTS, LaidOut, chooses_values, chosen_layout
 from drawstring.pipeline.cad_stage import FeatureShortfall, hinge_strip_shortfall
 from drawstring.pipeline.record import DesignOptions
-from drawstring.pipeline.retry import STEP_RATIO, feature_check
+from drawstring.pipeline.retry import (
+    FEATURE_MARGIN,
+    STEP_RATIO,
+    Retry,
+    feature_check,
+    feature_ratio,
+)
 from drawstring.pipeline.run import resolve_options
 
 DATA = Path(__file__).resolve().parent / "data"
@@ -213,3 +220,167 @@ def test_the_refusing_check_with_cad_refuses_a_tile_too_small_for_its_strips() -
     sides[middle] = 2.0
     link, tiles = _grid_tiles(sides)
     check(SimpleNamespace(linkage=link), SimpleNamespace(tiles=tiles))  # type: ignore[arg-type]
+
+
+def _short(options: Any, have: float, need: float) -> LaidOut:
+    # a layout meeting the tolerance whose tiles are too small for a feature
+    shortfall = FeatureShortfall("lift-point tiles too shallow", have, need)
+    return replace(_laid(options, 0.001), routed=object(), shortfall=shortfall)  # type: ignore[arg-type]
+
+
+def test_a_layout_too_small_for_the_features_is_a_miss_and_the_search_steps_on() -> None:
+    # The defaults (40 tiles) lay out with tiles 5 % short of a feature: the first step
+    # scales the room up by that with a 4 % margin (tiles by its square), the next steps by
+    # STEP_RATIO; a layout short again is a miss, never kept, and where none has room the
+    # design is refused in words, with no retry nobody checked.
+    profile = load_profile("fdm-dual")
+    asked = DesignOptions(cad=False, simulate=False)
+    options = replace(resolve_options(asked, profile), tiles=40)
+    ratio = feature_ratio("tiles", FeatureShortfall("", 1.0, 1.05))
+    assert ratio == pytest.approx((1.0 / (1.05 * FEATURE_MARGIN)) ** 2)
+    first_step = math.floor(40 * ratio)
+    assert first_step == 33
+    laid_out: list[int] = []
+
+    def lay_out(changed: Any) -> LaidOut:
+        laid_out.append(changed.tiles)
+        if changed.tiles > 25:
+            return _short(changed, 1.0, 1.02)
+        return replace(_laid(changed, 0.01), routed=object())  # type: ignore[arg-type]
+
+    kept, chosen = chosen_layout(
+        _short(options, 1.0, 1.05), str(HEMISPHERE), asked, options, profile, lay_out,
+        _never_refused,
+    )  # fmt: skip
+    # each miss steps by its own shortfall: 2 % short, 0.89 times the tiles
+    again = feature_ratio("tiles", FeatureShortfall("", 1.0, 1.02))
+    assert laid_out == [33, math.floor(33 * again), math.floor(29 * again)] == [33, 29, 25]
+    assert chosen is not None and chosen["reason"] == "features"
+    assert chosen["shortfall"] == "lift-point tiles too shallow"
+    assert chosen["used"] == {"tiles": 25} and kept.options.tiles == 25
+    assert [t.get("shortfall") for t in chosen["tried"]] == [
+        "lift-point tiles too shallow", "lift-point tiles too shallow", None,
+    ]  # fmt: skip
+    assert (
+        "--tiles 33 (lift-point tiles too shallow), --tiles 29 (lift-point tiles too shallow) "
+        "missed; the design uses --tiles 25, whose tiles have room for the profile's features"
+    ) in kept.notes[-1]
+    # every layout short: refused, naming what was tried, after CHOSEN_LAYOUTS layouts
+    laid_out.clear()
+    with pytest.raises(InputError) as refused:
+        chosen_layout(
+            _short(options, 1.0, 1.05), str(HEMISPHERE), asked, options, profile,
+            lambda changed: lay_out(changed) and _short(changed, 1.0, 1.02), _never_refused,
+        )  # fmt: skip
+    assert len(laid_out) == CHOSEN_LAYOUTS
+    line = str(refused.value)
+    assert "retry with:" not in line and "\n" not in line
+    assert line.endswith("give the tiles more room with a larger --size or fewer tiles")
+
+
+def test_with_no_fewer_tiles_left_the_search_grows_the_size_at_the_tiles_reached(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # 12 tiles short of a feature, and fewer tiles than a quarter of the defaults' 40 are not
+    # offered: the next layout keeps 12 tiles and grows the size, and that design is the
+    # one the same options give when asked for.
+    profile = load_profile("fdm-dual")
+    asked = DesignOptions(cad=False, simulate=False)
+    options = replace(resolve_options(asked, profile), tiles=40)
+    seen: list[tuple[int, float]] = []
+
+    def lay_out(changed: Any) -> LaidOut:
+        seen.append((changed.tiles, changed.size_mm))
+        if changed.tiles == 12 and changed.size_mm == options.size_mm:
+            return _short(changed, 1.0, 1.1)
+        return _laid(changed, 0.01)
+
+    # the defaults were refused, and the retry search found 12 tiles
+    searched = (Retry("tiles", 12, "--tiles 12", 1, 0.0), [], set())
+    monkeypatch.setattr(auto, "refusal_search", lambda *_args: searched)
+    kept, chosen = chosen_layout(
+        ThicknessError("inside out", 6.0, 3, 0.0), str(HEMISPHERE), asked, options, profile,
+        lay_out, lambda exc, _searched: InputError(f"refused: {exc}"),
+    )  # fmt: skip
+    size = seen[1][1]
+    assert seen[0] == (12, options.size_mm) and seen[1][0] == 12
+    # scaled by the shortfall and the margin, rounded up to two digits
+    assert size == math.ceil(options.size_mm * 1.1 * FEATURE_MARGIN / 10) * 10
+    assert chosen is not None and chosen["used"] == {"tiles": 12, "size_mm": size}
+    assert chosen["tried"][1] == {
+        "option": "size", "value": size, "with": {"tiles": 12}, "accuracy_mm": 0.01,
+        "hinges": "dual",
+    }  # fmt: skip
+    assert f"the design uses --tiles 12 --size {size:g}" in kept.notes[-1]
+
+
+#: The saddle at 30 mm on a 10 x 8 grid: its eq.-1 tiles pass the first tiling's checks, but
+#: laid out, its lift-point tiles are too shallow for fdm-dual's lift bores.
+SMALL_SADDLE = {"resolution": 1500, "simulate": False, "fit": "paper"}
+
+
+def test_laid_out_tiles_too_small_are_refused_before_any_solid_with_a_retry_that_passes(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    pytest.importorskip("build123d")
+    from drawstring.pipeline import run
+    from drawstring.pipeline.cad_stage import feature_fit_refusal
+    from drawstring.pipeline.record import Progress
+
+    def no_solids(*_args: object) -> None:
+        raise AssertionError("the CAD stage was reached")
+
+    monkeypatch.setattr(run, "with_cad", no_solids)
+    progress = Progress(quiet=True)
+    options = DesignOptions(grid=(10, 8), size_mm=30.0, **SMALL_SADDLE)  # type: ignore[arg-type]
+    with pytest.raises(InputError) as refused:
+        run.design("saddle", options, progress=progress)
+    line = str(refused.value)
+    found = re.search(
+        r"^--size 30 mm with --grid 10 8 gives tiles too small for the fdm-dual profile: "
+        r"lift-point tiles [\d.]+ mm deep.*; retry with: --grid 10 8 --size (\d+)$",
+        line,
+    )
+    assert found is not None, line
+    assert "route" in progress.timings and "cad" not in progress.timings
+    # the size quoted passes the same checks, and the CAD stage's own check on that design
+    monkeypatch.setattr(run, "with_cad", lambda result, _progress: result)
+    retried = run.design("saddle", replace(options, size_mm=float(found.group(1))))
+    assert retried.options.size_mm > 30.0
+    assert feature_fit_refusal(retried) is None
+
+
+def test_chosen_values_step_past_laid_out_tiles_too_small_before_any_solid(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    # A profile whose defaults are that saddle's size and 80 tiles: the defaults lay out with
+    # lift-point tiles too shallow, a miss, and the tool steps to fewer tiles before building
+    # any solid; the design it makes is the one those values give when asked for.
+    pytest.importorskip("build123d")
+    from drawstring.pipeline import run
+    from drawstring.pipeline.cad_stage import feature_fit_refusal
+
+    text = (PROFILES_DIR / "fdm-dual.toml").read_text()
+    for old, new in (
+        ("default_size_mm = 160.0", "default_size_mm = 30.0"),
+        ("size_min_mm = 80.0", "size_min_mm = 10.0"),
+        ("default_tiles = 200", "default_tiles = 80"),
+    ):
+        assert old in text
+        text = text.replace(old, new)
+    profile = tmp_path / "small.toml"
+    profile.write_text(text)
+    built: list[Any] = []
+    monkeypatch.setattr(run, "with_cad", lambda result, _progress: built.append(result) or result)
+    options = DesignOptions(profile=str(profile), **SMALL_SADDLE)  # type: ignore[arg-type]
+    result = run.design("saddle", options)
+    chosen = result.measured["chosen_values"]
+    assert chosen["reason"] == "features" and "lift-point tiles" in chosen["shortfall"]
+    last = chosen["tried"][-1]
+    assert "shortfall" not in last and last["option"] == "tiles" and last["value"] < 80
+    assert chosen["used"] == {"tiles": last["value"]} == {"tiles": result.options.tiles}
+    assert built == [result]  # solids only for the design chosen
+    assert feature_fit_refusal(result) is None
+    asked = run.design("saddle", replace(options, tiles=last["value"]))
+    assert np.array_equal(asked.tiles_assembled, result.tiles_assembled)
+    assert np.array_equal(asked.route.gaps, result.route.gaps)
