@@ -1233,8 +1233,10 @@ def test_surface_distance_warnings_agree_with_the_report(fit, request) -> None:
 
 
 def test_a_tile_size_refusal_names_the_problems_a_new_size_may_not_mend() -> None:
-    # Tiles too small for the lift bores are refused before any solid; where the design has a
-    # problem besides, the one line names it (a new --size alone may not give a design).
+    # The CAD stage asks the feature checks again before any solid (the pipeline asked them
+    # right after the route, tests/test_auto.py): tiles too small for the lift bores are
+    # refused in words; where the design has a problem besides, the one line names it (a new
+    # --size alone may not give a design).
     from drawstring.geometry.core.errors import InputError
     from drawstring.pipeline.run import with_cad
 
@@ -1244,7 +1246,8 @@ def test_a_tile_size_refusal_names_the_problems_a_new_size_may_not_mend() -> Non
     result = design("saddle", options)
     with pytest.raises(
         InputError,
-        match=r"use --size \d+ or more, or a smaller --grid \(the tiling, the lift points",
+        match=r"lift-point tiles .* mm deep.*; give the tiles more room with a larger --size or "
+        r"fewer tiles$",
     ):
         with_cad(result, Progress(quiet=True))
     troubled = replace(result, problems=("flat tiles overlap by 2 mm^2", "another"))
