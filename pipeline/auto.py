@@ -244,6 +244,7 @@ def checked_feature_refusal(
     laid: LaidOut,
     source: str,
     asked: DesignOptions,
+    options: ResolvedOptions,
     profile: Profile,
     lay_out: LayOut,
 ) -> InputError:
@@ -252,8 +253,9 @@ def checked_feature_refusal(
     ending in a ``retry with:`` whose value was laid out, routed and passed the same checks
     (at most :data:`RETRY_LAYOUTS` layouts, stepped as :func:`chosen_layout` steps), or saying
     in words what to change.  The option changed is one the user left at its default where
-    there is one (the tile count first, then the size), else their tile count."""
-    options = laid.options
+    there is one (the tile count first, then the size), else their tile count.  ``options``:
+    the options as resolved, which the layouts start from (``laid.options`` has the hinges
+    chosen for it)."""
     short = laid.shortfall
     assert short is not None
     tiles_given = asked.tiles is not None or asked.grid is not None

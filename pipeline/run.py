@@ -244,7 +244,7 @@ def _layout(
         laid = _laid_out_at(resolved, profile, progress, policy, asked, prepared)
         laid = routed_and_checked(laid, profile, progress)
         if laid.shortfall is not None:
-            raise checked_feature_refusal(laid, source, options, profile, lay_out)
+            raise checked_feature_refusal(laid, source, options, resolved, profile, lay_out)
         return laid, None
     first: LaidOut | ThicknessError | FeatureShortfall
     try:
