@@ -729,9 +729,9 @@ def test_small_tiles_build_or_are_refused_with_a_size_that_builds(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     # 3 x 3 tiles on a 12 mm saddle are 4 mm across: too small for the TPU pins and the numbers
-    # (left out, with notes) and, at 11 mm, for the string channel or lift bore: refused with
-    # the size that builds; there a tile holds a channel, a lift bore and three hinges, where an
-    # OCCT boolean can fail.
+    # (left out, with notes) and, at 11 mm, for the string channel or lift bore: refused after
+    # the route, before any solid, with a size laid out and checked that builds; there a tile
+    # holds a channel, a lift bore and three hinges, where an OCCT boolean can fail.
     from drawstring.app.cli import main
 
     args = ["design", "saddle", "--grid", "3", "3", "--resolution", "1500", "--no-simulate"]
@@ -740,7 +740,7 @@ def test_small_tiles_build_or_are_refused_with_a_size_that_builds(
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and "too small for the fdm-dual profile" in lines[0]
     assert ("the lift bore" in lines[0] or "string channel" in lines[0]) and not out.exists()
-    suggested = re.search(r"use --size (\S+) or more, or a smaller --grid", lines[0])
+    suggested = re.search(r"; retry with: --grid 3 3 --size (\S+)$", lines[0])
     assert suggested is not None
     assert main([*args, "--quiet", "--size", suggested.group(1), "--out", str(out)]) == 0
     written = json.loads((out / "design.json").read_text())
