@@ -3,27 +3,33 @@
 
 At the profile's defaults a design can be refused by the one refusing check
 (:func:`~.shapes.refusing_shape`: tiles that turn inside out, with CAD tiles too small for the
-profile's features) or be laid out with its flat tiles missing the profile's fabrication
+profile's features), be laid out with its flat tiles missing the profile's fabrication
 tolerance (flat edge error or hinge gap over ``tolerance_mm``, with the hinges
-:func:`~.run.hinges_chosen` picks), which ends in exit status 3.  Where the user left all three
-at their defaults, :func:`chosen_layout` instead designs with values it finds itself (for a
-missed tolerance only with the co-optimization on: without it the fix is to turn it on):
+:func:`~.run.hinges_chosen` picks), which ends in exit status 3, or with CAD be laid out and
+routed with tiles too small for the profile's features (:func:`routed_and_checked`), which
+the CAD stage would refuse.  Where the user left all three at their defaults,
+:func:`chosen_layout` instead designs with values it finds itself (for a missed tolerance only
+with the co-optimization on: without it the fix is to turn it on):
 
 1. refused: the value the refusal's retry search finds (:func:`~.retry.refusal_search`, the
-   ``retry with:`` the refusal would quote); a layout that missed: the tile count one
-   :data:`~.retry.STEP_RATIO` step below the profile's;
-2. lays the design out with it, and keeps it where its layout meets the tolerance;
-3. otherwise steps the same option on by :data:`~.retry.STEP_RATIO` (each step checked by
-   the refusing check, :func:`~.retry.stepped_value`) and tries again, at most
+   ``retry with:`` the refusal would quote); a layout that missed the tolerance: the tile
+   count one :data:`~.retry.STEP_RATIO` step below the profile's; one too small for a
+   feature: the tile count that scales the shortfall away (:func:`~.retry.feature_ratio`);
+2. lays the design out with it (with CAD routed and checked), and keeps it where its layout
+   meets the tolerance with room for the features;
+3. otherwise steps the same option on (each step checked by the refusing check,
+   :func:`~.retry.stepped_value`; where tiles too small for a feature have no fewer tiles
+   left, the size grows at the tile count reached) and tries again, at most
    :data:`CHOSEN_LAYOUTS` layouts in all.
 
 Where none meets the tolerance, the defaults' own layout is kept where there was one, else
-the most accurate layout tried (exit status 3 either way, its problems listed); where no
+the most accurate layout tried (exit status 3 either way, its problems listed), never one too
+small for the features (where every layout is, the design is refused in words); where no
 value passed the refusing check, the refusal stands as it is.  Everything is in the order
 above, so the choice is deterministic.  ``metrics.chosen_values`` records why, what was tried
 and what was used, ``options`` the values used, and a note says so.  A user who gives any of
-the three gets today's refusal with its ``retry with:`` instead: their values are never
-changed.
+the three gets the refusal with its ``retry with:`` instead (for laid-out tiles too small for
+the features, :func:`checked_feature_refusal`): their values are never changed.
 """
 
 from __future__ import annotations
