@@ -290,7 +290,13 @@ def checked_feature_refusal(
                 return InputError(f"{what}; retry with: {retry}")
             entry["shortfall"] = str(again.shortfall)
         candidate = _next_value(checker, option, value, profile, again)
-    checked = f" ({_tried_words(tried)} was laid out and falls short too)" if tried else ""
+    checked = ""
+    for entry in tried:
+        at = complete_retry(asked, option, _flag(option, entry["value"]))
+        if "shortfall" in entry:
+            checked += f" (laid out at {at}, the tiles still fall short: {entry['shortfall']})"
+        else:
+            checked += f" (at {at} the design is refused)"
     return InputError(f"{what}; {MORE_ROOM}{checked}")
 
 

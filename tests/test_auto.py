@@ -22,7 +22,13 @@ from drawstring.geometry.core.errors import InputError, ThicknessError
 from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.tiling.linkage import build_linkage
 from drawstring.pipeline import auto
-from drawstring.pipeline.auto import CHOSEN_LAYOUTS, LaidOut, chooses_values, chosen_layout
+from drawstring.pipeline.auto import (
+    CHOSEN_LAYOUTS,
+    LaidOut,
+    checked_feature_refusal,
+    chooses_values,
+    chosen_layout,
+)
 from drawstring.pipeline.cad_stage import FeatureShortfall, hinge_strip_shortfall
 from drawstring.pipeline.record import DesignOptions
 from drawstring.pipeline.retry import (
@@ -384,3 +390,42 @@ def test_chosen_values_step_past_laid_out_tiles_too_small_before_any_solid(
     asked = run.design("saddle", replace(options, tiles=last["value"]))
     assert np.array_equal(asked.tiles_assembled, result.tiles_assembled)
     assert np.array_equal(asked.route.gaps, result.route.gaps)
+
+
+def test_a_given_tile_count_too_small_for_the_features_is_refused_with_a_size_laid_out() -> None:
+    # The user gave --tiles 40 and left the size: the refusal's retry grows the size by the
+    # shortfall with its margin, keeps their 40 tiles, and quotes it only where that layout
+    # had room; where it fell short too the line says so in words and quotes no value.
+    profile = load_profile("fdm-dual")
+    asked = DesignOptions(tiles=40, cad=False, simulate=False)
+    options = resolve_options(asked, profile)
+    refused = _short(options, 1.0, 1.1)
+    size = math.ceil(options.size_mm * 1.1 * FEATURE_MARGIN / 10) * 10
+    seen: list[tuple[int, float]] = []
+
+    def roomy(changed: Any) -> LaidOut:
+        seen.append((changed.tiles, changed.size_mm))
+        return replace(_laid(changed, 0.01), routed=object())  # type: ignore[arg-type]
+
+    line = str(checked_feature_refusal(refused, str(HEMISPHERE), asked, options, profile, roomy))
+    assert seen == [(40, size)]
+    assert line == (
+        f"--size {options.size_mm:g} mm with 40 tiles gives tiles too small for the fdm-dual "
+        f"profile: lift-point tiles too shallow; retry with: --tiles 40 --size {size:g}"
+    )
+    seen.clear()
+    line = str(
+        checked_feature_refusal(
+            refused,
+            str(HEMISPHERE),
+            asked,
+            options,
+            profile,
+            lambda changed: roomy(changed) and _short(changed, 1.0, 1.01),
+        )  # fmt: skip
+    )
+    assert seen == [(40, size)] and "retry with:" not in line
+    assert line.endswith(
+        f"give the tiles more room with a larger --size or fewer tiles (laid out at --tiles 40 "
+        f"--size {size:g}, the tiles still fall short: lift-point tiles too shallow)"
+    )
