@@ -17,12 +17,13 @@ side faces still close against each other beyond it.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+from drawstring.cad.hinge_pins import KeepOut
 from drawstring.cad.paths import face_planes
 from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.tile import HingeSide
@@ -33,11 +34,20 @@ __all__ = ["HingeReliefs", "hinge_reliefs", "separating_normal"]
 #: The first way to relieve a hinge (:func:`_relief_options`) that cuts at most this share of
 #: either tile's volume is taken; where none does, the one that cuts least.
 THIN_RELIEF_SHARE = 0.05
-#: A hinge whose least relief would cut more than this share of either tile's volume is not
-#: relieved (its tiles do not part from the hinge and print joined; the design notes name
-#: them): a hinge welded shut is worse than a tile cut back near it.  julius_face (corpus)
-#: at the 150 tiles drawstring chooses has 8 top hinges whose least relief cuts 5.1 to 13 %.
+#: A relief that cuts at most this share of either tile's volume is taken as it is.  julius_face
+#: (corpus) at the 150 tiles drawstring chooses has 8 top hinges whose least relief cuts 5.1 to
+#: 13 %.
 MAX_RELIEF_SHARE = 0.15
+#: A deeper relief is measured against what the tile holds (see :func:`hinge_reliefs`'s
+#: ``keep_out``): it is taken where every plane it cuts along stays a wall clear of the tile's
+#: string channels, lift bores and hinge strips, and the tile keeps at least half its volume;
+#: a hinge with no such relief is not relieved (its tiles print joined; the notes name them):
+#: a hinge welded shut is worse than a tile cut back near it.
+MAX_DEEP_RELIEF_SHARE = 0.5
+
+#: What a relief of a tile's hinge must keep clear of, given (tile, hinge): balls (see
+#: :class:`~drawstring.cad.hinge_pins.KeepOut`).
+ReliefKeepOut = Callable[[int, int], KeepOut]
 
 
 @dataclass(frozen=True)
@@ -53,7 +63,9 @@ class HingeReliefs:
     share_max : largest share of a tile's volume a relief takes.
     one_sided : hinges relieved in one tile only (their tiles overlap below the hinge).
     skipped : hinges (indices) left as they are: a relief would cut too much
-        (:data:`MAX_RELIEF_SHARE`).
+        (:data:`MAX_RELIEF_SHARE`) or into a feature.
+    deep : hinges (indices) relieved past :data:`MAX_RELIEF_SHARE`, their cuts clear of the
+        tiles' features.
     """
 
     cuts: dict[int, list[FloatArray]]
@@ -62,6 +74,7 @@ class HingeReliefs:
     share_max: float
     one_sided: int
     skipped: tuple[int, ...]
+    deep: tuple[int, ...] = ()
 
 
 def separating_normal(
@@ -130,6 +143,8 @@ def hinge_reliefs(
     hinges: IntArray,
     sides: Sequence[str],
     clearance_mm: float,
+    keep_out: ReliefKeepOut | None = None,
+    wall_mm: float = 0.0,
 ) -> HingeReliefs:
     """Slivers to cut from hinged tiles so that any two stay ``clearance_mm`` apart.
 
@@ -139,13 +154,19 @@ def hinge_reliefs(
     hinges : (H, 4) int ``(tile_a, corner_a, tile_b, corner_b)``.
     sides : (H,) ``"top"`` | ``"bottom"``: the face whose corners the hinge joins.
     clearance_mm : the distance to keep between two hinged tiles (a nozzle width).
+    keep_out : (tile, hinge) -> what a relief of that hinge must leave ``wall_mm`` clear of in
+        that tile (its channels, bores and strips); None: no relief cuts more than
+        :data:`MAX_RELIEF_SHARE` of a tile.
+    wall_mm : the wall a deep relief leaves to ``keep_out``.
 
     Returns
     -------
     HingeReliefs
         Per tile, one plane per hinge, ``clearance_mm / 2`` off the plane through the hinge
         that best separates its two tiles (:func:`_hinge_plane`): what lies nearer than that
-        to the other tile is cut away.
+        to the other tile is cut away.  Where every way cuts more than
+        :data:`MAX_RELIEF_SHARE`, the least one whose planes clear ``keep_out``
+        (:data:`MAX_DEEP_RELIEF_SHARE`).
     """
     array = np.asarray(tiles, dtype=np.float64)
     rows = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
@@ -159,36 +180,87 @@ def hinge_reliefs(
     cuts: dict[int, list[FloatArray]] = {}
     reach, one_sided_reach, share, one_sided = 0.0, 0.0, 0.0, 0
     skipped: list[int] = []
+    deep: list[int] = []
     for index, ((a, ca, b, cb), side) in enumerate(zip(rows, sides, strict=True)):
         shift = 0 if side == HingeSide.TOP else 4
         hinge = 0.5 * (array[a, shift + ca] + array[b, shift + cb])
-        best: tuple[float, float, list[tuple[int, FloatArray]], bool] | None = None
+        tried: list[_Relief] = []
         for option in _relief_options(array, int(a), int(ca), int(b), int(cb), shift, hinge, depth):
-            planes: list[tuple[int, FloatArray]] = []
-            option_reach, option_share = 0.0, 0.0
-            for tile, towards, keep in option:
-                piece = _sliver(array[tile] - hinge, towards, keep)
-                if len(piece) == 0:
-                    continue
-                option_reach = max(option_reach, float(np.linalg.norm(piece[:, :2], axis=1).max()))
-                option_share = max(option_share, _volume(piece) / _volume(array[tile]))
-                planes.append((tile, np.append(towards, towards @ hinge + keep)))
-            if best is None or option_share < best[1]:
-                best = (option_reach, option_share, planes, len(option) == 2)
-            if option_share <= THIN_RELIEF_SHARE:
+            tried.append(_measure(array, option, hinge, len(option) == 2))
+            if tried[-1].share <= THIN_RELIEF_SHARE:
                 break  # the two-sided relief where it cuts little, else the smallest one
-        if best is None or best[1] > MAX_RELIEF_SHARE:
+        best = min(tried, key=lambda r: r.share, default=None)  # the first of equal ones
+        if best is not None and best.share > MAX_RELIEF_SHARE:
+            best = _deep_relief(tried, index, keep_out, wall_mm)
+            if best is not None:
+                deep.append(index)
+        if best is None:
             skipped.append(index)
             continue
-        share = max(share, best[1])
-        if best[3]:
-            reach = max(reach, best[0])
+        share = max(share, best.share)
+        if best.two_sided:
+            reach = max(reach, best.reach)
         else:
             one_sided += 1
-            one_sided_reach = max(one_sided_reach, best[0])
-        for tile, plane in best[2]:
+            one_sided_reach = max(one_sided_reach, best.reach)
+        for tile, plane in best.planes:
             cuts.setdefault(tile, []).append(plane)
-    return HingeReliefs(cuts, reach, one_sided_reach, share, one_sided, tuple(skipped))
+    return HingeReliefs(cuts, reach, one_sided_reach, share, one_sided, tuple(skipped), tuple(deep))
+
+
+@dataclass(frozen=True)
+class _Relief:
+    """One way to relieve a hinge, measured: how far it reaches from the hinge (seen from
+    above), the largest share of a tile it cuts, its planes ``(tile, (n, d))`` and whether it
+    cuts both tiles."""
+
+    reach: float
+    share: float
+    planes: list[tuple[int, FloatArray]]
+    two_sided: bool
+
+
+def _measure(
+    tiles: FloatArray,
+    option: list[tuple[int, FloatArray, float]],
+    hinge: FloatArray,
+    two_sided: bool,
+) -> _Relief:
+    planes: list[tuple[int, FloatArray]] = []
+    reach, share = 0.0, 0.0
+    for tile, towards, keep in option:
+        piece = _sliver(tiles[tile] - hinge, towards, keep)
+        if len(piece) == 0:
+            continue
+        reach = max(reach, float(np.linalg.norm(piece[:, :2], axis=1).max()))
+        share = max(share, _volume(piece) / _volume(tiles[tile]))
+        planes.append((tile, np.append(towards, towards @ hinge + keep)))
+    return _Relief(reach, share, planes, two_sided)
+
+
+def _deep_relief(
+    tried: list[_Relief], hinge: int, keep_out: ReliefKeepOut | None, wall_mm: float
+) -> _Relief | None:
+    """The way that cuts least of those (``tried``, past :data:`MAX_RELIEF_SHARE`) that keep
+    at least :data:`MAX_DEEP_RELIEF_SHARE` of each tile and whose every plane leaves the
+    tile's ``keep_out`` a wall clear; None where none does (or without ``keep_out``)."""
+    if keep_out is None:
+        return None
+    for relief in sorted(tried, key=lambda r: r.share):
+        if relief.share > MAX_DEEP_RELIEF_SHARE:
+            break
+        if all(_clears(plane, keep_out(tile, hinge), wall_mm) for tile, plane in relief.planes):
+            return relief
+    return None
+
+
+def _clears(plane: FloatArray, keep_out: KeepOut, wall_mm: float) -> bool:
+    """Whether every ball of ``keep_out`` lies a wall inside the side ``n . x >= d`` that a
+    tile keeps of ``plane`` ``(n, d)`` (``n`` a unit vector)."""
+    if not len(keep_out.radii):
+        return True
+    height = keep_out.centres @ plane[:3] - plane[3]
+    return bool(np.all(height >= keep_out.radii + wall_mm))
 
 
 def _relief_options(

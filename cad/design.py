@@ -33,7 +33,12 @@ from drawstring.cad.feature_common import channel_radius as _channel_radius
 from drawstring.cad.feature_common import feature_wall_mm
 from drawstring.cad.features import lift_chamfer
 from drawstring.cad.hinge_pins import PinPlan
-from drawstring.cad.hinge_plans import plan_all_pins, strip_hole_plans, strip_neighbours
+from drawstring.cad.hinge_plans import (
+    plan_all_pins,
+    relief_keep_outs,
+    strip_hole_plans,
+    strip_neighbours,
+)
 from drawstring.cad.kernel import CheckMesh, solid_checks
 from drawstring.cad.magnets_labels import MagnetPair, magnet_pockets
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path
@@ -488,14 +493,19 @@ def _plan_hinges(
     of fasteners the strips take."""
     flat, hinge_rows, sides = inputs.flat, inputs.hinge_rows, inputs.sides
     relief_planes: dict[int, list[NDArray[np.float64]]] = {}
+    crowds = strip_neighbours(hinge_rows, sides)
     if print_clearance_mm > 0 and len(hinge_rows):
-        reliefs = hinge_reliefs(flat, hinge_rows, sides, print_clearance_mm)
+        keep_out = relief_keep_outs(
+            flat, hinge_rows, sides, inputs.steps, inputs.lifts, profile, crowds
+        )
+        reliefs = hinge_reliefs(
+            flat, hinge_rows, sides, print_clearance_mm, keep_out, feature_wall_mm(profile)
+        )
         relief_planes = reliefs.cuts
         for tile, planes in reliefs.cuts.items():
             jobs[tile].reliefs.extend(planes)
         notes.extend(relief_notes(reliefs, hinge_rows, print_clearance_mm))
     notes.extend(bend_notes(min_radius, inputs.steps, profile))
-    crowds = strip_neighbours(hinge_rows, sides)
     notes.extend(strip_notes(flat, hinge_rows, sides, profile, crowds))
     plans: list[PinPlan | None] = [None] * len(hinge_rows)
     if profile.hinge_interlock == "through-holes":

@@ -118,11 +118,19 @@ def relief_notes(
             f"{reliefs.reach_max_mm:.2g} mm of it{one_sided}, so that hinged tiles stay "
             f"{clearance_mm:g} mm apart; the TPU pad bridges the cut"
         )
+    if reliefs.deep:
+        tiles = sorted({int(t) for h in reliefs.deep for t in hinge_rows[h, [0, 2]]})
+        notes.append(
+            f"{len(reliefs.deep)} of them cut deeper, up to {100 * reliefs.share_max:.2g} % of "
+            f"a tile (tiles {id_ranges(tiles)}): each cut stays a wall clear of the tile's "
+            "string channel, lift bore and hinge strips"
+        )
     if reliefs.skipped:
         tiles = sorted({int(t) for h in reliefs.skipped for t in hinge_rows[h, [0, 2]]})
         notes.append(
             f"{len(reliefs.skipped)} hinges were not relieved for printing (a relief would cut "
-            f"away too much of a tile): tiles {id_ranges(tiles)} may print joined there"
+            "away half a tile or into its string channel or hinge strips): tiles "
+            f"{id_ranges(tiles)} may print joined there"
         )
     return notes
 

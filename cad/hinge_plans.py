@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from drawstring.cad.clearance import ReliefKeepOut
 from drawstring.cad.features import channel_keep_out
 from drawstring.cad.hinge_frame import StripNeighbours
 from drawstring.cad.hinge_parts import StripHoles, strip_hole_plan
@@ -42,6 +43,60 @@ def strip_neighbours(
     ]
 
 
+def _feature_keep_outs(
+    flat: NDArray[np.float64],
+    hinge_rows: NDArray[np.int64],
+    sides: Sequence[HingeSide],
+    steps: NDArray[np.int64],
+    lifts: NDArray[np.int64],
+    profile: Profile,
+    crowds: Sequence[StripNeighbours],
+) -> tuple[list[KeepOut], list[list[tuple[int, KeepOut]]]]:
+    """Per tile, its channels and lift bores as balls, and its hinges' strips ``(hinge,
+    balls)``."""
+    keep = [KeepOut() for _ in flat]
+    for _, tile, enter, leave in steps:
+        keep[tile] += channel_keep_out(flat[tile], int(enter), int(leave), profile)
+    for tile, side in lifts:
+        keep[tile] += channel_keep_out(flat[tile], int(side), SIDE_TOP_FACE, profile)
+    strips: list[list[tuple[int, KeepOut]]] = [[] for _ in flat]
+    for hinge, ((a, ca, b, cb), side) in enumerate(zip(hinge_rows, sides, strict=True)):
+        in_a, in_b = strip_keep_outs(
+            flat[a], int(ca), flat[b], int(cb), side, profile, crowds[hinge]
+        )
+        strips[a].append((hinge, in_a))
+        strips[b].append((hinge, in_b))
+    return keep, strips
+
+
+def relief_keep_outs(
+    flat: NDArray[np.float64],
+    hinge_rows: NDArray[np.int64],
+    sides: Sequence[HingeSide],
+    steps: NDArray[np.int64],
+    lifts: NDArray[np.int64],
+    profile: Profile,
+    crowds: Sequence[StripNeighbours],
+) -> ReliefKeepOut:
+    """What a deep hinge relief (:func:`~drawstring.cad.clearance.hinge_reliefs`) of a tile
+    keeps clear of, by (tile, hinge): the tile's string channels and lift bores, the strips of
+    its other hinges, and the inner half of the hinge's own strip, where its pad is seated
+    (the outer half spans the cut, as at every relieved hinge)."""
+    keep, strips = _feature_keep_outs(flat, hinge_rows, sides, steps, lifts, profile, crowds)
+
+    def of(tile: int, hinge: int) -> KeepOut:
+        found = keep[tile]
+        for other, strip in strips[tile]:
+            if other != hinge:
+                found = found + strip
+            else:  # balls from the corner inward: the inner half
+                inner = slice(len(strip.radii) // 2, None)
+                found = found + KeepOut(strip.centres[inner], strip.radii[inner])
+        return found
+
+    return of
+
+
 def plan_all_pins(
     flat: NDArray[np.float64],
     hinge_rows: NDArray[np.int64],
@@ -56,18 +111,7 @@ def plan_all_pins(
     channels and lift bores, the other hinges' strips, the pins planned before it (hinge
     order) and the planes of its tile's hinge reliefs (tile -> planes), so that no pin blocks
     the string, no two holes merge and no relief opens a hole."""
-    keep = [KeepOut() for _ in flat]
-    for _, tile, enter, leave in steps:
-        keep[tile] += channel_keep_out(flat[tile], int(enter), int(leave), profile)
-    for tile, side in lifts:
-        keep[tile] += channel_keep_out(flat[tile], int(side), SIDE_TOP_FACE, profile)
-    strips: list[list[tuple[int, KeepOut]]] = [[] for _ in flat]
-    for hinge, ((a, ca, b, cb), side) in enumerate(zip(hinge_rows, sides, strict=True)):
-        in_a, in_b = strip_keep_outs(
-            flat[a], int(ca), flat[b], int(cb), side, profile, crowds[hinge]
-        )
-        strips[a].append((hinge, in_a))
-        strips[b].append((hinge, in_b))
+    keep, strips = _feature_keep_outs(flat, hinge_rows, sides, steps, lifts, profile, crowds)
 
     def others(tile: int, hinge: int) -> KeepOut:
         found = keep[tile]

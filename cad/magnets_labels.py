@@ -148,6 +148,37 @@ def _pocket_fits(quad: NDArray[np.float64], u: float, v: float, radius: float) -
     return True
 
 
+def _pocket_place(
+    quad_a: NDArray[np.float64],
+    quad_b: NDArray[np.float64],
+    u: float,
+    radius: float,
+    profile: Profile,
+) -> tuple[float, float]:
+    """``(u, v)`` of a pocket on side quad a: ``(u, 0.5)`` where it fits both faces
+    (:func:`_pocket_fits`), else the nearest place where it fits them a
+    :func:`feature_wall_mm` inside their edges and lies no nearer the face's middle than ``u``
+    (a pocket set off a string channel stays off it), else ``(u, 0.5)`` (it breaks out)."""
+
+    def fits(at_u: float, at_v: float, size: float) -> bool:
+        u_b, v_b = _invert_bilinear(quad_b, _bilinear(quad_a, at_u, at_v), 1.0 - at_u, at_v)
+        return _pocket_fits(quad_a, at_u, at_v, size) and _pocket_fits(quad_b, u_b, v_b, size)
+
+    if fits(u, 0.5, radius):
+        return u, 0.5
+    width = float(np.linalg.norm(quad_a[1] - quad_a[0] + quad_a[3] - quad_a[2])) / 2.0
+    height = float(np.linalg.norm(quad_a[2] - quad_a[0] + quad_a[3] - quad_a[1])) / 2.0
+    us, vs = np.meshgrid(np.linspace(0.0, 1.0, 41), np.linspace(0.0, 1.0, 21), indexing="ij")
+    us, vs = us.ravel(), vs.ravel()
+    off_middle = np.sign(u - 0.5) * (us - 0.5) >= abs(u - 0.5) - 1e-12
+    moved = np.hypot((us - u) * width, (vs - 0.5) * height)
+    wall = feature_wall_mm(profile)
+    for k in np.flatnonzero(off_middle)[np.argsort(moved[off_middle], kind="stable")]:
+        if fits(float(us[k]), float(vs[k]), radius + wall):
+            return float(us[k]), float(vs[k])
+    return u, 0.5
+
+
 def magnet_pockets(
     tile_a: NDArray[np.float64],
     side_a: int,
@@ -184,10 +215,10 @@ def magnet_pockets(
     tile_b = np.asarray(tile_b, dtype=np.float64)
     quad_a, quad_b = _side_quad(tile_a, side_a), _side_quad(tile_b, side_b)
     width = float(np.linalg.norm(_bilinear(quad_a, 1, 0.5) - _bilinear(quad_a, 0, 0.5)))
-    u_a, v_a = 0.5 + offset_mm / width, 0.5
+    radius = 0.5 * profile.magnet_diameter_mm + profile.magnet_clearance_mm
+    u_a, v_a = _pocket_place(quad_a, quad_b, 0.5 + offset_mm / width, radius, profile)
     centre = _bilinear(quad_a, u_a, v_a)
     u_b, v_b = _invert_bilinear(quad_b, centre, 1.0 - u_a, v_a)
-    radius = 0.5 * profile.magnet_diameter_mm + profile.magnet_clearance_mm
     depth = profile.magnet_height_mm + profile.magnet_clearance_mm
     fits = _pocket_fits(quad_a, u_a, v_a, radius) and _pocket_fits(quad_b, u_b, v_b, radius)
     tools = []

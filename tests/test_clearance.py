@@ -9,11 +9,13 @@ import pytest
 
 from drawstring.cad.checks import clearances, to_manifold
 from drawstring.cad.clearance import (
+    MAX_DEEP_RELIEF_SHARE,
     MAX_RELIEF_SHARE,
     THIN_RELIEF_SHARE,
     hinge_reliefs,
     separating_normal,
 )
+from drawstring.cad.hinge_pins import KeepOut
 from drawstring.cad.tiles import relieved_tile_solid, tile_solid
 
 
@@ -144,6 +146,41 @@ def test_small_overlapping_tiles_are_relieved_up_to_the_largest_share(
     plain = [tile_solid(t) for t in tiles]
     volumes = [s.volume / p.volume for s, p in zip(solids, plain, strict=True)]
     assert min(volumes) == pytest.approx(1.0 - reliefs.share_max, abs=1e-3)
+
+
+def test_a_deep_relief_is_made_where_it_clears_the_tiles_features() -> None:
+    # The 3 mm pair above, whose least relief cuts more than MAX_RELIEF_SHARE: given what
+    # each tile holds (a ball, standing for a channel or strip), the relief is made where its
+    # plane leaves the ball a wall clear, and the tiles then print 0.4 mm apart; a ball that
+    # the cut would open leaves the hinge unrelieved.
+    tiles = _hinged_pair(12.0, 3.0)
+    for tile in tiles:
+        centre = tile[4:, :2].mean(axis=0)
+        tile[4:, :2] = centre + 1.3 * (tile[4:, :2] - centre)
+    hinge = np.array([[0, 0, 1, 0]])
+    centres = [t.mean(axis=0) for t in tiles]  # each tile's centre, far from the hinge
+    seen: list[tuple[int, int]] = []
+
+    def central(tile: int, index: int) -> KeepOut:
+        seen.append((tile, index))
+        return KeepOut(centres[tile][None], np.array([0.3]))
+
+    reliefs = hinge_reliefs(tiles, hinge, ["top"], 0.4, central, 0.4)
+    assert reliefs.skipped == () and reliefs.deep == (0,) and seen
+    assert MAX_RELIEF_SHARE < reliefs.share_max <= MAX_DEEP_RELIEF_SHARE
+    solids = [relieved_tile_solid(t, reliefs.cuts.get(i, [])) for i, t in enumerate(tiles)]
+    assert clearances(solids, 1.0).min_distance >= 0.4 - 1e-4
+    for tile, planes in reliefs.cuts.items():
+        for plane in planes:  # the ball keeps the wall on the side the tile keeps
+            assert centres[tile] @ plane[:3] - plane[3] >= 0.3 + 0.4
+    # a ball at the hinge corner's edge of each tile: every relief would open it
+    near = [t[0] + 0.4 * (t[4] - t[0]) + 0.05 * (t.mean(axis=0) - t[0]) for t in tiles]
+
+    def at_hinge(tile: int, index: int) -> KeepOut:
+        return KeepOut(near[tile][None], np.array([0.3]))
+
+    blocked = hinge_reliefs(tiles, hinge, ["top"], 0.4, at_hinge, 0.4)
+    assert blocked.skipped == (0,) and blocked.deep == () and not blocked.cuts
 
 
 def test_a_dart_shaped_tile_keeps_its_notch_when_relieved() -> None:
