@@ -18,10 +18,10 @@ side faces still close against each other beyond it.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError
+from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
 from drawstring.cad.hinge_pins import KeepOut
 from drawstring.cad.paths import face_planes
@@ -45,9 +45,9 @@ MAX_RELIEF_SHARE = 0.15
 #: a hinge welded shut is worse than a tile cut back near it.
 MAX_DEEP_RELIEF_SHARE = 0.5
 
-#: What a relief of a tile's hinge must keep clear of, given (tile, hinge): balls (see
-#: :class:`~drawstring.cad.hinge_pins.KeepOut`).
-ReliefKeepOut = Callable[[int, int], KeepOut]
+#: What a relief of a tile's hinge must keep clear of, given (tile, hinge, whether the inner
+#: half of the hinge's own strip counts): balls (see :class:`~drawstring.cad.hinge_pins.KeepOut`).
+ReliefKeepOut = Callable[[int, int, bool], KeepOut]
 
 
 @dataclass(frozen=True)
@@ -66,6 +66,10 @@ class HingeReliefs:
         (:data:`MAX_RELIEF_SHARE`) or into a feature.
     deep : hinges (indices) relieved past :data:`MAX_RELIEF_SHARE`, their cuts clear of the
         tiles' features.
+    hollows : tile -> convex polyhedra ``(k, 3)`` points, flat pose, mm, to subtract: where no
+        plane relieves a hinge, one tile loses what lies within the clearance of the other
+        (:func:`_hollow`).
+    hollowed : hinges (indices) relieved so.
     """
 
     cuts: dict[int, list[FloatArray]]
@@ -75,6 +79,8 @@ class HingeReliefs:
     one_sided: int
     skipped: tuple[int, ...]
     deep: tuple[int, ...] = ()
+    hollows: dict[int, list[FloatArray]] = field(default_factory=dict)
+    hollowed: tuple[int, ...] = ()
 
 
 def separating_normal(
@@ -181,6 +187,8 @@ def hinge_reliefs(
     reach, one_sided_reach, share, one_sided = 0.0, 0.0, 0.0, 0
     skipped: list[int] = []
     deep: list[int] = []
+    hollows: dict[int, list[FloatArray]] = {}
+    hollowed: list[int] = []
     for index, ((a, ca, b, cb), side) in enumerate(zip(rows, sides, strict=True)):
         shift = 0 if side == HingeSide.TOP else 4
         hinge = 0.5 * (array[a, shift + ca] + array[b, shift + cb])
@@ -195,7 +203,13 @@ def hinge_reliefs(
             if best is not None:
                 deep.append(index)
         if best is None:
-            skipped.append(index)
+            hollow = _hollow(array, int(a), int(b), clearance_mm, index, keep_out, wall_mm)
+            if hollow is None:
+                skipped.append(index)
+            else:
+                hollows.setdefault(hollow[0], []).append(hollow[1])
+                hollowed.append(index)
+                share = max(share, hollow[2])
             continue
         share = max(share, best.share)
         if best.two_sided:
@@ -205,7 +219,17 @@ def hinge_reliefs(
             one_sided_reach = max(one_sided_reach, best.reach)
         for tile, plane in best.planes:
             cuts.setdefault(tile, []).append(plane)
-    return HingeReliefs(cuts, reach, one_sided_reach, share, one_sided, tuple(skipped), tuple(deep))
+    return HingeReliefs(
+        cuts,
+        reach,
+        one_sided_reach,
+        share,
+        one_sided,
+        tuple(skipped),
+        tuple(deep),
+        hollows,
+        tuple(hollowed),
+    )
 
 
 @dataclass(frozen=True)
@@ -249,9 +273,72 @@ def _deep_relief(
     for relief in sorted(tried, key=lambda r: r.share):
         if relief.share > MAX_DEEP_RELIEF_SHARE:
             break
-        if all(_clears(plane, keep_out(tile, hinge), wall_mm) for tile, plane in relief.planes):
+        planes = relief.planes
+        if all(_clears(p, keep_out(tile, hinge, True), wall_mm) for tile, p in planes):
             return relief
     return None
+
+
+def _hollow(
+    tiles: FloatArray,
+    a: int,
+    b: int,
+    clearance_mm: float,
+    hinge: int,
+    keep_out: ReliefKeepOut | None,
+    wall_mm: float,
+) -> tuple[int, FloatArray, float] | None:
+    """The least relief of hinged tiles ``a`` and ``b``: one of them loses what lies within
+    ``clearance_mm`` of the other, the other's convex hull with its faces pushed out by the
+    clearance (a convex polyhedron that holds every point that near).  Of the two ways, the
+    one that cuts less is taken, where it keeps at least :data:`MAX_DEEP_RELIEF_SHARE` of the
+    tile and stays a wall clear of the tile's string channels, lift bores and other hinges'
+    strips (``keep_out``; the hinge's own strip bridges the cut): ``(tile, points, share)``,
+    else None."""
+    if keep_out is None:
+        return None
+    found: list[tuple[float, int, FloatArray]] = []
+    for cut, other in ((a, b), (b, a)):
+        try:
+            pushed = ConvexHull(tiles[other]).equations.copy()
+            pushed[:, 3] -= clearance_mm  # unit outward normals: n . x + d <= clearance
+            polyhedron = HalfspaceIntersection(pushed, tiles[other].mean(axis=0)).intersections
+            inside = np.vstack([pushed, ConvexHull(tiles[cut]).equations])
+            kept = _volume(HalfspaceIntersection(inside, _interior(inside)).intersections)
+        except (QhullError, ValueError):
+            continue
+        share = kept / _volume(tiles[cut])
+        balls = keep_out(cut, hinge, False)
+        if len(balls.radii):
+            # a ball outside the polyhedron by at least radius + wall on one face's plane
+            # (a lower bound of its distance) stays clear of the cut
+            height = (balls.centres @ pushed[:, :3].T + pushed[:, 3]).max(axis=1)
+            if not np.all(height >= balls.radii + wall_mm):
+                continue
+        if share <= MAX_DEEP_RELIEF_SHARE:
+            found.append((share, cut, polyhedron))
+    if not found:
+        return None
+    share, cut, polyhedron = min(found, key=lambda f: f[0])
+    return cut, polyhedron, share
+
+
+def _interior(halfspaces: FloatArray) -> FloatArray:
+    """A point deepest inside the halfspaces ``n . x + d <= 0`` (raises ValueError where
+    they hold none)."""
+    from scipy.optimize import linprog
+
+    normals = halfspaces[:, :3]
+    lengths = np.linalg.norm(normals, axis=1)[:, None]
+    found = linprog(
+        [0.0, 0.0, 0.0, -1.0],
+        A_ub=np.hstack([normals, lengths]),
+        b_ub=-halfspaces[:, 3],
+        bounds=[(None, None)] * 3 + [(0.0, None)],
+    )
+    if not found.success or found.x[3] <= 1e-9:
+        raise ValueError("the halfspaces hold no interior point")
+    return np.asarray(found.x[:3])
 
 
 def _clears(plane: FloatArray, keep_out: KeepOut, wall_mm: float) -> bool:

@@ -493,6 +493,7 @@ def _plan_hinges(
     of fasteners the strips take."""
     flat, hinge_rows, sides = inputs.flat, inputs.hinge_rows, inputs.sides
     relief_planes: dict[int, list[NDArray[np.float64]]] = {}
+    hollows: dict[int, list[NDArray[np.float64]]] = {}
     crowds = strip_neighbours(hinge_rows, sides)
     if print_clearance_mm > 0 and len(hinge_rows):
         keep_out = relief_keep_outs(
@@ -501,9 +502,11 @@ def _plan_hinges(
         reliefs = hinge_reliefs(
             flat, hinge_rows, sides, print_clearance_mm, keep_out, feature_wall_mm(profile)
         )
-        relief_planes = reliefs.cuts
+        relief_planes, hollows = reliefs.cuts, reliefs.hollows
         for tile, planes in reliefs.cuts.items():
             jobs[tile].reliefs.extend(planes)
+        for tile, polyhedra in hollows.items():  # cut as the hinge stage's trims are
+            jobs[tile].trims.extend(polyhedra)
         notes.extend(relief_notes(reliefs, hinge_rows, print_clearance_mm))
     notes.extend(bend_notes(min_radius, inputs.steps, profile))
     notes.extend(strip_notes(flat, hinge_rows, sides, profile, crowds))
@@ -511,7 +514,15 @@ def _plan_hinges(
     if profile.hinge_interlock == "through-holes":
         plans = list(
             plan_all_pins(
-                flat, hinge_rows, sides, inputs.steps, inputs.lifts, profile, crowds, relief_planes
+                flat,
+                hinge_rows,
+                sides,
+                inputs.steps,
+                inputs.lifts,
+                profile,
+                crowds,
+                relief_planes,
+                hollows,
             )
         )
         notes.extend(pin_notes(plans))

@@ -125,6 +125,14 @@ def relief_notes(
             f"a tile (tiles {id_ranges(tiles)}): each cut stays a wall clear of the tile's "
             "string channel, lift bore and hinge strips"
         )
+    if reliefs.hollowed:
+        tiles = sorted(reliefs.hollows)
+        notes.append(
+            f"{len(reliefs.hollowed)} of them, where no plane parts the tiles without cutting "
+            f"into a string channel or hinge strip, have one tile (tiles {id_ranges(tiles)}) "
+            f"lose what lies within {clearance_mm:g} mm of the other, clear of its string "
+            "channel, lift bore and other hinges' strips"
+        )
     if reliefs.skipped:
         tiles = sorted({int(t) for h in reliefs.skipped for t in hinge_rows[h, [0, 2]]})
         notes.append(

@@ -10,8 +10,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import ConvexHull
 
 from drawstring.cad.clearance import ReliefKeepOut
+from drawstring.cad.feature_common import feature_wall_mm
 from drawstring.cad.features import channel_keep_out
 from drawstring.cad.hinge_frame import StripNeighbours
 from drawstring.cad.hinge_parts import StripHoles, strip_hole_plan
@@ -80,16 +82,16 @@ def relief_keep_outs(
 ) -> ReliefKeepOut:
     """What a deep hinge relief (:func:`~drawstring.cad.clearance.hinge_reliefs`) of a tile
     keeps clear of, by (tile, hinge): the tile's string channels and lift bores, the strips of
-    its other hinges, and the inner half of the hinge's own strip, where its pad is seated
-    (the outer half spans the cut, as at every relieved hinge)."""
+    its other hinges, and (``own_strip``) the inner half of the hinge's own strip, where its
+    pad is seated (the outer half spans the cut, as at every relieved hinge)."""
     keep, strips = _feature_keep_outs(flat, hinge_rows, sides, steps, lifts, profile, crowds)
 
-    def of(tile: int, hinge: int) -> KeepOut:
+    def of(tile: int, hinge: int, own_strip: bool = True) -> KeepOut:
         found = keep[tile]
         for other, strip in strips[tile]:
             if other != hinge:
                 found = found + strip
-            else:  # balls from the corner inward: the inner half
+            elif own_strip:  # balls from the corner inward: the inner half
                 inner = slice(len(strip.radii) // 2, None)
                 found = found + KeepOut(strip.centres[inner], strip.radii[inner])
         return found
@@ -106,11 +108,14 @@ def plan_all_pins(
     profile: Profile,
     crowds: Sequence[StripNeighbours],
     reliefs: Mapping[int, Sequence[NDArray[np.float64]]],
+    hollows: Mapping[int, Sequence[NDArray[np.float64]]] | None = None,
 ) -> list[PinPlan]:
     """The TPU pins of every through-holes hinge, each kept a wall away from its tile's
     channels and lift bores, the other hinges' strips, the pins planned before it (hinge
     order) and the planes of its tile's hinge reliefs (tile -> planes), so that no pin blocks
-    the string, no two holes merge and no relief opens a hole."""
+    the string, no two holes merge and no relief opens a hole; a pin that would come within a
+    wall of a convex relief cut from its tile (``hollows``: tile -> (k, 3) points) is left
+    out."""
     keep, strips = _feature_keep_outs(flat, hinge_rows, sides, steps, lifts, profile, crowds)
 
     def others(tile: int, hinge: int) -> KeepOut:
@@ -133,11 +138,35 @@ def plan_all_pins(
             crowds[hinge],
             (_planes(reliefs, a), _planes(reliefs, b)),
         )
+        if hollows:
+            plan = _clear_of_hollows(
+                plan, (hollows.get(int(a), ()), hollows.get(int(b), ())), profile
+            )
         for tile, pin in zip((a, b), plan.pins, strict=True):
             if pin is not None:
                 keep[tile] = keep[tile] + pin_keep_out(pin, profile)
         plans.append(plan)
     return plans
+
+
+def _clear_of_hollows(
+    plan: PinPlan, hollows: tuple[Sequence[NDArray[np.float64]], ...], profile: Profile
+) -> PinPlan:
+    """``plan`` without the pins that come within a wall of their tile's convex relief cuts
+    (a ball of the pin lies a wall outside a cut where it does outside one of its planes)."""
+    pins, notes = list(plan.pins), list(plan.notes)
+    for index, (pin, cuts) in enumerate(zip(plan.pins, hollows, strict=True)):
+        if pin is None:
+            continue
+        balls = pin_keep_out(pin, profile)
+        for points in cuts:
+            planes = ConvexHull(points).equations
+            height = (balls.centres @ planes[:, :3].T + planes[:, 3]).max(axis=1)
+            if np.any(height < balls.radii + feature_wall_mm(profile)):
+                pins[index] = None
+                notes.append(f"pin in tile {'ab'[index]} left out: its hinge's relief cuts there")
+                break
+    return PinPlan((pins[0], pins[1]), plan.short, tuple(notes))
 
 
 def _planes(

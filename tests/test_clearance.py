@@ -161,7 +161,7 @@ def test_a_deep_relief_is_made_where_it_clears_the_tiles_features() -> None:
     centres = [t.mean(axis=0) for t in tiles]  # each tile's centre, far from the hinge
     seen: list[tuple[int, int]] = []
 
-    def central(tile: int, index: int) -> KeepOut:
+    def central(tile: int, index: int, own: bool) -> KeepOut:
         seen.append((tile, index))
         return KeepOut(centres[tile][None], np.array([0.3]))
 
@@ -176,7 +176,7 @@ def test_a_deep_relief_is_made_where_it_clears_the_tiles_features() -> None:
     # a ball at the hinge corner's edge of each tile: every relief would open it
     near = [t[0] + 0.4 * (t[4] - t[0]) + 0.05 * (t.mean(axis=0) - t[0]) for t in tiles]
 
-    def at_hinge(tile: int, index: int) -> KeepOut:
+    def at_hinge(tile: int, index: int, own: bool) -> KeepOut:
         return KeepOut(near[tile][None], np.array([0.3]))
 
     blocked = hinge_reliefs(tiles, hinge, ["top"], 0.4, at_hinge, 0.4)
