@@ -447,6 +447,7 @@ def _magnet_tools(
         profile.nozzle_mm, 0.5, 0.5 * profile.tool_diameter_mm
     )
     failed: list[tuple[int, str]] = []
+    made: list[tuple[bd.Solid, bd.Solid, MagnetPair]] = []
     for tile_a, side_a, tile_b, side_b in inputs.pairs:
         shared = side_a in channel_sides[tile_a] or side_b in channel_sides[tile_b]
         try:
@@ -465,9 +466,22 @@ def _magnet_tools(
             kernel_failure(f"tiles {tile_a} and {tile_b}: magnet pockets", exc)
             failed += [(int(tile_a), "magnet pocket"), (int(tile_b), "magnet pocket")]
             continue
-        jobs[tile_a].tools.append(tool_a)
-        jobs[tile_b].tools.append(tool_b)
+        made.append((tool_a, tool_b, record))
+    # a pair whose pockets fit nowhere on its faces is left out where others join the parts
+    left_out = [r for _, _, r in made if not r.fits] if any(r.fits for _, _, r in made) else []
+    for tool_a, tool_b, record in made:
+        if any(record is r for r in left_out):
+            continue
+        jobs[record.tile_a].tools.append(tool_a)
+        jobs[record.tile_b].tools.append(tool_b)
         magnets.append(record)
+    if left_out:
+        notes.append(
+            f"{len(left_out)} of {len(made)} magnet pairs left out: their "
+            f"{left_out[0].diameter_mm:.2f} mm pockets fit nowhere on their side faces (tiles "
+            + ", ".join(f"{r.tile_a}/{r.tile_b}" for r in left_out)
+            + "); the other pairs join the parts"
+        )
     broken = [m for m in magnets if not m.fits]
     if broken:
         broken_pairs = ", ".join(f"{m.tile_a}/{m.tile_b}" for m in broken[:MAX_RUNS])

@@ -388,7 +388,27 @@ def trim_tool(points: NDArray[np.float64]) -> bd.Solid:
     array = np.asarray(points, dtype=np.float64)
     if array.ndim != 2 or array.shape[1] != 3 or len(array) < 4:
         raise InternalError(f"a trim polyhedron needs (k >= 4, 3) points, got shape {array.shape}")
-    return convex_solid(array)
+    try:
+        return convex_solid(array)
+    except Exception:  # the kernel's own errors: an edge between points a hair apart
+        distinct = _distinct_points(array, TRIM_POINT_MERGE_MM)
+        if len(distinct) == len(array):
+            raise
+        return convex_solid(distinct)
+
+
+#: Points of a trim polyhedron nearer each other than this (mm) are one point where the kernel
+#: fails on the edge between them (two of the overlap's corners that coincide).
+TRIM_POINT_MERGE_MM = 1e-6
+
+
+def _distinct_points(points: NDArray[np.float64], within: float) -> NDArray[np.float64]:
+    """``points`` without those nearer than ``within`` to an earlier one."""
+    kept: list[int] = []
+    for index, point in enumerate(points):
+        if not kept or np.linalg.norm(points[kept] - point, axis=1).min() >= within:
+            kept.append(index)
+    return points[kept]
 
 
 #: Shifts (mm) tried, in order, when a single feature's boolean cut fails.
