@@ -168,8 +168,8 @@ def _pocket_place(
         return u, 0.5
     width = float(np.linalg.norm(quad_a[1] - quad_a[0] + quad_a[3] - quad_a[2])) / 2.0
     height = float(np.linalg.norm(quad_a[2] - quad_a[0] + quad_a[3] - quad_a[1])) / 2.0
-    us, vs = np.meshgrid(np.linspace(0.0, 1.0, 41), np.linspace(0.0, 1.0, 21), indexing="ij")
-    us, vs = us.ravel(), vs.ravel()
+    grid = np.meshgrid(np.linspace(0.0, 1.0, 41), np.linspace(0.0, 1.0, 21), indexing="ij")
+    us, vs = grid[0].ravel(), grid[1].ravel()
     off_middle = np.sign(u - 0.5) * (us - 0.5) >= abs(u - 0.5) - 1e-12
     moved = np.hypot((us - u) * width, (vs - 0.5) * height)
     wall = feature_wall_mm(profile)
