@@ -19,12 +19,13 @@ import build123d as bd
 import numpy as np
 from numpy.typing import NDArray
 
-from drawstring.cad.clearance import hinge_reliefs
+from drawstring.cad.clearance import HingeReliefs
 from drawstring.cad.design_notes import (
     MAX_RUNS,
     bend_notes,
     hole_notes,
     id_ranges,
+    left_out_notes,
     pin_notes,
     relief_notes,
     strip_notes,
@@ -34,8 +35,9 @@ from drawstring.cad.feature_common import feature_wall_mm
 from drawstring.cad.features import lift_chamfer
 from drawstring.cad.hinge_pins import PinPlan
 from drawstring.cad.hinge_plans import (
+    design_reliefs,
     plan_all_pins,
-    relief_keep_outs,
+    planes_of,
     strip_hole_plans,
     strip_neighbours,
 )
@@ -225,12 +227,13 @@ def build_design_solids(
     jobs = [TileJob(t, flat[t], label=labels) for t in range(len(flat))]
     notes: list[str] = []
     min_radius, channel_sides = _route_tools(jobs, inputs, profile, notes)
-    magnets, failed = _magnet_tools(jobs, inputs, channel_sides, profile, notes)
     if not (np.isfinite(print_clearance_mm) and print_clearance_mm >= 0):
         raise InternalError(f"print_clearance_mm must be 0 or more, got {print_clearance_mm}")
+    reliefs = _reliefs(inputs, profile, print_clearance_mm)
+    magnets, failed = _magnet_tools(jobs, inputs, channel_sides, profile, notes, reliefs)
     _trim_tools(jobs, trims)
     hinge_data, fasteners = _plan_hinges(
-        jobs, inputs, profile, print_clearance_mm, min_radius, notes
+        jobs, inputs, profile, print_clearance_mm, reliefs, min_radius, notes
     )
     results = run_jobs(jobs, profile, hinge_data, workers)
     tiles, pads, unlabelled = _gather(results, inputs, labels, failed, notes, profile)
@@ -436,9 +439,12 @@ def _magnet_tools(
     channel_sides: list[set[int]],
     profile: Profile,
     notes: list[str],
+    reliefs: HingeReliefs | None,
 ) -> tuple[list[MagnetPair], list[tuple[int, str]]]:
     """The magnet pockets into the tiles' jobs, set off the string where it opens the same
-    side; returns the pairs made and ``(tile, "magnet pocket")`` where the kernel failed."""
+    side and clear of the tiles' relief planes; returns the pairs made and
+    ``(tile, "magnet pocket")`` where the kernel failed."""
+    cuts = {} if reliefs is None else reliefs.cuts
     flat, assembled = inputs.flat, inputs.assembled
     magnets = []
     clearance = _channel_radius(profile) + 0.5 * profile.magnet_diameter_mm
@@ -461,6 +467,7 @@ def _magnet_tools(
                 flat_b=flat[tile_b],
                 offset_mm=clearance if shared else 0.0,
                 tile_ids=(int(tile_a), int(tile_b)),
+                cuts=(planes_of(cuts, tile_a), planes_of(cuts, tile_b)),
             )
         except Exception as exc:
             kernel_failure(f"tiles {tile_a} and {tile_b}: magnet pockets", exc)
@@ -475,13 +482,7 @@ def _magnet_tools(
         jobs[record.tile_a].tools.append(tool_a)
         jobs[record.tile_b].tools.append(tool_b)
         magnets.append(record)
-    if left_out:
-        notes.append(
-            f"{len(left_out)} of {len(made)} magnet pairs left out: their "
-            f"{left_out[0].diameter_mm:.2f} mm pockets fit nowhere on their side faces (tiles "
-            + ", ".join(f"{r.tile_a}/{r.tile_b}" for r in left_out)
-            + "); the other pairs join the parts"
-        )
+    notes.extend(left_out_notes(left_out, len(made)))
     broken = [m for m in magnets if not m.fits]
     if broken:
         broken_pairs = ", ".join(f"{m.tile_a}/{m.tile_b}" for m in broken[:MAX_RUNS])
@@ -494,11 +495,19 @@ def _magnet_tools(
     return magnets, failed
 
 
+def _reliefs(inputs: _Inputs, profile: Profile, clearance_mm: float) -> HingeReliefs | None:
+    return design_reliefs(
+        inputs.flat, inputs.hinge_rows, inputs.sides, inputs.steps, inputs.lifts, profile,
+        clearance_mm,
+    )  # fmt: skip
+
+
 def _plan_hinges(
     jobs: list[TileJob],
     inputs: _Inputs,
     profile: Profile,
     print_clearance_mm: float,
+    reliefs: HingeReliefs | None,
     min_radius: NDArray[np.float64],
     notes: list[str],
 ) -> tuple[tuple[HingeData, ...], int]:
@@ -509,13 +518,7 @@ def _plan_hinges(
     relief_planes: dict[int, list[NDArray[np.float64]]] = {}
     hollows: dict[int, list[NDArray[np.float64]]] = {}
     crowds = strip_neighbours(hinge_rows, sides)
-    if print_clearance_mm > 0 and len(hinge_rows):
-        keep_out = relief_keep_outs(
-            flat, hinge_rows, sides, inputs.steps, inputs.lifts, profile, crowds
-        )
-        reliefs = hinge_reliefs(
-            flat, hinge_rows, sides, print_clearance_mm, keep_out, feature_wall_mm(profile)
-        )
+    if reliefs is not None:
         relief_planes, hollows = reliefs.cuts, reliefs.hollows
         for tile, planes in reliefs.cuts.items():
             jobs[tile].reliefs.extend(planes)

@@ -14,6 +14,7 @@ from drawstring.cad.features import BEND_RADIUS_SLACK_MM
 from drawstring.cad.hinge_frame import StripNeighbours, hinge_strip_lengths
 from drawstring.cad.hinge_parts import StripHoles, strip_hole_wall_mm
 from drawstring.cad.hinge_pins import PinPlan
+from drawstring.cad.magnets_labels import MagnetPair
 from drawstring.geometry.core.tile import HingeSide
 from drawstring.geometry.tiling.linkage import id_runs
 
@@ -162,3 +163,15 @@ def pin_notes(plans: Sequence[PinPlan]) -> list[str]:
             f"those pads are held by their recess only (hinges {id_ranges(missing)})"
         )
     return notes
+
+
+def left_out_notes(left_out: Sequence[MagnetPair], made: int) -> list[str]:
+    """The magnet pairs left out because their pockets fit nowhere on their faces."""
+    if not left_out:
+        return []
+    return [
+        f"{len(left_out)} of {made} magnet pairs left out: their {left_out[0].diameter_mm:.2f} "
+        "mm pockets fit nowhere on their side faces (tiles "
+        + ", ".join(f"{r.tile_a}/{r.tile_b}" for r in left_out)
+        + "); the other pairs join the parts"
+    ]

@@ -242,7 +242,7 @@ def place_holes(
     """Hole axes along one half of a strip, each slid inward (up to ``limit`` mm from the
     corner) until it keeps ``wall`` from the tile's side faces (within ``depth`` of the face
     for a blind hole, see :func:`footprint_margin`) and from the planes that cut the tile
-    (``cuts``, see :func:`_cut_margin`), and how many stations never fit."""
+    (``cuts``, see :func:`cut_margin`), and how many stations never fit."""
     placed, missing = [], 0
     for station in stations:
         candidates = np.linspace(station, station + 4.0 * radius, 17)
@@ -250,7 +250,7 @@ def place_holes(
             point = corner + distance * direction
             if (
                 footprint_margin(tile, point, normal, depth) >= radius + wall
-                and _cut_margin(tile, point, normal, radius, cuts, depth) >= wall
+                and cut_margin(tile, point, normal, radius, cuts, depth) >= wall
             ):
                 placed.append(point)
                 break
@@ -259,7 +259,7 @@ def place_holes(
     return placed, missing
 
 
-def _cut_margin(
+def cut_margin(
     tile: NDArray[np.float64],
     point: NDArray[np.float64],
     normal: NDArray[np.float64],

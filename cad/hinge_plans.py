@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import ConvexHull
 
-from drawstring.cad.clearance import ReliefKeepOut
+from drawstring.cad.clearance import HingeReliefs, ReliefKeepOut, hinge_reliefs
 from drawstring.cad.feature_common import feature_wall_mm
 from drawstring.cad.features import channel_keep_out
 from drawstring.cad.hinge_frame import StripNeighbours
@@ -69,6 +69,25 @@ def _feature_keep_outs(
         strips[a].append((hinge, in_a))
         strips[b].append((hinge, in_b))
     return keep, strips
+
+
+def design_reliefs(
+    flat: NDArray[np.float64],
+    hinge_rows: NDArray[np.int64],
+    sides: Sequence[HingeSide],
+    steps: NDArray[np.int64],
+    lifts: NDArray[np.int64],
+    profile: Profile,
+    clearance_mm: float,
+) -> HingeReliefs | None:
+    """The hinge reliefs (:func:`~drawstring.cad.clearance.hinge_reliefs`) of tiles printed
+    together (``clearance_mm > 0``), measured against what the tiles hold
+    (:func:`relief_keep_outs`); None for loose tiles or no hinges."""
+    if not (clearance_mm > 0 and len(hinge_rows)):
+        return None
+    crowds = strip_neighbours(hinge_rows, sides)
+    keep_out = relief_keep_outs(flat, hinge_rows, sides, steps, lifts, profile, crowds)
+    return hinge_reliefs(flat, hinge_rows, sides, clearance_mm, keep_out, feature_wall_mm(profile))
 
 
 def relief_keep_outs(
@@ -136,7 +155,7 @@ def plan_all_pins(
             profile,
             (others(a, hinge), others(b, hinge)),
             crowds[hinge],
-            (_planes(reliefs, a), _planes(reliefs, b)),
+            (planes_of(reliefs, a), planes_of(reliefs, b)),
         )
         if hollows:
             plan = _clear_of_hollows(
@@ -169,9 +188,10 @@ def _clear_of_hollows(
     return PinPlan((pins[0], pins[1]), plan.short, tuple(notes))
 
 
-def _planes(
+def planes_of(
     reliefs: Mapping[int, Sequence[NDArray[np.float64]]], tile: int
 ) -> NDArray[np.float64] | None:
+    """The planes ``(n, d)`` that cut ``tile`` as one ``(k, 4)`` array, or None."""
     found = reliefs.get(int(tile))
     return None if not found else np.asarray(found, dtype=np.float64).reshape(-1, 4)
 

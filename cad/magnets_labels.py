@@ -31,8 +31,16 @@ from drawstring.cad.feature_common import (
     feature_wall_mm,
     signed_area,
 )
+from drawstring.cad.hinge_frame import cut_margin
 from drawstring.cad.kernel import polyhedron_solid
 from drawstring.cad.paths import FACE_BOTTOM, check_side, face_planes, unit_vector
+from drawstring.cad.side_faces import (
+    bilinear,
+    invert_bilinear,
+    pocket_fits,
+    pocket_place,
+    side_quad,
+)
 from drawstring.geometry.core.errors import InternalError
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
@@ -77,8 +85,8 @@ class MagnetPair:
         (T, 8, 3)): each keeps its place on its face (bilinear face coordinates, as cut)."""
         ends = []
         for tile, side in ((self.tile_a, self.side_a), (self.tile_b, self.side_b)):
-            u, v = _invert_bilinear(_side_quad(assembled[tile], side), self.centre, 0.5, 0.5)
-            ends.append((tile, side, _bilinear(_side_quad(flat[tile], side), u, v)))
+            u, v = invert_bilinear(side_quad(assembled[tile], side), self.centre, 0.5, 0.5)
+            ends.append((tile, side, bilinear(side_quad(flat[tile], side), u, v)))
         return ends[0], ends[1]
 
     def to_json(self) -> dict[str, object]:
@@ -96,87 +104,11 @@ class MagnetPair:
         }
 
 
-def _side_quad(tile: NDArray[np.float64], side: int) -> NDArray[np.float64]:
-    """(4, 3): top k, top k+1, bottom k, bottom k+1 of side ``side``."""
-    nxt = (side + 1) % 4
-    return np.asarray(tile[[side, nxt, 4 + side, 4 + nxt]])
-
-
-def _bilinear(quad: NDArray[np.float64], u: float, v: float) -> NDArray[np.float64]:
-    """Point at (u along the top edge, v from top to bottom) of a side quad."""
-    top = (1 - u) * quad[0] + u * quad[1]
-    bottom = (1 - u) * quad[2] + u * quad[3]
-    return np.asarray((1 - v) * top + v * bottom)
-
-
-def _invert_bilinear(quad: NDArray[np.float64], point: NDArray[np.float64], u: float, v: float):
-    """(u, v) of the point of a side quad nearest ``point`` (Gauss-Newton from a guess)."""
-    for _ in range(20):
-        residual = _bilinear(quad, u, v) - point
-        du = (1 - v) * (quad[1] - quad[0]) + v * (quad[3] - quad[2])
-        dv = ((1 - u) * quad[2] + u * quad[3]) - ((1 - u) * quad[0] + u * quad[1])
-        jac = np.stack([du, dv], axis=1)
-        step = np.linalg.lstsq(jac, -residual, rcond=None)[0]
-        u, v = u + float(step[0]), v + float(step[1])
-        if np.linalg.norm(step) < 1e-14:
-            break
-    return u, v
-
-
 def _pocket(
     centre: NDArray[np.float64], outward: NDArray[np.float64], radius: float, depth: float
 ) -> bd.Solid:
     origin = centre + TOOL_OVERSHOOT_MM * outward
     return bd.Solid.make_cylinder(radius, depth + TOOL_OVERSHOOT_MM, bd_plane(origin, -outward))
-
-
-def _pocket_fits(quad: NDArray[np.float64], u: float, v: float, radius: float) -> bool:
-    """Whether a pocket circle at (u, v) stays inside the side face (mid-lines test)."""
-    centre = _bilinear(quad, u, v)
-    edges = (
-        (_bilinear(quad, 0, 0), _bilinear(quad, 1, 0)),
-        (_bilinear(quad, 0, 1), _bilinear(quad, 1, 1)),
-        (_bilinear(quad, 0, 0), _bilinear(quad, 0, 1)),
-        (_bilinear(quad, 1, 0), _bilinear(quad, 1, 1)),
-    )
-    for a, b in edges:
-        direction = unit_vector(b - a)
-        offset = centre - a
-        distance = np.linalg.norm(offset - (offset @ direction) * direction)
-        if distance < radius:
-            return False
-    return True
-
-
-def _pocket_place(
-    quad_a: NDArray[np.float64],
-    quad_b: NDArray[np.float64],
-    u: float,
-    radius: float,
-    profile: Profile,
-) -> tuple[float, float]:
-    """``(u, v)`` of a pocket on side quad a: ``(u, 0.5)`` where it fits both faces
-    (:func:`_pocket_fits`), else the nearest place where it fits them a
-    :func:`feature_wall_mm` inside their edges and lies no nearer the face's middle than ``u``
-    (a pocket set off a string channel stays off it), else ``(u, 0.5)`` (it breaks out)."""
-
-    def fits(at_u: float, at_v: float, size: float) -> bool:
-        u_b, v_b = _invert_bilinear(quad_b, _bilinear(quad_a, at_u, at_v), 1.0 - at_u, at_v)
-        return _pocket_fits(quad_a, at_u, at_v, size) and _pocket_fits(quad_b, u_b, v_b, size)
-
-    if fits(u, 0.5, radius):
-        return u, 0.5
-    width = float(np.linalg.norm(quad_a[1] - quad_a[0] + quad_a[3] - quad_a[2])) / 2.0
-    height = float(np.linalg.norm(quad_a[2] - quad_a[0] + quad_a[3] - quad_a[1])) / 2.0
-    grid = np.meshgrid(np.linspace(0.0, 1.0, 41), np.linspace(0.0, 1.0, 21), indexing="ij")
-    us, vs = grid[0].ravel(), grid[1].ravel()
-    off_middle = np.sign(u - 0.5) * (us - 0.5) >= abs(u - 0.5) - 1e-12
-    moved = np.hypot((us - u) * width, (vs - 0.5) * height)
-    wall = feature_wall_mm(profile)
-    for k in np.flatnonzero(off_middle)[np.argsort(moved[off_middle], kind="stable")]:
-        if fits(float(us[k]), float(vs[k]), radius + wall):
-            return float(us[k]), float(vs[k])
-    return u, 0.5
 
 
 def magnet_pockets(
@@ -190,6 +122,7 @@ def magnet_pockets(
     flat_b: NDArray[np.float64] | None = None,
     offset_mm: float = 0.0,
     tile_ids: tuple[int, int] = (-1, -1),
+    cuts: tuple[NDArray[np.float64] | None, NDArray[np.float64] | None] = (None, None),
 ) -> tuple[bd.Solid, bd.Solid, MagnetPair]:
     """Tools: one cylindrical magnet pocket in each of two faces that touch across a split.
 
@@ -203,6 +136,9 @@ def magnet_pockets(
         The pocket keeps its place on the face (bilinear face coordinates).
     offset_mm : shift of the pocket along the face from its centre (to clear a channel).
     tile_ids : tile numbers written into the record.
+    cuts : per tile, planes ``(n, d)`` (flat pose) that cut it (hinge reliefs, see
+        :func:`~drawstring.cad.hinge_frame.place_holes`): a pocket one of them would open is
+        moved along the face (:func:`pocket_place`).
 
     Returns
     -------
@@ -213,14 +149,33 @@ def magnet_pockets(
     check_side(side_b, "side_b")
     tile_a = np.asarray(tile_a, dtype=np.float64)
     tile_b = np.asarray(tile_b, dtype=np.float64)
-    quad_a, quad_b = _side_quad(tile_a, side_a), _side_quad(tile_b, side_b)
-    width = float(np.linalg.norm(_bilinear(quad_a, 1, 0.5) - _bilinear(quad_a, 0, 0.5)))
+    quad_a, quad_b = side_quad(tile_a, side_a), side_quad(tile_b, side_b)
+    width = float(np.linalg.norm(bilinear(quad_a, 1, 0.5) - bilinear(quad_a, 0, 0.5)))
     radius = 0.5 * profile.magnet_diameter_mm + profile.magnet_clearance_mm
-    u_a, v_a = _pocket_place(quad_a, quad_b, 0.5 + offset_mm / width, radius, profile)
-    centre = _bilinear(quad_a, u_a, v_a)
-    u_b, v_b = _invert_bilinear(quad_b, centre, 1.0 - u_a, v_a)
     depth = profile.magnet_height_mm + profile.magnet_clearance_mm
-    fits = _pocket_fits(quad_a, u_a, v_a, radius) and _pocket_fits(quad_b, u_b, v_b, radius)
+    flats = (
+        np.asarray(flat_a if flat_a is not None else tile_a, dtype=np.float64),
+        np.asarray(flat_b if flat_b is not None else tile_b, dtype=np.float64),
+    )
+
+    def clear(at_u: float, at_v: float, wall: float) -> bool:
+        u_b, v_b = invert_bilinear(quad_b, bilinear(quad_a, at_u, at_v), 1.0 - at_u, at_v)
+        for flat, side, u, v, cut in zip(
+            flats, (side_a, side_b), (at_u, u_b), (at_v, v_b), cuts, strict=True
+        ):
+            if cut is None or not len(cut):
+                continue
+            point = bilinear(side_quad(flat, side), u, v)
+            normal = face_planes(flat)[1][side]
+            if cut_margin(flat, point, normal, radius, cut, depth) < wall:
+                return False
+        return True
+
+    start = 0.5 + offset_mm / width
+    u_a, v_a = pocket_place(quad_a, quad_b, start, radius, profile, clear)
+    centre = bilinear(quad_a, u_a, v_a)
+    u_b, v_b = invert_bilinear(quad_b, centre, 1.0 - u_a, v_a)
+    fits = pocket_fits(quad_a, u_a, v_a, radius) and pocket_fits(quad_b, u_b, v_b, radius)
     tools = []
     for flat, side, u, v in (
         (flat_a if flat_a is not None else tile_a, side_a, u_a, v_a),
@@ -228,7 +183,7 @@ def magnet_pockets(
     ):
         flat = np.asarray(flat, dtype=np.float64)
         _, normals = face_planes(flat)
-        tools.append(_pocket(_bilinear(_side_quad(flat, side), u, v), normals[side], radius, depth))
+        tools.append(_pocket(bilinear(side_quad(flat, side), u, v), normals[side], radius, depth))
     record = MagnetPair(
         tile_ids[0], side_a, tile_ids[1], side_b, centre, 2 * radius, depth, "N", "S", fits
     )

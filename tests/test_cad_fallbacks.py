@@ -18,7 +18,7 @@ import pytest
 
 from drawstring.cad.feature_common import feature_wall_mm
 from drawstring.cad.features import trim_tool
-from drawstring.cad.magnets_labels import _bilinear, _pocket_fits, _pocket_place
+from drawstring.cad.side_faces import bilinear, pocket_fits, pocket_place
 from drawstring.cad.tiles import convex_solid, tile_solid
 from drawstring.fabrication.profiles import Profile, load_profile
 
@@ -44,11 +44,11 @@ def test_a_pocket_that_breaks_out_at_the_centre_moves_to_where_it_fits(profile: 
     quad_a = _face([(0.0, 0.0), (20.0, 0.0), (0.0, -6.0), (1.0, -6.0)])
     quad_b = quad_a[[1, 0, 3, 2]]  # the touching face, seen from the other tile
     radius = 0.5 * profile.magnet_diameter_mm + profile.magnet_clearance_mm
-    assert not _pocket_fits(quad_a, 0.5, 0.5, radius)
-    u, v = _pocket_place(quad_a, quad_b, 0.5, radius, profile)
+    assert not pocket_fits(quad_a, 0.5, 0.5, radius)
+    u, v = pocket_place(quad_a, quad_b, 0.5, radius, profile)
     assert (u, v) != (0.5, 0.5)
-    assert _pocket_fits(quad_a, u, v, radius + feature_wall_mm(profile))
-    assert np.linalg.norm(_bilinear(quad_a, u, v) - _bilinear(quad_a, 0.5, 0.5)) < 6.0
+    assert pocket_fits(quad_a, u, v, radius + feature_wall_mm(profile))
+    assert np.linalg.norm(bilinear(quad_a, u, v) - bilinear(quad_a, 0.5, 0.5)) < 6.0
 
 
 def test_a_pocket_that_fits_stays_and_one_that_fits_nowhere_is_not_moved(
@@ -56,9 +56,9 @@ def test_a_pocket_that_fits_stays_and_one_that_fits_nowhere_is_not_moved(
 ) -> None:
     radius = 0.5 * profile.magnet_diameter_mm + profile.magnet_clearance_mm
     wide = _face([(0.0, 0.0), (20.0, 0.0), (0.0, -6.0), (20.0, -6.0)])
-    assert _pocket_place(wide, wide[[1, 0, 3, 2]], 0.6, radius, profile) == (0.6, 0.5)
+    assert pocket_place(wide, wide[[1, 0, 3, 2]], 0.6, radius, profile) == (0.6, 0.5)
     narrow = _face([(0.0, 0.0), (3.5, 0.0), (0.0, -6.0), (3.5, -6.0)])  # 3.5 mm: goat_head's
-    assert _pocket_place(narrow, narrow[[1, 0, 3, 2]], 0.5, radius, profile) == (0.5, 0.5)
+    assert pocket_place(narrow, narrow[[1, 0, 3, 2]], 0.5, radius, profile) == (0.5, 0.5)
 
 
 def test_a_trim_with_corners_a_hair_apart_is_cut() -> None:
