@@ -175,7 +175,11 @@ def magnet_pockets(
     u_a, v_a = pocket_place(quad_a, quad_b, start, radius, profile, clear)
     centre = bilinear(quad_a, u_a, v_a)
     u_b, v_b = invert_bilinear(quad_b, centre, 1.0 - u_a, v_a)
-    fits = pocket_fits(quad_a, u_a, v_a, radius) and pocket_fits(quad_b, u_b, v_b, radius)
+    fits = (
+        pocket_fits(quad_a, u_a, v_a, radius)
+        and pocket_fits(quad_b, u_b, v_b, radius)
+        and clear(u_a, v_a, 0.0)
+    )
     tools = []
     for flat, side, u, v in (
         (flat_a if flat_a is not None else tile_a, side_a, u_a, v_a),
