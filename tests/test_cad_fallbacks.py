@@ -75,3 +75,21 @@ def test_a_trim_with_corners_a_hair_apart_is_cut() -> None:
     # the trim's hull less what lies outside the tile, to the kernel's precision
     assert block.volume - cut.volume == pytest.approx((block & tool).volume, rel=1e-6)
     assert 0.0 < block.volume - cut.volume <= tool.volume
+
+
+def test_a_pocket_a_relief_would_open_moves_clear_of_it(profile: Profile) -> None:
+    # A wide face whose left part (u < 0.6) a relief plane cuts: the pocket leaves the
+    # centre for the nearest place the cut leaves a wall clear, along the top edge.
+    wide = _face([(0.0, 0.0), (20.0, 0.0), (0.0, -6.0), (20.0, -6.0)])
+    radius = 0.5 * profile.magnet_diameter_mm + profile.magnet_clearance_mm
+    asked: list[float] = []
+
+    def clear(u: float, v: float, wall: float) -> bool:
+        asked.append(wall)
+        return (u - 0.6) * 20.0 >= radius + wall  # the cut's edge at u = 0.6, seen on the face
+
+    u, v = pocket_place(wide, wide[[1, 0, 3, 2]], 0.5, radius, profile, clear)
+    assert asked[0] == 0.0 and max(asked) == pytest.approx(feature_wall_mm(profile))
+    assert (u - 0.6) * 20.0 >= radius + feature_wall_mm(profile) - 1e-9
+    # the first place on the grid (1/40 of the face apart) 2.05 mm past the cut: u = 0.725
+    assert v == 0.5 and u == pytest.approx(0.725)
