@@ -390,16 +390,32 @@ def trim_tool(points: NDArray[np.float64]) -> bd.Solid:
         raise InternalError(f"a trim polyhedron needs (k >= 4, 3) points, got shape {array.shape}")
     try:
         return convex_solid(array)
-    except Exception:  # the kernel's own errors: an edge between points a hair apart
-        distinct = _distinct_points(array, TRIM_POINT_MERGE_MM)
-        if len(distinct) == len(array):
-            raise
-        return convex_solid(distinct)
+    except Exception as exc:  # the kernel's own errors: an edge between points a hair apart
+        first = exc
+    # Made again from points a hair apart merged, then from points rounded to a grid (each
+    # moves under 1e-5 mm), the first valid solid kept; else the first one made.
+    made: bd.Solid | None = None
+    for points in (
+        _distinct_points(array, TRIM_POINT_MERGE_MM),
+        *(np.unique(np.round(array, digits), axis=0) for digits in TRIM_GRID_DECIMALS),
+    ):
+        try:
+            solid = convex_solid(points)
+        except Exception:
+            continue
+        if solid.is_valid:
+            return solid
+        made = made or solid
+    if made is None:
+        raise first  # the kernel's failure, which the tile's build notes
+    return made
 
 
 #: Points of a trim polyhedron nearer each other than this (mm) are one point where the kernel
 #: fails on the edge between them (two of the overlap's corners that coincide).
 TRIM_POINT_MERGE_MM = 1e-6
+#: Decimals (mm) a trim polyhedron's points are rounded to where merging them is not enough.
+TRIM_GRID_DECIMALS = (5, 4)
 
 
 def _distinct_points(points: NDArray[np.float64], within: float) -> NDArray[np.float64]:

@@ -69,6 +69,7 @@ def test_a_trim_with_corners_a_hair_apart_is_cut() -> None:
     with pytest.raises(Exception):  # noqa: B017 (the kernel's own error class)
         convex_solid(points)
     tool = trim_tool(points)
+    assert tool.is_valid  # made again from the points rounded to 1e-5 mm
     block = tile_solid(tile)
     cut = block - tool
     assert cut.is_valid
