@@ -15,6 +15,7 @@ from drawstring.cad.clearance import (
     hinge_reliefs,
     separating_normal,
 )
+from drawstring.cad.features import trim_tool
 from drawstring.cad.hinge_pins import KeepOut
 from drawstring.cad.tiles import relieved_tile_solid, tile_solid
 
@@ -181,6 +182,34 @@ def test_a_deep_relief_is_made_where_it_clears_the_tiles_features() -> None:
 
     blocked = hinge_reliefs(tiles, hinge, ["top"], 0.4, at_hinge, 0.4)
     assert blocked.skipped == (0,) and blocked.deep == () and not blocked.cuts
+
+
+def test_where_no_plane_clears_the_features_one_tile_loses_only_what_is_too_near() -> None:
+    # The 3 mm pair again: every plane relief would open a ball at the hinge corner of the
+    # hinge's own strip (own=True), so one tile instead loses just what lies within the
+    # clearance of the other (the other's hull pushed out 0.4 mm), which the strip bridges:
+    # the two then print 0.4 mm apart.
+    tiles = _hinged_pair(12.0, 3.0)
+    for tile in tiles:
+        centre = tile[4:, :2].mean(axis=0)
+        tile[4:, :2] = centre + 1.3 * (tile[4:, :2] - centre)
+    near = [t[0] + 0.4 * (t[4] - t[0]) + 0.05 * (t.mean(axis=0) - t[0]) for t in tiles]
+
+    def strip_at_hinge(tile: int, index: int, own: bool) -> KeepOut:
+        if not own:
+            return KeepOut()
+        return KeepOut(near[tile][None], np.array([0.3]))
+
+    reliefs = hinge_reliefs(tiles, np.array([[0, 0, 1, 0]]), ["top"], 0.4, strip_at_hinge, 0.4)
+    assert reliefs.skipped == () and reliefs.hollowed == (0,) and not reliefs.cuts
+    assert 0.0 < reliefs.share_max <= MAX_DEEP_RELIEF_SHARE
+    ((cut, polyhedra),) = reliefs.hollows.items()
+    solids = [tile_solid(t) for t in tiles]
+    for points in polyhedra:
+        solids[cut] = solids[cut] - trim_tool(points)
+    assert clearances(solids, 1.0).min_distance >= 0.4 - 1e-4
+    plain = tile_solid(tiles[cut]).volume
+    assert 1.0 - solids[cut].volume / plain == pytest.approx(reliefs.share_max, abs=1e-3)
 
 
 def test_a_dart_shaped_tile_keeps_its_notch_when_relieved() -> None:
