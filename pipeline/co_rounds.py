@@ -211,11 +211,13 @@ def co_optimized(
         flat.edge_error_max_mm, conical=conical, give_up_slow=give_up_slow, policy=policy
     )
     current, nodes = assembled, None
+    # the joint solve's pull to the target: eq. 1's surface weight (--weights), or the policy's
+    surface = policy.co_surface or (options.weights[2], 0.0)
     rounds: list[tuple[tuple[float, float], ...]] = [CO_STAGES, CO_STAGES[-1:]]
     best: tuple[AssembledResult, FlatResult] | None = None
     for _ in range(policy.co_refinements + 1):
         current, co = _joint_round(
-            rounds, linkage, assembled, current, nodes, flat, target, options, openings,
+            rounds, linkage, assembled, current, nodes, flat, target, surface, openings,
             first_solves, conical, conical_weight, block,
         )  # fmt: skip
         if best is None and not co.edge_error_max_mm < flat.edge_error_max_mm:
@@ -319,7 +321,7 @@ def _joint_round(
     nodes: NDArray[np.float64] | None,
     flat: FlatResult,
     target: Target,
-    options: ResolvedOptions,
+    surface: tuple[float, float],
     openings: _Openings,
     first_solves: dict[str, CoOptimizedTop] | None,
     conical: bool,
@@ -328,7 +330,8 @@ def _joint_round(
 ) -> tuple[AssembledResult, CoOptimizedTop]:
     """The joint solves of one round of :func:`co_optimized`, one per continuation schedule
     in ``rounds``, each from the last: the moved assembled shape (T3D moved along with its new
-    top) and the last joint solve.  Their steps are added to ``block``.
+    top) and the last joint solve.  Their steps are added to ``block``; ``surface``: the
+    weights of their pull to the target, at the vertices and at the quads' face samples.
 
     Round 1 runs the whole continuation. The bottom faces decide the bottom-face angle bounds,
     so round 2 repeats the last stage with T3D moved along with the new top (a translation of
@@ -355,7 +358,8 @@ def _joint_round(
                 target.vertices,
                 target.faces,
                 tiles_3d=current.tiles,
-                w_surface=options.weights[2],
+                w_surface=surface[0],
+                w_samples=surface[1],
                 stages=stages,
                 start_nodes=nodes,
                 hinges=openings.faces_given if first else openings(current.tiles),

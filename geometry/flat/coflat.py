@@ -155,6 +155,7 @@ class _JointTopLeastSquares:
         w_surface: float,
         corner_shift: FloatArray | None = None,
         stars: VertexStars | None = None,
+        w_samples: float = 0.0,
     ) -> None:
         self.corner_node = linkage.corner_node
         self.n_nodes = linkage.n_nodes
@@ -165,6 +166,10 @@ class _JointTopLeastSquares:
         self.rows = self.n_nodes + (3 * self.n + self.pad) // 2
         self.target, self.tree, self.target_normals = _target_search(target_vertices, target_faces)
         self.sqrt_surface = float(np.sqrt(max(w_surface, 0.0)))
+        #: the quads' centres and edge midpoints as rows of vertex weights, pulled to the
+        #: target with ``w_samples`` (None without)
+        self.samples = face_sample_matrix(quads, self.n) if w_samples > 0 else None
+        self.sqrt_samples = float(np.sqrt(max(w_samples, 0.0)))
         self.sqrt_edge = 1.0
         self.sqrt_planar = 1.0
         self.node_i = self.corner_node[:, TILE_EDGES[:, 0]].ravel()
@@ -191,7 +196,8 @@ class _JointTopLeastSquares:
 
     def _planes_and_closest(self, top: FloatArray) -> tuple[FloatArray, ...]:
         """Best-fit plane (centroid, normal) of every quad of ``top``, and every vertex's
-        closest target point with the normal of its face (zeros without ``w_surface``)."""
+        closest target point with the normal of its face (zeros without ``w_surface``); with
+        face samples, also the samples, their closest points and those faces' normals."""
         if self._seen is not None and np.array_equal(self._seen[0], top):
             return self._seen[1]
         centroid, normal = plane_fit(top[self.quads])
@@ -200,7 +206,11 @@ class _JointTopLeastSquares:
             face_normal = self.target_normals[np.asarray(face, dtype=np.int64)]
         else:
             closest = face_normal = np.zeros((0, 3))
-        found = (centroid, normal, np.asarray(closest), face_normal)
+        found: tuple[FloatArray, ...] = (centroid, normal, np.asarray(closest), face_normal)
+        if self.samples is not None:
+            points = np.ascontiguousarray(self.samples @ top)
+            _, face, near = self.tree.squared_distance(*self.target, points)
+            found += (points, np.asarray(near), self.target_normals[np.asarray(face, np.int64)])
         self._seen = (top.copy(), found)
         return found
 
@@ -233,10 +243,12 @@ class _JointTopLeastSquares:
         nodes, top = self.unpack(z)
         acc = _Rows()
         self._edge_rows(acc, nodes, top, with_jacobian)
-        centroid, normal, closest, fn = self._planes_and_closest(top)
+        centroid, normal, closest, fn, *sampled = self._planes_and_closest(top)
         self._planar_rows(acc, top, centroid, normal, with_jacobian)
         if self.sqrt_surface > 0:
             self._surface_rows(acc, top, closest, fn, with_jacobian)
+        if sampled:
+            self._sample_rows(acc, sampled[0], sampled[1], sampled[2], with_jacobian)
         if self.stars is not None and self.sqrt_conical > 0:
             self._conical_rows(acc, self.stars, top, with_jacobian)
         self._keep_rows(acc, top, with_jacobian)
@@ -303,6 +315,22 @@ class _JointTopLeastSquares:
                 acc.vals.append(w * fn[:, c])
         acc.row0 += self.n
 
+    def _sample_rows(
+        self, acc: _Rows, points: FloatArray, closest: FloatArray, fn: FloatArray, jac: bool
+    ) -> None:
+        """Closeness of the face samples to the target along the closest face's normal."""
+        assert self.samples is not None
+        base = 2 * self.n_nodes
+        w = self.sqrt_samples
+        acc.res.append(w * np.einsum("vi,vi->v", points - closest, fn))
+        if jac:
+            coo = self.samples.tocoo()
+            for c in range(3):
+                acc.rows.append(acc.row0 + coo.row)
+                acc.cols.append(base + 3 * coo.col + c)
+                acc.vals.append(w * coo.data * fn[coo.row, c])
+        acc.row0 += len(points)
+
     def _conical_rows(self, acc: _Rows, stars: VertexStars, top: FloatArray, jac: bool) -> None:
         """Conical: opposite angles at every inner vertex sum equal (scaled by the mean side)."""
         base = 2 * self.n_nodes
@@ -347,6 +375,19 @@ class _JointTopLeastSquares:
         )
 
 
+def face_sample_matrix(quads: IntArray, n_vertices: int) -> sp.csr_matrix:
+    """The quads' centres and their unique edges' midpoints as rows of vertex weights
+    (the points :class:`~drawstring.geometry.solve.groups.FaceSamplesToSurface` pulls)."""
+    q = np.asarray(quads, dtype=np.int64)
+    pairs = np.stack([q, np.roll(q, -1, axis=1)], axis=2).reshape(-1, 2)
+    edges = np.unique(np.sort(pairs, axis=1), axis=0)
+    m, k = len(q), len(edges)
+    rows = np.concatenate([np.repeat(np.arange(m), 4), m + np.repeat(np.arange(k), 2)])
+    cols = np.concatenate([q.ravel(), edges.ravel()])
+    vals = np.concatenate([np.full(4 * m, 0.25), np.full(2 * k, 0.5)])
+    return sp.csr_matrix((vals, (rows, cols)), shape=(m + k, n_vertices))
+
+
 class _Rows:
     """Residuals and Jacobian triplets (rows, columns, values) gathered term by term; ``row0``
     is the first row of the next term."""
@@ -375,6 +416,7 @@ def co_optimize_top(
     hinges: HingeFaces | None = None,
     conical: bool = False,
     conical_weight: float | None = None,
+    w_samples: float = 0.0,
 ) -> CoOptimizedTop:
     """Move K3D and K2D together until every flat tile is congruent to its assembled top face
     (with ``hinges``: to its hinge points).
@@ -399,8 +441,9 @@ def co_optimize_top(
     target_vertices, target_faces : the target surface.
     tiles_3d : (T, 8, 3) float, mm, optional
         T3D, for the bottom-face angle bounds.
-    w_surface : float
-        Closeness to the target (paper eq. 1's ``w_3``), relative to the pull of ``CO_KEEP``.
+    w_surface, w_samples : float
+        Closeness to the target (paper eq. 1's ``w_3``), relative to the pull of ``CO_KEEP``,
+        of the vertices and of the quads' centres and edge midpoints (0: none).
     stages, steps_per_stage : continuation schedule (default ``CO_STAGES``, ``CO_STEPS``).
     start_nodes : (n_nodes, 2) float, mm, optional
         K2D to start from instead of ``flat.nodes`` (a previous round's nodes).
@@ -423,7 +466,7 @@ def co_optimize_top(
     top0 = np.asarray(top, dtype=np.float64)
     problem, constraints, side = _joint_problem(
         linkage, flat, top0, quads, (target_vertices, target_faces), tiles_3d, w_surface,
-        hinges, conical,
+        hinges, conical, w_samples,
     )  # fmt: skip
     nodes0 = flat.nodes if start_nodes is None else np.asarray(start_nodes, dtype=np.float64)
     z = problem.pack(nodes0, top0)
@@ -469,6 +512,7 @@ def _joint_problem(
     w_surface: float,
     hinges: HingeFaces | None,
     conical: bool,
+    w_samples: float = 0.0,
 ) -> tuple[_JointTopLeastSquares, list[AngleRows | SeparationRows], float]:
     """The least squares of :func:`co_optimize_top` (its arguments checked), the flat layout's
     hard rows on the tiles' corners (the hinge points of a dual layout), ``CO_ANGLE_MARGIN_DEG``
@@ -508,5 +552,6 @@ def _joint_problem(
         w_surface,
         shift,
         vertex_stars(q) if conical and hinges is not None and hinges.bottom.any() else None,
+        w_samples,
     )
     return problem, constraints, side
