@@ -66,7 +66,7 @@ from drawstring.pipeline.fit_quality import surface_distances
 from drawstring.pipeline.layout_stage import ShapedLayout, shape_and_layout, split_bound
 from drawstring.pipeline.policy import LayoutPolicy
 from drawstring.pipeline.record import Progress, ResolvedOptions, rounded
-from drawstring.pipeline.shapes import FirstCheck, ShapeCache, refusing_shape
+from drawstring.pipeline.shapes import FirstCheck, ShapeCache, mesh_key, refusing_shape
 
 
 def fitted_layout(
@@ -279,12 +279,7 @@ class _CloseTrial:
         )  # fmt: skip
         accuracy = trial.accuracy_mm
         trial, distances, move = rigidly_fitted(trial, loaded)
-        tried.update(
-            rigid_fit_move_max_mm=rounded(move, 6),
-            accuracy_mm=rounded(accuracy, 9),
-            surface_distance_mean_mm=rounded(distances.mean, 9),
-            surface_distance_max_mm=rounded(distances.max, 9),
-        )
+        tried.update(_measures(accuracy, distances, move))
         if accuracy > min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM) or trial.hinge_layout is None:
             return None, (
                 f"its flat tiles met their hinges with their assembled shapes only to "
@@ -312,36 +307,41 @@ class _CloseTrial:
         """The close shape laid out again with the co-optimization pulling it to the target
         too (``policy.close_fit_top_co``), kept in place of ``first`` (its top faces at
         ``distances``) where it meets the 1e-3 mm targets and sits closer to the target on
-        average and no farther at most; ``tried`` gets its measures as ``co_surface`` (and
-        the kept layout's where it is kept)."""
+        average and no farther at most; while the kept one misses the fit level, laid out so
+        again from its own assembled shape, up to ``policy.close_fit_top_passes`` times.
+        ``tried`` gets the measures of each pass as ``co_surface`` (and the kept layout's)."""
         weights = self.policy.close_fit_top_co
         policy = replace(self.policy, co_surface=weights)
-        second = shape_and_layout(
-            self.loaded, self.flat_map, options, self.progress, policy=policy, shapes=shapes,
-            first_tiling=self.first_tiling,
-        )  # fmt: skip
-        accuracy = second.accuracy_mm
-        second, near, move = rigidly_fitted(second, self.loaded)
-        measured = {
-            "rigid_fit_move_max_mm": rounded(move, 6),
-            "accuracy_mm": rounded(accuracy, 9),
-            "surface_distance_mean_mm": rounded(near.mean, 9),
-            "surface_distance_max_mm": rounded(near.max, 9),
-        }
-        kept = (
-            second.hinge_layout is not None
-            and accuracy <= min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
-            and near.mean < distances.mean
-            and near.max <= distances.max
-        )
-        before = {k: tried[k] for k in measured}
-        tried["co_surface"] = {"surface": weights[0], "face_samples": weights[1], **measured}
-        tried["co_surface"]["kept"] = kept
-        if not kept:
-            return first
-        tried.update(measured)
-        tried["co_surface"]["paper_co"] = before
-        return second
+        record: dict[str, Any] = {"surface": weights[0], "face_samples": weights[1]}
+        record["paper_co"] = {k: tried[k] for k in _MEASURED}
+        record["passes"] = passes = []
+        tried["co_surface"] = record
+        kept, near = first, distances
+        for _ in range(self.policy.close_fit_top_passes):
+            if kept is not first:  # from the shape the last pass kept, on every tiling
+                shapes = _seeded(shapes, self.first_tiling, kept.assembled)
+            trial = shape_and_layout(
+                self.loaded, self.flat_map, options, self.progress, policy=policy,
+                shapes=shapes, first_tiling=self.first_tiling,
+            )  # fmt: skip
+            accuracy = trial.accuracy_mm
+            trial, closer, move = rigidly_fitted(trial, self.loaded)
+            measured = _measures(accuracy, closer, move)
+            better = (
+                trial.hinge_layout is not None
+                and accuracy <= min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM)
+                and closer.mean < near.mean
+                and closer.max <= near.max
+            )
+            passes.append({**measured, "kept": better})
+            if not better:
+                break
+            kept, near = trial, closer
+            tried.update(measured)
+            if meets_fit_level(kept, near, self.loaded):
+                break
+        record["kept"] = kept is not first
+        return kept
 
     def closer_than(
         self, paper: TopFaceDistances
@@ -375,6 +375,36 @@ def rigidly_fitted(
     moved = replace(assembled, top=top, bottom=bottom, tiles=tiles)
     move = float(np.linalg.norm(tiles - assembled.tiles, axis=2).max())
     return replace(laid_out, assembled=moved), after, move
+
+
+#: The measures of a laid-out close shape in ``metrics.fit`` (:func:`_measures`).
+_MEASURED = (
+    "rigid_fit_move_max_mm",
+    "accuracy_mm",
+    "surface_distance_mean_mm",
+    "surface_distance_max_mm",
+)
+
+
+def _measures(accuracy: float, distances: TopFaceDistances, move: float) -> dict[str, Any]:
+    """A laid-out close shape's accuracy (mm), its top faces' distances from the target and
+    its rigid fit's largest move, as ``metrics.fit`` records them."""
+    return {
+        "rigid_fit_move_max_mm": rounded(move, 6),
+        "accuracy_mm": rounded(accuracy, 9),
+        "surface_distance_mean_mm": rounded(distances.mean, 9),
+        "surface_distance_max_mm": rounded(distances.max, 9),
+    }
+
+
+def _seeded(shapes: ShapeCache, tiling: Tiling, assembled: AssembledResult) -> ShapeCache:
+    """A shape cache with ``assembled`` as the shape of ``tiling``'s quad mesh (which every
+    tighter tiling shares), read-only, and ``shapes``' eq.-1 weights."""
+    seeded = ShapeCache(shapes.eq1)
+    for array in (assembled.top, assembled.bottom, assembled.tiles):
+        array.flags.writeable = False
+    seeded[mesh_key(tiling)] = assembled
+    return seeded
 
 
 def meets_fit_level(laid_out: ShapedLayout, distances: TopFaceDistances, loaded: Target) -> bool:

@@ -39,12 +39,7 @@ def assembled_shape(
     """The assembled configuration of ``tiling``'s quad mesh (paper eq. 1 with ``shapes.eq1``,
     or ``options.weights``, and extrusion), solved once per mesh and kept in ``shapes`` with
     read-only arrays."""
-    key = (
-        tiling.vertices.shape,
-        tiling.vertices.tobytes(),
-        tiling.quads.shape,
-        tiling.quads.tobytes(),
-    )
+    key = mesh_key(tiling)
     with progress.stage("assembled"):
         if key not in shapes:
             w = shapes.eq1 if shapes.eq1 is not None else Eq1Weights.of(options.weights)
@@ -62,6 +57,16 @@ def assembled_shape(
             for array in (shapes[key].top, shapes[key].bottom, shapes[key].tiles):
                 array.flags.writeable = False  # shared between tilings: nothing may edit it
         return shapes[key]
+
+
+def mesh_key(tiling: Tiling) -> MeshKey:
+    """The key of ``tiling``'s quad mesh in a :class:`ShapeCache`."""
+    return (
+        tiling.vertices.shape,
+        tiling.vertices.tobytes(),
+        tiling.quads.shape,
+        tiling.quads.tobytes(),
+    )
 
 
 #: A check on the first tiling and its assembled shape that raises to refuse the design.
