@@ -218,6 +218,28 @@ def test_co_optimization_makes_curved_tiles_flat_foldable(saddle8) -> None:
     assert 0 < co.move_max_mm < 1.0
 
 
+def test_co_optimization_pulled_to_the_target_at_face_samples_sits_closer(saddle8) -> None:
+    # The joint solve started 0.3 mm off the target: pulled there at the vertices
+    # (w_surface) its top faces, sampled over each whole face, end closer than with the
+    # paper's pull, and closer still with the quads' centres and edge midpoints pulled too
+    # (w_samples); the tiles fold flat either way.
+    from drawstring.geometry.assembled.fit import top_face_distances
+    from drawstring.geometry.flat.coflat import co_optimize_top
+
+    linkage, assembled, flat, target = saddle8
+    lifted = assembled.top + np.array([0.0, 0.0, 0.3])
+    distances = []
+    for w_surface, w_samples in ((0.1, 0.0), (30.0, 0.0), (30.0, 30.0)):
+        co = co_optimize_top(
+            linkage, flat, lifted, assembled.quads, *target, tiles_3d=assembled.tiles,
+            w_surface=w_surface, w_samples=w_samples,
+        )  # fmt: skip
+        top = co.top[assembled.quads]
+        assert flat_edge_errors(co.nodes[linkage.corner_node], top).max() < 1e-4
+        distances.append(top_face_distances(top, *target).mean)
+    assert distances[2] < 0.8 * distances[1] < 0.8 * 0.5 * distances[0]
+
+
 def test_co_optimization_leaves_a_developable_layout_alone() -> None:
     # A cylinder's tiles lie flat exactly: nothing to fix, so nothing moves beyond what opening
     # the gaps by the joint solve's 0.1 deg margin above the 8 deg bound takes.
