@@ -608,3 +608,34 @@ def test_the_target_tree_is_built_once_per_target_and_leaves_the_callers_arrays_
     tri = vertices[faces]
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     np.testing.assert_allclose(other[2], n / np.linalg.norm(n, axis=1, keepdims=True))
+
+
+def test_convex_corner_rows_push_only_corners_under_the_margin() -> None:
+    # A square's corners (margin 0.5) give nothing; a dart's reflex corner gives a negative
+    # residual whose gradient (normal and diagonal held) matches finite differences.
+    from drawstring.geometry.flat.cofit import CO_CONVEX_MARGIN, convex_corner_rows, quad_normals
+
+    top = np.array(
+        [[0, 0, 0], [10, 0, 0], [10, 10, 0], [0, 10, 0], [20, 0, 0], [20, 10, 0], [15, 3, 0]],
+        dtype=float,
+    )
+    quads = np.array([[0, 1, 2, 3], [1, 4, 5, 6]])  # the second: corner 6 pushed in, a dart
+    reference = quad_normals(top, quads)
+    res, vertices, grads = convex_corner_rows(top, quads, reference, 10.0)
+    assert np.all(res[:4] == 0.0)
+    dart = 4 + 3  # quad 1, corner 3 (vertex 6), between vertices 5 and 1
+    assert list(vertices[dart]) == [5, 6, 1]
+    # its margin, measured here: height over the diagonal 5-1 towards the outside
+    a, b, c = top[5], top[6], top[1]
+    d = c - a
+    out = np.cross(d, reference[1])
+    margin = np.dot(b - a, out / np.linalg.norm(out)) / np.linalg.norm(d)
+    assert margin < 0 and res[dart] == pytest.approx(10.0 * (margin - CO_CONVEX_MARGIN))
+    # the gradient at the corner itself, moved in its plane (its quad's normal and the
+    # diagonal stay): finite differences
+    step = 1e-6
+    for k in range(2):
+        moved = top.copy()
+        moved[6, k] += step
+        r2 = convex_corner_rows(moved, quads, reference, 10.0)[0][dart]
+        assert (r2 - res[dart]) / step == pytest.approx(grads[dart, 1, k], rel=1e-4)

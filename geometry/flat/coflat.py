@@ -23,6 +23,12 @@ from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.tolerances import FLAT_SOLVER_ANGLE_TOL_DEG
 from drawstring.geometry.core.types import FloatArray, IntArray
 from drawstring.geometry.flat.bounds import flat_constraints
+from drawstring.geometry.flat.cofit import (
+    CO_CONVEX_WEIGHT_REL,
+    convex_corner_rows,
+    face_sample_matrix,
+    quad_normals,
+)
 from drawstring.geometry.flat.conical import VertexStars, vertex_stars
 from drawstring.geometry.flat.initial import tile_plane_coordinates
 from drawstring.geometry.flat.junctions import TILE_EDGES, gap_junctions
@@ -170,6 +176,7 @@ class _JointTopLeastSquares:
         #: target with ``w_samples`` (None without)
         self.samples = face_sample_matrix(quads, self.n) if w_samples > 0 else None
         self.sqrt_samples = float(np.sqrt(max(w_samples, 0.0)))
+        self.normals0 = quad_normals(top0, quads)
         self.sqrt_edge = 1.0
         self.sqrt_planar = 1.0
         self.node_i = self.corner_node[:, TILE_EDGES[:, 0]].ravel()
@@ -249,6 +256,7 @@ class _JointTopLeastSquares:
             self._surface_rows(acc, top, closest, fn, with_jacobian)
         if sampled:
             self._sample_rows(acc, sampled[0], sampled[1], sampled[2], with_jacobian)
+            self._convex_rows(acc, top, with_jacobian)
         if self.stars is not None and self.sqrt_conical > 0:
             self._conical_rows(acc, self.stars, top, with_jacobian)
         self._keep_rows(acc, top, with_jacobian)
@@ -331,6 +339,21 @@ class _JointTopLeastSquares:
                 acc.vals.append(w * coo.data * fn[coo.row, c])
         acc.row0 += len(points)
 
+    def _convex_rows(self, acc: _Rows, top: FloatArray, jac: bool) -> None:
+        """With face samples: every quad corner kept convex (``cofit.convex_corner_rows``)."""
+        base = 2 * self.n_nodes
+        w = self.sqrt_planar * float(np.sqrt(CO_CONVEX_WEIGHT_REL))
+        res, vertices, grads = convex_corner_rows(top, self.quads, self.normals0, self.side)
+        acc.res.append(w * res)
+        if jac:
+            r = acc.row0 + np.arange(len(res))
+            for j in range(3):
+                for c in range(3):
+                    acc.rows.append(r)
+                    acc.cols.append(base + 3 * vertices[:, j] + c)
+                    acc.vals.append(w * grads[:, j, c])
+        acc.row0 += len(res)
+
     def _conical_rows(self, acc: _Rows, stars: VertexStars, top: FloatArray, jac: bool) -> None:
         """Conical: opposite angles at every inner vertex sum equal (scaled by the mean side)."""
         base = 2 * self.n_nodes
@@ -373,19 +396,6 @@ class _JointTopLeastSquares:
         return sp.csr_matrix(
             (np.concatenate(acc.vals)[order], indices, indptr), shape=(acc.row0, 2 * self.rows)
         )
-
-
-def face_sample_matrix(quads: IntArray, n_vertices: int) -> sp.csr_matrix:
-    """The quads' centres and their unique edges' midpoints as rows of vertex weights
-    (the points :class:`~drawstring.geometry.solve.groups.FaceSamplesToSurface` pulls)."""
-    q = np.asarray(quads, dtype=np.int64)
-    pairs = np.stack([q, np.roll(q, -1, axis=1)], axis=2).reshape(-1, 2)
-    edges = np.unique(np.sort(pairs, axis=1), axis=0)
-    m, k = len(q), len(edges)
-    rows = np.concatenate([np.repeat(np.arange(m), 4), m + np.repeat(np.arange(k), 2)])
-    cols = np.concatenate([q.ravel(), edges.ravel()])
-    vals = np.concatenate([np.full(4 * m, 0.25), np.full(2 * k, 0.5)])
-    return sp.csr_matrix((vals, (rows, cols)), shape=(m + k, n_vertices))
 
 
 class _Rows:
