@@ -54,7 +54,7 @@ from drawstring.geometry.core.tolerances import (
     SURFACE_MAX_REL,
     SURFACE_MEAN_REL,
 )
-from drawstring.geometry.core.types import BoolArray, IntArray
+from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
 from drawstring.geometry.flat.conical import vertex_stars
 from drawstring.geometry.flatten.conformal import Flattening
 from drawstring.geometry.hinges.sides import dual_hinge_faces
@@ -292,8 +292,18 @@ class _CloseTrial:
                 f"{distances.max:.2f} mm, no closer than the paper's shape ({paper.mean:.2f} "
                 f"and {paper.max:.2f} mm)"
             )
-        if options.hinges == HingeStrategy.TOP and not meets_fit_level(trial, distances, loaded):
-            trial = self.pulled_layout(trial, distances, options, shapes, tried)
+        if options.hinges == HingeStrategy.TOP and not meets_fit_level(
+            trial.assembled.tiles, distances, loaded
+        ):
+            # laid out again only where its eq.-1 shape itself is near the fit level
+            near = meets_fit_level(
+                start.tiles, surface_distances(start.tiles, loaded), loaded,
+                policy.close_fit_top_pull_within,
+            )  # fmt: skip
+            if near:
+                trial = self.pulled_layout(trial, distances, options, shapes, tried)
+            else:
+                tried["co_surface"] = {"refused": "its eq.-1 shape is far from the fit level"}
         return trial, ""
 
     def pulled_layout(
@@ -338,7 +348,7 @@ class _CloseTrial:
                 break
             kept, near = trial, closer
             tried.update(measured)
-            if meets_fit_level(kept, near, self.loaded):
+            if meets_fit_level(kept.assembled.tiles, near, self.loaded):
                 break
         record["kept"] = kept is not first
         return kept
@@ -407,15 +417,17 @@ def _seeded(shapes: ShapeCache, tiling: Tiling, assembled: AssembledResult) -> S
     return seeded
 
 
-def meets_fit_level(laid_out: ShapedLayout, distances: TopFaceDistances, loaded: Target) -> bool:
-    """Whether the top faces of ``laid_out``, at ``distances`` from the target, meet the fit
-    level: on average within ``SURFACE_MEAN_REL`` of the mean tile side, at most within
-    ``SURFACE_MAX_REL`` of the target's diagonal."""
-    top = laid_out.assembled.tiles[:, :4]
+def meets_fit_level(
+    tiles: FloatArray, distances: TopFaceDistances, loaded: Target, within: float = 1.0
+) -> bool:
+    """Whether assembled ``tiles`` whose top faces sit at ``distances`` from the target meet
+    the fit level (``within`` times it): on average ``SURFACE_MEAN_REL`` of the mean tile
+    side, at most ``SURFACE_MAX_REL`` of the target's diagonal."""
+    top = tiles[:, :4]
     side = float(np.linalg.norm(np.roll(top, -1, axis=1) - top, axis=2).mean())
     return bool(
-        distances.mean <= SURFACE_MEAN_REL * side
-        and distances.max <= SURFACE_MAX_REL * loaded.bbox_diagonal_mm
+        distances.mean <= within * SURFACE_MEAN_REL * side
+        and distances.max <= within * SURFACE_MAX_REL * loaded.bbox_diagonal_mm
     )
 
 

@@ -168,6 +168,12 @@ class LayoutPolicy:
     #: kept, while the kept design misses the fit level (the 200-tile three-shell: 3.98 %
     #: of a tile side with the paper's pull, 2.09 % after one, 1.57 % after two).
     close_fit_top_passes: int = 2
+    #: ... tried only where the close shape's eq.-1 solve on the first tiling, before its
+    #: layout, sits within this many times the fit level: the pulled layouts come near that
+    #: shape's own distance (the three-shell's sits 2.0 % of a side away, its design 1.6 %),
+    #: and on shapes far from it (the corpus's crumpled_developable, 8.0 %) they cost minutes
+    #: without getting closer.
+    close_fit_top_pull_within: float = 2.0
 
     # -- the work run ahead (pipeline/ahead.py) --
 
