@@ -348,7 +348,12 @@ class _CloseTrial:
                 break
             kept, near = trial, closer
             tried.update(measured)
-            if meets_fit_level(kept.assembled.tiles, near, self.loaded):
+            if meets_fit_level(kept.assembled.tiles, near, self.loaded) or _same_parts(
+                kept.tiling, self.first_tiling
+            ):
+                # (on the first tiling's parts the kept shape is laid out congruently
+                # already: its next layout's co-optimization has nothing to lower, and the
+                # design would be this one again)
                 break
         record["kept"] = kept is not first
         return kept
@@ -415,6 +420,13 @@ def _seeded(shapes: ShapeCache, tiling: Tiling, assembled: AssembledResult) -> S
         array.flags.writeable = False
     seeded[mesh_key(tiling)] = assembled
     return seeded
+
+
+def _same_parts(a: Tiling, b: Tiling) -> bool:
+    """Whether two tilings of one grid split it into the same parts."""
+    return a.linkage.n_tiles == b.linkage.n_tiles and bool(
+        np.array_equal(a.linkage.tile_component, b.linkage.tile_component)
+    )
 
 
 def meets_fit_level(

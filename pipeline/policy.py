@@ -165,8 +165,9 @@ class LayoutPolicy:
     #: there too, it stays near.  Kept only where closer (``close_fit.pulled_layout``).
     close_fit_top_co: tuple[float, float] = (30.0, 30.0)
     #: Layouts with ``close_fit_top_co`` at most, each from the assembled shape the last one
-    #: kept, while the kept design misses the fit level (the 200-tile three-shell: 3.98 %
-    #: of a tile side with the paper's pull, 2.09 % after one, 1.56 % after two).
+    #: kept, while the kept design misses the fit level and was split otherwise than the
+    #: first tiling (the 200-tile three-shell: 3.98 % of a tile side with the paper's pull,
+    #: 2.09 % after one, on a tighter tiling, 1.56 % after two).
     close_fit_top_passes: int = 2
     #: ... tried only where the close shape's eq.-1 solve on the first tiling, before its
     #: layout, sits within this many times the fit level: the pulled layouts come near that
