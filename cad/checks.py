@@ -24,6 +24,7 @@ from drawstring.cad.design import route_links
 from drawstring.cad.feature_common import channel_radius
 from drawstring.cad.kernel import CheckMesh, check_mesh, solid_checks
 from drawstring.cad.magnets_labels import MagnetPair
+from drawstring.cad.part_mesh import PartMeshes
 from drawstring.cad.paths import face_planes
 from drawstring.cad.tiles import apply_transform
 from drawstring.geometry.core import parallel
@@ -52,8 +53,9 @@ def to_manifold(
 
 
 def manifold_of(arrays: CheckMesh) -> manifold3d.Manifold:
-    """manifold3d solid of a :func:`~drawstring.cad.kernel.check_mesh` (made where the solid
-    was built, :attr:`~drawstring.cad.design.CadResult.tile_meshes`)."""
+    """manifold3d solid of a :func:`~drawstring.cad.kernel.check_mesh`, or of a print mesh's
+    arrays (made where the solid was built, :attr:`~drawstring.cad.design.CadResult.
+    tile_meshes`) as float32 vertices and uint32 triangles."""
     vertices, faces = arrays
     mesh = manifold3d.Mesh(vert_properties=vertices, tri_verts=faces)
     manifold = manifold3d.Manifold(mesh)
@@ -66,17 +68,27 @@ def manifold_of(arrays: CheckMesh) -> manifold3d.Manifold:
 
 
 def part_manifolds(
-    solids: Sequence[bd.Shape], made: Sequence[CheckMesh | None] = ()
+    solids: Sequence[bd.Shape], made: Sequence[PartMeshes | None] = ()
 ) -> tuple[list[manifold3d.Manifold], NDArray[np.bool_]]:
     """manifold3d solids of those ``solids`` that mesh into a closed manifold, in order, and
-    which do ((n,) bool).  ``made``: their check meshes where the workers that built them made
-    them (:attr:`~drawstring.cad.design.CadResult.tile_meshes`; one per solid, None where the
-    kernel failed), else each is meshed here (:func:`to_manifold`)."""
+    which do ((n,) bool).  ``made``: their meshes where the workers that built them made
+    them (the first of each pair of :attr:`~drawstring.cad.design.CadResult.tile_meshes`;
+    one per solid, None where the kernel failed), else each is meshed here
+    (:func:`to_manifold`)."""
     known = list(made) if len(made) == len(solids) else [None] * len(solids)
     manifolds, meshed = [], np.zeros(len(solids), dtype=bool)
     for index, (solid, mesh) in enumerate(zip(solids, known, strict=True)):
         try:
-            manifolds.append(manifold_of(mesh) if mesh is not None else to_manifold(solid))
+            manifolds.append(
+                manifold_of(
+                    (
+                        np.ascontiguousarray(mesh[0].vertices, dtype=np.float32),
+                        np.ascontiguousarray(mesh[0].triangles, dtype=np.uint32),
+                    )
+                )
+                if mesh is not None
+                else to_manifold(solid)
+            )
         except Exception:  # open seams, or the kernel failing to mesh it
             continue
         meshed[index] = True

@@ -41,8 +41,9 @@ from drawstring.cad.hinge_plans import (
     strip_hole_plans,
     strip_neighbours,
 )
-from drawstring.cad.kernel import CheckMesh, solid_checks
+from drawstring.cad.kernel import solid_checks
 from drawstring.cad.magnets_labels import MagnetPair, magnet_pockets
+from drawstring.cad.part_mesh import PartMeshes
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path
 from drawstring.cad.tile_build import HingeData, JobResult, TileJob, kernel_failure, run_jobs
 from drawstring.cad.tiles import move_solid, rigid_transforms
@@ -90,10 +91,14 @@ class CadResult:
     number_outlines : the outlines of the engraved numbers on the bottom faces, flat pose,
         one per tile of ``unengraved`` (None where it is the engraved solid): per stroke the
         (k, 3) corners of a closed polygon, mm.
-    tile_meshes, pad_meshes : the interference checks' mesh of each of ``tiles`` and ``pads``
-        in the flat pose (:func:`~drawstring.cad.kernel.check_mesh`, None where the kernel
-        failed to mesh it), made by the workers that built them; empty, or not one per solid,
-        where the solids were made otherwise or moved (then the checks mesh them).
+    tile_meshes, pad_meshes : the meshes of each of ``tiles`` and ``pads`` in the flat pose
+        (:func:`~drawstring.cad.part_mesh.mesh_part` at the profile's
+        :func:`~drawstring.cad.part_mesh.mesh_tolerance`, None where the kernel failed to mesh
+        it closed), made by the workers that built them: the interference checks measure the
+        first, the print files write the second; empty, or not one per solid, where the
+        solids were made otherwise or moved (then the checks and the print files mesh them).
+    meshed_here : whether the meshes were made on this machine (not on a cluster, whose
+        meshes the print files do not use: the same design gives the same files anywhere).
     """
 
     pose: Pose
@@ -111,8 +116,9 @@ class CadResult:
     pad_checks: tuple[tuple[bool, float], ...] = field(default=())
     unengraved: tuple[bd.Solid, ...] = field(default=())
     number_outlines: tuple[list[NDArray[np.float64]] | None, ...] = field(default=())
-    tile_meshes: tuple[CheckMesh | None, ...] = field(default=())
-    pad_meshes: tuple[CheckMesh | None, ...] = field(default=())
+    tile_meshes: tuple[PartMeshes | None, ...] = field(default=())
+    pad_meshes: tuple[PartMeshes | None, ...] = field(default=())
+    meshed_here: bool = True
 
     def checks(self, part: Literal["tiles", "pads"]) -> tuple[NDArray[np.bool_], NDArray]:
         """(n,) bool validity and (n,) float volumes (mm^3) of the tiles or the pads."""
@@ -271,6 +277,7 @@ def build_design_solids(
         *plain,
         tile_meshes=tile_meshes,
         pad_meshes=pad_meshes,
+        meshed_here=all(r.meshed_here for r in results),
     )
 
 
@@ -322,9 +329,9 @@ def _in_order(
     return tiles, pads
 
 
-def _meshes_of(results: list[JobResult]) -> dict[tuple[str, int], CheckMesh | None]:
+def _meshes_of(results: list[JobResult]) -> dict[tuple[str, int], PartMeshes | None]:
     """The workers' check meshes of each tile and hinge part, keyed as :func:`_checks_of`."""
-    meshes: dict[tuple[str, int], CheckMesh | None] = {}
+    meshes: dict[tuple[str, int], PartMeshes | None] = {}
     for done in results:
         if len(done.meshes) != 1 + len(done.pads):
             continue

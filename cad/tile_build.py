@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import pickle
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
@@ -22,8 +23,9 @@ from drawstring.cad.features import build_tile, lift_bore, string_channel, trim_
 from drawstring.cad.hinge_frame import StripNeighbours
 from drawstring.cad.hinge_parts import HingeParts, hinge_face_footprints, hinge_pad
 from drawstring.cad.hinge_pins import HingePins
-from drawstring.cad.kernel import CheckMesh, check_mesh, solid_checks
+from drawstring.cad.kernel import solid_checks
 from drawstring.cad.magnets_labels import fill_engraving, label_depth, label_engraving
+from drawstring.cad.part_mesh import PartKind, PartMeshes, mesh_part, mesh_tolerance
 from drawstring.cad.tiles import relieved_tile_solid, tile_solid
 from drawstring.geometry.core import parallel
 from drawstring.geometry.core.errors import InputError, InternalError
@@ -80,10 +82,12 @@ class JobResult:
     #: cad.magnets_labels.fill_engraving`), for the STEP files; None where it has none or its
     #: pockets could not be filled.
     unengraved: tuple[bd.Solid, list[NDArray[np.float64]]] | None = None
-    #: The interference checks' mesh of the tile, then of each of ``pads``
-    #: (:func:`~drawstring.cad.kernel.check_mesh`, made here in parallel), None where the
-    #: kernel failed to mesh it.
-    meshes: list[CheckMesh | None] = field(default_factory=list)
+    #: The meshes of the tile, then of each of ``pads`` (:func:`~drawstring.cad.part_mesh.
+    #: mesh_part`, made here in parallel: the interference checks measure the first, the 3MF
+    #: writes the second), None where the kernel failed to mesh it closed.
+    meshes: list[PartMeshes | None] = field(default_factory=list)
+    #: Whether ``meshes`` were made on this machine (False for a cluster's tasks).
+    meshed_here: bool = True
 
 
 def kernel_failure(what: str, exc: Exception) -> None:
@@ -156,14 +160,22 @@ def build_job(job: TileJob, profile: Profile, hinge_data: tuple[HingeData, ...])
     unengraved = _unengraved(job, solid, tools, profile, tile_check) if labelled else None
     pads = _own_pads(job, profile, hinge_data, built_pads, tools.failed)
     checks = [tile_check]
-    meshes: list[CheckMesh | None] = []
+    meshes: list[PartMeshes | None] = []
+    tolerance = mesh_tolerance(profile.thickness_mm)
+    names = [f"tile_{job.tile}", *(f"hinge_{hinge}" for hinge, _ in pads)]
     for index, part in enumerate([solid, *(pad for _, pad in pads)]):
         if index:
             checks.append(solid_checks(part))
-        # the interference checks' mesh, made here in parallel; it travels as arrays, so the
-        # solid goes without it (the pickle is a third of the size)
+        # the meshes, made here in parallel; they travel as arrays, so the solid goes without
+        # its triangulation (the pickle is a third of the size).  OCCT meshes a solid read
+        # back from its serialisation with other triangles here and there, so the mesh is
+        # made of the solid as the caller reads it (pickled once, as from any worker or a
+        # cluster): the same files wherever the tiles were built.
+        kind: PartKind = "pad" if index else "tile"
         try:
-            meshes.append(check_mesh(part))
+            meshes.append(
+                mesh_part(pickle.loads(pickle.dumps(part)), names[index], kind, tolerance)
+            )
         except Exception as exc:  # the checks mesh it again and count it as not valid
             kernel_failure(f"tile {job.tile}: mesh", exc)
             meshes.append(None)
@@ -327,7 +339,10 @@ def run_jobs(
         chunks = [jobs[i::n_chunks] for i in range(n_chunks)]
         arguments = [(chunk, profile, hinge_data) for chunk in chunks]
         done = runner.starmap(_build_chunk, arguments, name="cad-tiles")
-        return [result for chunk_results in done for result in chunk_results]
+        remote = [result for chunk_results in done for result in chunk_results]
+        for result in remote:
+            result.meshed_here = False
+        return remote
     count = workers if workers is not None else (os.cpu_count() or 1)
     if count <= 1 or len(jobs) < PARALLEL_MIN_TILES:
         return _build_chunk(jobs, profile, hinge_data)

@@ -44,6 +44,7 @@ from drawstring.cad.features import (  # noqa: E402
     tight_channel,
     trim_tool,
 )
+from drawstring.cad.part_mesh import mesh_solid  # noqa: E402
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path  # noqa: E402
 from drawstring.cad.tiles import (  # noqa: E402
     convex_solid,
@@ -55,7 +56,6 @@ from drawstring.cad.tiles import (  # noqa: E402
     tile_solid,
     tile_solids,
 )
-from drawstring.fabrication.mesh3mf import mesh_solid  # noqa: E402
 from drawstring.fabrication.profiles import Profile, load_profile  # noqa: E402
 from drawstring.geometry.core.errors import InternalError  # noqa: E402
 from drawstring.geometry.core.tolerances import CAD_OPENING_MATCH_MM  # noqa: E402

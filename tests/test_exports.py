@@ -28,6 +28,7 @@ from cad_sample import SampleDesign, cylinder_design  # noqa: E402
 from drawstring.cad.checks import clearances  # noqa: E402
 from drawstring.cad.design import CadResult, build_design_solids, normalize_route  # noqa: E402
 from drawstring.cad.magnets_labels import _segment_rectangles, label_depth  # noqa: E402
+from drawstring.cad.part_mesh import TRIANGLE_BUDGET  # noqa: E402
 from drawstring.cad.tiles import move_solid, tile_solid  # noqa: E402
 from drawstring.fabrication.beds import TILE_SPACING_MM  # noqa: E402
 from drawstring.fabrication.dxf import (  # noqa: E402
@@ -44,11 +45,7 @@ from drawstring.fabrication.dxf import (  # noqa: E402
     text_strokes,
 )
 from drawstring.fabrication.exports import write_fabrication  # noqa: E402
-from drawstring.fabrication.mesh3mf import (  # noqa: E402
-    BED_MARGIN_MM,
-    TRIANGLE_BUDGET,
-    plan_print_jobs,
-)
+from drawstring.fabrication.mesh3mf import BED_MARGIN_MM, plan_print_jobs  # noqa: E402
 from drawstring.fabrication.printers import Printer, load_printer  # noqa: E402
 from drawstring.fabrication.profiles import (  # noqa: E402
     Profile,

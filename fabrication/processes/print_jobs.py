@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import build123d as bd
 import numpy as np
 
+from drawstring.cad.part_mesh import mesh_tolerance
 from drawstring.fabrication import mesh3mf as m3f
 from drawstring.fabrication.beds import (
     TOWER_GAP_MM,
@@ -94,17 +95,34 @@ def _plan_beds(
 def _meshes(
     job: FabricationJob, with_pads: bool
 ) -> tuple[dict[int, m3f.PartMesh], dict[int, m3f.PartMesh]]:
-    """The tiles' meshes by tile and the pads' by hinge (none without pads)."""
+    """The tiles' meshes by tile and the pads' by hinge (none without pads): the print meshes
+    the CAD workers made on this machine (the second of each pair of :attr:`~drawstring.cad.
+    design.CadResult.tile_meshes`), each part they could not mesh (or all, where they were
+    made elsewhere) meshed here."""
     cad_flat = job.cad_flat
-    tolerance = m3f.mesh_tolerance(job.profile.thickness_mm)
+    tolerance = mesh_tolerance(job.profile.thickness_mm)
     items: list[tuple[bd.Shape, str, m3f.PartKind]] = [
         (solid, f"tile_{i}", "tile") for i, solid in enumerate(cad_flat.tiles)
     ]
+    made: list[m3f.PartMesh | None] = [None] * len(items)
+    if cad_flat.meshed_here and len(cad_flat.tile_meshes) == len(cad_flat.tiles):
+        made = [None if m is None else m[1] for m in cad_flat.tile_meshes]
     if with_pads:
         items += [
             (s, f"hinge_{h}", "pad") for h, s in zip(cad_flat.pad_hinge, cad_flat.pads, strict=True)
         ]
-    meshes = m3f.mesh_solids(items, tolerance, job.workers)
+        pads_made = cad_flat.meshed_here and len(cad_flat.pad_meshes) == len(cad_flat.pads)
+        made += (
+            [None if m is None else m[1] for m in cad_flat.pad_meshes]
+            if pads_made
+            else [None] * len(cad_flat.pads)
+        )
+    missing = [k for k, mesh in enumerate(made) if mesh is None]
+    for k, mesh in zip(
+        missing, m3f.mesh_solids([items[k] for k in missing], tolerance, job.workers), strict=True
+    ):
+        made[k] = mesh
+    meshes = [mesh for mesh in made if mesh is not None]
     tile_mesh = {i: meshes[i] for i in range(len(cad_flat.tiles))}
     pad_mesh = (
         {int(h): meshes[len(cad_flat.tiles) + k] for k, h in enumerate(cad_flat.pad_hinge)}
