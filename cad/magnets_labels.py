@@ -12,6 +12,7 @@ import build123d as bd
 import numpy as np
 from numpy.typing import NDArray
 from OCP.BRep import BRep_Builder, BRep_Tool
+from OCP.BRepAdaptor import BRepAdaptor_Surface
 from OCP.BRepTools import BRepTools_ReShape, BRepTools_WireExplorer
 from OCP.TopAbs import (
     TopAbs_EDGE,
@@ -430,16 +431,15 @@ def fill_engraving(
     ``depth + TOOL_OVERSHOOT_MM``), for example where a pocket met another feature.
     """
     prisms = engraving.solids()
-    halfspaces = [_halfspaces(prism) for prism in prisms]
+    normals, offsets = _stacked([_halfspaces(prism) for prism in prisms])
     faces = _unique(solid.wrapped, TopAbs_FACE)
     removed, pocket_edges = _ShapeSet(), _ShapeSet()
     for face in faces:
         points = np.array(
             [BRep_Tool.Pnt_s(TopoDS.Vertex(v)).Coord() for v in _unique(face, TopAbs_VERTEX)]
         ).reshape(-1, 3)
-        if len(points) and any(
-            np.all(points @ normals.T - offsets <= 1e-5) for normals, offsets in halfspaces
-        ):
+        # inside a prism: every point on the inner side of each of its faces
+        if len(points) and bool(np.any(np.all(points @ normals - offsets <= 1e-5, axis=(1, 2)))):
             removed.Add(face)
             for edge in _unique(face, TopAbs_EDGE):
                 pocket_edges.Add(edge)
@@ -533,17 +533,34 @@ def _corners(wire: TopoDS_Wire) -> NDArray[np.float64]:
 
 def _halfspaces(prism: bd.Solid) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """``(normals, offsets)`` of a convex planar-faced solid: inside is ``normals @ x <=
-    offsets`` (outward normals)."""
+    offsets`` (outward normals), from the planes of its faces."""
     # any point inside tells the faces' outward side: the mean of the corners of the convex
     # prism (no volume integral)
-    middle = np.mean([(v.X, v.Y, v.Z) for v in prism.vertices()], axis=0)
+    corners = [
+        BRep_Tool.Pnt_s(TopoDS.Vertex(v)).Coord() for v in _unique(prism.wrapped, TopAbs_VERTEX)
+    ]
+    middle = np.mean(corners, axis=0)
     normals, offsets = [], []
-    for face in prism.faces():
-        normal, point = face.normal_at(), face.center()
-        n = np.array([normal.X, normal.Y, normal.Z])
-        p = np.array([point.X, point.Y, point.Z])
+    for face in _unique(prism.wrapped, TopAbs_FACE):
+        plane = BRepAdaptor_Surface(TopoDS.Face(face)).Plane()
+        n = np.array(plane.Axis().Direction().Coord())
+        p = np.array(plane.Location().Coord())
         if n @ (middle - p) > 0:
             n = -n
         normals.append(n)
         offsets.append(n @ p)
     return np.array(normals), np.array(offsets)
+
+
+def _stacked(
+    halfspaces: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The prisms' :func:`_halfspaces` as (P, 3, F) normals and (P, 1, F) offsets, padded with
+    planes every point is inside of (a zero normal and offset) where a prism has fewer faces."""
+    most = max((len(n) for n, _ in halfspaces), default=0)
+    normals = np.zeros((len(halfspaces), 3, most))
+    offsets = np.zeros((len(halfspaces), 1, most))
+    for index, (n, d) in enumerate(halfspaces):
+        normals[index, :, : len(n)] = n.T
+        offsets[index, 0, : len(d)] = d
+    return normals, offsets
