@@ -7,6 +7,7 @@ give a byte-identical GIF (GIF has no timestamps; matplotlib's Agg rendering is 
 
 from __future__ import annotations
 
+import io
 import logging
 from collections.abc import Sequence
 from pathlib import Path
@@ -16,11 +17,10 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from matplotlib.animation import FuncAnimation, PillowWriter  # noqa: E402
-from matplotlib.artist import Artist  # noqa: E402
 from mpl_toolkits.mplot3d import Axes3D  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 from numpy.typing import ArrayLike  # noqa: E402
+from PIL import Image  # noqa: E402
 
 from drawstring.geometry.core.tile import TILE_FACES_SIDES_INWARD  # noqa: E402
 from drawstring.geometry.core.types import FloatArray  # noqa: E402
@@ -145,20 +145,26 @@ def save_deploy_gif(
     fig = plt.figure(figsize=(size_px / 100, size_px / 100), dpi=100)
     ax: Axes3D = fig.add_subplot(projection="3d")
 
-    def update(k: int) -> list[Artist]:
+    size = (int(fig.get_size_inches()[0] * fig.dpi), int(fig.get_size_inches()[1] * fig.dpi))
+    images = []
+    for f in pick.tolist():
+        # each frame drawn once, straight into pixels (matplotlib's PillowWriter's frames,
+        # without FuncAnimation's second draw of each)
         ax.cla()
         _setup(ax, centre, half, elev, azim)
-        f = int(pick[k])
         line = None
         if route_polyline_per_frame is not None:
             line = np.asarray(route_polyline_per_frame[f], dtype=np.float64)
         _draw(ax, fr[f], line)
         ax.set_title(f"deployment {100.0 * f / max(len(fr) - 1, 1):.0f} %", fontsize=9)
-        return []
-
-    anim = FuncAnimation(fig, update, frames=len(pick), blit=False)
+        pixels = io.BytesIO()
+        fig.savefig(pixels, format="rgba", dpi=fig.dpi)
+        rgba = pixels.getvalue()
+        image = Image.frombuffer("RGBA", size, rgba, "raw", "RGBA", 0, 1)
+        opaque = bool(np.frombuffer(rgba, dtype=np.uint8)[3::4].min() == 255)
+        images.append(image.convert("RGB") if opaque else image)
     out = Path(path)
-    anim.save(out, writer=PillowWriter(fps=fps))
+    images[0].save(out, save_all=True, append_images=images[1:], duration=1000 // fps, loop=0)
     plt.close(fig)
     logger.info("wrote %s (%d frames)", out.name, len(pick))
     return out
