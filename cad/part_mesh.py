@@ -5,6 +5,7 @@ files (3MF) write."""
 
 from __future__ import annotations
 
+import os
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -116,7 +117,7 @@ def _mesh_once(
     """:func:`mesh_solid` at one pair of tolerances."""
     BRepTools.Clean_s(solid.wrapped)
     BRepMesh_IncrementalMesh(solid.wrapped, tolerance, False, angle, False)
-    with tempfile.TemporaryDirectory(prefix="drawstring-mesh-") as folder:
+    with tempfile.TemporaryDirectory(prefix="drawstring-mesh-", dir=_SCRATCH) as folder:
         target = str(Path(folder) / "part.stl")
         writer = StlAPI_Writer()
         writer.ASCIIMode = False
@@ -124,7 +125,7 @@ def _mesh_once(
             raise RuntimeError(f"OCCT could not triangulate {name}")
         records = np.fromfile(target, dtype=_STL_RECORD, offset=84)
     corners = records["corners"].reshape(-1, 3)
-    unique, inverse = np.unique(corners, axis=0, return_inverse=True)
+    unique, inverse = _unique_rows(corners)
     triangles = inverse.reshape(-1, 3).astype(np.int64)
     keep = (
         (triangles[:, 0] != triangles[:, 1])
@@ -140,6 +141,28 @@ def _mesh_once(
     return mesh
 
 
+#: Where the STL files of :func:`_mesh_once` go for the moment OCCT writes and numpy reads
+#: them: memory where the system offers it (a file on disk costs milliseconds per part).
+_SCRATCH = "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None
+
+
+def _unique_rows(
+    points: NDArray[np.float32],
+) -> tuple[NDArray[np.float32], NDArray[np.int64]]:
+    """The distinct rows of ``points`` in lexicographic order and each row's index among
+    them (``np.unique(points, axis=0, return_inverse=True)``, by one sort of three keys)."""
+    if not len(points):
+        return points.reshape(0, 3), np.zeros(0, dtype=np.int64)
+    order = np.lexsort((points[:, 2], points[:, 1], points[:, 0]))
+    ranked = points[order]
+    starts = np.empty(len(ranked), dtype=bool)
+    starts[0] = True
+    np.any(ranked[1:] != ranked[:-1], axis=1, out=starts[1:])
+    inverse = np.empty(len(points), dtype=np.int64)
+    inverse[order] = np.cumsum(starts) - 1
+    return ranked[starts], inverse
+
+
 def is_closed_oriented(triangles: NDArray[np.int64]) -> bool:
     """Whether every directed edge appears once and its reverse appears once (closed, oriented).
 
@@ -149,13 +172,11 @@ def is_closed_oriented(triangles: NDArray[np.int64]) -> bool:
     """
     if len(triangles) == 0:
         return False
-    directed = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
-    unique, counts = np.unique(directed, axis=0, return_counts=True)
-    if np.any(counts != 1):
+    count = int(triangles.max()) + 1
+    starts = triangles.reshape(-1)
+    ends = triangles[:, [1, 2, 0]].reshape(-1)
+    directed = np.sort(starts * count + ends)
+    if np.any(directed[1:] == directed[:-1]):
         return False
-    reverse = unique[:, ::-1]
-    order = np.lexsort((unique[:, 1], unique[:, 0]))
-    keys = unique[order]
-    # Each reversed edge must be in the set.
-    search = np.lexsort((reverse[:, 1], reverse[:, 0]))
-    return bool(np.array_equal(keys, reverse[search]))
+    # each reversed edge must be in the set: the same keys, sorted
+    return bool(np.array_equal(directed, np.sort(ends * count + starts)))
