@@ -45,7 +45,15 @@ from drawstring.cad.kernel import solid_checks
 from drawstring.cad.magnets_labels import MagnetPair, magnet_pockets
 from drawstring.cad.part_mesh import PartMeshes
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path
-from drawstring.cad.tile_build import HingeData, JobResult, TileJob, kernel_failure, run_jobs
+from drawstring.cad.tile_build import (
+    HingeData,
+    JobResult,
+    TileJob,
+    kernel_failure,
+    part_checks,
+    part_meshes,
+    run_jobs,
+)
 from drawstring.cad.tiles import move_solid, rigid_transforms
 from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.tile import HingeSide, Pose
@@ -252,8 +260,8 @@ def build_design_solids(
         )
     pad_hinge = np.array(sorted(pads), dtype=np.int64)
     pad_solids = tuple(pads[h] for h in pad_hinge)
-    tile_checks, pad_checks = _in_order(_checks_of(results), len(tiles), pad_hinge)
-    tile_meshes, pad_meshes = _in_order(_meshes_of(results), len(tiles), pad_hinge)
+    tile_checks, pad_checks = _in_order(part_checks(results), len(tiles), pad_hinge)
+    tile_meshes, pad_meshes = _in_order(part_meshes(results), len(tiles), pad_hinge)
     if pose == Pose.ASSEMBLED:
         tiles = tuple(move_solid(s, m) for s, m in zip(tiles, transforms, strict=True))
         pad_solids, pad_hinge, pad_checks = (), np.zeros(0, dtype=np.int64), ()
@@ -294,19 +302,6 @@ def _unengraved(
     )
 
 
-def _checks_of(results: list[JobResult]) -> dict[tuple[str, int], tuple[bool, float]]:
-    """The workers' ``(valid, volume)`` of each tile (``("tile", tile)``) and hinge part
-    (``("pad", hinge)``)."""
-    checks: dict[tuple[str, int], tuple[bool, float]] = {}
-    for done in results:
-        if len(done.checks) != 1 + len(done.pads):
-            continue
-        checks[("tile", done.tile)] = done.checks[0]
-        for (hinge, _), fact in zip(done.pads, done.checks[1:], strict=True):
-            checks[("pad", int(hinge))] = fact
-    return checks
-
-
 def _trim_tools(
     jobs: list[TileJob], trims: dict[int, Sequence[NDArray[np.float64]]] | None
 ) -> None:
@@ -322,23 +317,11 @@ def _in_order(
     known: dict[tuple[str, int], T], n_tiles: int, pad_hinge: NDArray[np.int64]
 ) -> tuple[tuple[T, ...], tuple[T, ...]]:
     """What the workers measured of each tile (in tile order) and each hinge part (in
-    ``pad_hinge`` order), keyed as :func:`_checks_of` keys it; parts without it are left out
-    (the tuple is then not one per part, and the caller measures them)."""
+    ``pad_hinge`` order), keyed as :func:`.part_checks` keys it; parts without it are left
+    out (the tuple is then not one per part, and the caller measures them)."""
     tiles = tuple(known[("tile", t)] for t in range(n_tiles) if ("tile", t) in known)
     pads = tuple(known[("pad", int(h))] for h in pad_hinge if ("pad", int(h)) in known)
     return tiles, pads
-
-
-def _meshes_of(results: list[JobResult]) -> dict[tuple[str, int], PartMeshes | None]:
-    """The workers' check meshes of each tile and hinge part, keyed as :func:`_checks_of`."""
-    meshes: dict[tuple[str, int], PartMeshes | None] = {}
-    for done in results:
-        if len(done.meshes) != 1 + len(done.pads):
-            continue
-        meshes[("tile", done.tile)] = done.meshes[0]
-        for (hinge, _), mesh in zip(done.pads, done.meshes[1:], strict=True):
-            meshes[("pad", int(hinge))] = mesh
-    return meshes
 
 
 @dataclass(frozen=True)

@@ -357,3 +357,28 @@ def run_jobs(
         for future in futures:
             results.extend(future.result())
     return results
+
+
+def part_checks(results: list[JobResult]) -> dict[tuple[str, int], tuple[bool, float]]:
+    """The workers' ``(valid, volume)`` of each tile (``("tile", tile)``) and hinge part
+    (``("pad", hinge)``)."""
+    checks: dict[tuple[str, int], tuple[bool, float]] = {}
+    for done in results:
+        if len(done.checks) != 1 + len(done.pads):
+            continue
+        checks[("tile", done.tile)] = done.checks[0]
+        for (hinge, _), fact in zip(done.pads, done.checks[1:], strict=True):
+            checks[("pad", int(hinge))] = fact
+    return checks
+
+
+def part_meshes(results: list[JobResult]) -> dict[tuple[str, int], PartMeshes | None]:
+    """The workers' meshes of each tile and hinge part, keyed as :func:`part_checks`."""
+    meshes: dict[tuple[str, int], PartMeshes | None] = {}
+    for done in results:
+        if len(done.meshes) != 1 + len(done.pads):
+            continue
+        meshes[("tile", done.tile)] = done.meshes[0]
+        for (hinge, _), mesh in zip(done.pads, done.meshes[1:], strict=True):
+            meshes[("pad", int(hinge))] = mesh
+    return meshes
