@@ -1066,7 +1066,7 @@ def test_facts_the_design_lists_are_not_repeated_as_log_lines(
     # the simulation, as a note when it is the geometric stand-in (--no-simulate).
     import dataclasses
 
-    from drawstring.pipeline import run as pipeline
+    from drawstring.pipeline import routed as pipeline
 
     real_simulate = pipeline.simulate_stage
     first: list[object] = []
