@@ -39,7 +39,7 @@ from dataclasses import dataclass, replace
 from typing import Any, TypeAlias
 
 from drawstring.fabrication.profiles import Profile
-from drawstring.geometry.core.errors import InputError, ThicknessError
+from drawstring.geometry.core.errors import DesignError, InputError, ThicknessError
 from drawstring.geometry.flatten.conformal import Flattening
 from drawstring.geometry.target.surface import Target
 from drawstring.pipeline.cad_stage import MORE_ROOM, FeatureShortfall, tiles_too_small
@@ -187,7 +187,7 @@ def chosen_layout(
     tried: list[dict[str, Any]] = []
     best: LaidOut | None = None
     carried: dict[str, Any] = {}  # a value kept from an earlier step, by option
-    for _ in range(CHOSEN_LAYOUTS):
+    for made in range(1, CHOSEN_LAYOUTS + 1):
         if candidate is None:
             break
         value = int(candidate) if option == "tiles" else candidate
@@ -198,7 +198,7 @@ def chosen_layout(
         laid: LaidOut | None = None
         try:
             laid = lay_out(replace(options, **_used(entry)))
-        except InputError as exc:  # refused (not expected: the value passed that check)
+        except (InputError, DesignError) as exc:  # refused, or no route on its tiles
             entry["refused"] = str(exc)
         else:
             accuracy = laid.shaped.accuracy_mm
@@ -209,6 +209,8 @@ def chosen_layout(
                 return _chosen(laid, record, tried, why, tolerance)
             elif best is None or accuracy < best.shaped.accuracy_mm:
                 best = laid
+        if made == CHOSEN_LAYOUTS:
+            break  # no layout left to make with a next value
         candidate = _next_value(checker, option, value, profile, laid)
         if candidate is None and option == "tiles" and laid is not None and laid.shortfall:
             # no fewer tiles within the bound: the size grows, at this tile count
@@ -272,7 +274,7 @@ def checked_feature_refusal(
     what = tiles_too_small(options, profile, short)
     tried: list[dict[str, Any]] = []
     candidate = _next_value(checker, option, value, profile, laid)
-    for _ in range(RETRY_LAYOUTS):
+    for made in range(1, RETRY_LAYOUTS + 1):
         if candidate is None:
             break
         value = int(candidate) if option == "tiles" else candidate
@@ -281,7 +283,7 @@ def checked_feature_refusal(
         again: LaidOut | None = None
         try:
             again = lay_out(replace(options, **{_FIELDS[option]: value}))
-        except (InputError, ThicknessError) as exc:  # not expected: it passed that check
+        except (InputError, DesignError) as exc:  # refused, or no route on its tiles
             entry["refused"] = str(exc)
         else:
             entry.update(accuracy_mm=again.shaped.accuracy_mm, hinges=str(again.options.hinges))
@@ -289,6 +291,8 @@ def checked_feature_refusal(
                 retry = complete_retry(asked, option, _flag(option, value))
                 return InputError(f"{what}; retry with: {retry}")
             entry["shortfall"] = str(again.shortfall)
+        if made == RETRY_LAYOUTS:
+            break  # no layout left to make with a next value
         candidate = _next_value(checker, option, value, profile, again)
     checked = ""
     for entry in tried:

@@ -166,6 +166,32 @@ def test_a_layout_missing_the_tolerance_steps_the_tiles_down_until_one_meets_it(
     ) == (missed, None)
 
 
+def test_a_value_whose_layout_has_no_route_is_a_refused_step_and_the_search_goes_on() -> None:
+    # The route of a candidate layout (planned with CAD before any solid) can fail: that value
+    # is recorded as refused and the next one is laid out, as for a refused value.
+    from drawstring.geometry.core.errors import DesignError
+
+    profile = load_profile("fdm-dual")
+    asked = DesignOptions(cad=False, simulate=False)
+    options = replace(resolve_options(asked, profile), tiles=40)
+    laid_out: list[int] = []
+
+    def lay_out(changed: Any) -> LaidOut:
+        laid_out.append(changed.tiles)
+        if changed.tiles == 30:
+            raise DesignError("no string route through every part")
+        return _laid(changed, 0.01)
+
+    kept, chosen = chosen_layout(
+        _laid(options, 0.4), str(HEMISPHERE), asked, options, profile, lay_out, _never_refused
+    )
+    assert laid_out == [30, 22] and kept.options.tiles == 22 and chosen is not None
+    assert chosen["tried"][0] == {
+        "option": "tiles", "value": 30, "refused": "no string route through every part",
+    }  # fmt: skip
+    assert "--tiles 30 (refused)" in kept.notes[-1]
+
+
 def test_only_defaults_left_unset_let_the_tool_choose() -> None:
     assert chooses_values(DesignOptions(hinges=HingeStrategy.TOP, cad=False))
     for given in ({"size_mm": 160.0}, {"thickness_mm": 6.0}, {"tiles": 200}, {"grid": (9, 9)}):
