@@ -42,7 +42,7 @@ from drawstring.cad.hinge_plans import (
     strip_neighbours,
 )
 from drawstring.cad.kernel import solid_checks
-from drawstring.cad.magnets_labels import MagnetPair, magnet_pockets
+from drawstring.cad.magnets_labels import MagnetPair, magnet_pockets, pairs_left_out
 from drawstring.cad.part_mesh import PartMeshes
 from drawstring.cad.paths import SIDE_TOP_FACE, channel_path, lift_path
 from drawstring.cad.tile_build import (
@@ -57,6 +57,7 @@ from drawstring.cad.tile_build import (
 from drawstring.cad.tiles import move_solid, rigid_transforms
 from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.tile import HingeSide, Pose
+from drawstring.geometry.tiling.linkage import hinged_components
 
 if TYPE_CHECKING:  # profiles live in the fabrication layer; cad only reads fields
     from drawstring.cad.dimensions import FeatureDimensions as Profile
@@ -464,8 +465,8 @@ def _magnet_tools(
             failed += [(int(tile_a), "magnet pocket"), (int(tile_b), "magnet pocket")]
             continue
         made.append((tool_a, tool_b, record))
-    # a pair whose pockets fit nowhere on its faces is left out where others join the parts
-    left_out = [r for _, _, r in made if not r.fits] if any(r.fits for _, _, r in made) else []
+    parts = hinged_components(len(flat), inputs.hinge_rows)
+    left_out = pairs_left_out([r for _, _, r in made], parts)
     for tool_a, tool_b, record in made:
         if any(record is r for r in left_out):
             continue

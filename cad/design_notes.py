@@ -173,5 +173,5 @@ def left_out_notes(left_out: Sequence[MagnetPair], made: int) -> list[str]:
         f"{len(left_out)} of {made} magnet pairs left out: their {left_out[0].diameter_mm:.2f} "
         "mm pockets fit nowhere on their side faces (tiles "
         + ", ".join(f"{r.tile_a}/{r.tile_b}" for r in left_out)
-        + "); the other pairs join the parts"
+        + "); other pairs join the same parts"
     ]

@@ -564,3 +564,16 @@ def _stacked(
         normals[index, :, : len(n)] = n.T
         offsets[index, 0, : len(d)] = d
     return normals, offsets
+
+
+def pairs_left_out(pairs: Sequence[MagnetPair], parts: NDArray[np.int64]) -> list[MagnetPair]:
+    """The magnet ``pairs`` whose pockets fit nowhere on their faces and that another pair,
+    whose pockets fit, joins across the same split (between the same two of the tiles'
+    ``parts``): those are left out; a split no fitting pair joins keeps its pairs."""
+
+    def split(pair: MagnetPair) -> tuple[int, int]:
+        ends = sorted((int(parts[pair.tile_a]), int(parts[pair.tile_b])))
+        return ends[0], ends[1]
+
+    joined = {split(pair) for pair in pairs if pair.fits}
+    return [pair for pair in pairs if not pair.fits and split(pair) in joined]

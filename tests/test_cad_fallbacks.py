@@ -94,3 +94,22 @@ def test_a_pocket_a_relief_would_open_moves_clear_of_it(profile: Profile) -> Non
     assert (u - 0.6) * 20.0 >= radius + feature_wall_mm(profile) - 1e-9
     # the first place on the grid (1/40 of the face apart) 2.05 mm past the cut: u = 0.725
     assert v == 0.5 and u == pytest.approx(0.725)
+
+
+def test_a_magnet_pair_that_fits_nowhere_is_left_out_only_where_another_joins_its_split() -> None:
+    # tiles 0-1 in part 0, 2-3 in part 1, 4-5 in part 2: split 0|1 has a fitting pair and one
+    # that does not (left out); split 1|2 has only pairs that do not fit (kept: they are all
+    # that join those parts, with their problem)
+    from drawstring.cad.magnets_labels import MagnetPair, pairs_left_out
+
+    parts = np.array([0, 0, 1, 1, 2, 2])
+
+    def pair(a: int, b: int, fits: bool) -> MagnetPair:
+        return MagnetPair(a, 0, b, 2, np.zeros(3), 3.0, 1.5, "N", "S", fits)
+
+    fits_01, misses_01 = pair(0, 2, True), pair(1, 3, False)
+    misses_12 = [pair(2, 4, False), pair(5, 3, False)]
+    left = pairs_left_out([fits_01, misses_01, *misses_12], parts)
+    assert left == [misses_01]
+    # every pair fits: none left out
+    assert pairs_left_out([fits_01, pair(3, 5, True)], parts) == []

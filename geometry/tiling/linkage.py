@@ -287,7 +287,7 @@ def build_linkage(cells: BoolArray, splits: tuple[Split, ...] = ()) -> Linkage:
         gap_kind=tuple(gap_kind),
         gap_sides=sides_arr,
         gap_slit=tuple(gap_slit),
-        tile_component=_components(len(tile_cells), hinges),
+        tile_component=hinged_components(len(tile_cells), hinges),
         boundary_tile=_boundary_tiles(cells, tile_cells),
         splits=tuple(splits),
     )
@@ -302,8 +302,9 @@ def _corner_nodes(n_tiles: int, hinges: IntArray) -> IntArray:
     return relabelled.reshape(n_tiles, 4).astype(np.int64)
 
 
-def _components(n_tiles: int, hinges: IntArray) -> IntArray:
-    """Connected components of the tile graph whose edges are hinges."""
+def hinged_components(n_tiles: int, hinges: IntArray) -> IntArray:
+    """The part of each tile: connected components of the tile graph whose edges are hinges
+    (rows ``(a, corner_a, b, corner_b)``), numbered in the order of their first tile."""
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
 
