@@ -173,7 +173,7 @@ def _clear_of_hollows(
 ) -> PinPlan:
     """``plan`` without the pins that come within a wall of their tile's convex relief cuts
     (a ball of the pin lies a wall outside a cut where it does outside one of its planes)."""
-    pins, notes = list(plan.pins), list(plan.notes)
+    pins, short, notes = list(plan.pins), list(plan.short), list(plan.notes)
     for index, (pin, cuts) in enumerate(zip(plan.pins, hollows, strict=True)):
         if pin is None:
             continue
@@ -182,10 +182,10 @@ def _clear_of_hollows(
             planes = ConvexHull(points).equations
             height = (balls.centres @ planes[:, :3].T + planes[:, 3]).max(axis=1)
             if np.any(height < balls.radii + feature_wall_mm(profile)):
-                pins[index] = None
+                pins[index], short[index] = None, False  # left out, not also cut short
                 notes.append(f"pin in tile {'ab'[index]} left out: its hinge's relief cuts there")
                 break
-    return PinPlan((pins[0], pins[1]), plan.short, tuple(notes))
+    return PinPlan((pins[0], pins[1]), (short[0], short[1]), tuple(notes))
 
 
 def planes_of(
