@@ -198,7 +198,6 @@ def test_a_top_hinged_close_design_off_the_fit_level_is_pulled_closer_never_fart
     m, tried = pulled.metrics(), pulled.metrics()["fit"]["close"]
     co = tried["co_surface"]
     assert co["kept"] and pulled.metrics()["fit"]["used"] == "close"
-    assert [co["surface"], co["face_samples"]] == list(DEFAULT_POLICY.close_fit_top_co)
     assert 1 <= len(co["passes"]) <= DEFAULT_POLICY.close_fit_top_passes
     kept = [p for p in co["passes"] if p["kept"]]
     assert kept and co["passes"][: len(kept)] == kept  # a pass not kept ends them
