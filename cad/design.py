@@ -433,9 +433,10 @@ def _magnet_tools(
     reliefs: HingeReliefs | None,
 ) -> tuple[list[MagnetPair], list[tuple[int, str]]]:
     """The magnet pockets into the tiles' jobs, set off the string where it opens the same
-    side and clear of the tiles' relief planes; returns the pairs made and
+    side and clear of the tiles' relief planes and hollows; returns the pairs made and
     ``(tile, "magnet pocket")`` where the kernel failed."""
     cuts = {} if reliefs is None else reliefs.cuts
+    hollows = {} if reliefs is None else reliefs.hollows
     flat, assembled = inputs.flat, inputs.assembled
     magnets = []
     clearance = _channel_radius(profile) + 0.5 * profile.magnet_diameter_mm
@@ -459,6 +460,7 @@ def _magnet_tools(
                 offset_mm=clearance if shared else 0.0,
                 tile_ids=(int(tile_a), int(tile_b)),
                 cuts=(planes_of(cuts, tile_a), planes_of(cuts, tile_b)),
+                hollows=(hollows.get(int(tile_a), []), hollows.get(int(tile_b), [])),
             )
         except Exception as exc:
             kernel_failure(f"tiles {tile_a} and {tile_b}: magnet pockets", exc)

@@ -283,6 +283,22 @@ def cut_margin(
     return float(((ends @ unit.T) - offsets[None, :] - rim[None, :]).min())
 
 
+def outside_margin(
+    point: NDArray[np.float64],
+    normal: NDArray[np.float64],
+    radius: float,
+    depth: float,
+    hull: NDArray[np.float64],
+) -> float:
+    """How far (mm) a hole of ``radius``, ``depth`` deep on the axis from ``point`` along
+    ``-normal``, lies outside the convex region whose facets are ``hull`` (``(k, 4)`` rows
+    ``(m, e)`` with ``m . x + e <= 0`` inside, as scipy's ``ConvexHull.equations``): the
+    largest margin over the facets that separate them; negative where the hole enters it."""
+    ends = np.stack([point, point - depth * normal])
+    rim = radius * np.sqrt(np.clip(1.0 - (hull[:, :3] @ normal) ** 2, 0.0, 1.0))
+    return float(((ends @ hull[:, :3].T + hull[:, 3]).min(axis=0) - rim).max())
+
+
 def cylinder_between(
     point: NDArray[np.float64],
     normal: NDArray[np.float64],

@@ -23,6 +23,7 @@ from OCP.TopAbs import (
 )
 from OCP.TopExp import TopExp_Explorer
 from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Iterator, TopoDS_Shape, TopoDS_Wire
+from scipy.spatial import ConvexHull
 
 from drawstring.cad.feature_common import (
     TOOL_OVERSHOOT_MM,
@@ -32,7 +33,7 @@ from drawstring.cad.feature_common import (
     feature_wall_mm,
     signed_area,
 )
-from drawstring.cad.hinge_frame import cut_margin
+from drawstring.cad.hinge_frame import cut_margin, outside_margin
 from drawstring.cad.kernel import polyhedron_solid
 from drawstring.cad.paths import FACE_BOTTOM, check_side, face_planes, unit_vector
 from drawstring.cad.side_faces import (
@@ -124,6 +125,7 @@ def magnet_pockets(
     offset_mm: float = 0.0,
     tile_ids: tuple[int, int] = (-1, -1),
     cuts: tuple[NDArray[np.float64] | None, NDArray[np.float64] | None] = (None, None),
+    hollows: tuple[Sequence[NDArray[np.float64]], Sequence[NDArray[np.float64]]] = ((), ()),
 ) -> tuple[bd.Solid, bd.Solid, MagnetPair]:
     """Tools: one cylindrical magnet pocket in each of two faces that touch across a split.
 
@@ -140,6 +142,8 @@ def magnet_pockets(
     cuts : per tile, planes ``(n, d)`` (flat pose) that cut it (hinge reliefs, see
         :func:`~drawstring.cad.hinge_frame.place_holes`): a pocket one of them would open is
         moved along the face (:func:`pocket_place`).
+    hollows : per tile, convex polyhedra ``(k, 3)`` (flat pose) cut out of it (hinge reliefs
+        where no plane serves): a pocket that would enter one is moved the same way.
 
     Returns
     -------
@@ -159,16 +163,20 @@ def magnet_pockets(
         np.asarray(flat_b if flat_b is not None else tile_b, dtype=np.float64),
     )
 
+    hulls = [[ConvexHull(points).equations for points in tile] for tile in hollows]
+
     def clear(at_u: float, at_v: float, wall: float) -> bool:
         u_b, v_b = invert_bilinear(quad_b, bilinear(quad_a, at_u, at_v), 1.0 - at_u, at_v)
-        for flat, side, u, v, cut in zip(
-            flats, (side_a, side_b), (at_u, u_b), (at_v, v_b), cuts, strict=True
+        for flat, side, u, v, cut, hull in zip(
+            flats, (side_a, side_b), (at_u, u_b), (at_v, v_b), cuts, hulls, strict=True
         ):
-            if cut is None or not len(cut):
+            if (cut is None or not len(cut)) and not hull:
                 continue
             point = bilinear(side_quad(flat, side), u, v)
             normal = face_planes(flat)[1][side]
             if cut_margin(flat, point, normal, radius, cut, depth) < wall:
+                return False
+            if any(outside_margin(point, normal, radius, depth, h) < wall for h in hull):
                 return False
         return True
 

@@ -113,3 +113,30 @@ def test_a_magnet_pair_that_fits_nowhere_is_left_out_only_where_another_joins_it
     assert left == [misses_01]
     # every pair fits: none left out
     assert pairs_left_out([fits_01, pair(3, 5, True)], parts) == []
+
+
+def test_a_pocket_a_hollow_relief_would_open_moves_clear_of_it(profile: Profile) -> None:
+    # Two 20 mm boxes, 6 mm thick, touching at x = 20; a hollow cut out of tile a around the
+    # middle of that face (y 7..13): the pocket pair leaves the middle for a place a wall
+    # outside the hollow, and fits; without the hollow it stays in the middle.
+    from scipy.spatial import ConvexHull
+
+    from drawstring.cad.hinge_frame import outside_margin
+    from drawstring.cad.magnets_labels import magnet_pockets
+
+    def box(x0: float) -> np.ndarray:
+        top = [(x0, 0.0), (x0 + 20.0, 0.0), (x0 + 20.0, 20.0), (x0, 20.0)]
+        return np.array([[x, y, z] for z in (0.0, -6.0) for x, y in top])
+
+    tile_a, tile_b = box(0.0), box(20.0)
+    hollow = np.array([[x, y, z] for x in (17.0, 21.0) for y in (7.0, 13.0) for z in (-7.0, 1.0)])
+    *_, middle = magnet_pockets(tile_a, 1, tile_b, 3, profile)
+    assert middle.fits and middle.centre[1] == pytest.approx(10.0)
+    *_, moved = magnet_pockets(tile_a, 1, tile_b, 3, profile, hollows=([hollow], []))
+    assert moved.fits and abs(moved.centre[1] - 10.0) > 3.0
+    radius, depth = 0.5 * moved.diameter_mm, moved.depth_mm
+    hull = ConvexHull(hollow).equations
+    normal = np.array([1.0, 0.0, 0.0])
+    wall = feature_wall_mm(profile)
+    assert outside_margin(moved.centre, normal, radius, depth, hull) >= wall - 1e-9
+    assert outside_margin(middle.centre, normal, radius, depth, hull) < 0.0
