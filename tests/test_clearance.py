@@ -211,6 +211,14 @@ def test_where_no_plane_clears_the_features_one_tile_loses_only_what_is_too_near
     plain = tile_solid(tiles[cut]).volume
     assert 1.0 - solids[cut].volume / plain == pytest.approx(reliefs.share_max, abs=1e-3)
 
+    # a channel there too (own=False: what the tile holds besides this hinge's strip) lies in
+    # what either tile would lose: the hinge is left unrelieved
+    def channel_at_hinge(tile: int, index: int, own: bool) -> KeepOut:
+        return KeepOut(near[tile][None], np.array([0.3]))
+
+    blocked = hinge_reliefs(tiles, np.array([[0, 0, 1, 0]]), ["top"], 0.4, channel_at_hinge, 0.4)
+    assert blocked.skipped == (0,) and not blocked.hollows and not blocked.cuts
+
 
 def test_a_dart_shaped_tile_keeps_its_notch_when_relieved() -> None:
     # Top and bottom faces a dart (reflex corner 2 at (3, 3)), 6 mm thick; the plane
