@@ -119,13 +119,19 @@ def _never_refused(*_args: object) -> InputError:
     raise AssertionError("the defaults were laid out: nothing to refuse")
 
 
+def _forty_tiles() -> tuple[Any, DesignOptions, Any]:
+    """fdm-dual, the options asked (no CAD, no simulation) and resolved at 40 tiles: the
+    defaults of the chosen-values tests."""
+    profile = load_profile("fdm-dual")
+    asked = DesignOptions(cad=False, simulate=False)
+    return profile, asked, replace(resolve_options(asked, profile), tiles=40)
+
+
 def test_a_layout_missing_the_tolerance_steps_the_tiles_down_until_one_meets_it() -> None:
     # The defaults (40 tiles) miss fdm-dual's 0.05 mm; the tool tries a quarter fewer tiles,
     # then a quarter fewer again, each checked by the refusing check, and keeps the first
     # that meets the tolerance.
-    profile = load_profile("fdm-dual")
-    asked = DesignOptions(cad=False, simulate=False)
-    options = replace(resolve_options(asked, profile), tiles=40)
+    profile, asked, options = _forty_tiles()
     laid_out: list[int] = []
 
     def lay_out(changed: Any) -> LaidOut:
@@ -171,9 +177,7 @@ def test_a_value_whose_layout_has_no_route_is_a_refused_step_and_the_search_goes
     # is recorded as refused and the next one is laid out, as for a refused value.
     from drawstring.geometry.core.errors import DesignError
 
-    profile = load_profile("fdm-dual")
-    asked = DesignOptions(cad=False, simulate=False)
-    options = replace(resolve_options(asked, profile), tiles=40)
+    profile, asked, options = _forty_tiles()
     laid_out: list[int] = []
 
     def lay_out(changed: Any) -> LaidOut:
@@ -265,9 +269,7 @@ def test_a_layout_too_small_for_the_features_is_a_miss_and_the_search_steps_on()
     # scales the room up by that with a 4 % margin (tiles by its square), the next steps by
     # STEP_RATIO; a layout short again is a miss, never kept, and where none has room the
     # design is refused in words, with no retry nobody checked.
-    profile = load_profile("fdm-dual")
-    asked = DesignOptions(cad=False, simulate=False)
-    options = replace(resolve_options(asked, profile), tiles=40)
+    profile, asked, options = _forty_tiles()
     ratio = feature_ratio("tiles", FeatureShortfall("", 1.0, 1.05))
     assert ratio == pytest.approx((1.0 / (1.05 * FEATURE_MARGIN)) ** 2)
     first_step = math.floor(40 * ratio)
@@ -316,9 +318,7 @@ def test_with_no_fewer_tiles_left_the_search_grows_the_size_at_the_tiles_reached
     # 12 tiles short of a feature, and fewer tiles than a quarter of the defaults' 40 are not
     # offered: the next layout keeps 12 tiles and grows the size, and that design is the
     # one the same options give when asked for.
-    profile = load_profile("fdm-dual")
-    asked = DesignOptions(cad=False, simulate=False)
-    options = replace(resolve_options(asked, profile), tiles=40)
+    profile, asked, options = _forty_tiles()
     seen: list[tuple[int, float]] = []
 
     def lay_out(changed: Any) -> LaidOut:
