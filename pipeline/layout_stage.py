@@ -169,6 +169,22 @@ def shape_and_layout(
     return run.kept(first_tiling, first, first_accuracy, best, tried)
 
 
+def shape_on_tiling(
+    tiling: Tiling,
+    bound: float,
+    loaded: Target,
+    options: ResolvedOptions,
+    progress: Progress,
+    *,
+    policy: LayoutPolicy,
+    shapes: ShapeCache,
+) -> ShapedLayout:
+    """Stages assembled to hinges on ``tiling`` (split with ``bound``) alone, no tighter
+    tiling tried: the assembled shape from ``shapes`` (solved there where it is not in it),
+    the flat layout, the co-optimization with ``policy`` and the hinges."""
+    return _shaped(tiling, bound, loaded, options, progress, shapes, policy=policy)
+
+
 class _Retiling:
     """One run of :func:`shape_and_layout`: what its steps share, and the first tighter
     tiling where it was tiled, or laid out, before the loop over tighter tilings needs it."""

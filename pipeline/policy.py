@@ -164,6 +164,12 @@ class LayoutPolicy:
     #: three-shell's eq.-1 shape sits 2.0 % of a tile side off, its layout 6.5 %); pulled
     #: there too, it stays near.  Kept only where closer (``close_fit.pulled_layout``).
     close_fit_top_co: tuple[float, float] = (30.0, 30.0)
+    #: ``co_surface`` of the polish that follows a pulled layout whose co-optimization was
+    #: used (``close_fit.polished``): laid out again on its own tiling from its own assembled
+    #: shape with a tenth of the pull, the joint solve settles nearer flat congruence (the
+    #: 160 mm three-shell's pulled layout: 1.3e-3 mm, 3.3 % of a tile side; polished:
+    #: 4.9e-4 mm, 1.9 %).
+    close_fit_top_polish: tuple[float, float] = (3.0, 3.0)
     #: Layouts with ``close_fit_top_co`` at most, each from the assembled shape the last one
     #: kept, while the kept design misses the fit level and was split otherwise than the
     #: first tiling (the 200-tile three-shell: 3.98 % of a tile side with the paper's pull,
