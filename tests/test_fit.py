@@ -224,6 +224,34 @@ def test_a_top_hinged_close_design_off_the_fit_level_is_pulled_closer_never_fart
     )
 
 
+def test_a_pulled_layout_that_misses_the_layout_targets_is_polished_back_within_them() -> None:
+    # pulled with weight 1e5 the joint solve settles where the pull holds the tiles off flat
+    # congruence (the pass misses 1e-3 mm); laid out again from that shape on its own tiling
+    # with policy.close_fit_top_polish, the tiles fold flat again and the shape stays as close
+    from drawstring.geometry.assembled.top import Eq1Weights
+
+    policy = replace(
+        DEFAULT_POLICY, close_fit_top=Eq1Weights(1e4, 10.0, 1.0), close_fit_top_co=(1e5, 1e5)
+    )
+    polished = design("saddle", replace(OPTIONS, hinges="top"), policy=policy)
+    m, tried = polished.metrics(), polished.metrics()["fit"]["close"]
+    co = tried["co_surface"]
+    first = co["passes"][0]
+    assert first["accuracy_mm"] > 1e-3  # the pulled layout alone would not be kept
+    polish = first["polish"]
+    assert polish["kept"] and polish["accuracy_mm"] <= 1e-3 and first["kept"] and co["kept"]
+    # the design is the polished layout, measured as such on the output
+    assert m["surface_distance_mean_mm"] == tried["surface_distance_mean_mm"]
+    assert tried["surface_distance_mean_mm"] == polish["surface_distance_mean_mm"]
+    assert max(m["flat_edge_error_max_mm"], m["hinge_gap_max_mm"]) <= 1e-3
+    assert m["flat_overlap_area_mm2"] == 0.0 and not polished.problems
+    # closer than the layout the passes start from, and the polish moved it little
+    start = co["paper_co"]
+    assert polish["surface_distance_mean_mm"] < 0.5 * start["surface_distance_mean_mm"]
+    assert polish["surface_distance_max_mm"] < start["surface_distance_max_mm"]
+    assert polish["surface_distance_mean_mm"] < 1.1 * first["surface_distance_mean_mm"]
+
+
 def test_the_close_shape_with_top_hinges_steps_back_to_the_dual_weights(paper: Design) -> None:
     # the dual close shape refused by the gate, the closer top shape no closer than the
     # paper's (surface weight 0.01): the dual close shape's weights are laid out with every
