@@ -27,6 +27,11 @@ has passed the check that refuses a design (:func:`~.shapes.refusing_shape`):
 A close design's assembled shape is moved rigidly onto the target (:func:`rigidly_fitted`)
 where that lowers its mean distance and not its largest, and it is kept only where its top
 faces then sit no farther from the target, on average and at most, than the paper's shape's.
+A top-hinged close design that misses the fit level while its eq.-1 shape sits near it is laid
+out again with the co-optimization pulling it to the target (:meth:`_CloseTrial.pulled_layout`),
+each such layout then polished on its own tiling with a tenth of that pull
+(:meth:`_CloseTrial.polished`), and kept only where it meets the 1e-3 mm targets and sits
+closer.
 
 ``metrics.fit.close`` (and ``close_top``) records the close shape's weights and conical defect
 and, where it was laid out, its accuracy (the larger of flat edge error and hinge gap), its
@@ -320,11 +325,13 @@ class _CloseTrial:
         tried: dict[str, Any],
     ) -> ShapedLayout:
         """The close shape laid out again with the co-optimization pulling it to the target
-        too (``policy.close_fit_top_co``), kept in place of ``first`` (its top faces at
-        ``distances``) where it meets the 1e-3 mm targets and sits closer to the target on
-        average and no farther at most; while the kept one misses the fit level, laid out so
+        too (``policy.close_fit_top_co``), a pass whose co-optimization was used then polished
+        (:meth:`polished`), kept in place of ``first`` (its top faces at ``distances``) where
+        it meets the 1e-3 mm targets and sits closer to the target on average and no farther
+        at most; while the kept one misses the fit level (and was not polished), laid out so
         again from its own assembled shape, up to ``policy.close_fit_top_passes`` times.
-        ``tried`` gets the measures of each pass as ``co_surface`` (and the kept layout's)."""
+        ``tried`` gets the measures of each pass as ``co_surface`` (each with its polish's,
+        and the kept layout's)."""
         weights = self.policy.close_fit_top_co
         policy = replace(self.policy, co_surface=weights)
         record: dict[str, Any] = {"surface": weights[0], "face_samples": weights[1]}
@@ -360,12 +367,16 @@ class _CloseTrial:
                 break
             kept, near = trial, closer
             tried.update(measured)
-            if meets_fit_level(kept.assembled.tiles, near, self.loaded) or _same_parts(
-                kept.tiling, self.first_tiling
+            polished = bool(entry.get("polish", {}).get("kept"))
+            if (
+                meets_fit_level(kept.assembled.tiles, near, self.loaded)
+                or polished
+                or _same_parts(kept.tiling, self.first_tiling)
             ):
-                # (on the first tiling's parts the kept shape is laid out congruently
-                # already: its next layout's co-optimization has nothing to lower, and the
-                # design would be this one again)
+                # (on the first tiling's parts, or polished on its own, the kept shape is laid
+                # out congruently already: the next layout ends on that tiling, its joint
+                # solve from those tiles ends above their plain layout and is refused, and the
+                # design would be this one again: the 160 mm seashell's did)
                 break
         record["kept"] = kept is not first
         return kept

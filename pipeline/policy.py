@@ -171,9 +171,10 @@ class LayoutPolicy:
     #: 4.9e-4 mm, 1.9 %).
     close_fit_top_polish: tuple[float, float] = (3.0, 3.0)
     #: Layouts with ``close_fit_top_co`` at most, each from the assembled shape the last one
-    #: kept, while the kept design misses the fit level and was split otherwise than the
-    #: first tiling (the 200-tile three-shell: 3.98 % of a tile side with the paper's pull,
-    #: 2.09 % after one, on a tighter tiling, 1.56 % after two).
+    #: kept, while the kept design misses the fit level, was split otherwise than the first
+    #: tiling and was not polished (the 200-tile three-shell at 200 mm: 3.98 % of a tile side
+    #: with the paper's pull, 2.09 % after one, on a tighter tiling, whose polish gains
+    #: nothing, 1.56 % after two; a polished layout laid out again comes back unchanged).
     close_fit_top_passes: int = 2
     #: ... tried only where the close shape's eq.-1 solve on the first tiling, before its
     #: layout, sits within this many times the fit level: the pulled layouts come near that
