@@ -1,8 +1,9 @@
 """``--fit``'s rows of ``benchmarks/run.py --fit``: how close each built-in's assembled tiles sit
 to the target, close against paper, and the fit frontier.
 
-* ``pipeline_200_fit``: every built-in at about 200 tiles, 200 mm, with the simulation, once
-  with ``--fit close`` (the default) and once with ``--fit paper``: the surface distance over
+* ``pipeline_200_fit_160mm``: every built-in at about 200 tiles and the command's default size
+  (the default profile's 160 mm; each row says ``size_mm``), with the simulation, once with
+  ``--fit close`` (the default) and once with ``--fit paper``: the surface distance over
   the top faces (mean as % of the mean tile side, largest as % of the target's diagonal),
   whether it meets the fit level (mean <= 2 %, largest <= 1 %), the 1e-3 mm layout levels,
   overlap, deployment, and the layout time of close against paper.
@@ -10,7 +11,7 @@ to the target, close against paper, and the fit frontier.
   (face samples at the same weight; the gate on the conical defect off, so every shape is laid
   out): its surface distance against its accuracy (the larger of flat edge error and hinge
   gap), kept or not, with the paper's shape as the first point (percentages of the paper
-  design's mean tile side and the target's diagonal).
+  design's mean tile side and the target's diagonal), at 200 mm.
 
 Run with ``nice -n 10 .venv/bin/python benchmarks/fit_rows.py [NAME ...] [--frontier]``
 (all built-ins by default; the two rows of all eight took 10 min on a loaded two-core machine,
@@ -38,6 +39,10 @@ FIT_MEAN_REL = 0.02
 FIT_MAX_REL = 0.01
 #: The layout levels: flat edge error and hinge gap, mm.
 LAYOUT_TOL_MM = 1e-3
+#: The row kind of the close/paper rows: about 200 tiles at the command's default size.
+FIT_ROWS = "pipeline_200_fit_160mm"
+#: That size (the default profile's ``default_size_mm``), checked against each design's.
+DEFAULT_SIZE_MM = 160.0
 #: Surface (and face-sample) weights of the frontier's eq. 1, planar 1e4 and square 10.
 FRONTIER_SURFACE_WEIGHTS = (1.0, 10.0, 100.0)
 
@@ -59,14 +64,17 @@ def _fit_figures(mean_mm: float, max_mm: float, side_mm: float, diagonal_mm: flo
 
 
 def fit_row(name: str, fit: str, tiles: int, simulate: bool = True) -> dict[str, Any]:
-    """One built-in designed with ``--fit fit``, as ``pipeline_200_fit`` records it."""
+    """One built-in designed with ``--fit fit`` at the default size, as ``FIT_ROWS`` records
+    it."""
     from drawstring.pipeline.record import DesignOptions
     from drawstring.pipeline.run import design
 
-    options = DesignOptions(tiles=tiles, size_mm=200.0, cad=False, simulate=simulate, fit=fit)  # type: ignore[arg-type]
+    options = DesignOptions(tiles=tiles, cad=False, simulate=simulate, fit=fit)  # type: ignore[arg-type]
     cpu = time.process_time()
     result = design(name, options)
     cpu = time.process_time() - cpu
+    if result.options.size_mm != DEFAULT_SIZE_MM:
+        raise SystemExit(f"the default size is {result.options.size_mm:g} mm: rename {FIT_ROWS}")
     m = result.metrics()
     edge, hinge = m["flat_edge_error_max_mm"], m["hinge_gap_max_mm"]
     overlap = m["flat_overlap_area_mm2"]
@@ -81,6 +89,7 @@ def fit_row(name: str, fit: str, tiles: int, simulate: bool = True) -> dict[str,
     return {
         "case": name,
         "fit": fit,
+        "size_mm": result.options.size_mm,
         "fit_used": m["fit"]["used"],
         "hinges": str(result.options.hinges),
         "tiles": result.tiling.linkage.n_tiles,
@@ -101,7 +110,7 @@ def fit_row(name: str, fit: str, tiles: int, simulate: bool = True) -> dict[str,
 
 
 def pipeline_fit_rows(names: list[str], tiles: int = 200) -> list[dict[str, Any]]:
-    """``pipeline_200_fit``: close then paper per built-in; the close row's
+    """``FIT_ROWS``: close then paper per built-in; the close row's
     ``layout_vs_paper`` is its layout time over the paper row's."""
     rows: list[dict[str, Any]] = []
     for name in names:
@@ -180,12 +189,12 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path(__file__).with_name("results.json"))
     args = parser.parse_args()
     names = args.names or list(BUILTIN_TARGETS)
-    found: dict[str, Any] = {} if args.frontier_only else {"pipeline_200_fit": []}
+    found: dict[str, Any] = {} if args.frontier_only else {FIT_ROWS: []}
     if args.frontier or args.frontier_only:
         found["fit_frontier"] = []
     for name in names:  # one built-in at a time, each written as it is done
-        if "pipeline_200_fit" in found:
-            found["pipeline_200_fit"] += pipeline_fit_rows([name])
+        if FIT_ROWS in found:
+            found[FIT_ROWS] += pipeline_fit_rows([name])
         if "fit_frontier" in found:
             found["fit_frontier"] += frontier_rows([name])
         results = json.loads(args.out.read_text()) if args.out.exists() else {}
