@@ -417,8 +417,15 @@ class _CloseTrial:
         measured["kept"] = kept
         if not kept:
             return pulled, accuracy, distances, measured
+        lowered = self.policy.close_fit_top_polish[0]
+        note = (
+            f"fit: the layout pulled to the target met its hinges to {accuracy:.2g} mm and sat "
+            f"{distances.mean:.2f} mm from it on average; laid out again on its own tiling from "
+            f"its own shape with the pull lowered to {lowered:g}, {polished:.2g} mm "
+            f"and {closer.mean:.2f} mm"
+        )
         # the tiling's story (tighter splits tried) is the pulled layout's
-        return replace(trial, notes=pulled.notes), polished, closer, measured
+        return replace(trial, notes=(*pulled.notes, note)), polished, closer, measured
 
     def closer_than(
         self, paper: TopFaceDistances

@@ -245,6 +245,7 @@ def test_a_pulled_layout_that_misses_the_layout_targets_is_polished_back_within_
     assert tried["surface_distance_mean_mm"] == polish["surface_distance_mean_mm"]
     assert max(m["flat_edge_error_max_mm"], m["hinge_gap_max_mm"]) <= 1e-3
     assert m["flat_overlap_area_mm2"] == 0.0 and not polished.problems
+    assert any(n.startswith("fit: the layout pulled to the target met") for n in polished.notes)
     # closer than the layout the passes start from, and the polish moved it little
     start = co["paper_co"]
     assert polish["surface_distance_mean_mm"] < 0.5 * start["surface_distance_mean_mm"]
