@@ -13,12 +13,14 @@ import numpy as np
 from numpy.typing import NDArray
 from OCP.BRep import BRep_Builder, BRep_Tool
 from OCP.BRepAdaptor import BRepAdaptor_Surface
+from OCP.BRepCheck import BRepCheck_Analyzer, BRepCheck_NoError, BRepCheck_Shell
 from OCP.BRepTools import BRepTools_ReShape, BRepTools_WireExplorer
 from OCP.TopAbs import (
     TopAbs_EDGE,
     TopAbs_FACE,
     TopAbs_FORWARD,
     TopAbs_ShapeEnum,
+    TopAbs_SHELL,
     TopAbs_VERTEX,
 )
 from OCP.TopExp import TopExp_Explorer
@@ -436,10 +438,15 @@ def fill_engraving(
     polygon on the bottom face, in order: the outlines of the engraved digits), or None where
     the result is not one valid solid whose volume is ``solid``'s (``volume`` where the caller
     measured it) plus the pockets' (the prisms' volume below the face, ``depth`` of their
-    ``depth + TOOL_OVERSHOOT_MM``), for example where a pocket met another feature.
+    ``depth + TOOL_OVERSHOOT_MM``), for example where a pocket met another feature.  Valid is
+    checked where the result differs from ``solid`` (:func:`_filled_valid`): ``solid`` is the
+    checked result of the tile's cut.
     """
     prisms = engraving.solids()
-    normals, offsets = _stacked([_halfspaces(prism) for prism in prisms])
+    corners = [_corners_of(prism) for prism in prisms]
+    normals, offsets = _stacked(
+        [_halfspaces(prism, points) for prism, points in zip(prisms, corners, strict=True)]
+    )
     faces = _unique(solid.wrapped, TopAbs_FACE)
     removed, pocket_edges = _ShapeSet(), _ShapeSet()
     for face in faces:
@@ -456,6 +463,7 @@ def fill_engraving(
     reshape = BRepTools_ReShape()
     builder = BRep_Builder()
     rims: list[NDArray[np.float64]] = []
+    rebuilt: list[TopoDS_Face] = []
     for face in faces:
         if removed.Contains(face):
             reshape.Remove(face)
@@ -484,10 +492,12 @@ def fill_engraving(
                 builder.Add(closed, wire)
             closed.Orientation(wrapped.Orientation())
             reshape.Replace(wrapped, closed)
+            rebuilt.append(closed)
     try:
         filled = bd.Solid(reshape.Apply(solid.wrapped))
-        pockets = sum(p.volume for p in prisms) * depth / (depth + TOOL_OVERSHOOT_MM)
-        if not filled.is_valid or len(filled.solids()) != 1:
+        prism_volume = sum(float(ConvexHull(points).volume) for points in corners)
+        pockets = prism_volume * depth / (depth + TOOL_OVERSHOOT_MM)
+        if len(filled.solids()) != 1 or not _filled_valid(filled, rebuilt):
             return None
         expected = (solid.volume if volume is None else volume) + pockets
     except Exception as exc:  # the kernel's own errors: keep the engraved solid
@@ -496,6 +506,31 @@ def fill_engraving(
     if abs(filled.volume - expected) > 1e-6 * max(expected, 1.0):
         return None
     return filled, rims
+
+
+def _filled_valid(filled: bd.Solid, rebuilt: Sequence[TopoDS_Face]) -> bool:
+    """Whether the solid :func:`fill_engraving` made passes BRepCheck where it differs from
+    the engraved solid, which its builder checked whole: each face rebuilt without its
+    pockets' rims (surface, wires, edges) and each shell (closed, consistently oriented,
+    with the pockets' faces gone)."""
+    for face in rebuilt:
+        if not BRepCheck_Analyzer(face).IsValid():
+            return False
+    for shell in _unique(filled.wrapped, TopAbs_SHELL):
+        check = BRepCheck_Shell(TopoDS.Shell(shell))
+        if check.Closed(False) != BRepCheck_NoError:
+            return False
+        if check.Orientation(False) != BRepCheck_NoError:
+            return False
+    return True
+
+
+def _corners_of(prism: bd.Solid) -> NDArray[np.float64]:
+    """(k, 3) the corners of a solid, each once."""
+    return np.array(
+        [BRep_Tool.Pnt_s(TopoDS.Vertex(v)).Coord() for v in _unique(prism.wrapped, TopAbs_VERTEX)],
+        dtype=np.float64,
+    ).reshape(-1, 3)
 
 
 class _ShapeSet:
@@ -539,14 +574,14 @@ def _corners(wire: TopoDS_Wire) -> NDArray[np.float64]:
     return np.array(points, dtype=np.float64).reshape(-1, 3)
 
 
-def _halfspaces(prism: bd.Solid) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``(normals, offsets)`` of a convex planar-faced solid: inside is ``normals @ x <=
-    offsets`` (outward normals), from the planes of its faces."""
+def _halfspaces(
+    prism: bd.Solid, corners: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(normals, offsets)`` of a convex planar-faced solid with these ``corners``
+    (:func:`_corners_of`): inside is ``normals @ x <= offsets`` (outward normals), from the
+    planes of its faces."""
     # any point inside tells the faces' outward side: the mean of the corners of the convex
     # prism (no volume integral)
-    corners = [
-        BRep_Tool.Pnt_s(TopoDS.Vertex(v)).Coord() for v in _unique(prism.wrapped, TopAbs_VERTEX)
-    ]
     middle = np.mean(corners, axis=0)
     normals, offsets = [], []
     for face in _unique(prism.wrapped, TopAbs_FACE):

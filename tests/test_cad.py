@@ -256,6 +256,28 @@ def test_filling_an_engraving_gives_back_the_block_and_the_digits_outlines(
     assert fill_engraving(box, engraving, label_depth(profile)) is None
 
 
+def test_filled_engraving_checks_where_it_changed(profile: Profile) -> None:
+    """fill_engraving checks validity only where its solid differs from the engraved one (the
+    rebuilt bottom face and the shells): on a filled box that check agrees with BRepCheck of
+    the whole solid, and a shell with a face taken out fails it."""
+    from OCP.BRepTools import BRepTools_ReShape
+
+    from drawstring.cad.magnets_labels import _filled_valid, fill_engraving, label_depth
+
+    box = tile_solid(_box(12.0))
+    engraving = label_engraving(_box(12.0), 8, profile)
+    assert engraving is not None
+    filled = fill_engraving(build_tile(box, [engraving]), engraving, label_depth(profile))
+    assert filled is not None
+    assert _filled_valid(filled[0], [f.wrapped for f in filled[0].faces()])
+    assert filled[0].is_valid
+    reshape = BRepTools_ReShape()
+    reshape.Remove(box.faces()[0].wrapped)
+    opened = bd.Solid(reshape.Apply(box.wrapped))
+    assert not _filled_valid(opened, [])
+    assert not opened.is_valid
+
+
 def test_labels_that_turned_read_as_another_number_are_underlined(profile: Profile) -> None:
     # Loose tiles lie every way on the bed, and a seven-segment 6 turned half a turn is a 9
     # (a user-acceptance review): those labels get an underline, as on dice; the rest do not.
