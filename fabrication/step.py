@@ -231,8 +231,8 @@ _PLACEMENTS = frozenset({"AXIS2_PLACEMENT_3D"})
 #: type and the rest; runs of plain characters are taken whole (the files are tens of MB).
 _STEP_RECORD = re.compile(r"#(\d+)\s*=\s*([A-Z_0-9]*)((?:[^';]+|'[^']*(?:''[^']*)*')*);")
 _STEP_REF = re.compile(r"#(\d+)")
-_STEP_REF_ONLY = re.compile(r"#(\d+)|''")
-_STEP_STRING_OR_REF = re.compile(r"'[^']*(?:''[^']*)*'|#(\d+)")
+#: Splits an entity body into text, then string literals or references ``#n``, alternating.
+_STEP_STRING_OR_REF_SPLIT = re.compile(r"('[^']*(?:''[^']*)*'|#\d+)")
 
 
 def share_geometry(text: str) -> str:
@@ -259,16 +259,13 @@ def share_geometry(text: str) -> str:
     bodies: dict[int, str] = {}
     kinds: dict[int, str] = {}
     fixed: set[int] = set()  # placements something other than geometry refers to
-    for match in _STEP_RECORD.finditer(text, data, end):
-        number, kind, body = int(match[1]), match[2], match[3]
+    for digits, kind, body in _STEP_RECORD.findall(text, data, end):
+        number = int(digits)
         bodies[number], kinds[number] = body, kind
         if kind not in _SHARED_GEOMETRY:
             fixed.update(map(int, _STEP_REF.findall(body)))
     same: dict[int, int] = {}  # entity -> the first entity of its content
     first: dict[str, int] = {}
-
-    def shared_ref(match: re.Match[str]) -> str:
-        return f"#{canonical(int(match[1]))}" if match[1] else match[0]
 
     def canonical(number: int) -> int:
         known = same.get(number)
@@ -279,12 +276,17 @@ def share_geometry(text: str) -> str:
             same[number] = number
             return number
         body = bodies[number]
-        if body.count("'") == 2 and "''" in body:  # only the empty name: white space is no content
-            key = kind + _STEP_REF_ONLY.sub(shared_ref, "".join(body.split()))
+        if "#" not in body and (body.count("'") == 2 and "''" in body or "'" not in body):
+            key = kind + "".join(body.split())  # no reference, no string but the empty name
         else:
-            key = kind + _STEP_TOKEN.sub(
-                lambda m: shared_ref(m) if m[1] or not m[0].isspace() else "", body
-            )
+            # strings whole, references shared, white space outside strings dropped
+            parts = _STEP_STRING_OR_REF_SPLIT.split(body)
+            for index in range(0, len(parts), 2):
+                parts[index] = "".join(parts[index].split())
+            for index in range(1, len(parts), 2):
+                if parts[index][0] == "#":
+                    parts[index] = f"#{canonical(int(parts[index][1:]))}"
+            key = kind + "".join(parts)
         same[number] = first.setdefault(key, number)
         return same[number]
 
@@ -298,14 +300,16 @@ def share_geometry(text: str) -> str:
     for number, first_number in same.items():
         renumber[number] = renumber[first_number]
 
-    def renumbered(match: re.Match[str]) -> str:
-        return f"#{renumber[int(match[1])]}" if match[1] else match[0]
+    def renumbered(body: str) -> str:
+        if "#" not in body:
+            return body
+        parts = _STEP_STRING_OR_REF_SPLIT.split(body)
+        for index in range(1, len(parts), 2):
+            if parts[index][0] == "#":
+                parts[index] = f"#{renumber[int(parts[index][1:])]}"
+        return "".join(parts)
 
-    lines = [
-        f"#{renumber[n]} = {kinds[n]}{_STEP_STRING_OR_REF.sub(renumbered, bodies[n])};"
-        for n in order
-        if same[n] == n
-    ]
+    lines = [f"#{renumber[n]} = {kinds[n]}{renumbered(bodies[n])};" for n in order if same[n] == n]
     return text[:data] + "\n" + "\n".join(lines) + "\n" + text[end:]
 
 
