@@ -256,6 +256,30 @@ def test_filling_an_engraving_gives_back_the_block_and_the_digits_outlines(
     assert fill_engraving(box, engraving, label_depth(profile)) is None
 
 
+def test_label_prisms_are_the_polyhedra_the_kernel_helper_builds(
+    profile: Profile, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A label's prisms, their face planes computed together, are the solids
+    polyhedron_solid builds from the same corners and faces: the same serialised B-rep
+    (vertices, edges, faces and planes in the same order), volumes and bounding boxes."""
+    from drawstring.cad import magnets_labels
+    from drawstring.cad.kernel import polyhedron_solid
+
+    tile = _box(12.0) + np.array([3.0, -2.0, 1.0])
+    tile[4:, :2] += 0.3  # a frustum: its bottom face is not the top face moved down
+    fast = label_engraving(tile, 187, profile)
+    monkeypatch.setattr(magnets_labels, "_prism_solid", polyhedron_solid)
+    again = label_engraving(tile, 187, profile)
+    assert fast is not None and again is not None
+    assert len(fast.solids()) == len(again.solids()) == 12
+    assert pickle.dumps(fast) == pickle.dumps(again)
+    for one, other in zip(fast.solids(), again.solids(), strict=True):
+        assert one.volume == pytest.approx(other.volume, rel=1e-12) and one.volume > 0
+        box, box_again = one.bounding_box(), other.bounding_box()
+        assert np.allclose(tuple(box.min), tuple(box_again.min), atol=1e-12)
+        assert np.allclose(tuple(box.max), tuple(box_again.max), atol=1e-12)
+
+
 def test_filled_engraving_checks_where_it_changed(profile: Profile) -> None:
     """fill_engraving checks validity only where its solid differs from the engraved one (the
     rebuilt bottom face and the shells): on a filled box that check agrees with BRepCheck of
