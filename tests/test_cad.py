@@ -286,7 +286,8 @@ def test_filled_engraving_checks_where_it_changed(profile: Profile) -> None:
     the whole solid, and a shell with a face taken out fails it."""
     from OCP.BRepTools import BRepTools_ReShape
 
-    from drawstring.cad.magnets_labels import _filled_valid, fill_engraving, label_depth
+    from drawstring.cad.engraving_fill import _filled_valid
+    from drawstring.cad.magnets_labels import fill_engraving, label_depth
 
     box = tile_solid(_box(12.0))
     engraving = label_engraving(_box(12.0), 8, profile)
