@@ -29,7 +29,7 @@ from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.tile import HingeSide
 from drawstring.geometry.core.types import FloatArray, IntArray
 
-__all__ = ["HingeReliefs", "hinge_reliefs", "separating_normal"]
+__all__ = ["HingeReliefs", "hinge_reliefs", "hollow_room", "separating_normal"]
 
 #: The first way to relieve a hinge (:func:`_relief_options`) that cuts at most this share of
 #: either tile's volume is taken; where none does, the one that cuts least.
@@ -321,6 +321,27 @@ def _hollow(
         return None
     share, cut, polyhedron = min(found, key=lambda f: f[0])
     return cut, polyhedron, share
+
+
+def hollow_room(tiles: FloatArray, a: int, b: int, hinge: int, keep_out: ReliefKeepOut) -> float:
+    """How far (mm) the features of one of hinged tiles ``a`` and ``b`` (``keep_out`` with the
+    hinge's own strip left out, as :func:`_hollow` asks it) lie outside the other tile: the
+    larger over the two tiles of the least distance, measured on the other's face planes (a
+    lower bound; negative where a feature reaches into the other).  The hollow relief cuts
+    what lies within the print clearance of the other tile, so it needs the clearance and a
+    wall; a tile without features has room: infinity."""
+    best = -np.inf
+    for cut, other in ((a, b), (b, a)):
+        try:
+            planes = ConvexHull(tiles[other]).equations
+        except (QhullError, ValueError):
+            continue
+        balls = keep_out(cut, hinge, False)
+        if not len(balls.radii):
+            return float(np.inf)
+        height = (balls.centres @ planes[:, :3].T + planes[:, 3]).max(axis=1)
+        best = max(best, float((height - balls.radii).min()))
+    return float(best)
 
 
 def _interior(halfspaces: FloatArray) -> FloatArray:

@@ -25,6 +25,7 @@ from drawstring.pipeline.record import Design, ResolvedOptions
 
 if TYPE_CHECKING:  # the CAD kernel loads only where solids are built
     from drawstring.cad.design import CadResult
+    from drawstring.cad.hinge_plans import ReliefShortfall
     from drawstring.fabrication.measures import Measures
     from drawstring.fabrication.printers import Printer
 
@@ -195,9 +196,11 @@ def feature_shortfall(
     """The worst feature the profile cannot give up on that does not fit the flat ``tiles`` as
     fabricated, (T, 8, 3): the side faces the route ``steps`` and the lift bores
     ``lift_tiles`` open through (:func:`channel_faces_mm`), the lift-point tiles' depth, the
-    hinged corners' room for their strips on the faces ``sides`` (:func:`strip_room_mm`);
-    None where all fit."""
+    hinged corners' room for their strips on the faces ``sides``
+    (:func:`~drawstring.cad.hinge_plans.strip_room_mm`), and for tiles printed together the
+    print clearance at every hinge (:func:`relief_words`); None where all fit."""
     from drawstring.cad.features import channel_min_face_mm, lift_bore_depth_mm
+    from drawstring.cad.hinge_plans import relief_shortfall, strip_room_mm
 
     bore = f"{profile.string_diameter_mm + profile.channel_clearance_mm:g} mm string channel"
     found = []
@@ -225,38 +228,13 @@ def feature_shortfall(
     strips = strip_room_mm(profile, tiles, hinges, sides)
     if strips is not None and strips[0] < strips[1] - 1e-9:
         found.append((strip_words(profile, *strips), *strips))
+    clearance = print_clearance_mm(profile)
+    welded = relief_shortfall(tiles, hinges, sides, steps, lift_tiles, profile, clearance)
+    if welded is not None:  # a room at or below 0 ranks worst (and steps on by a whole step)
+        found.append((relief_words(welded, clearance), max(welded.have, 1e-3), welded.need))
     if not found:
         return None
     return FeatureShortfall(*max(found, key=lambda f: f[2] / f[1]))
-
-
-def strip_room_mm(
-    profile: Profile,
-    tiles: NDArray[np.float64],
-    hinges: NDArray[np.int64],
-    sides: Sequence[HingeSide],
-) -> tuple[float, float] | None:
-    """(have, need) mm at the hinged corner with the least room for its hinge strip: the
-    distance from the corner to the centre of its tile's hinge face (on ``sides``), in both
-    tiles of each hinge, against what the strip needs there
-    (:func:`~drawstring.cad.hinge_frame.strip_min_reach_mm`: more where a corner holding
-    another strip on the same face is close in angle); None without hinges."""
-    from drawstring.cad.hinge_frame import strip_min_reach_mm
-    from drawstring.cad.hinge_plans import strip_neighbours
-
-    rows = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
-    if not len(rows):
-        return None
-    corners = []
-    for (a, ca, b, cb), side, crowd in zip(
-        rows.tolist(), sides, strip_neighbours(rows, sides), strict=True
-    ):
-        shift = 0 if side == HingeSide.TOP else 4
-        for tile, k, others in ((a, ca, crowd[0]), (b, cb, crowd[1])):
-            ring = tiles[tile, shift : shift + 4]
-            have = float(np.linalg.norm(ring.mean(axis=0) - ring[k]))
-            corners.append((have, strip_min_reach_mm(profile, ring, k, others)))
-    return min(corners, key=lambda c: c[0] / c[1])
 
 
 def strip_words(profile: Profile, have: float, need: float) -> str:
@@ -264,6 +242,23 @@ def strip_words(profile: Profile, have: float, need: float) -> str:
     return (
         f"hinged corners {have:.2f} mm from their tiles' centres, and a "
         f"{profile.hinge_width_mm:g} mm wide hinge strip needs {need:.2f} mm"
+    )
+
+
+def relief_words(welded: ReliefShortfall, clearance_mm: float) -> str:
+    """What hinges no print-clearance relief clears (:func:`~drawstring.cad.hinge_plans.
+    relief_shortfall`) mean, in words."""
+    a, b = welded.tiles
+    room = (
+        f"reach {-welded.have:.2f} mm into the other tile"
+        if welded.have < 0
+        else f"lie {welded.have:.2f} mm from the other tile"
+    )
+    return (
+        f"{len(welded.hinges)} hinged pair(s) lie so close in the flat layout that they would "
+        f"print welded at the hinge (tiles {a} and {b}: their string channels, lift bores and "
+        f"strips {room}, and cutting a {clearance_mm:g} mm print clearance with a wall needs "
+        f"{welded.need:.2f} mm)"
     )
 
 
@@ -341,6 +336,7 @@ def hinge_strip_shortfall(
     simulation.  The co-optimization moves the tiles a little: on minimal_surface (corpus) at
     --size 230 the eq.-1 tiles give 0.99 mm of 1.24 mm needed, the design's top-hinged tiles
     1.14 of 1.34."""
+    from drawstring.cad.hinge_plans import strip_room_mm
     from drawstring.geometry.hinges.sides import dual_hinge_faces
 
     top = [HingeSide.TOP] * linkage.n_hinges

@@ -233,3 +233,40 @@ def test_a_dart_shaped_tile_keeps_its_notch_when_relieved() -> None:
     assert relieved.is_valid
     assert tile_solid(tile).volume - relieved.volume == pytest.approx(3.0, rel=1e-9)
     assert relieved.volume == pytest.approx(6.0 * 30.0 - 3.0, rel=1e-9)
+
+
+def test_a_hinge_no_relief_clears_is_a_feature_shortfall_before_any_solid() -> None:
+    # Two 6 mm tiles hinged at corner 0 that overlap below the hinge (their bottoms 1.5 times
+    # as wide), each with its string channel from side 0 to side 3, the two sides at the
+    # hinge: the channels lie in what either tile would lose to the print clearance, so the
+    # CAD stage would leave the hinge unrelieved (its tiles print welded).  The checks asked
+    # before any solid find it, with the channels' room (negative: they reach into the other
+    # tile) against the clearance and a wall.  With one tile's channel on its far sides, that
+    # tile is hollowed and every feature fits.
+    from drawstring.cad.feature_common import feature_wall_mm
+    from drawstring.cad.hinge_plans import design_reliefs, relief_shortfall
+    from drawstring.fabrication.profiles import load_profile
+    from drawstring.pipeline.cad_stage import feature_shortfall
+
+    profile = load_profile("fdm-dual")
+    tiles = _hinged_pair(12.0, 6.0)
+    for tile in tiles:
+        centre = tile[4:, :2].mean(axis=0)
+        tile[4:, :2] = centre + 1.5 * (tile[4:, :2] - centre)
+    hinge = np.array([[0, 0, 1, 0]])
+    no_lifts = np.zeros((0, 2), dtype=np.int64)
+    at_hinge = np.array([[0, 0, 0, 3], [1, 1, 0, 3]])
+    made = design_reliefs(tiles, hinge, ["top"], at_hinge, no_lifts, profile, 0.4)
+    assert made is not None and made.skipped == (0,)
+    welded = relief_shortfall(tiles, hinge, ["top"], at_hinge, no_lifts, profile, 0.4)
+    assert welded is not None and welded.hinges == (0,) and welded.tiles == (0, 1)
+    assert welded.have < 0.0 and welded.need == pytest.approx(0.4 + feature_wall_mm(profile))
+    short = feature_shortfall(profile, tiles, at_hinge, no_lifts, hinge, ["top"])
+    assert short is not None and "welded at the hinge" in str(short)
+    assert short.have < short.need
+
+    far = np.array([[0, 0, 1, 2], [1, 1, 0, 3]])
+    made = design_reliefs(tiles, hinge, ["top"], far, no_lifts, profile, 0.4)
+    assert made is not None and made.skipped == () and made.hollowed == (0,)
+    assert relief_shortfall(tiles, hinge, ["top"], far, no_lifts, profile, 0.4) is None
+    assert feature_shortfall(profile, tiles, far, no_lifts, hinge, ["top"]) is None
