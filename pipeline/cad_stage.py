@@ -20,6 +20,7 @@ from drawstring.geometry.core.tile import HingeSide, HingeStrategy, Pose, Side
 from drawstring.geometry.core.tolerances import PRINT_GAP_TOL_MM
 from drawstring.geometry.route.result import Route
 from drawstring.geometry.tiling.linkage import Linkage
+from drawstring.pipeline.cad_measures import finite_max, sunk_fraction, worst_links
 from drawstring.pipeline.layout_stage import fabricated_tiles
 from drawstring.pipeline.record import Design, ResolvedOptions
 
@@ -203,7 +204,7 @@ def feature_shortfall(
     from drawstring.cad.hinge_plans import relief_shortfall, strip_room_mm
 
     bore = f"{profile.string_diameter_mm + profile.channel_clearance_mm:g} mm string channel"
-    found = []
+    found: list[tuple[str, float, float, type[FeatureShortfall]]] = []
     faces = channel_faces_mm(tiles, steps, lift_tiles)
     need_face = channel_min_face_mm(profile)
     if len(faces) and faces.min() < need_face - 1e-9:
@@ -211,7 +212,7 @@ def feature_shortfall(
             f"side faces as narrow as {faces.min():.2f} mm where the string runs, and the "
             f"{bore} needs {need_face:.2f} mm with its walls"
         )
-        found.append((what, float(faces.min()), need_face))
+        found.append((what, float(faces.min()), need_face, FeatureShortfall))
     bores = {(int(t), int(s)) for t, s in lift_tiles.tolist()}
     for _, tile, enter, leave in steps.tolist():
         if 4 in (enter, leave):  # through the top face: a lift bore from the other side
@@ -224,17 +225,19 @@ def feature_shortfall(
                 f"lift-point tiles {have:.2f} mm deep, and the lift bore, which bends up "
                 f"from mid-thickness to the top face, needs {need:.2f} mm"
             )
-            found.append((what, have, need))
+            found.append((what, have, need, FeatureShortfall))
     strips = strip_room_mm(profile, tiles, hinges, sides)
     if strips is not None and strips[0] < strips[1] - 1e-9:
-        found.append((strip_words(profile, *strips), *strips))
+        found.append((strip_words(profile, *strips), *strips, FeatureShortfall))
     clearance = print_clearance_mm(profile)
     welded = relief_shortfall(tiles, hinges, sides, steps, lift_tiles, profile, clearance)
     if welded is not None:  # a room at or below 0 ranks worst (and steps on by a whole step)
-        found.append((relief_words(welded, clearance), max(welded.have, 1e-3), welded.need))
+        have = max(welded.have, 1e-3)
+        found.append((relief_words(welded, clearance), have, welded.need, WeldedHinges))
     if not found:
         return None
-    return FeatureShortfall(*max(found, key=lambda f: f[2] / f[1]))
+    what, have, need, kind = max(found, key=lambda f: f[2] / f[1])
+    return kind(what, have, need)
 
 
 def strip_words(profile: Profile, have: float, need: float) -> str:
@@ -290,6 +293,14 @@ class FeatureShortfall(InputError):
         super().__init__(message)
         self.have = have
         self.need = need
+
+
+class WeldedHinges(FeatureShortfall):
+    """Hinged tiles that overlap in the flat layout where their string channels, lift bores or
+    strips run, so that no print-clearance relief clears them (:func:`relief_words`).  The
+    overlap follows the shape's scale factor between neighbouring tiles, so a larger size
+    keeps it (minimal_surface, corpus, at 280 and 380 mm: channels 1.31 and 1.13 mm into the
+    other tile); other tiles change it."""
 
 
 def boundary_channel_shortfall(
@@ -480,16 +491,6 @@ def build_cad(result: Design) -> tuple[CadResult, CadResult]:
     return flat, assembled
 
 
-def _sunk_fraction(found: Any, pad_volumes: NDArray[np.float64]) -> float:
-    """Largest share of a hinge part's volume (``pad_volumes``, mm^3, one per meshed pad)
-    inside a tile (0 without hinge parts)."""
-    if found is None or not np.any(found.volumes > 0):
-        return 0.0
-    hit = np.flatnonzero(found.volumes > 0)
-    volumes = pad_volumes[found.pairs[hit, 1]]
-    return float(np.max(found.volumes[hit] / np.maximum(volumes, 1e-300)))
-
-
 def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
     """Checks measured on the solids (issue 7 section 3), for design.json ``metrics.cad``.
 
@@ -557,13 +558,13 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
             tiles_vs_pads.max_volume if tiles_vs_pads is not None else 0.0, 6
         ),
         "interference_tiles_pads_max_rel": round(
-            _sunk_fraction(tiles_vs_pads, pad_volumes[meshed_pads]), 6
+            sunk_fraction(tiles_vs_pads, pad_volumes[meshed_pads]), 6
         ),
-        "channel_opening_distance_max_mm": round(_max(channels.distances), 6),
+        "channel_opening_distance_max_mm": round(finite_max(channels.distances), 6),
         "channel_openings_missing": int(np.count_nonzero(~np.isfinite(channels.distances))),
-        "channel_worst_links": _worst_links(channels.links, channels.distances),
+        "channel_worst_links": worst_links(channels.links, channels.distances),
         "magnet_pairs": len(cad_flat.magnets),
-        "magnet_pocket_distance_max_mm": round(_max(pockets.distances), 6),
+        "magnet_pocket_distance_max_mm": round(finite_max(pockets.distances), 6),
         "magnet_pockets_missing": int(np.count_nonzero(~np.isfinite(pockets.distances))),
         "magnet_pockets_breaking_out": sum(not m.fits for m in cad_flat.magnets),
         "magnet_pockets_facing": bool(np.all(facing < -0.999)) if len(facing) else True,
@@ -571,24 +572,3 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
         **fabrication_measures(result, cad_flat).to_json(),
         "notes": list(cad_flat.notes),
     }
-
-
-def _worst_links(
-    links: NDArray[np.int64], distances: NDArray[np.float64], count: int = 5
-) -> list[dict[str, Any]]:
-    """The ``count`` links whose openings lie farthest apart (missing ones first): tiles and
-    distance in mm (None: an opening was not found on the solid)."""
-    order = np.argsort(-np.where(np.isfinite(distances), distances, np.inf), kind="stable")
-    return [
-        {
-            "tiles": [int(links[k, 0]), int(links[k, 2])],
-            "distance_mm": round(float(distances[k]), 6) if np.isfinite(distances[k]) else None,
-        }
-        for k in order[:count]
-    ]
-
-
-def _max(values: NDArray[np.float64]) -> float:
-    finite = np.asarray(values, dtype=np.float64)
-    finite = finite[np.isfinite(finite)]
-    return float(finite.max()) if finite.size else 0.0
