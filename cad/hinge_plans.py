@@ -13,7 +13,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import ConvexHull
 
-from drawstring.cad.clearance import HingeReliefs, ReliefKeepOut, hinge_reliefs, hollow_room
+from drawstring.cad.clearance import (
+    HingeReliefs,
+    ReliefKeepOut,
+    apart_reliefs,
+    hinge_reliefs,
+    hollow_room,
+)
 from drawstring.cad.feature_common import feature_wall_mm
 from drawstring.cad.features import channel_keep_out
 from drawstring.cad.hinge_frame import StripNeighbours, strip_min_reach_mm
@@ -83,12 +89,16 @@ def design_reliefs(
 ) -> HingeReliefs | None:
     """The hinge reliefs (:func:`~drawstring.cad.clearance.hinge_reliefs`) of tiles printed
     together (``clearance_mm > 0``), measured against what the tiles hold
-    (:func:`relief_keep_outs`); None for loose tiles or no hinges."""
+    (:func:`relief_keep_outs`), with tiles not hinged together that still come closer than the
+    clearance cut apart (:func:`~drawstring.cad.clearance.apart_reliefs`); None for loose
+    tiles or no hinges."""
     if not (clearance_mm > 0 and len(hinge_rows)):
         return None
     crowds = strip_neighbours(hinge_rows, sides)
     keep_out = relief_keep_outs(flat, hinge_rows, sides, steps, lifts, profile, crowds)
-    return hinge_reliefs(flat, hinge_rows, sides, clearance_mm, keep_out, feature_wall_mm(profile))
+    wall = feature_wall_mm(profile)
+    reliefs = hinge_reliefs(flat, hinge_rows, sides, clearance_mm, keep_out, wall)
+    return apart_reliefs(flat, hinge_rows, reliefs, clearance_mm, keep_out, wall)
 
 
 @dataclass(frozen=True)
@@ -98,13 +108,15 @@ class ReliefShortfall:
     Attributes
     ----------
     hinges : the hinges (indices) left unrelieved.
-    tiles : ``(tile_a, tile_b)`` of the one with the least room.
+    pairs : tiles not hinged together that come closer than the clearance, left so.
+    tiles : ``(tile_a, tile_b)`` of the hinge or pair with the least room.
     have : mm, how far that hinge's features lie outside the other tile, at best
         (:func:`~drawstring.cad.clearance.hollow_room`; negative where they reach into it).
     need : mm, the print clearance and a wall.
     """
 
     hinges: tuple[int, ...]
+    pairs: tuple[tuple[int, int], ...]
     tiles: tuple[int, int]
     have: float
     need: float
@@ -119,26 +131,22 @@ def relief_shortfall(
     profile: Profile,
     clearance_mm: float,
 ) -> ReliefShortfall | None:
-    """The hinges the CAD stage would leave unrelieved (:func:`design_reliefs` on the same
-    arrays: their tiles would print closer than ``clearance_mm`` and weld there), with the
-    room of the one nearest to a relief; None where every hinge is relieved (or the tiles are
-    made loose).  Arrays only: asked before any solid is built."""
+    """The hinges the CAD stage would leave unrelieved, and the tiles not hinged together it
+    would leave closer than ``clearance_mm`` (:func:`design_reliefs` on the same arrays: those
+    tiles would print welded), with the room of the one nearest to a relief; None where every
+    tile is kept apart (or the tiles are made loose).  Arrays only: asked before any solid is
+    built."""
     reliefs = design_reliefs(flat, hinge_rows, sides, steps, lifts, profile, clearance_mm)
-    if reliefs is None or not reliefs.skipped:
+    if reliefs is None or not (reliefs.skipped or reliefs.crowded):
         return None
     crowds = strip_neighbours(hinge_rows, sides)
     keep_out = relief_keep_outs(flat, hinge_rows, sides, steps, lifts, profile, crowds)
     rows = np.asarray(hinge_rows, dtype=np.int64).reshape(-1, 4)
-    room = [
-        (hollow_room(flat, int(rows[h, 0]), int(rows[h, 2]), h, keep_out), h)
-        for h in reliefs.skipped
-    ]
-    have, worst = min(room)
+    pairs = [(int(rows[h, 0]), int(rows[h, 2]), h) for h in reliefs.skipped]
+    pairs += [(a, b, -1) for a, b in reliefs.crowded]  # -1: no hinge, every strip counts
+    have, a, b = min((hollow_room(flat, a, b, h, keep_out), a, b) for a, b, h in pairs)
     return ReliefShortfall(
-        reliefs.skipped,
-        (int(rows[worst, 0]), int(rows[worst, 2])),
-        have,
-        clearance_mm + feature_wall_mm(profile),
+        reliefs.skipped, reliefs.crowded, (a, b), have, clearance_mm + feature_wall_mm(profile)
     )
 
 

@@ -249,7 +249,7 @@ def strip_words(profile: Profile, have: float, need: float) -> str:
 
 
 def relief_words(welded: ReliefShortfall, clearance_mm: float) -> str:
-    """What hinges no print-clearance relief clears (:func:`~drawstring.cad.hinge_plans.
+    """What tiles no print-clearance relief keeps apart (:func:`~drawstring.cad.hinge_plans.
     relief_shortfall`) mean, in words."""
     a, b = welded.tiles
     room = (
@@ -257,11 +257,12 @@ def relief_words(welded: ReliefShortfall, clearance_mm: float) -> str:
         if welded.have < 0
         else f"lie {welded.have:.2f} mm from the other tile"
     )
+    counts = [f"{len(welded.hinges)} hinged pair(s)"] if welded.hinges else []
+    counts += [f"{len(welded.pairs)} pair(s) not hinged together"] if welded.pairs else []
     return (
-        f"{len(welded.hinges)} hinged pair(s) lie so close in the flat layout that they would "
-        f"print welded at the hinge (tiles {a} and {b}: their string channels, lift bores and "
-        f"strips {room}, and cutting a {clearance_mm:g} mm print clearance with a wall needs "
-        f"{welded.need:.2f} mm)"
+        f"{' and '.join(counts)} lie so close in the flat layout that they would print welded "
+        f"(tiles {a} and {b}: their string channels, lift bores and strips {room}, and "
+        f"cutting a {clearance_mm:g} mm print clearance with a wall needs {welded.need:.2f} mm)"
     )
 
 
