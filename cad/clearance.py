@@ -80,7 +80,8 @@ class HingeReliefs:
         (:func:`_hollow`); so too one of two tiles not hinged together that come closer than
         the clearance (:func:`apart_reliefs`).
     hollowed : hinges (indices) relieved so.
-    apart : ``(tile, tile)`` pairs not hinged together relieved so.
+    apart : ``(cut, other)`` tiles not hinged together relieved so: ``cut`` loses what lies
+        within the clearance of ``other``.
     crowded : ``(tile, tile)`` pairs not hinged together closer than the clearance that no
         such cut clears (it would open a channel, bore or strip, or take half a tile).
     """
@@ -437,7 +438,7 @@ def apart_reliefs(
             continue
         lost, cut, polyhedron = min(found, key=lambda f: (f[0], f[1]))
         hollows.setdefault(cut, []).append(polyhedron)
-        apart.append((i, j))
+        apart.append((cut, j if cut == i else i))
         share = max(share, lost)
     return replace(
         reliefs, hollows=hollows, share_max=share, apart=tuple(apart), crowded=tuple(crowded)

@@ -291,7 +291,7 @@ def test_tiles_not_hinged_together_that_come_too_close_are_cut_apart() -> None:
     hinge = np.array([[1, 2, 2, 0]])
     none = HingeReliefs({}, 0.0, 0.0, 0.0, 0, ())
     reliefs = apart_reliefs(tiles, hinge, none, 0.4, lambda *_: KeepOut(), 0.4)
-    assert reliefs.apart == ((0, 1),) and reliefs.crowded == ()
+    assert len(reliefs.apart) == 1 and set(reliefs.apart[0]) == {0, 1} and reliefs.crowded == ()
     ((cut, polyhedra),) = reliefs.hollows.items()
     solids = [tile_solid(t) for t in tiles[:2]]
     for points in polyhedra:
