@@ -21,7 +21,7 @@ with the co-optimization on: without it the fix is to turn it on):
    :func:`~.retry.stepped_value`; where tiles too small for a feature have no fewer tiles
    left, the size grows at the tile count reached; where a size misses for hinged tiles that
    overlap where their channels run (:class:`~.cad_stage.WeldedHinges`, which a larger size
-   keeps), the tile count steps down at that size) and tries again, at most
+   may keep), the tile count steps down at that size) and tries again, at most
    :data:`CHOSEN_LAYOUTS` layouts in all.
 
 Where none meets the tolerance, the defaults' own layout is kept where there was one, else

@@ -299,9 +299,9 @@ class FeatureShortfall(InputError):
 class WeldedHinges(FeatureShortfall):
     """Hinged tiles that overlap in the flat layout where their string channels, lift bores or
     strips run, so that no print-clearance relief clears them (:func:`relief_words`).  The
-    overlap follows the shape's scale factor between neighbouring tiles, so a larger size
-    keeps it (minimal_surface, corpus, at 280 and 380 mm: channels 1.31 and 1.13 mm into the
-    other tile); other tiles change it."""
+    overlap follows the shape's scale factor between neighbouring tiles, which a larger size
+    may keep (minimal_surface, corpus, at 280 and 380 mm: channels 1.31 and 1.13 mm into the
+    other tile); another tile count tiles the shape anew."""
 
 
 def boundary_channel_shortfall(
