@@ -18,7 +18,8 @@ side faces still close against each other beyond it.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
@@ -27,9 +28,17 @@ from drawstring.cad.hinge_pins import KeepOut
 from drawstring.cad.paths import face_planes
 from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.tile import HingeSide
+from drawstring.geometry.core.tolerances import PRINT_GAP_TOL_MM
 from drawstring.geometry.core.types import FloatArray, IntArray
 
-__all__ = ["HingeReliefs", "hinge_reliefs", "separating_normal"]
+__all__ = [
+    "HingeReliefs",
+    "apart_reliefs",
+    "hinge_reliefs",
+    "hollow_piece",
+    "hollow_room",
+    "separating_normal",
+]
 
 #: The first way to relieve a hinge (:func:`_relief_options`) that cuts at most this share of
 #: either tile's volume is taken; where none does, the one that cuts least.
@@ -68,8 +77,13 @@ class HingeReliefs:
         tiles' features.
     hollows : tile -> convex polyhedra ``(k, 3)`` points, flat pose, mm, to subtract: where no
         plane relieves a hinge, one tile loses what lies within the clearance of the other
-        (:func:`_hollow`).
+        (:func:`_hollow`); so too one of two tiles not hinged together that come closer than
+        the clearance (:func:`apart_reliefs`).
     hollowed : hinges (indices) relieved so.
+    apart : ``(cut, other)`` tiles not hinged together relieved so: ``cut`` loses what lies
+        within the clearance of ``other``.
+    crowded : ``(tile, tile)`` pairs not hinged together closer than the clearance that no
+        such cut clears (it would open a channel, bore or strip, or take half a tile).
     """
 
     cuts: dict[int, list[FloatArray]]
@@ -81,6 +95,8 @@ class HingeReliefs:
     deep: tuple[int, ...] = ()
     hollows: dict[int, list[FloatArray]] = field(default_factory=dict)
     hollowed: tuple[int, ...] = ()
+    apart: tuple[tuple[int, int], ...] = ()
+    crowded: tuple[tuple[int, int], ...] = ()
 
 
 def separating_normal(
@@ -299,15 +315,10 @@ def _hollow(
         return None
     found: list[tuple[float, int, FloatArray]] = []
     for cut, other in ((a, b), (b, a)):
-        try:
-            pushed = ConvexHull(tiles[other]).equations.copy()
-            pushed[:, 3] -= clearance_mm  # unit outward normals: n . x + d <= clearance
-            polyhedron = HalfspaceIntersection(pushed, tiles[other].mean(axis=0)).intersections
-            inside = np.vstack([pushed, ConvexHull(tiles[cut]).equations])
-            kept = _volume(HalfspaceIntersection(inside, _interior(inside)).intersections)
-        except (QhullError, ValueError):
+        piece = hollow_piece(tiles, cut, other, clearance_mm)
+        if piece is None:
             continue
-        share = kept / _volume(tiles[cut])
+        pushed, polyhedron, share = piece
         balls = keep_out(cut, hinge, False)
         if len(balls.radii):
             # a ball outside the polyhedron by at least radius + wall on one face's plane
@@ -321,6 +332,133 @@ def _hollow(
         return None
     share, cut, polyhedron = min(found, key=lambda f: f[0])
     return cut, polyhedron, share
+
+
+def hollow_piece(
+    tiles: FloatArray, cut: int, other: int, clearance_mm: float
+) -> tuple[FloatArray, FloatArray, float] | None:
+    """What tile ``cut`` loses to a hollow relief from tile ``other`` (:func:`_hollow`): the
+    other's hull with its faces pushed out by ``clearance_mm``, as halfspaces ``n . x + d <=
+    0`` (unit outward normals) and as points, and the share of ``cut``'s volume inside it;
+    None where the two do not meet in a volume."""
+    try:
+        pushed = ConvexHull(tiles[other]).equations.copy()
+        pushed[:, 3] -= clearance_mm  # unit outward normals: n . x + d <= clearance
+        polyhedron = HalfspaceIntersection(pushed, tiles[other].mean(axis=0)).intersections
+        inside = np.vstack([pushed, ConvexHull(tiles[cut]).equations])
+        kept = _volume(HalfspaceIntersection(inside, _interior(inside)).intersections)
+    except (QhullError, ValueError):
+        return None
+    return pushed, polyhedron, kept / _volume(tiles[cut])
+
+
+def hollow_room(tiles: FloatArray, a: int, b: int, hinge: int, keep_out: ReliefKeepOut) -> float:
+    """How far (mm) the features of one of hinged tiles ``a`` and ``b`` (``keep_out`` with the
+    hinge's own strip left out, as :func:`_hollow` asks it) lie outside the other tile: the
+    larger over the two tiles of the least distance, measured on the other's face planes (a
+    lower bound; negative where a feature reaches into the other).  The hollow relief cuts
+    what lies within the print clearance of the other tile, so it needs the clearance and a
+    wall; a tile without features has room: infinity."""
+    best = -np.inf
+    for cut, other in ((a, b), (b, a)):
+        try:
+            planes = ConvexHull(tiles[other]).equations
+        except (QhullError, ValueError):
+            continue
+        balls = keep_out(cut, hinge, False)
+        if not len(balls.radii):
+            return float(np.inf)
+        height = (balls.centres @ planes[:, :3].T + planes[:, 3]).max(axis=1)
+        best = max(best, float((height - balls.radii).min()))
+    return float(best)
+
+
+def apart_reliefs(
+    tiles: FloatArray,
+    hinges: IntArray,
+    reliefs: HingeReliefs,
+    clearance_mm: float,
+    keep_out: ReliefKeepOut,
+    wall_mm: float,
+) -> HingeReliefs:
+    """``reliefs`` with tiles not hinged together kept ``clearance_mm`` apart too: where two
+    such tiles, relieved at their hinges (convex tiles cut by ``reliefs``' planes and hollows),
+    come closer than that (tiles diagonal across a gap whose bottoms spread under top hinges),
+    one loses what lies within the clearance of the other (:func:`hollow_piece`), the one that
+    loses less of those where the cut stays ``wall_mm`` clear of everything ``keep_out`` says
+    the tile holds and keeps half of it; a pair with neither is ``crowded``."""
+    import manifold3d
+    from scipy.spatial import cKDTree
+
+    rows = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
+    hinged = {(int(min(a, b)), int(max(a, b))) for a, _, b, _ in rows.tolist()}
+    centres = tiles.mean(axis=1)
+    radii = np.linalg.norm(tiles - centres[:, None], axis=2).max(axis=1)
+    reach = 2.0 * float(radii.max(initial=0.0)) + clearance_mm
+    near = [
+        (int(i), int(j))
+        for i, j in sorted(map(tuple, cKDTree(centres).query_pairs(reach, output_type="ndarray")))
+        if (int(i), int(j)) not in hinged
+        and np.linalg.norm(centres[i] - centres[j]) <= radii[i] + radii[j] + clearance_mm
+    ]
+    if not near:
+        return reliefs
+    shapes: dict[int, manifold3d.Manifold] = {}
+
+    def shape(tile: int) -> manifold3d.Manifold:
+        if tile not in shapes:
+            solid = _hull_manifold(tiles[tile])
+            for plane in reliefs.cuts.get(tile, []):
+                solid = solid.trim_by_plane(plane[:3].tolist(), float(plane[3]))
+            for points in reliefs.hollows.get(tile, []):
+                solid = solid - _hull_manifold(points)
+            shapes[tile] = solid
+        return shapes[tile]
+
+    hollows = {tile: list(cuts) for tile, cuts in reliefs.hollows.items()}
+    apart: list[tuple[int, int]] = []
+    crowded: list[tuple[int, int]] = []
+    share = reliefs.share_max
+    for i, j in near:
+        if shape(i).min_gap(shape(j), clearance_mm) >= clearance_mm - PRINT_GAP_TOL_MM:
+            continue
+        found = []
+        for cut, other in ((i, j), (j, i)):
+            piece = hollow_piece(tiles, cut, other, clearance_mm)
+            if piece is None or piece[2] > MAX_DEEP_RELIEF_SHARE:
+                continue
+            balls = keep_out(cut, -1, True)  # no hinge of its own here: every strip counts
+            if len(balls.radii):
+                height = (balls.centres @ piece[0][:, :3].T + piece[0][:, 3]).max(axis=1)
+                if not np.all(height >= balls.radii + wall_mm):
+                    continue
+            found.append((piece[2], cut, piece[1]))
+        if not found:
+            crowded.append((i, j))
+            continue
+        lost, cut, polyhedron = min(found, key=lambda f: (f[0], f[1]))
+        hollows.setdefault(cut, []).append(polyhedron)
+        apart.append((cut, j if cut == i else i))
+        share = max(share, lost)
+    return replace(
+        reliefs, hollows=hollows, share_max=share, apart=tuple(apart), crowded=tuple(crowded)
+    )
+
+
+def _hull_manifold(points: FloatArray) -> Any:
+    """manifold3d solid of the convex hull of ``points`` ((k, 3) mm)."""
+    import manifold3d
+
+    hull = ConvexHull(points)
+    triangles = hull.simplices.copy()
+    centre = points[hull.vertices].mean(axis=0)
+    for k, (a, b, c) in enumerate(triangles.tolist()):
+        if np.cross(points[b] - points[a], points[c] - points[a]) @ (points[a] - centre) < 0:
+            triangles[k] = (a, c, b)  # wound outward
+    mesh = manifold3d.Mesh(
+        vert_properties=np.asarray(points, dtype=np.float32), tri_verts=triangles.astype(np.uint32)
+    )
+    return manifold3d.Manifold(mesh)
 
 
 def _interior(halfspaces: FloatArray) -> FloatArray:

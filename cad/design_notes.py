@@ -127,12 +127,22 @@ def relief_notes(
             "string channel, lift bore and hinge strips"
         )
     if reliefs.hollowed:
-        tiles = sorted(reliefs.hollows)
+        apart = [cut for cut, _ in reliefs.apart]
+        tiles = [t for t, cuts in sorted(reliefs.hollows.items()) if len(cuts) > apart.count(t)]
         notes.append(
             f"{len(reliefs.hollowed)} of them, where no plane parts the tiles without cutting "
             f"into a string channel or hinge strip, have one tile (tiles {id_ranges(tiles)}) "
             f"lose what lies within {clearance_mm:g} mm of the other, clear of its string "
             "channel, lift bore and other hinges' strips"
+        )
+    if reliefs.apart:
+        notes.append(
+            f"{len(reliefs.apart)} pairs of tiles not hinged together came closer than "
+            f"{clearance_mm:g} mm in the flat pose: "
+            + ", ".join(
+                f"tile {cut} loses what lies that near tile {other}" for cut, other in reliefs.apart
+            )
+            + ", clear of its string channel, lift bore and hinge strips"
         )
     if reliefs.skipped:
         tiles = sorted({int(t) for h in reliefs.skipped for t in hinge_rows[h, [0, 2]]})

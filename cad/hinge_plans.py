@@ -6,16 +6,23 @@ tiles' other features (:func:`plan_all_pins`) and the plywood strips' pilot hole
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import ConvexHull
 
-from drawstring.cad.clearance import HingeReliefs, ReliefKeepOut, hinge_reliefs
+from drawstring.cad.clearance import (
+    HingeReliefs,
+    ReliefKeepOut,
+    apart_reliefs,
+    hinge_reliefs,
+    hollow_room,
+)
 from drawstring.cad.feature_common import feature_wall_mm
 from drawstring.cad.features import channel_keep_out
-from drawstring.cad.hinge_frame import StripNeighbours
+from drawstring.cad.hinge_frame import StripNeighbours, strip_min_reach_mm
 from drawstring.cad.hinge_parts import StripHoles, strip_hole_plan
 from drawstring.cad.hinge_pins import KeepOut, PinPlan, pin_keep_out, plan_pins, strip_keep_outs
 from drawstring.cad.paths import SIDE_TOP_FACE
@@ -82,12 +89,91 @@ def design_reliefs(
 ) -> HingeReliefs | None:
     """The hinge reliefs (:func:`~drawstring.cad.clearance.hinge_reliefs`) of tiles printed
     together (``clearance_mm > 0``), measured against what the tiles hold
-    (:func:`relief_keep_outs`); None for loose tiles or no hinges."""
+    (:func:`relief_keep_outs`), with tiles not hinged together that still come closer than the
+    clearance cut apart (:func:`~drawstring.cad.clearance.apart_reliefs`); None for loose
+    tiles or no hinges."""
     if not (clearance_mm > 0 and len(hinge_rows)):
         return None
     crowds = strip_neighbours(hinge_rows, sides)
     keep_out = relief_keep_outs(flat, hinge_rows, sides, steps, lifts, profile, crowds)
-    return hinge_reliefs(flat, hinge_rows, sides, clearance_mm, keep_out, feature_wall_mm(profile))
+    wall = feature_wall_mm(profile)
+    reliefs = hinge_reliefs(flat, hinge_rows, sides, clearance_mm, keep_out, wall)
+    return apart_reliefs(flat, hinge_rows, reliefs, clearance_mm, keep_out, wall)
+
+
+@dataclass(frozen=True)
+class ReliefShortfall:
+    """Hinges of tiles printed together that no relief clears (:func:`relief_shortfall`).
+
+    Attributes
+    ----------
+    hinges : the hinges (indices) left unrelieved.
+    pairs : tiles not hinged together that come closer than the clearance, left so.
+    tiles : ``(tile_a, tile_b)`` of the hinge or pair with the least room.
+    have : mm, how far that hinge's features lie outside the other tile, at best
+        (:func:`~drawstring.cad.clearance.hollow_room`; negative where they reach into it).
+    need : mm, the print clearance and a wall.
+    """
+
+    hinges: tuple[int, ...]
+    pairs: tuple[tuple[int, int], ...]
+    tiles: tuple[int, int]
+    have: float
+    need: float
+
+
+def relief_shortfall(
+    flat: NDArray[np.float64],
+    hinge_rows: NDArray[np.int64],
+    sides: Sequence[HingeSide],
+    steps: NDArray[np.int64],
+    lifts: NDArray[np.int64],
+    profile: Profile,
+    clearance_mm: float,
+) -> ReliefShortfall | None:
+    """The hinges the CAD stage would leave unrelieved, and the tiles not hinged together it
+    would leave closer than ``clearance_mm`` (:func:`design_reliefs` on the same arrays: those
+    tiles would print welded), with the room of the one nearest to a relief; None where every
+    tile is kept apart (or the tiles are made loose).  Arrays only: asked before any solid is
+    built."""
+    reliefs = design_reliefs(flat, hinge_rows, sides, steps, lifts, profile, clearance_mm)
+    if reliefs is None or not (reliefs.skipped or reliefs.crowded):
+        return None
+    crowds = strip_neighbours(hinge_rows, sides)
+    keep_out = relief_keep_outs(flat, hinge_rows, sides, steps, lifts, profile, crowds)
+    rows = np.asarray(hinge_rows, dtype=np.int64).reshape(-1, 4)
+    pairs = [(int(rows[h, 0]), int(rows[h, 2]), h) for h in reliefs.skipped]
+    pairs += [(a, b, -1) for a, b in reliefs.crowded]  # -1: no hinge, every strip counts
+    have, a, b = min((hollow_room(flat, a, b, h, keep_out), a, b) for a, b, h in pairs)
+    return ReliefShortfall(
+        reliefs.skipped, reliefs.crowded, (a, b), have, clearance_mm + feature_wall_mm(profile)
+    )
+
+
+def strip_room_mm(
+    profile: Profile,
+    tiles: NDArray[np.float64],
+    hinges: NDArray[np.int64],
+    sides: Sequence[HingeSide],
+) -> tuple[float, float] | None:
+    """(have, need) mm at the hinged corner with the least room for its hinge strip: the
+    distance from the corner to the centre of its tile's hinge face (on ``sides``), in both
+    tiles of each hinge, against what the strip needs there
+    (:func:`~drawstring.cad.hinge_frame.strip_min_reach_mm`: more where a corner holding
+    another strip on the same face is close in angle); None without hinges."""
+    rows = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
+    if not len(rows):
+        return None
+    corners = []
+    for (a, ca, b, cb), side, crowd in zip(
+        rows.tolist(), sides, strip_neighbours(rows, sides), strict=True
+    ):
+        shift = 0 if side == HingeSide.TOP else 4
+        for tile, k, others in ((a, ca, crowd[0]), (b, cb, crowd[1])):
+            ring = tiles[tile, shift : shift + 4]
+            have = float(np.linalg.norm(ring.mean(axis=0) - ring[k]))
+            corners.append((have, strip_min_reach_mm(profile, ring, k, others)))
+    return min(corners, key=lambda c: c[0] / c[1])
 
 
 def relief_keep_outs(

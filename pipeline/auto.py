@@ -19,7 +19,9 @@ with the co-optimization on: without it the fix is to turn it on):
    meets the tolerance with room for the features;
 3. otherwise steps the same option on (each step checked by the refusing check,
    :func:`~.retry.stepped_value`; where tiles too small for a feature have no fewer tiles
-   left, the size grows at the tile count reached) and tries again, at most
+   left, the size grows at the tile count reached; where a size misses for hinged tiles that
+   overlap where their channels run (:class:`~.cad_stage.WeldedHinges`, which a larger size
+   may keep), the tile count steps down at that size) and tries again, at most
    :data:`CHOSEN_LAYOUTS` layouts in all.
 
 Where none meets the tolerance, the defaults' own layout is kept where there was one, else
@@ -42,7 +44,12 @@ from drawstring.fabrication.profiles import Profile
 from drawstring.geometry.core.errors import DesignError, InputError, ThicknessError
 from drawstring.geometry.flatten.conformal import Flattening
 from drawstring.geometry.target.surface import Target
-from drawstring.pipeline.cad_stage import MORE_ROOM, FeatureShortfall, tiles_too_small
+from drawstring.pipeline.cad_stage import (
+    MORE_ROOM,
+    FeatureShortfall,
+    WeldedHinges,
+    tiles_too_small,
+)
 from drawstring.pipeline.layout_stage import ShapedLayout
 from drawstring.pipeline.record import DesignOptions, Progress, ResolvedOptions, rounded
 from drawstring.pipeline.retry import (
@@ -211,6 +218,13 @@ def chosen_layout(
                 best = laid
         if made == CHOSEN_LAYOUTS:
             break  # no layout left to make with a next value
+        welded = laid is not None and isinstance(laid.shortfall, WeldedHinges)
+        if welded and option == "size" and "tiles" not in carried:  # fewer tiles, this size
+            option, carried = "tiles", {"size": value}
+            checker = refusal_checker(replace(options, size_mm=value), source, profile)
+            assert options.tiles is not None  # no --grid: chooses_values
+            candidate = _next_value(checker, option, options.tiles, profile, laid)
+            continue
         candidate = _next_value(checker, option, value, profile, laid)
         if candidate is None and option == "tiles" and laid is not None and laid.shortfall:
             # no fewer tiles within the bound: the size grows, at this tile count

@@ -20,11 +20,13 @@ from drawstring.geometry.core.tile import HingeSide, HingeStrategy, Pose, Side
 from drawstring.geometry.core.tolerances import PRINT_GAP_TOL_MM
 from drawstring.geometry.route.result import Route
 from drawstring.geometry.tiling.linkage import Linkage
+from drawstring.pipeline.cad_measures import finite_max, sunk_fraction, worst_links
 from drawstring.pipeline.layout_stage import fabricated_tiles
 from drawstring.pipeline.record import Design, ResolvedOptions
 
 if TYPE_CHECKING:  # the CAD kernel loads only where solids are built
     from drawstring.cad.design import CadResult
+    from drawstring.cad.hinge_plans import ReliefShortfall
     from drawstring.fabrication.measures import Measures
     from drawstring.fabrication.printers import Printer
 
@@ -195,12 +197,14 @@ def feature_shortfall(
     """The worst feature the profile cannot give up on that does not fit the flat ``tiles`` as
     fabricated, (T, 8, 3): the side faces the route ``steps`` and the lift bores
     ``lift_tiles`` open through (:func:`channel_faces_mm`), the lift-point tiles' depth, the
-    hinged corners' room for their strips on the faces ``sides`` (:func:`strip_room_mm`);
-    None where all fit."""
+    hinged corners' room for their strips on the faces ``sides``
+    (:func:`~drawstring.cad.hinge_plans.strip_room_mm`), and for tiles printed together the
+    print clearance at every hinge (:func:`relief_words`); None where all fit."""
     from drawstring.cad.features import channel_min_face_mm, lift_bore_depth_mm
+    from drawstring.cad.hinge_plans import relief_shortfall, strip_room_mm
 
     bore = f"{profile.string_diameter_mm + profile.channel_clearance_mm:g} mm string channel"
-    found = []
+    found: list[tuple[str, float, float, type[FeatureShortfall]]] = []
     faces = channel_faces_mm(tiles, steps, lift_tiles)
     need_face = channel_min_face_mm(profile)
     if len(faces) and faces.min() < need_face - 1e-9:
@@ -208,7 +212,7 @@ def feature_shortfall(
             f"side faces as narrow as {faces.min():.2f} mm where the string runs, and the "
             f"{bore} needs {need_face:.2f} mm with its walls"
         )
-        found.append((what, float(faces.min()), need_face))
+        found.append((what, float(faces.min()), need_face, FeatureShortfall))
     bores = {(int(t), int(s)) for t, s in lift_tiles.tolist()}
     for _, tile, enter, leave in steps.tolist():
         if 4 in (enter, leave):  # through the top face: a lift bore from the other side
@@ -221,42 +225,19 @@ def feature_shortfall(
                 f"lift-point tiles {have:.2f} mm deep, and the lift bore, which bends up "
                 f"from mid-thickness to the top face, needs {need:.2f} mm"
             )
-            found.append((what, have, need))
+            found.append((what, have, need, FeatureShortfall))
     strips = strip_room_mm(profile, tiles, hinges, sides)
     if strips is not None and strips[0] < strips[1] - 1e-9:
-        found.append((strip_words(profile, *strips), *strips))
+        found.append((strip_words(profile, *strips), *strips, FeatureShortfall))
+    clearance = print_clearance_mm(profile)
+    welded = relief_shortfall(tiles, hinges, sides, steps, lift_tiles, profile, clearance)
+    if welded is not None:  # a room at or below 0 ranks worst (and steps on by a whole step)
+        have = max(welded.have, 1e-3)
+        found.append((relief_words(welded, clearance), have, welded.need, WeldedHinges))
     if not found:
         return None
-    return FeatureShortfall(*max(found, key=lambda f: f[2] / f[1]))
-
-
-def strip_room_mm(
-    profile: Profile,
-    tiles: NDArray[np.float64],
-    hinges: NDArray[np.int64],
-    sides: Sequence[HingeSide],
-) -> tuple[float, float] | None:
-    """(have, need) mm at the hinged corner with the least room for its hinge strip: the
-    distance from the corner to the centre of its tile's hinge face (on ``sides``), in both
-    tiles of each hinge, against what the strip needs there
-    (:func:`~drawstring.cad.hinge_frame.strip_min_reach_mm`: more where a corner holding
-    another strip on the same face is close in angle); None without hinges."""
-    from drawstring.cad.hinge_frame import strip_min_reach_mm
-    from drawstring.cad.hinge_plans import strip_neighbours
-
-    rows = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
-    if not len(rows):
-        return None
-    corners = []
-    for (a, ca, b, cb), side, crowd in zip(
-        rows.tolist(), sides, strip_neighbours(rows, sides), strict=True
-    ):
-        shift = 0 if side == HingeSide.TOP else 4
-        for tile, k, others in ((a, ca, crowd[0]), (b, cb, crowd[1])):
-            ring = tiles[tile, shift : shift + 4]
-            have = float(np.linalg.norm(ring.mean(axis=0) - ring[k]))
-            corners.append((have, strip_min_reach_mm(profile, ring, k, others)))
-    return min(corners, key=lambda c: c[0] / c[1])
+    what, have, need, kind = max(found, key=lambda f: f[2] / f[1])
+    return kind(what, have, need)
 
 
 def strip_words(profile: Profile, have: float, need: float) -> str:
@@ -264,6 +245,24 @@ def strip_words(profile: Profile, have: float, need: float) -> str:
     return (
         f"hinged corners {have:.2f} mm from their tiles' centres, and a "
         f"{profile.hinge_width_mm:g} mm wide hinge strip needs {need:.2f} mm"
+    )
+
+
+def relief_words(welded: ReliefShortfall, clearance_mm: float) -> str:
+    """What tiles no print-clearance relief keeps apart (:func:`~drawstring.cad.hinge_plans.
+    relief_shortfall`) mean, in words."""
+    a, b = welded.tiles
+    room = (
+        f"reach {-welded.have:.2f} mm into the other tile"
+        if welded.have < 0
+        else f"lie {welded.have:.2f} mm from the other tile"
+    )
+    counts = [f"{len(welded.hinges)} hinged pair(s)"] if welded.hinges else []
+    counts += [f"{len(welded.pairs)} pair(s) not hinged together"] if welded.pairs else []
+    return (
+        f"{' and '.join(counts)} lie so close in the flat layout that they would print welded "
+        f"(tiles {a} and {b}: their string channels, lift bores and strips {room}, and "
+        f"cutting a {clearance_mm:g} mm print clearance with a wall needs {welded.need:.2f} mm)"
     )
 
 
@@ -295,6 +294,14 @@ class FeatureShortfall(InputError):
         super().__init__(message)
         self.have = have
         self.need = need
+
+
+class WeldedHinges(FeatureShortfall):
+    """Hinged tiles that overlap in the flat layout where their string channels, lift bores or
+    strips run, so that no print-clearance relief clears them (:func:`relief_words`).  The
+    overlap follows the shape's scale factor between neighbouring tiles, which a larger size
+    may keep (minimal_surface, corpus, at 280 and 380 mm: channels 1.31 and 1.13 mm into the
+    other tile); another tile count tiles the shape anew."""
 
 
 def boundary_channel_shortfall(
@@ -341,6 +348,7 @@ def hinge_strip_shortfall(
     simulation.  The co-optimization moves the tiles a little: on minimal_surface (corpus) at
     --size 230 the eq.-1 tiles give 0.99 mm of 1.24 mm needed, the design's top-hinged tiles
     1.14 of 1.34."""
+    from drawstring.cad.hinge_plans import strip_room_mm
     from drawstring.geometry.hinges.sides import dual_hinge_faces
 
     top = [HingeSide.TOP] * linkage.n_hinges
@@ -484,16 +492,6 @@ def build_cad(result: Design) -> tuple[CadResult, CadResult]:
     return flat, assembled
 
 
-def _sunk_fraction(found: Any, pad_volumes: NDArray[np.float64]) -> float:
-    """Largest share of a hinge part's volume (``pad_volumes``, mm^3, one per meshed pad)
-    inside a tile (0 without hinge parts)."""
-    if found is None or not np.any(found.volumes > 0):
-        return 0.0
-    hit = np.flatnonzero(found.volumes > 0)
-    volumes = pad_volumes[found.pairs[hit, 1]]
-    return float(np.max(found.volumes[hit] / np.maximum(volumes, 1e-300)))
-
-
 def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
     """Checks measured on the solids (issue 7 section 3), for design.json ``metrics.cad``.
 
@@ -561,13 +559,13 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
             tiles_vs_pads.max_volume if tiles_vs_pads is not None else 0.0, 6
         ),
         "interference_tiles_pads_max_rel": round(
-            _sunk_fraction(tiles_vs_pads, pad_volumes[meshed_pads]), 6
+            sunk_fraction(tiles_vs_pads, pad_volumes[meshed_pads]), 6
         ),
-        "channel_opening_distance_max_mm": round(_max(channels.distances), 6),
+        "channel_opening_distance_max_mm": round(finite_max(channels.distances), 6),
         "channel_openings_missing": int(np.count_nonzero(~np.isfinite(channels.distances))),
-        "channel_worst_links": _worst_links(channels.links, channels.distances),
+        "channel_worst_links": worst_links(channels.links, channels.distances),
         "magnet_pairs": len(cad_flat.magnets),
-        "magnet_pocket_distance_max_mm": round(_max(pockets.distances), 6),
+        "magnet_pocket_distance_max_mm": round(finite_max(pockets.distances), 6),
         "magnet_pockets_missing": int(np.count_nonzero(~np.isfinite(pockets.distances))),
         "magnet_pockets_breaking_out": sum(not m.fits for m in cad_flat.magnets),
         "magnet_pockets_facing": bool(np.all(facing < -0.999)) if len(facing) else True,
@@ -575,24 +573,3 @@ def measure_cad(result: Design, cad_flat: CadResult) -> dict[str, Any]:
         **fabrication_measures(result, cad_flat).to_json(),
         "notes": list(cad_flat.notes),
     }
-
-
-def _worst_links(
-    links: NDArray[np.int64], distances: NDArray[np.float64], count: int = 5
-) -> list[dict[str, Any]]:
-    """The ``count`` links whose openings lie farthest apart (missing ones first): tiles and
-    distance in mm (None: an opening was not found on the solid)."""
-    order = np.argsort(-np.where(np.isfinite(distances), distances, np.inf), kind="stable")
-    return [
-        {
-            "tiles": [int(links[k, 0]), int(links[k, 2])],
-            "distance_mm": round(float(distances[k]), 6) if np.isfinite(distances[k]) else None,
-        }
-        for k in order[:count]
-    ]
-
-
-def _max(values: NDArray[np.float64]) -> float:
-    finite = np.asarray(values, dtype=np.float64)
-    finite = finite[np.isfinite(finite)]
-    return float(finite.max()) if finite.size else 0.0

@@ -29,7 +29,7 @@ from drawstring.pipeline.auto import (
     chooses_values,
     chosen_layout,
 )
-from drawstring.pipeline.cad_stage import FeatureShortfall, hinge_strip_shortfall
+from drawstring.pipeline.cad_stage import FeatureShortfall, WeldedHinges, hinge_strip_shortfall
 from drawstring.pipeline.record import DesignOptions
 from drawstring.pipeline.retry import (
     FEATURE_MARGIN,
@@ -344,6 +344,53 @@ def test_with_no_fewer_tiles_left_the_search_grows_the_size_at_the_tiles_reached
         "hinges": "dual",
     }  # fmt: skip
     assert f"the design uses --tiles 12 --size {size:g}" in kept.notes[-1]
+
+
+def test_a_size_whose_hinged_tiles_overlap_where_the_string_runs_steps_the_tiles_there(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The defaults were refused and the retry search found a larger size; laid out there,
+    # hinged tiles overlap where their channels run (WeldedHinges), which a larger size keeps:
+    # the search steps the tile count down at that size instead, until one has room.  A
+    # shortfall of another feature at that size grows the size as before.
+    profile, asked, options = _forty_tiles()
+    seen: list[tuple[int, float]] = []
+
+    def lay_out(changed: Any) -> LaidOut:
+        seen.append((changed.tiles, changed.size_mm))
+        if changed.tiles > 25:
+            welded = WeldedHinges("print welded at the hinge", 1e-3, 0.8)
+            return replace(_laid(changed, 0.001), routed=object(), shortfall=welded)  # type: ignore[arg-type]
+        return replace(_laid(changed, 0.001), routed=object())  # type: ignore[arg-type]
+
+    searched = (Retry("size", 220.0, "--size 220", 1, 0.0), [], set())
+    monkeypatch.setattr(auto, "refusal_search", lambda *_args: searched)
+    refused = ThicknessError("inside out", 6.0, 3, 0.0)
+    kept, chosen = chosen_layout(
+        refused, str(HEMISPHERE), asked, options, profile, lay_out,
+        lambda exc, _searched: InputError(f"refused: {exc}"),
+    )  # fmt: skip
+    assert seen == [(40, 220.0), (30, 220.0), (22, 220.0)]  # STEP_RATIO steps, at 220 mm
+    assert chosen is not None and chosen["used"] == {"size_mm": 220.0, "tiles": 22}
+    assert chosen["tried"][1]["with"] == {"size": 220.0}
+    assert kept.options.tiles == 22 and kept.options.size_mm == 220.0
+    assert "the design uses --size 220 --tiles 22" in kept.notes[-1]
+
+    seen.clear()  # short of a lift bore's depth at that size instead: the size grows
+
+    def shallow(changed: Any) -> LaidOut:
+        seen.append((changed.tiles, changed.size_mm))
+        laid = replace(_laid(changed, 0.001), routed=object())  # type: ignore[arg-type]
+        if changed.size_mm > 220.0:
+            return laid
+        return replace(laid, shortfall=FeatureShortfall("too shallow", 1.0, 1.02))
+
+    kept, chosen = chosen_layout(
+        refused, str(HEMISPHERE), asked, options, profile, shallow,
+        lambda exc, _searched: InputError(f"refused: {exc}"),
+    )  # fmt: skip
+    assert seen[0] == (40, 220.0) and seen[1][0] == 40 and seen[1][1] > 220.0
+    assert chosen is not None and chosen["used"] == {"size_mm": seen[1][1]}
 
 
 #: The saddle at 30 mm on a 10 x 8 grid: its eq.-1 tiles pass the first tiling's checks, but

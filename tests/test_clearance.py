@@ -233,3 +233,78 @@ def test_a_dart_shaped_tile_keeps_its_notch_when_relieved() -> None:
     assert relieved.is_valid
     assert tile_solid(tile).volume - relieved.volume == pytest.approx(3.0, rel=1e-9)
     assert relieved.volume == pytest.approx(6.0 * 30.0 - 3.0, rel=1e-9)
+
+
+def test_a_hinge_no_relief_clears_is_a_feature_shortfall_before_any_solid() -> None:
+    # Two 6 mm tiles hinged at corner 0 that overlap below the hinge (their bottoms 1.5 times
+    # as wide), each with its string channel from side 0 to side 3, the two sides at the
+    # hinge: the channels lie in what either tile would lose to the print clearance, so the
+    # CAD stage would leave the hinge unrelieved (its tiles print welded).  The checks asked
+    # before any solid find it, with the channels' room (negative: they reach into the other
+    # tile) against the clearance and a wall.  With one tile's channel on its far sides, that
+    # tile is hollowed and every feature fits.
+    from drawstring.cad.feature_common import feature_wall_mm
+    from drawstring.cad.hinge_plans import design_reliefs, relief_shortfall
+    from drawstring.fabrication.profiles import load_profile
+    from drawstring.pipeline.cad_stage import feature_shortfall
+
+    profile = load_profile("fdm-dual")
+    tiles = _hinged_pair(12.0, 6.0)
+    for tile in tiles:
+        centre = tile[4:, :2].mean(axis=0)
+        tile[4:, :2] = centre + 1.5 * (tile[4:, :2] - centre)
+    hinge = np.array([[0, 0, 1, 0]])
+    no_lifts = np.zeros((0, 2), dtype=np.int64)
+    at_hinge = np.array([[0, 0, 0, 3], [1, 1, 0, 3]])
+    made = design_reliefs(tiles, hinge, ["top"], at_hinge, no_lifts, profile, 0.4)
+    assert made is not None and made.skipped == (0,)
+    welded = relief_shortfall(tiles, hinge, ["top"], at_hinge, no_lifts, profile, 0.4)
+    assert welded is not None and welded.hinges == (0,) and welded.tiles == (0, 1)
+    assert welded.have < 0.0 and welded.need == pytest.approx(0.4 + feature_wall_mm(profile))
+    short = feature_shortfall(profile, tiles, at_hinge, no_lifts, hinge, ["top"])
+    assert short is not None and "print welded" in str(short)
+    assert short.have < short.need
+
+    far = np.array([[0, 0, 1, 2], [1, 1, 0, 3]])
+    made = design_reliefs(tiles, hinge, ["top"], far, no_lifts, profile, 0.4)
+    assert made is not None and made.skipped == () and made.hollowed == (0,)
+    assert relief_shortfall(tiles, hinge, ["top"], far, no_lifts, profile, 0.4) is None
+    assert feature_shortfall(profile, tiles, far, no_lifts, hinge, ["top"]) is None
+
+
+def test_tiles_not_hinged_together_that_come_too_close_are_cut_apart() -> None:
+    # Two 6 mm box tiles 0.2 mm apart along x, not hinged together (tile 1 is hinged to a far
+    # tile 2 only): one loses what lies within 0.4 mm of the other, and the solids then print
+    # 0.4 mm apart.  Where each holds a string channel opening on the facing side, no cut
+    # clears it: the pair is crowded, and the checks before any solid count it.
+    from drawstring.cad.clearance import HingeReliefs, apart_reliefs
+    from drawstring.cad.hinge_plans import relief_shortfall
+    from drawstring.fabrication.profiles import load_profile
+
+    tiles = np.stack(
+        [
+            _square(np.array([0.0, 0.0]), 0.0, 6.0, 0.0, 6.0),
+            _square(np.array([6.2, 0.0]), 0.0, 6.0, 0.0, 6.0),
+            _square(np.array([12.2, 6.0]), 0.0, 6.0, 0.0, 6.0),
+        ]
+    )
+    hinge = np.array([[1, 2, 2, 0]])
+    none = HingeReliefs({}, 0.0, 0.0, 0.0, 0, ())
+    reliefs = apart_reliefs(tiles, hinge, none, 0.4, lambda *_: KeepOut(), 0.4)
+    assert len(reliefs.apart) == 1 and set(reliefs.apart[0]) == {0, 1} and reliefs.crowded == ()
+    ((cut, polyhedra),) = reliefs.hollows.items()
+    solids = [tile_solid(t) for t in tiles[:2]]
+    for points in polyhedra:
+        solids[cut] = solids[cut] - trim_tool(points)
+    assert clearances(solids, 1.0).min_distance >= 0.4 - 1e-4
+    # what it loses: a slab 0.2 mm thick over the 6 x 6 mm face
+    assert 1.0 - solids[cut].volume / 216.0 == pytest.approx(0.2 / 6.0, rel=1e-6)
+
+    profile = load_profile("fdm-dual")
+    facing = np.array([[0, 0, 3, 1], [1, 1, 3, 1]])  # each channel opens on the facing side
+    no_lifts = np.zeros((0, 2), dtype=np.int64)
+    crowded = relief_shortfall(tiles, hinge, ["top"], facing, no_lifts, profile, 0.4)
+    assert crowded is not None and crowded.pairs == ((0, 1),) and crowded.hinges == ()
+    assert crowded.have < crowded.need
+    away = np.array([[0, 0, 0, 2], [1, 1, 0, 2]])  # across the tiles, clear of the gap
+    assert relief_shortfall(tiles, hinge, ["top"], away, no_lifts, profile, 0.4) is None
