@@ -17,9 +17,9 @@ has passed the check that refuses a design (:func:`~.shapes.refusing_shape`):
 3. otherwise, with ``--hinges`` left unset, lays out the closer shape of
    ``policy.close_fit_top`` (square weight lowered, surface and face samples raised) with
    every hinge on the top faces, which ask nothing of the shape in depth, and keeps it when it
-   meets the 1e-3 mm targets; where it is not kept (a tile of it turns inside out, or its
-   layout misses), the shape of step 1 with top hinges (``--hinges top`` lays out these two
-   as the close ones);
+   meets the 1e-3 mm targets; where not, ``policy.close_fit_top_retry`` (pulled where its
+   layout misses: :meth:`_CloseTrial.pulled_after_miss`), then the shape of step 1 with top
+   hinges (``--hinges top`` lays out these three as the close ones);
 4. otherwise (and where the close shape turns a tile inside out, or with CAD leaves a
    boundary tile too narrow for the string channel) lays out the paper's shape, with a note
    saying why.
@@ -307,11 +307,8 @@ class _CloseTrial:
                 f"{distances.max:.2f} mm, no closer than the paper's shape ({paper.mean:.2f} "
                 f"and {paper.max:.2f} mm)"
             )
-        if (
-            options.hinges == HingeStrategy.TOP
-            and not pulled
-            and not meets_fit_level(trial.assembled.tiles, distances, loaded)
-        ):
+        far = not meets_fit_level(trial.assembled.tiles, distances, loaded)
+        if options.hinges == HingeStrategy.TOP and far and not pulled:
             # laid out again only where its eq.-1 shape itself is near the fit level
             near = meets_fit_level(
                 start.tiles, surface_distances(start.tiles, loaded), loaded,
@@ -324,29 +321,21 @@ class _CloseTrial:
         return trial, ""
 
     def pulled_after_miss(
-        self,
-        start: AssembledResult,
-        missed: ShapedLayout,
-        accuracy: float,
-        distances: TopFaceDistances,
-        options: ResolvedOptions,
-        shapes: ShapeCache,
+        self, start: AssembledResult, missed: ShapedLayout, accuracy: float,
+        distances: TopFaceDistances, options: ResolvedOptions, shapes: ShapeCache,
         tried: dict[str, Any],
-    ) -> tuple[ShapedLayout, float, TopFaceDistances, bool]:
+    ) -> tuple[ShapedLayout, float, TopFaceDistances, bool]:  # fmt: skip
         """A close shape whose layout ``missed`` the 1e-3 mm targets (at ``accuracy``, its
         top faces at ``distances``) laid out again with the co-optimization pulling it to the
-        target too (``policy.close_fit_top_co``), polished where that co-optimization was used
+        target (``policy.close_fit_top_co``), polished where that co-optimization was used
         (:meth:`polished`), where its eq.-1 shape ``start`` sits within
         ``policy.close_fit_top_pull_within`` times the fit level: pulled, the joint solve
         stays near a shape whose own layout folds a tile.  The layout, its accuracy and
         distances, and whether it is the pulled one (where that meets the targets; else
         ``missed``'s); ``tried`` gets the pulled layout's measures as ``co_surface``."""
         loaded, policy = self.loaded, self.policy
-        near = meets_fit_level(
-            start.tiles, surface_distances(start.tiles, loaded), loaded,
-            policy.close_fit_top_pull_within,
-        )  # fmt: skip
-        if not near:
+        distant = surface_distances(start.tiles, loaded)
+        if not meets_fit_level(start.tiles, distant, loaded, policy.close_fit_top_pull_within):
             return missed, accuracy, distances, False
         weights = policy.close_fit_top_co
         trial = shape_and_layout(
@@ -362,14 +351,9 @@ class _CloseTrial:
                 trial, pulled, closer, options, shapes
             )
         kept = trial.hinge_layout is not None and pulled <= _TOL_MM
-        tried["co_surface"] = {
-            "surface": weights[0],
-            "face_samples": weights[1],
-            "after_miss": True,
-            "paper_co": {k: tried[k] for k in _MEASURED},
-            "passes": [{**entry, "kept": kept}],
-            "kept": kept,
-        }
+        record = {"surface": weights[0], "face_samples": weights[1], "after_miss": True}
+        record.update(paper_co={k: tried[k] for k in _MEASURED}, passes=[{**entry, "kept": kept}])
+        tried["co_surface"] = {**record, "kept": kept}
         if not kept:
             return missed, accuracy, distances, False
         polish = entry.get("polish", {})
