@@ -254,13 +254,18 @@ def test_a_pulled_layout_that_misses_the_layout_targets_is_polished_back_within_
 
 
 def test_the_close_shape_with_top_hinges_steps_back_to_the_dual_weights(paper: Design) -> None:
-    # the dual close shape refused by the gate, the closer top shape no closer than the
-    # paper's (surface weight 0.01): the dual close shape's weights are laid out with every
-    # hinge on top, and kept
+    # the dual close shape refused by the gate, the closer top shapes (close_fit_top and its
+    # retry) no closer than the paper's (surface weight 0.01): the dual close shape's weights
+    # are laid out with every hinge on top, and kept
     from drawstring.geometry.assembled.top import Eq1Weights
 
     far = Eq1Weights(1e4, 10.0, 0.01)
-    policy = replace(DEFAULT_POLICY, close_conical_defect_max_deg=-1.0, close_fit_top=far)
+    policy = replace(
+        DEFAULT_POLICY,
+        close_conical_defect_max_deg=-1.0,
+        close_fit_top=far,
+        close_fit_top_retry=far,
+    )
     stepped = design("saddle", OPTIONS, policy=policy)
     m, fit = stepped.metrics(), stepped.metrics()["fit"]
     assert stepped.options.hinges == "top" and fit["used"] == "close"
@@ -279,7 +284,7 @@ def test_a_close_shape_no_closer_than_the_papers_is_not_kept(paper: Design) -> N
     from drawstring.geometry.assembled.top import Eq1Weights
 
     far = Eq1Weights(1e4, 10.0, 0.01)
-    policy = replace(DEFAULT_POLICY, close_fit=far, close_fit_top=far)
+    policy = replace(DEFAULT_POLICY, close_fit=far, close_fit_top=far, close_fit_top_retry=far)
     refused = design("saddle", OPTIONS, policy=policy)
     fit = refused.metrics()["fit"]
     assert fit["used"] == "paper" and refused.options.hinges == "dual"
