@@ -17,9 +17,9 @@ has passed the check that refuses a design (:func:`~.shapes.refusing_shape`):
 3. otherwise, with ``--hinges`` left unset, lays out the closer shape of
    ``policy.close_fit_top`` (square weight lowered, surface and face samples raised) with
    every hinge on the top faces, which ask nothing of the shape in depth, and keeps it when it
-   meets the 1e-3 mm targets; where not, ``policy.close_fit_top_retry`` (pulled where its
-   layout misses: :meth:`_CloseTrial.pulled_after_miss`), then the shape of step 1 with top
-   hinges (``--hinges top`` lays out these three as the close ones);
+   meets the 1e-3 mm targets; where it is not kept (a tile of it turns inside out, or its
+   layout misses), the shape of step 1 with top hinges (``--hinges top`` lays out these two
+   as the close ones);
 4. otherwise (and where the close shape turns a tile inside out, or with CAD leaves a
    boundary tile too narrow for the string channel) lays out the paper's shape, with a note
    saying why.
@@ -198,10 +198,11 @@ def close_weights(hinges: str, policy: LayoutPolicy) -> tuple[Eq1Weights, ...]:
     """The eq.-1 weights of the close shapes tried with ``hinges``, closest first:
     ``policy.close_fit`` with dual hinges, whose bottom hinges ask the shape to stay near
     conical; with every hinge on top the closer ``policy.close_fit_top``, then
-    ``policy.close_fit_top_retry`` and ``policy.close_fit`` where that one is not kept."""
+    ``policy.close_fit`` where that one is not kept."""
+    if hinges == HingeStrategy.TOP and policy.close_fit_top != policy.close_fit:
+        return (policy.close_fit_top, policy.close_fit)
     if hinges == HingeStrategy.TOP:
-        tried = (policy.close_fit_top, policy.close_fit_top_retry, policy.close_fit)
-        return tuple(w for i, w in enumerate(tried) if w not in tried[:i])
+        return (policy.close_fit_top,)
     return (policy.close_fit,)
 
 
@@ -289,12 +290,6 @@ class _CloseTrial:
         accuracy = trial.accuracy_mm
         trial, distances, move = rigidly_fitted(trial, loaded)
         tried.update(_measures(accuracy, distances, move))
-        missed = accuracy > _TOL_MM or trial.hinge_layout is None
-        pulled = False
-        if missed and weights == policy.close_fit_top_retry and options.hinges == HingeStrategy.TOP:
-            trial, accuracy, distances, pulled = self.pulled_after_miss(
-                start, trial, accuracy, distances, options, shapes, tried
-            )
         if accuracy > min(FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM) or trial.hinge_layout is None:
             return None, (
                 f"its flat tiles met their hinges with their assembled shapes only to "
@@ -307,8 +302,9 @@ class _CloseTrial:
                 f"{distances.max:.2f} mm, no closer than the paper's shape ({paper.mean:.2f} "
                 f"and {paper.max:.2f} mm)"
             )
-        far = not meets_fit_level(trial.assembled.tiles, distances, loaded)
-        if options.hinges == HingeStrategy.TOP and far and not pulled:
+        if options.hinges == HingeStrategy.TOP and not meets_fit_level(
+            trial.assembled.tiles, distances, loaded
+        ):
             # laid out again only where its eq.-1 shape itself is near the fit level
             near = meets_fit_level(
                 start.tiles, surface_distances(start.tiles, loaded), loaded,
@@ -319,46 +315,6 @@ class _CloseTrial:
             else:
                 tried["co_surface"] = {"refused": "its eq.-1 shape is far from the fit level"}
         return trial, ""
-
-    def pulled_after_miss(
-        self, start: AssembledResult, missed: ShapedLayout, accuracy: float,
-        distances: TopFaceDistances, options: ResolvedOptions, shapes: ShapeCache,
-        tried: dict[str, Any],
-    ) -> tuple[ShapedLayout, float, TopFaceDistances, bool]:  # fmt: skip
-        """A close shape whose layout ``missed`` the 1e-3 mm targets (at ``accuracy``, its
-        top faces at ``distances``) laid out again with the co-optimization pulling it to the
-        target (``policy.close_fit_top_co``), polished where that co-optimization was used
-        (:meth:`polished`), where its eq.-1 shape ``start`` sits within
-        ``policy.close_fit_top_pull_within`` times the fit level: pulled, the joint solve
-        stays near a shape whose own layout folds a tile.  The layout, its accuracy and
-        distances, and whether it is the pulled one (where that meets the targets; else
-        ``missed``'s); ``tried`` gets the pulled layout's measures as ``co_surface``."""
-        loaded, policy = self.loaded, self.policy
-        distant = surface_distances(start.tiles, loaded)
-        if not meets_fit_level(start.tiles, distant, loaded, policy.close_fit_top_pull_within):
-            return missed, accuracy, distances, False
-        weights = policy.close_fit_top_co
-        trial = shape_and_layout(
-            loaded, self.flat_map, options, self.progress,
-            policy=replace(policy, co_surface=weights), shapes=shapes,
-            first_tiling=self.first_tiling,
-        )  # fmt: skip
-        pulled = trial.accuracy_mm
-        trial, closer, move = rigidly_fitted(trial, loaded)
-        entry: dict[str, Any] = _measures(pulled, closer, move)
-        if trial.co_block.get("accepted"):
-            trial, pulled, closer, entry["polish"] = self.polished(
-                trial, pulled, closer, options, shapes
-            )
-        kept = trial.hinge_layout is not None and pulled <= _TOL_MM
-        record = {"surface": weights[0], "face_samples": weights[1], "after_miss": True}
-        record.update(paper_co={k: tried[k] for k in _MEASURED}, passes=[{**entry, "kept": kept}])
-        tried["co_surface"] = {**record, "kept": kept}
-        if not kept:
-            return missed, accuracy, distances, False
-        polish = entry.get("polish", {})
-        tried.update({k: (polish if polish.get("kept") else entry)[k] for k in _MEASURED})
-        return trial, pulled, closer, True
 
     def pulled_layout(
         self,

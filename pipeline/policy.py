@@ -151,15 +151,6 @@ class LayoutPolicy:
     #: At 200 tiles its layout keeps every 1e-3 mm target on the five built-ins that come to
     #: it (peanut, wave, seashell, cloud, three-shell).
     close_fit_top: Eq1Weights = Eq1Weights(1e4, 1.0, 100.0, 100.0)
-    #: The close shape with top hinges laid out where ``close_fit_top``'s is not kept, before
-    #: ``close_fit``: the square weight 2.  Its co-optimization with the paper's pull turns
-    #: fewer tiles over than ``close_fit_top``'s, and where its layout still misses the
-    #: 1e-3 mm targets while its eq.-1 shape sits within ``close_fit_top_pull_within`` times
-    #: the fit level, it is laid out again with the co-optimization pulling it to the target
-    #: (``close_fit_top_co``, then polished: ``close_fit.pulled_after_miss``).  On the
-    #: corpus's nest_chair ``close_fit_top``'s layout is 1.4 mm off (a tile folds); this
-    #: shape's, pulled, meets the targets at 1.9 % of a tile side.
-    close_fit_top_retry: Eq1Weights = Eq1Weights(1e4, 2.0, 100.0, 100.0)
 
     #: The co-optimization's pull to the target in its joint solves, at the vertices and at
     #: the quads' centres and edge midpoints (weights relative to its pull towards the

@@ -254,18 +254,13 @@ def test_a_pulled_layout_that_misses_the_layout_targets_is_polished_back_within_
 
 
 def test_the_close_shape_with_top_hinges_steps_back_to_the_dual_weights(paper: Design) -> None:
-    # the dual close shape refused by the gate, the closer top shapes (close_fit_top and its
-    # retry) no closer than the paper's (surface weight 0.01): the dual close shape's weights
-    # are laid out with every hinge on top, and kept
+    # the dual close shape refused by the gate, the closer top shape no closer than the
+    # paper's (surface weight 0.01): the dual close shape's weights are laid out with every
+    # hinge on top, and kept
     from drawstring.geometry.assembled.top import Eq1Weights
 
     far = Eq1Weights(1e4, 10.0, 0.01)
-    policy = replace(
-        DEFAULT_POLICY,
-        close_conical_defect_max_deg=-1.0,
-        close_fit_top=far,
-        close_fit_top_retry=far,
-    )
+    policy = replace(DEFAULT_POLICY, close_conical_defect_max_deg=-1.0, close_fit_top=far)
     stepped = design("saddle", OPTIONS, policy=policy)
     m, fit = stepped.metrics(), stepped.metrics()["fit"]
     assert stepped.options.hinges == "top" and fit["used"] == "close"
@@ -284,7 +279,7 @@ def test_a_close_shape_no_closer_than_the_papers_is_not_kept(paper: Design) -> N
     from drawstring.geometry.assembled.top import Eq1Weights
 
     far = Eq1Weights(1e4, 10.0, 0.01)
-    policy = replace(DEFAULT_POLICY, close_fit=far, close_fit_top=far, close_fit_top_retry=far)
+    policy = replace(DEFAULT_POLICY, close_fit=far, close_fit_top=far)
     refused = design("saddle", OPTIONS, policy=policy)
     fit = refused.metrics()["fit"]
     assert fit["used"] == "paper" and refused.options.hinges == "dual"
@@ -410,45 +405,3 @@ def test_a_shape_set_aside_is_kept_only_where_no_farther_than_the_laid_out_paper
     assert trial.closer_than(far(2.5, 9.0))[0] == "closer, larger max"  # type: ignore[index]
     assert trial.closer_than(far(1.0, 9.0)) is None
     assert trial.closer_than(far(5.0, 6.0)) is None
-
-
-def test_a_retry_shape_whose_layout_misses_is_laid_out_pulled_to_the_target(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    # close_fit_top refused (no closer than the paper's shape), close_fit_top_retry's layout
-    # with the paper's pull made to miss the 1e-3 mm targets (as the corpus's nest_chair's
-    # does: a tile folds): its eq.-1 shape sits near the fit level, so it is laid out again
-    # with the co-optimization pulling it to the target, and kept where that meets them
-    from drawstring.geometry.assembled.top import Eq1Weights
-    from drawstring.pipeline import close_fit
-
-    retry = DEFAULT_POLICY.close_fit_top_retry
-    laid_out = close_fit.shape_and_layout
-
-    def missing(*args: object, **kw: object) -> object:
-        done = laid_out(*args, **kw)  # type: ignore[arg-type]
-        if kw["policy"].co_surface is None and kw["shapes"].eq1 == retry:  # type: ignore[attr-defined]
-            return replace(done, hinge_layout=None, flat=replace(done.flat, edge_error_max_mm=0.01))
-        return done
-
-    monkeypatch.setattr(close_fit, "shape_and_layout", missing)
-    far = Eq1Weights(1e4, 10.0, 0.01)
-    policy = replace(DEFAULT_POLICY, close_fit_top=far)
-    options = replace(OPTIONS, hinges="top")
-    pulled = design("saddle", options, policy=policy)
-    m, fit = pulled.metrics(), pulled.metrics()["fit"]
-    assert fit["used"] == "close" and fit["eq1"] == retry.to_json()
-    co = fit["close"]["co_surface"]
-    assert co["after_miss"] and co["kept"] and co["paper_co"]["accuracy_mm"] == 0.01
-    assert co["surface"] == DEFAULT_POLICY.close_fit_top_co[0]
-    assert fit["close"]["accuracy_mm"] <= 1e-3
-    assert max(m["flat_edge_error_max_mm"], m["hinge_gap_max_mm"]) <= 1e-3
-    assert m["flat_overlap_area_mm2"] == 0.0 and not pulled.problems
-    assert m["surface_distance_mean_mm"] == fit["close"]["surface_distance_mean_mm"]
-    # with the gate shut (never near the fit level) the missed retry shape is refused and the
-    # dual weights' shape is laid out with top hinges instead
-    shut = design("saddle", options, policy=replace(policy, close_fit_top_pull_within=0.0))
-    stepped = shut.metrics()["fit"]
-    assert stepped["eq1"] == DEFAULT_POLICY.close_fit.to_json()
-    (_, missed) = stepped["close"]["earlier"]
-    assert missed["eq1"] == retry.to_json() and "0.01 mm" in missed["refused"]
