@@ -231,8 +231,10 @@ def feature_shortfall(
         found.append((strip_words(profile, *strips), *strips, FeatureShortfall))
     clearance = print_clearance_mm(profile)
     welded = relief_shortfall(tiles, hinges, sides, steps, lift_tiles, profile, clearance)
-    if welded is not None:  # a room at or below 0 ranks worst (and steps on by a whole step)
-        have = max(welded.have, 1e-3)
+    if welded is not None:  # a room at or below 0 ranks worst (and steps on by a whole step);
+        # a pair left for another cause than room (its cut would take over half a tile, or no
+        # hull) still ranks as a shortfall, by half the room a relief needs
+        have = min(max(welded.have, 1e-3), 0.5 * welded.need)
         found.append((relief_words(welded, clearance), have, welded.need, WeldedHinges))
     if not found:
         return None
@@ -252,11 +254,12 @@ def relief_words(welded: ReliefShortfall, clearance_mm: float) -> str:
     """What tiles no print-clearance relief keeps apart (:func:`~drawstring.cad.hinge_plans.
     relief_shortfall`) mean, in words."""
     a, b = welded.tiles
-    room = (
-        f"reach {-welded.have:.2f} mm into the other tile"
-        if welded.have < 0
-        else f"lie {welded.have:.2f} mm from the other tile"
-    )
+    if welded.have < 0:
+        room = f"reach {-welded.have:.2f} mm into the other tile"
+    elif welded.have < welded.need:
+        room = f"lie {welded.have:.2f} mm from the other tile"
+    else:
+        room = "leave no cut of at most half a tile that clears them"
     counts = [f"{len(welded.hinges)} hinged pair(s)"] if welded.hinges else []
     counts += [f"{len(welded.pairs)} pair(s) not hinged together"] if welded.pairs else []
     return (
@@ -298,7 +301,8 @@ class FeatureShortfall(InputError):
 
 class WeldedHinges(FeatureShortfall):
     """Hinged tiles that overlap in the flat layout where their string channels, lift bores or
-    strips run, so that no print-clearance relief clears them (:func:`relief_words`).  The
+    strips run, or tiles not hinged together that come as close there, so that no
+    print-clearance relief clears them (:func:`relief_words`).  The
     overlap follows the shape's scale factor between neighbouring tiles, which a larger size
     may keep (minimal_surface, corpus, at 280 and 380 mm: channels 1.31 and 1.13 mm into the
     other tile); another tile count tiles the shape anew."""

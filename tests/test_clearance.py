@@ -272,6 +272,30 @@ def test_a_hinge_no_relief_clears_is_a_feature_shortfall_before_any_solid() -> N
     assert feature_shortfall(profile, tiles, far, no_lifts, hinge, ["top"]) is None
 
 
+def test_a_hinge_left_unrelieved_with_room_to_spare_still_ranks_as_a_finite_shortfall() -> None:
+    # Tiles 1 deg apart whose bottoms spread three times their tops, with no string through
+    # them: the relief would take over half a tile, so the hinge is left unrelieved although
+    # no feature is in the way (room: infinity).  The check still refuses it, with a finite
+    # room under the need (the values search divides by it) and words without "inf".
+    from drawstring.cad.hinge_plans import relief_shortfall
+    from drawstring.fabrication.profiles import load_profile
+    from drawstring.pipeline.cad_stage import feature_shortfall
+
+    profile = load_profile("fdm-dual")
+    tiles = _hinged_pair(1.0, 6.0)
+    for tile in tiles:
+        centre = tile[4:, :2].mean(axis=0)
+        tile[4:, :2] = centre + 3.0 * (tile[4:, :2] - centre)
+    hinge = np.array([[0, 0, 1, 0]])
+    no_lifts = np.zeros((0, 2), dtype=np.int64)
+    no_steps = np.zeros((0, 4), dtype=np.int64)
+    welded = relief_shortfall(tiles, hinge, ["top"], no_steps, no_lifts, profile, 0.4)
+    assert welded is not None and welded.hinges == (0,) and welded.have >= welded.need
+    short = feature_shortfall(profile, tiles, no_steps, no_lifts, hinge, ["top"])
+    assert short is not None and "print welded" in str(short) and "inf" not in str(short)
+    assert 0.0 < short.have < short.need and math.isfinite(short.have)
+
+
 def test_tiles_not_hinged_together_that_come_too_close_are_cut_apart() -> None:
     # Two 6 mm box tiles 0.2 mm apart along x, not hinged together (tile 1 is hinged to a far
     # tile 2 only): one loses what lies within 0.4 mm of the other, and the solids then print
