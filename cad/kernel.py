@@ -42,7 +42,11 @@ from drawstring.geometry.core.tolerances import (
 CheckMesh = tuple[NDArray[np.float32], NDArray[np.uint32]]
 
 
-def polyhedron_solid(vertices: NDArray[np.float64], faces: Sequence[Sequence[int]]) -> bd.Solid:
+def polyhedron_solid(
+    vertices: NDArray[np.float64],
+    faces: Sequence[Sequence[int]],
+    planes: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+) -> bd.Solid:
     """Exact planar-faced solid from vertices and outward (counter-clockwise) polygon faces.
 
     Vertices and edges are shared between faces, so the shell is closed by construction (no
@@ -52,6 +56,8 @@ def polyhedron_solid(vertices: NDArray[np.float64], faces: Sequence[Sequence[int
     ----------
     vertices : (n, 3) float, mm.
     faces : polygons as vertex indices, counter-clockwise seen from outside.
+    planes : each face's (Newell) normal and centre, computed together by a caller whose faces
+        are planar by construction (no planarity check then); None: computed here, checked.
     """
     points = np.asarray(vertices, dtype=np.float64)
     occ_vertices = [BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, p))).Vertex() for p in points]
@@ -61,6 +67,7 @@ def polyhedron_solid(vertices: NDArray[np.float64], faces: Sequence[Sequence[int
     builder.MakeShell(shell)
     for face_index, polygon in enumerate(faces):
         wire_maker = BRepBuilderAPI_MakeWire()
+        given = None if planes is None else (planes[0][face_index], planes[1][face_index])
         for position, start in enumerate(polygon):
             end = polygon[(position + 1) % len(polygon)]
             key = (min(start, end), max(start, end))
@@ -72,17 +79,22 @@ def polyhedron_solid(vertices: NDArray[np.float64], faces: Sequence[Sequence[int
         # The face lies on the plane whose normal is the polygon's (Newell) normal, so it is
         # oriented by the vertex order (MakeFace from a bare wire picks its own orientation).
         ring = points[list(polygon)]
-        normal = np.cross(ring, np.roll(ring, -1, axis=0)).sum(axis=0)
+        if given is None:
+            normal, centre = np.cross(ring, np.roll(ring, -1, axis=0)).sum(axis=0), None
+        else:
+            normal, centre = given
         length = float(np.linalg.norm(normal))
         if length < 1e-300:
             raise InternalError(f"polyhedron face {face_index} has zero area")
-        normal /= length
-        deviation = float(np.abs((ring - ring.mean(axis=0)) @ normal).max())
-        if deviation > 1e-7 * (1.0 + float(np.ptp(ring, axis=0).max())):
-            raise InternalError(
-                f"polyhedron face {face_index} is not planar (deviation {deviation:.3g} mm)"
-            )
-        plane = gp_Pln(gp_Pnt(*map(float, ring.mean(axis=0))), gp_Dir(*map(float, normal)))
+        normal = normal / length
+        if given is None:
+            centre = ring.mean(axis=0)
+            deviation = float(np.abs((ring - centre) @ normal).max())
+            if deviation > 1e-7 * (1.0 + float(np.ptp(ring, axis=0).max())):
+                raise InternalError(
+                    f"polyhedron face {face_index} is not planar (deviation {deviation:.3g} mm)"
+                )
+        plane = gp_Pln(gp_Pnt(*map(float, centre)), gp_Dir(*map(float, normal)))
         face_maker = BRepBuilderAPI_MakeFace(plane, wire_maker.Wire(), True)
         if not face_maker.IsDone():
             raise RuntimeError(f"OCCT could not make polyhedron face {face_index}")

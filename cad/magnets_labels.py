@@ -11,19 +11,6 @@ from typing import TYPE_CHECKING, Literal
 import build123d as bd
 import numpy as np
 from numpy.typing import NDArray
-from OCP.BRep import BRep_Builder
-from OCP.BRepBuilderAPI import (
-    BRepBuilderAPI_MakeEdge,
-    BRepBuilderAPI_MakeFace,
-    BRepBuilderAPI_MakeVertex,
-    BRepBuilderAPI_MakeWire,
-)
-from OCP.gp import gp_Dir, gp_Pln, gp_Pnt
-from OCP.TopoDS import (
-    TopoDS_Edge,
-    TopoDS_Shell,
-    TopoDS_Solid,
-)
 from scipy.spatial import ConvexHull
 
 from drawstring.cad.engraving_fill import fill_engraving as fill_engraving
@@ -36,6 +23,7 @@ from drawstring.cad.feature_common import (
     signed_area,
 )
 from drawstring.cad.hinge_frame import cut_margin, outside_margin
+from drawstring.cad.kernel import polyhedron_solid
 from drawstring.cad.paths import FACE_BOTTOM, check_side, face_planes, unit_vector
 from drawstring.cad.side_faces import (
     bilinear,
@@ -304,40 +292,10 @@ def _prism(
 
 def _prism_solid(points: NDArray[np.float64], faces: list[list[int]]) -> bd.Solid:
     """:func:`~drawstring.cad.kernel.polyhedron_solid` of a prism over a quadrilateral (six
-    faces of four corners, planar by construction): the same vertices, edges, faces and
-    planes, built in the same order, with the faces' planes computed together."""
+    faces of four corners, planar by construction), the faces' planes computed together."""
     rings = points[np.asarray(faces)]  # (6, 4, 3)
     normals = np.cross(rings, np.roll(rings, -1, axis=1)).sum(axis=1)
-    centres = rings.mean(axis=1)
-    occ_vertices = [BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, p))).Vertex() for p in points]
-    edges: dict[tuple[int, int], TopoDS_Edge] = {}
-    builder = BRep_Builder()
-    shell = TopoDS_Shell()
-    builder.MakeShell(shell)
-    for polygon, normal, centre in zip(faces, normals, centres, strict=True):
-        wire_maker = BRepBuilderAPI_MakeWire()
-        for position, start in enumerate(polygon):
-            end = polygon[(position + 1) % len(polygon)]
-            key = (min(start, end), max(start, end))
-            if key not in edges:
-                edges[key] = BRepBuilderAPI_MakeEdge(
-                    occ_vertices[key[0]], occ_vertices[key[1]]
-                ).Edge()
-            wire_maker.Add(edges[key])
-        length = float(np.linalg.norm(normal))
-        if length < 1e-300:
-            raise InternalError("a label prism has a face of zero area")
-        normal = normal / length
-        plane = gp_Pln(gp_Pnt(*map(float, centre)), gp_Dir(*map(float, normal)))
-        face_maker = BRepBuilderAPI_MakeFace(plane, wire_maker.Wire(), True)
-        if not face_maker.IsDone():
-            raise RuntimeError("OCCT could not make a label prism's face")
-        builder.Add(shell, face_maker.Face())
-    shell.Closed(True)
-    solid = TopoDS_Solid()
-    builder.MakeSolid(solid)
-    builder.Add(solid, shell)
-    return bd.Solid(solid)
+    return polyhedron_solid(points, faces, (normals, rings.mean(axis=1)))
 
 
 def label_depth(profile: Profile) -> float:
