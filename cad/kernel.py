@@ -80,7 +80,7 @@ def polyhedron_solid(
         # oriented by the vertex order (MakeFace from a bare wire picks its own orientation).
         ring = points[list(polygon)]
         if given is None:
-            normal, centre = np.cross(ring, np.roll(ring, -1, axis=0)).sum(axis=0), None
+            normal, centre = np.cross(ring, np.roll(ring, -1, axis=0)).sum(axis=0), ring.mean(0)
         else:
             normal, centre = given
         length = float(np.linalg.norm(normal))
@@ -88,7 +88,6 @@ def polyhedron_solid(
             raise InternalError(f"polyhedron face {face_index} has zero area")
         normal = normal / length
         if given is None:
-            centre = ring.mean(axis=0)
             deviation = float(np.abs((ring - centre) @ normal).max())
             if deviation > 1e-7 * (1.0 + float(np.ptp(ring, axis=0).max())):
                 raise InternalError(
