@@ -67,7 +67,7 @@ from drawstring.pipeline.routed import Routed, routed_layout, routed_shortfall
 CHOSEN_LAYOUTS = 3
 #: Layouts a refusal of laid-out tiles too small for the profile's features makes to check
 #: the value its ``retry with:`` quotes (each takes as long as the layout refused).
-RETRY_LAYOUTS = 1
+RETRY_LAYOUTS = 2
 
 #: option -> the ResolvedOptions field it sets
 _FIELDS = {"size": "size_mm", "thickness": "thickness_mm", "tiles": "tiles"}

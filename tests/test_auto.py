@@ -24,6 +24,7 @@ from drawstring.geometry.tiling.linkage import build_linkage
 from drawstring.pipeline import auto
 from drawstring.pipeline.auto import (
     CHOSEN_LAYOUTS,
+    RETRY_LAYOUTS,
     LaidOut,
     checked_feature_refusal,
     chooses_values,
@@ -497,8 +498,11 @@ def test_a_given_tile_count_too_small_for_the_features_is_refused_with_a_size_la
             lambda changed: roomy(changed) and _short(changed, 1.0, 1.01),
         )  # fmt: skip
     )
-    assert seen == [(40, size)] and "retry with:" not in line
+    # two layouts, the second stepped on from the first's shortfall, both named
+    assert len(seen) == RETRY_LAYOUTS == 2 and seen[0] == (40, size) and "retry with:" not in line
+    assert seen[1][0] == 40 and seen[1][1] > size
+    short = "the tiles still fall short: lift-point tiles too shallow"
     assert line.endswith(
         f"give the tiles more room with a larger --size or fewer tiles (laid out at --tiles 40 "
-        f"--size {size:g}, the tiles still fall short: lift-point tiles too shallow)"
+        f"--size {size:g}, {short}) (laid out at --tiles 40 --size {seen[1][1]:g}, {short})"
     )
