@@ -299,8 +299,9 @@ def main() -> None:
 
 
 def run_corpus(folder: Path, extra: list[str], only: list[str]) -> None:
-    """The corpus rows, merged by mesh into ``results.json``'s ``corpus``, with the success
-    count (exit 0 and deploying, directly or through the retry)."""
+    """The corpus rows, merged by mesh into ``results.json``'s ``corpus`` (designed with
+    ``--no-cad``) or ``corpus_cad`` (with CAD, the solids and print files built and checked),
+    with the success count (exit 0 and deploying, directly or through the retry)."""
     if not folder.is_dir():
         print(f"no corpus at {folder}: skipped (give --corpus-dir)")
         return
@@ -309,17 +310,18 @@ def run_corpus(folder: Path, extra: list[str], only: list[str]) -> None:
     rows = corpus_rows(folder, extra, only)
     path = HERE / "results.json"
     results: dict[str, Any] = json.loads(path.read_text()) if path.exists() else {}
-    kept = {row["mesh"]: row for row in results.get("corpus", {}).get("rows", [])}
+    key = "corpus" if "--no-cad" in extra else "corpus_cad"
+    kept = {row["mesh"]: row for row in results.get(key, {}).get("rows", [])}
     kept.update({row["mesh"]: row for row in rows})
     merged = [kept[name] for name in sorted(kept)]
     succeeded = sum(1 for row in merged if row.get("success"))
-    results["corpus"] = {
+    results[key] = {
         "meshes": len(sorted(folder.glob("*.obj"))),
         "run": len(merged),
         "succeeded": succeeded,
         "rows": merged,
     }
-    print(f"corpus: {succeeded} of {len(merged)} meshes run end in exit 0 and deploy")
+    print(f"{key}: {succeeded} of {len(merged)} meshes run end in exit 0 and deploy")
     path.write_text(json.dumps(results, indent=2) + "\n", encoding="utf-8")
 
 
