@@ -11,7 +11,7 @@ import pickle
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import build123d as bd
 import numpy as np
@@ -359,26 +359,26 @@ def run_jobs(
     return results
 
 
+def _per_part(results: list[JobResult], field: str) -> dict[tuple[str, int], Any]:
+    """One of the workers' per-part lists (``field``: the tile's entry, then one per pad),
+    keyed ``("tile", tile)`` and ``("pad", hinge)``; jobs without a full list are left out."""
+    found: dict[tuple[str, int], Any] = {}
+    for done in results:
+        entries = getattr(done, field)
+        if len(entries) != 1 + len(done.pads):
+            continue
+        found[("tile", done.tile)] = entries[0]
+        for (hinge, _), entry in zip(done.pads, entries[1:], strict=True):
+            found[("pad", int(hinge))] = entry
+    return found
+
+
 def part_checks(results: list[JobResult]) -> dict[tuple[str, int], tuple[bool, float]]:
     """The workers' ``(valid, volume)`` of each tile (``("tile", tile)``) and hinge part
     (``("pad", hinge)``)."""
-    checks: dict[tuple[str, int], tuple[bool, float]] = {}
-    for done in results:
-        if len(done.checks) != 1 + len(done.pads):
-            continue
-        checks[("tile", done.tile)] = done.checks[0]
-        for (hinge, _), fact in zip(done.pads, done.checks[1:], strict=True):
-            checks[("pad", int(hinge))] = fact
-    return checks
+    return _per_part(results, "checks")
 
 
 def part_meshes(results: list[JobResult]) -> dict[tuple[str, int], PartMeshes | None]:
     """The workers' meshes of each tile and hinge part, keyed as :func:`part_checks`."""
-    meshes: dict[tuple[str, int], PartMeshes | None] = {}
-    for done in results:
-        if len(done.meshes) != 1 + len(done.pads):
-            continue
-        meshes[("tile", done.tile)] = done.meshes[0]
-        for (hinge, _), mesh in zip(done.pads, done.meshes[1:], strict=True):
-            meshes[("pad", int(hinge))] = mesh
-    return meshes
+    return _per_part(results, "meshes")
