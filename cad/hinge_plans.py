@@ -25,6 +25,7 @@ from drawstring.cad.features import channel_keep_out
 from drawstring.cad.hinge_frame import StripNeighbours, strip_min_reach_mm
 from drawstring.cad.hinge_parts import StripHoles, strip_hole_plan
 from drawstring.cad.hinge_pins import KeepOut, PinPlan, pin_keep_out, plan_pins, strip_keep_outs
+from drawstring.cad.memo import Memo, content_key
 from drawstring.cad.paths import SIDE_TOP_FACE
 from drawstring.geometry.core.tile import HingeSide
 
@@ -62,7 +63,27 @@ def _feature_keep_outs(
     crowds: Sequence[StripNeighbours],
 ) -> tuple[list[KeepOut], list[list[tuple[int, KeepOut]]]]:
     """Per tile, its channels and lift bores as balls, and its hinges' strips ``(hinge,
-    balls)``."""
+    balls)``: new lists (the caller may change them) of what is worked out once per content
+    of the arrays (:class:`~.memo.Memo`: the reliefs and the pins ask it of the same ones)."""
+    key = content_key(flat, hinge_rows, list(sides), steps, lifts, profile, crowds)
+    keep, strips = _KEEP_OUTS.get(
+        key, lambda: _feature_keep_outs_of(flat, hinge_rows, sides, steps, lifts, profile, crowds)
+    )
+    return list(keep), [list(s) for s in strips]
+
+
+_KEEP_OUTS: Memo[tuple[list[KeepOut], list[list[tuple[int, KeepOut]]]]] = Memo()
+
+
+def _feature_keep_outs_of(
+    flat: NDArray[np.float64],
+    hinge_rows: NDArray[np.int64],
+    sides: Sequence[HingeSide],
+    steps: NDArray[np.int64],
+    lifts: NDArray[np.int64],
+    profile: Profile,
+    crowds: Sequence[StripNeighbours],
+) -> tuple[list[KeepOut], list[list[tuple[int, KeepOut]]]]:
     keep = [KeepOut() for _ in flat]
     for _, tile, enter, leave in steps:
         keep[tile] += channel_keep_out(flat[tile], int(enter), int(leave), profile)
@@ -91,9 +112,30 @@ def design_reliefs(
     together (``clearance_mm > 0``), measured against what the tiles hold
     (:func:`relief_keep_outs`), with tiles not hinged together that still come closer than the
     clearance cut apart (:func:`~drawstring.cad.clearance.apart_reliefs`); None for loose
-    tiles or no hinges."""
+    tiles or no hinges.
+
+    Worked out once per content of the arrays (:class:`~.memo.Memo`): the route's checks, the
+    CAD stage's and the solids ask it of the same ones.  The result is shared: read-only."""
     if not (clearance_mm > 0 and len(hinge_rows)):
         return None
+    key = content_key(flat, hinge_rows, list(sides), steps, lifts, profile, clearance_mm)
+    return _RELIEFS.get(
+        key, lambda: _design_reliefs(flat, hinge_rows, sides, steps, lifts, profile, clearance_mm)
+    )
+
+
+_RELIEFS: Memo[HingeReliefs] = Memo()
+
+
+def _design_reliefs(
+    flat: NDArray[np.float64],
+    hinge_rows: NDArray[np.int64],
+    sides: Sequence[HingeSide],
+    steps: NDArray[np.int64],
+    lifts: NDArray[np.int64],
+    profile: Profile,
+    clearance_mm: float,
+) -> HingeReliefs:
     crowds = strip_neighbours(hinge_rows, sides)
     keep_out = relief_keep_outs(flat, hinge_rows, sides, steps, lifts, profile, crowds)
     wall = feature_wall_mm(profile)

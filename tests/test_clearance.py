@@ -272,6 +272,45 @@ def test_a_hinge_no_relief_clears_is_a_feature_shortfall_before_any_solid() -> N
     assert feature_shortfall(profile, tiles, far, no_lifts, hinge, ["top"]) is None
 
 
+def test_hinge_reliefs_are_worked_out_once_per_content_of_their_arrays() -> None:
+    # The route's checks, the CAD stage's and the solids ask for the reliefs of the same
+    # arrays: the second ask with equal arrays (new objects) gets the first result itself;
+    # other arrays (a channel moved) get their own, the one worked out afresh.
+    from drawstring.cad import hinge_plans
+    from drawstring.cad.memo import content_key
+    from drawstring.fabrication.profiles import load_profile
+
+    profile = load_profile("fdm-dual")
+    tiles = _hinged_pair(12.0, 6.0)
+    for tile in tiles:
+        centre = tile[4:, :2].mean(axis=0)
+        tile[4:, :2] = centre + 1.5 * (tile[4:, :2] - centre)
+    hinge = np.array([[0, 0, 1, 0]])
+    no_lifts = np.zeros((0, 2), dtype=np.int64)
+    at_hinge = np.array([[0, 0, 0, 3], [1, 1, 0, 3]])
+    far = np.array([[0, 0, 1, 2], [1, 1, 0, 3]])
+    first = hinge_plans.design_reliefs(tiles, hinge, ["top"], at_hinge, no_lifts, profile, 0.4)
+    again = hinge_plans.design_reliefs(
+        tiles.copy(), hinge.copy(), ["top"], at_hinge.copy(), no_lifts, profile, 0.4
+    )
+    assert again is first
+    other = hinge_plans.design_reliefs(tiles, hinge, ["top"], far, no_lifts, profile, 0.4)
+    assert other is not None and first is not None and other.hollowed != first.hollowed
+    hinge_plans._RELIEFS.clear()
+    hinge_plans._KEEP_OUTS.clear()
+    fresh = hinge_plans.design_reliefs(tiles, hinge, ["top"], far, no_lifts, profile, 0.4)
+    assert fresh is not None and fresh is not other
+    assert (fresh.skipped, fresh.hollowed, fresh.apart) == (other.skipped, other.hollowed, ())
+    assert fresh.hollows.keys() == other.hollows.keys()
+    for tile, polyhedra in fresh.hollows.items():
+        for made, kept in zip(polyhedra, other.hollows[tile], strict=True):
+            assert np.array_equal(made, kept)
+    # the key tells arrays apart by dtype and shape as well as bytes
+    assert content_key(np.zeros(4)) != content_key(np.zeros((2, 2)))
+    assert content_key(np.zeros(4)) != content_key(np.zeros(4, dtype=np.int64))
+    assert content_key(at_hinge) == content_key(at_hinge.copy())
+
+
 def test_a_hinge_left_unrelieved_with_room_to_spare_still_ranks_as_a_finite_shortfall() -> None:
     # Tiles 1 deg apart whose bottoms spread three times their tops, with no string through
     # them: the relief would take over half a tile, so the hinge is left unrelieved although
