@@ -18,11 +18,22 @@ import build123d as bd
 import manifold3d
 import numpy as np
 from numpy.typing import NDArray
+from OCP.Bnd import Bnd_Box
+from OCP.BRepAdaptor import BRepAdaptor_Surface
+from OCP.BRepBndLib import BRepBndLib
+from OCP.GeomAbs import GeomAbs_Plane
+from OCP.TopAbs import TopAbs_FACE
+from OCP.TopoDS import TopoDS
 from scipy.spatial import cKDTree
 
 from drawstring.cad.design import route_links
 from drawstring.cad.feature_common import channel_radius
-from drawstring.cad.kernel import CheckMesh, check_mesh, solid_checks
+from drawstring.cad.kernel import (
+    CheckMesh,
+    check_mesh,
+    solid_checks,
+    unique_subshapes,
+)
 from drawstring.cad.magnets_labels import MagnetPair
 from drawstring.cad.part_mesh import PartMeshes
 from drawstring.cad.paths import face_planes
@@ -232,9 +243,7 @@ def face_openings(
     """
     unit = np.asarray(normal, dtype=np.float64) / np.linalg.norm(normal)
     found = []
-    for face in solid.faces():
-        if face.geom_type != bd.GeomType.PLANE:
-            continue
+    for face in _near_plane_faces(solid, np.asarray(point, dtype=np.float64), unit, tol):
         centre = np.array(tuple(face.center()))
         face_normal = np.array(tuple(face.normal_at()))
         if abs(abs(face_normal @ unit) - 1.0) > 1e-6 or abs((centre - point) @ unit) > tol:
@@ -247,6 +256,41 @@ def face_openings(
             radius = float(np.linalg.norm(samples - middle, axis=1).mean())
             found.append((middle, radius))
     return found
+
+
+def _near_plane_faces(
+    solid: bd.Shape, point: NDArray[np.float64], unit: NDArray[np.float64], tol: float
+) -> list[bd.Face]:
+    """The planar faces of ``solid``, in ``solid.faces()``'s order, that may lie in the plane
+    (``point``, ``unit``) as :func:`face_openings` asks it (normal within 1e-6, centre within
+    ``tol``), found from each face's plane alone: no face's centre of mass is computed for
+    the many that lie elsewhere.
+
+    A face that passes :func:`face_openings`' test has a normal ``n`` within ``sqrt(2e-6)``
+    of ``+-unit`` and a centre ``c`` on its plane, so its plane passes within ``tol +
+    |point - c| sqrt(2e-6)`` of ``point``; ``|point - c|`` is at most the distance from
+    ``point`` to the far corner of the solid's bounding box.  The bounds kept here are
+    looser still, so no such face is left out."""
+    box = Bnd_Box()
+    BRepBndLib.Add_s(solid.wrapped, box, False)  # encloses the solid, maybe loosely
+    low, high = np.array([box.CornerMin().Coord(), box.CornerMax().Coord()])
+    reach = float(np.linalg.norm(np.maximum(np.abs(point - low), np.abs(high - point))))
+    within = tol + 2e-3 * reach + 1e-6
+    (ux, uy, uz), (px, py, pz) = unit.tolist(), point.tolist()
+    faces = []
+    for face in unique_subshapes(solid.wrapped, TopAbs_FACE):
+        surface = BRepAdaptor_Surface(TopoDS.Face(face))
+        if surface.GetType() != GeomAbs_Plane:
+            continue
+        plane = surface.Plane()
+        ax, ay, az = plane.Axis().Direction().Coord()
+        if abs(abs(ax * ux + ay * uy + az * uz) - 1.0) > 1e-4:
+            continue
+        ox, oy, oz = plane.Location().Coord()
+        if abs((px - ox) * ax + (py - oy) * ay + (pz - oz) * az) > within:
+            continue
+        faces.append(bd.Face(face))
+    return faces
 
 
 #: Depth (mm) under a side face's centroid at which :func:`_opening` probes for a channel whose

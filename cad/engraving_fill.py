@@ -18,7 +18,6 @@ from OCP.TopAbs import (
     TopAbs_EDGE,
     TopAbs_FACE,
     TopAbs_FORWARD,
-    TopAbs_ShapeEnum,
     TopAbs_SHELL,
     TopAbs_VERTEX,
 )
@@ -27,6 +26,7 @@ from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Iterator, TopoDS_Shape, TopoD
 from scipy.spatial import ConvexHull
 
 from drawstring.cad.feature_common import TOOL_OVERSHOOT_MM
+from drawstring.cad.kernel import unique_subshapes as _unique
 
 log = logging.getLogger(__name__)
 
@@ -55,12 +55,12 @@ def fill_engraving(
     )
     faces = _unique(solid.wrapped, TopAbs_FACE)
     removed, pocket_edges = _ShapeSet(), _ShapeSet()
-    for face in faces:
+    for face in _maybe_in_prisms(faces, normals, offsets):
         points = np.array(
             [BRep_Tool.Pnt_s(TopoDS.Vertex(v)).Coord() for v in _unique(face, TopAbs_VERTEX)]
         ).reshape(-1, 3)
         # inside a prism: every point on the inner side of each of its faces
-        if len(points) and bool(np.any(np.all(points @ normals - offsets <= 1e-5, axis=(1, 2)))):
+        if len(points) and bool(np.any(_inside(points, normals, offsets))):
             removed.Add(face)
             for edge in _unique(face, TopAbs_EDGE):
                 pocket_edges.Add(edge)
@@ -114,6 +114,33 @@ def fill_engraving(
     return filled, rims
 
 
+def _inside(
+    points: NDArray[np.float64], normals: NDArray[np.float64], offsets: NDArray[np.float64]
+) -> NDArray[np.bool_]:
+    """(P,) whether all ``points`` ((k, 3)) lie in each prism (:func:`_stacked`), to 1e-5 mm."""
+    return np.asarray(np.all(points @ normals - offsets <= 1e-5, axis=(1, 2)))
+
+
+def _maybe_in_prisms(
+    faces: list[TopoDS_Shape], normals: NDArray[np.float64], offsets: NDArray[np.float64]
+) -> list[TopoDS_Shape]:
+    """The ``faces`` (in order) whose first vertex lies in a prism: only those can have all
+    their vertices in one, so the others are passed over without listing their vertices."""
+    firsts, kept = [], []
+    for face in faces:
+        explorer = TopExp_Explorer(face, TopAbs_VERTEX)
+        if explorer.More():
+            firsts.append(BRep_Tool.Pnt_s(TopoDS.Vertex(explorer.Current())).Coord())
+            kept.append(face)
+    if not kept:
+        return []
+    points = np.array(firsts, dtype=np.float64)[:, None, None, :]  # (F, 1, 1, 3)
+    # per face and prism: the point on the inner side of each of the prism's faces (a
+    # nanometre looser than :func:`_inside`, which decides on the faces passed on)
+    inside = np.all(points @ normals - offsets <= 1e-5 + 1e-9, axis=(2, 3))  # (F, P)
+    return [face for face, hit in zip(kept, inside.any(axis=1), strict=True) if hit]
+
+
 def _filled_valid(filled: bd.Solid, rebuilt: Sequence[TopoDS_Face]) -> bool:
     """Whether the solid :func:`fill_engraving` made passes BRepCheck where it differs from
     the engraved solid, which its builder checked whole: each face rebuilt without its
@@ -155,18 +182,6 @@ class _ShapeSet:
 
     def __bool__(self) -> bool:
         return bool(self._by_hash)
-
-
-def _unique(shape: TopoDS_Shape, kind: TopAbs_ShapeEnum) -> list[TopoDS_Shape]:
-    """The sub-shapes of one kind in ``shape``, each once, in the order build123d lists them
-    (``Shape.faces()`` and the like: first found, the last occurrence kept)."""
-    found: dict[int, TopoDS_Shape] = {}
-    explorer = TopExp_Explorer(shape, kind)
-    while explorer.More():
-        item = explorer.Current()
-        found[hash(item)] = item
-        explorer.Next()
-    return list(found.values())
 
 
 def _corners(wire: TopoDS_Wire) -> NDArray[np.float64]:

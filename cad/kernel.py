@@ -26,7 +26,7 @@ from OCP.BRepTools import BRepTools
 from OCP.collections import Array1_double, Array1_gp_Pnt, Array1_int, List_TopoDS_Shape
 from OCP.Geom import Geom_BSplineCurve
 from OCP.gp import gp_Dir, gp_Pln, gp_Pnt
-from OCP.TopAbs import TopAbs_FACE, TopAbs_REVERSED, TopAbs_SOLID
+from OCP.TopAbs import TopAbs_FACE, TopAbs_REVERSED, TopAbs_ShapeEnum, TopAbs_SOLID
 from OCP.TopExp import TopExp_Explorer
 from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS, TopoDS_Shape, TopoDS_Shell, TopoDS_Solid
@@ -163,6 +163,19 @@ def fuse(base: bd.Solid, tools: Sequence[bd.Shape]) -> bd.Solid:
     if len(solids) == 1:  # the usual case: no volume integration needed to pick it
         return solids[0]
     return max(solids, key=lambda s: s.volume)
+
+
+def unique_subshapes(shape: TopoDS_Shape, kind: TopAbs_ShapeEnum) -> list[TopoDS_Shape]:
+    """The sub-shapes of one kind in ``shape``, each once, in the order build123d lists them
+    (``Shape.faces()`` and the like: first found, the last occurrence kept), without wrapping
+    each in a build123d object."""
+    found: dict[int, TopoDS_Shape] = {}
+    explorer = TopExp_Explorer(shape, kind)
+    while explorer.More():
+        item = explorer.Current()
+        found[hash(item)] = item
+        explorer.Next()
+    return list(found.values())
 
 
 def bounding_box(shape: bd.Shape) -> NDArray[np.float64]:

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from drawstring.cad.memo import Memo, content_key
 from drawstring.geometry.core.errors import InternalError
 from drawstring.geometry.core.tile import CAD_FACE_ORDER, TILE_FACES, Face
 
@@ -245,7 +246,20 @@ def route_openings(
     -------
     entry, exit : (S, 3) float, mm.
     inside : (S,) float, mm.
+
+    Worked out once per content of ``tiles`` and ``steps`` (:class:`~.memo.Memo`: every
+    length an output states and the pictures ask it of the same ones); the arrays are shared,
+    read-only.
     """
+    return _OPENINGS.get(content_key(tiles, steps), lambda: _route_openings(tiles, steps))
+
+
+_OPENINGS: Memo[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]] = Memo()
+
+
+def _route_openings(
+    tiles: NDArray[np.float64], steps: NDArray[np.int64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     entries, exits, inside = [], [], []
     for _, tile, enter, leave in steps:
         vertices = tiles[tile]
@@ -261,7 +275,10 @@ def route_openings(
         entries.append(a)
         exits.append(b)
         inside.append(length)
-    return np.array(entries).reshape(-1, 3), np.array(exits).reshape(-1, 3), np.array(inside)
+    found = (np.array(entries).reshape(-1, 3), np.array(exits).reshape(-1, 3), np.array(inside))
+    for array in found:
+        array.setflags(write=False)
+    return found
 
 
 def _bore(
