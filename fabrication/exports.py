@@ -41,13 +41,7 @@ from drawstring.fabrication.processes.plywood_cnc import PlywoodCnc
 from drawstring.fabrication.profiles import Process, string_is_cable
 from drawstring.fabrication.record import AssemblyGuide, ExportRecord, GuideInputs
 from drawstring.fabrication.slicing import finish_slicing, print_rows, start_slicing
-from drawstring.fabrication.step import (
-    StepJob,
-    StepPart,
-    finish_writers,
-    start_step_writers,
-    stop_writers,
-)
+from drawstring.fabrication.step import StepJob, StepPart, start_step_writers
 
 if TYPE_CHECKING:
     from drawstring.cad.design import CadResult
@@ -140,7 +134,7 @@ def write_fabrication(
     writer = WRITERS[profile.process](job)
     # OCCT's STEP writer is serial and the slowest export: write both files in forked
     # processes (they inherit the solids, nothing is pickled) while the rest is made here.
-    step_processes = start_step_writers(_step_jobs(job, cad_assembled), workers)
+    step_writing = start_step_writers(_step_jobs(job, cad_assembled), workers)
     slicing = None
     try:
         job.written += ["flat.step", "assembled.step"]
@@ -150,7 +144,7 @@ def write_fabrication(
         )
         writer.render(measures)
         if slice_beds:
-            finish_writers(job.writing)  # the slicer reads the 3MF files
+            job.writing.results()  # the slicer reads the 3MF files
             slicing = start_slicing(job)
         _rows(job, writer, measures)
         if slicing is not None:
@@ -159,11 +153,13 @@ def write_fabrication(
         job.written.append("bom.csv")
         if guide is not None:
             job.written += guide(out, _guide_inputs(job, panels))
+        job.writing.results()  # the manifest reads their files
+        step_writing.results()
     except BaseException:
         # an error or Ctrl-C: they write into the staging folder, about to be removed
-        stop_writers([*step_processes, *job.writing])
+        step_writing.stop()
+        job.writing.stop()
         raise
-    finish_writers([*step_processes, *job.writing])  # the manifest reads their files
     _write_manifest(job)
     return sorted(f"fabrication/{name}" for name in job.written)
 

@@ -1,25 +1,23 @@
 """The STEP files of the fabrication folder: assemblies with a named, coloured part per tile and
 hinge part, written deterministically (a fixed header timestamp, colour entities in an order of
 their own rather than OCCT's, which follows memory addresses), in forked processes beside the
-rest of the exports, since OCCT's STEP writer is serial and the slowest export.
+rest of the exports (:mod:`.beside`), since OCCT's STEP writer is serial and the slowest export.
 """
 
 from __future__ import annotations
 
 import itertools
-import multiprocessing
 import re
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import build123d as bd
 import numpy as np
 from numpy.typing import NDArray
 
 from drawstring.cad.tiles import move_solid
-from drawstring.geometry.core import parallel
+from drawstring.fabrication.beside import Beside
 
 #: Fixed timestamp written into STEP headers.
 STEP_TIMESTAMP = "2000-01-01T00:00:00"
@@ -342,57 +340,17 @@ def _wrap_step(entity: str) -> str:
 
 
 # --------------------------------------------------------------------------------------------
-# writing in forked processes
+# writing beside the caller
 
 
 #: A STEP file to write: path, parts, label and motions (:func:`write_step`).
 StepJob = tuple[Path, Sequence[tuple[str, bd.Shape, str | None]], str, NDArray[np.float64] | None]
 
 
-def start_step_writers(jobs: Sequence[StepJob], workers: int | None) -> list[Any]:
-    """Write the STEP files in forked processes, or here when fork is unavailable or
-    ``workers == 1``."""
-    return start_writers([(write_step, tuple(job), {}) for job in jobs], workers)
-
-
-#: A file to write in a forked process: the function and its arguments.
-Writing = tuple[Callable[..., object], tuple[Any, ...], dict[str, Any]]
-
-
-def start_writers(writings: Sequence[Writing], workers: int | None) -> list[Any]:
-    """Each ``write(*args, **kwargs)`` in a forked process (they inherit what they write,
-    nothing is pickled), or here when fork is unavailable or ``workers == 1``; the processes
-    started, for :func:`finish_writers`."""
-    if workers == 1 or "fork" not in multiprocessing.get_all_start_methods():
-        for write, args, kwargs in writings:
-            write(*args, **kwargs)
-        return []
-    context = multiprocessing.get_context("fork")
-    processes = [context.Process(target=_writer, args=writing) for writing in writings]
-    with parallel.sigint_held():  # each takes Ctrl-C once its quiet exit is set
-        for process in processes:
-            process.start()
-    return processes
-
-
-def _writer(write: Callable[..., object], args: tuple[Any, ...], kwargs: dict[str, Any]) -> None:
-    """Body of a writing process."""
-    parallel.exit_quietly_on_interrupt()
-    write(*args, **kwargs)
-
-
-def stop_writers(processes: Sequence[Any]) -> None:
-    """End writing processes still running (their folder is about to be removed)."""
-    for process in processes:
-        if process.is_alive():
-            process.terminate()
-    for process in processes:
-        process.join()
-
-
-def finish_writers(processes: Sequence[Any]) -> None:
-    """Wait for the writing processes; a failed one raises."""
-    for process in processes:
-        process.join()
-        if process.exitcode != 0:
-            raise RuntimeError(f"writing a fabrication file failed (exit code {process.exitcode})")
+def start_step_writers(jobs: Sequence[StepJob], workers: int | None) -> Beside:
+    """Write the STEP files in forked processes at the caller's priority (they are the
+    longest writers), or here when fork is unavailable or ``workers == 1``."""
+    writing = Beside(workers)
+    for job in jobs:
+        writing.start(job[0].name, write_step, *job)
+    return writing

@@ -13,11 +13,13 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
+from typing import cast
 
+from drawstring.fabrication.beside import SHORT_WRITER_NICENESS as NICENESS
+from drawstring.fabrication.beside import Beside
 from drawstring.geometry.core import parallel
 from drawstring.geometry.core.errors import InputError
-from drawstring.pipeline.ahead import Ahead, can_fork
-from drawstring.pipeline.record import Design, Progress, Writer
+from drawstring.pipeline.record import Design, Writer
 
 
 def default_out_dir(target: str | os.PathLike[str]) -> Path:
@@ -153,22 +155,18 @@ def write_design(
 
     out = check_out_dir(out_dir)
     staging = staging_dir(out)
-    beside: Ahead[list[str]] | None = None
+    beside = Beside()
     try:
         chosen = writers or DEFAULT_WRITERS
-        apart = [w for w in chosen if w in _beside_writers()] if can_fork() else []
+        apart = [w for w in chosen if w in _beside_writers()] if beside.forks else []
         if apart:
-            beside = Ahead(
-                lambda _: _written(apart, result, staging), "writing the pictures", niceness=0
-            )
+            beside.start("the pictures", _written, apart, result, staging, niceness=NICENESS)
         files: list[str] = []
         for writer in chosen:
             if writer not in apart:
                 files.extend(writer(result, staging))
-        if beside is not None:
-            done = beside.result(Progress(quiet=True))
-            beside = None
-            files.extend(done if done is not None else _written(apart, result, staging))
+        for written in beside.results():
+            files.extend(cast(list[str], written))
         document = result.to_json()
         document["files"] = sorted([*files, "design.json", "report.html"])
         (staging / "design.json").write_text(
@@ -178,8 +176,7 @@ def write_design(
         os.chmod(staging, 0o755)
         place_staged(staging, out)
     except BaseException as exc:
-        if beside is not None:  # it writes into the staging folder, about to be removed
-            beside.cancel()
+        beside.stop()  # it writes into the staging folder, about to be removed
         shutil.rmtree(staging, ignore_errors=True)
         if isinstance(exc, OSError):
             raise placement_error(out, exc) from None
@@ -189,7 +186,8 @@ def write_design(
 
 def _beside_writers() -> frozenset[Writer]:
     """Writers that only draw pictures from the design's arrays (matplotlib, one core): with
-    two cores :func:`write_design` runs them in a forked process beside the others."""
+    two cores :func:`write_design` runs them in a forked process beside the others
+    (:class:`~drawstring.fabrication.beside.Beside`), nicer than the STEP writers."""
     from drawstring.output.writers import write_deployment, write_pictures, write_stage_pictures
 
     return frozenset((write_pictures, write_stage_pictures, write_deployment))

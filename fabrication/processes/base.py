@@ -3,6 +3,7 @@ interface (:class:`ProcessWriter`) and the helpers for bom.csv rows and nested s
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -10,6 +11,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+from drawstring.fabrication.beside import SHORT_WRITER_NICENESS, Beside
 from drawstring.fabrication.record import ExportRecord
 from drawstring.geometry.core.types import FloatArray, IntArray
 
@@ -56,15 +58,22 @@ class FabricationJob:
     written: list[str] = field(default_factory=list)
     #: files still being written in forked processes (:meth:`write_beside`), which
     #: :func:`~drawstring.fabrication.exports.write_fabrication` waits for
-    writing: list[Any] = field(default_factory=list)
+    writing: Beside = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.writing = Beside(self.workers)
 
     def write_beside(self, write: Callable[..., object], *args: Any, **kwargs: Any) -> None:
         """``write(*args, **kwargs)`` in a forked process while the caller goes on (here where
         fork is unavailable or ``workers == 1``): a file nothing else in the folder reads
-        before the manifest, such as a 3MF, whose text and compression take seconds."""
-        from drawstring.fabrication.step import start_writers
-
-        self.writing += start_writers([(write, args, kwargs)], self.workers)
+        before the manifest, such as a 3MF, whose text and compression take seconds.  It
+        runs nicer than the STEP writers, which take longer."""
+        self.writing.start(
+            args[0].name if args and isinstance(args[0], Path) else write.__name__,
+            functools.partial(write, **kwargs),
+            *args,
+            niceness=SHORT_WRITER_NICENESS,
+        )
 
 
 class ProcessWriter:
