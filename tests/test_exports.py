@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import errno
 import itertools
 import json
 import math
+import multiprocessing
 import os
 import re
 import shutil
@@ -30,7 +32,9 @@ from drawstring.cad.design import CadResult, build_design_solids, normalize_rout
 from drawstring.cad.magnets_labels import _segment_rectangles, label_depth  # noqa: E402
 from drawstring.cad.part_mesh import TRIANGLE_BUDGET  # noqa: E402
 from drawstring.cad.tiles import move_solid, tile_solid  # noqa: E402
+from drawstring.fabrication import step  # noqa: E402
 from drawstring.fabrication.beds import TILE_SPACING_MM  # noqa: E402
+from drawstring.fabrication.beside import can_fork  # noqa: E402
 from drawstring.fabrication.dxf import (  # noqa: E402
     CUT_LAYERS,
     LAYER_CUT_OUTER,
@@ -213,6 +217,69 @@ def test_repeat_run_in_a_fresh_process_is_byte_identical(
     assert names == built.files
     for name in built.files:
         assert (built.folder / name).read_bytes() == (again / name).read_bytes(), name
+
+
+def test_writing_beside_gives_the_serial_bytes(built: Built, tmp_path: Path) -> None:
+    """The STEP and 3MF files written in forked children (``workers`` unset) are the files
+    the fixture wrote one after the other in this process (``workers=1``)."""
+    if not can_fork():
+        pytest.skip("processes cannot fork here")
+    d = built.design
+    files = write_fabrication(
+        tmp_path,
+        profile=built.profile,
+        linkage=d.linkage,
+        tiles_flat=d.tiles_2d,
+        tiles_assembled=d.tiles_3d,
+        hinge_side=d.hinge_side,
+        route_steps=d.route_steps,
+        lift_tiles=d.lift_tiles,
+        magnet_pairs=d.magnet_pairs,
+        trims=d.trims,
+        cad_flat=built.flat,
+        cad_assembled=built.assembled,
+        design_name="sample",
+        guide=write_guide,
+    )
+    assert files == built.files
+    for name in files:
+        assert (tmp_path / name).read_bytes() == (built.folder / name).read_bytes(), name
+
+
+@pytest.mark.parametrize("workers", [1, None])
+def test_a_failing_step_writer_raises_its_own_error(
+    built: Built, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, workers: int | None
+) -> None:
+    """A STEP writer that fails (a full disk) raises the same OSError in a forked child as
+    here, which the design folder turns into its one-line refusal; the other writers stop."""
+    if built.profile.name != "fdm-dual":
+        pytest.skip("one profile suffices")
+
+    def full_disk(path: Path, *_: object) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(step, "write_step", full_disk)
+    d = built.design
+    with pytest.raises(OSError) as raised:
+        write_fabrication(
+            tmp_path,
+            profile=built.profile,
+            linkage=d.linkage,
+            tiles_flat=d.tiles_2d,
+            tiles_assembled=d.tiles_3d,
+            hinge_side=d.hinge_side,
+            route_steps=d.route_steps,
+            lift_tiles=d.lift_tiles,
+            magnet_pairs=d.magnet_pairs,
+            trims=d.trims,
+            cad_flat=built.flat,
+            cad_assembled=built.assembled,
+            design_name="sample",
+            workers=workers,
+        )
+    assert raised.value.errno == errno.ENOSPC
+    assert raised.value.filename == str(tmp_path / "fabrication" / "flat.step")
+    assert multiprocessing.active_children() == []
 
 
 #: Writes a STEP assembly of twelve coloured boxes to argv[1].
