@@ -8,17 +8,16 @@ which :meth:`Beside.results` raises here as the writer would have raised it in t
 the same exit status and the same one line, never a child's traceback.  A child that ends
 without an answer (killed) is an :class:`InternalError` naming its file.
 
-The children run ``niceness`` steps nicer than this process: the longest writer (a STEP
-file) keeps a core while the shorter ones share what is left.  Where fork is unsafe or
-unavailable (macOS, Windows, a daemonic process, one core), or ``workers == 1``, each writer
-runs here when it is started: the same files, one after the other.
+The children run at this process's priority, so that on a busy machine they keep their share
+of it.  Where fork is unsafe or unavailable (macOS, Windows, a daemonic process, one core), or
+``workers == 1``, each writer runs here when it is started: the same files, one after the
+other.
 """
 
 from __future__ import annotations
 
 import contextlib
 import multiprocessing
-import os
 import pickle
 import sys
 from collections.abc import Callable
@@ -27,10 +26,6 @@ from typing import Any
 
 from drawstring.geometry.core import parallel
 from drawstring.geometry.core.errors import InternalError
-
-#: Niceness of a child writing a file nothing waits on first (pictures, 3MF): the STEP
-#: writers, the longest, run at the caller's priority.
-SHORT_WRITER_NICENESS = 5
 
 
 def can_fork() -> bool:
@@ -48,13 +43,11 @@ def can_fork() -> bool:
 class _Child:
     """One writer's forked process and the pipe its answer comes back through."""
 
-    def __init__(
-        self, what: str, write: Callable[..., object], args: tuple[Any, ...], niceness: int
-    ) -> None:
+    def __init__(self, what: str, write: Callable[..., object], args: tuple[Any, ...]) -> None:
         self.what = what
         context = multiprocessing.get_context("fork")
         self.receive, send = context.Pipe(duplex=False)
-        self.process = context.Process(target=_child, args=(write, args, send, niceness))
+        self.process = context.Process(target=_child, args=(write, args, send))
         try:
             with parallel.sigint_held():  # the child takes Ctrl-C once its quiet exit is set
                 self.process.start()
@@ -101,13 +94,13 @@ class Beside:
         self.forks = workers != 1 and can_fork()
         self._started: list[tuple[bool, object]] = []  # (in a child, its _Child or result)
 
-    def start(self, what: str, write: Callable[..., object], *args: Any, niceness: int = 0) -> None:
+    def start(self, what: str, write: Callable[..., object], *args: Any) -> None:
         """Write ``what`` (a file name, for the error of a child that died) with
-        ``write(*args)``, in a child ``niceness`` steps nicer than this process."""
+        ``write(*args)``."""
         if not self.forks:
             self._started.append((False, write(*args)))
             return
-        self._started.append((True, _Child(what, write, args, niceness)))
+        self._started.append((True, _Child(what, write, args)))
 
     def results(self) -> list[object]:
         """What each writer returned, in the order started; raises what one raised."""
@@ -134,14 +127,10 @@ def _stop(started: list[tuple[bool, object]]) -> None:
             item.stop()
 
 
-def _child(
-    write: Callable[..., object], args: tuple[Any, ...], send: Connection, niceness: int
-) -> None:
+def _child(write: Callable[..., object], args: tuple[Any, ...], send: Connection) -> None:
     """Body of a writing process: the writer's result or exception goes back through
     ``send``; the process ends with status 1 after an exception, without printing it."""
     parallel.exit_quietly_on_interrupt()
-    with contextlib.suppress(OSError):
-        os.nice(niceness)
     try:
         answer: tuple[str, object] = ("ok", write(*args))
     except Exception as exc:

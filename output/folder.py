@@ -15,7 +15,6 @@ import tempfile
 from pathlib import Path
 from typing import cast
 
-from drawstring.fabrication.beside import SHORT_WRITER_NICENESS as NICENESS
 from drawstring.fabrication.beside import Beside
 from drawstring.geometry.core import parallel
 from drawstring.geometry.core.errors import InputError
@@ -160,7 +159,7 @@ def write_design(
         chosen = writers or DEFAULT_WRITERS
         apart = [w for w in chosen if w in _beside_writers()] if beside.forks else []
         if apart:
-            beside.start("the pictures", _written, apart, result, staging, niceness=NICENESS)
+            beside.start("the pictures", _written, apart, result, staging)
         files: list[str] = []
         for writer in chosen:
             if writer not in apart:
@@ -187,7 +186,7 @@ def write_design(
 def _beside_writers() -> frozenset[Writer]:
     """Writers that only draw pictures from the design's arrays (matplotlib, one core): with
     two cores :func:`write_design` runs them in a forked process beside the others
-    (:class:`~drawstring.fabrication.beside.Beside`), nicer than the STEP writers."""
+    (:class:`~drawstring.fabrication.beside.Beside`)."""
     from drawstring.output.writers import write_deployment, write_pictures, write_stage_pictures
 
     return frozenset((write_pictures, write_stage_pictures, write_deployment))

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from drawstring.fabrication.beside import SHORT_WRITER_NICENESS, Beside
+from drawstring.fabrication.beside import Beside
 from drawstring.fabrication.record import ExportRecord
 from drawstring.geometry.core.types import FloatArray, IntArray
 
@@ -66,13 +66,11 @@ class FabricationJob:
     def write_beside(self, write: Callable[..., object], *args: Any, **kwargs: Any) -> None:
         """``write(*args, **kwargs)`` in a forked process while the caller goes on (here where
         fork is unavailable or ``workers == 1``): a file nothing else in the folder reads
-        before the manifest, such as a 3MF, whose text and compression take seconds.  It
-        runs nicer than the STEP writers, which take longer."""
+        before the manifest, such as a 3MF, whose text and compression take seconds."""
         self.writing.start(
             args[0].name if args and isinstance(args[0], Path) else write.__name__,
             functools.partial(write, **kwargs),
             *args,
-            niceness=SHORT_WRITER_NICENESS,
         )
 
 
