@@ -34,6 +34,7 @@ SAMPLES = HERE / "data" / "print_samples.json"
 
 from drawstring.fabrication import exports, slicer  # noqa: E402
 from drawstring.fabrication import print_estimate as pe  # noqa: E402
+from drawstring.fabrication.beside import Beside  # noqa: E402
 from drawstring.fabrication.mesh3mf import PartMesh  # noqa: E402
 from drawstring.fabrication.printers import load_printer, with_printer  # noqa: E402
 from drawstring.fabrication.profiles import load_profile  # noqa: E402
@@ -213,14 +214,14 @@ def report(samples: list[dict], weights: dict[str, list[float]]) -> None:
         )
 
 
-def _placeholder_step_files(jobs: list[tuple[Any, ...]], workers: int | None) -> list:
+def _placeholder_step_files(jobs: list[tuple[Any, ...]], workers: int | None) -> Beside:
     """Stands in for the STEP writers here (each job's first item is its file's path): the
     printing time does not depend on the STEP files, which take most of a 200-tile design's
     writing time."""
     del workers
     for path, *_ in jobs:
         path.write_text("left out by benchmarks/calibrate_print.py\n", encoding="utf-8")
-    return []
+    return Beside(workers=1)
 
 
 def builtin_rows(folder: Path, names: list[str]) -> None:
