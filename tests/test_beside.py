@@ -86,7 +86,7 @@ def test_an_error_is_raised_as_the_writer_raised_it(
         beside.results()
     assert type(raised.value) is kind
     assert str(raised.value).startswith(message)
-    if kind is OSError:
+    if isinstance(raised.value, OSError):
         assert raised.value.filename == str(tmp_path / "bad.txt")
 
 
@@ -129,3 +129,57 @@ def test_a_child_prints_no_traceback(tmp_path: Path, capfd: pytest.CaptureFixtur
     with pytest.raises(OSError):
         beside.results()
     assert "Traceback" not in capfd.readouterr().err
+
+
+def test_a_design_folder_written_beside_is_the_serial_one(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A small design with CAD and its deployment, written with the pictures, the STEP files
+    and the 3MF in forked children, and written with fork unavailable: the same bytes in
+    every file."""
+    _needs_fork(None)
+    from drawstring.fabrication import beside
+    from drawstring.output.folder import write_design
+    from drawstring.pipeline.record import DesignOptions
+    from drawstring.pipeline.run import design
+
+    children: list[str] = []
+
+    class Counted(beside._Child):
+        def __init__(self, what: str, *args: object) -> None:
+            children.append(what)
+            super().__init__(what, *args)
+
+    monkeypatch.setattr(beside, "_Child", Counted)
+    result = design("saddle", DesignOptions(grid=(3, 3), resolution=1500))
+    forked = write_design(result, tmp_path / "forked")
+    assert sorted(children) == ["assembled.step", "flat.step", "print.3mf", "the pictures"]
+    monkeypatch.setattr(beside, "can_fork", lambda: False)
+    serial = write_design(result, tmp_path / "serial")
+    assert len(children) == 4
+    names = sorted(p.relative_to(forked).as_posix() for p in forked.rglob("*") if p.is_file())
+    assert "fabrication/flat.step" in names and "deploy.gif" in names
+    assert names == sorted(
+        p.relative_to(serial).as_posix() for p in serial.rglob("*") if p.is_file()
+    )
+    for name in names:
+        assert (forked / name).read_bytes() == (serial / name).read_bytes(), name
+
+
+def _in_a_daemon(path: Path) -> None:
+    beside = Beside()
+    beside.start(path.name, _write, path, "forks" if beside.forks else "here")
+    beside.results()
+
+
+def test_a_daemonic_process_writes_here(tmp_path: Path) -> None:
+    """A daemonic process (a Dask nanny's worker) may not have children: its writers run in
+    it, one after the other."""
+    _needs_fork(None)
+    process = multiprocessing.get_context("fork").Process(
+        target=_in_a_daemon, args=(tmp_path / "a.txt",), daemon=True
+    )
+    process.start()
+    process.join(60)
+    assert process.exitcode == 0
+    assert (tmp_path / "a.txt").read_text() == "here"
