@@ -330,10 +330,13 @@ class _CloseTrial:
         it meets the 1e-3 mm targets and sits closer to the target on average and no farther
         at most; while the kept one misses the fit level (and was not polished), laid out so
         again from its own assembled shape, up to ``policy.close_fit_top_passes`` times.
-        ``tried`` gets the measures of each pass as ``co_surface`` (each with its polish's,
-        and the kept layout's)."""
+        A pass whose co-optimization is refused (folding a tile: ``policy.co_required``,
+        at its first such round) is not laid out further nor kept: it would be the plain
+        layout of the shape it started from.  ``tried`` gets the measures of each pass as
+        ``co_surface`` (each with its polish's, and the kept layout's; a refused one's
+        reason)."""
         weights = self.policy.close_fit_top_co
-        policy = replace(self.policy, co_surface=weights)
+        policy = replace(self.policy, co_surface=weights, co_required=True)
         record: dict[str, Any] = {"surface": weights[0], "face_samples": weights[1]}
         record["paper_co"] = {k: tried[k] for k in _MEASURED}
         record["passes"] = passes = []
@@ -346,6 +349,10 @@ class _CloseTrial:
                 self.loaded, self.flat_map, options, self.progress, policy=policy,
                 shapes=shapes, first_tiling=self.first_tiling,
             )  # fmt: skip
+            if not trial.co_block["accepted"]:  # (``co_required``: laid out no further)
+                reason = trial.co_block["reason"]
+                passes.append({"refused": f"co-optimization not used: {reason}", "kept": False})
+                break
             accuracy = trial.accuracy_mm
             trial, closer, move = rigidly_fitted(trial, self.loaded)
             measured = _measures(accuracy, closer, move)

@@ -238,8 +238,9 @@ def co_optimized(
             assembled, current.top, target.vertices, target.faces, measure=False,
             start_bottom=current.bottom, pull=pull,
         )  # fmt: skip
-        if extruded is None:
-            block["reason"] = "the new assembled shape would turn a tile inside out"
+        # (``policy.co_required``: refused at a round that folds, later rounds start there)
+        if extruded is None or (policy.co_required and _folds(assembled, extruded)):
+            block["reason"] = INSIDE_OUT_REASON if extruded is None else FOLD_REASON
             return assembled, flat, block
         current = extruded
         new_flat = flat_layout(
@@ -406,10 +407,8 @@ def _verdict(
         co.edge_error_max_mm,
         new_flat.edge_error_max_mm,
     )
-    if new_assembled.metrics.get("corner_margin_min", 1.0) <= 0 or _turned_over(
-        assembled, new_assembled
-    ):
-        block["reason"] = "the new assembled shape would fold a tile or turn one over"
+    if _folds(assembled, new_assembled):
+        block["reason"] = FOLD_REASON
         return assembled, flat, block
     hard = [p for p in new_flat.problems if "edge error" not in p]
     old_hard = [p for p in flat.problems if "edge error" not in p]
@@ -424,6 +423,19 @@ def _verdict(
         return assembled, flat, block
     block["accepted"] = True
     return remeasured(new_assembled, target.vertices, target.faces), new_flat, block
+
+
+#: Why a co-optimization whose re-extruded shape has a tile inside out is refused.
+INSIDE_OUT_REASON = "the new assembled shape would turn a tile inside out"
+#: Why a co-optimization whose shape folds a tile or turns one over (:func:`_folds`) is
+#: refused.
+FOLD_REASON = "the new assembled shape would fold a tile or turn one over"
+
+
+def _folds(before: AssembledResult, after: AssembledResult) -> bool:
+    """Whether ``after``, the co-optimized ``before``, folds a tile (a top corner no longer
+    convex) or turns one over."""
+    return after.metrics.get("corner_margin_min", 1.0) <= 0 or _turned_over(before, after) > 0
 
 
 def _turned_over(before: AssembledResult, after: AssembledResult) -> int:

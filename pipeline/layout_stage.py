@@ -422,6 +422,11 @@ def _shaped(
             )  # fmt: skip
         if not co_block["accepted"]:
             notes.append(f"co-optimization not used: {co_block['reason']}")
+            if policy.co_required:  # not gone on with (its caller keeps none without)
+                return ShapedLayout(
+                    tiling=tiling, assembled=assembled, flat=flat, co_block=co_block,
+                    hinge_layout=None, split_bound=bound, notes=tuple(notes),
+                )  # fmt: skip
             if flat.iterations >= policy.flat_seed_steps:
                 with progress.stage("flat"):  # the seed is the layout now: finish it
                     flat = flat_layout(

@@ -164,6 +164,14 @@ class LayoutPolicy:
     #: three-shell's eq.-1 shape sits 2.0 % of a tile side off, its layout 6.5 %); pulled
     #: there too, it stays near.  Kept only where closer (``close_fit.pulled_layout``).
     close_fit_top_co: tuple[float, float] = (30.0, 30.0)
+    #: Whether a layout is wanted only with its co-optimization used, as the layouts pulled
+    #: to the target are (``close_fit.pulled_layout``; without it such a layout is the plain
+    #: one of a shape laid out already): the co-optimization is then refused at its first
+    #: round whose re-extruded shape folds a tile or turns one over (each round starts from
+    #: the last one's tiles; the 160 mm cloud's pulled rounds fold from the first of eight
+    #: to the last), and a tiling whose co-optimization is refused goes without its flat
+    #: layout finished and without hinges.
+    co_required: bool = False
     #: ``co_surface`` of the polish that follows a pulled layout whose co-optimization was
     #: used (``close_fit.polished``): laid out again on its own tiling from its own assembled
     #: shape with a tenth of the pull, the joint solve settles nearer flat congruence (the

@@ -253,6 +253,40 @@ def test_a_pulled_layout_that_misses_the_layout_targets_is_polished_back_within_
     assert polish["surface_distance_mean_mm"] < 1.1 * first["surface_distance_mean_mm"]
 
 
+def test_a_pulled_layout_whose_co_optimization_folds_a_tile_goes_no_further(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # the 60-tile cloud at 160 mm with top hinges misses the fit level; pulled with weight
+    # 300 its co-optimization folds a tile (policy.co_required: refused at that round), and
+    # the pass is neither laid out further (no flat layout finished, no hinges) nor kept: the
+    # design is the one laid out with the paper's pull, as where no pass is tried
+    from drawstring.pipeline import co_rounds, layout_stage
+
+    hinged: list[int] = []
+    layout_hinges = layout_stage.layout_hinges
+
+    def counted(*args: object, **kwargs: object):
+        hinged.append(1)
+        return layout_hinges(*args, **kwargs)
+
+    monkeypatch.setattr(layout_stage, "layout_hinges", counted)
+    options = DesignOptions(tiles=60, size_mm=160.0, simulate=False, cad=False, hinges="top")
+    policy = replace(DEFAULT_POLICY, close_fit_top_co=(300.0, 300.0))
+    pulled = design("cloud", options, policy=policy)
+    co = pulled.metrics()["fit"]["close"]["co_surface"]
+    refused = {"refused": f"co-optimization not used: {co_rounds.FOLD_REASON}", "kept": False}
+    assert co["passes"] == [refused] and not co["kept"]
+    hinged_with_pass = len(hinged)
+    hinged.clear()
+    unpulled = design("cloud", options, policy=replace(policy, close_fit_top_passes=0))
+    assert len(hinged) == hinged_with_pass
+    assert pulled.hinge_layout is not None and unpulled.hinge_layout is not None
+    np.testing.assert_array_equal(pulled.hinge_layout.tiles, unpulled.hinge_layout.tiles)
+    m = pulled.metrics()
+    assert m["surface_distance_mean_mm"] == co["paper_co"]["surface_distance_mean_mm"]
+    assert m["surface_distance_mean_mm"] == unpulled.metrics()["surface_distance_mean_mm"]
+
+
 def test_the_close_shape_with_top_hinges_steps_back_to_the_dual_weights(paper: Design) -> None:
     # the dual close shape refused by the gate, the closer top shape no closer than the
     # paper's (surface weight 0.01): the dual close shape's weights are laid out with every

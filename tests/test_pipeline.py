@@ -622,6 +622,35 @@ def test_co_optimization_is_judged_by_its_own_tiles_not_the_target_normals(
     assert np.all(np.einsum("ki,ki->k", before, after) > 0)
 
 
+def test_a_required_co_optimization_is_refused_at_its_first_round_that_folds(
+    monkeypatch, before_co
+) -> None:
+    # policy.co_required (the layouts pulled to the target): a round whose re-extruded shape
+    # folds a tile ends the run there, refused, with the inputs back; without it the rounds
+    # go on and the run is judged by the round it keeps.  Here only the first round folds.
+    shaped, eq1, faces, plain = before_co
+    reextrude = co_rounds.reextrude
+    rounds: list[int] = []
+
+    def first_folds(*args: object, **kwargs: object):
+        out = reextrude(*args, **kwargs)
+        rounds.append(1)
+        if out is None or len(rounds) > 1:
+            return out
+        return replace(out, metrics={**out.metrics, "corner_margin_min": -0.01})
+
+    monkeypatch.setattr(co_rounds, "reextrude", first_folds)
+    args = (shaped.tiling.linkage, shaped.tiling, eq1, plain, shaped.target, shaped.options)
+    required = replace(DEFAULT_POLICY, co_required=True)
+    new, flat, block = co_rounds.co_optimized(*args, faces, policy=required)
+    assert not block["accepted"] and block["reason"] == co_rounds.FOLD_REASON
+    assert new is eq1 and flat is plain and len(rounds) == 1
+    rounds.clear()
+    new, flat, block = co_rounds.co_optimized(*args, faces, policy=DEFAULT_POLICY)
+    assert block["accepted"], block["reason"]
+    assert len(rounds) > 1 and flat.edge_error_max_mm < plain.edge_error_max_mm
+
+
 def test_co_optimization_can_hold_the_clear_openings_of_the_eq1_tiles(
     monkeypatch, before_co
 ) -> None:
