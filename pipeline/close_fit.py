@@ -20,9 +20,12 @@ has passed the check that refuses a design (:func:`~.shapes.refusing_shape`):
    meets the 1e-3 mm targets; where it is not kept (a tile of it turns inside out, or its
    layout misses), the shape of step 1 with top hinges (``--hinges top`` lays out these two
    as the close ones);
-4. otherwise (and where the close shape turns a tile inside out, or with CAD leaves a
-   boundary tile too narrow for the string channel) lays out the paper's shape, with a note
-   saying why.
+4. otherwise lays out the shapes of ``policy.close_fit_rungs``, between the close ones and
+   the paper's (the surface weight stepped down), closest first, with the hinges of step 3
+   (top where ``--hinges`` is unset), and keeps the first that meets the 1e-3 mm targets;
+5. otherwise (and where every one of those turns a tile inside out, or with CAD leaves tiles
+   too small for the profile's features) lays out the paper's shape, with a note saying
+   why.
 
 A close design's assembled shape is moved rigidly onto the target (:func:`rigidly_fitted`)
 where that lowers its mean distance and not its largest, and it is kept only where its top
@@ -154,6 +157,27 @@ def fitted_layout(
             ), top_options
         fit["close_top"] = {**top_tried, "refused": top_reason}
         notes.append(f"with top hinges the close shape was not kept either: {top_reason}")
+        options_between = top_options
+    else:
+        options_between = options
+    if policy.close_fit_rungs:
+        between = _first_kept(trial, options_between, paper_distances, policy.close_fit_rungs)
+        kept, rung, rung_tried, rung_reason = between
+    if policy.close_fit_rungs and kept is not None:
+        note = (
+            f"{'; '.join(notes)}; the shape of eq. 1 weights square {rung.square:g}, surface "
+            f"{rung.surface:g}, face samples {rung.samples:g}, between the close one and the "
+            f"paper's, keeps every layout target with {options_between.hinges} hinges, so the "
+            "design has it (--fit paper keeps the paper's shape)"
+        )
+        return replace(
+            kept,
+            notes=(*kept.notes, note),
+            fit={**fit, "used": "close", "eq1": rung.to_json(), "between": rung_tried},
+        ), options_between
+    if policy.close_fit_rungs:
+        fit["between"] = {**rung_tried, "refused": rung_reason}
+        notes.append(f"nor a shape between it and the paper's: {rung_reason}")
     laid_out = shape_and_layout(
         loaded, flat_map, options, progress, policy=policy, shapes=paper_shapes,
         first_tiling=first_tiling,
@@ -210,13 +234,14 @@ def _first_kept(
     trial: _CloseTrial,
     options: ResolvedOptions,
     paper: TopFaceDistances,
+    ladder: tuple[Eq1Weights, ...] | None = None,
 ) -> tuple[ShapedLayout | None, Eq1Weights, dict[str, Any], str]:
-    """The first close shape of :func:`close_weights` for ``options``' hinges that is kept:
-    the layout (None where none is), its weights, what was measured on it and why it was not
-    kept (empty where it was).  Shapes set aside before it are listed in the measures'
-    ``earlier`` (their ``eq1`` and why)."""
+    """The first shape of ``ladder`` (the close shapes of :func:`close_weights` for
+    ``options``' hinges) that is kept: the layout (None where none is), its weights, what was
+    measured on it and why it was not kept (empty where it was).  Shapes set aside before it
+    are listed in the measures' ``earlier`` (their ``eq1`` and why)."""
     earlier: list[dict[str, Any]] = []
-    for weights in close_weights(options.hinges, trial.policy):
+    for weights in close_weights(options.hinges, trial.policy) if ladder is None else ladder:
         tried: dict[str, Any] = {"eq1": weights.to_json()}
         if earlier:
             tried["earlier"] = list(earlier)
