@@ -59,10 +59,8 @@ from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.core.tolerances import (
     FLAT_EDGE_ERROR_TOL_MM,
     HINGE_GAP_TOL_MM,
-    SURFACE_MAX_REL,
-    SURFACE_MEAN_REL,
 )
-from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
+from drawstring.geometry.core.types import BoolArray, IntArray
 from drawstring.geometry.flat.conical import vertex_stars
 from drawstring.geometry.flatten.conformal import Flattening
 from drawstring.geometry.hinges.sides import dual_hinge_faces
@@ -70,7 +68,7 @@ from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling, tile_surface
 from drawstring.geometry.tiling.linkage import Linkage
 from drawstring.pipeline.cad_stage import FeatureShortfall
-from drawstring.pipeline.fit_quality import surface_distances
+from drawstring.pipeline.fit_quality import meets_fit_level, surface_distances
 from drawstring.pipeline.layout_stage import (
     ShapedLayout,
     shape_and_layout,
@@ -160,29 +158,44 @@ def fitted_layout(
         options_between = top_options
     else:
         options_between = options
-    if policy.close_fit_rungs:
-        between = _first_kept(trial, options_between, paper_distances, policy.close_fit_rungs)
-        kept, rung, rung_tried, rung_reason = between
-    if policy.close_fit_rungs and kept is not None:
-        note = (
-            f"{'; '.join(notes)}; the shape of eq. 1 weights square {rung.square:g}, surface "
-            f"{rung.surface:g}, face samples {rung.samples:g}, between the close one and the "
-            f"paper's, keeps every layout target with {options_between.hinges} hinges, so the "
-            "design has it (--fit paper keeps the paper's shape)"
-        )
-        return replace(
-            kept,
-            notes=(*kept.notes, note),
-            fit={**fit, "used": "close", "eq1": rung.to_json(), "between": rung_tried},
-        ), options_between
-    if policy.close_fit_rungs:
-        fit["between"] = {**rung_tried, "refused": rung_reason}
-        notes.append(f"nor a shape between it and the paper's: {rung_reason}")
+    between = _between(trial, options_between, paper_distances, fit, notes)
+    if between is not None:
+        return between
     laid_out = shape_and_layout(
         loaded, flat_map, options, progress, policy=policy, shapes=paper_shapes,
         first_tiling=first_tiling,
     )  # fmt: skip
     return _closer_of_two(laid_out, trial, options, fit, notes)
+
+
+def _between(
+    trial: _CloseTrial,
+    options: ResolvedOptions,
+    paper: TopFaceDistances,
+    fit: dict[str, Any],
+    notes: list[str],
+) -> tuple[ShapedLayout, ResolvedOptions] | None:
+    """The first shape of ``policy.close_fit_rungs`` (between the close ones and the paper's)
+    kept with ``options``, as :func:`fitted_layout` returns it, or None, with why in ``fit``
+    (``between``) and ``notes``."""
+    if not trial.policy.close_fit_rungs:
+        return None
+    kept, rung, tried, reason = _first_kept(trial, options, paper, trial.policy.close_fit_rungs)
+    if kept is None:
+        fit["between"] = {**tried, "refused": reason}
+        notes.append(f"nor a shape between it and the paper's: {reason}")
+        return None
+    note = (
+        f"{'; '.join(notes)}; the shape of eq. 1 weights square {rung.square:g}, surface "
+        f"{rung.surface:g}, face samples {rung.samples:g}, between the close one and the "
+        f"paper's, keeps every layout target with {options.hinges} hinges, so the design has "
+        "it (--fit paper keeps the paper's shape)"
+    )
+    return replace(
+        kept,
+        notes=(*kept.notes, note),
+        fit={**fit, "used": "close", "eq1": rung.to_json(), "between": tried},
+    ), options
 
 
 def _closer_of_two(
@@ -530,20 +543,6 @@ def _same_parts(a: Tiling, b: Tiling) -> bool:
     """Whether two tilings of one grid split it into the same parts."""
     return a.linkage.n_tiles == b.linkage.n_tiles and bool(
         np.array_equal(a.linkage.tile_component, b.linkage.tile_component)
-    )
-
-
-def meets_fit_level(
-    tiles: FloatArray, distances: TopFaceDistances, loaded: Target, within: float = 1.0
-) -> bool:
-    """Whether assembled ``tiles`` whose top faces sit at ``distances`` from the target meet
-    the fit level (``within`` times it): on average ``SURFACE_MEAN_REL`` of the mean tile
-    side, at most ``SURFACE_MAX_REL`` of the target's diagonal."""
-    top = tiles[:, :4]
-    side = float(np.linalg.norm(np.roll(top, -1, axis=1) - top, axis=2).mean())
-    return bool(
-        distances.mean <= within * SURFACE_MEAN_REL * side
-        and distances.max <= within * SURFACE_MAX_REL * loaded.bbox_diagonal_mm
     )
 
 
