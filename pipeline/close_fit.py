@@ -20,9 +20,12 @@ has passed the check that refuses a design (:func:`~.shapes.refusing_shape`):
    meets the 1e-3 mm targets; where it is not kept (a tile of it turns inside out, or its
    layout misses), the shape of step 1 with top hinges (``--hinges top`` lays out these two
    as the close ones);
-4. otherwise (and where the close shape turns a tile inside out, or with CAD leaves a
-   boundary tile too narrow for the string channel) lays out the paper's shape, with a note
-   saying why.
+4. otherwise lays out the shapes of ``policy.close_fit_rungs``, between the close ones and
+   the paper's (the surface weight stepped down), closest first, with the hinges of step 3
+   (top where ``--hinges`` is unset), and keeps the first that meets the 1e-3 mm targets;
+5. otherwise (and where every one of those turns a tile inside out, or with CAD leaves tiles
+   too small for the profile's features) lays out the paper's shape, with a note saying
+   why.
 
 A close design's assembled shape is moved rigidly onto the target (:func:`rigidly_fitted`)
 where that lowers its mean distance and not its largest, and it is kept only where its top
@@ -56,10 +59,8 @@ from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.core.tolerances import (
     FLAT_EDGE_ERROR_TOL_MM,
     HINGE_GAP_TOL_MM,
-    SURFACE_MAX_REL,
-    SURFACE_MEAN_REL,
 )
-from drawstring.geometry.core.types import BoolArray, FloatArray, IntArray
+from drawstring.geometry.core.types import BoolArray, IntArray
 from drawstring.geometry.flat.conical import vertex_stars
 from drawstring.geometry.flatten.conformal import Flattening
 from drawstring.geometry.hinges.sides import dual_hinge_faces
@@ -67,7 +68,7 @@ from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling, tile_surface
 from drawstring.geometry.tiling.linkage import Linkage
 from drawstring.pipeline.cad_stage import FeatureShortfall
-from drawstring.pipeline.fit_quality import surface_distances
+from drawstring.pipeline.fit_quality import meets_fit_level, surface_distances
 from drawstring.pipeline.layout_stage import (
     ShapedLayout,
     shape_and_layout,
@@ -154,11 +155,47 @@ def fitted_layout(
             ), top_options
         fit["close_top"] = {**top_tried, "refused": top_reason}
         notes.append(f"with top hinges the close shape was not kept either: {top_reason}")
+        options_between = top_options
+    else:
+        options_between = options
+    between = _between(trial, options_between, paper_distances, fit, notes)
+    if between is not None:
+        return between
     laid_out = shape_and_layout(
         loaded, flat_map, options, progress, policy=policy, shapes=paper_shapes,
         first_tiling=first_tiling,
     )  # fmt: skip
     return _closer_of_two(laid_out, trial, options, fit, notes)
+
+
+def _between(
+    trial: _CloseTrial,
+    options: ResolvedOptions,
+    paper: TopFaceDistances,
+    fit: dict[str, Any],
+    notes: list[str],
+) -> tuple[ShapedLayout, ResolvedOptions] | None:
+    """The first shape of ``policy.close_fit_rungs`` (between the close ones and the paper's)
+    kept with ``options``, as :func:`fitted_layout` returns it, or None, with why in ``fit``
+    (``between``) and ``notes``."""
+    if not trial.policy.close_fit_rungs:
+        return None
+    kept, rung, tried, reason = _first_kept(trial, options, paper, trial.policy.close_fit_rungs)
+    if kept is None:
+        fit["between"] = {**tried, "refused": reason}
+        notes.append(f"nor a shape between it and the paper's: {reason}")
+        return None
+    note = (
+        f"{'; '.join(notes)}; the shape of eq. 1 weights square {rung.square:g}, surface "
+        f"{rung.surface:g}, face samples {rung.samples:g}, between the close one and the "
+        f"paper's, keeps every layout target with {options.hinges} hinges, so the design has "
+        "it (--fit paper keeps the paper's shape)"
+    )
+    return replace(
+        kept,
+        notes=(*kept.notes, note),
+        fit={**fit, "used": "close", "eq1": rung.to_json(), "between": tried},
+    ), options
 
 
 def _closer_of_two(
@@ -210,13 +247,14 @@ def _first_kept(
     trial: _CloseTrial,
     options: ResolvedOptions,
     paper: TopFaceDistances,
+    ladder: tuple[Eq1Weights, ...] | None = None,
 ) -> tuple[ShapedLayout | None, Eq1Weights, dict[str, Any], str]:
-    """The first close shape of :func:`close_weights` for ``options``' hinges that is kept:
-    the layout (None where none is), its weights, what was measured on it and why it was not
-    kept (empty where it was).  Shapes set aside before it are listed in the measures'
-    ``earlier`` (their ``eq1`` and why)."""
+    """The first shape of ``ladder`` (the close shapes of :func:`close_weights` for
+    ``options``' hinges) that is kept: the layout (None where none is), its weights, what was
+    measured on it and why it was not kept (empty where it was).  Shapes set aside before it
+    are listed in the measures' ``earlier`` (their ``eq1`` and why)."""
     earlier: list[dict[str, Any]] = []
-    for weights in close_weights(options.hinges, trial.policy):
+    for weights in close_weights(options.hinges, trial.policy) if ladder is None else ladder:
         tried: dict[str, Any] = {"eq1": weights.to_json()}
         if earlier:
             tried["earlier"] = list(earlier)
@@ -505,20 +543,6 @@ def _same_parts(a: Tiling, b: Tiling) -> bool:
     """Whether two tilings of one grid split it into the same parts."""
     return a.linkage.n_tiles == b.linkage.n_tiles and bool(
         np.array_equal(a.linkage.tile_component, b.linkage.tile_component)
-    )
-
-
-def meets_fit_level(
-    tiles: FloatArray, distances: TopFaceDistances, loaded: Target, within: float = 1.0
-) -> bool:
-    """Whether assembled ``tiles`` whose top faces sit at ``distances`` from the target meet
-    the fit level (``within`` times it): on average ``SURFACE_MEAN_REL`` of the mean tile
-    side, at most ``SURFACE_MAX_REL`` of the target's diagonal."""
-    top = tiles[:, :4]
-    side = float(np.linalg.norm(np.roll(top, -1, axis=1) - top, axis=2).mean())
-    return bool(
-        distances.mean <= within * SURFACE_MEAN_REL * side
-        and distances.max <= within * SURFACE_MAX_REL * loaded.bbox_diagonal_mm
     )
 
 

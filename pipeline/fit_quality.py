@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from drawstring.geometry.assembled.fit import TopFaceDistances, top_face_distances
 from drawstring.geometry.core.tolerances import SURFACE_MAX_REL, SURFACE_MEAN_REL
 from drawstring.geometry.core.types import FloatArray
@@ -21,6 +23,20 @@ def surface_distances(tiles_3d: FloatArray, target: Target) -> TopFaceDistances:
     """The assembled tiles' top faces' distances from ``target``, each face sampled over its
     whole area (:func:`~drawstring.geometry.assembled.fit.top_face_distances`)."""
     return top_face_distances(tiles_3d, target.vertices, target.faces)
+
+
+def meets_fit_level(
+    tiles: FloatArray, distances: TopFaceDistances, loaded: Target, within: float = 1.0
+) -> bool:
+    """Whether assembled ``tiles`` whose top faces sit at ``distances`` from the target meet
+    the fit level (``within`` times it): on average ``SURFACE_MEAN_REL`` of the mean tile
+    side, at most ``SURFACE_MAX_REL`` of the target's diagonal."""
+    top = tiles[:, :4]
+    side = float(np.linalg.norm(np.roll(top, -1, axis=1) - top, axis=2).mean())
+    return bool(
+        distances.mean <= within * SURFACE_MEAN_REL * side
+        and distances.max <= within * SURFACE_MAX_REL * loaded.bbox_diagonal_mm
+    )
 
 
 def surface_distance_metrics(distances: TopFaceDistances) -> dict[str, float]:

@@ -152,6 +152,19 @@ class LayoutPolicy:
     #: it (peanut, wave, seashell, cloud, three-shell).
     close_fit_top: Eq1Weights = Eq1Weights(1e4, 1.0, 100.0, 100.0)
 
+    #: Shapes between the close ones and the paper's, closest first, laid out (with top
+    #: hinges where ``--hinges`` is unset) where no close shape was kept, before the paper's:
+    #: the paper's planar and square weights with the surface and face-sample weights
+    #: stepped down.  Where a close shape folds a tile, leaves tiles too small for the
+    #: profile's features or misses the 1e-3 mm targets, one of these often keeps them and
+    #: still sits far nearer the target than the paper's shape (the corpus's
+    #: freeform_shell, nest_chair, ogre_face, minimal_surface, mountain).
+    close_fit_rungs: tuple[Eq1Weights, ...] = (
+        Eq1Weights(1e4, 10.0, 3.0, 3.0),
+        Eq1Weights(1e4, 10.0, 1.0, 1.0),
+        Eq1Weights(1e4, 10.0, 0.3, 0.3),
+    )
+
     #: The co-optimization's pull to the target in its joint solves, at the vertices and at
     #: the quads' centres and edge midpoints (weights relative to its pull towards the
     #: starting shape); None: the eq.-1 surface weight of ``--weights`` (the paper's 0.1) at

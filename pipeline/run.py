@@ -19,7 +19,7 @@ from threadpoolctl import threadpool_limits
 
 from drawstring.fabrication.printers import Printer, resolve_printer, with_printer
 from drawstring.fabrication.profiles import Profile, load_profile
-from drawstring.geometry.assembled.top import PAPER_WEIGHTS
+from drawstring.geometry.assembled.top import PAPER_WEIGHTS, Eq1Weights
 from drawstring.geometry.core.errors import InputError, ThicknessError
 from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.flatten.conformal import Flattening, flatten
@@ -238,11 +238,11 @@ def _layout(
         again = _target_and_flattening(source, changed, progress)
         check_grid(changed, again[1], from_profile=False)
         laid = _laid_out_at(changed, profile, progress, policy, asked, again, checked=False)
-        return routed_and_checked(laid, profile, progress)
+        return _routed_with_room(laid, profile, progress, policy, asked, again)
 
     if not chooses_values(options):
         laid = _laid_out_at(resolved, profile, progress, policy, asked, prepared)
-        laid = routed_and_checked(laid, profile, progress)
+        laid = _routed_with_room(laid, profile, progress, policy, asked, prepared)
         if laid.shortfall is not None:
             raise checked_feature_refusal(laid, source, options, resolved, profile, lay_out)
         return laid, None
@@ -252,7 +252,7 @@ def _layout(
     except (ThicknessError, FeatureShortfall) as refused:
         first = refused
     else:
-        first = routed_and_checked(first, profile, progress)
+        first = _routed_with_room(first, profile, progress, policy, asked, prepared)
 
     def refuse(exc: ThicknessError | FeatureShortfall, searched: Searched) -> InputError:
         if isinstance(exc, FeatureShortfall):
@@ -260,6 +260,39 @@ def _layout(
         return checked_size_refusal(exc, source, options, resolved, profile, searched)
 
     return chosen_layout(first, source, options, resolved, profile, lay_out, refuse)
+
+
+def _routed_with_room(
+    laid: LaidOut,
+    profile: Profile,
+    progress: Progress,
+    policy: LayoutPolicy,
+    asked: tuple[str, DesignOptions],
+    prepared: tuple[Target, Flattening, list[str]],
+) -> LaidOut:
+    """``laid`` routed and checked (:func:`~.auto.routed_and_checked`); where a close shape's
+    tiles are too small for the profile's features there, the paper's shape laid out, routed
+    and checked at the same options instead, kept where it has room for them (the close fit
+    can shrink tiles that the paper's squareness keeps whole)."""
+    laid = routed_and_checked(laid, profile, progress)
+    fit = laid.shaped.fit
+    if laid.shortfall is None or fit is None or fit.get("used") != "close":
+        return laid
+    short = str(laid.shortfall)
+    refused = {**fit, "used": "paper", "eq1": Eq1Weights.of(laid.options.weights).to_json()}
+    refused["features"] = {"eq1": fit.get("eq1"), "refused": short}
+    options = replace(laid.options, hinges=asked[1].hinges or HingeStrategy.DUAL)
+    paper = _laid_out_at(
+        options, profile, progress, policy, asked, prepared, checked=False, refused=refused
+    )
+    paper = routed_and_checked(paper, profile, progress)
+    if paper.shortfall is not None:
+        return laid
+    note = (
+        f"fit: the close shape's layout leaves tiles too small for the {profile.name} "
+        f"profile's features ({short}); the paper's shape has room for them and is used"
+    )
+    return replace(paper, notes=(*paper.notes, note))
 
 
 def _laid_out_at(
@@ -271,13 +304,18 @@ def _laid_out_at(
     prepared: tuple[Target, Flattening, list[str]],
     *,
     checked: bool = True,
+    refused: dict[str, Any] | None = None,
 ) -> LaidOut:
     """Stages tiling to hinges on the target and flattening ``prepared`` (:func:`_laid_out`),
-    with the hinges :func:`hinges_chosen` picks."""
+    with the hinges :func:`hinges_chosen` picks; ``refused``: ``metrics.fit`` of close shapes
+    refused on this design already, so that the paper's shape is laid out."""
     loaded, flat_map, notes = prepared
-    shaped, options = _laid_out(loaded, flat_map, options, progress, policy, asked, checked=checked)
+    shaped, options = _laid_out(
+        loaded, flat_map, options, progress, policy, asked, checked=checked, refused=refused
+    )
     # close shapes laid out with top hinges and refused are not laid out again
-    refused = shaped.fit if shaped.fit is not None and "close_top" in shaped.fit else None
+    if refused is None and shaped.fit is not None and "close_top" in shaped.fit:
+        refused = shaped.fit
     shaped, options, hinge_choice = hinges_chosen(
         shaped, options, profile.tolerance_mm, lambda top: _laid_out(
             loaded, flat_map, top, progress, policy, asked, checked=False, refused=refused

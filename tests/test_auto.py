@@ -506,3 +506,35 @@ def test_a_given_tile_count_too_small_for_the_features_is_refused_with_a_size_la
         f"give the tiles more room with a larger --size or fewer tiles (laid out at --tiles 40 "
         f"--size {size:g}, {short}) (laid out at --tiles 40 --size {seen[1][1]:g}, {short})"
     )
+
+
+def test_a_close_shape_too_small_for_the_features_gives_way_to_the_papers_shape(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # the feature checks after the route find the close shape's tiles too small (stood in
+    # for here: any layout of a close shape): the paper's shape is laid out, routed and
+    # checked at the same options, and used with a note, not a refusal
+    pytest.importorskip("build123d")
+    from drawstring.pipeline import auto, run
+    from drawstring.pipeline.cad_stage import WeldedHinges
+
+    def close_too_small(_profile: object, shaped: Any, _routed: object) -> WeldedHinges | None:
+        if shaped.fit is not None and shaped.fit.get("used") == "close":
+            return WeldedHinges("2 hinged pair(s) lie so close that they would print welded", 0, 1)
+        return None
+
+    monkeypatch.setattr(auto, "routed_shortfall", close_too_small)
+    monkeypatch.setattr(run, "with_cad", lambda result, _progress: result)
+    options = DesignOptions(tiles=40, resolution=1500, simulate=False)
+    result = run.design("saddle", options)
+    fit = result.measured["fit"]
+    assert fit["used"] == "paper" and "close" in fit
+    assert "print welded" in fit["features"]["refused"]
+    assert any("the paper's shape has room for them" in n for n in result.notes)
+    paper = run.design("saddle", replace(options, fit="paper"))
+    assert np.array_equal(paper.tiles_assembled, result.tiles_assembled)
+    assert np.array_equal(paper.route.gaps, result.route.gaps)
+    # where the paper's shape falls short too, the refusal stands as before
+    monkeypatch.setattr(auto, "routed_shortfall", lambda *_args: WeldedHinges("welded", 0, 1))
+    with pytest.raises(InputError, match="welded"):
+        run.design("saddle", options)

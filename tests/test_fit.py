@@ -313,15 +313,40 @@ def test_a_close_shape_no_closer_than_the_papers_is_not_kept(paper: Design) -> N
     from drawstring.geometry.assembled.top import Eq1Weights
 
     far = Eq1Weights(1e4, 10.0, 0.01)
-    policy = replace(DEFAULT_POLICY, close_fit=far, close_fit_top=far)
+    policy = replace(DEFAULT_POLICY, close_fit=far, close_fit_top=far, close_fit_rungs=(far,))
     refused = design("saddle", OPTIONS, policy=policy)
     fit = refused.metrics()["fit"]
     assert fit["used"] == "paper" and refused.options.hinges == "dual"
-    for tried in (fit["close"], fit["close_top"]):
+    for tried in (fit["close"], fit["close_top"], fit["between"]):
         assert "no closer than the paper's shape" in tried["refused"]
         assert tried["accuracy_mm"] <= 1e-3
     np.testing.assert_array_equal(refused.tiles_assembled, paper.tiles_assembled)
     np.testing.assert_array_equal(refused.tiles_flat, paper.tiles_flat)
+
+
+def test_where_no_close_shape_is_kept_the_closest_shape_between_it_and_the_papers_is(
+    paper: Design,
+) -> None:
+    # both close shapes hardly pull to the surface (0.01: no closer than the paper's shape)
+    # and the first shape between them and the paper's that is not (policy.close_fit_rungs,
+    # here a far one first) is laid out with top hinges and kept, closer than the paper's
+    from drawstring.geometry.assembled.top import Eq1Weights
+
+    far = Eq1Weights(1e4, 10.0, 0.01)
+    rungs = (far, *DEFAULT_POLICY.close_fit_rungs)
+    policy = replace(DEFAULT_POLICY, close_fit=far, close_fit_top=far, close_fit_rungs=rungs)
+    between = design("saddle", OPTIONS, policy=policy)
+    m, fit = between.metrics(), between.metrics()["fit"]
+    assert fit["used"] == "close" and between.options.hinges == "top"
+    assert fit["eq1"] == fit["between"]["eq1"] == rungs[1].to_json()
+    (earlier,) = fit["between"]["earlier"]
+    assert earlier["eq1"] == far.to_json() and "no closer" in earlier["refused"]
+    assert "no closer" in fit["close"]["refused"] and "no closer" in fit["close_top"]["refused"]
+    assert m["surface_distance_mean_mm"] < paper.metrics()["surface_distance_mean_mm"]
+    assert m["surface_distance_max_mm"] <= paper.metrics()["surface_distance_max_mm"]
+    assert max(m["flat_edge_error_max_mm"], m["hinge_gap_max_mm"]) <= 1e-3
+    assert m["flat_overlap_area_mm2"] == 0.0 and not between.problems
+    assert any("between the close one and the paper's" in n for n in between.notes)
 
 
 def test_far_from_the_target_is_warned_only_where_the_fit_misses(
