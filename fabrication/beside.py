@@ -17,7 +17,6 @@ other.
 from __future__ import annotations
 
 import contextlib
-import multiprocessing
 import pickle
 import sys
 from collections.abc import Callable
@@ -26,36 +25,15 @@ from typing import Any
 
 from drawstring.geometry.core import parallel
 from drawstring.geometry.core.errors import InternalError
+from drawstring.geometry.core.parallel import can_fork
 
 
-def can_fork() -> bool:
-    """Whether writers may run in forked children: Linux (forking a process that has loaded
-    macOS system frameworks is unsafe), two cores or more, and not a daemonic process (a
-    ``multiprocessing`` pool worker may not have children)."""
-    return (
-        sys.platform.startswith("linux")
-        and parallel.thread_count() >= 2
-        and "fork" in multiprocessing.get_all_start_methods()
-        and not multiprocessing.current_process().daemon
-    )
-
-
-class _Child:
+class _Child(parallel.ForkedChild):
     """One writer's forked process and the pipe its answer comes back through."""
 
     def __init__(self, what: str, write: Callable[..., object], args: tuple[Any, ...]) -> None:
         self.what = what
-        context = multiprocessing.get_context("fork")
-        self.receive, send = context.Pipe(duplex=False)
-        self.process = context.Process(target=_child, args=(write, args, send))
-        try:
-            with parallel.sigint_held():  # the child takes Ctrl-C once its quiet exit is set
-                self.process.start()
-        except BaseException:  # e.g. OSError: the fork was refused
-            self.receive.close()
-            raise
-        finally:
-            send.close()
+        super().__init__(_child, (write, args))
 
     def answer(self) -> object:
         """What the writer returned; what it raised is raised here."""
@@ -73,12 +51,6 @@ class _Child:
             f"the process writing {self.what} ended without finishing it "
             f"(exit code {self.process.exitcode})"
         )
-
-    def stop(self) -> None:
-        if self.process.is_alive():
-            self.process.terminate()
-        self.process.join()
-        self.receive.close()
 
 
 class Beside:

@@ -13,9 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import multiprocessing
 import os
-import sys
 import time
 from collections.abc import Callable
 from multiprocessing.connection import Connection
@@ -28,20 +26,6 @@ from drawstring.pipeline.record import Progress
 logger = logging.getLogger(__name__)
 
 T = TypeVar("T")
-
-
-def can_fork() -> bool:
-    """Whether work may be run ahead in a forked child (a tiling,
-    :attr:`~drawstring.pipeline.policy.LayoutPolicy.retile_ahead`; a co-optimization,
-    :attr:`~drawstring.pipeline.policy.LayoutPolicy.co_speculate`): two cores or more, Linux
-    (forking a process that has loaded macOS system frameworks is unsafe), and not inside a
-    daemonic process (e.g. a ``multiprocessing`` pool worker: it may not fork)."""
-    return (
-        sys.platform.startswith("linux")
-        and parallel.thread_count() >= 2
-        and "fork" in multiprocessing.get_all_start_methods()
-        and not multiprocessing.current_process().daemon
-    )
 
 
 class Ahead(Generic[T]):
@@ -62,23 +46,13 @@ class Ahead(Generic[T]):
         niceness: int = DEFAULT_POLICY.ahead_niceness,
     ) -> None:
         self._what = what
-        context = multiprocessing.get_context("fork")
-        self._receive, send = context.Pipe(duplex=False)
-        self._process = context.Process(target=_run_ahead, args=(work, send, niceness), daemon=True)
-        try:
-            with parallel.sigint_held():  # the child takes Ctrl-C once its quiet exit is set
-                self._process.start()
-        except BaseException:  # e.g. OSError: the fork was refused
-            self._receive.close()
-            raise
-        finally:
-            send.close()
+        self._child = parallel.ForkedChild(_run_ahead, (work, niceness), daemon=True)
 
     def ready(self) -> bool:
         """Whether the child is done (its result, or its end, is waiting in the pipe): it no
         longer takes a core."""
         try:
-            return bool(self._receive.poll())
+            return bool(self._child.receive.poll())
         except (OSError, ValueError):  # closed: collected or cancelled
             return True
 
@@ -87,14 +61,14 @@ class Ahead(Generic[T]):
         stages in proportion to the child's own stage times."""
         start = time.perf_counter()
         try:
-            status, payload, timings = self._receive.recv()
+            status, payload, timings = self._child.receive.recv()
         except (EOFError, OSError):
             status, payload, timings = "died", "no result", {}
         except BaseException:  # e.g. Ctrl-C while waiting: the child goes too
             self.cancel()
             raise
-        self._process.join()
-        self._receive.close()
+        self._child.process.join()
+        self._child.receive.close()
         if status != "ok":
             logger.warning("%s failed (%s); doing it again here", self._what, payload)
             return None
@@ -103,10 +77,7 @@ class Ahead(Generic[T]):
 
     def cancel(self) -> None:
         """Stop the child (its result is not needed)."""
-        if self._process.is_alive():
-            self._process.terminate()
-        self._process.join()
-        self._receive.close()
+        self._child.stop()
 
 
 def tag_ahead(record: logging.LogRecord) -> bool:
@@ -116,7 +87,7 @@ def tag_ahead(record: logging.LogRecord) -> bool:
     return True
 
 
-def _run_ahead(work: Callable[[Progress], object], send: Connection, niceness: int) -> None:
+def _run_ahead(work: Callable[[Progress], object], niceness: int, send: Connection) -> None:
     """Body of :class:`Ahead`'s child process."""
     parallel.exit_quietly_on_interrupt()
     with contextlib.suppress(OSError):  # yield to the parent

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from drawstring.geometry.assembled.reextrude import reextrude
 from drawstring.geometry.assembled.shape import AssembledResult
+from drawstring.geometry.core.parallel import can_fork
 from drawstring.geometry.core.rigid import rigid_copies
 from drawstring.geometry.core.tile import HingeStrategy
 from drawstring.geometry.core.tolerances import FLAT_EDGE_ERROR_TOL_MM, HINGE_GAP_TOL_MM
@@ -34,7 +35,6 @@ from drawstring.geometry.target.surface import Target
 from drawstring.geometry.tiling.grid import Tiling, tile_surface
 from drawstring.geometry.tiling.linkage import Linkage
 from drawstring.pipeline.ahead import Ahead as _Ahead
-from drawstring.pipeline.ahead import can_fork
 from drawstring.pipeline.co_ladder import CoLadder
 from drawstring.pipeline.co_rounds import co_optimized, depth_pull, flat_layout
 from drawstring.pipeline.policy import LayoutPolicy

@@ -46,7 +46,7 @@ def test_a_child_is_ready_once_its_work_is_done() -> None:
     ahead: Ahead[int] = Ahead(waits)
     assert not ahead.ready()  # still working
     go.set()
-    ahead._receive.poll(30.0)  # (the test's own wait: the child sends when done)
+    ahead._child.receive.poll(30.0)  # (the test's own wait: the child sends when done)
     assert ahead.ready()
     assert ahead.result(Progress(quiet=True)) == 7
     assert ahead.ready()  # collected: it holds no core

@@ -20,10 +20,10 @@ import pytest
 from drawstring.app.commands import design_summary
 from drawstring.fabrication.profiles import load_profile
 from drawstring.geometry.core import parallel
+from drawstring.geometry.core.parallel import can_fork
 from drawstring.geometry.route.plan import plan_route
 from drawstring.geometry.tiling.linkage import build_linkage, gap_centroids, rotating_squares_layout
 from drawstring.pipeline import close_fit, co_rounds, layout_stage, shapes
-from drawstring.pipeline.ahead import can_fork
 from drawstring.pipeline.layout_stage import split_bound
 from drawstring.pipeline.measure import channel_turn_assembled
 from drawstring.pipeline.policy import DEFAULT_POLICY, LayoutPolicy

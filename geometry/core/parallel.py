@@ -9,10 +9,13 @@ the number of threads or blocks, so results are bitwise the same on any machine.
 from __future__ import annotations
 
 import contextlib
+import multiprocessing
 import os
 import signal
+import sys
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from multiprocessing.connection import Connection
 from multiprocessing.context import BaseContext
 from typing import Any, Protocol, TypeVar
 
@@ -96,6 +99,52 @@ def sigint_held() -> Iterator[None]:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def can_fork() -> bool:
+    """Whether work may run in a child forked from this process: Linux (forking a process
+    that has loaded macOS system frameworks is unsafe), two cores or more, and not a daemonic
+    process (a ``multiprocessing`` pool worker may not have children)."""
+    return (
+        sys.platform.startswith("linux")
+        and thread_count() >= 2
+        and "fork" in multiprocessing.get_all_start_methods()
+        and not multiprocessing.current_process().daemon
+    )
+
+
+class ForkedChild:
+    """``target(*args, send)`` run in a child forked from this process (so it starts from a
+    copy of this process's state and nothing is pickled on the way in), and ``receive``, the
+    end of the pipe whose other end, ``send``, it answers through.  Ctrl-C is held while the
+    child starts (:func:`sigint_held`); the child unblocks it."""
+
+    def __init__(
+        self,
+        target: Callable[..., None],
+        args: tuple[Any, ...],
+        *,
+        daemon: bool = False,
+    ) -> None:
+        context = multiprocessing.get_context("fork")
+        self.receive: Connection
+        self.receive, send = context.Pipe(duplex=False)
+        self.process = context.Process(target=target, args=(*args, send), daemon=daemon)
+        try:
+            with sigint_held():  # the child takes Ctrl-C once its quiet exit is set
+                self.process.start()
+        except BaseException:  # e.g. OSError: the fork was refused
+            self.receive.close()
+            raise
+        finally:
+            send.close()
+
+    def stop(self) -> None:
+        """End the child (its answer is not needed) and close the pipe."""
+        if self.process.is_alive():
+            self.process.terminate()
+        self.process.join()
+        self.receive.close()
 
 
 @contextlib.contextmanager
