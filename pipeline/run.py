@@ -281,7 +281,7 @@ def _routed_with_room(
     short = str(laid.shortfall)
     refused = {**fit, "used": "paper", "eq1": Eq1Weights.of(laid.options.weights).to_json()}
     refused["features"] = {"eq1": fit.get("eq1"), "refused": short}
-    options = replace(laid.options, hinges=asked[1].hinges or HingeStrategy.DUAL)
+    options = replace(laid.options, hinges=HingeStrategy(asked[1].hinges or HingeStrategy.DUAL))
     paper = _laid_out_at(
         options, profile, progress, policy, asked, prepared, checked=False, refused=refused
     )
