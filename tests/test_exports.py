@@ -117,7 +117,9 @@ def _sample(name: str) -> tuple[Profile, SampleDesign]:
     return profile, cylinder_design((3, 3))
 
 
-def _write(built: Built, folder: Path, printer: Printer | None = None) -> list[str]:
+def _write(
+    built: Built, folder: Path, printer: Printer | None = None, workers: int | None = 1
+) -> list[str]:
     d = built.design
     return write_fabrication(
         folder,
@@ -134,7 +136,7 @@ def _write(built: Built, folder: Path, printer: Printer | None = None) -> list[s
         cad_assembled=built.assembled,
         design_name="sample",
         guide=write_guide,
-        workers=1,
+        workers=workers,
         printer=printer,
     )
 
@@ -224,23 +226,7 @@ def test_writing_beside_gives_the_serial_bytes(built: Built, tmp_path: Path) -> 
     the fixture wrote one after the other in this process (``workers=1``)."""
     if not can_fork():
         pytest.skip("processes cannot fork here")
-    d = built.design
-    files = write_fabrication(
-        tmp_path,
-        profile=built.profile,
-        linkage=d.linkage,
-        tiles_flat=d.tiles_2d,
-        tiles_assembled=d.tiles_3d,
-        hinge_side=d.hinge_side,
-        route_steps=d.route_steps,
-        lift_tiles=d.lift_tiles,
-        magnet_pairs=d.magnet_pairs,
-        trims=d.trims,
-        cad_flat=built.flat,
-        cad_assembled=built.assembled,
-        design_name="sample",
-        guide=write_guide,
-    )
+    files = _write(built, tmp_path, workers=None)
     assert files == built.files
     for name in files:
         assert (tmp_path / name).read_bytes() == (built.folder / name).read_bytes(), name
